@@ -1,0 +1,1 @@
+"""Metrology: signed deviations, statistics, acceptance (area and region criteria), coverage."""

@@ -1,0 +1,204 @@
+"""``qifreport NOMINAL SCAN --tolerance MM``: inspect a free-state scan against its nominal.
+
+Exit codes: 0 the part passes, 1 the part fails, 2 the input cannot be inspected (one-line
+error on stderr naming the problem, and no output file written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import logging
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from metrology.inspection import InspectionParams, InspectionResult, inspect
+from registration.errors import InputError
+from registration.gbcicp import GBCICPParams
+from registration.mesh import load_mesh
+from registration.pointcloud import load_scan
+
+from . import __version__
+
+log = logging.getLogger("qifreport")
+
+EXIT_PASS, EXIT_FAIL, EXIT_ERROR = 0, 1, 2
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="qifreport",
+        description="Virtual-fixturing inspection of a flexible part: nominal + free-state scan "
+        "-> deviation field, statistics and a pass/fail decision.",
+    )
+    ap.add_argument("nominal", type=Path, help="nominal mesh (STL, PLY, OBJ, OFF), mm")
+    ap.add_argument("scan", type=Path, help="scan point cloud (PLY, XYZ, CSV, NPY), mm")
+    ap.add_argument("--tolerance", type=float, required=True, metavar="MM",
+                    help="profile tolerance half-width: |deviation| <= MM is in tolerance")
+    ap.add_argument("--out", type=Path, default=Path("."), metavar="DIR",
+                    help="output directory (default: current directory)")
+    ap.add_argument("--json", action="store_true",
+                    help="write DIR/<nominal>.json with all statistics, verdict and regions")
+    ap.add_argument("--export-mesh", type=Path, metavar="PATH",
+                    help="write the registered nominal as PLY with a per-vertex 'deviation'")
+    ap.add_argument("--min-fraction", type=float, default=0.95,
+                    help="area criterion: in-tolerance fraction of scored area (default 0.95)")
+    ap.add_argument("--max-region-area", type=float, default=None, metavar="MM2",
+                    help="region criterion: largest out-of-tolerance region (default 25 mm^2)")
+    ap.add_argument("--energy", choices=["hessian", "laplacian"], default="hessian",
+                    help="bending energy of the virtual fixture (default hessian)")
+    ap.add_argument("--band-limit", type=float, default=None, metavar="MM",
+                    help="smoothing length of the first GB-CICP pass (default from part size)")
+    ap.add_argument("--passes", type=int, default=3,
+                    help="GB-CICP passes: 1 = single pass, >=2 = band-limited scheme (default 3)")
+    ap.add_argument("--rigid-only", action="store_true", help="no virtual fixture (baseline)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
+    ap.add_argument("--version", action="version", version=f"qifreport {__version__}")
+    return ap
+
+
+def sha256(path: Path) -> str:
+    """Hex SHA-256 digest of a file."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def atomic_write(path: Path, write) -> None:
+    """Write through ``write(tmp_path)`` into a temp file beside ``path``, then rename.
+
+    A failure leaves no partial ``path`` behind.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        write(Path(tmp))
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_ply_with_scalar(path: Path, V: np.ndarray, F: np.ndarray, name: str, s: np.ndarray) -> None:
+    """Binary little-endian PLY of a triangle mesh with one float per-vertex property."""
+    vert = np.empty(len(V), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), (name, "<f4")])
+    vert["x"], vert["y"], vert["z"] = V[:, 0], V[:, 1], V[:, 2]
+    vert[name] = s
+    face = np.empty(len(F), dtype=[("n", "u1"), ("v", "<i4", (3,))])
+    face["n"], face["v"] = 3, F
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment qifreport registered nominal\n"
+        f"element vertex {len(V)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"property float {name}\nelement face {len(F)}\nproperty list uchar int vertex_indices\n"
+        "end_header\n"
+    )
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(vert.tobytes())
+        fh.write(face.tobytes())
+
+
+def summary(res: InspectionResult, tol: float) -> str:
+    """A short human-readable summary of the inspection."""
+    a, s = res.acceptance, res.vertex_stats
+    lines = [
+        f"verdict: {'PASS' if res.passed else 'FAIL'}   tolerance +/-{tol:g} mm",
+        f"deviation (area-weighted, {s.n} scored vertices): RMS {s.rms:.3f}  max {s.max_abs:.3f}"
+        f"  P95 {s.p95:.3f}  P99.9 {s.p999:.3f}  mean {s.mean:+.3f} mm",
+        f"area criterion: {100 * a.in_tolerance_fraction:.2f} % in tolerance "
+        f"(>= {100 * a.min_fraction:.0f} %) {'ok' if a.area_ok else 'FAILED'}",
+        f"region criterion: largest out-of-tolerance region {a.largest_region_area:.1f} mm^2 "
+        f"(<= {a.max_region_area:g} mm^2) {'ok' if a.region_ok else 'FAILED'}; "
+        f"{len(a.regions)} region(s)",
+        f"coverage: {100 * a.coverage:.1f} % of the nominal area scored",
+    ]
+    for r in a.regions[:5]:
+        c = r.centroid
+        lines.append(
+            f"  region {r.area:7.1f} mm^2  peak {r.peak:+.3f} mm  at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f})"
+        )
+    if not res.coverage_ceiling_ok:
+        lines.append("warning: coverage exceeds the scanned-to-nominal area ratio (over-fit?)")
+    if res.fit is not None and res.fit.fallback:
+        lines.append("warning: band-limited refit fell back to a single pass (too many flags)")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.tolerance > 0 or not np.isfinite(args.tolerance):
+        raise InputError(f"--tolerance must be a positive length in mm, got {args.tolerance}")
+    V, F = load_mesh(args.nominal)
+    P = load_scan(args.scan)
+    g = GBCICPParams(passes=max(1, args.passes), band_limit=args.band_limit)
+    params = InspectionParams(
+        tolerance=args.tolerance, min_fraction=args.min_fraction, energy=args.energy,
+        rigid_only=args.rigid_only, gbcicp=g,
+    )
+    if args.max_region_area is not None:
+        params.max_region_area = args.max_region_area
+
+    bar = None
+    if not args.quiet:
+        from tqdm import tqdm
+
+        bar = tqdm(desc="virtual fixturing", unit="it", file=sys.stderr, leave=False)
+    try:
+        res = inspect(V, F, P, params, progress=bar.update if bar else None)
+    finally:
+        if bar is not None:
+            bar.close()
+
+    if args.json:
+        doc = res.to_dict()
+        doc["software"] = {"name": "qifreport", "version": __version__}
+        doc["inputs"] = {
+            "nominal": {"path": str(args.nominal), "sha256": sha256(args.nominal)},
+            "scan": {"path": str(args.scan), "sha256": sha256(args.scan)},
+        }
+        out = args.out / f"{args.nominal.stem}.json"
+        atomic_write(out, lambda p: p.write_text(json.dumps(doc, indent=2, default=_json_default)))
+    if args.export_mesh is not None:
+        atomic_write(
+            args.export_mesh,
+            lambda p: write_ply_with_scalar(p, res.V_registered, F, "deviation", res.deviation),
+        )
+    print(summary(res, args.tolerance))
+    return EXIT_PASS if res.passed else EXIT_FAIL
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(type(o).__name__)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point; returns (and exits with) 0 pass, 1 fail, 2 error."""
+    args = _parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="qifreport: %(levelname)s: %(message)s",
+    )
+    try:
+        code = run(args)
+    except InputError as exc:
+        print(f"qifreport: error: {exc}", file=sys.stderr)
+        code = EXIT_ERROR
+    except (OSError, MemoryError) as exc:
+        print(f"qifreport: error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        code = EXIT_ERROR
+    sys.exit(code)

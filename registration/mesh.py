@@ -1,0 +1,214 @@
+"""Triangle-mesh layer: loading, welding and the intrinsic operators.
+
+Every function works on plain arrays: ``V`` (n, 3) float64 vertex positions in mm and
+``F`` (f, 3) int64 triangle indices. The operators follow the paper's Section 4.3:
+cotangent Laplacian ``L``, lumped (barycentric) mass ``M`` with ``M_ii`` one third of the
+area of the incident triangles, and the bending operator ``Q = L M^-1 L``. The Hessian
+energy of Stein et al. (2018), which has natural boundary conditions at open boundaries,
+is offered beside it (``energy="hessian"``).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import igl
+import numpy as np
+import scipy.sparse as sp
+import trimesh
+
+from .errors import InputError
+
+log = logging.getLogger(__name__)
+
+MESH_SUFFIXES = (".stl", ".ply", ".obj", ".off")
+
+
+def bounding_diagonal(V: np.ndarray) -> float:
+    """Length (mm) of the axis-aligned bounding-box diagonal of points ``V`` (n, 3)."""
+    V = np.asarray(V, dtype=float)
+    return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) if len(V) else 0.0
+
+
+def weld(V: np.ndarray, F: np.ndarray, rel_tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Merge coincident vertices of a triangle soup and drop what welding makes degenerate.
+
+    Parameters
+    ----------
+    V : (n, 3) float array, mm.
+    F : (f, 3) int array.
+    rel_tol : merge distance as a fraction of the bounding diagonal (paper Section 8.4.1).
+
+    Returns
+    -------
+    V, F : the welded mesh; faces with a repeated index and exact duplicate faces are
+        removed, unreferenced vertices are dropped.
+    """
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    eps = rel_tol * max(bounding_diagonal(V), 1e-12)
+    SV, _, SVJ, SF = igl.remove_duplicate_vertices(V, F, eps)
+    SF = np.asarray(SF, dtype=np.int64)
+    good = (SF[:, 0] != SF[:, 1]) & (SF[:, 1] != SF[:, 2]) & (SF[:, 0] != SF[:, 2])
+    SF = SF[good]
+    _, first = np.unique(np.sort(SF, axis=1), axis=0, return_index=True)
+    SF = SF[np.sort(first)]
+    return remove_unreferenced(np.asarray(SV, dtype=np.float64), SF)
+
+
+def remove_unreferenced(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Drop vertices that no face uses; returns re-indexed ``(V, F)``."""
+    used = np.zeros(len(V), dtype=bool)
+    used[F.ravel()] = True
+    remap = np.full(len(V), -1, dtype=np.int64)
+    remap[used] = np.arange(used.sum())
+    return V[used], remap[F]
+
+
+def remove_degenerate(V: np.ndarray, F: np.ndarray, rel_area: float = 1e-12) -> np.ndarray:
+    """Faces of ``F`` whose area exceeds ``rel_area * diag^2`` (zero-area slivers removed)."""
+    area = 0.5 * np.linalg.norm(
+        np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1
+    )
+    return F[area > rel_area * bounding_diagonal(V) ** 2]
+
+
+def load_mesh(path: str | Path, weld_tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Read a nominal triangle mesh (STL, PLY, OBJ, OFF) and weld it.
+
+    Units are taken as mm (mesh formats carry none). Raises :class:`InputError` with a
+    one-line message for a missing, unreadable or empty file.
+
+    Returns
+    -------
+    V : (n, 3) float64, mm.  F : (f, 3) int64.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"nominal mesh not found: {path}")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise InputError(f"unsupported nominal format {path.suffix!r} (use STL, PLY, OBJ or OFF)")
+    try:
+        tm = trimesh.load(str(path), force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many types on corrupt input
+        raise InputError(f"cannot read nominal mesh {path.name}: {exc}") from None
+    if not isinstance(tm, trimesh.Trimesh) or len(tm.faces) == 0:
+        raise InputError(f"nominal mesh {path.name} has no triangles")
+    V = np.asarray(tm.vertices, dtype=np.float64)
+    F = np.asarray(tm.faces, dtype=np.int64)
+    if not np.isfinite(V).all():
+        raise InputError(f"nominal mesh {path.name} has non-finite vertex coordinates")
+    n_in = len(V)
+    V, F = weld(V, F, weld_tol)
+    F = remove_degenerate(V, F)
+    V, F = remove_unreferenced(V, F)
+    if len(F) == 0:
+        raise InputError(f"nominal mesh {path.name} has no non-degenerate triangles")
+    if len(V) < n_in:
+        log.info("welded %s: %d -> %d vertices", path.name, n_in, len(V))
+    return V, F
+
+
+def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (n, 3); follows the winding of ``F``."""
+    N = igl.per_vertex_normals(
+        np.ascontiguousarray(V, dtype=np.float64),
+        np.ascontiguousarray(F, dtype=np.int64),
+        igl.PER_VERTEX_NORMALS_WEIGHTING_TYPE_AREA,
+    )
+    N = np.asarray(N, dtype=np.float64)
+    bad = ~np.isfinite(N).all(axis=1)
+    N[bad] = 0.0
+    return N
+
+
+def face_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Unit face normals (f, 3)."""
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+
+
+def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Barycentric area per vertex (n,), mm^2: one third of the incident triangles' area."""
+    a = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    out = np.zeros(len(V))
+    for k in range(3):
+        np.add.at(out, F[:, k], a / 3.0)
+    return out
+
+
+def edges(F: np.ndarray) -> np.ndarray:
+    """Unique undirected edges (e, 2) of the triangles ``F``."""
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    return np.unique(E, axis=0)
+
+
+def median_edge_length(V: np.ndarray, F: np.ndarray) -> float:
+    """Median edge length (mm)."""
+    E = edges(F)
+    return float(np.median(np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)))
+
+
+def adjacency(F: np.ndarray, n: int) -> sp.csr_matrix:
+    """Symmetric vertex adjacency (n, n) over mesh edges, boolean CSR."""
+    E = edges(F)
+    A = sp.coo_matrix((np.ones(len(E), dtype=bool), (E[:, 0], E[:, 1])), shape=(n, n))
+    return (A + A.T).tocsr()
+
+
+def boundary_vertices(F: np.ndarray, n: int) -> np.ndarray:
+    """Boolean mask (n,) of vertices on an open boundary (edges used by one face)."""
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    uniq, count = np.unique(E, axis=0, return_counts=True)
+    mask = np.zeros(n, dtype=bool)
+    mask[uniq[count == 1].ravel()] = True
+    return mask
+
+
+@dataclass(frozen=True)
+class MeshOperators:
+    """Intrinsic operators of one mesh (all (n, n) sparse unless noted).
+
+    Attributes
+    ----------
+    L : cotangent Laplacian (libigl sign: negative semi-definite), 1/mm^0.
+    M : lumped barycentric mass, diagonal, mm^2.
+    Q : bending operator (symmetric positive semi-definite), 1/mm^2.
+    energy : ``"laplacian"`` for ``L M^-1 L`` or ``"hessian"`` for Stein et al.'s Hessian energy.
+    normals : (n, 3) unit vertex normals.
+    area : (n,) vertex areas, mm^2 (diagonal of ``M``).
+    """
+
+    L: sp.csc_matrix
+    M: sp.csc_matrix
+    Q: sp.csc_matrix
+    energy: str
+    normals: np.ndarray
+    area: np.ndarray
+
+
+def bending_operator(V: np.ndarray, F: np.ndarray, energy: str = "laplacian") -> MeshOperators:
+    """Assemble ``L``, ``M`` and the bending operator ``Q`` of the mesh ``(V, F)``.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm.  F : (f, 3) int.
+    energy : ``"laplacian"`` -> ``Q = L M^-1 L`` (paper Eq. 2, 12);
+        ``"hessian"`` -> ``igl.hessian_energy`` (natural boundary conditions).
+    """
+    V = np.ascontiguousarray(V, dtype=np.float64)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    L = sp.csc_matrix(igl.cotmatrix(V, F))
+    area = vertex_areas(V, F)
+    M = sp.diags(area).tocsc()
+    if energy == "laplacian":
+        inv = 1.0 / np.maximum(area, 1e-12 * max(area.max(), 1e-300))
+        Q = (L.T @ sp.diags(inv) @ L).tocsc()
+    elif energy == "hessian":
+        Q = sp.csc_matrix(igl.hessian_energy(V, F))
+    else:
+        raise ValueError(f"unknown bending energy {energy!r} (laplacian or hessian)")
+    Q = (0.5 * (Q + Q.T)).tocsc()
+    return MeshOperators(L=L, M=M, Q=Q, energy=energy, normals=vertex_normals(V, F), area=area)

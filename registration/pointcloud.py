@@ -1,0 +1,94 @@
+"""Scan point clouds: loading, validation and local PCA normals.
+
+A scan ``P`` is an (m, 3) float64 array of points in mm, as an optically tracked scanner
+delivers it: unordered, partial, noisy, already merged from all views (paper Section 4.1).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from .errors import InputError
+
+log = logging.getLogger(__name__)
+
+SCAN_SUFFIXES = (".ply", ".xyz", ".txt", ".csv", ".npy", ".stl", ".obj", ".off")
+MIN_POINTS = 100
+
+
+def load_scan(path: str | Path) -> np.ndarray:
+    """Read a scan point cloud.
+
+    PLY (points, or the vertices of a mesh), STL/OBJ/OFF (vertices), XYZ/TXT/CSV (first three
+    columns of each row), NPY ((m, 3) array). Units are taken as mm.
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, fewer than ``MIN_POINTS`` points, or non-finite
+        coordinates; the message is one line naming the problem.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"scan not found: {path}")
+    suffix = path.suffix.lower()
+    if suffix not in SCAN_SUFFIXES:
+        raise InputError(f"unsupported scan format {path.suffix!r} (use PLY, XYZ, CSV or NPY)")
+    try:
+        if suffix == ".npy":
+            P = np.load(path, allow_pickle=False)
+        elif suffix in (".xyz", ".txt", ".csv"):
+            delim = "," if suffix == ".csv" else None
+            P = np.loadtxt(path, delimiter=delim, usecols=(0, 1, 2), ndmin=2, comments="#")
+        else:
+            geom = trimesh.load(str(path), process=False)
+            if isinstance(geom, trimesh.Scene):
+                geom = geom.to_geometry() if geom.geometry else None
+            P = np.asarray(getattr(geom, "vertices", np.empty((0, 3))))
+    except InputError:
+        raise
+    except Exception as exc:
+        raise InputError(f"cannot read scan {path.name}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    return validate_scan(P, path.name)
+
+
+def validate_scan(P: np.ndarray, name: str = "scan") -> np.ndarray:
+    """Check an (m, 3) point array; return it as contiguous float64 or raise :class:`InputError`."""
+    P = np.asarray(P)
+    if P.ndim != 2 or P.shape[1] != 3:
+        raise InputError(f"{name}: expected (m, 3) points, got shape {P.shape}")
+    P = np.ascontiguousarray(P, dtype=np.float64)
+    if len(P) == 0:
+        raise InputError(f"{name}: the scan is empty (no points)")
+    bad = ~np.isfinite(P).all(axis=1)
+    if bad.any():
+        raise InputError(f"{name}: {int(bad.sum())} of {len(P)} points have NaN/inf coordinates")
+    if len(P) < MIN_POINTS:
+        raise InputError(f"{name}: only {len(P)} points (at least {MIN_POINTS} needed)")
+    return P
+
+
+def pca_normals(P: np.ndarray, k: int = 12, tree: cKDTree | None = None) -> np.ndarray:
+    """Unit normals (m, 3) of the scan from the PCA of each point's ``k`` nearest neighbours.
+
+    The sign is arbitrary (a one-sided scan has no inside); use ``|n . n_scan|``.
+    """
+    tree = tree or cKDTree(P)
+    k = min(k, len(P))
+    _, idx = tree.query(P, k=k, workers=-1)
+    X = P[idx] - P[idx].mean(axis=1, keepdims=True)
+    C = np.einsum("mki,mkj->mij", X, X)
+    _, vecs = np.linalg.eigh(C)
+    return vecs[:, :, 0]
+
+
+def median_spacing(P: np.ndarray, tree: cKDTree | None = None) -> float:
+    """Median nearest-neighbour distance (mm) of the scan points."""
+    tree = tree or cKDTree(P)
+    d, _ = tree.query(P, k=2, workers=-1)
+    return float(np.median(d[:, 1]))
