@@ -51,8 +51,9 @@ class GBCICPParams:
 
     Attributes
     ----------
-    band_limit : final smoothing length ``l1`` of the first pass (mm). Default
-        ``max(4 coverage radii, 2 % of the diagonal)``.
+    band_limit : final smoothing length ``l1`` of the first pass (mm). Default: one coverage
+        radius (measured on the shell benchmark: longer first-pass lengths leave compliance
+        near the open boundary that the refit then holds out as if it were a defect).
     band_limit_refit : smoothing length ``l2`` of the refit passes (mm). Default
         ``band_limit / 2``.
     band_limit_start : initial smoothing length (mm). Default 12 % of the diagonal.
@@ -167,11 +168,14 @@ class _Matcher:
         )
 
 
-def _weights(m: _Match, p: GBCICPParams, hold: np.ndarray) -> tuple[np.ndarray, float]:
+def _weights(
+    m: _Match, p: GBCICPParams, hold: np.ndarray, width_floor: float = 0.0
+) -> tuple[np.ndarray, float]:
     use = m.covered & ~hold
     scale = robust_scale(m.r[use]) if use.any() else 0.0
     scale = max(scale, 1e-6)
-    welsch = np.exp(-(m.r**2) / (2.0 * (p.welsch * scale) ** 2))
+    width = max(p.welsch * scale, width_floor)
+    welsch = np.exp(-(m.r**2) / (2.0 * width**2))
     compat = np.maximum(p.normal_floor, m.compat) * (m.compat >= p.normal_gate)
     return welsch * compat * use, scale
 
@@ -232,7 +236,15 @@ def gbcicp(
         lam = lam_from
         settle = 0
         m = match(V0 + e)
-        w, scale = _weights(m, p, hold)
+        # graduated non-convexity in the first pass: the Welsch width starts at the largest
+        # residual and shrinks with the smoothing length, so compliance the rigid pose left
+        # (millimetres) is followed before the robust weights start rejecting outliers
+        width0 = float(np.percentile(np.abs(m.r[m.covered]), 99)) if pass_no == 1 else 0.0
+
+        def floor(lam):
+            return width0 * (lam / lam_from) ** 0.25
+
+        w, scale = _weights(m, p, hold, floor(lam))
         for _ in range(p.max_iter + p.settle_iter):
             Aw = data_scale * w
             solve = solver.factor((sp.diags(Aw) + lam * Q + eps).tocsc())
@@ -240,7 +252,7 @@ def gbcicp(
             delta = float(np.abs(e_new - e).max())
             e = e_new
             m = match(V0 + e)
-            w, scale = _weights(m, p, hold)
+            w, scale = _weights(m, p, hold, floor(max(lam * p.anneal, lam_to)))
             rms = float(np.sqrt(np.mean(m.r[m.covered & ~hold] ** 2))) if m.covered.any() else np.nan
             history.append(dict(pass_no=pass_no, lam=lam, rms=rms, delta=delta, scale=scale))
             if progress is not None:
@@ -272,15 +284,17 @@ def gbcicp(
                 hold = _holdout(V0 + e, flagged, p.coverage_radius * p.holdout_factor)
                 e, m, w, scale = run_pass(e, lam_from, lam_refit, hold, pass_no)
                 passes, lam_from = pass_no, lam_refit
-                new = _flag(m, p, scale) & ~hold
-                if not new.any():
-                    break
-                flagged = flagged | new
-                if flagged.sum() / n_cov > p.max_flagged_fraction:
+                # re-evaluate every flag against the refit: a defect the fit never saw keeps
+                # its residual; compliance the first pass could not follow has now been fit
+                new = _flag(m, p, scale)
+                if flagged.sum() / n_cov > p.max_flagged_fraction or new.sum() / n_cov > p.max_flagged_fraction:
                     fallback = True
                     e, m, w, scale = single
                     hold = np.zeros(n, dtype=bool)
                     break
+                if np.array_equal(new, flagged):
+                    break
+                flagged = new
     residual = np.where(m.covered, m.r, np.nan)
     return GBCICPResult(
         V=V0 + e,
@@ -318,7 +332,7 @@ def _resolve(p: GBCICPParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> G
     if q.coverage_radius is None:
         q.coverage_radius = 1.5 * max(h, median_spacing(P))
     if q.band_limit is None:
-        q.band_limit = max(4.0 * q.coverage_radius, 0.02 * diag)
+        q.band_limit = q.coverage_radius
     if q.band_limit_refit is None:
         q.band_limit_refit = 0.5 * q.band_limit
     if q.band_limit_start is None:

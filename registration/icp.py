@@ -51,6 +51,40 @@ def kabsch(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None) -> tuple[n
     return R, b_bar - R @ a_bar
 
 
+def point_to_plane_step(
+    X: np.ndarray, T: np.ndarray, N: np.ndarray, w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """One weighted Gauss-Newton step of point-to-plane alignment of ``X`` onto planes ``(T, N)``.
+
+    Minimises ``sum_i w_i ((R x_i + t - t_i) . n_i)^2`` linearised in the rotation
+    (``R ~ I + [omega]x``), then re-orthonormalises ``R`` exactly (Rodrigues).
+
+    Returns
+    -------
+    R : (3, 3) rotation.  t : (3,) translation, mm.
+    """
+    c = X.mean(axis=0)
+    Xc = X - c
+    J = np.hstack([np.cross(Xc, N), N])  # (k, 6): d r / d(omega, t)
+    r = np.einsum("ij,ij->i", X - T, N)
+    A = (J * w[:, None]).T @ J
+    b = -(J * w[:, None]).T @ r
+    try:
+        x = np.linalg.solve(A + 1e-12 * np.trace(A) * np.eye(6), b)
+    except np.linalg.LinAlgError:
+        return np.eye(3), np.zeros(3)
+    omega, dt = x[:3], x[3:]
+    theta = float(np.linalg.norm(omega))
+    if theta > 0:
+        k = omega / theta
+        K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+        R = np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * K @ K
+    else:
+        R = np.eye(3)
+    # rotation about the centroid c, then the translation
+    return R, c - R @ c + dt
+
+
 def tukey_weights(d: np.ndarray, scale: float) -> np.ndarray:
     """Tukey biweight ``(1 - (d / (4.685 s))^2)^2`` for ``|d| < 4.685 s``, else 0."""
     if scale <= 0:
@@ -99,9 +133,10 @@ def rigid_icp(
     R0: np.ndarray | None = None,
     t0: np.ndarray | None = None,
     max_iter: int = 60,
-    tol: float = 1e-7,
+    tol: float = 1e-6,
     max_distance: float | None = None,
     tree: cKDTree | None = None,
+    step: str = "kabsch",
 ) -> RigidResult:
     """Robust partial-overlap rigid ICP of the scan ``P`` onto the model ``(V, N)``.
 
@@ -115,6 +150,14 @@ def rigid_icp(
     max_distance : scan points farther than this from every model vertex get zero weight
         (mm; default 5 % of the model diagonal): points off the modelled surface.
     tree : optional prebuilt ``cKDTree(V)``.
+    step : ``"kabsch"`` (default): the paper's weighted Kabsch fit to the tangent-plane
+        projections; ``"plane"``: Gauss-Newton point-to-plane step (converges in a few
+        iterations). Measured on the thin-shell benchmark with 2 % compliance: a converged
+        rigid fit of a deformed smooth shell *slides* along it (point-to-plane: 23 mm and
+        11 degrees from the true placement) because sliding lets the bent part fit better;
+        the Kabsch step stays within ~3 mm in 60 iterations, which the non-rigid stage then
+        absorbs. A rigid pose of a compliant part is a compromise, not a measurement: the
+        datum reference frame (STEP PMI) is what fixes it for reporting.
 
     Returns
     -------
@@ -142,7 +185,10 @@ def rigid_icp(
         w = tukey_weights(r, scale) * near
         history.append(float(np.sqrt(np.sum(w * r**2) / max(w.sum(), 1e-300))))
         targets = X - r[:, None] * n
-        dR, dt = kabsch(X, targets, w)
+        if step == "kabsch":
+            dR, dt = kabsch(X, targets, w)
+        else:
+            dR, dt = point_to_plane_step(X, V[idx], n, w)
         R, t = dR @ R, dR @ t + dt
         angle = np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))
         if angle < tol and np.linalg.norm(dt) < tol * diag:

@@ -1,0 +1,316 @@
+"""Free-state generators: prescribed, exactly known deformations of a nominal mesh.
+
+Two generators (paper Section 4.3):
+
+* :func:`biharmonic_deformation` -- the paper's ground truth: the minimiser of the bending
+  energy ``d^T Q d`` (``Q = L M^-1 L`` or the Hessian energy) subject to prescribed normal
+  displacements at clamp handles chosen automatically from the part's principal (PCA)
+  bounding rectangle (Section 7.1). Three sign patterns give the canonical modes: bend,
+  twist and saddle.
+* :func:`analytic_deformation` -- a closed-form smooth normal field that minimises no energy,
+  so a method whose prior is ``Q`` gains no advantage from matching its own generator.
+
+All displacements are (n, 3) arrays in mm.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+
+import numpy as np
+import scipy.sparse.linalg as spla
+
+from ..mesh import bending_operator, bounding_diagonal, vertex_areas, vertex_normals
+
+log = logging.getLogger(__name__)
+
+#: Sign pattern ``s_c`` of each canonical mode, per handle kind, in the order
+#: :func:`clamp_handles` returns the groups of that kind:
+#: corners counter-clockwise in (u1, u2) starting at (-u1, -u2); edge midpoints at
+#: +u1, +u2, -u1, -u2. The anchor (centroid) handle is held at zero displacement in every mode.
+#:
+#: * ``bend``: all four corners move the same way along their normals. Without the anchor
+#:   a uniform corner motion would be reproduced exactly by a rigid translation (a zero-energy
+#:   mode of ``Q``); the fixed anchor is what makes the part bow.
+#: * ``twist``: corners alternate +1, -1, +1, -1 around the boundary, so opposite corners
+#:   move together and adjacent ones oppositely (displacement ~ xi1 * xi2, anticlastic with
+#:   its principal axes along the rectangle's diagonals).
+#: * ``saddle``: edge midpoints +1 at the +-u1 ends, -1 at the +-u2 ends
+#:   (displacement ~ xi1^2 - xi2^2): anticlastic as well, rotated 45 degrees from the twist.
+MODES: Mapping[str, Mapping[str, tuple[int, ...]]] = MappingProxyType(
+    {
+        "bend": MappingProxyType({"corner": (1, 1, 1, 1)}),
+        "twist": MappingProxyType({"corner": (1, -1, 1, -1)}),
+        "saddle": MappingProxyType({"edge": (1, -1, 1, -1)}),
+    }
+)
+
+_DEFAULT_MODES: Mapping[str, float] = MappingProxyType({"bend": 1.0})
+
+# Fixed coefficients of the default analytic field (seed=None).
+_ANALYTIC_DEFAULT = np.array([0.60, 0.35, -0.25, 0.20, 0.15])
+
+
+def pca_frame(V: np.ndarray, area: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted centroid and principal axes of the points ``V``.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm.
+    area : (n,) non-negative weights (e.g. vertex areas, mm^2); uniform when ``None``.
+
+    Returns
+    -------
+    c : (3,) weighted centroid, mm.
+    U : (3, 3) orthonormal, columns ``u1`` (largest extent), ``u2``, ``u3`` (smallest: the
+        normal of the mid-plane), right-handed (``u3 = u1 x u2``). Signs are fixed so the
+        largest-magnitude component of ``u1`` and of ``u2`` is positive, which makes the
+        frame deterministic (but, like any PCA frame, not equivariant under reflections).
+    """
+    V = np.asarray(V, dtype=np.float64)
+    w = np.ones(len(V)) if area is None else np.asarray(area, dtype=np.float64)
+    w = w / w.sum()
+    c = w @ V
+    X = V - c
+    C = (X * w[:, None]).T @ X
+    _, vecs = np.linalg.eigh(C)
+    U = vecs[:, ::-1].copy()
+    for k in range(2):
+        if U[np.argmax(np.abs(U[:, k])), k] < 0:
+            U[:, k] = -U[:, k]
+    U[:, 2] = np.cross(U[:, 0], U[:, 1])
+    return c, U
+
+
+@dataclass
+class Handles:
+    """Clamp handles: small vertex groups whose displacement is prescribed.
+
+    Attributes
+    ----------
+    groups : one int64 index array per clamp.
+    centers : (k, 3) position of each clamp's seed vertex, mm.
+    kind : ``"corner"``, ``"edge"`` or ``"anchor"`` per group.
+    """
+
+    groups: list[np.ndarray]
+    centers: np.ndarray
+    kind: list[str]
+
+    @property
+    def indices(self) -> np.ndarray:
+        """All handle vertex indices, unique and sorted (int64)."""
+        if not self.groups:
+            return np.zeros(0, dtype=np.int64)
+        return np.unique(np.concatenate(self.groups)).astype(np.int64)
+
+
+def clamp_handles(
+    V: np.ndarray, F: np.ndarray, radius: float | None = None, include_edges: bool = False
+) -> Handles:
+    """Clamp handles from the part's principal (PCA) bounding rectangle (paper Section 7.1).
+
+    The rectangle spans all vertices in the (u1, u2) coordinates of :func:`pca_frame`
+    (area-weighted). For each target point the seed vertex is the one nearest it in the
+    u1-u2 plane, and its group is every vertex within ``radius`` (3D distance) of the seed.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm.  F : (f, 3) int.
+    radius : group radius, mm; default 1.5 % of the bounding diagonal.
+    include_edges : also place handles at the four edge midpoints (needed by ``saddle``).
+
+    Returns
+    -------
+    Handles with groups in this order: 4 corners counter-clockwise in (u1, u2) starting at
+    (-u1, -u2); if ``include_edges``, the edge midpoints at +u1, +u2, -u1, -u2; last the
+    ``"anchor"`` at the vertex nearest the centroid.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    if radius is None:
+        radius = 0.015 * bounding_diagonal(V)
+    c, U = pca_frame(V, vertex_areas(V, F))
+    xi = (V - c) @ U[:, :2]
+    lo, hi = xi.min(axis=0), xi.max(axis=0)
+    mid = 0.5 * (lo + hi)
+    targets = [
+        (lo[0], lo[1]),
+        (hi[0], lo[1]),
+        (hi[0], hi[1]),
+        (lo[0], hi[1]),
+    ]
+    kinds = ["corner"] * 4
+    if include_edges:
+        targets += [(hi[0], mid[1]), (mid[0], hi[1]), (lo[0], mid[1]), (mid[0], lo[1])]
+        kinds += ["edge"] * 4
+    targets.append((0.0, 0.0))  # the centroid
+    kinds.append("anchor")
+    groups, centers = [], []
+    for t in targets:
+        seed = int(np.argmin(np.sum((xi - np.asarray(t)) ** 2, axis=1)))
+        dist = np.linalg.norm(V - V[seed], axis=1)
+        groups.append(np.flatnonzero(dist <= radius).astype(np.int64))
+        centers.append(V[seed])
+    return Handles(groups=groups, centers=np.array(centers), kind=kinds)
+
+
+def handle_signs(handles: Handles, modes: Mapping[str, float]) -> np.ndarray:
+    """Per-group sign ``s_c`` (k,): the weighted sum of the requested :data:`MODES`.
+
+    Anchor groups get 0. Raises ``ValueError`` for an unknown mode or one whose handle kind
+    is missing from ``handles`` (e.g. ``saddle`` without edge handles).
+    """
+    s = np.zeros(len(handles.groups))
+    kinds = np.array(handles.kind)
+    for name, weight in modes.items():
+        if name not in MODES:
+            raise ValueError(f"unknown deformation mode {name!r} (one of {sorted(MODES)})")
+        for kind, pattern in MODES[name].items():
+            where = np.flatnonzero(kinds == kind)
+            if len(where) != len(pattern):
+                raise ValueError(f"mode {name!r} needs {len(pattern)} {kind} handles")
+            s[where] += weight * np.asarray(pattern, dtype=float)
+    return s
+
+
+@dataclass
+class Deformation:
+    """A prescribed free state: ``V_free = V + d``.
+
+    Attributes
+    ----------
+    d : (n, 3) displacement, mm.
+    handles : the handles used (only the kinds the requested modes need, plus the anchor).
+    g : (h, 3) prescribed displacement of ``handles.indices`` (same order), mm.
+    signs : (k,) per-group sign ``s_c`` (weighted sum of the modes; 0 for the anchor).
+    """
+
+    d: np.ndarray
+    handles: Handles
+    g: np.ndarray
+    signs: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def biharmonic_deformation(
+    V: np.ndarray,
+    F: np.ndarray,
+    amplitude: float,
+    modes: Mapping[str, float] = _DEFAULT_MODES,
+    energy: str = "laplacian",
+    handle_radius: float | None = None,
+) -> Deformation:
+    """Minimise the bending energy ``d^T Q d`` subject to ``d_H = g`` (paper Eq. 2-3).
+
+    Handle motion is ``g_c = amplitude * s_c * n_c`` with ``n_c`` the unit vertex normal of
+    each handle vertex and ``s_c`` from :func:`handle_signs`; the anchor is held at zero.
+    The free block is factorised once (``splu``) and solved for the 3 coordinates at once.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm.  F : (f, 3) int.
+    amplitude : handle displacement ``a`` (mm), e.g. ``0.02 * bounding_diagonal(V)``.
+    modes : mode name -> weight, e.g. ``{"bend": 1.0, "twist": 0.5}`` (default bend only).
+        Only handle kinds some requested mode uses are constrained (corners for bend and
+        twist, edge midpoints for saddle), so e.g. a pure saddle leaves the corners free.
+    energy : ``"laplacian"`` (``L M^-1 L``) or ``"hessian"``, see
+        :func:`registration.mesh.bending_operator`.
+    handle_radius : clamp group radius, mm (default 1.5 % of the bounding diagonal).
+
+    Returns
+    -------
+    Deformation with ``d`` (n, 3) mm; ``d`` equals ``g`` on the handles to round-off.
+    Where groups overlap, the later group (the anchor last) sets the constraint.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    unknown = set(modes) - set(MODES)
+    if unknown:
+        raise ValueError(f"unknown deformation mode(s) {sorted(unknown)} (one of {sorted(MODES)})")
+    need = {kind for name in modes for kind in MODES[name]}
+    all_handles = clamp_handles(V, F, handle_radius, include_edges="edge" in need)
+    keep = [k for k, kind in enumerate(all_handles.kind) if kind in need or kind == "anchor"]
+    handles = Handles(
+        groups=[all_handles.groups[k] for k in keep],
+        centers=all_handles.centers[keep],
+        kind=[all_handles.kind[k] for k in keep],
+    )
+    signs = handle_signs(handles, modes)
+
+    ops = bending_operator(V, F, energy)
+    n = len(V)
+    s_vertex = np.zeros(n)
+    for group, s in zip(handles.groups, signs, strict=True):
+        s_vertex[group] = s
+    h = handles.indices
+    g = amplitude * s_vertex[h, None] * ops.normals[h]
+
+    free = np.ones(n, dtype=bool)
+    free[h] = False
+    Q = ops.Q.tocsc()
+    Qff = Q[free][:, free].tocsc()
+    Qfh = Q[free][:, h]
+    d = np.zeros((n, 3))
+    d[h] = g
+    if free.any():
+        lu = spla.splu(Qff, permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+        d[free] = lu.solve(np.ascontiguousarray(-(Qfh @ g)))
+    if not np.isfinite(d).all():
+        raise ValueError("bending system is singular: a mesh component carries no handle")
+    log.debug(
+        "biharmonic %s: %d handles, max |d| %.3f mm", dict(modes), len(h),
+        np.linalg.norm(d, axis=1).max(),
+    )
+    return Deformation(d=d, handles=handles, g=g, signs=signs)
+
+
+def analytic_deformation(
+    V: np.ndarray, F: np.ndarray, amplitude: float, seed: int | None = None
+) -> np.ndarray:
+    """A closed-form smooth normal displacement that shares no prior with any method.
+
+    With ``(xi1, xi2)`` the two in-plane principal coordinates (:func:`pca_frame`, area
+    weighted) each mapped to [-1, 1] over the part,
+
+        f = c1 xi1^2 + c2 xi1 xi2 + c3 sin(pi xi2 / 2) xi1 + c4 cos(pi xi1) xi2^2 + c5 xi2^3
+
+    and ``d = s f n`` along the unit vertex normals ``n``, with ``s`` chosen so that
+    ``max |d| == amplitude`` exactly. Nothing is subtracted (not zero-mean, no rigid part
+    removed), and ``f`` minimises no energy: it is not in the span of any method's prior.
+
+    Parameters
+    ----------
+    V : (n, 3) float, mm.  F : (f, 3) int.
+    amplitude : peak displacement norm, mm.
+    seed : ``None`` -> fixed default coefficients; otherwise ``c1..c5`` are drawn from
+        ``np.random.default_rng(seed)`` uniformly in [-1, 1].
+
+    Returns
+    -------
+    d : (n, 3) displacement, mm.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    if seed is None:
+        coef = _ANALYTIC_DEFAULT
+    else:
+        coef = np.random.default_rng(seed).uniform(-1.0, 1.0, 5)
+    c, U = pca_frame(V, vertex_areas(V, F))
+    xi = (V - c) @ U[:, :2]
+    lo, hi = xi.min(axis=0), xi.max(axis=0)
+    xi = 2.0 * (xi - lo) / np.maximum(hi - lo, 1e-300) - 1.0
+    x1, x2 = xi[:, 0], xi[:, 1]
+    f = (
+        coef[0] * x1**2
+        + coef[1] * x1 * x2
+        + coef[2] * np.sin(np.pi * x2 / 2.0) * x1
+        + coef[3] * np.cos(np.pi * x1) * x2**2
+        + coef[4] * x2**3
+    )
+    d = f[:, None] * vertex_normals(V, F)
+    peak = np.linalg.norm(d, axis=1).max()
+    if peak <= 0:
+        raise ValueError("analytic field vanishes on this mesh")
+    return d * (amplitude / peak)

@@ -1,0 +1,47 @@
+"""Shared fixtures: the reference material in ../shared and generated inspection cases."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SHARED = ROOT.parent / "shared"
+
+
+def shared_file(rel: str) -> Path:
+    """Path of a file in ../shared; fails under CI (CI=true) and skips elsewhere if missing."""
+    p = SHARED / rel
+    if not p.exists():
+        msg = f"reference file missing: {p}"
+        if os.environ.get("CI") == "true":
+            pytest.fail(msg)
+        pytest.skip(msg)
+    return p
+
+
+@pytest.fixture(scope="session")
+def shell():
+    from registration.simulate.shapes import thin_shell
+
+    return thin_shell()
+
+
+@pytest.fixture(scope="session")
+def shell_case(shell):
+    """The shell, analytic free state at 2 % of the diagonal, 3 views, 0.02 mm noise."""
+    from registration.simulate.cases import make_case
+
+    V, F = shell
+    return make_case(V, F, generator="analytic", amplitude=0.02, seed=1)
+
+
+@pytest.fixture(scope="session")
+def shell_case_defect(shell):
+    """The same free state and scanner with a 1.0 mm / sigma 7 mm Gaussian bump."""
+    from registration.simulate.cases import make_case
+
+    V, F = shell
+    return make_case(V, F, generator="analytic", amplitude=0.02, defect=(1.0, 7.0), seed=1)
