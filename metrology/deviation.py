@@ -303,7 +303,7 @@ def _signed_distance(
     s = np.einsum("ij,ij->i", D, nf)
     bary = _barycentric(V, F, face, C)
     on_edge = bary.min(axis=1) < _BARY_EDGE_TOL
-    if False and np.any(on_edge):
+    if np.any(on_edge):
         N = np.asarray(normals, dtype=np.float64)
         ni = np.einsum("ij,ijk->ik", bary[on_edge], N[F[face[on_edge]]])
         si = np.einsum("ij,ij->i", D[on_edge], ni)

@@ -24,7 +24,13 @@ from registration.gbcicp import GBCICPParams, GBCICPResult, gbcicp
 from registration.icp import RigidResult, rigid_icp
 from registration.mesh import bending_operator, bounding_diagonal, vertex_areas, vertex_normals
 
-from .acceptance import DEFAULT_MAX_REGION_AREA, Acceptance, coverage_ceiling_ok, evaluate, scan_area
+from .acceptance import (
+    DEFAULT_MAX_REGION_AREA,
+    Acceptance,
+    coverage_ceiling_ok,
+    evaluate,
+    scan_area,
+)
 from .deviation import data_referenced, nominal_referenced
 from .statistics import DeviationStats, deviation_statistics
 

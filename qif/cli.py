@@ -89,7 +89,9 @@ def atomic_write(path: Path, write) -> None:
         raise
 
 
-def write_ply_with_scalar(path: Path, V: np.ndarray, F: np.ndarray, name: str, s: np.ndarray) -> None:
+def write_ply_with_scalar(
+    path: Path, V: np.ndarray, F: np.ndarray, name: str, s: np.ndarray
+) -> None:
     """Binary little-endian PLY of a triangle mesh with one float per-vertex property."""
     vert = np.empty(len(V), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), (name, "<f4")])
     vert["x"], vert["y"], vert["z"] = V[:, 0], V[:, 1], V[:, 2]
@@ -125,7 +127,8 @@ def summary(res: InspectionResult, tol: float) -> str:
     for r in a.regions[:5]:
         c = r.centroid
         lines.append(
-            f"  region {r.area:7.1f} mm^2  peak {r.peak:+.3f} mm  at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f})"
+            f"  region {r.area:7.1f} mm^2  peak {r.peak:+.3f} mm"
+            f"  at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f})"
         )
     if not res.coverage_ceiling_ok:
         lines.append("warning: coverage exceeds the scanned-to-nominal area ratio (over-fit?)")

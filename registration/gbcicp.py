@@ -253,7 +253,8 @@ def gbcicp(
             e = e_new
             m = match(V0 + e)
             w, scale = _weights(m, p, hold, floor(max(lam * p.anneal, lam_to)))
-            rms = float(np.sqrt(np.mean(m.r[m.covered & ~hold] ** 2))) if m.covered.any() else np.nan
+            fitted = m.covered & ~hold
+            rms = float(np.sqrt(np.mean(m.r[fitted] ** 2))) if fitted.any() else np.nan
             history.append(dict(pass_no=pass_no, lam=lam, rms=rms, delta=delta, scale=scale))
             if progress is not None:
                 progress(1)
@@ -287,7 +288,7 @@ def gbcicp(
                 # re-evaluate every flag against the refit: a defect the fit never saw keeps
                 # its residual; compliance the first pass could not follow has now been fit
                 new = _flag(m, p, scale)
-                if flagged.sum() / n_cov > p.max_flagged_fraction or new.sum() / n_cov > p.max_flagged_fraction:
+                if max(flagged.sum(), new.sum()) / n_cov > p.max_flagged_fraction:
                     fallback = True
                     e, m, w, scale = single
                     hold = np.zeros(n, dtype=bool)

@@ -21,7 +21,9 @@ TUKEY_C = 4.685
 MAD_SCALE = 1.4826
 
 
-def kabsch(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def kabsch(
+    A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Weighted least-squares rotation and translation taking ``A`` onto ``B``.
 
     Minimises ``sum_i w_i |R a_i + t - b_i|^2`` (paper Eq. 8) with the determinant guard
@@ -173,7 +175,7 @@ def rigid_icp(
     scale = 0.0
     w = np.zeros(len(P))
     it = 0
-    for it in range(1, max_iter + 1):
+    for it in range(1, max_iter + 1):  # noqa: B007 - `it` is reported after the loop
         X = P @ R.T + t
         dist, idx = tree.query(X, workers=-1)
         n = N[idx]

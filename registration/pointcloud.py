@@ -53,7 +53,8 @@ def load_scan(path: str | Path) -> np.ndarray:
     except InputError:
         raise
     except Exception as exc:
-        raise InputError(f"cannot read scan {path.name}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"cannot read scan {path.name}: {why}") from None
     return validate_scan(P, path.name)
 
 
