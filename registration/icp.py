@@ -189,6 +189,7 @@ def rigid_icp(
         targets = X - r[:, None] * n
         if step == "kabsch":
             dR, dt = kabsch(X, targets, w)
+
         else:
             dR, dt = point_to_plane_step(X, V[idx], n, w)
         R, t = dR @ R, dR @ t + dt
