@@ -7,6 +7,7 @@ delivers it: unordered, partial, noisy, already merged from all views (paper Sec
 from __future__ import annotations
 
 import logging
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -44,7 +45,9 @@ def load_scan(path: str | Path) -> np.ndarray:
             P = np.load(path, allow_pickle=False)
         elif suffix in (".xyz", ".txt", ".csv"):
             delim = "," if suffix == ".csv" else None
-            P = np.loadtxt(path, delimiter=delim, usecols=(0, 1, 2), ndmin=2, comments="#")
+            with warnings.catch_warnings():  # an empty file is reported below, once
+                warnings.simplefilter("ignore", UserWarning)
+                P = np.loadtxt(path, delimiter=delim, usecols=(0, 1, 2), ndmin=2, comments="#")
         else:
             geom = trimesh.load(str(path), process=False)
             if isinstance(geom, trimesh.Scene):
