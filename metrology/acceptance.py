@@ -104,6 +104,17 @@ def _areas(V: np.ndarray, F: np.ndarray, area: np.ndarray | None) -> np.ndarray:
     return area
 
 
+def _prepare(V, F, dev, tolerance, area):
+    """Checked arrays for :func:`find_regions` and :func:`evaluate`: band and areas per vertex."""
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    n = len(V)
+    dev = np.asarray(dev, dtype=np.float64).ravel()
+    if dev.shape != (n,):
+        raise ValueError(f"dev must have shape ({n},), got {dev.shape}")
+    return V, F, dev, _tolerance_array(tolerance, n), _areas(V, F, area)
+
+
 def find_regions(
     V: np.ndarray,
     F: np.ndarray,
@@ -134,14 +145,8 @@ def find_regions(
     -------
     list of :class:`Region`, largest area first (ties: larger ``|peak|`` first).
     """
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
+    V, F, dev, tol, A = _prepare(V, F, dev, tolerance, area)
     n = len(V)
-    dev = np.asarray(dev, dtype=np.float64).ravel()
-    if dev.shape != (n,):
-        raise ValueError(f"dev must have shape ({n},), got {dev.shape}")
-    tol = _tolerance_array(tolerance, n)
-    A = _areas(V, F, area)
     with np.errstate(invalid="ignore"):
         out = np.abs(dev) > tol  # NaN compares False: unscored is never out
     idx = np.flatnonzero(out)
@@ -264,14 +269,7 @@ def evaluate(
     -------
     Acceptance. With no scored vertex the part is not passed (nothing was inspected).
     """
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    n = len(V)
-    dev = np.asarray(dev, dtype=np.float64).ravel()
-    if dev.shape != (n,):
-        raise ValueError(f"dev must have shape ({n},), got {dev.shape}")
-    tol = _tolerance_array(tolerance, n)
-    A = _areas(V, F, area)
+    V, F, dev, tol, A = _prepare(V, F, dev, tolerance, area)
     scored = ~np.isnan(dev)
     scored_area = float(A[scored].sum())
     nominal_area = float(A.sum())
