@@ -25,6 +25,7 @@ demo: install
 	$(VENV)/bin/qifreport samples/shell_nominal.ply samples/shell_scan.ply --tolerance 0.5 \
 	  --out $(OUT) --json --export-mesh $(OUT)/shell_registered.ply; rc=$$?; \
 	  if [ $$rc -gt 1 ]; then exit $$rc; fi
+	test -s $(OUT)/shell_nominal.json && test -s $(OUT)/shell_registered.ply
 	@echo "demo outputs in $(OUT)/"
 
 test: install

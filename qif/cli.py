@@ -156,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
 
         bar = tqdm(desc="virtual fixturing", unit="it", file=sys.stderr, leave=False)
     try:
-        res = inspect(V, F, P, params, progress=bar.update if bar else None)
+        res = inspect(V, F, P, params, progress=None if bar is None else bar.update)
     finally:
         if bar is not None:
             bar.close()
@@ -203,5 +203,14 @@ def main(argv: list[str] | None = None) -> int:
         code = EXIT_ERROR
     except (OSError, MemoryError) as exc:
         print(f"qifreport: error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        code = EXIT_ERROR
+    except Exception as exc:  # a bug must never read as "part failed" (exit 1)
+        log.debug("internal error", exc_info=True)
+        print(f"qifreport: internal error: {type(exc).__name__}: {exc} (run with -v for the "
+              "traceback)", file=sys.stderr)
+        if args.verbose:
+            import traceback
+
+            traceback.print_exc()
         code = EXIT_ERROR
     sys.exit(code)

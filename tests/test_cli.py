@@ -42,8 +42,9 @@ def test_demo_sample_passes_with_outputs(tmp_path):
 @pytest.mark.slow
 def test_defect_sample_fails_by_region(tmp_path):
     r = run(SAMPLES / "shell_nominal.ply", SAMPLES / "shell_scan_defect.ply", "--tolerance",
-            "0.5", "--out", tmp_path, "--json", "--quiet")
+            "0.5", "--out", tmp_path, "--json")  # with the progress bar
     assert r.returncode == 1, r.stdout + r.stderr
+    assert "Error" not in r.stderr and "Traceback" not in r.stderr
     doc = json.loads((tmp_path / "shell_nominal.json").read_text())
     assert doc["verdict"] == "FAIL"
     acc = doc["acceptance"]
