@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 from registration.errors import InputError
 from registration.gbcicp import GBCICPParams, GBCICPResult, gbcicp
 from registration.icp import RigidResult, rigid_icp
-from registration.mesh import bending_operator, bounding_diagonal, vertex_areas, vertex_normals
+from registration.mesh import bending_operator, bounding_diagonal, vertex_normals
 
 from .acceptance import (
     DEFAULT_MAX_REGION_AREA,
@@ -145,9 +145,10 @@ class InspectionResult:
         }
 
 
-def check_units_and_overlap(V: np.ndarray, P: np.ndarray) -> None:
-    """Reject a scan whose size betrays other units, or that lies nowhere near the nominal.
+def check_units(V: np.ndarray, P: np.ndarray) -> None:
+    """Reject a scan whose extent betrays other units (or another part) than the nominal's.
 
+    The overlap check needs the rigid pose and is made in :func:`inspect`.
     Raises :class:`InputError` with a one-line message.
     """
     dv, dp = bounding_diagonal(V), bounding_diagonal(P)
@@ -187,16 +188,17 @@ def inspect(
     """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    check_units_and_overlap(V, P)
+    check_units(V, P)
     ops = bending_operator(V, F, params.energy)
     timings["operators"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    rigid = rigid_icp(V, ops.normals, P)
+    tree = cKDTree(V)
+    rigid = rigid_icp(V, ops.normals, P, tree=tree)
     Pm = rigid.apply(P)
     timings["rigid"] = time.perf_counter() - t0
     diag = bounding_diagonal(V)
-    d_near, _ = cKDTree(V).query(Pm, workers=-1)
+    d_near, _ = tree.query(Pm, workers=-1)
     overlap = float(np.mean(d_near < 0.02 * diag))
     if overlap < 0.3 or rigid.inlier_fraction < 0.3:
         raise InputError(
@@ -216,7 +218,7 @@ def inspect(
     N_reg = vertex_normals(V_reg, F)
     dev = nominal_referenced(V_reg, F, Pm, normals=N_reg)
     pdev = data_referenced(V_reg, F, Pm)
-    area = vertex_areas(V, F)
+    area = ops.area  # barycentric vertex areas of the nominal, mm^2
     vstats = deviation_statistics(dev, weights=area, threshold=params.tolerance)
     pstats = deviation_statistics(pdev, threshold=params.tolerance)
     acc = evaluate(
