@@ -104,15 +104,31 @@ def _areas(V: np.ndarray, F: np.ndarray, area: np.ndarray | None) -> np.ndarray:
     return area
 
 
-def _prepare(V, F, dev, tolerance, area):
-    """Checked arrays for :func:`find_regions` and :func:`evaluate`: band and areas per vertex."""
+def _center_array(center, n: int) -> np.ndarray:
+    c = np.asarray(center, dtype=np.float64)
+    if c.ndim == 0:
+        c = np.full(n, float(c))
+    elif c.shape != (n,):
+        raise ValueError(f"center must be a scalar or shape ({n},), got {c.shape}")
+    if not np.all(np.isfinite(c)):
+        raise ValueError("center must be finite")
+    return c
+
+
+def _prepare(V, F, dev, tolerance, area, center=0.0):
+    """Checked arrays for :func:`find_regions` and :func:`evaluate`.
+
+    Returns ``V, F, dev, tol, A, c``: the band half-width, vertex areas and band centre per
+    vertex.
+    """
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     n = len(V)
     dev = np.asarray(dev, dtype=np.float64).ravel()
     if dev.shape != (n,):
         raise ValueError(f"dev must have shape ({n},), got {dev.shape}")
-    return V, F, dev, _tolerance_array(tolerance, n), _areas(V, F, area)
+    return (V, F, dev, _tolerance_array(tolerance, n), _areas(V, F, area),
+            _center_array(center, n))
 
 
 def find_regions(
@@ -121,10 +137,13 @@ def find_regions(
     dev: np.ndarray,
     tolerance,
     area: np.ndarray | None = None,
+    center=0.0,
 ) -> list[Region]:
     """Connected out-of-tolerance regions of the deviation field on the nominal mesh.
 
-    A vertex is out of tolerance when ``|dev| > tolerance`` (NaN, unscored, never is).
+    A vertex is out of tolerance when ``|dev - center| > tolerance`` (NaN, unscored, never
+    is); the band is ``[center - tolerance, center + tolerance]``, so an unequally disposed
+    or unilateral zone is a shifted centre.
     Out-of-tolerance vertices joined by a mesh edge belong to the same region
     (``scipy.sparse.csgraph.connected_components`` on the vertex adjacency restricted to
     them). Consequences of this choice:
@@ -140,15 +159,16 @@ def find_regions(
     V : (n, 3) float, mm.  F : (f, 3) int.  dev : (n,) signed deviation, mm, NaN unscored.
     tolerance : scalar or (n,) per-vertex tolerance band, mm (``|dev| <= tol`` passes).
     area : (n,) vertex areas, mm^2; default :func:`registration.mesh.vertex_areas`.
+    center : scalar or (n,) band centre, mm (0: a symmetric band).
 
     Returns
     -------
     list of :class:`Region`, largest area first (ties: larger ``|peak|`` first).
     """
-    V, F, dev, tol, A = _prepare(V, F, dev, tolerance, area)
+    V, F, dev, tol, A, c = _prepare(V, F, dev, tolerance, area, center)
     n = len(V)
     with np.errstate(invalid="ignore"):
-        out = np.abs(dev) > tol  # NaN compares False: unscored is never out
+        out = np.abs(dev - c) > tol  # NaN compares False: unscored is never out
     idx = np.flatnonzero(out)
     if len(idx) == 0:
         return []
@@ -253,6 +273,7 @@ def evaluate(
     area: np.ndarray | None = None,
     min_fraction: float = 0.95,
     max_region_area: float = DEFAULT_MAX_REGION_AREA,
+    center=0.0,
 ) -> Acceptance:
     """Decide conformance by the area criterion AND the region criterion.
 
@@ -264,23 +285,24 @@ def evaluate(
     min_fraction : required in-tolerance share of the scored area; the comparison is
         ``>=`` (exactly 95 % passes), with a 1e-12 relative slack for summation round-off.
     max_region_area : mm^2; a region passes if its area is ``<=`` this.
+    center : scalar or (n,) band centre, mm: in tolerance is ``|dev - center| <= tolerance``.
 
     Returns
     -------
     Acceptance. With no scored vertex the part is not passed (nothing was inspected).
     """
-    V, F, dev, tol, A = _prepare(V, F, dev, tolerance, area)
+    V, F, dev, tol, A, c = _prepare(V, F, dev, tolerance, area, center)
     scored = ~np.isnan(dev)
     scored_area = float(A[scored].sum())
     nominal_area = float(A.sum())
     coverage = scored_area / nominal_area if nominal_area > 0 else math.nan
     with np.errstate(invalid="ignore"):
-        inside = scored & (np.abs(dev) <= tol)
+        inside = scored & (np.abs(dev - c) <= tol)
     in_area = float(A[inside].sum())
     frac = in_area / scored_area if scored_area > 0 else math.nan
     area_ok = bool(scored_area > 0 and frac >= min_fraction * (1.0 - _AREA_RTOL))
 
-    regions = find_regions(V, F, dev, tol, area=A)
+    regions = find_regions(V, F, dev, tol, area=A, center=c)
     largest = regions[0].area if regions else 0.0
     region_ok = bool(largest <= max_region_area)
     passed = bool(area_ok and region_ok and scored_area > 0)

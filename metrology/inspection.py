@@ -31,6 +31,15 @@ from .acceptance import (
     evaluate,
     scan_area,
 )
+from .bands import (
+    DEFAULT_GENERAL_TOLERANCE,
+    BandField,
+    NotEvaluated,
+    ToleranceZone,
+    lay_bands,
+    symmetric_zone,
+    zone_vertex_areas,
+)
 from .deviation import data_referenced, nominal_referenced
 from .statistics import DeviationStats, deviation_statistics
 
@@ -47,7 +56,10 @@ class InspectionParams:
 
     Attributes
     ----------
-    tolerance : half-width of the profile band: a vertex is in tolerance if ``|dev| <= tol``.
+    tolerance : half-width of the general profile band (mm): where no other zone applies a
+        vertex is in tolerance if ``|dev| <= tol``. None: the zones passed to
+        :func:`inspect` decide, with :data:`metrology.bands.DEFAULT_GENERAL_TOLERANCE`
+        where none applies.
     min_fraction : area criterion, fraction of the scored area that must be in tolerance.
     max_region_area : region criterion, largest admissible connected out-of-tolerance
         region (mm^2).
@@ -57,12 +69,42 @@ class InspectionParams:
     gbcicp : parameters of the non-rigid stage.
     """
 
-    tolerance: float
+    tolerance: float | None = None
     min_fraction: float = 0.95
     max_region_area: float = DEFAULT_MAX_REGION_AREA
     energy: str = "hessian"
     rigid_only: bool = False
     gbcicp: GBCICPParams = field(default_factory=GBCICPParams)
+
+
+@dataclass
+class ZoneResult:
+    """The verdict of one toleranced surface, evaluated on its own faces with its own band.
+
+    Attributes
+    ----------
+    zone : the tolerance zone.
+    stats : area-weighted statistics of the deviation on the zone's faces (threshold: the
+        zone's half-width about its centre is *not* applied here; ``frac_beyond`` uses the
+        half-width about 0, exact for a bilateral zone).
+    acceptance : area and region criteria on the zone's faces.
+    fixtured : False when evaluated free-state (rigid alignment only).
+    """
+
+    zone: ToleranceZone
+    stats: DeviationStats
+    acceptance: Acceptance
+    fixtured: bool = True
+
+    def to_dict(self) -> dict:
+        return {
+            **self.zone.to_dict(),
+            "description": self.zone.describe(),
+            "verdict": "PASS" if self.acceptance.passed else "FAIL",
+            "fixtured": self.fixtured,
+            "deviation": self.stats.to_dict(),
+            "acceptance": self.acceptance.to_dict(),
+        }
 
 
 @dataclass
@@ -77,7 +119,11 @@ class InspectionResult:
     point_deviation : (m,) signed data-referenced deviation of every scan point.
     vertex_stats : area-weighted statistics of ``deviation``.
     point_stats : statistics of ``point_deviation``.
-    acceptance : area and region criteria and the verdict.
+    acceptance : area and region criteria on the whole part, each vertex under the tightest
+        zone around it.
+    zones : per toleranced surface results (the general zone last).
+    not_evaluated : PMI items listed but not scored.
+    bands : the zones laid on the mesh (per-vertex band of the combined map).
     rigid : the rigid alignment.  fit : the GB-CICP result (None with ``rigid_only``).
     scan_area : estimated area covered by the scan, mm^2.
     coverage_ceiling_ok : coverage does not exceed scan area / nominal area (over-fit check).
@@ -99,10 +145,24 @@ class InspectionResult:
     scan_area: float
     coverage_ceiling_ok: bool
     timings: dict[str, float]
+    zones: list[ZoneResult] = field(default_factory=list)
+    not_evaluated: list[NotEvaluated] = field(default_factory=list)
+    bands: BandField | None = None
 
     @property
     def passed(self) -> bool:
-        return bool(self.acceptance.passed)
+        """The part passes when the whole surface and every toleranced surface pass."""
+        return bool(self.acceptance.passed and all(z.acceptance.passed for z in self.zones))
+
+    def decided_by(self) -> list[str]:
+        """What failed the part (empty when it passed), one line each."""
+        out = []
+        if not self.acceptance.passed:
+            out += [f"whole part: {r}" for r in self.acceptance.reasons]
+        for z in self.zones:
+            if not z.acceptance.passed:
+                out += [f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.acceptance.reasons]
+        return out
 
     def to_dict(self) -> dict:
         """JSON-ready summary: verdict, statistics, regions, registration and parameters."""
@@ -112,7 +172,10 @@ class InspectionResult:
             p["gbcicp"] = asdict(fit.params)
         return {
             "verdict": "PASS" if self.passed else "FAIL",
+            "decided_by": self.decided_by(),
             "acceptance": self.acceptance.to_dict(),
+            "tolerances": [z.to_dict() for z in self.zones],
+            "not_evaluated": [n.to_dict() for n in self.not_evaluated],
             "vertex_deviation": self.vertex_stats.to_dict(),
             "point_deviation": self.point_stats.to_dict(),
             "coverage": {
@@ -170,6 +233,10 @@ def inspect(
     P: np.ndarray,
     params: InspectionParams,
     progress=None,
+    *,
+    face_id: np.ndarray | None = None,
+    zones: list[ToleranceZone] | None = None,
+    not_evaluated: list[NotEvaluated] | None = None,
 ) -> InspectionResult:
     """Inspect the scan ``P`` against the nominal ``(V, F)``.
 
@@ -180,6 +247,10 @@ def inspect(
         the pre-registration stage first).
     params : :class:`InspectionParams`.
     progress : optional callable ``progress(k)`` advanced once per GB-CICP iteration.
+    face_id : (f,) B-rep face id of each triangle (STEP nominals), for face-based zones.
+    zones : tolerance zones (:func:`metrology.bands.zones_from_pmi`); default one general
+        zone of half-width ``params.tolerance``. Zones that cover no triangle are dropped.
+    not_evaluated : PMI items listed in the result but not scored.
 
     Raises
     ------
@@ -215,21 +286,52 @@ def inspect(
     timings["gbcicp"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    if zones is None:
+        tol = params.tolerance
+        zones = [symmetric_zone(DEFAULT_GENERAL_TOLERANCE, "default") if tol is None
+                 else symmetric_zone(tol, "general")]
+    bands = lay_bands(F, len(V), face_id, zones)
+    keep = [i for i, m in enumerate(bands.tri_masks) if m.any()]
+    if len(keep) < len(zones):
+        dropped = [zones[i].key for i in range(len(zones)) if i not in keep]
+        log.info("zones covering no triangle dropped: %s", ", ".join(dropped))
+        bands = lay_bands(F, len(V), face_id, [zones[i] for i in keep])
+
     N_reg = vertex_normals(V_reg, F)
     dev = nominal_referenced(V_reg, F, Pm, normals=N_reg)
+    dev_free = None
+    if fit is not None and any(z.free_state for z in bands.zones):
+        dev_free = nominal_referenced(V, F, Pm, normals=ops.normals)
     pdev = data_referenced(V_reg, F, Pm)
     area = ops.area  # barycentric vertex areas of the nominal, mm^2
-    vstats = deviation_statistics(dev, weights=area, threshold=params.tolerance)
-    pstats = deviation_statistics(pdev, threshold=params.tolerance)
+    dev_all = dev.copy()
+    if dev_free is not None:
+        free_v = np.isin(bands.governing, [i for i, z in enumerate(bands.zones) if z.free_state])
+        dev_all[free_v] = dev_free[free_v]
+    general_half = bands.zones[-1].half_width
+    vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
+    pstats = deviation_statistics(pdev, threshold=general_half)
     acc = evaluate(
-        V, F, dev, params.tolerance, area=area, min_fraction=params.min_fraction,
-        max_region_area=params.max_region_area,
+        V, F, dev_all, bands.half_width, area=area, min_fraction=params.min_fraction,
+        max_region_area=params.max_region_area, center=bands.center,
     )
+    zone_results = []
+    for z, mask in zip(bands.zones, bands.tri_masks, strict=True):
+        az = zone_vertex_areas(V, F, mask)
+        use_free = z.free_state and dev_free is not None
+        dz = np.where(az > 0, dev_free if use_free else dev, np.nan)
+        zacc = evaluate(V, F[mask], dz, z.half_width, area=az,
+                        min_fraction=params.min_fraction,
+                        max_region_area=params.max_region_area, center=z.center)
+        zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
+        zone_results.append(ZoneResult(zone=z, stats=zstats, acceptance=zacc,
+                                       fixtured=not use_free))
     s_area = scan_area(Pm)
     ceiling = coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
     timings["metrology"] = time.perf_counter() - t0
     return InspectionResult(
-        V=V, F=F, V_registered=V_reg, P=Pm, deviation=dev, point_deviation=pdev,
+        V=V, F=F, V_registered=V_reg, P=Pm, deviation=dev_all, point_deviation=pdev,
         vertex_stats=vstats, point_stats=pstats, acceptance=acc, rigid=rigid, fit=fit,
         params=params, scan_area=s_area, coverage_ceiling_ok=ceiling, timings=timings,
+        zones=zone_results, not_evaluated=list(not_evaluated or []), bands=bands,
     )

@@ -1,4 +1,9 @@
-"""``qifreport NOMINAL SCAN --tolerance MM``: inspect a free-state scan against its nominal.
+"""``qifreport NOMINAL SCAN``: inspect a free-state scan against its nominal.
+
+``NOMINAL`` is a STEP file (AP242 with semantic PMI: the tolerance zones come from the part
+itself) or a mesh (STL/PLY/OBJ/OFF, with ``--tolerance``). Sub-commands:
+
+* ``qifreport pmi PART.step [--json]`` lists the semantic PMI read from a STEP file.
 
 Exit codes: 0 the part passes, 1 the part fails, 2 the input cannot be inspected (one-line
 error on stderr naming the problem, and no output file written).
@@ -13,15 +18,18 @@ import logging
 import os
 import sys
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
 from metrology.inspection import InspectionParams, InspectionResult, inspect
 from registration.errors import InputError
 from registration.gbcicp import GBCICPParams
-from registration.mesh import load_mesh
+from registration.mesh import bounding_diagonal, load_mesh
 from registration.pointcloud import load_scan
+from step.reader import STEP_SUFFIXES
 
 from . import __version__
 
@@ -36,10 +44,16 @@ def _parser() -> argparse.ArgumentParser:
         description="Virtual-fixturing inspection of a flexible part: nominal + free-state scan "
         "-> deviation field, statistics and a pass/fail decision.",
     )
-    ap.add_argument("nominal", type=Path, help="nominal mesh (STL, PLY, OBJ, OFF), mm")
+    ap.add_argument("nominal", type=Path,
+                    help="nominal: STEP (AP242 with PMI) or mesh (STL, PLY, OBJ, OFF), mm")
     ap.add_argument("scan", type=Path, help="scan point cloud (PLY, XYZ, CSV, NPY), mm")
-    ap.add_argument("--tolerance", type=float, required=True, metavar="MM",
-                    help="profile tolerance half-width: |deviation| <= MM is in tolerance")
+    ap.add_argument("--tolerance", type=float, default=None, metavar="MM",
+                    help="general profile tolerance half-width (|deviation| <= MM) on faces no "
+                    "PMI profile covers; required for mesh nominals; STEP default 0.5")
+    ap.add_argument("--max-edge", type=float, default=None, metavar="MM",
+                    help="STEP: longest triangle edge of the tessellation (default diagonal/120)")
+    ap.add_argument("--deflection", type=float, default=None, metavar="MM",
+                    help="STEP: chord deflection of the tessellation (default 0.001 x diagonal)")
     ap.add_argument("--out", type=Path, default=Path("."), metavar="DIR",
                     help="output directory (default: current directory)")
     ap.add_argument("--json", action="store_true",
@@ -113,11 +127,11 @@ def write_ply_with_scalar(
         fh.write(face.tobytes())
 
 
-def summary(res: InspectionResult, tol: float) -> str:
+def summary(res: InspectionResult) -> str:
     """A short human-readable summary of the inspection."""
     a, s = res.acceptance, res.vertex_stats
     lines = [
-        f"verdict: {'PASS' if res.passed else 'FAIL'}   tolerance +/-{tol:g} mm",
+        f"verdict: {'PASS' if res.passed else 'FAIL'}",
         f"deviation (area-weighted, {s.n} scored vertices): RMS {s.rms:.3f}  max {s.max_abs:.3f}"
         f"  P95 {s.p95:.3f}  P99.9 {s.p999:.3f}  mean {s.mean:+.3f} mm",
         f"area criterion: {100 * a.in_tolerance_fraction:.2f} % in tolerance "
@@ -133,6 +147,18 @@ def summary(res: InspectionResult, tol: float) -> str:
             f"  region {r.area:7.1f} mm^2  peak {r.peak:+.3f} mm"
             f"  at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f})"
         )
+    lines.append("tolerances (each toleranced surface on its own faces):")
+    for z in res.zones:
+        za, zs = z.acceptance, z.stats
+        lines.append(
+            f"  {z.zone.key:8s} {'PASS' if za.passed else 'FAIL'}  {z.zone.describe()}: "
+            f"{100 * za.in_tolerance_fraction:.1f} % in band, largest region "
+            f"{za.largest_region_area:.1f} mm^2, max |dev| {zs.max_abs:.3f} mm"
+            + ("" if z.fixtured else " (free state)")
+        )
+    if res.not_evaluated:
+        lines.append(f"  {len(res.not_evaluated)} PMI item(s) listed, not scored "
+                     "(see the JSON 'not_evaluated')")
     if not res.coverage_ceiling_ok:
         lines.append("warning: coverage exceeds the scanned-to-nominal area ratio (over-fit?)")
     if res.fit is not None and res.fit.fallback:
@@ -140,10 +166,58 @@ def summary(res: InspectionResult, tol: float) -> str:
     return "\n".join(lines)
 
 
+@dataclass
+class Nominal:
+    """The nominal as the inspection needs it: mesh, face ids, zones, provenance."""
+
+    V: np.ndarray
+    F: np.ndarray
+    face_id: np.ndarray | None
+    zones: list[ToleranceZone]
+    not_evaluated: list[NotEvaluated]
+    info: dict
+
+
+def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = None,
+                 deflection: float | None = None) -> Nominal:
+    """Read a STEP part (mesh + PMI zones) or a mesh nominal (one general zone)."""
+    if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
+        raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
+    if path.suffix.lower() in STEP_SUFFIXES:
+        from step.reader import read_step
+        from step.tessellate import tessellate
+
+        part = read_step(path)
+        if max_edge is None:
+            from step.tessellate import _shape_diagonal
+
+            max_edge = _shape_diagonal(part.shape) / 120.0
+        mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
+        zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
+        pmi = part.pmi
+        info = {
+            "format": "step", "schema": getattr(pmi, "schema", None),
+            "length_unit": getattr(pmi, "length_unit", None),
+            "b_rep_faces": len(part.faces), "solids": part.n_solids,
+            "tessellation": {"deflection_mm": mesh.deflection, "max_edge_mm": max_edge,
+                             "vertices": len(mesh.V), "triangles": len(mesh.F)},
+            "pmi_counts": {"tolerances": len(pmi.tolerances) if pmi else 0,
+                           "dimensions": len(pmi.dimensions) if pmi else 0,
+                           "datums": len(pmi.datums) if pmi else 0},
+            "timings_s": {**part.timings, "tessellate": mesh.seconds},
+        }
+        return Nominal(mesh.V, mesh.F, mesh.face_id, zones, skipped, info)
+    if tolerance is None:
+        raise InputError(f"{path.name} is a mesh nominal: it carries no tolerance, give "
+                         "--tolerance MM (or use the STEP file with PMI)")
+    V, F = load_mesh(path)
+    info = {"format": "mesh", "diagonal_mm": bounding_diagonal(V)}
+    return Nominal(V, F, None, [symmetric_zone(tolerance, "general")], [], info)
+
+
 def run(args: argparse.Namespace) -> int:
-    if not args.tolerance > 0 or not np.isfinite(args.tolerance):
-        raise InputError(f"--tolerance must be a positive length in mm, got {args.tolerance}")
-    V, F = load_mesh(args.nominal)
+    nom = load_nominal(args.nominal, args.tolerance, args.max_edge, args.deflection)
+    V, F = nom.V, nom.F
     P = load_scan(args.scan)
     g = GBCICPParams(passes=max(1, args.passes), band_limit=args.band_limit)
     params = InspectionParams(
@@ -159,7 +233,8 @@ def run(args: argparse.Namespace) -> int:
 
         bar = tqdm(desc="virtual fixturing", unit="it", file=sys.stderr, leave=False)
     try:
-        res = inspect(V, F, P, params, progress=None if bar is None else bar.update)
+        res = inspect(V, F, P, params, progress=None if bar is None else bar.update,
+                      face_id=nom.face_id, zones=nom.zones, not_evaluated=nom.not_evaluated)
     finally:
         if bar is not None:
             bar.close()
@@ -167,6 +242,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         doc = res.to_dict()
         doc["software"] = {"name": "qifreport", "version": __version__}
+        doc["nominal"] = nom.info
         doc["inputs"] = {
             "nominal": {"path": str(args.nominal), "sha256": sha256(args.nominal)},
             "scan": {"path": str(args.scan), "sha256": sha256(args.scan)},
@@ -178,7 +254,7 @@ def run(args: argparse.Namespace) -> int:
             args.export_mesh,
             lambda p: write_ply_with_scalar(p, res.V_registered, F, "deviation", res.deviation),
         )
-    print(summary(res, args.tolerance))
+    print(summary(res))
     return EXIT_PASS if res.passed else EXIT_FAIL
 
 
@@ -192,28 +268,55 @@ def _json_default(o):
     raise TypeError(type(o).__name__)
 
 
+def _pmi_main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(prog="qifreport pmi",
+                                 description="List the semantic PMI of a STEP file.")
+    ap.add_argument("step", type=Path, help="STEP AP242 file")
+    ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    args = ap.parse_args(argv)
+    from step.reader import read_step
+    from step.report import pmi_rows, pmi_table
+
+    part = read_step(args.step)
+    if args.json:
+        print(json.dumps({"file": str(args.step), "sha256": sha256(args.step),
+                          "length_unit": part.pmi.length_unit, "faces": len(part.faces),
+                          "items": pmi_rows(part)}, indent=2, default=_json_default))
+    else:
+        print(pmi_table(part))
+    return 0
+
+
+def _guard(fn, verbose: bool) -> int:
+    """Run ``fn()``; map input errors and internal errors to exit 2 with one line."""
+    try:
+        return fn()
+    except InputError as exc:
+        print(f"qifreport: error: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    except (OSError, MemoryError) as exc:
+        print(f"qifreport: error: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return EXIT_ERROR
+    except Exception as exc:  # a bug must never read as "part failed" (exit 1)
+        log.debug("internal error", exc_info=True)
+        print(f"qifreport: internal error: {type(exc).__name__}: {exc} (run with -v for the "
+              "traceback)", file=sys.stderr)
+        if verbose:
+            import traceback
+
+            traceback.print_exc()
+        return EXIT_ERROR
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns (and exits with) 0 pass, 1 fail, 2 error."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] == "pmi":
+        logging.basicConfig(level=logging.WARNING, format="qifreport: %(levelname)s: %(message)s")
+        sys.exit(_guard(lambda: _pmi_main(argv[1:]), verbose="-v" in argv))
     args = _parser().parse_args(argv)
     logging.basicConfig(
         level=logging.INFO if args.verbose else logging.WARNING,
         format="qifreport: %(levelname)s: %(message)s",
     )
-    try:
-        code = run(args)
-    except InputError as exc:
-        print(f"qifreport: error: {exc}", file=sys.stderr)
-        code = EXIT_ERROR
-    except (OSError, MemoryError) as exc:
-        print(f"qifreport: error: {type(exc).__name__}: {exc}", file=sys.stderr)
-        code = EXIT_ERROR
-    except Exception as exc:  # a bug must never read as "part failed" (exit 1)
-        log.debug("internal error", exc_info=True)
-        print(f"qifreport: internal error: {type(exc).__name__}: {exc} (run with -v for the "
-              "traceback)", file=sys.stderr)
-        if args.verbose:
-            import traceback
-
-            traceback.print_exc()
-        code = EXIT_ERROR
-    sys.exit(code)
+    sys.exit(_guard(lambda: run(args), args.verbose))

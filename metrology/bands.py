@@ -1,0 +1,296 @@
+"""Tolerance zones on the nominal surface: which band applies where, and where it came from.
+
+A **zone** is one toleranced surface: a set of B-rep faces and a band ``[lower, upper]`` on the
+signed normal deviation (mm; positive = material proud of the nominal, i.e. along the outward
+normal). Zones come from the part's semantic PMI (:func:`zones_from_pmi`) or from the general
+tolerance of the command line.
+
+Profile of a surface, width ``t``:
+
+* **bilateral, equally disposed** (the default): ``[-t/2, +t/2]``.
+* **unequally disposed** (ASME Y14.5 "UZ", AP242 ``UNEQUALLY_DISPOSED_GEOMETRIC_TOLERANCE``
+  with displacement ``d``): ``d`` is the part of the zone lying outside the material (toward
+  the +normal side), so the band is ``[d - t, d]``. ``d = t`` is unilateral outward
+  (``[0, t]``), ``d = 0`` unilateral inward (``[-t, 0]``). A displacement outside ``[0, t]``
+  is rejected as unreadable PMI rather than guessed.
+
+Other PMI is listed but not scored by the area/region criteria: form and orientation
+tolerances of features (flatness, position, perpendicularity, ...) and dimensions need a
+feature fit, not a surface band. They are reported as "not evaluated" with the reason.
+
+Datum reference frames. The datums of a profile tolerance say how the part is held while it
+is measured. qifreport's virtual fixture replaces the physical datum fixture for a compliant
+part (paper Section 10): every profile zone is evaluated on the same virtually fixtured
+nominal, and the datum reference frame is reported with the zone. A tolerance carrying the
+**free-state** modifier (ASME "F") is, by definition, checked *unrestrained*: it is evaluated
+on the rigidly aligned deviation, without the virtual fixture.
+
+Overlaps and gaps. A vertex where several zones meet (a face boundary, or a face under two
+profile tolerances) takes the **tightest** zone (smallest width; ties: the first in file
+order) in the combined map. Faces under no profile tolerance belong to the **general** zone:
+the ``--tolerance`` of the command line (source ``"general"``), else
+:data:`DEFAULT_GENERAL_TOLERANCE` (source ``"default"``); the report says which.
+Each zone is *also* evaluated on its own faces with its own band (area and region criteria
+per toleranced surface).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+#: mm, half-width of the general profile band (zone 1.0 mm) used on faces that no profile
+#: tolerance covers when the command line gives none: a common title-block general
+#: profile tolerance for moulded and sheet-metal parts. Always reported as source "default".
+DEFAULT_GENERAL_TOLERANCE = 0.5
+
+PROFILE_TYPES = ("surface_profile",)
+
+
+@dataclass
+class ToleranceZone:
+    """One toleranced surface and its band.
+
+    Attributes
+    ----------
+    key : short unique key, e.g. ``"T1"``, ``"general"``.
+    name : the tolerance's name in the file (or a description).
+    kind : tolerance type, e.g. ``"surface_profile"``.
+    width : zone width ``t``, mm.
+    lower, upper : the band on the signed deviation, mm (``upper - lower == width``).
+    faces : (k,) int64 face ids, or None for "every face not otherwise covered" (general).
+    source : ``"pmi"``, ``"general"`` (command line) or ``"default"``.
+    datums : datum labels in precedence order.
+    modifiers : lowercase modifier names from the PMI.
+    step_id : STEP entity id of the tolerance, None for general zones.
+    free_state : evaluate without the virtual fixture (ASME free-state modifier).
+    """
+
+    key: str
+    name: str
+    kind: str
+    width: float
+    lower: float
+    upper: float
+    faces: np.ndarray | None
+    source: str
+    datums: list[str] = field(default_factory=list)
+    modifiers: list[str] = field(default_factory=list)
+    step_id: int | None = None
+    free_state: bool = False
+
+    @property
+    def center(self) -> float:
+        return 0.5 * (self.lower + self.upper)
+
+    @property
+    def half_width(self) -> float:
+        return 0.5 * (self.upper - self.lower)
+
+    def describe(self) -> str:
+        """One line, e.g. ``surface profile 0.5 mm |A|B|C| [-0.25, +0.25] (pmi #1234)``."""
+        drf = "|" + "|".join(self.datums) + "|" if self.datums else ""
+        src = self.source if self.step_id is None else f"{self.source} #{self.step_id}"
+        return (f"{self.kind.replace('_', ' ')} {self.width:g} mm {drf} "
+                f"[{self.lower:+g}, {self.upper:+g}] ({src})").replace("  ", " ")
+
+    def to_dict(self) -> dict:
+        return {
+            "key": self.key, "name": self.name, "kind": self.kind, "width_mm": self.width,
+            "lower_mm": self.lower, "upper_mm": self.upper, "source": self.source,
+            "datums": list(self.datums), "modifiers": list(self.modifiers),
+            "step_id": self.step_id, "free_state": self.free_state,
+            "n_faces": None if self.faces is None else int(len(self.faces)),
+            "faces": None if self.faces is None else [int(f) for f in self.faces],
+        }
+
+
+@dataclass
+class NotEvaluated:
+    """A PMI item listed in the report but not scored, with the reason."""
+
+    kind: str
+    name: str
+    step_id: int | None
+    reason: str
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "name": self.name, "step_id": self.step_id,
+                "reason": self.reason}
+
+
+def symmetric_zone(half_width: float, source: str, key: str = "general",
+                   name: str = "general profile tolerance") -> ToleranceZone:
+    """A bilateral surface-profile zone ``[-h, +h]`` on every face not otherwise covered."""
+    h = float(half_width)
+    if not (np.isfinite(h) and h > 0):
+        raise ValueError(f"tolerance half-width must be positive, got {half_width}")
+    return ToleranceZone(key=key, name=name, kind="surface_profile", width=2 * h, lower=-h,
+                         upper=h, faces=None, source=source)
+
+
+def profile_band(width: float, displacement: float | None) -> tuple[float, float]:
+    """Band ``(lower, upper)`` of a surface-profile zone of width ``t`` (module docstring).
+
+    Raises ValueError for a non-positive width or a displacement outside ``[0, t]``.
+    """
+    t = float(width)
+    if not (np.isfinite(t) and t > 0):
+        raise ValueError(f"zone width must be positive, got {width}")
+    if displacement is None:
+        return -0.5 * t, 0.5 * t
+    d = float(displacement)
+    if not (np.isfinite(d) and -1e-12 <= d <= t * (1 + 1e-12)):
+        raise ValueError(f"unequal displacement {d} outside [0, {t}]")
+    return d - t, d
+
+
+def zones_from_pmi(
+    pmi,
+    face_index: dict[int, int],
+    general: float | None,
+) -> tuple[list[ToleranceZone], list[NotEvaluated]]:
+    """Tolerance zones of a part from its semantic PMI.
+
+    Parameters
+    ----------
+    pmi : :class:`step.pmi.PMI` (values in mm) or None.
+    face_index : STEP face entity id -> face id of the tessellated part.
+    general : half-width of the general zone from the command line (mm), or None for
+        :data:`DEFAULT_GENERAL_TOLERANCE`.
+
+    Returns
+    -------
+    zones : one zone per surface-profile tolerance with a value and faces, in file order,
+        then the general zone (always present; it applies to the faces no profile covers).
+    skipped : PMI items that are not scored, with the reason.
+    """
+    zones: list[ToleranceZone] = []
+    skipped: list[NotEvaluated] = []
+    if pmi is not None:
+        for tol in pmi.tolerances:
+            if tol.type not in PROFILE_TYPES:
+                skipped.append(NotEvaluated(tol.type, tol.name, tol.step_id,
+                                            "feature tolerance: needs a feature fit, "
+                                            "not a surface band"))
+                continue
+            if tol.value is None:
+                skipped.append(NotEvaluated(tol.type, tol.name, tol.step_id,
+                                            "tolerance value could not be established: "
+                                            + "; ".join(tol.problems)))
+                continue
+            faces = sorted({face_index[s] for s in tol.face_step_ids if s in face_index})
+            if not faces:
+                skipped.append(NotEvaluated(tol.type, tol.name, tol.step_id,
+                                            "no B-rep face could be associated"))
+                continue
+            try:
+                lo, hi = profile_band(tol.value, tol.unequal_displacement)
+            except ValueError as exc:
+                skipped.append(NotEvaluated(tol.type, tol.name, tol.step_id, str(exc)))
+                continue
+            mods = list(tol.modifiers)
+            zones.append(ToleranceZone(
+                key=f"T{len(zones) + 1}", name=tol.name or f"#{tol.step_id}", kind=tol.type,
+                width=float(tol.value), lower=lo, upper=hi,
+                faces=np.asarray(faces, dtype=np.int64), source="pmi",
+                datums=[d.label for d in sorted(tol.datums, key=lambda d: d.precedence)],
+                modifiers=mods, step_id=tol.step_id, free_state="free_state" in mods,
+            ))
+        for dim in pmi.dimensions:
+            skipped.append(NotEvaluated(f"dimension ({dim.type})", dim.name, dim.step_id,
+                                        "dimension: needs a feature fit, not a surface band"))
+    if general is None:
+        zones.append(symmetric_zone(DEFAULT_GENERAL_TOLERANCE, "default"))
+    else:
+        zones.append(symmetric_zone(general, "general"))
+    return zones, skipped
+
+
+def triangle_zone_mask(face_id: np.ndarray, zone: ToleranceZone,
+                       covered: np.ndarray | None = None) -> np.ndarray:
+    """(f,) bool: triangles of the zone (a general zone takes the uncovered triangles)."""
+    if zone.faces is not None:
+        return np.isin(face_id, zone.faces)
+    if covered is None:
+        return np.ones(len(face_id), dtype=bool)
+    return ~covered
+
+
+@dataclass
+class BandField:
+    """The zones laid on the mesh.
+
+    Attributes
+    ----------
+    zones : all zones (general last).
+    tri_masks : per zone, (f,) bool triangles it covers (the general zone: the rest).
+    lower, upper : (n,) per-vertex band of the tightest zone touching the vertex, mm.
+    governing : (n,) int index into ``zones`` of that zone.
+    """
+
+    zones: list[ToleranceZone]
+    tri_masks: list[np.ndarray]
+    lower: np.ndarray
+    upper: np.ndarray
+    governing: np.ndarray
+
+    @property
+    def center(self) -> np.ndarray:
+        return 0.5 * (self.lower + self.upper)
+
+    @property
+    def half_width(self) -> np.ndarray:
+        return 0.5 * (self.upper - self.lower)
+
+
+def lay_bands(F: np.ndarray, n: int, face_id: np.ndarray | None,
+              zones: list[ToleranceZone]) -> BandField:
+    """Lay the zones on the mesh; each vertex takes the tightest zone around it.
+
+    Parameters
+    ----------
+    F : (f, 3) triangles.  n : number of vertices.
+    face_id : (f,) B-rep face id per triangle, or None (a mesh nominal: only general zones).
+    zones : from :func:`zones_from_pmi` (zones with ``faces=None`` cover the rest).
+    """
+    F = np.asarray(F, dtype=np.int64)
+    if face_id is None:
+        face_id = np.zeros(len(F), dtype=np.int64)
+        if any(z.faces is not None for z in zones):
+            raise ValueError("face-based zones need per-triangle face ids")
+    covered = np.zeros(len(F), dtype=bool)
+    for z in zones:
+        if z.faces is not None:
+            covered |= np.isin(face_id, z.faces)
+    masks = [triangle_zone_mask(face_id, z, covered) for z in zones]
+    width = np.full(n, np.inf)
+    gov = np.full(n, -1, dtype=np.int64)
+    # tightest first wins; ties keep the earlier zone (stable order)
+    order = sorted(range(len(zones)), key=lambda i: (zones[i].width, i))
+    for i in order:
+        verts = np.unique(F[masks[i]].ravel())
+        free = verts[gov[verts] < 0]
+        gov[free] = i
+        width[free] = zones[i].width
+    lower = np.full(n, np.nan)
+    upper = np.full(n, np.nan)
+    has = gov >= 0
+    lower[has] = np.array([zones[i].lower for i in gov[has]])
+    upper[has] = np.array([zones[i].upper for i in gov[has]])
+    return BandField(zones=zones, tri_masks=masks, lower=lower, upper=upper, governing=gov)
+
+
+def zone_vertex_areas(V: np.ndarray, F: np.ndarray, tri_mask: np.ndarray) -> np.ndarray:
+    """(n,) barycentric vertex areas (mm^2) counting only the triangles in ``tri_mask``."""
+    V = np.asarray(V, dtype=np.float64)
+    Fz = np.asarray(F, dtype=np.int64)[tri_mask]
+    a = 0.5 * np.linalg.norm(np.cross(V[Fz[:, 1]] - V[Fz[:, 0]], V[Fz[:, 2]] - V[Fz[:, 0]]),
+                             axis=1)
+    out = np.zeros(len(V))
+    np.add.at(out, Fz.ravel(), np.repeat(a / 3.0, 3))
+    return out

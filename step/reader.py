@@ -1,0 +1,302 @@
+"""Read a STEP part through OpenCASCADE's XDE: shape, faces, units, and the semantic PMI.
+
+The B-rep comes from ``STEPCAFControl_Reader`` (GD&T and name modes on), which converts
+every length to millimetres (OCCT's default ``xstep.cascade.unit``). The semantic PMI --
+tolerances, dimensions, datums -- is read twice:
+
+* by XDE, as OCCT understands it (``XCAFDoc_DimTolTool``), kept as :class:`XdeSummary` for
+  cross-checking and for the ``pmi`` report;
+* from the Part 21 text itself by :func:`step.semantic.read_pmi_text`, which is the source of
+  every *value* we use. XDE returns 0.0 for magnitudes stored as complex measure instances,
+  mis-scales some units, and loses datum-to-face links that go through anything other than
+  ``GEOMETRIC_ITEM_SPECIFIC_USAGE`` (``../shared/README.md``, "Known traps"; OCCT issues
+  #1368, #384, #1138). The text reader resolves units recursively and follows every link.
+
+The two are joined through the B-rep faces: the Part 21 reader names faces by their STEP
+entity id (``#764 = ADVANCED_FACE(...)``); this module maps each face of the transferred shape
+back to the entity it came from (``XSControl_TransferReader.EntityFromShapeResult``), and from
+the entity's rank in the model to its ``#id`` (OCCT loads records in file order; the mapping
+is checked on every face by entity type).
+
+Face ids: the index of a face in ``TopExp.MapShapes(shape, TopAbs_FACE)`` (0-based). The
+tessellation (:mod:`step.tessellate`) tags every triangle with this id.
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from registration.errors import InputError
+
+log = logging.getLogger(__name__)
+
+STEP_SUFFIXES = (".step", ".stp", ".p21")
+
+
+@dataclass
+class XdeItem:
+    """One GD&T item as OCCT's XDE reads it (for cross-checking only; values may be wrong).
+
+    Attributes
+    ----------
+    kind : ``'tolerance'``, ``'dimension'`` or ``'datum'``.
+    type : OCCT's type enumeration name without its prefix (e.g. ``'ProfileOfSurface'``).
+    name : the semantic name, or the datum label.
+    value : the value XDE returns (0.0 where it failed to read one).
+    n_faces : number of shape labels XDE linked to the item.
+    """
+
+    kind: str
+    type: str
+    name: str
+    value: float | None
+    n_faces: int
+
+
+@dataclass
+class XdeSummary:
+    """What XDE saw: items and counts (not used for any value)."""
+
+    items: list[XdeItem] = field(default_factory=list)
+
+    def counts(self) -> dict[str, int]:
+        return dict(Counter(i.kind for i in self.items))
+
+
+@dataclass
+class StepPart:
+    """A STEP part read for inspection.
+
+    Attributes
+    ----------
+    path : the file read.
+    name : product name from the file (or the file stem).
+    shape : ``TopoDS_Shape`` in mm (compound of the free shapes).
+    faces : list of ``TopoDS_Face``; the list index is the face id.
+    face_step_ids : (n_faces,) int64, STEP entity id of each face, -1 if unknown.
+    n_solids : number of solids in the shape.
+    pmi : :class:`step.pmi.PMI`, semantic PMI read from the text (values in mm / deg).
+    xde : :class:`XdeSummary`, the same PMI as OCCT's XDE reads it.
+    timings : seconds per stage.
+    """
+
+    path: Path
+    name: str
+    shape: object
+    faces: list
+    face_step_ids: np.ndarray
+    n_solids: int
+    pmi: object
+    xde: XdeSummary
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def face_index(self) -> dict[int, int]:
+        """Map STEP entity id -> face id."""
+        return {int(s): i for i, s in enumerate(self.face_step_ids) if s >= 0}
+
+    def faces_of(self, step_ids) -> list[int]:
+        """Face ids of the given STEP face entity ids (unknown ids are dropped)."""
+        idx = self.face_index()
+        return sorted({idx[int(s)] for s in step_ids if int(s) in idx})
+
+
+def _enum_name(e) -> str:
+    s = getattr(e, "name", str(e))
+    return s.split("_", 1)[1] if "_" in s else s
+
+
+def _record_ids(path: Path) -> list[tuple[int, str]]:
+    """``(#id, first type name)`` of every DATA record, in file order (model ranks)."""
+    text = path.read_text(encoding="latin-1")
+    i = text.find("DATA;")
+    if i < 0:
+        raise InputError(f"{path.name}: not a STEP Part 21 file (no DATA section)")
+    # a record starts with '#id =' at the beginning of a statement; strings never start lines
+    # with '#<digits>=' in the files we met, and the count is checked against OCCT's model.
+    recs = re.findall(r"(?m)^\s*#(\d+)\s*=\s*\(?\s*([A-Za-z_0-9]+)", text[i:])
+    return [(int(a), b.upper()) for a, b in recs]
+
+
+def _xde_items(doc) -> XdeSummary:
+    from OCP.TDF import TDF_LabelSequence
+    from OCP.XCAFDoc import (
+        XCAFDoc_Datum,
+        XCAFDoc_Dimension,
+        XCAFDoc_DimTolTool,
+        XCAFDoc_DocumentTool,
+        XCAFDoc_GeomTolerance,
+    )
+
+    dt = XCAFDoc_DocumentTool.DimTolTool_s(doc.Main())
+    out = XdeSummary()
+
+    def nref(label) -> int:
+        f, s = TDF_LabelSequence(), TDF_LabelSequence()
+        XCAFDoc_DimTolTool.GetRefShapeLabel_s(label, f, s)
+        return f.Length() + s.Length()
+
+    labs = TDF_LabelSequence()
+    dt.GetGeomToleranceLabels(labs)
+    for i in range(1, labs.Length() + 1):
+        lab = labs.Value(i)
+        obj = XCAFDoc_GeomTolerance.Set_s(lab).GetObject()
+        nm = obj.GetSemanticName()
+        out.items.append(XdeItem("tolerance", _enum_name(obj.GetType()),
+                                 nm.ToCString() if nm is not None else "",
+                                 float(obj.GetValue()), nref(lab)))
+    labs = TDF_LabelSequence()
+    dt.GetDimensionLabels(labs)
+    for i in range(1, labs.Length() + 1):
+        lab = labs.Value(i)
+        obj = XCAFDoc_Dimension.Set_s(lab).GetObject()
+        typ = _enum_name(obj.GetType())
+        if typ.endswith("DimensionPresentation"):
+            continue  # graphical-only dimension, no semantic content
+        out.items.append(XdeItem("dimension", typ, "", float(obj.GetValue()), nref(lab)))
+    labs = TDF_LabelSequence()
+    dt.GetDatumLabels(labs)
+    for i in range(1, labs.Length() + 1):
+        lab = labs.Value(i)
+        obj = XCAFDoc_Datum.Set_s(lab).GetObject()
+        nm = obj.GetName()
+        out.items.append(XdeItem("datum", "Datum", nm.ToCString() if nm is not None else "",
+                                 None, nref(lab)))
+    return out
+
+
+def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
+    """Read a STEP file: the B-rep (mm), its faces with their entity ids, and the PMI.
+
+    Parameters
+    ----------
+    path : STEP AP203/AP214/AP242 file.
+    pmi : also read the semantic PMI (text reader + XDE cross-check).
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, not STEP, or no faces in the file.
+    """
+    from OCP.BRep import BRep_Builder
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.STEPCAFControl import STEPCAFControl_Reader
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDF import TDF_LabelSequence
+    from OCP.TDocStd import TDocStd_Document
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
+    from OCP.TopExp import TopExp
+    from OCP.TopoDS import TopoDS, TopoDS_Compound
+    from OCP.TopTools import TopTools_IndexedMapOfShape
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    with open(path, "rb") as fh:
+        head = fh.read(64)
+    if not head.lstrip().startswith(b"ISO-10303-21"):
+        raise InputError(f"{path.name}: not a STEP file (no ISO-10303-21 header)")
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    doc = TDocStd_Document(TCollection_ExtendedString("XmlXCAF"))
+    reader = STEPCAFControl_Reader()
+    reader.SetGDTMode(True)
+    reader.SetNameMode(True)
+    reader.SetColorMode(False)
+    reader.SetLayerMode(False)
+    if reader.ReadFile(str(path)) != IFSelect_RetDone:
+        raise InputError(f"{path.name}: the STEP reader could not parse the file")
+    if not reader.Transfer(doc):
+        raise InputError(f"{path.name}: the STEP file has no transferable shape")
+    timings["xde_read"] = time.perf_counter() - t0
+
+    st = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    labs = TDF_LabelSequence()
+    st.GetFreeShapes(labs)
+    shapes = [st.GetShape_s(labs.Value(i)) for i in range(1, labs.Length() + 1)]
+    shapes = [s for s in shapes if not s.IsNull()]
+    if not shapes:
+        raise InputError(f"{path.name}: the STEP file contains no shape")
+    if len(shapes) == 1:
+        shape = shapes[0]
+    else:
+        shape = TopoDS_Compound()
+        b = BRep_Builder()
+        b.MakeCompound(shape)
+        for s in shapes:
+            b.Add(shape, s)
+    fmap = TopTools_IndexedMapOfShape()
+    TopExp.MapShapes_s(shape, TopAbs_FACE, fmap)
+    faces = [TopoDS.Face_s(fmap.FindKey(i)) for i in range(1, fmap.Size() + 1)]
+    if not faces:
+        raise InputError(f"{path.name}: the STEP file has no surface (no solid, shell or face)")
+    smap = TopTools_IndexedMapOfShape()
+    TopExp.MapShapes_s(shape, TopAbs_SOLID, smap)
+
+    # face -> STEP entity id, through the transfer process and the model's record order
+    t0 = time.perf_counter()
+    face_ids = np.full(len(faces), -1, dtype=np.int64)
+    try:
+        model = reader.Reader().StepModel()
+        tr = reader.Reader().WS().TransferReader()
+        records = _record_ids(path)
+        if len(records) != model.NbEntities():
+            log.warning("%s: %d records in the text, %d in OCCT's model; face ids not mapped",
+                        path.name, len(records), model.NbEntities())
+        else:
+            # keep every wrapper alive: OCP reuses the Python object of a live C++ handle,
+            # so identity of the returned entity finds its rank
+            ents = [model.Value(i) for i in range(1, model.NbEntities() + 1)]
+            rank = {id(e): i for i, e in enumerate(ents)}
+            bad = 0
+            for k, f in enumerate(faces):
+                e = tr.EntityFromShapeResult(f, 1)
+                if e is None:
+                    e = tr.EntityFromShapeResult(f, -1)
+                r = rank.get(id(e)) if e is not None else None
+                if r is None:
+                    continue
+                sid, typ = records[r]
+                if "FACE" not in typ:
+                    bad += 1
+                    continue
+                face_ids[k] = sid
+            del ents
+            if bad:
+                log.warning("%s: %d faces mapped to non-face records; ids dropped", path.name, bad)
+    except InputError:
+        raise
+    except Exception as exc:  # the mapping is best effort: PMI then has no face links
+        log.warning("%s: could not map faces to STEP entities: %s", path.name, exc)
+    timings["face_map"] = time.perf_counter() - t0
+    n_unmapped = int(np.sum(face_ids < 0))
+    if n_unmapped:
+        log.info("%s: %d of %d faces without a STEP entity id", path.name, n_unmapped, len(faces))
+
+    name = path.stem
+
+    pmi_data = None
+    xde = XdeSummary()
+    if pmi:
+        from .semantic import read_pmi_text
+
+        t0 = time.perf_counter()
+        pmi_data = read_pmi_text(path)
+        timings["pmi_text"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        try:
+            xde = _xde_items(doc)
+        except Exception as exc:  # cross-check only
+            log.warning("%s: XDE GD&T cross-check failed: %s", path.name, exc)
+        timings["pmi_xde"] = time.perf_counter() - t0
+    return StepPart(
+        path=path, name=name, shape=shape, faces=faces, face_step_ids=face_ids,
+        n_solids=smap.Size(), pmi=pmi_data, xde=xde, timings=timings,
+    )
