@@ -42,6 +42,8 @@ _BARY_EDGE_TOL = 1e-9
 _MIN_PLANE_COS = 0.26
 #: second / smallest covariance eigenvalue below this: the points are (nearly) collinear
 _MIN_SPREAD_RATIO = 10.0
+#: with oriented scan normals, a point belongs to a vertex's surface only within 60 degrees
+_MIN_FACING_COS = 0.5
 
 
 def _as_mesh(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -324,6 +326,20 @@ def data_referenced(V: np.ndarray, F: np.ndarray, P: np.ndarray) -> np.ndarray:
     return closest_points(V, F, P)[2]
 
 
+def orient_scan_normals(
+    P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndarray
+) -> np.ndarray:
+    """Give unsigned scan normals (m, 3) the sign of the nearest vertex normal of ``(V, N)``.
+
+    Meant for a registered nominal: where the fit is within half the wall thickness, each
+    measured point's nearest vertex lies on the skin it measured.
+    """
+    _, near = cKDTree(V).query(P, workers=-1)
+    s = np.sign(np.einsum("ij,ij->i", Ns, N[near]))
+    s[s == 0] = 1.0
+    return Ns * s[:, None]
+
+
 def nominal_referenced(
     V: np.ndarray,
     F: np.ndarray,
@@ -334,6 +350,7 @@ def nominal_referenced(
     *,
     max_centroid_offset: float | None = 0.5,
     max_distance: float | None = None,
+    scan_normals: np.ndarray | None = None,
 ) -> np.ndarray:
     """Signed deviation (n,) mm of every nominal vertex along its normal to the local scan.
 
@@ -371,6 +388,11 @@ def nominal_referenced(
     min_points : a vertex with fewer scan points than this in its neighbourhood is unscored.
     max_centroid_offset : fraction of ``radius`` (see above); None disables the rule.
     max_distance : mm; if given, the neighbourhood is the cylinder described above.
+    scan_normals : (m, 3) scan normals *oriented* outward (e.g. by
+        :func:`orient_scan_normals`); if given, a vertex only uses points whose normal is
+        within 60 degrees of its own (``n_point . n_vertex > 0.5``). This keeps the back
+        skin and the edge faces of a thin wall, closer to the front's measurements than
+        ``radius``, from being scored against them.
 
     Returns
     -------
@@ -379,7 +401,11 @@ def nominal_referenced(
     """
     V, F = _as_mesh(V, F)
     P = _as_points(P)
-    P = P[np.isfinite(P).all(axis=1)]
+    finite = np.isfinite(P).all(axis=1)
+    P = P[finite]
+    Ns = None
+    if scan_normals is not None:
+        Ns = np.asarray(scan_normals, dtype=np.float64)[finite]
     n = len(V)
     dev = np.full(n, np.nan)
     if len(P) == 0:
@@ -400,6 +426,9 @@ def nominal_referenced(
         return dev
     idx = np.concatenate([np.asarray(hits[i], dtype=np.int64) for i in cand])
     vrt = np.repeat(cand, cnt[cand])
+    if Ns is not None:  # only points of a surface facing the vertex's side
+        facing = np.einsum("ij,ij->i", Ns[idx], N[vrt]) > _MIN_FACING_COS
+        idx, vrt = idx[facing], vrt[facing]
     Q = P[idx] - V[vrt]  # local coordinates about the vertex: well conditioned
     if max_distance is not None:  # cylinder about the normal line
         along = np.einsum("ij,ij->i", Q, N[vrt])

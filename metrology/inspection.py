@@ -23,6 +23,7 @@ from registration.errors import InputError
 from registration.gbcicp import GBCICPParams, GBCICPResult, gbcicp
 from registration.icp import RigidResult, rigid_icp
 from registration.mesh import bending_operator, bounding_diagonal, vertex_normals
+from registration.pointcloud import pca_normals
 
 from .acceptance import (
     DEFAULT_MAX_REGION_AREA,
@@ -40,7 +41,7 @@ from .bands import (
     symmetric_zone,
     zone_vertex_areas,
 )
-from .deviation import data_referenced, nominal_referenced
+from .deviation import data_referenced, nominal_referenced, orient_scan_normals
 from .statistics import DeviationStats, deviation_statistics
 
 log = logging.getLogger(__name__)
@@ -298,10 +299,13 @@ def inspect(
         bands = lay_bands(F, len(V), face_id, [zones[i] for i in keep])
 
     N_reg = vertex_normals(V_reg, F)
-    dev = nominal_referenced(V_reg, F, Pm, normals=N_reg)
+    Ns = pca_normals(Pm)
+    dev = nominal_referenced(V_reg, F, Pm, normals=N_reg,
+                             scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg))
     dev_free = None
     if fit is not None and any(z.free_state for z in bands.zones):
-        dev_free = nominal_referenced(V, F, Pm, normals=ops.normals)
+        dev_free = nominal_referenced(V, F, Pm, normals=ops.normals,
+                                      scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals))
     pdev = data_referenced(V_reg, F, Pm)
     area = ops.area  # barycentric vertex areas of the nominal, mm^2
     dev_all = dev.copy()

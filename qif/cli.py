@@ -51,7 +51,7 @@ def _parser() -> argparse.ArgumentParser:
                     help="general profile tolerance half-width (|deviation| <= MM) on faces no "
                     "PMI profile covers; required for mesh nominals; STEP default 0.5")
     ap.add_argument("--max-edge", type=float, default=None, metavar="MM",
-                    help="STEP: longest triangle edge of the tessellation (default diagonal/120)")
+                    help="STEP: longest triangle edge of the tessellation (default diagonal/60)")
     ap.add_argument("--deflection", type=float, default=None, metavar="MM",
                     help="STEP: chord deflection of the tessellation (default 0.001 x diagonal)")
     ap.add_argument("--out", type=Path, default=Path("."), metavar="DIR",
@@ -191,7 +191,7 @@ def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = N
         if max_edge is None:
             from step.tessellate import _shape_diagonal
 
-            max_edge = _shape_diagonal(part.shape) / 120.0
+            max_edge = _shape_diagonal(part.shape) / 60.0
         mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
         zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
         pmi = part.pmi

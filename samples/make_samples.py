@@ -1,10 +1,23 @@
 """Generate the demo inputs in samples/ (deterministic; re-run to regenerate).
 
+Mesh nominal (the fallback input, with ``--tolerance``):
+
 * ``shell_nominal.ply``: the 170 x 110 mm doubly curved thin shell (8,436 vertices).
 * ``shell_scan.ply``: a simulated free-state scan of it: analytic compliance at 2 % of the
   diagonal (~4 mm), 3 views, 0.02 mm range noise, clamp dropout. Conforming at +/-0.5 mm.
 * ``shell_scan_defect.ply``: the same with a 1.0 mm / sigma 7 mm Gaussian bump: fails the
   region criterion at +/-0.5 mm.
+
+STEP nominal with semantic PMI (the product's main input):
+
+* ``panel.step``: the 160 x 100 mm cover of :mod:`make_step_sample` (AP242, datums A|B|C,
+  surface profile 1.0 mm on every face, 0.5 mm on the crown's outer skin, flatness 0.2 mm
+  on the flanges).
+* ``panel_scan.ply``: its free state: the analytic field at 1.5 % of the diagonal (about
+  2.8 mm) applied along the mid-plane normal (the wall bends, its thickness is kept), seen
+  by 3 views from above, 0.02 mm noise. Conforming.
+* ``panel_scan_defect.ply``: the same with a 0.45 mm / sigma 6 mm bump on the crown: out of
+  the 0.5 mm skin profile (T2, +/-0.25) over about 100 mm^2, inside the 1.0 mm one (T1).
 
 Usage: ``python samples/make_samples.py [OUTDIR]``
 """
@@ -17,10 +30,60 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from registration.mesh import vertex_normals
 from registration.simulate.cases import make_case
+from registration.simulate.defects import gaussian_bump
+from registration.simulate.deform import analytic_deformation
+from registration.simulate.scanner import ScanSpec, virtual_scan
 from registration.simulate.shapes import thin_shell
 
 SEED = 1
+#: tessellation edge for the simulation (mm); the scan does not depend on the inspection mesh
+PANEL_EDGE = 2.5
+#: defect centre on the crown (mm, nominal frame)
+PANEL_DEFECT_AT = (25.0, 10.0, 9.3)
+
+
+def _views(k: int = 3, tilt_deg: float = 25.0) -> np.ndarray:
+    """Camera -> part directions: looking down -z, tilted ``tilt_deg`` at ``k`` azimuths."""
+    t = np.deg2rad(tilt_deg)
+    phi = 2 * np.pi * np.arange(k) / k
+    d = np.c_[np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), -np.cos(t) * np.ones(k)]
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def panel_scans(step_path: Path, out: Path) -> None:
+    from step.reader import read_step
+    from step.tessellate import tessellate
+
+    part = read_step(step_path, pmi=False)
+    m = tessellate(part.shape, part.faces, max_edge=PANEL_EDGE)
+    V, F = m.V, m.F
+    diag = float(np.linalg.norm(np.ptp(V, axis=0)))
+    d = analytic_deformation(V, F, 0.015 * diag, direction=(0.0, 0.0, 1.0))
+    V_true = V + d
+    spec = ScanSpec(directions=_views(), noise=0.02, seed=SEED)
+    skin = np.unique(m.F[m.face_id == _skin_face(m)])
+    dv = int(skin[np.argmin(np.linalg.norm(V[skin] - np.array(PANEL_DEFECT_AT), axis=1))])
+    for name, defect in (("panel_scan.ply", None), ("panel_scan_defect.ply", (0.45, 6.0))):
+        Vs = V_true
+        if defect is not None:
+            N = vertex_normals(V_true, F)
+            Vs = V_true + gaussian_bump(V_true, N, V_true[dv], defect[0], defect[1])
+        P = virtual_scan(Vs, F, spec).P.astype(np.float32)
+        trimesh.PointCloud(P).export(out / name)
+        print(f"{name}: {len(P)} points")
+
+
+def _skin_face(m) -> int:
+    """The crown's outer skin: the face with the largest upward-facing area."""
+    from registration.mesh import face_normals
+
+    n = face_normals(m.V, m.F)
+    a = 0.5 * np.linalg.norm(np.cross(m.V[m.F[:, 1]] - m.V[m.F[:, 0]],
+                                      m.V[m.F[:, 2]] - m.V[m.F[:, 0]]), axis=1)
+    up = np.bincount(m.face_id, weights=a * (n[:, 2] > 0.5), minlength=m.n_faces)
+    return int(np.argmax(up))
 
 
 def main(out: Path) -> None:
@@ -32,6 +95,11 @@ def main(out: Path) -> None:
         P = case.P.astype(np.float32)  # scanners deliver single precision
         trimesh.PointCloud(P).export(out / name)
         print(f"{name}: {len(P)} points")
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from make_step_sample import build_sample
+
+    build_sample(out / "panel.step")
+    panel_scans(out / "panel.step", out)
 
 
 if __name__ == "__main__":

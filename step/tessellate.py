@@ -12,9 +12,15 @@ measured deviation, so keep it an order below the tightest band). The angular de
 bounds the normal turn across a triangle.
 
 Registration wants triangles of a bounded size (the bending energy is discretised on the
-mesh and the deformation must be able to vary within a face): ``max_edge`` splits long edges
-by midpoint subdivision (``trimesh.remesh.subdivide_to_size``). The new vertices lie on the
-triangles, i.e. within the deflection of the exact surface, and inherit their face id.
+mesh and the deformation must be able to vary within a face): ``max_edge`` splits every edge
+longer than it at its midpoint, conformingly (:func:`refine_long_edges`), until none is left.
+Only long edges are split (Rivara's longest-edge bisection), so BRepMesh's long thin
+strips on a cylinder are cut along their length without being refined across their width.
+Known limit: BRepMesh fans planar faces with holes into needles from the hole's nodes to
+the far corners, and bisecting needles still costs vertices (the sample panel's flanges
+take about 10x the vertices an isotropic remesh would); a parameter-space remesher is the
+next step if that matters for speed. The new vertices lie on the triangles, i.e. within
+the deflection of the exact surface, and inherit their face id.
 """
 
 from __future__ import annotations
@@ -64,6 +70,68 @@ class FaceMesh:
         pairs = np.unique(np.stack([vi, fi], axis=1), axis=0)
         starts = np.searchsorted(pairs[:, 0], np.arange(n + 1))
         return [pairs[starts[i]:starts[i + 1], 1] for i in range(n)]
+
+
+def refine_long_edges(
+    V: np.ndarray, F: np.ndarray, face_id: np.ndarray, max_edge: float, max_iter: int = 60
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Conforming longest-edge bisection until no edge is longer than ``max_edge`` (mm).
+
+    Each pass marks the longest edge of every triangle whose longest edge is too long, then
+    closes the marking (a triangle with any marked edge also gets its longest edge marked),
+    and splits: the longest edge at its midpoint ``m`` (two children), then each child
+    across its other marked edge. Splitting the longest edge first is Rivara's bisection:
+    angles never fall below half the smallest original angle, and a long thin strip (as
+    BRepMesh makes on cylinders) is cut along its length only, so the vertex count grows
+    with length / ``max_edge`` rather than exploding as a 1-to-4 subdivision does.
+    Orientation and face ids are kept.
+
+    Returns ``V, F, face_id`` of the refined mesh.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    fid = np.asarray(face_id, dtype=np.int64)
+    for _ in range(max_iter):
+        E = np.stack([F[:, [1, 2]], F[:, [2, 0]], F[:, [0, 1]]], axis=1)  # edge k opposite k
+        uniq, inv = np.unique(np.sort(E.reshape(-1, 2), axis=1), axis=0, return_inverse=True)
+        inv = inv.reshape(-1, 3)
+        L = np.linalg.norm(V[uniq[:, 0]] - V[uniq[:, 1]], axis=1)
+        Lt = L[inv]
+        k_long = np.argmax(Lt, axis=1)
+        e_long = inv[np.arange(len(F)), k_long]
+        marked = np.zeros(len(uniq), dtype=bool)
+        marked[e_long[L[e_long] > max_edge]] = True
+        if not marked.any():
+            break
+        while True:  # closure: a triangle with a marked edge splits its longest edge too
+            touched = marked[inv].any(axis=1)
+            new = touched & ~marked[e_long]
+            if not new.any():
+                break
+            marked[e_long[new]] = True
+        mid = np.full(len(uniq), -1, dtype=np.int64)
+        mid[marked] = len(V) + np.arange(marked.sum())
+        V = np.vstack([V, 0.5 * (V[uniq[marked, 0]] + V[uniq[marked, 1]])])
+        M = mid[inv]
+        split = M[np.arange(len(F)), k_long] >= 0
+        newF, newI = [F[~split]], [fid[~split]]
+        sel = np.flatnonzero(split)
+        k = k_long[sel]
+        a = F[sel, k]
+        b = F[sel, (k + 1) % 3]
+        c = F[sel, (k + 2) % 3]
+        m = M[sel, k]
+        m_ab = M[sel, (k + 2) % 3]  # edge a-b is opposite corner c
+        m_ca = M[sel, (k + 1) % 3]  # edge c-a is opposite corner b
+        s1 = m_ab >= 0
+        newF += [np.c_[a, b, m][~s1], np.c_[a, m_ab, m][s1], np.c_[m_ab, b, m][s1]]
+        newI += [fid[sel][~s1], fid[sel][s1], fid[sel][s1]]
+        s2 = m_ca >= 0
+        newF += [np.c_[a, m, c][~s2], np.c_[a, m, m_ca][s2], np.c_[m_ca, m, c][s2]]
+        newI += [fid[sel][~s2], fid[sel][s2], fid[sel][s2]]
+        F = np.concatenate(newF)
+        fid = np.concatenate(newI)
+    return V, F, fid
 
 
 def _shape_diagonal(shape) -> float:
@@ -161,16 +229,7 @@ def tessellate(
     F, fid = F[good], fid[good]
 
     if max_edge is not None and max_edge > 0:
-        import trimesh
-
-        V, F, idx = trimesh.remesh.subdivide_to_size(V, F, max_edge=float(max_edge),
-                                                     max_iter=20, return_index=True)
-        fid = fid[np.asarray(idx, dtype=np.int64)]
-        # subdivide_to_size splits faces independently: re-weld the new midpoints
-        SV, _, SVJ, _ = igl.remove_duplicate_vertices(np.asarray(V, dtype=np.float64),
-                                                     np.asarray(F, dtype=np.int64), eps)
-        F = np.asarray(SVJ, dtype=np.int64).ravel()[np.asarray(F, dtype=np.int64)]
-        V = np.asarray(SV, dtype=np.float64)
+        V, F, fid = refine_long_edges(V, F, fid, float(max_edge))
 
     used = np.zeros(len(V), dtype=bool)
     used[F.ravel()] = True

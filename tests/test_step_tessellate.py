@@ -75,8 +75,8 @@ def test_tessellation_carries_face_ids_and_is_welded(ctc01):
 
 
 def test_max_edge_bounds_edges_and_keeps_vertices_on_the_surface(ctc01):
-    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
     from OCP.BRepBuilderAPI import BRepBuilderAPI_MakeVertex
+    from OCP.BRepExtrema import BRepExtrema_DistShapeShape
     from OCP.gp import gp_Pnt
 
     from registration.mesh import edges

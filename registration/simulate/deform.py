@@ -267,7 +267,8 @@ def biharmonic_deformation(
 
 
 def analytic_deformation(
-    V: np.ndarray, F: np.ndarray, amplitude: float, seed: int | None = None
+    V: np.ndarray, F: np.ndarray, amplitude: float, seed: int | None = None,
+    direction: np.ndarray | None = None,
 ) -> np.ndarray:
     """A closed-form smooth normal displacement that shares no prior with any method.
 
@@ -286,6 +287,10 @@ def analytic_deformation(
     amplitude : peak displacement norm, mm.
     seed : ``None`` -> fixed default coefficients; otherwise ``c1..c5`` are drawn from
         ``np.random.default_rng(seed)`` uniformly in [-1, 1].
+    direction : (3,) if given, displace every vertex along this one unit vector instead of
+        its own normal. Use it for a *solid* thin part (a STEP nominal with both skins):
+        along the vertex normals the two skins would move apart, changing the thickness;
+        along the mid-plane normal the wall bends as a plate does.
 
     Returns
     -------
@@ -309,7 +314,11 @@ def analytic_deformation(
         + coef[3] * np.cos(np.pi * x1) * x2**2
         + coef[4] * x2**3
     )
-    d = f[:, None] * vertex_normals(V, F)
+    if direction is None:
+        d = f[:, None] * vertex_normals(V, F)
+    else:
+        u = np.asarray(direction, dtype=np.float64)
+        d = f[:, None] * (u / np.linalg.norm(u))[None, :]
     peak = np.linalg.norm(d, axis=1).max()
     if peak <= 0:
         raise ValueError("analytic field vanishes on this mesh")
