@@ -19,9 +19,14 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
-# Inspect the bundled sample (a thin shell and a simulated free-state scan of it).
+# Inspect the bundled samples: the STEP panel with semantic PMI (tolerances from the part
+# itself, no --tolerance) and the mesh shell (fallback input, explicit tolerance).
 demo: install
 	mkdir -p $(OUT)
+	$(VENV)/bin/qifreport pmi samples/panel.step
+	$(VENV)/bin/qifreport samples/panel.step samples/panel_scan.ply --out $(OUT) --json \
+	  --export-mesh $(OUT)/panel_registered.ply; rc=$$?; if [ $$rc -gt 1 ]; then exit $$rc; fi
+	test -s $(OUT)/panel.json && test -s $(OUT)/panel_registered.ply
 	$(VENV)/bin/qifreport samples/shell_nominal.ply samples/shell_scan.ply --tolerance 0.5 \
 	  --out $(OUT) --json --export-mesh $(OUT)/shell_registered.ply; rc=$$?; \
 	  if [ $$rc -gt 1 ]; then exit $$rc; fi
