@@ -84,12 +84,18 @@ class Region:
         }
 
 
+def _per_vertex(x, n: int, name: str) -> np.ndarray:
+    """A scalar broadcast to (n,), or an (n,) array, as float64."""
+    a = np.asarray(x, dtype=np.float64)
+    if a.ndim == 0:
+        return np.full(n, float(a))
+    if a.shape != (n,):
+        raise ValueError(f"{name} must be a scalar or shape ({n},), got {a.shape}")
+    return a
+
+
 def _tolerance_array(tolerance, n: int) -> np.ndarray:
-    tol = np.asarray(tolerance, dtype=np.float64)
-    if tol.ndim == 0:
-        tol = np.full(n, float(tol))
-    elif tol.shape != (n,):
-        raise ValueError(f"tolerance must be a scalar or shape ({n},), got {tol.shape}")
+    tol = _per_vertex(tolerance, n, "tolerance")
     if np.any(np.isnan(tol)) or np.any(tol < 0):
         raise ValueError("tolerance must be non-negative and not NaN")
     return tol
@@ -105,11 +111,7 @@ def _areas(V: np.ndarray, F: np.ndarray, area: np.ndarray | None) -> np.ndarray:
 
 
 def _center_array(center, n: int) -> np.ndarray:
-    c = np.asarray(center, dtype=np.float64)
-    if c.ndim == 0:
-        c = np.full(n, float(c))
-    elif c.shape != (n,):
-        raise ValueError(f"center must be a scalar or shape ({n},), got {c.shape}")
+    c = _per_vertex(center, n, "center")
     if not np.all(np.isfinite(c)):
         raise ValueError("center must be finite")
     return c

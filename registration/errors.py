@@ -1,5 +1,5 @@
-"""Errors raised on bad input; the CLI turns them into a one-line message and exit code 2."""
+"""Errors raised on bad input (the class lives upstream, in :mod:`step.errors`)."""
 
+from step.errors import InputError
 
-class InputError(ValueError):
-    """An input file or array that cannot be inspected (missing, corrupt, empty, NaN, ...)."""
+__all__ = ["InputError"]

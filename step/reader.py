@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from registration.errors import InputError
+from .errors import InputError
 
 log = logging.getLogger(__name__)
 

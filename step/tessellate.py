@@ -32,8 +32,7 @@ from dataclasses import dataclass
 import igl
 import numpy as np
 
-from registration.errors import InputError
-from registration.mesh import bounding_diagonal
+from .errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -238,7 +237,7 @@ def tessellate(
     dt = time.perf_counter() - t0
     log.info("tessellated %d faces: %d vertices, %d triangles (deflection %.3g mm) in %.2f s",
              len(faces) - empty, len(V), len(F), deflection, dt)
-    if bounding_diagonal(V) <= 0:
+    if not np.linalg.norm(np.ptp(V, axis=0)) > 0:
         raise InputError("the tessellated part has zero extent")
     return FaceMesh(V=V, F=F, face_id=fid, n_faces=len(faces), deflection=float(deflection),
                     seconds=dt)

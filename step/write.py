@@ -43,7 +43,6 @@ from __future__ import annotations
 import logging
 import math
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -87,6 +86,8 @@ from OCP.XCAFDimTolObjects import (
     XCAFDimTolObjects_GeomToleranceTypeValue_None,
 )
 from OCP.XCAFDoc import XCAFDoc_Datum, XCAFDoc_DocumentTool, XCAFDoc_GeomTolerance
+
+from .atomic import atomic_write
 
 logger = logging.getLogger(__name__)
 
@@ -406,20 +407,12 @@ def _write_atomic(
         if timestamp is not None:
             header.SetTimeStamp(TCollection_HAsciiString(timestamp))
 
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        os.close(fd)
-        try:
-            status = writer.Write(tmp)
+        def _write(tmp: Path) -> None:
+            status = writer.Write(str(tmp))
             if status != IFSelect_ReturnStatus.IFSelect_RetDone:
                 raise RuntimeError(f"STEPCAFControl_Writer: write failed ({status})")
-            umask = os.umask(0)
-            os.umask(umask)
-            os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; outputs are ordinary files
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+
+        atomic_write(path, _write)
     finally:
         Interface_Static.SetIVal_s("write.step.schema", saved["write.step.schema"])
         Interface_Static.SetCVal_s("write.step.unit", saved["write.step.unit"])

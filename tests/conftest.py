@@ -9,6 +9,16 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared"
+#: the NIST MBE PMI STEP files in ../shared/step/nist (read-only, never copied here)
+NIST = [
+    "nist_ctc_01_asme1_ap242-e1.stp",
+    "nist_ctc_02_asme1_ap242-e2.stp",
+    "nist_ctc_03_asme1_ap242-e2.stp",
+    "nist_ctc_04_asme1_ap242-e1.stp",
+    "nist_ctc_05_asme1_ap242-e1.stp",
+    "nist_ftc_06_asme1_ap242-e1.stp",
+    "nist_ftc_08_asme1_ap242-e1.stp",
+]
 
 
 def shared_file(rel: str) -> Path:

@@ -9,10 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import ROOT, shared_file
-
-NIST = sorted(p.name for p in (ROOT.parent / "shared" / "step" / "nist").glob("*.stp")) or [
-    "nist_ctc_01_asme1_ap242-e1.stp"]
+from tests.conftest import NIST, ROOT, shared_file
 
 
 @pytest.fixture(scope="module")

@@ -25,19 +25,10 @@ import pytest
 from step.p21 import DERIVED, Binary, Entity, Enum, P21Error, P21Model, Ref, Typed, parse_params
 from step.pmi import PMI
 from step.semantic import pmi_from_model, read_pmi_text
-from tests.conftest import shared_file
+from tests.conftest import NIST, shared_file
 
 #: where the NIST files live (read-only, never copied into the repository)
 NIST_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "step" / "nist"
-NIST = [
-    "nist_ctc_01_asme1_ap242-e1.stp",
-    "nist_ctc_02_asme1_ap242-e2.stp",
-    "nist_ctc_03_asme1_ap242-e2.stp",
-    "nist_ctc_04_asme1_ap242-e1.stp",
-    "nist_ctc_05_asme1_ap242-e1.stp",
-    "nist_ftc_06_asme1_ap242-e1.stp",
-    "nist_ftc_08_asme1_ap242-e1.stp",
-]
 IN = 25.4
 FACE_TYPES = {"ADVANCED_FACE", "FACE_SURFACE", "FACE", "ORIENTED_FACE", "SUBFACE"}
 GT_TYPES = {

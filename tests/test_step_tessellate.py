@@ -5,17 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.conftest import shared_file
-
-NIST = [
-    "nist_ctc_01_asme1_ap242-e1.stp",
-    "nist_ctc_02_asme1_ap242-e2.stp",
-    "nist_ctc_03_asme1_ap242-e2.stp",
-    "nist_ctc_04_asme1_ap242-e1.stp",
-    "nist_ctc_05_asme1_ap242-e1.stp",
-    "nist_ftc_06_asme1_ap242-e1.stp",
-    "nist_ftc_08_asme1_ap242-e1.stp",
-]
+from tests.conftest import NIST, shared_file
 
 
 @pytest.fixture(scope="module")
