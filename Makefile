@@ -7,7 +7,7 @@ XSD_SRC := $(SHARED)/qif/xsd
 XSD_DST := schemas/qif-3.0
 OUT    ?= out/demo
 
-.PHONY: install demo test lint bench clean
+.PHONY: install system-deps demo test lint bench clean
 
 # Create the venv and install the package (editable) once; re-run when pyproject changes.
 $(VENV)/.installed: pyproject.toml
@@ -15,13 +15,41 @@ $(VENV)/.installed: pyproject.toml
 	$(PY) -m pip install -q -e '.[dev]'
 	@if [ -d "$(XSD_SRC)" ]; then rm -rf $(XSD_DST) && mkdir -p $(XSD_DST) && cp -r $(XSD_SRC)/. $(XSD_DST)/ ; \
 	  else echo "note: $(XSD_SRC) not found; QIF schemas unavailable (set QIFREPORT_XSD_DIR)"; fi
+	@# local copy of the W3C xmldsig schema (QIFDocument.xsd imports it from a remote URL;
+	@# there may be no network): xmlschema's bundled copy, beside the official files
+	@if [ -d "$(XSD_DST)/QIFLibrary" ]; then \
+	  DSIG=$$($(PY) -c "import os, xmlschema; print(os.path.join(os.path.dirname(xmlschema.__file__), 'schemas', 'DSIG', 'xmldsig-core-schema.xsd'))") && \
+	  cp "$$DSIG" $(XSD_DST)/QIFLibrary/xmldsig-core-schema.xsd; fi
 	touch $@
 
 install: $(VENV)/.installed
 
+# Debian packages the tests use: Xerces-C DOMCount (an independent QIF validator) and
+# poppler-utils (pdftoppm/pdftotext). Installed only when the commands are missing; if that
+# is impossible (no root/sudo, no apt) print a note and go on: the tests that need them then
+# skip, or fail with a clear message under CI=true.
+SYSTEM_DEPS := libxerces-c-samples poppler-utils
+
+system-deps:
+	@if ! { command -v DOMCount && command -v pdftoppm; } >/dev/null 2>&1; then \
+	  if [ "$$(id -u)" -eq 0 ]; then SUDO=; \
+	  elif command -v sudo >/dev/null 2>&1; then SUDO="sudo -n"; \
+	  else SUDO=none; fi; \
+	  if [ "$$SUDO" != none ] && command -v apt-get >/dev/null 2>&1; then \
+	    $$SUDO apt-get update -qq && \
+	    $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_DEPS) >/dev/null; \
+	  fi; \
+	  if { command -v DOMCount && command -v pdftoppm; } >/dev/null 2>&1; then \
+	    echo "installed $(SYSTEM_DEPS)"; \
+	  else \
+	    echo "note: could not install $(SYSTEM_DEPS) (needs apt-get as root or sudo);" \
+	         "DOMCount/pdftoppm tests will skip, or fail under CI=true"; \
+	  fi; \
+	fi
+
 # Inspect the bundled samples: the STEP panel with semantic PMI (tolerances from the part
 # itself, no --tolerance) and the mesh shell (fallback input, explicit tolerance).
-demo: install
+demo: install system-deps
 	mkdir -p $(OUT)
 	$(VENV)/bin/qifreport pmi samples/panel.step
 	$(VENV)/bin/qifreport samples/panel.step samples/panel_scan.ply --out $(OUT) --json \
@@ -33,7 +61,7 @@ demo: install
 	test -s $(OUT)/shell_nominal.json && test -s $(OUT)/shell_registered.ply
 	@echo "demo outputs in $(OUT)/"
 
-test: install
+test: install system-deps
 	$(PY) -m pytest -q
 
 lint: install

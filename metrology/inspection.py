@@ -312,7 +312,12 @@ def inspect(
     if dev_free is not None:
         free_v = np.isin(bands.governing, [i for i, z in enumerate(bands.zones) if z.free_state])
         dev_all[free_v] = dev_free[free_v]
-    general_half = bands.zones[-1].half_width
+    # threshold of the whole-part tail fractions: the general zone's half-width, or (all faces
+    # under PMI profiles) the widest zone's: "beyond every band" (per-zone fractions use their
+    # own band)
+    general = [z for z in bands.zones if z.faces is None]
+    general_half = (general[0].half_width if general
+                    else max(z.half_width for z in bands.zones))
     vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
     pstats = deviation_statistics(pdev, threshold=general_half)
     acc = evaluate(
@@ -329,7 +334,7 @@ def inspect(
                         max_region_area=params.max_region_area, center=z.center)
         zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
         zone_results.append(ZoneResult(zone=z, stats=zstats, acceptance=zacc,
-                                       fixtured=not use_free))
+                                       fixtured=fit is not None and not use_free))
     s_area = scan_area(Pm)
     ceiling = coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
     timings["metrology"] = time.perf_counter() - t0

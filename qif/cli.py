@@ -4,6 +4,12 @@
 itself) or a mesh (STL/PLY/OBJ/OFF, with ``--tolerance``). Sub-commands:
 
 * ``qifreport pmi PART.step [--json]`` lists the semantic PMI read from a STEP file.
+* ``qifreport validate FILE.qif [...]`` checks QIF files against the official QIF 3.0 schemas
+  (libxml2 and xmlschema, key/keyref included) and the DMSC XSLT checks.
+
+Outputs (in ``--out``): ``<nominal>.qif``, the QIF 3.0 results document (validated against the
+official schemas before it is published; never called valid when the schemas are missing),
+and with ``--json`` the summary ``<nominal>.json`` (``schemas/summary-1.schema.json``).
 
 Exit codes: 0 the part passes, 1 the part fails, 2 the input cannot be inspected (one-line
 error on stderr naming the problem, and no output file written).
@@ -16,7 +22,8 @@ import hashlib
 import json
 import logging
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +38,7 @@ from step.atomic import atomic_write
 from step.reader import STEP_SUFFIXES
 
 from . import __version__
+from .summary import SUMMARY_SCHEMA_VERSION
 
 log = logging.getLogger("qifreport")
 
@@ -57,10 +65,18 @@ def _parser() -> argparse.ArgumentParser:
                     help="output directory (default: current directory)")
     ap.add_argument("--json", action="store_true",
                     help="write DIR/<nominal>.json with all statistics, verdict and regions")
+    ap.add_argument("--no-qif", action="store_true",
+                    help="do not write DIR/<nominal>.qif (the QIF 3.0 results document)")
+    ap.add_argument("--author", metavar="NAME", help="QIF header: author of the report")
+    ap.add_argument("--organization", metavar="NAME",
+                    help="QIF header and traceability: inspecting organization")
+    ap.add_argument("--operator", metavar="NAME", help="QIF traceability: inspection operator")
+    ap.add_argument("--serial", metavar="SN", help="serial number of the inspected part")
     ap.add_argument("--export-mesh", type=Path, metavar="PATH",
                     help="write the registered nominal as PLY with a per-vertex 'deviation'")
     ap.add_argument("--min-fraction", type=float, default=0.95,
-                    help="area criterion: in-tolerance fraction of scored area (default 0.95)")
+                    help="area criterion: in-tolerance fraction of scored area, 0..1 "
+                    "(default 0.95)")
     ap.add_argument("--max-region-area", type=float, default=None, metavar="MM2",
                     help="region criterion: largest out-of-tolerance region (default 25 mm^2)")
     ap.add_argument("--energy", choices=["hessian", "laplacian"], default="hessian",
@@ -155,6 +171,7 @@ class Nominal:
     zones: list[ToleranceZone]
     not_evaluated: list[NotEvaluated]
     info: dict
+    datums: list[str] = field(default_factory=list)
 
 
 def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = None,
@@ -185,7 +202,9 @@ def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = N
                            "datums": len(pmi.datums) if pmi else 0},
             "timings_s": {**part.timings, "tessellate": mesh.seconds},
         }
-        return Nominal(mesh.V, mesh.F, mesh.face_id, zones, skipped, info)
+        datums = [d.label for d in pmi.datums] if pmi is not None else []
+        return Nominal(mesh.V, mesh.F, mesh.face_id, zones, skipped, info,
+                       list(dict.fromkeys(datums)))
     if tolerance is None:
         raise InputError(f"{path.name} is a mesh nominal: it carries no tolerance, give "
                          "--tolerance MM (or use the STEP file with PMI)")
@@ -194,7 +213,55 @@ def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = N
     return Nominal(V, F, None, [symmetric_zone(tolerance, "general")], [], info)
 
 
+def _check_args(args: argparse.Namespace) -> None:
+    if not (np.isfinite(args.min_fraction) and 0.0 < args.min_fraction <= 1.0):
+        raise InputError(f"--min-fraction must be a fraction in (0, 1], got {args.min_fraction}"
+                         " (0.95 means 95 %)")
+    if args.max_region_area is not None and not (np.isfinite(args.max_region_area)
+                                                 and args.max_region_area >= 0):
+        raise InputError(f"--max-region-area must be an area >= 0 mm^2, got "
+                         f"{args.max_region_area}")
+    for name in ("nominal", "scan"):
+        path = getattr(args, name)
+        if not path.is_file():
+            raise InputError(f"{name} file not found: {path}")
+
+
+def publish_qif(path: Path, tree) -> dict:
+    """Write the QIF document atomically, validated (libxml2) before it is published.
+
+    Returns the JSON summary's ``qif`` block. When the official schemas cannot be found the
+    file is written and reported *not validated* (``valid: None``) with how to provide them;
+    a document the schema rejects is a bug of qifreport: nothing is published and the error
+    is raised (exit 2).
+    """
+    from .validate import SchemasUnavailable, schema_dir, validate_lxml
+    from .writer import write_qif
+
+    state: dict = {"path": str(path), "valid": None, "validated_with": [], "message": ""}
+
+    def write(tmp: Path) -> None:
+        write_qif(tmp, tree)
+        try:
+            xsd = schema_dir()
+        except SchemasUnavailable as exc:
+            state["message"] = f"not validated: {exc}"
+            return
+        errors = [f for f in validate_lxml(tmp) if f.severity == "error"]
+        if errors:
+            first = errors[0]
+            raise RuntimeError(f"the QIF document qifreport wrote is not valid against {xsd} "
+                               f"(line {first.line}: {first.message}); nothing written")
+        state.update(valid=True, validated_with=["lxml"],
+                     message=f"valid against the QIF 3.0 schemas in {xsd}")
+
+    atomic_write(path, write)
+    return state
+
+
 def run(args: argparse.Namespace) -> int:
+    _check_args(args)
+    started = datetime.now(timezone.utc)
     nom = load_nominal(args.nominal, args.tolerance, args.max_edge, args.deflection)
     V, F = nom.V, nom.F
     P = load_scan(args.scan)
@@ -217,24 +284,63 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
+    finished = datetime.now(timezone.utc)
+    digests = {"nominal": sha256(args.nominal), "scan": sha256(args.scan)}
 
+    qif_state = None
+    if not args.no_qif:
+        from .writer import Provenance, build_qif
+
+        prov = Provenance(
+            part_name=args.nominal.stem, nominal_path=str(args.nominal),
+            scan_path=str(args.scan), nominal_sha256=digests["nominal"],
+            scan_sha256=digests["scan"], started=started, finished=finished,
+            datums=nom.datums, nominal_info=nom.info, author=args.author,
+            organization=args.organization, operator=args.operator,
+            serial_number=args.serial,
+        )
+        qif_state = publish_qif(args.out / f"{args.nominal.stem}.qif", build_qif(res, prov))
     if args.json:
         doc = res.to_dict()
+        doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}
         doc["software"] = {"name": "qifreport", "version": __version__}
         doc["nominal"] = nom.info
         doc["inputs"] = {
-            "nominal": {"path": str(args.nominal), "sha256": sha256(args.nominal)},
-            "scan": {"path": str(args.scan), "sha256": sha256(args.scan)},
+            "nominal": {"path": str(args.nominal), "sha256": digests["nominal"]},
+            "scan": {"path": str(args.scan), "sha256": digests["scan"]},
         }
+        if qif_state is not None:
+            doc["qif"] = qif_state
         out = args.out / f"{args.nominal.stem}.json"
-        atomic_write(out, lambda p: p.write_text(json.dumps(doc, indent=2, default=_json_default)))
+        text = json.dumps(_finite(doc), indent=2, default=_json_default, allow_nan=False)
+        atomic_write(out, lambda p: p.write_text(text))
     if args.export_mesh is not None:
         atomic_write(
             args.export_mesh,
             lambda p: write_ply_with_scalar(p, res.V_registered, F, "deviation", res.deviation),
         )
     print(summary(res))
+    if qif_state is not None:
+        if qif_state["valid"]:
+            print(f"QIF: {qif_state['path']} ({qif_state['message']})")
+        else:
+            print(f"QIF: {qif_state['path']} written, NOT validated: the official QIF 3.0 "
+                  "schemas were not found (run `make install` with ../shared present, or set "
+                  "QIFREPORT_XSD_DIR)")
     return EXIT_PASS if res.passed else EXIT_FAIL
+
+
+def _finite(o):
+    """The document with every non-finite float replaced by None (strict JSON)."""
+    if isinstance(o, dict):
+        return {k: _finite(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _finite(o.tolist())
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    return o
 
 
 def _json_default(o):
@@ -290,6 +396,11 @@ def _guard(fn, verbose: bool) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns (and exits with) 0 pass, 1 fail, 2 error."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] == "validate":
+        from .validate import validate_main
+
+        logging.basicConfig(level=logging.WARNING, format="qifreport: %(levelname)s: %(message)s")
+        sys.exit(validate_main(argv[1:]))
     if argv and argv[0] == "pmi":
         logging.basicConfig(level=logging.WARNING, format="qifreport: %(levelname)s: %(message)s")
         sys.exit(_guard(lambda: _pmi_main(argv[1:]), verbose="-v" in argv))

@@ -55,3 +55,30 @@ def shell_case_defect(shell):
 
     V, F = shell
     return make_case(V, F, generator="analytic", amplitude=0.02, defect=(1.0, 7.0), seed=1)
+
+
+def assert_valid_summary(doc: dict) -> None:
+    """Fail, listing every violation, unless ``doc`` is a valid ``qifreport --json`` summary
+    (``schemas/summary-1.schema.json``, :func:`qif.summary.validate_summary`)."""
+    from qif.summary import validate_summary
+
+    errors = validate_summary(doc)
+    assert not errors, "summary violates schemas/summary-1.schema.json:\n" + "\n".join(errors)
+
+
+@pytest.fixture(scope="session")
+def qif_xsd(tmp_path_factory) -> Path:
+    """``QIFDocument.xsd`` of a session copy of the official QIF 3.0 XSDs whose xmldsig import
+    points to a local file (:func:`tests.consumers.local_xsd_copy`)."""
+    from tests.consumers import local_xsd_copy
+
+    return local_xsd_copy(tmp_path_factory.mktemp("qif-xsd"))
+
+
+@pytest.fixture(scope="session")
+def pyxb_qif(tmp_path_factory, qif_xsd):
+    """The PyXB binding of ``qif_xsd``, generated once per session (about 20 s;
+    :func:`tests.consumers.pyxb_binding`)."""
+    from tests.consumers import pyxb_binding
+
+    return pyxb_binding(tmp_path_factory.mktemp("pyxb-qif"), qif_xsd)

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 import trimesh
 
+from tests.conftest import assert_valid_summary
+
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"
 EXE = Path(sys.executable).parent / "qifreport"
@@ -26,6 +28,7 @@ def test_demo_sample_passes_with_outputs(tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     assert "verdict: PASS" in r.stdout
     doc = json.loads((tmp_path / "shell_nominal.json").read_text())
+    assert_valid_summary(doc)
     assert doc["verdict"] == "PASS"
     vd = doc["vertex_deviation"]
     assert vd["rms"] < 0.05 and vd["p999"] < 0.2  # compliance (~4 mm) removed
@@ -46,6 +49,7 @@ def test_defect_sample_fails_by_region(tmp_path):
     assert r.returncode == 1, r.stdout + r.stderr
     assert "Error" not in r.stderr and "Traceback" not in r.stderr
     doc = json.loads((tmp_path / "shell_nominal.json").read_text())
+    assert_valid_summary(doc)
     assert doc["verdict"] == "FAIL"
     acc = doc["acceptance"]
     assert acc["area_ok"] and not acc["region_ok"]

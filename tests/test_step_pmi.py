@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.conftest import NIST, ROOT, shared_file
+from tests.conftest import NIST, ROOT, assert_valid_summary, shared_file
 
 
 @pytest.fixture(scope="module")
@@ -108,6 +108,7 @@ def test_cli_inspects_a_step_part_with_bands_from_its_pmi(tmp_path, capsys):
                            "--max-edge", "6"], capsys)
     assert code in (0, 1), err
     doc = json.loads((tmp_path / "panel.json").read_text())
+    assert_valid_summary(doc)
     zones = {z["name"]: z for z in doc["tolerances"]}
     # the all-faces profile covers every face: no general zone is needed
     assert set(zones) == {"profile_all", "profile_skin"}

@@ -1,0 +1,275 @@
+"""Read a QIF 3.0 results document back: ours in full, anyone's in outline.
+
+:func:`read_results` returns, for every characteristic measurement of the first
+``MeasurementResults``, its QIF type, designator, status, measured value and tolerance, and,
+for documents qifreport wrote, the product's own result objects rebuilt from the typed
+``Attributes`` (:class:`metrology.statistics.DeviationStats`,
+:class:`metrology.acceptance.Acceptance` with its :class:`~metrology.acceptance.Region` list),
+so a round trip can be checked number by number (see :mod:`qif.writer` for the layout).
+Regions come back without their vertex lists (``vertices`` empty, ``peak_vertex`` -1): QIF
+carries the area, peak, sign, centroid and peak location.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from lxml import etree
+
+from metrology.acceptance import Acceptance, Region
+from metrology.statistics import DeviationStats
+
+from .writer import NS
+
+_Q = f"{{{NS}}}"
+_STATS_KEYS = ("rms", "mean", "max_abs", "max_pos", "min_neg", "p95", "p99", "p999")
+
+
+@dataclass
+class CharacteristicResult:
+    """One characteristic measurement with its definition.
+
+    Attributes
+    ----------
+    kind : QIF type without suffix, e.g. ``"SurfaceProfile"``, ``"Flatness"``.
+    id : the measurement's QIF id.  name : the item's (or definition's) name.
+    designator : the item's ``CharacteristicDesignator/Designator`` (qifreport: zone key).
+    status : ``CharacteristicStatusEnum`` (or the other-status text).
+    value : measured ``Value`` (mm for lengths), None when absent.
+    worst_positive, worst_negative : profile measurements' worst deviations, mm.
+    tolerance : the definition's ``ToleranceValue``, None when absent.
+    unequally_disposed : ``UnequallyDisposedZone``, mm, None when absent.
+    description : the definition's description.  datum_labels : of its reference frame.
+    attributes : the measurement's typed Attributes, name -> value.
+    stats, acceptance : rebuilt for documents written by qifreport, else None.
+    """
+
+    kind: str
+    id: str
+    name: str | None
+    designator: str | None
+    status: str | None
+    value: float | None
+    worst_positive: float | None = None
+    worst_negative: float | None = None
+    tolerance: float | None = None
+    unequally_disposed: float | None = None
+    description: str | None = None
+    datum_labels: list[str] = field(default_factory=list)
+    attributes: dict = field(default_factory=dict)
+    stats: DeviationStats | None = None
+    acceptance: Acceptance | None = None
+
+
+@dataclass
+class QIFResults:
+    """A results document in the product's terms.
+
+    Attributes
+    ----------
+    path : the file.  version : ``versionQIF``.  qpid : the document's QPId.
+    application : ``Header/Application/Name``.  software_version : of qifreport (or None).
+    status : overall ``InspectionStatusEnum`` of the first results.
+    characteristics : one per characteristic measurement, in document order.
+    attributes : typed Attributes of the MeasurementResults (qifreport: whole part).
+    inputs : ``(URI, description)`` of the external file references.
+    inspection_start, inspection_end : ISO times, or None.
+    serial_number : of the actual component, or None.
+    stats, point_stats, acceptance : whole-part results rebuilt (qifreport documents).
+    """
+
+    path: Path
+    version: str
+    qpid: str | None
+    application: str | None
+    software_version: str | None
+    status: str | None
+    characteristics: list[CharacteristicResult]
+    attributes: dict
+    inputs: list[tuple[str, str]]
+    inspection_start: str | None = None
+    inspection_end: str | None = None
+    serial_number: str | None = None
+    stats: DeviationStats | None = None
+    point_stats: DeviationStats | None = None
+    acceptance: Acceptance | None = None
+
+    @property
+    def written_by_qifreport(self) -> bool:
+        return self.application == "qifreport"
+
+    def characteristic(self, designator: str) -> CharacteristicResult:
+        """The characteristic with this designator (qifreport: the zone key)."""
+        for c in self.characteristics:
+            if c.designator == designator:
+                return c
+        raise KeyError(designator)
+
+
+def _text(el, path: str) -> str | None:
+    x = el.find(path.replace("q:", _Q)) if el is not None else None
+    return None if x is None or x.text is None else x.text.strip()
+
+
+def _num(s: str | None) -> float | None:
+    return None if s is None else float(s)
+
+
+def read_attributes(parent) -> dict:
+    """Typed QIF ``Attributes`` of an element as ``{name: value}`` (D1/I1/Bool/Str/D3/Time)."""
+    out: dict = {}
+    attrs = parent.find(f"{_Q}Attributes") if parent is not None else None
+    if attrs is None:
+        return out
+    for a in attrs:
+        tag = etree.QName(a).localname
+        name, v = a.get("name"), a.get("value")
+        if tag == "AttributeD1":
+            out[name] = float(v)
+        elif tag == "AttributeI1":
+            out[name] = int(v)
+        elif tag == "AttributeBool":
+            out[name] = v in ("true", "1")
+        elif tag in ("AttributeD2", "AttributeD3", "AttributeI2", "AttributeI3"):
+            cast = float if tag.startswith("AttributeD") else int
+            out[name] = np.array([cast(x) for x in v.split()])
+        elif v is not None:
+            out[name] = v
+        else:
+            out[name] = etree.tostring(a, encoding="unicode")
+    return out
+
+
+def stats_from_attributes(a: dict, prefix: str = "") -> DeviationStats | None:
+    """Rebuild :class:`DeviationStats` from qifreport's attributes (None if absent)."""
+    if f"{prefix}n_samples" not in a:
+        return None
+    g = {k: a.get(f"{prefix}{k}_mm", math.nan) for k in _STATS_KEYS}
+    thr = a.get(f"{prefix}threshold_mm")
+    fr = {k: a.get(f"{prefix}{k}", math.nan) for k in ("frac_above", "frac_below", "frac_beyond")}
+    return DeviationStats(n=int(a[f"{prefix}n_samples"]), threshold=thr,
+                          weighted=bool(a.get(f"{prefix}area_weighted", False)), **g, **fr)
+
+
+def acceptance_from_attributes(a: dict, tolerance: float | None = None,
+                               prefix: str = "") -> Acceptance | None:
+    """Rebuild :class:`Acceptance` (regions without vertex lists) from attributes."""
+    if f"{prefix}in_tolerance_area_fraction" not in a and f"{prefix}region_count" not in a:
+        return None
+    regions = []
+    k = 1
+    while f"{prefix}region_{k}_area_mm2" in a:
+        regions.append(Region(
+            vertices=np.zeros(0, dtype=np.int64), area=a[f"{prefix}region_{k}_area_mm2"],
+            peak=a[f"{prefix}region_{k}_peak_mm"], peak_vertex=-1,
+            centroid=np.asarray(a.get(f"{prefix}region_{k}_centroid_mm", np.full(3, np.nan))),
+            sign=int(a[f"{prefix}region_{k}_sign"])))
+        k += 1
+    reasons = []
+    k = 1
+    while f"{prefix}reason_{k}" in a:
+        reasons.append(a[f"{prefix}reason_{k}"])
+        k += 1
+    area_ok = bool(a.get(f"{prefix}area_criterion_ok", False))
+    region_ok = bool(a.get(f"{prefix}region_criterion_ok", False))
+    scored = a.get(f"{prefix}scored_area_mm2", math.nan)
+    return Acceptance(
+        tolerance=math.nan if tolerance is None else tolerance,
+        min_fraction=a.get(f"{prefix}min_in_tolerance_fraction", math.nan),
+        max_region_area=a.get(f"{prefix}max_region_area_mm2", math.nan),
+        scored_area=scored, nominal_area=a.get(f"{prefix}nominal_area_mm2", math.nan),
+        coverage=a.get(f"{prefix}coverage", math.nan),
+        in_tolerance_fraction=a.get(f"{prefix}in_tolerance_area_fraction", math.nan),
+        area_ok=area_ok, regions=regions,
+        largest_region_area=a.get(f"{prefix}largest_region_area_mm2", 0.0),
+        region_ok=region_ok, passed=bool(area_ok and region_ok and scored > 0),
+        reasons=reasons)
+
+
+def read_results(path: Path | str) -> QIFResults:
+    """Read a QIF 3.0 results document (ours or another application's).
+
+    Raises
+    ------
+    ValueError
+        The file is not a QIF document or carries no ``MeasurementResults``.
+    """
+    path = Path(path)
+    root = etree.parse(str(path), etree.XMLParser(huge_tree=True, no_network=True)).getroot()
+    if root.tag != f"{_Q}QIFDocument":
+        raise ValueError(f"{path.name}: not a QIF 3 document (root {root.tag})")
+    by_id = {el.get("id"): el for el in root.iter() if el.get("id") is not None}
+    mr = root.find(f"{_Q}Results/{_Q}MeasurementResultsSet/{_Q}MeasurementResults")
+    if mr is None:
+        raise ValueError(f"{path.name}: no MeasurementResults (not a results document)")
+
+    drf_labels: dict[str, list[str]] = {}
+    for drf in root.iterfind(f"{_Q}DatumReferenceFrames/{_Q}DatumReferenceFrame"):
+        labels = []
+        for d in drf.iterfind(f"{_Q}Datums/{_Q}Datum"):
+            did = _text(d, "q:SimpleDatum/q:DatumDefinitionId")
+            lab = _text(by_id.get(did), "q:DatumLabel") if did else None
+            if lab:
+                labels.append(lab)
+        drf_labels[drf.get("id")] = labels
+
+    ours = _text(root, "q:Header/q:Application/q:Name") == "qifreport"
+    chars = []
+    cms = mr.find(f"{_Q}MeasuredCharacteristics/{_Q}CharacteristicMeasurements")
+    for m in (cms if cms is not None else []):
+        tag = etree.QName(m).localname
+        kind = tag.removesuffix("CharacteristicMeasurement")
+        item = by_id.get(_text(m, "q:CharacteristicItemId"))
+        nominal = by_id.get(_text(item, "q:CharacteristicNominalId")) if item is not None else None
+        definition = (by_id.get(_text(nominal, "q:CharacteristicDefinitionId"))
+                      if nominal is not None else None)
+        status = (_text(m, "q:Status/q:CharacteristicStatusEnum")
+                  or _text(m, "q:Status/q:OtherCharacteristicStatus"))
+        attrs = read_attributes(m)
+        tol = _num(_text(definition, "q:ToleranceValue"))
+        c = CharacteristicResult(
+            kind=kind, id=m.get("id"),
+            name=_text(item, "q:Name") or _text(definition, "q:Name"),
+            designator=_text(item, "q:CharacteristicDesignator/q:Designator"),
+            status=status, value=_num(_text(m, "q:Value")),
+            worst_positive=_num(_text(m, "q:WorstPositiveDeviation")),
+            worst_negative=_num(_text(m, "q:WorstNegativeDeviation")),
+            tolerance=tol, unequally_disposed=_num(_text(definition, "q:UnequallyDisposedZone")),
+            description=_text(definition, "q:Description"),
+            datum_labels=drf_labels.get(_text(definition, "q:DatumReferenceFrameId"), []),
+            attributes=attrs)
+        if ours:
+            da = read_attributes(definition)
+            half = None
+            if "lower_mm" in da and "upper_mm" in da:
+                half = 0.5 * (da["upper_mm"] - da["lower_mm"])
+            c.stats = stats_from_attributes(attrs)
+            c.acceptance = acceptance_from_attributes(attrs, half)
+        chars.append(c)
+
+    attrs = read_attributes(mr)
+    inputs = [(_text(r, "q:URI") or "", _text(r, "q:Description") or "")
+              for r in mr.iterfind(f"{_Q}ExternalFileReferences/{_Q}ExternalFileReference")]
+    sw_version = None
+    for sw in root.iterfind(f"{_Q}SoftwareDefinitions/{_Q}Software"):
+        if _text(sw, "q:ApplicationName") == "qifreport":
+            sw_version = _text(sw, "q:Version")
+    trace = mr.find(f"{_Q}InspectionTraceability")
+    actual = root.find(f"{_Q}Results/{_Q}ActualComponentSets/{_Q}ActualComponentSet/"
+                       f"{_Q}ActualComponent")
+    return QIFResults(
+        path=path, version=root.get("versionQIF"), qpid=_text(root, "q:QPId"),
+        application=_text(root, "q:Header/q:Application/q:Name"), software_version=sw_version,
+        status=(_text(mr, "q:InspectionStatus/q:InspectionStatusEnum")
+                or _text(mr, "q:InspectionStatus/q:OtherInspectionStatus")),
+        characteristics=chars, attributes=attrs, inputs=inputs,
+        inspection_start=_text(trace, "q:InspectionStart"),
+        inspection_end=_text(trace, "q:InspectionEnd"),
+        serial_number=_text(actual, "q:SerialNumber"),
+        stats=stats_from_attributes(attrs) if ours else None,
+        point_stats=stats_from_attributes(attrs, "scan_points_") if ours else None,
+        acceptance=acceptance_from_attributes(attrs) if ours else None,
+    )

@@ -1,0 +1,269 @@
+"""QIF 3.0 results documents written by ``qifreport``: valid, complete, read back.
+
+Every QIF file written here (a conforming part, a failing part, a STEP part with several PMI
+tolerances, a mesh nominal with no PMI) is checked by
+- libxml2 (lxml) and xmlschema (strict, key/keyref) against the official QIF 3.0 XSDs,
+- the DMSC XSLT checks (zero errors in CheckFormat),
+- two consumers we did not write: a PyXB binding generated from the XSDs and Xerces-C,
+- our own structural checks (unique ids, ``idMax``, every ``n=``, QPIds are UUIDs),
+and read back with :func:`qif.reader.read_results` number by number against the JSON summary.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from lxml import etree
+
+from qif.reader import read_results
+from qif.writer import DECIMAL_PLACES, NS
+from tests.conftest import ROOT, assert_valid_summary
+from tests.consumers import assert_read_by_independent_consumers
+
+Q = f"{{{NS}}}"
+
+
+def _run_cli(argv: list[str]) -> int:
+    from qif.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    return exc.value.code
+
+
+def _write_shell(V, F, P, d: Path) -> tuple[Path, Path]:
+    nom, scan = d / "shell.ply", d / "shell_scan.npy"
+    trimesh.Trimesh(V, F, process=False).export(nom)
+    np.save(scan, P)
+    return nom, scan
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory, shell, shell_case, shell_case_defect):
+    """name -> (exit code, qif path, summary dict) of four CLI inspections."""
+    out = {}
+    V, F = shell
+    d = tmp_path_factory.mktemp("qif-pass")
+    nom, scan = _write_shell(V, F, shell_case.P, d)
+    rc = _run_cli([str(nom), str(scan), "--tolerance", "0.5", "--out", str(d), "--json",
+                   "--quiet", "--serial", "SN-0001", "--author", "Ada Auditor",
+                   "--organization", "Test Lab", "--operator", "Op One"])
+    out["pass"] = (rc, d / "shell.qif", json.loads((d / "shell.json").read_text()))
+
+    d = tmp_path_factory.mktemp("qif-fail")
+    nom, scan = _write_shell(V, F, shell_case_defect.P, d)
+    rc = _run_cli([str(nom), str(scan), "--tolerance", "0.3", "--out", str(d), "--json",
+                   "--quiet"])
+    out["fail"] = (rc, d / "shell.qif", json.loads((d / "shell.json").read_text()))
+    out["fail_case"] = shell_case_defect
+
+    d = tmp_path_factory.mktemp("qif-step")
+    rc = _run_cli([str(ROOT / "samples/panel.step"), str(ROOT / "samples/panel_scan_defect.ply"),
+                   "--max-edge", "6", "--out", str(d), "--json", "--quiet"])
+    out["step"] = (rc, d / "panel.qif", json.loads((d / "panel.json").read_text()))
+    return out
+
+
+CASES = ["pass", "fail", "step"]
+
+
+def test_cli_verdicts_and_summaries(runs):
+    assert runs["pass"][0] == 0 and runs["pass"][2]["verdict"] == "PASS"
+    assert runs["fail"][0] == 1 and runs["fail"][2]["verdict"] == "FAIL"
+    for name in CASES:
+        rc, qif, doc = runs[name]
+        assert_valid_summary(doc)
+        assert doc["qif"]["valid"] is True and doc["qif"]["path"] == str(qif)
+        assert qif.is_file()
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_valid_under_lxml_and_xmlschema(runs, name):
+    from qif.validate import validate_lxml, validate_xmlschema
+
+    path = runs[name][1]
+    assert validate_lxml(path) == []
+    assert validate_xmlschema(path) == []
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_dmsc_checks_format_clean(runs, name):
+    from qif.validate import dmsc_checks
+
+    findings = dmsc_checks(runs[name][1])
+    assert [f for f in findings if f.category == "CheckFormat"] == []
+    # what the quality checks do report: annotations without graphics (we write no views)
+    other = {re.sub(r"\).*", ")", f.message) for f in findings}
+    assert other <= {"Unviewed Annotation (A-AN-UV)", "Non-Graphical Annotation (A-AN-NG)"}, other
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_read_by_independent_consumers(runs, name, pyxb_qif, qif_xsd):
+    assert_read_by_independent_consumers(runs[name][1], pyxb_qif, qif_xsd)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_ids_counts_and_qpids(runs, name):
+    text = runs[name][1].read_bytes()
+    assert text.startswith(b"<?xml version='1.0' encoding='UTF-8'") or text.startswith(
+        b'<?xml version="1.0" encoding="UTF-8"')
+    assert not text.startswith(b"\xef\xbb\xbf")
+    root = etree.fromstring(text)
+    assert root.tag == f"{Q}QIFDocument" and root.prefix is None
+    assert root.get("versionQIF") == "3.0.0"
+    ids = [int(e.get("id")) for e in root.iter() if e.get("id") is not None]
+    assert len(ids) == len(set(ids)), "duplicate QIF ids"
+    assert int(root.get("idMax")) == max(ids)
+    for el in root.iter():
+        if el.get("n") is not None:
+            assert int(el.get("n")) == len(el), f"{el.tag} n={el.get('n')} has {len(el)} children"
+    qpids = [e.text.strip() for e in root.iter(f"{Q}QPId", f"{Q}UUID",
+                                                 f"{Q}ThisResultsInstanceQPId")]
+    assert len(qpids) >= 4 and len(set(qpids)) == len(qpids)
+    for q in qpids:
+        assert str(uuid.UUID(q)) == q
+    # every id reference points at an element of the document
+    refs = [e.text.strip() for e in root.iter() if etree.QName(e).localname.endswith("Id")
+            and e.text and e.text.strip().isdigit()]
+    assert set(map(int, refs)) <= set(ids)
+
+
+def test_failing_part_carries_fail_and_its_regions(runs):
+    rc, path, doc = runs["fail"]
+    r = read_results(path)
+    assert r.status == "FAIL"
+    (c,) = r.characteristics
+    assert c.kind == "SurfaceProfile" and c.designator == "general"
+    assert c.status == "FAIL"
+    assert c.tolerance == pytest.approx(0.6)
+    # the profile value found: the zone width that would contain every scored point
+    assert c.value == pytest.approx(2 * max(abs(c.worst_positive), abs(c.worst_negative)),
+                                    abs=2e-4)
+    assert c.value > c.tolerance
+    regions = c.acceptance.regions
+    assert len(regions) == doc["tolerances"][0]["acceptance"]["n_regions"] >= 1
+    case = runs["fail_case"]
+    # the largest region is the injected bump (1.0 mm, sigma 7 mm): proud, at the defect site
+    top = regions[0]
+    assert top.sign == +1 and top.peak > 0.3 and top.area > 25.0
+    assert np.linalg.norm(top.centroid - case.V[case.defect_vertex]) < 7.0
+    assert any(x.startswith("region of") and "exceeds" in x for x in c.acceptance.reasons)
+    root = etree.parse(str(path)).getroot()
+    ncd = root.find(f".//{Q}SurfaceProfileCharacteristicMeasurement/{Q}NonConformanceDesignator")
+    assert ncd is not None and "region" in ncd.text
+
+
+def test_conforming_part_passes_everywhere(runs):
+    r = read_results(runs["pass"][1])
+    assert r.status == "PASS"
+    assert [c.status for c in r.characteristics] == ["PASS"]
+    root = etree.parse(str(runs["pass"][1])).getroot()
+    assert root.find(f".//{Q}ActualComponent/{Q}Status/{Q}InspectionStatusEnum").text == "PASS"
+    assert r.serial_number == "SN-0001"
+    assert root.find(f"{Q}Header/{Q}Author/{Q}Name").text == "Ada Auditor"
+    assert root.find(f".//{Q}InspectionTraceability/{Q}InspectionOperator/{Q}Name").text == (
+        "Op One")
+
+
+def test_step_part_one_characteristic_per_profile_tolerance(runs):
+    rc, path, doc = runs["step"]
+    r = read_results(path)
+    keys = [z["key"] for z in doc["tolerances"]]
+    assert [c.designator for c in r.characteristics] == keys
+    assert len(keys) >= 2
+    for c, z in zip(r.characteristics, doc["tolerances"], strict=True):
+        assert c.kind == "SurfaceProfile"
+        assert c.tolerance == pytest.approx(z["width_mm"])
+        assert c.datum_labels == z["datums"]
+        assert c.status == z["verdict"]
+    assert r.characteristics[0].datum_labels == ["A", "B", "C"]
+    root = etree.parse(str(path)).getroot()
+    labels = [e.text for e in root.iter(f"{Q}DatumLabel")]
+    assert labels == ["A", "B", "C"]
+    # traceability: both inputs with their SHA-256, the software version, time of inspection
+    digests = {doc["inputs"]["nominal"]["sha256"], doc["inputs"]["scan"]["sha256"]}
+    assert {d.rsplit(" ", 1)[-1] for _, d in r.inputs} == digests
+    assert r.software_version == doc["software"]["version"]
+    assert r.inspection_start and r.inspection_end >= r.inspection_start
+    alg = root.find(f"{Q}AlgorithmDefinitions")
+    assert "band_limit" in alg[1].find(f"{Q}Parameters").text
+
+
+def _close(a, b, places=None):
+    if b is None:
+        return a is None or not np.isfinite(a)
+    tol = 0.0 if places is None else 0.51 * 10.0 ** -places
+    return abs(a - b) <= tol + 1e-12 * abs(b)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_round_trip_reproduces_verdicts_and_statistics(runs, name):
+    rc, path, doc = runs[name]
+    r = read_results(path)
+    assert r.status == doc["verdict"]
+    assert r.written_by_qifreport
+    whole = [("vertex_deviation", r.stats), ("point_deviation", r.point_stats)]
+    for key, got in whole:
+        ref = doc[key]
+        for f in ("rms", "mean", "max_abs", "max_pos", "min_neg", "p95", "p99", "p999",
+                  "frac_above", "frac_below", "frac_beyond", "threshold"):
+            assert _close(getattr(got, f), ref[f]), (key, f, getattr(got, f), ref[f])
+        assert got.n == ref["n"]
+    acc, ref = r.acceptance, doc["acceptance"]
+    assert acc.passed == ref["passed"] and acc.reasons == ref["reasons"]
+    for f in ("in_tolerance_fraction", "scored_area", "nominal_area", "coverage",
+              "largest_region_area"):
+        assert _close(getattr(acc, f), ref[f]), f
+    assert len(acc.regions) == ref["n_regions"]
+    for got_r, ref_r in zip(acc.regions, ref["regions"], strict=True):
+        assert _close(got_r.area, ref_r["area"]) and _close(got_r.peak, ref_r["peak"])
+        np.testing.assert_allclose(got_r.centroid, ref_r["centroid"], rtol=0, atol=1e-12)
+    for c, z in zip(r.characteristics, doc["tolerances"], strict=True):
+        assert c.status == z["verdict"]
+        assert _close(c.worst_positive, z["deviation"]["max_pos"], DECIMAL_PLACES)
+        assert _close(c.worst_negative, z["deviation"]["min_neg"], DECIMAL_PLACES)
+        for f in ("rms", "p95", "p999", "frac_beyond"):
+            assert _close(getattr(c.stats, f), z["deviation"][f]), f
+        assert c.acceptance.passed == z["acceptance"]["passed"]
+        assert _close(c.acceptance.in_tolerance_fraction,
+                      z["acceptance"]["in_tolerance_fraction"])
+    assert r.attributes["rigid_rms_mm"] == pytest.approx(doc["registration"]["rigid"]["rms_mm"],
+                                                         rel=0, abs=0)
+
+
+def test_validate_subcommand_catches_a_corrupted_file(runs, tmp_path, capsys):
+    from qif.cli import main
+
+    src = runs["fail"][1].read_text()
+    # (a) a required element removed: the characteristic measurement's Status
+    bad = re.sub(r"<Status>\s*<CharacteristicStatusEnum>FAIL</CharacteristicStatusEnum>\s*"
+                 r"</Status>", "", src, count=1)
+    assert bad != src
+    a = tmp_path / "missing.qif"
+    a.write_text(bad)
+    # (b) a dangling id reference: the characteristic item points at no nominal
+    m = re.search(r"<CharacteristicNominalId>(\d+)</CharacteristicNominalId>", src)
+    b = tmp_path / "dangling.qif"
+    b.write_text(src.replace(m.group(0), "<CharacteristicNominalId>99999"
+                                          "</CharacteristicNominalId>"))
+    line_b = src[:m.start()].count("\n") + 1
+    for path, needle in ((a, "Status"), (b, "99999")):
+        with pytest.raises(SystemExit) as exc:
+            main(["validate", str(path)])
+        out = capsys.readouterr().out
+        assert exc.value.code == 1, out
+        assert needle in out
+    with pytest.raises(SystemExit) as exc:
+        main(["validate", str(b)])
+    out = capsys.readouterr().out
+    assert re.search(rf"dangling\.qif:{line_b}:", out), out
+    assert "Keyref" in out or "keyref" in out
+    with pytest.raises(SystemExit) as exc:
+        main(["validate", str(runs["fail"][1])])
+    assert exc.value.code == 0, capsys.readouterr().out
