@@ -267,3 +267,19 @@ def test_validate_subcommand_catches_a_corrupted_file(runs, tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["validate", str(runs["fail"][1])])
     assert exc.value.code == 0, capsys.readouterr().out
+
+
+def test_without_schemas_the_qif_is_written_but_never_called_valid(
+        shell, shell_case, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("QIFREPORT_XSD_DIR", str(tmp_path / "no-schemas-here"))
+    nom, scan = _write_shell(*shell, shell_case.P, tmp_path)
+    rc = _run_cli([str(nom), str(scan), "--tolerance", "0.5", "--out", str(tmp_path),
+                   "--json", "--quiet", "--rigid-only"])
+    out = capsys.readouterr().out
+    assert rc in (0, 1)
+    assert (tmp_path / "shell.qif").is_file()
+    assert "NOT validated" in out and "QIFREPORT_XSD_DIR" in out
+    assert "(valid against" not in out
+    doc = json.loads((tmp_path / "shell.json").read_text())
+    assert_valid_summary(doc)
+    assert doc["qif"]["valid"] is None and doc["qif"]["validated_with"] == []
