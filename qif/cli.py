@@ -7,9 +7,11 @@ itself) or a mesh (STL/PLY/OBJ/OFF, with ``--tolerance``). Sub-commands:
 * ``qifreport validate FILE.qif [...]`` checks QIF files against the official QIF 3.0 schemas
   (libxml2 and xmlschema, key/keyref included) and the DMSC XSLT checks.
 
-Outputs (in ``--out``): ``<nominal>.qif``, the QIF 3.0 results document (validated against the
-official schemas before it is published; never called valid when the schemas are missing),
-and with ``--json`` the summary ``<nominal>.json`` (``schemas/summary-1.schema.json``).
+Outputs (in ``--out``, all or none): ``<nominal>.qif``, the QIF 3.0 results document
+(validated against the official schemas before it is published; never called valid when the
+schemas are missing), ``<nominal>.pdf``, the one-page conformance report with the same
+numbers, and with ``--json`` the summary ``<nominal>.json``
+(``schemas/summary-1.schema.json``).
 
 Exit codes: 0 the part passes, 1 the part fails, 2 the input cannot be inspected (one-line
 error on stderr naming the problem, and no output file written).
@@ -34,7 +36,7 @@ from registration.errors import InputError
 from registration.gbcicp import GBCICPParams
 from registration.mesh import bounding_diagonal, load_mesh
 from registration.pointcloud import load_scan
-from step.atomic import atomic_write
+from step.atomic import atomic_write_many
 from step.reader import STEP_SUFFIXES
 
 from . import __version__
@@ -67,6 +69,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="write DIR/<nominal>.json with all statistics, verdict and regions")
     ap.add_argument("--no-qif", action="store_true",
                     help="do not write DIR/<nominal>.qif (the QIF 3.0 results document)")
+    ap.add_argument("--no-pdf", action="store_true",
+                    help="do not write DIR/<nominal>.pdf (the one-page conformance report)")
+    ap.add_argument("--page", choices=["A4", "Letter"], default="A4",
+                    help="paper size of the PDF report (default A4)")
     ap.add_argument("--author", metavar="NAME", help="QIF header: author of the report")
     ap.add_argument("--organization", metavar="NAME",
                     help="QIF header and traceability: inspecting organization")
@@ -227,18 +233,18 @@ def _check_args(args: argparse.Namespace) -> None:
             raise InputError(f"{name} file not found: {path}")
 
 
-def publish_qif(path: Path, tree) -> dict:
-    """Write the QIF document atomically, validated (libxml2) before it is published.
+def qif_writer(tree, state: dict):
+    """A writer ``write(tmp)`` of the QIF document that validates it (libxml2) before it can
+    be published, recording the outcome in ``state`` (the JSON summary's ``qif`` block).
 
-    Returns the JSON summary's ``qif`` block. When the official schemas cannot be found the
-    file is written and reported *not validated* (``valid: None``) with how to provide them;
-    a document the schema rejects is a bug of qifreport: nothing is published and the error
-    is raised (exit 2).
+    When the official schemas cannot be found the file is written and reported *not
+    validated* (``valid: None``) with how to provide them; a document the schema rejects is a
+    bug of qifreport: the writer raises, nothing is published (exit 2).
     """
     from .validate import SchemasUnavailable, schema_dir, validate_lxml
     from .writer import write_qif
 
-    state: dict = {"path": str(path), "valid": None, "validated_with": [], "message": ""}
+    state.update(valid=None, validated_with=[], message="")
 
     def write(tmp: Path) -> None:
         write_qif(tmp, tree)
@@ -255,8 +261,7 @@ def publish_qif(path: Path, tree) -> dict:
         state.update(valid=True, validated_with=["lxml"],
                      message=f"valid against the QIF 3.0 schemas in {xsd}")
 
-    atomic_write(path, write)
-    return state
+    return write
 
 
 def run(args: argparse.Namespace) -> int:
@@ -287,9 +292,11 @@ def run(args: argparse.Namespace) -> int:
     finished = datetime.now(timezone.utc)
     digests = {"nominal": sha256(args.nominal), "scan": sha256(args.scan)}
 
+    outputs: list = []
     qif_state = None
-    if not args.no_qif:
-        from .writer import Provenance, build_qif
+    prov = None
+    if not (args.no_qif and args.no_pdf):
+        from .writer import Provenance
 
         prov = Provenance(
             part_name=args.nominal.stem, nominal_path=str(args.nominal),
@@ -299,7 +306,19 @@ def run(args: argparse.Namespace) -> int:
             organization=args.organization, operator=args.operator,
             serial_number=args.serial,
         )
-        qif_state = publish_qif(args.out / f"{args.nominal.stem}.qif", build_qif(res, prov))
+    if not args.no_qif:
+        from .writer import build_qif
+
+        qif_path = args.out / f"{args.nominal.stem}.qif"
+        qif_state = {"path": str(qif_path)}
+        outputs.append((qif_path, qif_writer(build_qif(res, prov), qif_state)))
+    if not args.no_pdf:
+        from .pdf import write_pdf
+
+        pdf_path = args.out / f"{args.nominal.stem}.pdf"
+        qif_name = "" if args.no_qif else f"{args.nominal.stem}.qif"
+        outputs.append((pdf_path, lambda p: write_pdf(p, res, prov, page=args.page,
+                                                      qif_name=qif_name)))
     if args.json:
         doc = res.to_dict()
         doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}
@@ -309,16 +328,19 @@ def run(args: argparse.Namespace) -> int:
             "nominal": {"path": str(args.nominal), "sha256": digests["nominal"]},
             "scan": {"path": str(args.scan), "sha256": digests["scan"]},
         }
-        if qif_state is not None:
-            doc["qif"] = qif_state
-        out = args.out / f"{args.nominal.stem}.json"
-        text = json.dumps(_finite(doc), indent=2, default=_json_default, allow_nan=False)
-        atomic_write(out, lambda p: p.write_text(text))
+
+        def write_json(p: Path) -> None:  # runs after the QIF writer: its state is known
+            if qif_state is not None:
+                doc["qif"] = qif_state
+            p.write_text(json.dumps(_finite(doc), indent=2, default=_json_default,
+                                    allow_nan=False))
+
+        outputs.append((args.out / f"{args.nominal.stem}.json", write_json))
     if args.export_mesh is not None:
-        atomic_write(
-            args.export_mesh,
-            lambda p: write_ply_with_scalar(p, res.V_registered, F, "deviation", res.deviation),
-        )
+        outputs.append((args.export_mesh, lambda p: write_ply_with_scalar(
+            p, res.V_registered, F, "deviation", res.deviation)))
+    # all outputs or none: a failure in any writer publishes nothing
+    atomic_write_many(outputs)
     print(summary(res))
     if qif_state is not None:
         if qif_state["valid"]:

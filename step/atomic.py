@@ -27,3 +27,30 @@ def atomic_write(path: str | Path, write: Callable[[Path], object]) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def atomic_write_many(items: list[tuple[str | Path, Callable[[Path], object]]]) -> None:
+    """Write several files all-or-nothing: every ``write(tmp)`` runs (in order) into a temp
+    file beside its target; only when all succeeded are they renamed into place.
+
+    A failure in any writer leaves none of the targets created or changed.
+    """
+    staged: list[tuple[Path, Path]] = []
+    try:
+        for path, write in items:
+            path = Path(path)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+            os.close(fd)
+            staged.append((path, Path(tmp)))
+            write(Path(tmp))
+        umask = os.umask(0)
+        os.umask(umask)
+        for _path, tmp in staged:
+            os.chmod(tmp, 0o666 & ~umask)
+    except BaseException:
+        for _path, tmp in staged:
+            tmp.unlink(missing_ok=True)
+        raise
+    for path, tmp in staged:
+        os.replace(tmp, path)

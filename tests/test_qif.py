@@ -283,3 +283,22 @@ def test_without_schemas_the_qif_is_written_but_never_called_valid(
     doc = json.loads((tmp_path / "shell.json").read_text())
     assert_valid_summary(doc)
     assert doc["qif"]["valid"] is None and doc["qif"]["validated_with"] == []
+
+
+def test_outputs_are_all_or_nothing(tmp_path):
+    from step.atomic import atomic_write_many
+
+    (tmp_path / "b.txt").write_text("old")
+
+    def boom(p):
+        raise RuntimeError("render failed")
+
+    with pytest.raises(RuntimeError):
+        atomic_write_many([(tmp_path / "a.qif", lambda p: p.write_text("qif")),
+                           (tmp_path / "b.txt", lambda p: p.write_text("new")),
+                           (tmp_path / "c.pdf", boom)])
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["b.txt"]
+    assert (tmp_path / "b.txt").read_text() == "old"
+    atomic_write_many([(tmp_path / "a.qif", lambda p: p.write_text("qif")),
+                       (tmp_path / "b.txt", lambda p: p.write_text("new"))])
+    assert (tmp_path / "a.qif").read_text() == "qif" and (tmp_path / "b.txt").read_text() == "new"

@@ -1,0 +1,406 @@
+"""The one-page PDF report: complete, one page, legible, and the same numbers as the QIF file.
+
+Real inspections (the shell passing at 0.5 mm, the shell with a 1 mm bump failing at 0.3 mm,
+the STEP panel with two PMI profile tolerances) are written as PDF and QIF; the PDF is
+rasterized with ``pdftoppm`` and its text extracted with ``pdftotext`` (poppler-utils) and
+checked against the result and against what :func:`qif.reader.read_results` reads back from
+the QIF file, at the precision the page prints. A synthetic stress case (40 regions, 25
+tolerances) must still give one page with the lists summarised.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import re
+import shutil
+import subprocess
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from qif.pdf import fmt_area, fmt_mm, fmt_pct, fmt_smm, plan_layout, write_report
+from qif.reader import read_results
+from qif.writer import Provenance, build_qif, profile_value, write_qif
+from tests.conftest import ROOT
+from tests.consumers import fail_or_skip
+
+DPI = 60
+
+
+def _tool(name: str) -> str:
+    exe = shutil.which(name)
+    if exe is None:
+        fail_or_skip(f"{name} not found: install Debian package poppler-utils "
+                     "(`make system-deps`)")
+    return exe
+
+
+def _prov(name: str, nominal: str, scan: str) -> Provenance:
+    t = datetime(2025, 1, 2, 3, 4, 5, tzinfo=timezone.utc)
+    return Provenance(part_name=name, nominal_path=nominal, scan_path=scan,
+                      nominal_sha256="ab" * 32, scan_sha256="cd" * 32, started=t,
+                      finished=t + timedelta(seconds=9), author="Ada Auditor",
+                      organization="Test Lab", operator="Op One", serial_number="SN-0001")
+
+
+@dataclasses.dataclass
+class Out:
+    res: object
+    prov: Provenance
+    pdf: Path
+    qif: Path
+    text: str
+    png: Path
+    timings: dict
+
+
+def _produce(d: Path, name: str, res, prov: Provenance, page: str = "A4") -> Out:
+    pdf, qif = d / f"{name}.pdf", d / f"{name}.qif"
+    timings = write_report(pdf, res, prov, page=page, qif_name=qif.name)
+    write_qif(qif, build_qif(res, prov))
+    subprocess.run([_tool("pdftoppm"), "-r", str(DPI), "-png", "-singlefile", str(pdf),
+                    str(d / name)], check=True)
+    text = subprocess.run([_tool("pdftotext"), "-layout", str(pdf), "-"], check=True,
+                          capture_output=True, text=True).stdout
+    return Out(res, prov, pdf, qif, text, d / f"{name}.png", timings)
+
+
+@pytest.fixture(scope="module")
+def results(shell, shell_case, shell_case_defect):
+    """name -> (InspectionResult, Provenance): a passing shell, a failing shell and the STEP
+    panel (two PMI profile tolerances, two PMI items not scored), inspected as qif.cli does."""
+    from metrology.inspection import InspectionParams, inspect
+    from qif.cli import load_nominal
+    from registration.pointcloud import load_scan
+
+    V, F = shell
+    out = {}
+    res = inspect(V, F, shell_case.P, InspectionParams(tolerance=0.5))
+    out["pass"] = (res, _prov("shell", "shell.ply", "shell_scan.npy"))
+    res = inspect(V, F, shell_case_defect.P, InspectionParams(tolerance=0.3))
+    out["fail"] = (res, _prov("shell", "shell.ply", "shell_defect.npy"))
+    nom = load_nominal(ROOT / "samples/panel.step", None, 6.0)
+    P = load_scan(ROOT / "samples/panel_scan_defect.ply")
+    res = inspect(nom.V, nom.F, P, InspectionParams(tolerance=None), face_id=nom.face_id,
+                  zones=nom.zones, not_evaluated=nom.not_evaluated)
+    out["panel"] = (res, _prov("panel", "samples/panel.step", "samples/panel_scan_defect.ply"))
+    return out
+
+
+@pytest.fixture(scope="module")
+def reports(tmp_path_factory, results):
+    """name -> Out: the PDF and QIF of each result, the PDF rasterized and its text."""
+    _tool("pdftoppm")
+    _tool("pdftotext")
+    d = tmp_path_factory.mktemp("pdf")
+    return {name: _produce(d, name, res, prov) for name, (res, prov) in results.items()}
+
+
+CASES = ["pass", "fail", "panel"]
+
+
+def _pdfinfo(pdf: Path) -> dict[str, str]:
+    txt = subprocess.run([_tool("pdfinfo"), str(pdf)], check=True, capture_output=True,
+                         text=True).stdout
+    return {k.strip(): v.strip() for k, v in (ln.split(":", 1) for ln in txt.splitlines()
+                                             if ":" in ln)}
+
+
+def _tokens(text: str) -> set[str]:
+    return set(text.split())
+
+
+def _pixels(png: Path, box, page_h: float) -> np.ndarray:
+    """RGB pixels (int) of a page box (points, origin bottom-left) in the rasterized page."""
+    from PIL import Image
+
+    img = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    s = DPI / 72.0
+    x0, x1 = int(np.ceil(box.x * s)) + 1, int(np.floor((box.x + box.w) * s)) - 1
+    y0, y1 = int(np.ceil((page_h - box.top) * s)) + 1, int(np.floor((page_h - box.y) * s)) - 1
+    return img[y0:y1, x0:x1].reshape(-1, 3)
+
+
+def _green(px: np.ndarray) -> np.ndarray:
+    r, g, b = px.T
+    return (g > r + 25) & (g > b + 8)
+
+
+def _red(px: np.ndarray) -> np.ndarray:
+    r, g, b = px.T
+    return (r > 120) & (r > g + 50) & (r > b + 50)
+
+
+def _blue(px: np.ndarray) -> np.ndarray:
+    r, g, b = px.T
+    return (b > 100) & (b > r + 50) & (b > g + 30)
+
+
+# ------------------------------------------------------------------------------- the page
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_one_page_verdict_and_fonts(reports, case):
+    o = reports[case]
+    info = _pdfinfo(o.pdf)
+    assert info["Pages"] == "1"
+    assert info["Page size"].startswith("595.276 x 841.89")  # A4
+    verdict = "PASS" if o.res.passed else "FAIL"
+    assert {"pass": "PASS", "fail": "FAIL", "panel": "FAIL"}[case] == verdict
+    assert verdict in _tokens(o.text)
+    other = "FAIL" if verdict == "PASS" else "PASS"
+    if verdict == "PASS":
+        assert other not in _tokens(o.text)
+    assert read_results(o.qif).status == verdict
+    # title block: part, files with their digest, operator, organization, units, software
+    for s in ("shell" if case != "panel" else "panel", Path(o.prov.nominal_path).name,
+              Path(o.prov.scan_path).name, "abababababababab", "cdcdcdcdcdcdcdcd", "Op One",
+              "Test Lab", "SN-0001", "qifreport", "2025-01-02 03:04:05 UTC", "mm²",
+              f"is in {o.qif.name} (QIF 3.0"):
+        assert s in o.text, s
+    # every font embedded (DejaVu, no base-14 font)
+    fonts = subprocess.run([_tool("pdffonts"), str(o.pdf)], check=True, capture_output=True,
+                           text=True).stdout.splitlines()[2:]
+    assert fonts
+    for line in fonts:
+        assert "DejaVuSans" in line and " yes " in line, line
+    # a PNG of one page was produced
+    assert o.png.is_file() and not list(o.png.parent.glob(f"{case}-*.png"))
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_nothing_outside_the_page(reports, case):
+    """Every word lies inside the page's margins (nothing cut by the page edge)."""
+    o = reports[case]
+    _assert_words_inside(o.pdf)
+
+
+def _assert_words_inside(pdf: Path) -> None:
+    xml = subprocess.run([_tool("pdftotext"), "-bbox", str(pdf), "-"], check=True,
+                         capture_output=True, text=True).stdout
+    page = re.search(r'<page width="([\d.]+)" height="([\d.]+)"', xml)
+    W, H = float(page.group(1)), float(page.group(2))
+    words = re.findall(r'xMin="([\d.-]+)" yMin="([\d.-]+)" xMax="([\d.-]+)" yMax="([\d.-]+)"',
+                       xml)
+    assert len(words) > 200
+    for x0, y0, x1, y1 in (tuple(map(float, w)) for w in words):
+        assert 20 <= x0 and x1 <= W - 20 and 20 <= y0 and y1 <= H - 20, (x0, y0, x1, y1)
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_statistics_equal_result_and_qif(reports, case):
+    o = reports[case]
+    res, tok = o.res, _tokens(o.text)
+    q = read_results(o.qif)
+    v, a = res.vertex_stats, res.acceptance
+    # the page prints the result's numbers, and the QIF carries the same at that precision
+    pairs = [(fmt_mm(v.rms), fmt_mm(q.stats.rms)), (fmt_mm(v.p95), fmt_mm(q.stats.p95)),
+             (fmt_mm(v.p99), fmt_mm(q.stats.p99)), (fmt_mm(v.p999), fmt_mm(q.stats.p999)),
+             (fmt_smm(v.max_pos), fmt_smm(q.stats.max_pos)),
+             (fmt_smm(v.min_neg), fmt_smm(q.stats.min_neg)),
+             (fmt_smm(v.mean), fmt_smm(q.stats.mean)),
+             (fmt_pct(v.frac_beyond), fmt_pct(q.stats.frac_beyond)),
+             (fmt_pct(a.in_tolerance_fraction), fmt_pct(q.acceptance.in_tolerance_fraction)),
+             (fmt_pct(a.coverage), fmt_pct(q.acceptance.coverage)),
+             (fmt_area(a.scored_area), fmt_area(q.acceptance.scored_area)),
+             (fmt_mm(res.point_stats.rms), fmt_mm(q.point_stats.rms)),
+             (fmt_mm(res.point_stats.p999), fmt_mm(q.point_stats.p999)),
+             (fmt_mm(res.rigid.rms), fmt_mm(q.attributes["rigid_rms_mm"]))]
+    if res.fit is not None:
+        pairs.append((fmt_mm(res.fit.scale), fmt_mm(q.attributes["fit_residual_scale_mm"])))
+    for printed, from_qif in pairs:
+        assert printed == from_qif
+        assert printed in tok, printed
+    # region count and the regions listed (area, peak) as in the QIF
+    m = re.search(r"Out-of-tolerance regions, whole part \((\d+);", o.text)
+    assert m and int(m.group(1)) == len(a.regions) == q.attributes["region_count"]
+    lay = plan_layout(res, o.prov)
+    for k, r in enumerate(a.regions[:lay.regions_listed], start=1):
+        assert fmt_area(r.area) == fmt_area(q.attributes[f"region_{k}_area_mm2"])
+        assert fmt_area(r.area) in tok and fmt_smm(r.peak) in tok
+    if len(a.regions) > lay.regions_listed:
+        assert f"+ {len(a.regions) - lay.regions_listed} more regions" in o.text
+    # per tolerance: key, profile value, in-band share and verdict as in the QIF
+    for z in res.zones:
+        c = q.characteristic(z.zone.key)
+        row = next(ln for ln in o.text.splitlines()  # the tolerance table's row
+                   if ln.split()[:1] == [z.zone.key] and c.status in ln.split())
+        cells = row.split()
+        assert fmt_mm(profile_value(z)) == fmt_mm(c.attributes["profile_value_mm"])
+        assert fmt_mm(profile_value(z)) in cells
+        assert fmt_pct(c.attributes["in_tolerance_area_fraction"]) in cells
+        assert c.status in cells
+    # two or three tolerances: each has its own column of the statistics table
+    if 2 <= len(res.zones) <= 3:
+        lines = o.text.splitlines()
+        for label, key, fmt in (("P95 of |dev|, mm", "p95", fmt_mm),
+                                ("P99 of |dev|, mm", "p99", fmt_mm),
+                                ("Mean, mm", "mean", fmt_smm),
+                                ("Beyond ±τ, %", "frac_beyond", fmt_pct)):
+            row = next(ln for ln in lines if label in ln).split(label, 1)[1].split()
+            for z in res.zones:
+                c = q.characteristic(z.zone.key)
+                qv = c.attributes[f"{key}_mm" if fmt is not fmt_pct else key]
+                assert fmt(getattr(z.stats, key)) == fmt(qv)
+                assert fmt(qv) in row, (label, z.zone.key, row)
+    # PMI listed but not scored, with its count
+    if res.not_evaluated:
+        assert f"PMI not scored ({len(res.not_evaluated)})" in o.text
+        assert all(n.name in o.text for n in res.not_evaluated)
+
+
+def test_failing_reasons_and_criteria(reports):
+    o = reports["fail"]
+    assert "region criterion: whole part" in o.text
+    assert "region of 183.9 mm²" in o.text or "region of" in o.text
+    assert "> limit" in o.text
+    panel = reports["panel"]
+    assert "area criterion: whole part, T1, T2" in panel.text
+
+
+def test_map_colours(reports):
+    """The failing parts' maps show in-band (green) and out-of-band colours (red proud on the
+    shell's bump, blue where the panel is sunk); the passing part's none (it has no vertex
+    outside its band)."""
+    for case, want in (("fail", _red), ("panel", _blue), ("pass", None)):
+        o = reports[case]
+        res = o.res
+        lay = plan_layout(res, o.prov)
+        px = np.concatenate([_pixels(o.png, b, lay.height) for b in lay.maps])
+        n_green, n_out = int(_green(px).sum()), int((_red(px) | _blue(px)).sum())
+        assert n_green > 100, (case, n_green)
+        if want is not None:
+            assert want(px).sum() >= 5, case
+        else:
+            lo, hi = res.bands.lower, res.bands.upper
+            d = res.deviation
+            scored = np.isfinite(d)
+            assert not res.acceptance.regions
+            assert np.all((d[scored] >= lo[scored]) & (d[scored] <= hi[scored]))
+            assert n_out == 0, (case, n_out)
+
+
+def test_letter_page(reports, tmp_path):
+    o = reports["fail"]
+    out = _produce(tmp_path, "letter", o.res, o.prov, page="Letter")
+    info = _pdfinfo(out.pdf)
+    assert info["Pages"] == "1"
+    assert info["Page size"].startswith("612 x 792")
+    assert "FAIL" in _tokens(out.text)
+    _assert_words_inside(out.pdf)
+    with pytest.raises(ValueError, match="A4"):
+        write_report(tmp_path / "x.pdf", o.res, o.prov, page="A3")
+
+
+@pytest.mark.parametrize("page", ["A4", "Letter"])
+def test_stress_many_regions_and_tolerances(reports, tmp_path, page):
+    """40 regions and 25 tolerances (and 9 PMI items not scored) still fit one page: the
+    lists are cut and the cut is stated."""
+    from metrology.acceptance import Region
+    from metrology.bands import NotEvaluated
+
+    base = reports["panel"].res
+    res = copy.copy(base)
+    rng = np.random.default_rng(0)
+    regs = list(base.acceptance.regions)
+    for c in rng.choice(len(base.V), 40 - len(regs), replace=False):
+        idx = np.argsort(np.linalg.norm(base.V - base.V[c], axis=1))[:10]
+        regs.append(Region(vertices=np.sort(idx), area=float(rng.uniform(0.5, 30)),
+                           peak=float(rng.uniform(0.3, 1.5)), peak_vertex=int(c),
+                           centroid=base.V[idx].mean(axis=0), sign=1))
+    res.acceptance = dataclasses.replace(base.acceptance, regions=regs)
+    res.zones = [dataclasses.replace(base.zones[k % len(base.zones)], zone=dataclasses.replace(
+        base.zones[k % len(base.zones)].zone, key=f"T{k + 1}", step_id=5000 + k,
+        name=f"a_rather_long_profile_tolerance_name_{k}")) for k in range(25)]
+    res.not_evaluated = [NotEvaluated("flatness", f"flat_{i}", 7000 + i, "feature tolerance")
+                         for i in range(9)]
+    prov = dataclasses.replace(reports["panel"].prov, part_name="p" * 120,
+                               organization="An Extremely Long Organization Name " * 4)
+    out = _produce(tmp_path, "stress", res, prov, page=page)
+    assert _pdfinfo(out.pdf)["Pages"] == "1"
+    assert re.search(r"\+ \d+ more regions", out.text)
+    assert re.search(r"\+ \d+ more tolerances not listed", out.text)
+    assert re.search(r"\+ \d+ more reasons", out.text)
+    assert "Out-of-tolerance regions, whole part (40;" in out.text
+    assert "Tolerances (25)" in out.text
+    _assert_words_inside(out.pdf)
+    lay = plan_layout(res, prov, page=page)
+    assert lay.regions_listed >= 2 and lay.tolerances_listed >= 2
+    assert min(b.h for b in lay.maps) >= 100
+
+
+def test_write_time(reports):
+    """Layout + rendering + writing of a 16k-triangle shell takes well under the 5 s that
+    the 100k-triangle benchmark (bench/pdf.py) must meet."""
+    t = reports["fail"].timings
+    assert sum(t.values()) < 5.0, t
+
+
+# ---------------------------------------------------------------------------- rendering
+
+
+def test_colours_and_scale():
+    from qif.render import BLUE_DARK, GREY, RED_DARK, color_scale, deviation_colors, nice_ceil
+
+    dev = np.array([0.0, 0.2, -0.2, 0.6, -0.6, 5.0, -5.0, np.nan])
+    col = deviation_colors(dev, -0.3, 0.3, 1.0)
+    for k in (0, 1, 2):
+        assert col[k, 1] > col[k, 0] and col[k, 1] > col[k, 2]  # green inside
+    assert col[3, 0] > col[3, 1] + 0.2 and col[3, 0] > col[3, 2] + 0.2  # red: proud
+    assert col[4, 2] > col[4, 0] + 0.2  # blue: sunk
+    assert np.allclose(col[5], RED_DARK) and np.allclose(col[6], BLUE_DARK)  # saturated
+    assert np.allclose(col[7], GREY)
+    # the sign shows inside the band: the proud side is yellower than the sunk side
+    assert col[1, 0] > col[2, 0]
+    assert [nice_ceil(x) for x in (0.7, 1.0, 1.3, 2.2, 7.0, 0.031)] == [0.8, 1.0, 1.5, 2.5, 8.0,
+                                                                         0.04]
+    S = color_scale(np.array([0.01, -0.02]), np.full(2, -0.5), np.full(2, 0.5))
+    assert S == 0.8  # 1.5 x the band: the band keeps a readable share of the bar
+
+
+@pytest.mark.parametrize("backend", ["vtk", "matplotlib"])
+def test_render_views_shows_the_region(results, backend):
+    from qif.render import render_views
+
+    res = results["fail"][0]
+    b = res.bands
+    views = render_views(res.V_registered, res.F, res.deviation, b.lower, b.upper,
+                         res.acceptance.regions, size=[(300, 200), (160, 120), (160, 120)],
+                         backend=backend)
+    assert 2 <= len(views) <= 3
+    assert views[0].name == "top (+z)"
+    for v, size in zip(views, [(300, 200), (160, 120), (160, 120)], strict=False):
+        assert v.image.shape == (size[1], size[0], 3) and v.image.dtype == np.uint8
+        assert v.backend == backend
+        px = v.image.reshape(-1, 3).astype(int)
+        assert _green(px).sum() > 50 and _red(px).sum() > 3
+    lab = views[0].labels
+    assert [lb.number for lb in lab] == [1]
+    # the anchor lies on the red region
+    x, y = int(round(lab[0].x)), int(round(lab[0].y))
+    patch = views[0].image[max(0, y - 2):y + 3, max(0, x - 2):x + 3].reshape(-1, 3).astype(int)
+    assert _red(patch).any()
+
+
+def test_fallback_when_vtk_cannot_render(results, monkeypatch, caplog):
+    """No VTK (or no EGL): matplotlib draws the maps and a warning says so."""
+    import qif.render as render
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("no EGL display")
+
+    monkeypatch.setattr(render, "_render_vtk", broken)
+    res = results["fail"][0]
+    with caplog.at_level("WARNING", logger="qif.render"):
+        views = render.render_views(res.V_registered, res.F, res.deviation, res.bands.lower,
+                                    res.bands.upper, res.acceptance.regions, size=(240, 160))
+    assert all(v.backend == "matplotlib" for v in views)
+    assert "VTK offscreen rendering failed" in caplog.text and "no EGL display" in caplog.text
+    px = views[0].image.reshape(-1, 3).astype(int)
+    assert _green(px).sum() > 50 and _red(px).sum() > 3
+    with pytest.raises(RuntimeError):
+        render.render_views(res.V_registered, res.F, res.deviation, res.bands.lower,
+                            res.bands.upper, size=(64, 48), backend="vtk")
