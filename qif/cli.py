@@ -85,8 +85,12 @@ def _parser() -> argparse.ArgumentParser:
                     "(default 0.95)")
     ap.add_argument("--max-region-area", type=float, default=None, metavar="MM2",
                     help="region criterion: largest out-of-tolerance region (default 25 mm^2)")
-    ap.add_argument("--energy", choices=["hessian", "laplacian"], default="hessian",
-                    help="bending energy of the virtual fixture (default hessian)")
+    ap.add_argument("--energy", choices=["auto", "hessian", "laplacian"], default="auto",
+                    help="bending energy of the virtual fixture (default auto: hessian for an "
+                    "open sheet, laplacian for a closed solid)")
+    ap.add_argument("--edge-band", type=float, default=None, metavar="MM",
+                    help="do not score vertices within MM of a sharp crease (default: the "
+                    "deviation's neighbourhood radius; 0 scores everything)")
     ap.add_argument("--band-limit", type=float, default=None, metavar="MM",
                     help="smoothing length of the first GB-CICP pass (default from part size)")
     ap.add_argument("--passes", type=int, default=3,
@@ -140,7 +144,9 @@ def summary(res: InspectionResult) -> str:
         f"region criterion: largest out-of-tolerance region {a.largest_region_area:.1f} mm^2 "
         f"(<= {a.max_region_area:g} mm^2) {'ok' if a.region_ok else 'FAILED'}; "
         f"{len(a.regions)} region(s)",
-        f"coverage: {100 * a.coverage:.1f} % of the nominal area scored",
+        f"coverage: {100 * a.coverage:.1f} % of the nominal area scored"
+        + (f" ({res.edge_excluded_area:.0f} mm^2 along sharp creases not scored)"
+           if res.edge_excluded_area > 0 else ""),
     ]
     for r in a.regions[:5]:
         c = r.centroid
@@ -273,6 +279,7 @@ def run(args: argparse.Namespace) -> int:
     g = GBCICPParams(passes=max(1, args.passes), band_limit=args.band_limit)
     params = InspectionParams(
         tolerance=args.tolerance, min_fraction=args.min_fraction, energy=args.energy,
+        edge_band=args.edge_band,
         rigid_only=args.rigid_only, gbcicp=g,
     )
     if args.max_region_area is not None:

@@ -265,7 +265,7 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
                     E.Name("rigid alignment"),
                     E.Description("robust scan-to-model ICP (paper Section 3)"), id=rigid_alg_id),
         E.Algorithm(E.SoftwareId(sw_id),
-                    E.Parameters(json.dumps({"energy": params.energy,
+                    E.Parameters(json.dumps({"energy": res.energy,
                                              "rigid_only": params.rigid_only,
                                              "gbcicp": fit_params}, default=_json_default)),
                     E.Name("virtual fixture" if not params.rigid_only else "none (rigid only)"),
@@ -418,6 +418,7 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
     _acceptance_attrs(ra, res.acceptance, res.V)
     ra.stats(res.point_stats, prefix="scan_points_")
     ra.d("scan_area_mm2", res.scan_area).b("coverage_ceiling_ok", res.coverage_ceiling_ok)
+    ra.d("edge_excluded_area_mm2", res.edge_excluded_area).s("bending_energy", res.energy)
     ra.d("rigid_rms_mm", rigid.rms).d("rigid_inlier_fraction", rigid.inlier_fraction)
     ra.i("rigid_iterations", rigid.iterations)
     ra.s("rigid_rotation", " ".join(_dbl(v) for v in np.asarray(rigid.R).ravel()))

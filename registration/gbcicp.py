@@ -73,6 +73,11 @@ class GBCICPParams:
     holdout_factor : withhold measurement within this many coverage radii of a flagged vertex.
     max_flagged_fraction : fall back to the single-pass result above this fraction (0.2).
     scan_normal_k : neighbours for the PCA scan normals.
+    signed_compat : orient the scan normals (consistently per connected sheet, the side of
+        each sheet by a vote against the posed nominal's normals) and use the *signed*
+        normal compatibility ``n . n_scan``: a vertex whose normal faces away from the
+        matched measurement (the hidden back skin of a thin solid) gets no data and is not
+        covered. False: the paper's ``|n . n_scan|``.
     """
 
     band_limit: float | None = None
@@ -92,6 +97,7 @@ class GBCICPParams:
     holdout_factor: float = 1.5
     max_flagged_fraction: float = 0.2
     scan_normal_k: int = 12
+    signed_compat: bool = True
 
 
 @dataclass
@@ -138,34 +144,64 @@ class _Match:
     target: np.ndarray  # (n, 3) point-to-plane targets
     r: np.ndarray  # (n,) signed normal residual, sign of the vertex normal
     covered: np.ndarray  # (n,) bool
-    compat: np.ndarray  # (n,) |n . n_scan|
+    compat: np.ndarray  # (n,) n . n_scan (signed) or |n . n_scan|
 
 
 class _Matcher:
-    """Vertex -> nearest-scan-point correspondences with point-to-plane targets."""
+    """Vertex -> nearest-scan-point correspondences with point-to-plane targets.
 
-    def __init__(self, P: np.ndarray, scan_normals: np.ndarray, normals: np.ndarray, radius: float):
+    With ``signed`` the scan normals are oriented (outward) and a vertex is covered only when
+    its normal agrees with the matched measurement's (``n . n_scan >= gate``).
+    """
+
+    def __init__(self, P: np.ndarray, scan_normals: np.ndarray, normals: np.ndarray,
+                 radius: float, signed: bool = False, gate: float = 0.0):
         self.P = P
         self.Ns = scan_normals
         self.N = normals
         self.radius = radius
+        self.signed = signed
+        self.gate = gate
         self.tree = cKDTree(P)
 
     def __call__(self, X: np.ndarray) -> _Match:
         _, j = self.tree.query(X, workers=-1)
         diff = self.P[j] - X
         ns = self.Ns[j]
-        s = np.sign(np.einsum("ij,ij->i", ns, self.N))
+        c = np.einsum("ij,ij->i", ns, self.N)
+        s = np.sign(c)
         s[s == 0] = 1.0
-        ns = ns * s[:, None]  # orient scan normals like the vertex normals
+        ns = ns * s[:, None]  # point-to-plane along the scan normal, turned like the vertex's
         r = np.einsum("ij,ij->i", diff, ns)
         tang = np.linalg.norm(diff - r[:, None] * ns, axis=1)
+        covered = tang < self.radius
+        if self.signed:
+            covered &= c >= self.gate
         return _Match(
             target=X + r[:, None] * ns,
             r=r,
-            covered=tang < self.radius,
-            compat=np.abs(np.einsum("ij,ij->i", ns, self.N)),
+            covered=covered,
+            compat=c if self.signed else np.abs(c),
         )
+
+
+def orient_scan_normals(P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndarray,
+                        k: int = 10) -> np.ndarray:
+    """Outward scan normals: consistent per connected sheet of the scan, each sheet's side
+    chosen by a vote of its points against the nearest vertex normal of the posed nominal.
+
+    A vote rather than a per-point test, because where the free-state deflection exceeds
+    half the wall of a thin solid the nearest nominal vertex lies on the other skin.
+    """
+    from .pointcloud import orient_normals_consistent
+
+    out, labels = orient_normals_consistent(P, Ns, k=k)
+    _, near = cKDTree(V).query(P, workers=-1)
+    agree = np.einsum("ij,ij->i", out, N[near])
+    votes = np.bincount(labels, weights=np.sign(agree))
+    flip = votes[labels] < 0
+    out[flip] = -out[flip]
+    return out
 
 
 def _weights(
@@ -213,7 +249,10 @@ def gbcicp(
     solver = solver or SPDSolver()
     n = len(V0)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
-    match = _Matcher(P, Ns, ops.normals, p.coverage_radius)
+    if p.signed_compat:
+        Ns = orient_scan_normals(P, Ns, V0, ops.normals)
+    match = _Matcher(P, Ns, ops.normals, p.coverage_radius, signed=p.signed_compat,
+                     gate=p.normal_gate)
     Q = ops.Q
     if p.lambda0 is not None:
         data_scale = np.ones(n)

@@ -212,3 +212,38 @@ def bending_operator(V: np.ndarray, F: np.ndarray, energy: str = "laplacian") ->
         raise ValueError(f"unknown bending energy {energy!r} (laplacian or hessian)")
     Q = (0.5 * (Q + Q.T)).tocsc()
     return MeshOperators(L=L, M=M, Q=Q, energy=energy, normals=vertex_normals(V, F), area=area)
+
+
+def crease_band(V: np.ndarray, F: np.ndarray, width: float,
+                angle_deg: float = 45.0) -> np.ndarray:
+    """(n,) bool: vertices within ``width`` (mm, shortest path along the edges) of a sharp
+    crease, an edge whose two triangles' normals differ by more than ``angle_deg`` degrees.
+    """
+    import scipy.sparse.csgraph as csg
+
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    tri = np.tile(np.arange(len(F)), 3)
+    Es = np.sort(E, axis=1)
+    order = np.lexsort((Es[:, 1], Es[:, 0]))
+    Es, tri = Es[order], tri[order]
+    same = np.all(Es[1:] == Es[:-1], axis=1)
+    a, b = tri[:-1][same], tri[1:][same]
+    cos = np.einsum("ij,ij->i", fn[a], fn[b])
+    sharp = Es[:-1][same][cos < np.cos(np.radians(angle_deg))]
+    out = np.zeros(len(V), dtype=bool)
+    if len(sharp) == 0:
+        return out
+    seeds = np.unique(sharp.ravel())
+    out[seeds] = True
+    if width <= 0:
+        return out
+    Eu = edges(F)
+    w = np.linalg.norm(V[Eu[:, 0]] - V[Eu[:, 1]], axis=1)
+    G = sp.coo_matrix((w, (Eu[:, 0], Eu[:, 1])), shape=(len(V), len(V))).tocsr()
+    d = csg.dijkstra(G, directed=False, indices=seeds, limit=width, min_only=True)
+    out |= np.isfinite(d)
+    return out

@@ -96,3 +96,50 @@ def median_spacing(P: np.ndarray, tree: cKDTree | None = None) -> float:
     tree = tree or cKDTree(P)
     d, _ = tree.query(P, k=2, workers=-1)
     return float(np.median(d[:, 1]))
+
+
+def orient_normals_consistent(
+    P: np.ndarray, Ns: np.ndarray, k: int = 10, tree: cKDTree | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Give unsigned normals (m, 3) one consistent side per connected sheet of the scan.
+
+    The sign is propagated along a minimum spanning tree of the k-NN graph weighted by
+    ``1 - |n_i . n_j|`` (Hoppe et al. 1992): each point takes the side of its parent, and the
+    tree crosses creases where the normals turn least. The overall side of each connected
+    component is still arbitrary: the caller chooses it (e.g. by a vote against a posed
+    nominal, :func:`registration.gbcicp.gbcicp`).
+
+    Returns
+    -------
+    normals : (m, 3) unit normals, consistently signed within each component.
+    labels : (m,) int component label of each point.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import (
+        breadth_first_order,
+        connected_components,
+        minimum_spanning_tree,
+    )
+
+    m = len(P)
+    tree = tree or cKDTree(P)
+    k = min(k, m - 1)
+    _, nb = tree.query(P, k=k + 1, workers=-1)
+    i = np.repeat(np.arange(m), k)
+    j = nb[:, 1:].ravel()
+    w = 1.0 - np.abs(np.einsum("ij,ij->i", Ns[i], Ns[j])) + 1e-6
+    G = coo_matrix((w, (i, j)), shape=(m, m)).tocsr()
+    G = G.maximum(G.T)
+    T = minimum_spanning_tree(G)
+    T = T.maximum(T.T)
+    n_comp, labels = connected_components(T, directed=False)
+    out = Ns.copy()
+    seen = np.zeros(m, dtype=bool)
+    for c in range(n_comp):
+        root = int(np.flatnonzero(labels == c)[0])
+        order, pred = breadth_first_order(T, root, directed=False)
+        seen[order] = True
+        for v in order[1:]:  # parents come before children in BFS order
+            if out[v] @ out[pred[v]] < 0:
+                out[v] = -out[v]
+    return out, labels
