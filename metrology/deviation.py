@@ -326,20 +326,6 @@ def data_referenced(V: np.ndarray, F: np.ndarray, P: np.ndarray) -> np.ndarray:
     return closest_points(V, F, P)[2]
 
 
-def orient_scan_normals(
-    P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndarray
-) -> np.ndarray:
-    """Give unsigned scan normals (m, 3) the sign of the nearest vertex normal of ``(V, N)``.
-
-    Meant for a registered nominal: where the fit is within half the wall thickness, each
-    measured point's nearest vertex lies on the skin it measured.
-    """
-    _, near = cKDTree(V).query(P, workers=-1)
-    s = np.sign(np.einsum("ij,ij->i", Ns, N[near]))
-    s[s == 0] = 1.0
-    return Ns * s[:, None]
-
-
 def nominal_referenced(
     V: np.ndarray,
     F: np.ndarray,
@@ -389,10 +375,10 @@ def nominal_referenced(
     max_centroid_offset : fraction of ``radius`` (see above); None disables the rule.
     max_distance : mm; if given, the neighbourhood is the cylinder described above.
     scan_normals : (m, 3) scan normals *oriented* outward (e.g. by
-        :func:`orient_scan_normals`); if given, a vertex only uses points whose normal is
-        within 60 degrees of its own (``n_point . n_vertex > 0.5``). This keeps the back
-        skin and the edge faces of a thin wall, closer to the front's measurements than
-        ``radius``, from being scored against them.
+        :func:`registration.gbcicp.orient_scan_normals`); if given, a vertex only uses
+        points whose normal is within 60 degrees of its own (``n_point . n_vertex > 0.5``).
+        This keeps the back skin and the edge faces of a thin wall, closer to the front's
+        measurements than ``radius``, from being scored against them.
 
     Returns
     -------

@@ -30,7 +30,8 @@ from registration.mesh import (
     median_edge_length,
     vertex_normals,
 )
-from registration.pointcloud import pca_normals
+from registration.pointcloud import orient_normals_consistent, pca_normals
+from registration.prealign import PrealignResult, seat_scan
 
 from .acceptance import (
     DEFAULT_MAX_REGION_AREA,
@@ -83,6 +84,9 @@ class InspectionParams:
         is an artefact. None: the deviation's neighbourhood radius (1.5 median edges);
         0 scores every vertex. The excluded area is reported.
     rigid_only : skip the virtual fixture (the fixtureless rigid baseline).
+    prealign : pose search before the rigid ICP (:func:`registration.prealign.seat_scan`):
+        ``"auto"`` (default) searches only when the scan is not already in the part frame,
+        ``"always"`` always searches, ``"never"`` trusts that scan and nominal share a frame.
     gbcicp : parameters of the non-rigid stage.
     """
 
@@ -93,6 +97,7 @@ class InspectionParams:
     edge_band: float | None = None
     crease_angle: float = 45.0
     rigid_only: bool = False
+    prealign: str = "auto"
     gbcicp: GBCICPParams = field(default_factory=GBCICPParams)
 
 
@@ -143,7 +148,10 @@ class InspectionResult:
     zones : per toleranced surface results (the general zone last).
     not_evaluated : PMI items listed but not scored.
     bands : the zones laid on the mesh (per-vertex band of the combined map).
-    rigid : the rigid alignment.  fit : the GB-CICP result (None with ``rigid_only``).
+    rigid : the rigid alignment (pose of the scan as delivered -> nominal frame).
+    fit : the GB-CICP result (None with ``rigid_only``).
+    prealign : how the rigid ICP was started (:class:`registration.prealign.PrealignResult`;
+        ``method == "identity"`` when the scan was already in the part frame).
     scan_area : estimated area covered by the scan, mm^2.
     coverage_ceiling_ok : coverage does not exceed scan area / nominal area (over-fit check).
     timings : seconds per stage.
@@ -171,6 +179,7 @@ class InspectionResult:
     bands: BandField | None = None
     energy: str = "hessian"
     edge_excluded_area: float = 0.0
+    prealign: PrealignResult | None = None
 
     @property
     def passed(self) -> bool:
@@ -211,6 +220,7 @@ class InspectionResult:
             },
             "registration": {
                 "energy": self.energy,
+                "prealign": None if self.prealign is None else _prealign_dict(self.prealign),
                 "rigid": {
                     "R": self.rigid.R.tolist(),
                     "t_mm": self.rigid.t.tolist(),
@@ -231,6 +241,24 @@ class InspectionResult:
             "mesh": {"vertices": len(self.V), "triangles": len(self.F), "scan_points": len(self.P)},
             "timings_s": self.timings,
         }
+
+
+def _prealign_dict(a: PrealignResult) -> dict:
+    """JSON-ready account of the pose search (the confidence report)."""
+    return {
+        "method": a.method,
+        "inlier_fraction": a.inlier_fraction,
+        "gate_mm": a.gate,
+        "rms_mm": a.rms,
+        "restart_agreement": a.restart_agreement,
+        "starts": a.n_starts,
+        "descriptor_matches": a.matches,
+        "ransac_inliers": a.ransac_inliers,
+        "ambiguous": a.ambiguous,
+        "conditioning": a.conditioning,
+        "weakly_constrained": a.weakly_constrained,
+        "seconds": a.seconds,
+    }
 
 
 def check_units(V: np.ndarray, P: np.ndarray) -> None:
@@ -268,8 +296,8 @@ def inspect(
     Parameters
     ----------
     V : (n, 3) nominal vertices, mm.  F : (f, 3) triangles.
-    P : (m, 3) scan points, mm, roughly in the nominal frame (an arbitrary placement needs
-        the pre-registration stage first).
+    P : (m, 3) scan points, mm, in any placement: a scan not already in the nominal frame
+        is seated first by the pose search (``params.prealign``).
     params : :class:`InspectionParams`.
     progress : optional callable ``progress(k)`` advanced once per GB-CICP iteration.
     face_id : (f,) B-rep face id of each triangle (STEP nominals), for face-based zones.
@@ -280,7 +308,8 @@ def inspect(
     Raises
     ------
     InputError
-        Wrong units, or a scan that does not overlap the nominal after rigid alignment.
+        Wrong units, or a scan that does not overlap the nominal after rigid alignment;
+        :class:`registration.prealign.PoseNotEstablished` when no pose can be established.
     """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -292,8 +321,11 @@ def inspect(
     timings["operators"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    seat = seat_scan(V, F, P, mode=params.prealign)
+    timings["prealign"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     tree = cKDTree(V)
-    rigid = rigid_icp(V, ops.normals, P, tree=tree)
+    rigid = rigid_icp(V, ops.normals, P, R0=seat.R, t0=seat.t, tree=tree)
     Pm = rigid.apply(P)
     timings["rigid"] = time.perf_counter() - t0
     diag = bounding_diagonal(V)
@@ -308,8 +340,12 @@ def inspect(
     fit = None
     V_reg = V
     t0 = time.perf_counter()
+    # scan normals, oriented consistently per connected sheet once; each use below only
+    # chooses the sheets' sides against its own nominal
+    Ns, sheets = orient_normals_consistent(Pm, pca_normals(Pm, params.gbcicp.scan_normal_k))
     if not params.rigid_only:
-        fit = gbcicp(V, F, ops, Pm, params.gbcicp, progress=progress)
+        fit = gbcicp(V, F, ops, Pm, params.gbcicp, scan_normals=Ns, scan_sheets=sheets,
+                     progress=progress)
         V_reg = fit.V
     timings["gbcicp"] = time.perf_counter() - t0
 
@@ -326,13 +362,14 @@ def inspect(
         bands = lay_bands(F, len(V), face_id, [zones[i] for i in keep])
 
     N_reg = vertex_normals(V_reg, F)
-    Ns = pca_normals(Pm)
-    dev = nominal_referenced(V_reg, F, Pm, normals=N_reg,
-                             scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg))
+    dev = nominal_referenced(
+        V_reg, F, Pm, normals=N_reg,
+        scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg, sheets=sheets))
     dev_free = None
     if fit is not None and any(z.free_state for z in bands.zones):
-        dev_free = nominal_referenced(V, F, Pm, normals=ops.normals,
-                                      scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals))
+        dev_free = nominal_referenced(
+            V, F, Pm, normals=ops.normals,
+            scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets))
     band = (1.5 * median_edge_length(V, F) if params.edge_band is None
             else float(params.edge_band))
     near_crease = crease_band(V, F, band, params.crease_angle) if band > 0 else None
@@ -379,4 +416,5 @@ def inspect(
         zones=zone_results, not_evaluated=list(not_evaluated or []), bands=bands,
         energy=energy,
         edge_excluded_area=float(area[near_crease].sum()) if near_crease is not None else 0.0,
+        prealign=seat,
     )

@@ -95,6 +95,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="smoothing length of the first GB-CICP pass (default from part size)")
     ap.add_argument("--passes", type=int, default=3,
                     help="GB-CICP passes: 1 = single pass, >=2 = band-limited scheme (default 3)")
+    ap.add_argument("--prealign", choices=["auto", "always", "never"], default="auto",
+                    help="pose search from an arbitrary placement: auto (when the scan is not "
+                    "already in the part frame), always, or never (scan and part share a "
+                    "frame)")
     ap.add_argument("--rigid-only", action="store_true", help="no virtual fixture (baseline)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     ap.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
@@ -148,6 +152,8 @@ def summary(res: InspectionResult) -> str:
         + (f" ({res.edge_excluded_area:.0f} mm^2 along sharp creases not scored)"
            if res.edge_excluded_area > 0 else ""),
     ]
+    if res.prealign is not None and res.prealign.method != "identity":
+        lines.append(res.prealign.summary())
     for r in a.regions[:5]:
         c = r.centroid
         lines.append(
@@ -280,7 +286,7 @@ def run(args: argparse.Namespace) -> int:
     params = InspectionParams(
         tolerance=args.tolerance, min_fraction=args.min_fraction, energy=args.energy,
         edge_band=args.edge_band,
-        rigid_only=args.rigid_only, gbcicp=g,
+        rigid_only=args.rigid_only, prealign=args.prealign, gbcicp=g,
     )
     if args.max_region_area is not None:
         params.max_region_area = args.max_region_area

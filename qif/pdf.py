@@ -544,6 +544,7 @@ class _Report:
         angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
         t = np.asarray(rg.t, dtype=float)
         rows: list[list[str]] = [
+            ["Pose", _pose_text(res.prealign)],
             ["Rigid residual RMS, mm", fmt_mm(rg.rms)],
             ["Rigid inliers, % / iterations", f"{fmt_pct(rg.inlier_fraction)} / {rg.iterations}"],
             ["Rigid rotation, deg / shift, mm", f"{angle:.3f} / {np.linalg.norm(t):.3f}"],
@@ -571,8 +572,12 @@ class _Report:
                      f"{len(res.V)} / {len(res.F)} / {len(res.P)}"])
         w2 = width * 0.42
         emph = [False] * len(rows)
-        if fit is not None and fit.fallback:
-            emph[4] = True
+        for k, row in enumerate(rows):
+            emph[k] = bool((row[0] == "Iterations / passes / fallback" and fit is not None
+                            and fit.fallback)
+                           or (row[0] == "Pose" and res.prealign is not None
+                               and (res.prealign.ambiguous
+                                    or res.prealign.weakly_constrained)))
         title = ("Registration: rigid ICP + virtual fixture (GB-CICP)" if fit is not None
                  else "Registration: rigid ICP only (free state)")
         return _Table(columns=[("", width - w2, "l"), ("", w2, "r")], rows=rows,
@@ -1310,3 +1315,15 @@ def write_report(
     log.info("PDF report %s: layout %.2f s, maps %.2f s (%s), drawing %.2f s", path.name,
              t1 - t0, t2 - t1, views[0].backend if views else "-", t3 - t2)
     return {"layout": t1 - t0, "render": t2 - t1, "draw": t3 - t2}
+
+
+def _pose_text(a) -> str:
+    """One cell: how the rigid ICP was started (the pose search's confidence in short)."""
+    if a is None or a.method == "identity":
+        return "scan in part frame"
+    text = f"searched: {a.restart_agreement}/{a.n_starts} starts agree"
+    if a.ambiguous:
+        text += ", AMBIGUOUS"
+    if a.weakly_constrained:
+        text += ", slides"
+    return text

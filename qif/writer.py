@@ -419,6 +419,14 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
     ra.stats(res.point_stats, prefix="scan_points_")
     ra.d("scan_area_mm2", res.scan_area).b("coverage_ceiling_ok", res.coverage_ceiling_ok)
     ra.d("edge_excluded_area_mm2", res.edge_excluded_area).s("bending_energy", res.energy)
+    a = res.prealign
+    if a is not None:
+        ra.s("pose_method", a.method)
+        if a.method != "identity":
+            ra.d("pose_inlier_fraction", a.inlier_fraction).d("pose_gate_mm", a.gate)
+            ra.i("pose_restart_agreement", a.restart_agreement).i("pose_starts", a.n_starts)
+            ra.i("pose_descriptor_matches", a.matches).i("pose_ransac_inliers", a.ransac_inliers)
+            ra.b("pose_ambiguous", a.ambiguous).d("pose_conditioning", a.conditioning)
     ra.d("rigid_rms_mm", rigid.rms).d("rigid_inlier_fraction", rigid.inlier_fraction)
     ra.i("rigid_iterations", rigid.iterations)
     ra.s("rigid_rotation", " ".join(_dbl(v) for v in np.asarray(rigid.R).ravel()))

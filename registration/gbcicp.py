@@ -186,20 +186,31 @@ class _Matcher:
 
 
 def orient_scan_normals(P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndarray,
-                        k: int = 10) -> np.ndarray:
+                        k: int = 10, sheets: np.ndarray | None = None) -> np.ndarray:
     """Outward scan normals: consistent per connected sheet of the scan, each sheet's side
     chosen by a vote of its points against the nearest vertex normal of the posed nominal.
 
     A vote rather than a per-point test, because where the free-state deflection exceeds
     half the wall of a thin solid the nearest nominal vertex lies on the other skin.
+
+    Parameters
+    ----------
+    P : (m, 3) scan points, mm.  Ns : (m, 3) unit scan normals.
+    V, N : (n, 3) posed nominal vertices (mm) and their unit normals.
+    k : neighbours of the propagation graph.
+    sheets : (m,) sheet label of each point when ``Ns`` is already consistent within each
+        sheet (:func:`registration.pointcloud.orient_normals_consistent`): only the vote is
+        made, so one propagation serves several nominals.
     """
     from .pointcloud import orient_normals_consistent
 
-    out, labels = orient_normals_consistent(P, Ns, k=k)
+    if sheets is None:
+        Ns, sheets = orient_normals_consistent(P, Ns, k=k)
     _, near = cKDTree(V).query(P, workers=-1)
-    agree = np.einsum("ij,ij->i", out, N[near])
-    votes = np.bincount(labels, weights=np.sign(agree))
-    flip = votes[labels] < 0
+    agree = np.einsum("ij,ij->i", Ns, N[near])
+    votes = np.bincount(sheets, weights=np.sign(agree))
+    flip = votes[sheets] < 0
+    out = Ns.copy()
     out[flip] = -out[flip]
     return out
 
@@ -227,6 +238,7 @@ def gbcicp(
     P: np.ndarray,
     params: GBCICPParams | None = None,
     scan_normals: np.ndarray | None = None,
+    scan_sheets: np.ndarray | None = None,
     solver: SPDSolver | None = None,
     progress=None,
 ) -> GBCICPResult:
@@ -241,6 +253,9 @@ def gbcicp(
     P : (m, 3) scan points, mm.
     params : :class:`GBCICPParams` (defaults resolved from the part size and mesh).
     scan_normals : (m, 3) PCA normals of the scan (computed if omitted).
+    scan_sheets : (m,) sheet labels when ``scan_normals`` are already oriented consistently
+        per sheet (:func:`registration.pointcloud.orient_normals_consistent`); the
+        propagation is then not repeated.
     solver : sparse SPD solver (CHOLMOD if available, else SuperLU).
     progress : optional callable ``progress(n_iterations)`` for a progress bar.
     """
@@ -250,7 +265,7 @@ def gbcicp(
     n = len(V0)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
     if p.signed_compat:
-        Ns = orient_scan_normals(P, Ns, V0, ops.normals)
+        Ns = orient_scan_normals(P, Ns, V0, ops.normals, sheets=scan_sheets)
     match = _Matcher(P, Ns, ops.normals, p.coverage_radius, signed=p.signed_compat,
                      gate=p.normal_gate)
     Q = ops.Q

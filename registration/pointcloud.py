@@ -133,13 +133,18 @@ def orient_normals_consistent(
     T = minimum_spanning_tree(G)
     T = T.maximum(T.T)
     n_comp, labels = connected_components(T, directed=False)
-    out = Ns.copy()
-    seen = np.zeros(m, dtype=bool)
+    # parent of every point in a breadth-first tree of its component (roots: themselves)
+    pred = np.arange(m)
     for c in range(n_comp):
         root = int(np.flatnonzero(labels == c)[0])
-        order, pred = breadth_first_order(T, root, directed=False)
-        seen[order] = True
-        for v in order[1:]:  # parents come before children in BFS order
-            if out[v] @ out[pred[v]] < 0:
-                out[v] = -out[v]
-    return out, labels
+        order, p = breadth_first_order(T, root, directed=False)
+        pred[order[1:]] = p[order[1:]]
+    # a point's side relative to its root is the product of the edge signs along its tree
+    # path: pointer doubling, log2(depth) vectorised steps
+    flip = np.where(np.einsum("ij,ij->i", Ns, Ns[pred]) < 0, -1.0, 1.0)
+    up = pred.copy()
+    while np.any(up != up[up]):
+        flip *= flip[up]
+        up = up[up]
+    flip *= flip[up]  # the roots' own sign, +1
+    return Ns * flip[:, None], labels

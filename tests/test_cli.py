@@ -81,6 +81,13 @@ def bad_inputs(tmp: Path, P: np.ndarray):
     _write_points(inch, P * 25.4)
     far = tmp / "far.ply"
     _write_points(far, P + [500.0, 0.0, 0.0])
+    # a scan of another object: a hemisphere of the shell's extent, somewhere else
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(len(P), 3))
+    d[:, 2] = np.abs(d[:, 2])
+    other = tmp / "other.ply"
+    _write_points(other, 70.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
+                  + [400.0, -300.0, 250.0] + 0.02 * rng.standard_normal(d.shape))
     return {
         "missing nominal": ([tmp / "nope.stl", SAMPLES / "shell_scan.ply"], "not found"),
         "missing scan": ([nominal, tmp / "nope.ply"], "not found"),
@@ -89,13 +96,16 @@ def bad_inputs(tmp: Path, P: np.ndarray):
         "empty scan": ([nominal, empty], "empty"),
         "NaN scan": ([nominal, nan], "NaN"),
         "inch scan": ([nominal, inch], "units"),
-        "no overlap": ([nominal, far], "does not overlap"),
+        # the user vouches that scan and part share a frame: no pose search, no overlap
+        "no overlap": ([nominal, far, "--prealign", "never"], "does not overlap"),
+        # the pose search finds no placement of another object on the part
+        "another part": ([nominal, other], "does not overlap"),
     }
 
 
 @pytest.mark.parametrize("case", ["missing nominal", "missing scan", "corrupt scan",
                                   "corrupt nominal", "empty scan", "NaN scan", "inch scan",
-                                  "no overlap"])
+                                  "no overlap", "another part"])
 def test_bad_input_one_line_exit_2_no_output(tmp_path, scan_points, case):
     args, expect = bad_inputs(tmp_path, scan_points)[case]
     out = tmp_path / "out"

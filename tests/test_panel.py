@@ -50,3 +50,4 @@ def test_defect_fails_the_functional_skin_where_it_was_put(panel_results):
     assert top.sign == +1 and top.area > 25.0
     assert np.linalg.norm(top.centroid - DEFECT_AT) < 3.0
     assert 0.25 < top.peak < 0.5  # 0.45 mm injected; the fixture keeps most of it
+

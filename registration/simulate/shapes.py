@@ -10,7 +10,7 @@ import logging
 import igl
 import numpy as np
 
-from ..mesh import bounding_diagonal, load_mesh
+from ..mesh import bounding_diagonal, load_mesh, weld
 
 log = logging.getLogger(__name__)
 
@@ -109,3 +109,53 @@ def fandisk(
     if subdivide > 0:
         V, F = igl.upsample(np.ascontiguousarray(V), np.ascontiguousarray(F), subdivide)
     return np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+
+
+def housing(
+    length: float = 150.0, width: float = 90.0, height: float = 40.0, power: float = 4.0,
+    n: int = 48,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth housing-like cover: the upper half of a superellipsoid, open underneath.
+
+    ``|x/a|^p + |y/b|^p + |z/c|^p = 1`` (``a = length/2``, ``b = width/2``, ``c = height``,
+    ``p = power``: boxy faces joined by large fillets, no sharp edge), meshed as a projected
+    cube grid (``n`` cells per cube edge), cut at ``z = 0``, then tapered in plan
+    (``y *= 1 + 0.15 x/a``) and sloped (``z *= 1 + 0.12 x/a``) so no rotation maps it onto
+    itself (its mirror symmetry ``y -> -y`` is not a rigid motion). Outward normals.
+
+    Returns
+    -------
+    V : (n, 3) float64, mm.  F : (f, 3) int64.
+    """
+    a, b, c = length / 2, width / 2, height
+    u = np.linspace(-1.0, 1.0, n + 1)
+    Vs, Fs, off = [], [], 0
+    for axis in range(3):
+        others = [k for k in range(3) if k != axis]
+        for sign in (-1.0, 1.0):
+            g1, g2 = np.meshgrid(u, u)
+            X = np.zeros((g1.size, 3))
+            X[:, axis] = sign
+            X[:, others[0]] = g1.ravel()
+            X[:, others[1]] = g2.ravel()
+            T = grid_triangles(n + 1, n + 1)
+            normal = np.cross(np.eye(3)[others[0]], np.eye(3)[others[1]])
+            if normal @ (sign * np.eye(3)[axis]) < 0:
+                T = T[:, ::-1]
+            Vs.append(X)
+            Fs.append(T + off)
+            off += len(X)
+    V, F = weld(np.concatenate(Vs), np.concatenate(Fs))
+    d = V / np.linalg.norm(V, axis=1, keepdims=True)
+    r = (np.abs(d[:, 0] / a) ** power + np.abs(d[:, 1] / b) ** power
+         + np.abs(d[:, 2] / c) ** power) ** (-1.0 / power)
+    V = d * r[:, None]
+    F = F[V[F][:, :, 2].min(axis=1) >= -1e-9]
+    used = np.unique(F)
+    remap = np.full(len(V), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    V, F = V[used], remap[F]
+    x = V[:, 0] / a
+    V[:, 1] *= 1.0 + 0.15 * x
+    V[:, 2] *= 1.0 + 0.12 * x
+    return V.astype(np.float64), F.astype(np.int64)
