@@ -544,7 +544,7 @@ class _Report:
         angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
         t = np.asarray(rg.t, dtype=float)
         rows: list[list[str]] = [
-            ["Pose", _pose_text(res.prealign)],
+            ["Pose search: starts agreeing", _pose_text(res.prealign)],
             ["Rigid residual RMS, mm", fmt_mm(rg.rms)],
             ["Rigid inliers, % / iterations", f"{fmt_pct(rg.inlier_fraction)} / {rg.iterations}"],
             ["Rigid rotation, deg / shift, mm", f"{angle:.3f} / {np.linalg.norm(t):.3f}"],
@@ -575,7 +575,7 @@ class _Report:
         for k, row in enumerate(rows):
             emph[k] = bool((row[0] == "Iterations / passes / fallback" and fit is not None
                             and fit.fallback)
-                           or (row[0] == "Pose" and res.prealign is not None
+                           or (row[0].startswith("Pose") and res.prealign is not None
                                and (res.prealign.ambiguous
                                     or res.prealign.weakly_constrained)))
         title = ("Registration: rigid ICP + virtual fixture (GB-CICP)" if fit is not None
@@ -1320,10 +1320,10 @@ def write_report(
 def _pose_text(a) -> str:
     """One cell: how the rigid ICP was started (the pose search's confidence in short)."""
     if a is None or a.method == "identity":
-        return "scan in part frame"
-    text = f"searched: {a.restart_agreement}/{a.n_starts} starts agree"
+        return "none: scan in part frame"
+    text = f"{a.restart_agreement}/{a.n_starts}"
     if a.ambiguous:
-        text += ", AMBIGUOUS"
-    if a.weakly_constrained:
-        text += ", slides"
+        text += " AMBIGUOUS"
+    elif a.weakly_constrained:
+        text += " (slides)"
     return text

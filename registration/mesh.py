@@ -18,6 +18,7 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 import trimesh
+from scipy.spatial import cKDTree
 
 from .errors import InputError
 
@@ -187,6 +188,39 @@ class MeshOperators:
     energy: str
     normals: np.ndarray
     area: np.ndarray
+
+
+def wall_thickness(
+    V: np.ndarray, N: np.ndarray, at: np.ndarray, radius: float,
+    tree: cKDTree | None = None,
+) -> np.ndarray:
+    """Distance (mm) from vertices to the opposite skin of the solid behind them.
+
+    For each vertex ``i`` in ``at``: the nearest vertex ``w`` within ``radius`` whose normal
+    faces the other way (``n_w . n_i < -0.5``) and that lies behind ``i``
+    (``(v_w - v_i) . n_i < 0``): the other skin of a thin wall. ``inf`` where there is none
+    (an open sheet, a thick solid at this radius).
+
+    Parameters
+    ----------
+    V, N : (n, 3) vertices (mm) and unit outward normals.  at : (k,) vertex indices.
+    radius : search radius, mm.  tree : optional ``cKDTree(V)``.
+
+    Returns
+    -------
+    (k,) float64, mm.
+    """
+    tree = tree or cKDTree(V)
+    at = np.asarray(at, dtype=np.int64)
+    out = np.full(len(at), np.inf)
+    for k, (i, near) in enumerate(zip(at, tree.query_ball_point(V[at], radius, workers=-1),
+                                      strict=True)):
+        w = np.asarray(near, dtype=np.int64)
+        D = V[w] - V[i]
+        opposite = (N[w] @ N[i] < -0.5) & (D @ N[i] < 0.0)
+        if opposite.any():
+            out[k] = float(np.sqrt(np.min(np.einsum("ij,ij->i", D[opposite], D[opposite]))))
+    return out
 
 
 def bending_operator(V: np.ndarray, F: np.ndarray, energy: str = "laplacian") -> MeshOperators:

@@ -51,3 +51,30 @@ def test_defect_fails_the_functional_skin_where_it_was_put(panel_results):
     assert np.linalg.norm(top.centroid - DEFECT_AT) < 3.0
     assert 0.25 < top.peak < 0.5  # 0.45 mm injected; the fixture keeps most of it
 
+
+
+def test_posed_thin_solid_is_refused_not_misjudged(tmp_path):
+    """The panel's scan delivered at the paper's pose: a one-sided scan of a 1.8 mm wall
+    under 2.8 mm of deflection fits the inner skin better than the outer one (measured: rms
+    0.43 against 0.62 mm), and seated there the outer skin's profile T2 would fail as 'not
+    observed'. Which side was scanned is not in the points: the pose search must refuse
+    (one line, exit 2, nothing written) instead of judging the wrong skin."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    P = load_scan(ROOT / "samples/panel_scan.ply")
+    R = Rotation.from_euler("xyz", (120.0, 45.0, 10.0), degrees=True).as_matrix()
+    posed = tmp_path / "posed.ply"
+    trimesh.PointCloud(P @ R.T + [300.0, -150.0, 80.0]).export(posed)
+    out = tmp_path / "out"
+    exe = Path(sys.executable).parent / "qifreport"
+    r = subprocess.run([str(exe), ROOT / "samples/panel.step", posed, "--out", out, "--json",
+                        "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "wall" in lines[0] and "--prealign never" in lines[0], lines
+    assert not out.exists() or not any(out.iterdir())
