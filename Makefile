@@ -52,12 +52,12 @@ system-deps:
 demo: install system-deps
 	mkdir -p $(OUT)
 	$(VENV)/bin/qifreport pmi samples/panel.step
-	$(VENV)/bin/qifreport samples/panel.step samples/panel_scan.ply --out $(OUT) --json \
+	$(VENV)/bin/qifreport samples/panel.step samples/panel_scan.ply --out $(OUT) --json --force \
 	  --export-mesh $(OUT)/panel_registered.ply; rc=$$?; if [ $$rc -gt 1 ]; then exit $$rc; fi
 	test -s $(OUT)/panel.json && test -s $(OUT)/panel.qif && test -s $(OUT)/panel.pdf \
 	  && test -s $(OUT)/panel_registered.ply
 	$(VENV)/bin/qifreport samples/shell_nominal.ply samples/shell_scan.ply --tolerance 0.5 \
-	  --out $(OUT) --json --export-mesh $(OUT)/shell_registered.ply; rc=$$?; \
+	  --out $(OUT) --json --force --export-mesh $(OUT)/shell_registered.ply; rc=$$?; \
 	  if [ $$rc -gt 1 ]; then exit $$rc; fi
 	test -s $(OUT)/shell_nominal.json && test -s $(OUT)/shell_nominal.pdf \
 	  && test -s $(OUT)/shell_registered.ply

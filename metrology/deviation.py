@@ -314,6 +314,38 @@ def _signed_distance(
     return np.where(s < 0, -dist, dist)
 
 
+def beyond_rim(V: np.ndarray, F: np.ndarray, C: np.ndarray, face: np.ndarray,
+               tol: float | None = None) -> np.ndarray:
+    """Points whose closest point on the mesh lies on an *open boundary* edge (m,) bool.
+
+    Such a scan point lies beyond the rim of the nominal: its distance to the mesh is not a
+    deviation along a normal, and the data-referenced pass leaves it out.
+
+    Parameters
+    ----------
+    V, F : the (registered) nominal.  C : (m, 3) closest points, mm.  face : (m,) their faces
+    (:func:`closest_points`; ``-1`` for none).  tol : mm (default 1e-6 of the diagonal).
+    """
+    V, F = _as_mesh(V, F)
+    tol = 1e-6 * float(np.linalg.norm(V.max(0) - V.min(0))) if tol is None else tol
+    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    _, inv, count = np.unique(E, axis=0, return_inverse=True, return_counts=True)
+    open_edge = (count[inv.ravel()] == 1).reshape(3, len(F)).T  # (f, 3): edge 01, 12, 20
+    out = np.zeros(len(C), dtype=bool)
+    ok = face >= 0
+    for k, (a, b) in enumerate(((0, 1), (1, 2), (2, 0))):
+        sel = np.flatnonzero(ok & open_edge[np.maximum(face, 0), k])
+        if len(sel) == 0:
+            continue
+        A, B = V[F[face[sel], a]], V[F[face[sel], b]]
+        AB = B - A
+        t = np.clip(np.einsum("ij,ij->i", C[sel] - A, AB)
+                    / np.maximum(np.einsum("ij,ij->i", AB, AB), 1e-300), 0.0, 1.0)
+        d = np.linalg.norm(C[sel] - (A + t[:, None] * AB), axis=1)
+        out[sel[d <= tol]] = True
+    return out
+
+
 def data_referenced(V: np.ndarray, F: np.ndarray, P: np.ndarray) -> np.ndarray:
     """Signed normal deviation (m,) mm of every scan point against the nominal surface.
 

@@ -40,6 +40,7 @@ from .acceptance import (
     evaluate,
     scan_area,
 )
+from .added import AddedMaterial, added_material
 from .bands import (
     DEFAULT_GENERAL_TOLERANCE,
     BandField,
@@ -49,14 +50,15 @@ from .bands import (
     symmetric_zone,
     zone_vertex_areas,
 )
-from .deviation import data_referenced, nominal_referenced
+from .deviation import beyond_rim, closest_points, nominal_referenced
+from .hygiene import MeshHygiene, mesh_hygiene, near_boundary
 from .statistics import DeviationStats, deviation_statistics
 
 log = logging.getLogger(__name__)
 
 #: Scan-to-nominal size ratios that betray a unit mismatch, and what they mean.
-_UNIT_RATIOS = {25.4: "inch vs mm", 1 / 25.4: "mm vs inch", 1000.0: "m vs mm",
-                0.001: "mm vs m", 10.0: "cm vs mm", 0.1: "mm vs cm"}
+#: scan-to-nominal extent ratios that betray a unit mix-up, and the unit behind each
+_UNIT_FACTORS = {1 / 25.4: "in", 0.001: "m", 0.1: "cm", 25.4: "in", 1000.0: "m", 10.0: "cm"}
 
 
 @dataclass
@@ -83,10 +85,17 @@ class InspectionParams:
         normal is the average of two faces and the local scan mixes both, so the deviation
         is an artefact. None: the deviation's neighbourhood radius (1.5 median edges);
         0 scores every vertex. The excluded area is reported.
+    boundary_band : vertices within this distance (mm) of an open boundary of the nominal
+        (rim, holes, unwelded seams) are not scored (:mod:`metrology.hygiene`); None: the same
+        width as ``edge_band``'s default (1.5 median edges); 0 scores the rim. The excluded
+        area is reported with the mesh's defects.
     rigid_only : skip the virtual fixture (the fixtureless rigid baseline).
     prealign : pose search before the rigid ICP (:func:`registration.prealign.seat_scan`):
         ``"auto"`` (default) searches only when the scan is not already in the part frame,
         ``"always"`` always searches, ``"never"`` trusts that scan and nominal share a frame.
+    fail_on_added_material : a connected scan region standing proud of the nominal beyond
+        the whole-part threshold and larger than ``max_region_area`` fails the part
+        (:mod:`metrology.added`); otherwise it is reported only.
     gbcicp : parameters of the non-rigid stage.
     """
 
@@ -95,9 +104,11 @@ class InspectionParams:
     max_region_area: float = DEFAULT_MAX_REGION_AREA
     energy: str = "auto"
     edge_band: float | None = None
+    boundary_band: float | None = None
     crease_angle: float = 45.0
     rigid_only: bool = False
     prealign: str = "auto"
+    fail_on_added_material: bool = False
     gbcicp: GBCICPParams = field(default_factory=GBCICPParams)
 
 
@@ -147,6 +158,7 @@ class InspectionResult:
         zone around it.
     zones : per toleranced surface results (the general zone last).
     not_evaluated : PMI items listed but not scored.
+    scan_units : the unit the user declared for the scan file (for the units hint only).
     bands : the zones laid on the mesh (per-vertex band of the combined map).
     rigid : the rigid alignment (pose of the scan as delivered -> nominal frame).
     fit : the GB-CICP result (None with ``rigid_only``).
@@ -180,11 +192,47 @@ class InspectionResult:
     energy: str = "hessian"
     edge_excluded_area: float = 0.0
     prealign: PrealignResult | None = None
+    added: AddedMaterial | None = None
+    hygiene: MeshHygiene | None = None
 
     @property
     def passed(self) -> bool:
-        """The part passes when the whole surface and every toleranced surface pass."""
-        return bool(self.acceptance.passed and all(z.acceptance.passed for z in self.zones))
+        """The part passes when the whole surface and every toleranced surface pass (and, with
+        ``fail_on_added_material``, no proud scan region exceeds the limit)."""
+        return bool(self.acceptance.passed and all(z.acceptance.passed for z in self.zones)
+                    and (self.added is None or self.added.passed))
+
+    def trust_warnings(self) -> list[str]:
+        """Why the registration cannot be trusted (empty when it can), one line each.
+
+        * coverage above the scanned-to-nominal area ratio: the fit scored more of the nominal
+          than the scan can have measured (over-fitting, paper Section 8.4.5);
+        * the two-pass guard fired: the first pass flagged more than its limit of the covered
+          surface as anomalous, so the band-limited refit fell back to a single pass
+          (Section 6.4: on the paper's real part 23.9 % against a 20 % limit).
+        """
+        out = []
+        if not self.coverage_ceiling_ok:
+            ratio = self.scan_area / max(self.acceptance.nominal_area, 1e-300)
+            out.append(f"coverage {100 * self.acceptance.coverage:.1f} % exceeds the scanned-"
+                       f"to-nominal area ratio {100 * ratio:.1f} %: the fit followed the "
+                       "measurement (over-fit)")
+        if self.fit is not None and self.fit.fallback:
+            fit = self.fit
+            out.append(f"the two-pass guard fired: pass {fit.guard_pass} flagged "
+                       f"{100 * fit.guard_fraction:.1f} % of the covered surface as anomalous "
+                       f"(limit {100 * fit.params.max_flagged_fraction:.0f} %), so the "
+                       "band-limited refit fell back to the single-pass fit")
+        return out
+
+    @property
+    def verdict(self) -> str:
+        """``PASS``, ``FAIL``, or ``NOT ESTABLISHED``: the part would pass but the registration
+        cannot be trusted (:meth:`trust_warnings`), so a pass is not claimed. A failing part
+        stays ``FAIL`` (rejected either way; the warnings are reported)."""
+        if not self.passed:
+            return "FAIL"
+        return "NOT ESTABLISHED" if self.trust_warnings() else "PASS"
 
     def decided_by(self) -> list[str]:
         """What failed the part (empty when it passed), one line each."""
@@ -194,6 +242,10 @@ class InspectionResult:
         for z in self.zones:
             if not z.acceptance.passed:
                 out += [f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.acceptance.reasons]
+        if self.added is not None and not self.added.passed:
+            out.append(f"added material: {self.added.describe()}")
+        if self.passed:
+            out += [f"not established: {w}" for w in self.trust_warnings()]
         return out
 
     def to_dict(self) -> dict:
@@ -203,13 +255,15 @@ class InspectionResult:
         if fit is not None:
             p["gbcicp"] = asdict(fit.params)
         return {
-            "verdict": "PASS" if self.passed else "FAIL",
+            "verdict": self.verdict,
+            "warnings": self.trust_warnings(),
             "decided_by": self.decided_by(),
             "acceptance": self.acceptance.to_dict(),
             "tolerances": [z.to_dict() for z in self.zones],
             "not_evaluated": [n.to_dict() for n in self.not_evaluated],
             "vertex_deviation": self.vertex_stats.to_dict(),
             "point_deviation": self.point_stats.to_dict(),
+            "added_material": None if self.added is None else self.added.to_dict(),
             "coverage": {
                 "scored_area_mm2": self.acceptance.scored_area,
                 "nominal_area_mm2": self.acceptance.nominal_area,
@@ -238,7 +292,8 @@ class InspectionResult:
                 },
             },
             "parameters": p,
-            "mesh": {"vertices": len(self.V), "triangles": len(self.F), "scan_points": len(self.P)},
+            "mesh": {"vertices": len(self.V), "triangles": len(self.F), "scan_points": len(self.P),
+                     **({} if self.hygiene is None else self.hygiene.to_dict())},
             "timings_s": self.timings,
         }
 
@@ -261,10 +316,11 @@ def _prealign_dict(a: PrealignResult) -> dict:
     }
 
 
-def check_units(V: np.ndarray, P: np.ndarray) -> None:
+def check_units(V: np.ndarray, P: np.ndarray, scan_units: str | None = None) -> None:
     """Reject a scan whose extent betrays other units (or another part) than the nominal's.
 
-    The overlap check needs the rigid pose and is made in :func:`inspect`.
+    ``scan_units`` is what the user declared (``--scan-units``; None: the format's unit), for
+    the hint. The overlap check needs the rigid pose and is made in :func:`inspect`.
     Raises :class:`InputError` with a one-line message.
     """
     dv, dp = bounding_diagonal(V), bounding_diagonal(P)
@@ -272,10 +328,22 @@ def check_units(V: np.ndarray, P: np.ndarray) -> None:
         raise InputError("the nominal mesh has zero extent")
     ratio = dp / dv
     if not 0.2 <= ratio <= 5.0:
-        best = min(_UNIT_RATIOS, key=lambda r: abs(np.log(ratio / r)))
-        hint = f" (units differ: {_UNIT_RATIOS[best]}?)" if abs(np.log(ratio / best)) < 0.4 else ""
+        best = min(_UNIT_FACTORS, key=lambda r: abs(np.log(ratio / r)))
+        hint = ""
+        if abs(np.log(ratio / best)) < 0.4:
+            unit = _UNIT_FACTORS[best]
+            if best < 1:  # the scan is too small: its numbers are in a larger unit
+                hint = (f"; the scan looks {1 / best:g}x too small: in {unit}? use "
+                        f"--scan-units {unit}" if unit in ("in", "m") else
+                        f"; the scan looks {1 / best:g}x too small (in {unit}?)")
+            elif scan_units not in (None, "mm"):
+                hint = (f"; the scan looks {best:g}x too large: it is in mm already? drop "
+                        f"--scan-units {scan_units}")
+            else:
+                hint = (f"; the scan looks {best:g}x too large: is the nominal in {unit}? "
+                        "(nominals are read in mm)")
         raise InputError(
-            f"scan extent {dp:.4g} vs nominal extent {dv:.4g} (ratio {ratio:.3g}): "
+            f"scan extent {dp:.4g} mm vs nominal extent {dv:.4g} mm (ratio {ratio:.3g}): "
             f"wrong units or wrong part{hint}"
         )
 
@@ -290,6 +358,7 @@ def inspect(
     face_id: np.ndarray | None = None,
     zones: list[ToleranceZone] | None = None,
     not_evaluated: list[NotEvaluated] | None = None,
+    scan_units: str | None = None,
 ) -> InspectionResult:
     """Inspect the scan ``P`` against the nominal ``(V, F)``.
 
@@ -313,7 +382,7 @@ def inspect(
     """
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    check_units(V, P)
+    check_units(V, P, scan_units)
     energy = params.energy
     if energy == "auto":
         energy = "hessian" if boundary_vertices(F, len(V)).any() else "laplacian"
@@ -373,11 +442,26 @@ def inspect(
     band = (1.5 * median_edge_length(V, F) if params.edge_band is None
             else float(params.edge_band))
     near_crease = crease_band(V, F, band, params.crease_angle) if band > 0 else None
+    hygiene = mesh_hygiene(V, F)
+    hygiene.boundary_band = band if params.boundary_band is None else float(params.boundary_band)
+    near_rim = near_boundary(V, boundary_vertices(F, len(V)), hygiene.boundary_band)
+    hygiene.boundary_excluded_area = float(ops.area[near_rim].sum())
+    hygiene.boundary_excluded_fraction = hygiene.boundary_excluded_area / max(
+        float(ops.area.sum()), 1e-300)
+    if near_rim.any():
+        if near_crease is not None:  # each excluded vertex is counted once, rim first
+            near_crease = near_crease & ~near_rim
+        dev[near_rim] = np.nan
+        if dev_free is not None:
+            dev_free[near_rim] = np.nan
     if near_crease is not None and near_crease.any():
         dev[near_crease] = np.nan
         if dev_free is not None:
             dev_free[near_crease] = np.nan
-    pdev = data_referenced(V_reg, F, Pm)
+    C, cface, pdev = closest_points(V_reg, F, Pm)
+    rim = beyond_rim(V_reg, F, C, cface)
+    timings["deviation"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     area = ops.area  # barycentric vertex areas of the nominal, mm^2
     dev_all = dev.copy()
     if dev_free is not None:
@@ -408,6 +492,10 @@ def inspect(
                                        fixtured=fit is not None and not use_free))
     s_area = scan_area(Pm)
     ceiling = coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
+    # added material: scan points beyond the rim of the nominal are not proud of it
+    pdev_in = np.where(rim, np.nan, pdev)
+    added = added_material(Pm, pdev_in, general_half, s_area, params.max_region_area,
+                           fail_on=params.fail_on_added_material)
     timings["metrology"] = time.perf_counter() - t0
     return InspectionResult(
         V=V, F=F, V_registered=V_reg, P=Pm, deviation=dev_all, point_deviation=pdev,
@@ -416,5 +504,5 @@ def inspect(
         zones=zone_results, not_evaluated=list(not_evaluated or []), bands=bands,
         energy=energy,
         edge_excluded_area=float(area[near_crease].sum()) if near_crease is not None else 0.0,
-        prealign=seat,
+        prealign=seat, added=added, hygiene=hygiene,
     )

@@ -20,10 +20,13 @@ error on stderr naming the problem, and no output file written).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import json
 import logging
+import os
 import sys
+import time
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -40,11 +43,12 @@ from step.atomic import atomic_write_many
 from step.reader import STEP_SUFFIXES
 
 from . import __version__
+from .profile import Profiler
 from .summary import SUMMARY_SCHEMA_VERSION
 
 log = logging.getLogger("qifreport")
 
-EXIT_PASS, EXIT_FAIL, EXIT_ERROR = 0, 1, 2
+EXIT_PASS, EXIT_FAIL, EXIT_ERROR, EXIT_NOT_ESTABLISHED = 0, 1, 2, 3
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -55,7 +59,8 @@ def _parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("nominal", type=Path,
                     help="nominal: STEP (AP242 with PMI) or mesh (STL, PLY, OBJ, OFF), mm")
-    ap.add_argument("scan", type=Path, help="scan point cloud (PLY, XYZ, CSV, NPY), mm")
+    ap.add_argument("scan", type=Path,
+                    help="scan point cloud (PLY, STL, OBJ, OFF, XYZ, CSV, NPY, E57)")
     ap.add_argument("--tolerance", type=float, default=None, metavar="MM",
                     help="general profile tolerance half-width (|deviation| <= MM) on faces no "
                     "PMI profile covers; required for mesh nominals; STEP default 0.5")
@@ -65,6 +70,11 @@ def _parser() -> argparse.ArgumentParser:
                     help="STEP: chord deflection of the tessellation (default 0.001 x diagonal)")
     ap.add_argument("--out", type=Path, default=Path("."), metavar="DIR",
                     help="output directory (default: current directory)")
+    ap.add_argument("--scan-units", choices=["mm", "in", "m"], default=None,
+                    help="length unit of the scan file, converted to mm (default: mm; E57: m, "
+                    "the standard's unit)")
+    ap.add_argument("--force", action="store_true",
+                    help="overwrite existing output files (default: refuse, exit 2)")
     ap.add_argument("--json", action="store_true",
                     help="write DIR/<nominal>.json with all statistics, verdict and regions")
     ap.add_argument("--no-qif", action="store_true",
@@ -91,6 +101,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--edge-band", type=float, default=None, metavar="MM",
                     help="do not score vertices within MM of a sharp crease (default: the "
                     "deviation's neighbourhood radius; 0 scores everything)")
+    ap.add_argument("--boundary-band", type=float, default=None, metavar="MM",
+                    help="vertices within MM of an open boundary of the nominal are not scored "
+                    "(default 1.5 median edges; 0 scores the rim)")
     ap.add_argument("--band-limit", type=float, default=None, metavar="MM",
                     help="smoothing length of the first GB-CICP pass (default from part size)")
     ap.add_argument("--passes", type=int, default=3,
@@ -99,7 +112,12 @@ def _parser() -> argparse.ArgumentParser:
                     help="pose search from an arbitrary placement: auto (when the scan is not "
                     "already in the part frame), always, or never (scan and part share a "
                     "frame)")
+    ap.add_argument("--fail-on-added-material", action="store_true",
+                    help="fail the part when a scan region larger than --max-region-area "
+                    "stands proud of the nominal beyond the threshold (default: report it)")
     ap.add_argument("--rigid-only", action="store_true", help="no virtual fixture (baseline)")
+    ap.add_argument("--profile", action="store_true",
+                    help="print wall time and peak resident memory per stage")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     ap.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     ap.add_argument("--version", action="version", version=f"qifreport {__version__}")
@@ -140,7 +158,7 @@ def summary(res: InspectionResult) -> str:
     """A short human-readable summary of the inspection."""
     a, s = res.acceptance, res.vertex_stats
     lines = [
-        f"verdict: {'PASS' if res.passed else 'FAIL'}",
+        f"verdict: {res.verdict}",
         f"deviation (area-weighted, {s.n} scored vertices): RMS {s.rms:.3f}  max {s.max_abs:.3f}"
         f"  P95 {s.p95:.3f}  P99.9 {s.p999:.3f}  mean {s.mean:+.3f} mm",
         f"area criterion: {100 * a.in_tolerance_fraction:.2f} % in tolerance "
@@ -172,10 +190,19 @@ def summary(res: InspectionResult) -> str:
     if res.not_evaluated:
         lines.append(f"  {len(res.not_evaluated)} PMI item(s) listed, not scored "
                      "(see the JSON 'not_evaluated')")
-    if not res.coverage_ceiling_ok:
-        lines.append("warning: coverage exceeds the scanned-to-nominal area ratio (over-fit?)")
-    if res.fit is not None and res.fit.fallback:
-        lines.append("warning: band-limited refit fell back to a single pass (too many flags)")
+    h = res.hygiene
+    if h is not None and (h.boundary_edges or h.non_manifold_edges or h.degenerate_faces
+                          or h.duplicate_faces):
+        lines.append(f"nominal: {h.describe()}")
+    if res.added is not None:
+        a = res.added
+        lines.append(
+            f"added material (data-referenced, scan points): P99.9 signed "
+            f"{a.p999_signed:+.3f} mm, {100 * a.frac_above:.3f} % beyond "
+            f"+{a.threshold:g} mm; {a.describe()}"
+            + ("" if a.passed else " FAILED") + ("" if a.fail_on or not a.found
+                                                 else " (reported, not judged)"))
+    lines += [f"warning: {w}" for w in res.trust_warnings()]
     return "\n".join(lines)
 
 
@@ -276,17 +303,52 @@ def qif_writer(tree, state: dict):
     return write
 
 
+def _stage(prof: Profiler | None, name: str):
+    """``prof.stage(name)``, or a no-op context without ``--profile``."""
+    return prof.stage(name) if prof is not None else contextlib.nullcontext()
+
+
+def output_paths(args: argparse.Namespace) -> list[Path]:
+    """The files this run will write (QIF, PDF, JSON, exported mesh)."""
+    stem = args.nominal.stem
+    out = [] if args.no_qif else [args.out / f"{stem}.qif"]
+    out += [] if args.no_pdf else [args.out / f"{stem}.pdf"]
+    out += [args.out / f"{stem}.json"] if args.json else []
+    out += [args.export_mesh] if args.export_mesh is not None else []
+    return out
+
+
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Refuse before any work: an output that exists (without ``--force``) or a directory
+    that cannot be written."""
+    for path in output_paths(args):
+        if path.exists() and not args.force:
+            raise InputError(f"output exists: {path} (use --force to overwrite)")
+        if path.is_dir():
+            raise InputError(f"output path is a directory: {path}")
+        parent = path.parent
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise InputError(f"output directory not writable: {parent}")
+
+
 def run(args: argparse.Namespace) -> int:
     _check_args(args)
+    _check_outputs(args)
     started = datetime.now(timezone.utc)
-    nom = load_nominal(args.nominal, args.tolerance, args.max_edge, args.deflection)
+    prof = Profiler().start() if args.profile else None
+    with _stage(prof, "load nominal"):
+        nom = load_nominal(args.nominal, args.tolerance, args.max_edge, args.deflection)
     V, F = nom.V, nom.F
-    P = load_scan(args.scan)
+    with _stage(prof, "load scan"):
+        P = load_scan(args.scan, units=args.scan_units)
     g = GBCICPParams(passes=max(1, args.passes), band_limit=args.band_limit)
     params = InspectionParams(
         tolerance=args.tolerance, min_fraction=args.min_fraction, energy=args.energy,
-        edge_band=args.edge_band,
-        rigid_only=args.rigid_only, prealign=args.prealign, gbcicp=g,
+        edge_band=args.edge_band, boundary_band=args.boundary_band,
+        rigid_only=args.rigid_only, prealign=args.prealign,
+        fail_on_added_material=args.fail_on_added_material, gbcicp=g,
     )
     if args.max_region_area is not None:
         params.max_region_area = args.max_region_area
@@ -296,12 +358,16 @@ def run(args: argparse.Namespace) -> int:
         from tqdm import tqdm
 
         bar = tqdm(desc="virtual fixturing", unit="it", file=sys.stderr, leave=False)
+    t_inspect = time.perf_counter()
     try:
         res = inspect(V, F, P, params, progress=None if bar is None else bar.update,
+                      scan_units=args.scan_units,
                       face_id=nom.face_id, zones=nom.zones, not_evaluated=nom.not_evaluated)
     finally:
         if bar is not None:
             bar.close()
+    if prof is not None:
+        prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
     finished = datetime.now(timezone.utc)
     digests = {"nominal": sha256(args.nominal), "scan": sha256(args.scan)}
 
@@ -353,8 +419,13 @@ def run(args: argparse.Namespace) -> int:
         outputs.append((args.export_mesh, lambda p: write_ply_with_scalar(
             p, res.V_registered, F, "deviation", res.deviation)))
     # all outputs or none: a failure in any writer publishes nothing
-    atomic_write_many(outputs)
+    with _stage(prof, "write outputs"):
+        atomic_write_many(outputs)
     print(summary(res))
+    if prof is not None:
+        prof.stop()
+        print("profile (wall time and peak resident memory per stage):")
+        print(prof.table())
     if qif_state is not None:
         if qif_state["valid"]:
             print(f"QIF: {qif_state['path']} ({qif_state['message']})")
@@ -362,7 +433,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"QIF: {qif_state['path']} written, NOT validated: the official QIF 3.0 "
                   "schemas were not found (run `make install` with ../shared present, or set "
                   "QIFREPORT_XSD_DIR)")
-    return EXIT_PASS if res.passed else EXIT_FAIL
+    return {"PASS": EXIT_PASS, "FAIL": EXIT_FAIL,
+            "NOT ESTABLISHED": EXIT_NOT_ESTABLISHED}[res.verdict]
 
 
 def _finite(o):
@@ -429,7 +501,7 @@ def _guard(fn, verbose: bool) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point; returns (and exits with) 0 pass, 1 fail, 2 error."""
+    """Console entry point; returns (and exits with) 0 pass, 1 fail, 2 error, 3 not established."""
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] == "validate":
         from .validate import validate_main

@@ -79,6 +79,7 @@ HEAD_BG = (0.90, 0.91, 0.93)
 ZEBRA = (0.965, 0.965, 0.97)
 PASS_BG = (0.11, 0.49, 0.20)
 FAIL_BG = (0.78, 0.11, 0.11)
+UNSURE_BG = (0.80, 0.45, 0.05)
 FAIL_INK = (0.70, 0.05, 0.05)
 #: SHA-256 digits printed (the QIF carries the full digests)
 SHA_DIGITS = 16
@@ -367,6 +368,8 @@ class _Report:
         area, region, empty = _criteria(res)
         if res.passed:
             n = len(res.zones)
+            if res.verdict != "PASS":
+                return ["criteria met, but the registration", "cannot be trusted (warnings below)"]
             return [f"whole part and {n} tolerance{'s' if n != 1 else ''}:",
                     "area and region criteria met"]
 
@@ -384,6 +387,8 @@ class _Report:
             out.append(line("region criterion", region))
         if empty:
             out.append(line("nothing scored", empty))
+        if res.added is not None and not res.added.passed:
+            out.append(f"added material: {res.added.largest_area:.0f} mm\u00b2 proud")
         return out
 
     def rule_text(self) -> str:
@@ -465,6 +470,7 @@ class _Report:
         zones = res.zones
         shown = self._pick_tolerances(limit)
         rows, emph = [], []
+        untrusted = bool(res.trust_warnings())  # a zone's criteria met: "n/e", not PASS
         for i in shown:
             z = zones[i]
             zone, acc, s = z.zone, z.acceptance, z.stats
@@ -474,8 +480,8 @@ class _Report:
                 desc = desc[:cut] + desc[desc.find("]", cut) + 1:]
             if not z.fixtured:
                 desc += ", free state"
-            status = ("PASS" if acc.passed else
-                      ("n/a" if not acc.scored_area > 0 else "FAIL"))
+            status = ("n/a" if not acc.scored_area > 0 else "FAIL" if not acc.passed
+                      else "PASS" if not untrusted else "n/e")
             nreg = len(acc.regions)
             rows.append([
                 zone.key, _fit(desc, cols[1][1] - 4, 6.8),
@@ -493,6 +499,9 @@ class _Report:
             note = (f"+ {len(rest)} more tolerance{'s' if len(rest) != 1 else ''} not listed "
                     f"({nf} FAIL, {len(rest) - nf} PASS): {keys} \u2014 every tolerance is in "
                     "the QIF file")
+        if untrusted:
+            note = ("n/e = criteria met, not established (registration not trusted; see the "
+                    "warning). " + note).strip()
         return _Table(columns=cols, rows=rows, note=note, emphasis=emph,
                       title=f"Tolerances ({len(zones)}), each on its own faces; profile = "
                             "width of the smallest zone about the band centre holding all "
@@ -597,13 +606,24 @@ class _Report:
             out.append((f"PMI not scored ({len(ne)}): {head} \u2014 "
                         f"{'; '.join(reasons)[:160]} (each listed with its reason in the QIF).",
                         False))
-        if not res.coverage_ceiling_ok:
-            out.append(("Warning: the scored coverage exceeds the scanned-to-nominal area ratio "
-                        "(ceiling): nominal vertices were matched to measurements of other "
-                        "features (over-fit); the verdict is not reliable.", True))
-        if res.fit is not None and res.fit.fallback:
-            out.append(("Warning: the band-limited refit fell back to a single pass (too many "
-                        "flagged vertices).", True))
+        h = res.hygiene
+        if h is not None and (h.boundary_edges or h.non_manifold_edges or h.degenerate_faces
+                              or h.duplicate_faces):
+            out.append((f"Nominal mesh: {h.describe()}.", bool(h.non_manifold_edges
+                                                                or h.degenerate_faces
+                                                                or h.duplicate_faces)))
+        for w in res.trust_warnings():
+            tail = (" A pass is therefore not claimed (NOT ESTABLISHED)." if res.passed
+                    else "")
+            out.append((f"Warning: {w}.{tail}", True))
+        a = res.added
+        if a is not None and a.regions:
+            judged = ("fails the part" if not a.passed
+                      else "reported, not judged (--fail-on-added-material)")
+            out.append((f"Added material (scan points proud of the nominal, data-referenced): "
+                        f"{a.describe()}; P99.9 signed {a.p999_signed:+.3f} mm, "
+                        f"{100 * a.frac_above:.3f} % beyond +{a.threshold:g} mm; {judged}.",
+                        a.found))
         if self.chain_floor is not None:
             tight = min((z.zone.half_width for z in res.zones), default=math.nan)
             if _finite(tight) and tight <= self.chain_floor:
@@ -788,7 +808,7 @@ class _Report:
                    initialFontName=FONT, initialFontSize=7)
         c.setTitle(f"Surface deviation report: {prov.part_name}")
         c.setAuthor(prov.author or prov.organization or "qifreport")
-        c.setSubject(f"{'PASS' if res.passed else 'FAIL'}; nominal SHA-256 "
+        c.setSubject(f"{res.verdict}; nominal SHA-256 "
                      f"{prov.nominal_sha256}; scan SHA-256 {prov.scan_sha256}")
         c.setCreator(f"qifreport {__version__}")
         c.setKeywords(["qifreport", "QIF 3.0", "surface profile", "virtual fixture"])
@@ -824,12 +844,14 @@ class _Report:
         res, prov = self.res, self.prov
         vw = 172.0
         # verdict
-        passed = res.passed
+        word = res.verdict
         vx = box.x + box.w - vw
-        c.setFillColorRGB(*(PASS_BG if passed else FAIL_BG))
+        c.setFillColorRGB(*{"PASS": PASS_BG, "FAIL": FAIL_BG}.get(word, UNSURE_BG))
         c.roundRect(vx, box.y, vw, box.h, 4, stroke=0, fill=1)
-        word = "PASS" if passed else "FAIL"
-        self._text(c, vx + vw / 2, box.top - 36, word, 34, True, (1, 1, 1), "c")
+        if word in ("PASS", "FAIL"):
+            self._text(c, vx + vw / 2, box.top - 36, word, 34, True, (1, 1, 1), "c")
+        else:  # NOT ESTABLISHED
+            self._text(c, vx + vw / 2, box.top - 32, word, 16, True, (1, 1, 1), "c")
         lines = self.verdict_lines(vw - 10, 6.8)
         yy = box.top - 50
         for s in lines[:3]:

@@ -62,6 +62,7 @@ import numpy as np
 from lxml import etree
 from lxml.builder import ElementMaker
 
+from metrology.added import AddedMaterial
 from metrology.bands import ToleranceZone
 from metrology.inspection import InspectionResult, ZoneResult
 from metrology.statistics import DeviationStats
@@ -368,7 +369,8 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
         ma = _Attrs().b("fixtured", z.fixtured).d("profile_value_mm", profile_value(z))
         ma.stats(z.stats)
         _acceptance_attrs(ma, z.acceptance, res.V)
-        meas = [ma.element(), E.Status(E.CharacteristicStatusEnum(_status(z))),
+        status = _status(z, established=not res.trust_warnings())
+        meas = [ma.element(), E.Status(E.CharacteristicStatusEnum(status)),
                 E.CharacteristicItemId(ci), _array("FeatureMeasurementIds", [fm]),
                 E.ActualComponentId(actual_id)]
         if not z.acceptance.passed:
@@ -410,13 +412,27 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
     )
 
     # -- results
-    verdict = "PASS" if res.passed else "FAIL"
-    ra = _Attrs().s("verdict", verdict)
+    # NOT ESTABLISHED (would pass, registration not trusted): QIF's UNKNOWN; the reasons are
+    # the decided_by_* and warning_* attributes
+    verdict = {"PASS": "PASS", "FAIL": "FAIL"}.get(res.verdict, "UNKNOWN")
+    ra = _Attrs().s("verdict", res.verdict)
+    for k, line in enumerate(res.trust_warnings(), start=1):
+        ra.s(f"warning_{k}", line)
     for k, line in enumerate(res.decided_by(), start=1):
         ra.s(f"decided_by_{k}", line)
     ra.stats(res.vertex_stats)
     _acceptance_attrs(ra, res.acceptance, res.V)
     ra.stats(res.point_stats, prefix="scan_points_")
+    if res.added is not None:
+        _added_attrs(ra, res.added)
+    h = res.hygiene
+    if h is not None:
+        ra.i("nominal_boundary_edges", h.boundary_edges)
+        ra.i("nominal_non_manifold_edges", h.non_manifold_edges)
+        ra.i("nominal_degenerate_faces", h.degenerate_faces)
+        ra.i("nominal_duplicate_faces", h.duplicate_faces).i("nominal_components", h.components)
+        ra.d("boundary_band_mm", h.boundary_band)
+        ra.d("boundary_excluded_area_mm2", h.boundary_excluded_area)
     ra.d("scan_area_mm2", res.scan_area).b("coverage_ceiling_ok", res.coverage_ceiling_ok)
     ra.d("edge_excluded_area_mm2", res.edge_excluded_area).s("bending_energy", res.energy)
     a = res.prealign
@@ -507,10 +523,25 @@ def write_qif(path: Path, tree: etree._ElementTree) -> None:
     tree.write(str(path), xml_declaration=True, encoding="UTF-8", standalone=False)
 
 
-def _status(z: ZoneResult) -> str:
+def _status(z: ZoneResult, established: bool = True) -> str:
     if z.acceptance.scored_area <= 0 or z.stats.n == 0:
         return "NOT_ANALYZED"
-    return "PASS" if z.acceptance.passed else "FAIL"
+    if not z.acceptance.passed:
+        return "FAIL"
+    return "PASS" if established else "INDETERMINATE"
+
+
+def _added_attrs(ra: _Attrs, a: AddedMaterial) -> None:
+    """The data-referenced pass (added material) as ``added_*`` attributes."""
+    ra.d("added_threshold_mm", a.threshold).d("added_mean_signed_mm", a.mean_signed)
+    ra.d("added_p99_signed_mm", a.p99_signed).d("added_p999_signed_mm", a.p999_signed)
+    ra.d("added_max_signed_mm", a.max_signed).d("added_min_signed_mm", a.min_signed)
+    ra.d("added_frac_above", a.frac_above).d("added_frac_below", a.frac_below)
+    ra.i("added_region_count", len(a.regions)).d("added_largest_region_mm2", a.largest_area)
+    ra.b("added_fail_on", a.fail_on).b("added_passed", a.passed)
+    for k, r in enumerate(a.regions[:50], start=1):
+        ra.d(f"added_region_{k}_area_mm2", r.area).d(f"added_region_{k}_peak_mm", r.peak)
+        ra.d3(f"added_region_{k}_centroid_mm", r.centroid)
 
 
 def _feature_name(zone: ToleranceZone) -> str:

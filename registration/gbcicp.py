@@ -117,6 +117,8 @@ class GBCICPResult:
     scale : final robust residual scale, mm.
     passes : passes run.  fallback : the flagged-fraction guard fired.
     flagged_fraction : flagged / covered vertices after the first pass.
+    guard_fraction, guard_pass : the flagged fraction that fired the guard and the pass that
+        flagged it (NaN, 0 when it did not fire): a refit can flag more than the first pass.
     iterations : total iterations.  seconds : wall time.
     params : the parameters actually used (defaults resolved).
     history : per-iteration record (pass, lambda, rms residual, max update).
@@ -137,6 +139,8 @@ class GBCICPResult:
     seconds: float
     params: GBCICPParams
     history: list[dict] = field(default_factory=list)
+    guard_fraction: float = float("nan")
+    guard_pass: int = 0
 
 
 @dataclass
@@ -324,10 +328,12 @@ def gbcicp(
     flagged = _flag(m, p, scale)
     n_cov = max(int(m.covered.sum()), 1)
     flagged_fraction = float(flagged.sum()) / n_cov
+    guard = (float("nan"), 0)  # (flagged fraction that fired the guard, its pass)
     single = (e, m, w, scale)
     if p.passes > 1 and flagged.any():
         if flagged_fraction > p.max_flagged_fraction:
             fallback = True
+            guard = (flagged_fraction, 1)
             log.warning(
                 "GB-CICP: %.1f %% of covered vertices flagged (> %.0f %%): fit suspect, "
                 "keeping the single-pass result", 100 * flagged_fraction,
@@ -344,6 +350,7 @@ def gbcicp(
                 new = _flag(m, p, scale)
                 if max(flagged.sum(), new.sum()) / n_cov > p.max_flagged_fraction:
                     fallback = True
+                    guard = (max(flagged.sum(), new.sum()) / n_cov, pass_no)
                     e, m, w, scale = single
                     hold = np.zeros(n, dtype=bool)
                     break
@@ -363,6 +370,8 @@ def gbcicp(
         passes=passes,
         fallback=fallback,
         flagged_fraction=flagged_fraction,
+        guard_fraction=float(guard[0]),
+        guard_pass=int(guard[1]),
         iterations=len(history),
         seconds=time.perf_counter() - t_start,
         params=p,

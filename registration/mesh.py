@@ -79,32 +79,67 @@ def remove_degenerate(V: np.ndarray, F: np.ndarray, rel_area: float = 1e-12) -> 
 def load_mesh(path: str | Path, weld_tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
     """Read a nominal triangle mesh (STL, PLY, OBJ, OFF) and weld it.
 
-    Units are taken as mm (mesh formats carry none). Raises :class:`InputError` with a
-    one-line message for a missing, unreadable or empty file.
+    Units are taken as mm (mesh formats carry none).
+
+    Parameters
+    ----------
+    path : the mesh file.
+    weld_tol : merge distance of coincident vertices, as a fraction of the bounding diagonal.
 
     Returns
     -------
-    V : (n, 3) float64, mm.  F : (f, 3) int64.
+    V : (n, 3) float64, mm.  F : (f, 3) int64, every index in ``[0, n)``.
+
+    Raises
+    ------
+    InputError
+        Missing, unsupported or unreadable file (whatever the third-party reader raised is
+        wrapped), no triangles, face indices out of range, or non-finite coordinates; one
+        line naming the file.
     """
+    import warnings
+
+    from .pointcloud import check_declared_counts, one_line, read_trimesh
+
     path = Path(path)
     if not path.is_file():
         raise InputError(f"nominal mesh not found: {path}")
     if path.suffix.lower() not in MESH_SUFFIXES:
-        raise InputError(f"unsupported nominal format {path.suffix!r} (use STL, PLY, OBJ or OFF)")
+        raise InputError(f"{path.name}: unsupported nominal format {path.suffix!r} "
+                         "(use STL, PLY, OBJ or OFF)")
     try:
-        tm = trimesh.load(str(path), force="mesh", process=False)
+        with warnings.catch_warnings():  # reader noise; problems are reported below, once
+            warnings.simplefilter("ignore")
+            tm = read_trimesh(path, force="mesh")
+            if not isinstance(tm, trimesh.Trimesh) or len(tm.faces) == 0:
+                raise InputError(f"nominal mesh {path.name} has no triangles")
+            V, F = np.asarray(tm.vertices), np.asarray(tm.faces)
+            if V.ndim != 2 or V.shape[1] != 3 or V.dtype.kind not in "iuf":
+                raise InputError(f"nominal mesh {path.name}: vertices of shape {V.shape} "
+                                 f"and type {V.dtype}, expected (n, 3) numbers")
+            if F.ndim != 2 or F.shape[1] != 3 or F.dtype.kind not in "iu":
+                raise InputError(f"nominal mesh {path.name}: faces of shape {F.shape} "
+                                 f"and type {F.dtype}, expected (f, 3) vertex indices")
+            V = np.ascontiguousarray(V, dtype=np.float64)
+            F = np.ascontiguousarray(F, dtype=np.int64)
+            check_declared_counts(path, len(V), faces=True)
+            if not np.isfinite(V).all():
+                raise InputError(f"nominal mesh {path.name} has non-finite vertex coordinates")
+            bad = (F < 0) | (F >= len(V))
+            if bad.any():
+                raise InputError(f"nominal mesh {path.name}: {int(bad.any(axis=1).sum())} "
+                                 f"faces index vertices outside 0..{len(V) - 1}")
+            if not np.isfinite(bounding_diagonal(V)):
+                raise InputError(f"nominal mesh {path.name}: coordinates too large "
+                                 "(the extent overflows)")
+            n_in = len(V)
+            V, F = weld(V, F, weld_tol)
+            F = remove_degenerate(V, F)
+            V, F = remove_unreferenced(V, F)
+    except InputError:
+        raise
     except Exception as exc:  # trimesh raises many types on corrupt input
-        raise InputError(f"cannot read nominal mesh {path.name}: {exc}") from None
-    if not isinstance(tm, trimesh.Trimesh) or len(tm.faces) == 0:
-        raise InputError(f"nominal mesh {path.name} has no triangles")
-    V = np.asarray(tm.vertices, dtype=np.float64)
-    F = np.asarray(tm.faces, dtype=np.int64)
-    if not np.isfinite(V).all():
-        raise InputError(f"nominal mesh {path.name} has non-finite vertex coordinates")
-    n_in = len(V)
-    V, F = weld(V, F, weld_tol)
-    F = remove_degenerate(V, F)
-    V, F = remove_unreferenced(V, F)
+        raise InputError(f"cannot read nominal mesh {path.name}: {one_line(exc)}") from None
     if len(F) == 0:
         raise InputError(f"nominal mesh {path.name} has no non-degenerate triangles")
     if len(V) < n_in:

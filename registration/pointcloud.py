@@ -18,54 +18,318 @@ from .errors import InputError
 
 log = logging.getLogger(__name__)
 
-SCAN_SUFFIXES = (".ply", ".xyz", ".txt", ".csv", ".npy", ".stl", ".obj", ".off")
+SCAN_SUFFIXES = (".ply", ".xyz", ".txt", ".csv", ".npy", ".stl", ".obj", ".off", ".e57")
 MIN_POINTS = 100
 
 
-def load_scan(path: str | Path) -> np.ndarray:
-    """Read a scan point cloud.
+class MalformedFile(ValueError):
+    """A file whose structure contradicts itself (truncated, counts that disagree); the
+    reader that called the check wraps it into its own one-line :class:`InputError`
+    ("cannot read scan NAME: ...", "cannot read nominal mesh NAME: ...")."""
 
-    PLY (points, or the vertices of a mesh), STL/OBJ/OFF (vertices), XYZ/TXT/CSV (first three
-    columns of each row), NPY ((m, 3) array). Units are taken as mm.
+
+#: length of one scan unit in mm (``--scan-units``)
+SCAN_UNITS = {"mm": 1.0, "in": 25.4, "m": 1000.0}
+#: the unit of a format whose standard fixes one (E57: metres, ASTM E2807); others: mm
+FORMAT_UNITS = {".e57": "m"}
+
+
+def load_scan(path: str | Path, units: str | None = None) -> np.ndarray:
+    """Read a scan point cloud, in mm.
+
+    Formats, by suffix: PLY (points, or the vertices of a mesh; ASCII or binary), STL (ASCII
+    or binary), OBJ and OFF (vertices), XYZ/TXT/CSV (first three columns of each row; ``#``
+    comments and one header line allowed), NPY ((m, 3) numeric array) and E57 (every scan in
+    the file, each in the file frame through its pose, invalid points dropped; needs the
+    optional package ``pye57``, ``pip install 'qifreport[e57]'``).
+
+    Parameters
+    ----------
+    path : the scan file.
+    units : the length unit of the numbers in the file, one of :data:`SCAN_UNITS` (``"mm"``,
+        ``"in"``, ``"m"``); the points are converted to mm. None: the format's own unit,
+        metres for E57 (the standard's unit, :data:`FORMAT_UNITS`), mm for the others.
+
+    Returns
+    -------
+    P : (m, 3) float64 C-contiguous array of finite points, mm; ``m >= MIN_POINTS``.
 
     Raises
     ------
     InputError
-        Missing or unreadable file, fewer than ``MIN_POINTS`` points, or non-finite
-        coordinates; the message is one line naming the problem.
+        Unknown units, missing, unsupported or unreadable file (whatever the third-party
+        reader raised is wrapped), fewer than ``MIN_POINTS`` points, or non-finite
+        coordinates; the message is one line naming the file and the problem.
     """
     path = Path(path)
+    if units is not None and units not in SCAN_UNITS:
+        raise InputError(f"unknown scan units {units!r} (use {', '.join(SCAN_UNITS)})")
     if not path.is_file():
         raise InputError(f"scan not found: {path}")
     suffix = path.suffix.lower()
     if suffix not in SCAN_SUFFIXES:
-        raise InputError(f"unsupported scan format {path.suffix!r} (use PLY, XYZ, CSV or NPY)")
+        raise InputError(f"{path.name}: unsupported scan format {path.suffix!r} "
+                         "(use PLY, STL, OBJ, OFF, XYZ, TXT, CSV, NPY or E57)")
+    units = FORMAT_UNITS.get(suffix, "mm") if units is None else units
     try:
-        if suffix == ".npy":
-            P = np.load(path, allow_pickle=False)
-        elif suffix in (".xyz", ".txt", ".csv"):
-            delim = "," if suffix == ".csv" else None
-            with warnings.catch_warnings():  # an empty file is reported below, once
-                warnings.simplefilter("ignore", UserWarning)
-                P = np.loadtxt(path, delimiter=delim, usecols=(0, 1, 2), ndmin=2, comments="#")
-        else:
-            geom = trimesh.load(str(path), process=False)
-            if isinstance(geom, trimesh.Scene):
-                geom = geom.to_geometry() if geom.geometry else None
-            P = np.asarray(getattr(geom, "vertices", np.empty((0, 3))))
+        with warnings.catch_warnings():  # reader noise; problems are reported below, once
+            warnings.simplefilter("ignore")
+            if suffix == ".npy":
+                P = np.load(path, allow_pickle=False)
+            elif suffix in (".xyz", ".txt", ".csv"):
+                P = _read_text_points(path, "," if suffix == ".csv" else None)
+            elif suffix == ".e57":
+                P = _read_e57(path)
+            elif suffix == ".obj":
+                P = _read_obj_vertices(path)
+            else:
+                geom = read_trimesh(path)
+                if isinstance(geom, trimesh.Scene):
+                    geom = geom.to_geometry() if geom.geometry else None
+                P = np.asarray(getattr(geom, "vertices", np.empty((0, 3))))
+                check_declared_counts(path, len(P))
+            P = validate_scan(P, path.name)
+            if units != "mm":
+                P = validate_scan(P * SCAN_UNITS[units], path.name)  # may overflow to inf
     except InputError:
         raise
-    except Exception as exc:
-        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise InputError(f"cannot read scan {path.name}: {why}") from None
-    return validate_scan(P, path.name)
+    except Exception as exc:  # third-party readers raise many types on corrupt input
+        raise InputError(f"cannot read scan {path.name}: {one_line(exc)}") from None
+    return P
+
+
+def one_line(exc: BaseException, limit: int = 200) -> str:
+    """The first non-empty line of an exception's message (its type name if it has none),
+    cut to ``limit`` characters: for one-line error messages."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    why = lines[0] if lines else type(exc).__name__
+    return why if len(why) <= limit else why[: limit - 3] + "..."
+
+
+def read_trimesh(path: Path, force: str | None = None):
+    """``trimesh.load`` of a local file, unprocessed, with trimesh's log records silenced.
+
+    trimesh logs (WARNING, ERROR, with tracebacks) on malformed files before it raises or
+    returns; the caller reports the problem itself, in one line, so nothing else may reach
+    the console. A binary PLY shorter than its header says is refused first
+    (:class:`MalformedFile`, "truncated PLY").
+    """
+    if path.suffix.lower() == ".ply":
+        _check_ply_size(path)
+    tlog = logging.getLogger("trimesh")  # its modules log to children that inherit its level
+    level = tlog.level
+    tlog.setLevel(logging.CRITICAL + 1)
+    try:
+        return trimesh.load(str(path), force=force, process=False)
+    finally:
+        tlog.setLevel(level)
+
+
+def check_declared_counts(path: Path, n_vertices: int, faces: bool = False) -> None:
+    """Hold a PLY or OFF file's declared element counts against what was read.
+
+    trimesh reads these formats leniently: an ASCII PLY or OFF cut short, or whose header
+    counts were edited, comes back with fewer vertices or faces, or with face rows read as
+    vertices, and no error. A truncated file must not pass for a complete scan or nominal.
+
+    Parameters
+    ----------
+    path : the file that was read (checked by suffix: ``.ply``, ``.off``; with ``faces``
+        also ``.obj``).
+    n_vertices : the number of vertices the reader returned.
+    faces : also check the faces (nominal meshes): OBJ indices are 1-based, 0 is invalid.
+
+    Raises
+    ------
+    MalformedFile
+        A count that disagrees with the file body (the caller names the file).
+    """
+    suffix = path.suffix.lower()
+    if suffix == ".ply":
+        head = _ply_header(path)
+        if head is None:
+            return
+        fmt, elements, data_start = head
+        counts = {name: n for name, n, _ in elements}
+        nv = counts.get("vertex")
+        if nv is not None and nv != n_vertices:
+            raise MalformedFile(f"the PLY header declares {nv} vertices, {n_vertices} were "
+                                "read (truncated or corrupt file)")
+        if fmt == "ascii":  # one element a line
+            with open(path, "rb") as fh:
+                fh.seek(data_start)
+                rows = sum(1 for ln in fh if ln.strip())
+            if rows != sum(counts.values()):
+                raise MalformedFile(f"the PLY header declares {sum(counts.values())} data "
+                                    f"rows, the file has {rows} (truncated or corrupt file)")
+    elif suffix == ".off":
+        text = path.read_bytes().decode("utf-8", "replace")
+        rows = [ln.split("#", 1)[0].strip() for ln in text.split("OFF", 1)[-1].splitlines()]
+        rows = [r for r in rows if r]
+        if not rows:
+            return
+        nv, nf = (int(t) for t in rows[0].split()[:2])
+        if nv != n_vertices or len(rows) - 1 != nv + nf:
+            raise MalformedFile(f"the OFF header declares {nv} vertices and {nf} faces, the "
+                                f"file has {len(rows) - 1} rows (truncated or corrupt file)")
+    elif suffix == ".obj" and faces:
+        with open(path, "rb") as fh:
+            for ln in fh:
+                tok = ln.split()
+                if tok and tok[0] == b"f" and any(t.split(b"/")[0] in (b"0", b"-0", b"+0")
+                                                  for t in tok[1:]):
+                    raise MalformedFile("a face has vertex index 0 (OBJ indices start at 1; "
+                                        "corrupt file)")
+
+
+#: bytes of the PLY scalar types
+_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
+              "int16": 2, "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4,
+              "float": 4, "float32": 4, "double": 8, "float64": 8}
+
+
+def _ply_header(path: Path) -> tuple[str, list[tuple[str, int, int | None]], int] | None:
+    """A PLY file's format, elements and data offset, or None if the header is unreadable.
+
+    Returns
+    -------
+    fmt : ``"ascii"``, ``"binary_little_endian"`` or ``"binary_big_endian"``.
+    elements : ``(name, count, min_row_bytes)`` in file order; ``min_row_bytes`` is the size
+        of one binary row with every list empty (None for an unknown type).
+    data_start : byte offset of the first data byte.
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(1 << 16)
+    end = head.find(b"end_header")
+    nl = head.find(b"\n", end)
+    if end < 0 or nl < 0:
+        return None
+    fmt, elements = "", []
+    for ln in head[:end].decode("ascii", "replace").splitlines():
+        tok = ln.split()
+        if len(tok) >= 2 and tok[0] == "format":
+            fmt = tok[1]
+        elif len(tok) == 3 and tok[0] == "element":
+            if not tok[2].isdigit():
+                return None  # the reader reports what it makes of it
+            elements.append([tok[1], int(tok[2]), 0])
+        elif len(tok) >= 3 and tok[0] == "property" and elements:
+            size = _PLY_SIZES.get(tok[2] if tok[1] == "list" else tok[1])
+            row = elements[-1][2]
+            elements[-1][2] = None if size is None or row is None else row + size
+    return fmt, [(n, c, r) for n, c, r in elements], nl + 1
+
+
+def _check_ply_size(path: Path) -> None:
+    """Refuse a binary PLY whose data is shorter than its header's element counts need
+    (:class:`MalformedFile`, "truncated PLY: ...")."""
+    head = _ply_header(path)
+    if head is None or not head[0].startswith("binary"):
+        return
+    _, elements, data_start = head
+    if any(r is None for _, _, r in elements):
+        return  # the reader reports what it makes of it
+    need = sum(n * r for _, n, r in elements)
+    have = path.stat().st_size - data_start
+    if have < need:
+        what = ", ".join(f"{n} {name!r}" for name, n, _ in elements)
+        raise MalformedFile(f"truncated PLY: the header declares {what} elements (at least "
+                            f"{need} bytes of data), the file has {have} bytes")
+
+
+def _read_obj_vertices(path: Path) -> np.ndarray:
+    """The ``v x y z`` rows of an OBJ file, every one (trimesh drops the vertices no face
+    uses, which for a scan are points); (m, 3) float64."""
+    rows = []
+    with open(path, "rb") as fh:
+        for ln in fh:
+            tok = ln.split()
+            if tok and tok[0] == b"v":
+                if len(tok) < 4:
+                    raise MalformedFile(f"a vertex row with {len(tok) - 1} coordinates "
+                                        "(3 needed)")
+                rows.append(b" ".join(tok[1:4]))
+    if not rows:
+        return np.empty((0, 3))
+    return np.array([float(t) for r in rows for t in r.split()], dtype=np.float64).reshape(-1, 3)
+
+
+def _read_text_points(path: Path, delimiter: str | None) -> np.ndarray:
+    """First three columns of a text point file (XYZ/TXT/CSV), one point a row; lines after
+    ``#`` are comments, and a first line without a single number (column names such as
+    ``x,y,z``) is skipped."""
+    kw = dict(delimiter=delimiter, usecols=(0, 1, 2), ndmin=2, comments="#", dtype=np.float64)
+    skip = 0
+    with open(path, "rb") as fh:
+        for ln in fh:
+            skip += 1
+            text = ln.split(b"#", 1)[0].decode("latin-1")
+            if not text.strip():
+                continue
+            if not any(_is_number(t) for t in text.replace(",", " ").split()):
+                return np.loadtxt(path, skiprows=skip, **kw)  # a header of column names
+            break
+    return np.loadtxt(path, **kw)
+
+
+def _is_number(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _read_e57(path: Path) -> np.ndarray:
+    """All points of an E57 file: every scan, in the file frame (each scan's pose applied),
+    points flagged invalid dropped; (m, 3) float64 in the file's unit (metres, by the
+    standard).
+
+    Raises
+    ------
+    InputError
+        When the optional package ``pye57`` is not installed.
+    """
+    try:
+        import pye57
+    except ImportError as exc:
+        raise InputError(
+            f"cannot read scan {path.name}: E57 needs the optional package pye57 "
+            f"(pip install 'qifreport[e57]'), which is unavailable: {one_line(exc)}"
+        ) from None
+    e57 = pye57.E57(str(path), mode="r")
+    try:
+        parts = []
+        for i in range(e57.scan_count):
+            # transform=True applies the scan's pose when it has one; read_scan drops the
+            # points whose cartesian/spherical invalid state is set
+            d = e57.read_scan(i, ignore_missing_fields=True, transform=True)
+            parts.append(np.column_stack([np.asarray(d[k], dtype=np.float64).ravel()
+                                          for k in ("cartesianX", "cartesianY", "cartesianZ")]))
+    finally:
+        e57.close()
+    return np.concatenate(parts) if parts else np.empty((0, 3))
 
 
 def validate_scan(P: np.ndarray, name: str = "scan") -> np.ndarray:
-    """Check an (m, 3) point array; return it as contiguous float64 or raise :class:`InputError`."""
+    """Check an (m, 3) point array; return it as contiguous float64 or raise :class:`InputError`.
+
+    Parameters
+    ----------
+    P : (m, 3) array of real numbers (integer or float), mm.
+    name : what to call the points in the message (the file name).
+
+    Raises
+    ------
+    InputError
+        Wrong shape or non-numeric type, no points, non-finite coordinates, or fewer than
+        ``MIN_POINTS`` points; one line naming ``name``.
+    """
     P = np.asarray(P)
     if P.ndim != 2 or P.shape[1] != 3:
         raise InputError(f"{name}: expected (m, 3) points, got shape {P.shape}")
+    if P.dtype.kind not in "iuf":
+        raise InputError(f"{name}: expected numeric coordinates, got type {P.dtype}")
     P = np.ascontiguousarray(P, dtype=np.float64)
     if len(P) == 0:
         raise InputError(f"{name}: the scan is empty (no points)")
@@ -73,7 +337,8 @@ def validate_scan(P: np.ndarray, name: str = "scan") -> np.ndarray:
     if bad.any():
         raise InputError(f"{name}: {int(bad.sum())} of {len(P)} points have NaN/inf coordinates")
     if len(P) < MIN_POINTS:
-        raise InputError(f"{name}: only {len(P)} points (at least {MIN_POINTS} needed)")
+        raise InputError(f"{name}: only {len(P)} point{'s' if len(P) > 1 else ''} (at least "
+                         f"{MIN_POINTS} needed)")
     return P
 
 

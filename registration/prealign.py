@@ -96,9 +96,9 @@ from .pointcloud import validate_scan
 log = logging.getLogger(__name__)
 
 
-# below this ratio of the smallest to the largest eigenvalue of the point-to-plane information
-# matrix the seen surface slides along itself (measured at the reference pose: fandisk 0.046,
-# housing 0.019, the cap-like thin shell 3e-5)
+# below this ratio of the smallest to the largest eigenvalue of the information matrix the seen
+# surface slides along itself (measured at the accepted poses, bench/prealign.py: fandisk
+# 0.046, housing 0.020, thin shell 0.0075 with its rim rows; the shell's surface alone 3e-5)
 WEAK_CONDITIONING = 1e-3
 
 

@@ -171,6 +171,55 @@ def _xde_items(doc) -> XdeSummary:
     return out
 
 
+class _OcctMessages:
+    """Context: route OCCT's default messenger (which prints to stdout) to a temporary file.
+
+    The CLI's stdout carries only its own report and an error is one line on stderr, so
+    OCCT's diagnostics while a file is read are collected instead: :meth:`first` gives the
+    first failure for the error message, and every line is logged at DEBUG level.
+    """
+
+    def __enter__(self) -> _OcctMessages:
+        import os
+        import tempfile
+
+        from OCP.Message import Message, Message_Gravity, Message_PrinterOStream
+
+        self.lines: list[str] = []
+        self._messenger = Message.DefaultMessenger_s()
+        self._saved = list(self._messenger.Printers())
+        fd, self._file = tempfile.mkstemp(prefix="qifreport-occt-", suffix=".log")
+        os.close(fd)
+        self._printer = Message_PrinterOStream(self._file, False, Message_Gravity.Message_Fail)
+        for pr in self._saved:
+            self._messenger.RemovePrinter(pr)
+        self._messenger.AddPrinter(self._printer)
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        import os
+
+        self._messenger.RemovePrinter(self._printer)
+        self._printer.Close()
+        for pr in self._saved:
+            self._messenger.AddPrinter(pr)
+        try:
+            text = Path(self._file).read_text(encoding="utf-8", errors="replace")
+        finally:
+            os.unlink(self._file)
+        for ln in text.splitlines():
+            ln = re.sub(r"\x1b\[[0-9;]*m", "", ln).strip(" *\t")
+            ln = re.sub(r"^ERR\s+\w+\s*:\s*(Undefined Parsing:\s*)?", "", ln)
+            if ln:
+                self.lines.append(ln)
+                log.debug("OCCT: %s", ln)
+        return False
+
+    def first(self) -> str:
+        """The first collected message, cut to 200 characters ('' if none)."""
+        return self.lines[0][:200] if self.lines else ""
+
+
 def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     """Read a STEP file: the B-rep (mm), its faces with their entity ids, and the PMI.
 
@@ -211,10 +260,15 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     reader.SetNameMode(True)
     reader.SetColorMode(False)
     reader.SetLayerMode(False)
-    if reader.ReadFile(str(path)) != IFSelect_RetDone:
-        raise InputError(f"{path.name}: the STEP reader could not parse the file")
-    if not reader.Transfer(doc):
-        raise InputError(f"{path.name}: the STEP file has no transferable shape")
+    with _OcctMessages() as occt:  # OCCT prints its diagnostics to stdout: collect them
+        read_ok = reader.ReadFile(str(path)) == IFSelect_RetDone
+        transferred = read_ok and reader.Transfer(doc)
+    if not read_ok:
+        why = f" ({occt.first()})" if occt.first() else ""
+        raise InputError(f"{path.name}: the STEP reader could not parse the file{why}")
+    if not transferred:
+        raise InputError(f"{path.name}: the STEP file has no solid, shell or face to inspect "
+                         "(no transferable shape)")
     timings["xde_read"] = time.perf_counter() - t0
 
     st = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
@@ -223,7 +277,8 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     shapes = [st.GetShape_s(labs.Value(i)) for i in range(1, labs.Length() + 1)]
     shapes = [s for s in shapes if not s.IsNull()]
     if not shapes:
-        raise InputError(f"{path.name}: the STEP file contains no shape")
+        raise InputError(f"{path.name}: the STEP file has no solid, shell or face to inspect "
+                         "(no shape)")
     if len(shapes) == 1:
         shape = shapes[0]
     else:
@@ -236,7 +291,8 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     TopExp.MapShapes_s(shape, TopAbs_FACE, fmap)
     faces = [TopoDS.Face_s(fmap.FindKey(i)) for i in range(1, fmap.Size() + 1)]
     if not faces:
-        raise InputError(f"{path.name}: the STEP file has no surface (no solid, shell or face)")
+        raise InputError(f"{path.name}: the STEP file has no solid, shell or face to inspect "
+                         "(no surface)")
     smap = TopTools_IndexedMapOfShape()
     TopExp.MapShapes_s(shape, TopAbs_SOLID, smap)
 

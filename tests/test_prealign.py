@@ -258,7 +258,7 @@ def test_cli_seats_a_posed_scan_and_finds_the_same_defect(tmp_path, fandisk_mode
         trimesh.PointCloud(P).export(scan)
         runs[name] = _cli(nominal, scan, "--tolerance", "0.3", "--out", tmp_path / name,
                           "--json", "--quiet", *(["--no-pdf"] if name == "framed" else []))
-        assert runs[name].returncode in (0, 1), runs[name].stderr
+        assert runs[name].returncode in (0, 1, 3), runs[name].stderr
         docs[name] = json.loads((tmp_path / name / "fandisk.json").read_text())
     framed, posed = docs["framed"], docs["posed"]
     assert framed["registration"]["prealign"]["method"] == "identity"

@@ -1,0 +1,74 @@
+"""A pass is never claimed on a registration that cannot be trusted: NOT ESTABLISHED, exit 3,
+in every output (paper Sections 6.4 and 8.4.5: the two-pass guard and the coverage ceiling)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from lxml import etree
+
+from qif.reader import read_results
+from registration.simulate.cases import make_case
+from registration.simulate.scanner import ScanSpec
+from registration.simulate.shapes import fandisk
+from tests.conftest import assert_valid_summary, shared_file
+
+
+def test_guard_fired_is_not_established_everywhere(tmp_path):
+    """The deformed fandisk seen from 2 views: its first pass flags more than the guard's
+    20 % of the covered surface (the failure mode of the paper's real part), so the refit
+    falls back and the part -- inside its band everywhere -- is NOT ESTABLISHED, exit 3."""
+    V, F = fandisk(str(shared_file("meshes/fandisk.off")), diagonal=100.0, subdivide=1)
+    case = make_case(V, F, generator="biharmonic", amplitude=0.02,
+                     modes={"bend": 1.0, "twist": 0.5},
+                     spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=0))
+    nominal, scan = tmp_path / "fandisk.ply", tmp_path / "scan.ply"
+    trimesh.Trimesh(V, F, process=False).export(nominal)
+    trimesh.PointCloud(case.P).export(scan)
+    out = tmp_path / "out"
+    exe = Path(sys.executable).parent / "qifreport"
+    r = subprocess.run([str(exe), nominal, scan, "--tolerance", "1.0", "--out", out, "--json",
+                        "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 3, (r.stdout, r.stderr)
+    assert "verdict: NOT ESTABLISHED" in r.stdout and "two-pass guard" in r.stdout
+    doc = json.loads((out / "fandisk.json").read_text())
+    assert_valid_summary(doc)
+    assert doc["verdict"] == "NOT ESTABLISHED" and doc["acceptance"]["passed"] is True
+    assert doc["registration"]["gbcicp"]["fallback"] is True
+    assert any("two-pass guard" in w for w in doc["warnings"])
+    # QIF: no PASS anywhere -- UNKNOWN overall, INDETERMINATE per characteristic
+    res = read_results(out / "fandisk.qif")
+    assert res.status == "UNKNOWN"
+    q = etree.parse(str(out / "fandisk.qif"))
+    status = q.xpath("//*[local-name()='CharacteristicMeasurements']//"
+                     "*[local-name()='CharacteristicStatusEnum']/text()")
+    assert status and set(status) == {"INDETERMINATE"}
+    assert q.xpath("//*[local-name()='AttributeStr'][@name='verdict']/@value") == [
+        "NOT ESTABLISHED"]
+    text = subprocess.run(["pdftotext", "-layout", str(out / "fandisk.pdf"), "-"],
+                          capture_output=True, text=True, check=True).stdout
+    assert "NOT ESTABLISHED" in text and "PASS" not in text.split() and "n/e" in text.split()
+
+
+def test_a_failing_part_stays_failed_and_a_ceiling_breach_is_a_warning():
+    from metrology.inspection import InspectionParams, inspect
+    from registration.simulate.shapes import thin_shell
+
+    V, F = thin_shell()
+    case = make_case(V, F, generator="analytic", amplitude=0.02, seed=0)
+    res = inspect(V, F, case.P, InspectionParams(tolerance=0.5))
+    assert res.verdict == "PASS" and res.trust_warnings() == []
+    over = dataclasses.replace(res, coverage_ceiling_ok=False)
+    assert over.verdict == "NOT ESTABLISHED"
+    assert "over-fit" in over.trust_warnings()[0]
+    # a part that fails stays FAIL (rejected either way), the warning is still reported
+    tight = dataclasses.replace(over, acceptance=dataclasses.replace(
+        res.acceptance, passed=False, reasons=["forced"]))
+    assert tight.verdict == "FAIL" and tight.trust_warnings()
+    assert np.isfinite(res.added.p999_signed)
