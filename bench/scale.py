@@ -38,7 +38,7 @@ def build(vertices: int, points: int, length: float = 600.0, deflection: float =
     diag = bounding_diagonal(V)
     h = spacing * length / base_len
     # pixel pitch for ~`points` samples over 3 views of the ~length x 0.65 length sheet
-    pixel = float(np.sqrt(3 * 0.9 * length * length * base_w / base_len / points))
+    pixel = float(np.sqrt(3 * 0.81 * length * length * base_w / base_len / points))
     case = make_case(V, F, generator="analytic", amplitude=deflection / diag, seed=0,
                      spec=ScanSpec(views=3, noise=0.02, pixel=pixel, seed=0))
     return V, F, case.P, h

@@ -84,8 +84,14 @@ class Profiler:
             t += secs
 
     def peak_in(self, t0: float, t1: float) -> int:
+        """Largest sample in ``[t0, t1]``; a stage shorter than the sampling interval gets
+        the samples either side of it."""
         inside = [r for t, r in self.samples if t0 <= t <= t1]
-        return max(inside) if inside else 0
+        if inside:
+            return max(inside)
+        before = [r for t, r in self.samples if t < t0][-1:]
+        after = [r for t, r in self.samples if t > t1][:1]
+        return max(before + after, default=0)
 
     def table(self) -> str:
         """One line per stage (seconds, peak RSS in the window), then the run's peak."""
