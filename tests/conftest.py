@@ -82,3 +82,43 @@ def pyxb_qif(tmp_path_factory, qif_xsd):
     from tests.consumers import pyxb_binding
 
     return pyxb_binding(tmp_path_factory.mktemp("pyxb-qif"), qif_xsd)
+
+
+@pytest.fixture(scope="session")
+def fandisk_cli_runs(tmp_path_factory) -> dict:
+    """``qifreport`` on the deformed fandisk (bend + twist at 2 %, 2 views, a 0.8 mm bump,
+    ``--tolerance 0.3``), once with the scan in the part frame (``framed``) and once at the
+    paper's pose (120, 45, 10 degrees + a translation, ``posed``): name -> dict(rc, stdout,
+    stderr, doc (the JSON summary), out (the output directory)), plus ``V`` and ``case``.
+    Shared by the pose-search and the not-established tests (each run costs ~50 s)."""
+    import json
+    import subprocess
+    import sys
+
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    from registration.simulate.cases import make_case
+    from registration.simulate.scanner import ScanSpec
+    from registration.simulate.shapes import fandisk
+
+    V, F = fandisk(str(shared_file("meshes/fandisk.off")), diagonal=100.0, subdivide=1)
+    case = make_case(V, F, generator="biharmonic", amplitude=0.02,
+                     modes={"bend": 1.0, "twist": 0.5}, defect=(0.8, 4.0),
+                     spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=0))
+    d = tmp_path_factory.mktemp("fandisk-cli")
+    nominal = d / "fandisk.ply"
+    trimesh.Trimesh(V, F, process=False).export(nominal)
+    R = Rotation.from_euler("xyz", (120.0, 45.0, 10.0), degrees=True).as_matrix()
+    exe = Path(sys.executable).parent / "qifreport"
+    runs: dict = {"V": V, "case": case}
+    for name, P in (("framed", case.P), ("posed", case.P @ R.T + [30.0, -20.0, 15.0])):
+        scan = d / f"{name}.ply"
+        trimesh.PointCloud(P).export(scan)
+        out = d / name
+        r = subprocess.run([str(exe), nominal, scan, "--tolerance", "0.3", "--out", out,
+                            "--json", "--quiet"], capture_output=True, text=True)
+        doc = (json.loads((out / "fandisk.json").read_text())
+               if (out / "fandisk.json").exists() else None)
+        runs[name] = dict(rc=r.returncode, stdout=r.stdout, stderr=r.stderr, doc=doc, out=out)
+    return runs

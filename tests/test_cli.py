@@ -83,7 +83,7 @@ def bad_inputs(tmp: Path, P: np.ndarray):
     _write_points(far, P + [500.0, 0.0, 0.0])
     # a scan of another object: a hemisphere of the shell's extent, somewhere else
     rng = np.random.default_rng(0)
-    d = rng.normal(size=(len(P), 3))
+    d = rng.normal(size=(8000, 3))
     d[:, 2] = np.abs(d[:, 2])
     other = tmp / "other.ply"
     _write_points(other, 70.0 * d / np.linalg.norm(d, axis=1, keepdims=True)

@@ -6,10 +6,7 @@ on the fandisk, and refusal of a scan that does not overlap the part.
 
 from __future__ import annotations
 
-import json
 import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -233,40 +230,24 @@ def test_conditioning_flags_a_sliding_surface():
 # --------------------------------------------------------------------------- CLI
 
 
-def _cli(*args) -> subprocess.CompletedProcess:
-    exe = Path(sys.executable).parent / "qifreport"
-    return subprocess.run([str(exe), *map(str, args)], capture_output=True, text=True)
-
-
-def test_cli_seats_a_posed_scan_and_finds_the_same_defect(tmp_path, fandisk_model):
+def test_cli_seats_a_posed_scan_and_finds_the_same_defect(fandisk_cli_runs):
     """The deformed fandisk with a 0.8 mm bump, scanned in the part frame and delivered at
     the paper's pose: ``qifreport`` seats the posed scan by itself (pose search reported in
     JSON and QIF) and reports the same verdict, statistics and out-of-tolerance regions, at
     the same place on the part, as for the scan delivered in the part frame. (The virtual
-    fixture absorbs most of this broad bump -- largest region 0.4 mm^2, the part passes --
-    which is the detectability question of the benchmark issue, not of the pose.)"""
-    V, F, _ = fandisk_model
-    case = make_case(V, F, generator="biharmonic", amplitude=0.02,
-                     modes={"bend": 1.0, "twist": 0.5}, defect=(0.8, 4.0),
-                     spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=0))
-    nominal = tmp_path / "fandisk.ply"
-    trimesh.Trimesh(V, F, process=False).export(nominal)
-    Rp, tp = _paper_pose()
-    docs, runs = {}, {}
-    for name, P in (("framed", case.P), ("posed", case.P @ Rp.T + tp)):
-        scan = tmp_path / f"{name}.ply"
-        trimesh.PointCloud(P).export(scan)
-        runs[name] = _cli(nominal, scan, "--tolerance", "0.3", "--out", tmp_path / name,
-                          "--json", "--quiet", *(["--no-pdf"] if name == "framed" else []))
-        assert runs[name].returncode in (0, 1, 3), runs[name].stderr
-        docs[name] = json.loads((tmp_path / name / "fandisk.json").read_text())
+    fixture absorbs most of this broad bump -- largest region 0.4 mm^2 -- and its two-pass
+    guard fires, so neither run claims a pass: tests/test_trust.py.)"""
+    runs = fandisk_cli_runs
+    for name in ("framed", "posed"):
+        assert runs[name]["rc"] in (0, 1, 3), runs[name]["stderr"]
+    docs = {name: runs[name]["doc"] for name in ("framed", "posed")}
     framed, posed = docs["framed"], docs["posed"]
     assert framed["registration"]["prealign"]["method"] == "identity"
     pose = posed["registration"]["prealign"]
     assert pose["method"] in ("descriptor", "restart") and not pose["ambiguous"]
     assert pose["inlier_fraction"] > 0.9 and not pose["weakly_constrained"]
-    assert "starts agree" in runs["posed"].stdout
-    assert runs["posed"].returncode == runs["framed"].returncode
+    assert "starts agree" in runs["posed"]["stdout"]
+    assert runs["posed"]["rc"] == runs["framed"]["rc"]
     assert posed["verdict"] == framed["verdict"]
     a, b = framed["vertex_deviation"], posed["vertex_deviation"]
     assert abs(a["rms"] - b["rms"]) < 0.01 and abs(a["max_abs"] - b["max_abs"]) < 0.1
@@ -274,13 +255,13 @@ def test_cli_seats_a_posed_scan_and_finds_the_same_defect(tmp_path, fandisk_mode
     assert np.linalg.norm(np.subtract(ra["centroid"], rb["centroid"])) < 2.0, (ra, rb)
     assert abs(ra["area"] - rb["area"]) < 0.25 * ra["area"]
     assert len(framed["acceptance"]["regions"]) == len(posed["acceptance"]["regions"])
-    qif = etree.parse(str(tmp_path / "posed" / "fandisk.qif"))
+    qif = etree.parse(str(runs["posed"]["out"] / "fandisk.qif"))
     attr = "//*[local-name()='{}'][@name='{}']/@value"
     assert qif.xpath(attr.format("AttributeStr", "pose_method")) == [pose["method"]]
     assert qif.xpath(attr.format("AttributeI1", "pose_restart_agreement")) == [
         str(pose["restart_agreement"])]
     # the auditor's page says how the pose was found
-    text = subprocess.run(["pdftotext", "-layout", str(tmp_path / "posed" / "fandisk.pdf"), "-"],
+    text = subprocess.run(["pdftotext", "-layout", str(runs["posed"]["out"] / "fandisk.pdf"), "-"],
                           capture_output=True, text=True, check=True).stdout
     assert "Pose search: starts agreeing" in text
     assert f"{pose['restart_agreement']}/{pose['starts']}" in text
