@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as _triangle_closest_point
 
-from registration.mesh import face_normals, median_edge_length, vertex_normals
+from registration.mesh import edge_uses, face_normals, median_edge_length, vertex_normals
 
 log = logging.getLogger(__name__)
 
@@ -328,9 +328,8 @@ def beyond_rim(V: np.ndarray, F: np.ndarray, C: np.ndarray, face: np.ndarray,
     """
     V, F = _as_mesh(V, F)
     tol = 1e-6 * float(np.linalg.norm(V.max(0) - V.min(0))) if tol is None else tol
-    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    _, inv, count = np.unique(E, axis=0, return_inverse=True, return_counts=True)
-    open_edge = (count[inv.ravel()] == 1).reshape(3, len(F)).T  # (f, 3): edge 01, 12, 20
+    _, count, of = edge_uses(F)
+    open_edge = count[of] == 1  # (f, 3): edges 01, 12, 20
     out = np.zeros(len(C), dtype=bool)
     ok = face >= 0
     for k, (a, b) in enumerate(((0, 1), (1, 2), (2, 0))):

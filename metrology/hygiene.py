@@ -17,7 +17,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from registration.mesh import adjacency
+from registration.mesh import adjacency, edge_uses
 
 
 @dataclass
@@ -60,8 +60,7 @@ class MeshHygiene:
 def mesh_hygiene(V: np.ndarray, F: np.ndarray) -> MeshHygiene:
     """Count the defects of the mesh ``(V, F)`` (mm)."""
     F = np.asarray(F, dtype=np.int64)
-    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    _, count = np.unique(E, axis=0, return_counts=True)
+    _, count, _ = edge_uses(F)
     cross = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     area = 0.5 * np.linalg.norm(cross, axis=1)
     degenerate = int(np.sum(area <= 1e-12 * max(float(area.mean()), 1e-300)))

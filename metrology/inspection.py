@@ -56,7 +56,6 @@ from .statistics import DeviationStats, deviation_statistics
 
 log = logging.getLogger(__name__)
 
-#: Scan-to-nominal size ratios that betray a unit mismatch, and what they mean.
 #: scan-to-nominal extent ratios that betray a unit mix-up, and the unit behind each
 _UNIT_FACTORS = {1 / 25.4: "in", 0.001: "m", 0.1: "cm", 25.4: "in", 1000.0: "m", 10.0: "cm"}
 
@@ -158,7 +157,6 @@ class InspectionResult:
         zone around it.
     zones : per toleranced surface results (the general zone last).
     not_evaluated : PMI items listed but not scored.
-    scan_units : the unit the user declared for the scan file (for the units hint only).
     bands : the zones laid on the mesh (per-vertex band of the combined map).
     rigid : the rigid alignment (pose of the scan as delivered -> nominal frame).
     fit : the GB-CICP result (None with ``rigid_only``).
@@ -226,13 +224,18 @@ class InspectionResult:
         return out
 
     @property
+    def established(self) -> bool:
+        """The registration can be trusted (no :meth:`trust_warnings`)."""
+        return not self.trust_warnings()
+
+    @property
     def verdict(self) -> str:
         """``PASS``, ``FAIL``, or ``NOT ESTABLISHED``: the part would pass but the registration
         cannot be trusted (:meth:`trust_warnings`), so a pass is not claimed. A failing part
         stays ``FAIL`` (rejected either way; the warnings are reported)."""
         if not self.passed:
             return "FAIL"
-        return "NOT ESTABLISHED" if self.trust_warnings() else "PASS"
+        return "PASS" if self.established else "NOT ESTABLISHED"
 
     def decided_by(self) -> list[str]:
         """What failed the part (empty when it passed), one line each."""
@@ -373,6 +376,7 @@ def inspect(
     zones : tolerance zones (:func:`metrology.bands.zones_from_pmi`); default one general
         zone of half-width ``params.tolerance``. Zones that cover no triangle are dropped.
     not_evaluated : PMI items listed in the result but not scored.
+    scan_units : the unit the user declared for the scan file (for the units hint only).
 
     Raises
     ------
@@ -383,9 +387,10 @@ def inspect(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     check_units(V, P, scan_units)
+    boundary = boundary_vertices(F, len(V))
     energy = params.energy
     if energy == "auto":
-        energy = "hessian" if boundary_vertices(F, len(V)).any() else "laplacian"
+        energy = "hessian" if boundary.any() else "laplacian"
     ops = bending_operator(V, F, energy)
     timings["operators"] = time.perf_counter() - t0
 
@@ -444,7 +449,7 @@ def inspect(
     near_crease = crease_band(V, F, band, params.crease_angle) if band > 0 else None
     hygiene = mesh_hygiene(V, F)
     hygiene.boundary_band = band if params.boundary_band is None else float(params.boundary_band)
-    near_rim = near_boundary(V, boundary_vertices(F, len(V)), hygiene.boundary_band)
+    near_rim = near_boundary(V, boundary, hygiene.boundary_band)
     hygiene.boundary_excluded_area = float(ops.area[near_rim].sum())
     hygiene.boundary_excluded_fraction = hygiene.boundary_excluded_area / max(
         float(ops.area.sum()), 1e-300)

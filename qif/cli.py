@@ -308,20 +308,20 @@ def _stage(prof: Profiler | None, name: str):
     return prof.stage(name) if prof is not None else contextlib.nullcontext()
 
 
-def output_paths(args: argparse.Namespace) -> list[Path]:
-    """The files this run will write (QIF, PDF, JSON, exported mesh)."""
+def output_paths(args: argparse.Namespace) -> dict[str, Path]:
+    """The files this run will write: ``qif``, ``pdf``, ``json``, ``mesh`` (those asked for)."""
     stem = args.nominal.stem
-    out = [] if args.no_qif else [args.out / f"{stem}.qif"]
-    out += [] if args.no_pdf else [args.out / f"{stem}.pdf"]
-    out += [args.out / f"{stem}.json"] if args.json else []
-    out += [args.export_mesh] if args.export_mesh is not None else []
-    return out
+    out = {"qif": None if args.no_qif else args.out / f"{stem}.qif",
+           "pdf": None if args.no_pdf else args.out / f"{stem}.pdf",
+           "json": args.out / f"{stem}.json" if args.json else None,
+           "mesh": args.export_mesh}
+    return {k: v for k, v in out.items() if v is not None}
 
 
 def _check_outputs(args: argparse.Namespace) -> None:
     """Refuse before any work: an output that exists (without ``--force``) or a directory
     that cannot be written."""
-    for path in output_paths(args):
+    for path in output_paths(args).values():
         if path.exists() and not args.force:
             raise InputError(f"output exists: {path} (use --force to overwrite)")
         if path.is_dir():
@@ -371,6 +371,7 @@ def run(args: argparse.Namespace) -> int:
     finished = datetime.now(timezone.utc)
     digests = {"nominal": sha256(args.nominal), "scan": sha256(args.scan)}
 
+    paths = output_paths(args)
     outputs: list = []
     qif_state = None
     prov = None
@@ -388,15 +389,13 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_qif:
         from .writer import build_qif
 
-        qif_path = args.out / f"{args.nominal.stem}.qif"
-        qif_state = {"path": str(qif_path)}
-        outputs.append((qif_path, qif_writer(build_qif(res, prov), qif_state)))
+        qif_state = {"path": str(paths["qif"])}
+        outputs.append((paths["qif"], qif_writer(build_qif(res, prov), qif_state)))
     if not args.no_pdf:
         from .pdf import write_pdf
 
-        pdf_path = args.out / f"{args.nominal.stem}.pdf"
-        qif_name = "" if args.no_qif else f"{args.nominal.stem}.qif"
-        outputs.append((pdf_path, lambda p: write_pdf(p, res, prov, page=args.page,
+        qif_name = paths["qif"].name if "qif" in paths else ""
+        outputs.append((paths["pdf"], lambda p: write_pdf(p, res, prov, page=args.page,
                                                       qif_name=qif_name)))
     if args.json:
         doc = res.to_dict()
@@ -414,9 +413,9 @@ def run(args: argparse.Namespace) -> int:
             p.write_text(json.dumps(_finite(doc), indent=2, default=_json_default,
                                     allow_nan=False))
 
-        outputs.append((args.out / f"{args.nominal.stem}.json", write_json))
-    if args.export_mesh is not None:
-        outputs.append((args.export_mesh, lambda p: write_ply_with_scalar(
+        outputs.append((paths["json"], write_json))
+    if "mesh" in paths:
+        outputs.append((paths["mesh"], lambda p: write_ply_with_scalar(
             p, res.V_registered, F, "deviation", res.deviation)))
     # all outputs or none: a failure in any writer publishes nothing
     with _stage(prof, "write outputs"):

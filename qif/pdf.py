@@ -470,7 +470,7 @@ class _Report:
         zones = res.zones
         shown = self._pick_tolerances(limit)
         rows, emph = [], []
-        untrusted = bool(res.trust_warnings())  # a zone's criteria met: "n/e", not PASS
+        untrusted = not res.established  # a zone's criteria met: "n/e", not PASS
         for i in shown:
             z = zones[i]
             zone, acc, s = z.zone, z.acceptance, z.stats

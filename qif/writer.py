@@ -369,7 +369,7 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
         ma = _Attrs().b("fixtured", z.fixtured).d("profile_value_mm", profile_value(z))
         ma.stats(z.stats)
         _acceptance_attrs(ma, z.acceptance, res.V)
-        status = _status(z, established=not res.trust_warnings())
+        status = _status(z, established=res.established)
         meas = [ma.element(), E.Status(E.CharacteristicStatusEnum(status)),
                 E.CharacteristicItemId(ci), _array("FeatureMeasurementIds", [fm]),
                 E.ActualComponentId(actual_id)]

@@ -194,12 +194,26 @@ def adjacency(F: np.ndarray, n: int) -> sp.csr_matrix:
     return (A + A.T).tocsr()
 
 
+def edge_uses(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Undirected edges of the triangles ``F`` and how many triangles use each.
+
+    Returns
+    -------
+    E : (e, 2) unique edges (sorted vertex pairs).  count : (e,) triangles using each
+    (1: open boundary, 2: manifold, > 2: non-manifold).  of : (f, 3) index into ``E`` of each
+    triangle's edges 01, 12, 20.
+    """
+    F = np.asarray(F)
+    half = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    E, inv, count = np.unique(half, axis=0, return_inverse=True, return_counts=True)
+    return E, count, inv.ravel().reshape(3, len(F)).T
+
+
 def boundary_vertices(F: np.ndarray, n: int) -> np.ndarray:
     """Boolean mask (n,) of vertices on an open boundary (edges used by one face)."""
-    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    uniq, count = np.unique(E, axis=0, return_counts=True)
+    E, count, _ = edge_uses(F)
     mask = np.zeros(n, dtype=bool)
-    mask[uniq[count == 1].ravel()] = True
+    mask[E[count == 1].ravel()] = True
     return mask
 
 
