@@ -31,12 +31,13 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+from .deformable import DeformResult, Match, ScanMatcher
 from .icp import robust_scale
 from .linalg import SPDSolver
 from .mesh import MeshOperators, bounding_diagonal, median_edge_length
@@ -100,93 +101,7 @@ class GBCICPParams:
     signed_compat: bool = True
 
 
-@dataclass
-class GBCICPResult:
-    """Outcome of :func:`gbcicp`.
-
-    Attributes
-    ----------
-    V : (n, 3) registered (virtually fixtured) nominal, mm.
-    e : (n, 3) displacement from the rigid base ``V0``, mm.
-    residual : (n,) signed normal residual from each vertex to the scan (along the vertex
-        normal), mm; NaN where the vertex is not covered.
-    covered : (n,) vertices with a scan point within the coverage radius.
-    flagged : (n,) vertices flagged as out-of-band (defect candidates).
-    held_out : (n,) vertices whose measurement was withheld in the refit.
-    weights : (n,) final data weights.
-    scale : final robust residual scale, mm.
-    passes : passes run.  fallback : the flagged-fraction guard fired.
-    flagged_fraction : flagged / covered vertices after the first pass.
-    guard_fraction, guard_pass : the flagged fraction that fired the guard and the pass that
-        flagged it (NaN, 0 when it did not fire): a refit can flag more than the first pass.
-    iterations : total iterations.  seconds : wall time.
-    params : the parameters actually used (defaults resolved).
-    history : per-iteration record (pass, lambda, rms residual, max update).
-    """
-
-    V: np.ndarray
-    e: np.ndarray
-    residual: np.ndarray
-    covered: np.ndarray
-    flagged: np.ndarray
-    held_out: np.ndarray
-    weights: np.ndarray
-    scale: float
-    passes: int
-    fallback: bool
-    flagged_fraction: float
-    iterations: int
-    seconds: float
-    params: GBCICPParams
-    history: list[dict] = field(default_factory=list)
-    guard_fraction: float = float("nan")
-    guard_pass: int = 0
-
-
-@dataclass
-class _Match:
-    target: np.ndarray  # (n, 3) point-to-plane targets
-    r: np.ndarray  # (n,) signed normal residual, sign of the vertex normal
-    covered: np.ndarray  # (n,) bool
-    compat: np.ndarray  # (n,) n . n_scan (signed) or |n . n_scan|
-
-
-class _Matcher:
-    """Vertex -> nearest-scan-point correspondences with point-to-plane targets.
-
-    With ``signed`` the scan normals are oriented (outward) and a vertex is covered only when
-    its normal agrees with the matched measurement's (``n . n_scan >= gate``).
-    """
-
-    def __init__(self, P: np.ndarray, scan_normals: np.ndarray, normals: np.ndarray,
-                 radius: float, signed: bool = False, gate: float = 0.0):
-        self.P = P
-        self.Ns = scan_normals
-        self.N = normals
-        self.radius = radius
-        self.signed = signed
-        self.gate = gate
-        self.tree = cKDTree(P)
-
-    def __call__(self, X: np.ndarray) -> _Match:
-        _, j = self.tree.query(X, workers=-1)
-        diff = self.P[j] - X
-        ns = self.Ns[j]
-        c = np.einsum("ij,ij->i", ns, self.N)
-        s = np.sign(c)
-        s[s == 0] = 1.0
-        ns = ns * s[:, None]  # point-to-plane along the scan normal, turned like the vertex's
-        r = np.einsum("ij,ij->i", diff, ns)
-        tang = np.linalg.norm(diff - r[:, None] * ns, axis=1)
-        covered = tang < self.radius
-        if self.signed:
-            covered &= c >= self.gate
-        return _Match(
-            target=X + r[:, None] * ns,
-            r=r,
-            covered=covered,
-            compat=c if self.signed else np.abs(c),
-        )
+GBCICPResult = DeformResult  # the shared result of every deformable method
 
 
 def orient_scan_normals(P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndarray,
@@ -220,7 +135,7 @@ def orient_scan_normals(P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndar
 
 
 def _weights(
-    m: _Match, p: GBCICPParams, hold: np.ndarray, width_floor: float = 0.0
+    m: Match, p: GBCICPParams, hold: np.ndarray, width_floor: float = 0.0
 ) -> tuple[np.ndarray, float]:
     use = m.covered & ~hold
     scale = robust_scale(m.r[use]) if use.any() else 0.0
@@ -231,7 +146,7 @@ def _weights(
     return welsch * compat * use, scale
 
 
-def _flag(m: _Match, p: GBCICPParams, scale: float) -> np.ndarray:
+def _flag(m: Match, p: GBCICPParams, scale: float) -> np.ndarray:
     return m.covered & (np.abs(m.r) > p.flag_k * scale)
 
 
@@ -270,7 +185,7 @@ def gbcicp(
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
     if p.signed_compat:
         Ns = orient_scan_normals(P, Ns, V0, ops.normals, sheets=scan_sheets)
-    match = _Matcher(P, Ns, ops.normals, p.coverage_radius, signed=p.signed_compat,
+    match = ScanMatcher(P, Ns, ops.normals, p.coverage_radius, signed=p.signed_compat,
                      gate=p.normal_gate)
     Q = ops.Q
     if p.lambda0 is not None:

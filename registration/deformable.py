@@ -1,0 +1,151 @@
+"""What every deformable (virtual-fixture) method shares: its result and its scan matching.
+
+All four methods of the paper's Section 6 (GB-CICP, NICP, CPD, RBF-FEM) take the same
+inputs -- the rigidly aligned nominal ``V0`` (n, 3) mm, its triangles ``F``, its operators,
+the scan ``P`` (m, 3) mm in the same frame -- and return a :class:`DeformResult` on the
+nominal vertex set (paper Section 6.5), so that the metrology downstream does not depend on
+the method. :class:`ScanMatcher` gives the nearest-scan-point, point-to-plane
+correspondences with their coverage test; every method's result is finished with it, so
+``residual`` and ``covered`` mean the same thing for all of them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .icp import robust_scale
+
+
+@dataclass
+class DeformResult:
+    """Outcome of a deformable registration.
+
+    Attributes
+    ----------
+    V : (n, 3) registered (virtually fixtured) nominal, mm.
+    e : (n, 3) displacement from the rigid base ``V0``, mm.
+    residual : (n,) signed normal residual from each vertex to the scan (along the vertex
+        normal), mm; NaN where the vertex is not covered.
+    covered : (n,) vertices with a scan point within the coverage radius.
+    flagged : (n,) vertices flagged as out-of-band (defect candidates).
+    held_out : (n,) vertices whose measurement was withheld in the refit.
+    weights : (n,) final data weights.
+    scale : final robust residual scale, mm.
+    passes : passes run.  fallback : the flagged-fraction guard fired.
+    flagged_fraction : flagged / covered vertices after the first pass.
+    guard_fraction, guard_pass : the flagged fraction that fired the guard and the pass that
+        flagged it (NaN, 0 when it did not fire): a refit can flag more than the first pass.
+    iterations : total iterations.  seconds : wall time.
+    params : the parameters actually used (a dataclass; defaults resolved).
+    history : per-iteration record.
+    method : ``"gbcicp"``, ``"nicp"``, ``"cpd"`` or ``"rbffem"``.
+    """
+
+    V: np.ndarray
+    e: np.ndarray
+    residual: np.ndarray
+    covered: np.ndarray
+    flagged: np.ndarray
+    held_out: np.ndarray
+    weights: np.ndarray
+    scale: float
+    passes: int
+    fallback: bool
+    flagged_fraction: float
+    iterations: int
+    seconds: float
+    params: Any
+    history: list[dict] = field(default_factory=list)
+    guard_fraction: float = float("nan")
+    guard_pass: int = 0
+    method: str = "gbcicp"
+
+
+@dataclass
+class Match:
+    """Correspondences of the nominal vertices to the scan.
+
+    Attributes
+    ----------
+    target : (n, 3) point-to-plane targets (the vertex projected on the matched scan
+        point's tangent plane), mm.
+    r : (n,) signed normal residual (along the vertex's side of the scan normal), mm.
+    covered : (n,) the matched point lies within the coverage radius tangentially (and,
+        when signed, faces the same way as the vertex).
+    compat : (n,) ``n . n_scan`` (signed) or ``|n . n_scan|``.
+    j : (n,) index of the matched scan point.
+    """
+
+    target: np.ndarray
+    r: np.ndarray
+    covered: np.ndarray
+    compat: np.ndarray
+    j: np.ndarray
+
+
+class ScanMatcher:
+    """Vertex -> nearest-scan-point correspondences with point-to-plane targets.
+
+    Parameters
+    ----------
+    P : (m, 3) scan points, mm.  scan_normals : (m, 3) unit scan normals.
+    normals : (n, 3) unit vertex normals of the nominal.
+    radius : coverage radius, mm (tangential distance to the matched point).
+    signed : the scan normals are oriented (outward); a vertex is covered only when its
+        normal agrees with the matched measurement's (``n . n_scan >= gate``).
+    """
+
+    def __init__(self, P: np.ndarray, scan_normals: np.ndarray, normals: np.ndarray,
+                 radius: float, signed: bool = False, gate: float = 0.0,
+                 tree: cKDTree | None = None):
+        self.P = P
+        self.Ns = scan_normals
+        self.N = normals
+        self.radius = radius
+        self.signed = signed
+        self.gate = gate
+        self.tree = tree if tree is not None else cKDTree(P)
+
+    def __call__(self, X: np.ndarray, rows: np.ndarray | None = None) -> Match:
+        """Match the vertices ``X`` (n, 3) mm (or only ``X[rows]`` against ``N[rows]``)."""
+        N = self.N if rows is None else self.N[rows]
+        X = X if rows is None else X[rows]
+        _, j = self.tree.query(X, workers=-1)
+        diff = self.P[j] - X
+        ns = self.Ns[j]
+        c = np.einsum("ij,ij->i", ns, N)
+        s = np.sign(c)
+        s[s == 0] = 1.0
+        ns = ns * s[:, None]  # point-to-plane along the scan normal, turned like the vertex's
+        r = np.einsum("ij,ij->i", diff, ns)
+        tang = np.linalg.norm(diff - r[:, None] * ns, axis=1)
+        covered = tang < self.radius
+        if self.signed:
+            covered &= c >= self.gate
+        return Match(target=X + r[:, None] * ns, r=r, covered=covered,
+                     compat=c if self.signed else np.abs(c), j=j)
+
+
+def finish(
+    method: str, V0: np.ndarray, V: np.ndarray, matcher: ScanMatcher, params: Any,
+    iterations: int, seconds: float, history: list[dict] | None = None,
+) -> DeformResult:
+    """Wrap a method's registered vertices ``V`` (n, 3) mm as a :class:`DeformResult`.
+
+    For methods without a defect-flagging scheme (NICP, CPD, RBF-FEM): nothing flagged or
+    held out; ``residual``, ``covered`` and ``scale`` from one final match.
+    """
+    m = matcher(V)
+    n = len(V)
+    scale = robust_scale(m.r[m.covered]) if m.covered.any() else 0.0
+    return DeformResult(
+        V=V, e=V - V0, residual=np.where(m.covered, m.r, np.nan), covered=m.covered,
+        flagged=np.zeros(n, dtype=bool), held_out=np.zeros(n, dtype=bool),
+        weights=m.covered.astype(float), scale=float(scale), passes=1, fallback=False,
+        flagged_fraction=0.0, iterations=int(iterations), seconds=float(seconds),
+        params=params, history=list(history or []), method=method,
+    )
