@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, is_dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from registration.deformable import DeformResult
 from registration.errors import InputError
-from registration.gbcicp import GBCICPParams, GBCICPResult, gbcicp, orient_scan_normals
+from registration.gbcicp import GBCICPParams, orient_scan_normals
 from registration.icp import RigidResult, rigid_icp
 from registration.mesh import (
     bending_operator,
@@ -30,6 +31,7 @@ from registration.mesh import (
     median_edge_length,
     vertex_normals,
 )
+from registration.methods import METHODS, deform
 from registration.pointcloud import orient_normals_consistent, pca_normals
 from registration.prealign import PrealignResult, seat_scan
 
@@ -52,9 +54,18 @@ from .bands import (
 )
 from .deviation import beyond_rim, closest_points, nominal_referenced
 from .hygiene import MeshHygiene, mesh_hygiene, near_boundary
+from .repeatability import Repeatability
 from .statistics import DeviationStats, deviation_statistics
 
 log = logging.getLogger(__name__)
+
+#: display name of each deformable method of :data:`registration.methods.METHODS`
+METHOD_LABELS = {"gbcicp": "GB-CICP", "nicp": "NICP", "cpd": "CPD", "rbffem": "RBF-FEM"}
+
+
+def method_label(method: str) -> str:
+    """Display name of a deformable method (``"gbcicp"`` -> ``"GB-CICP"``)."""
+    return METHOD_LABELS.get(method, method.upper())
 
 #: scan-to-nominal extent ratios that betray a unit mix-up, and the unit behind each
 _UNIT_FACTORS = {1 / 25.4: "in", 0.001: "m", 0.1: "cm", 25.4: "in", 1000.0: "m", 10.0: "cm"}
@@ -95,7 +106,12 @@ class InspectionParams:
     fail_on_added_material : a connected scan region standing proud of the nominal beyond
         the whole-part threshold and larger than ``max_region_area`` fails the part
         (:mod:`metrology.added`); otherwise it is reported only.
-    gbcicp : parameters of the non-rigid stage.
+    method : the deformable method of the virtual fixture, a key of
+        :data:`registration.methods.METHODS`: ``"gbcicp"`` (default, paper Section 6.4) or
+        one of the paper's baselines ``"nicp"``, ``"cpd"``, ``"rbffem"`` (run with their own
+        default parameters).
+    gbcicp : parameters of the GB-CICP stage (used only with ``method="gbcicp"``; its
+        ``scan_normal_k`` sets the PCA scan normals for every method).
     """
 
     tolerance: float | None = None
@@ -108,6 +124,7 @@ class InspectionParams:
     rigid_only: bool = False
     prealign: str = "auto"
     fail_on_added_material: bool = False
+    method: str = "gbcicp"
     gbcicp: GBCICPParams = field(default_factory=GBCICPParams)
 
 
@@ -123,12 +140,16 @@ class ZoneResult:
         half-width about 0, exact for a bilateral zone).
     acceptance : area and region criteria on the zone's faces.
     fixtured : False when evaluated free-state (rigid alignment only).
+    deviation : (n,) the deviation the zone was judged on, mm (the fixtured or free-state
+        field on the zone's vertices, NaN elsewhere); None from older callers. Used by
+        :mod:`metrology.repeatability` to match regions between runs.
     """
 
     zone: ToleranceZone
     stats: DeviationStats
     acceptance: Acceptance
     fixtured: bool = True
+    deviation: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         return {
@@ -159,7 +180,8 @@ class InspectionResult:
     not_evaluated : PMI items listed but not scored.
     bands : the zones laid on the mesh (per-vertex band of the combined map).
     rigid : the rigid alignment (pose of the scan as delivered -> nominal frame).
-    fit : the GB-CICP result (None with ``rigid_only``).
+    fit : the virtual fixture's result (None with ``rigid_only``), from the method
+        ``params.method`` (``fit.method``).
     prealign : how the rigid ICP was started (:class:`registration.prealign.PrealignResult`;
         ``method == "identity"`` when the scan was already in the part frame).
     scan_area : estimated area covered by the scan, mm^2.
@@ -167,6 +189,9 @@ class InspectionResult:
     timings : seconds per stage.
     energy : the bending energy used.  edge_excluded_area : nominal area (mm^2) within the
         edge band of sharp creases, not scored.
+    repeatability : the resampling study of ``qifreport --seeds`` (None without it): when
+        set, ``acceptance`` and each zone's acceptance hold only the persistent regions
+        (:func:`metrology.repeatability.apply`).
     """
 
     V: np.ndarray
@@ -179,7 +204,7 @@ class InspectionResult:
     point_stats: DeviationStats
     acceptance: Acceptance
     rigid: RigidResult
-    fit: GBCICPResult | None
+    fit: DeformResult | None
     params: InspectionParams
     scan_area: float
     coverage_ceiling_ok: bool
@@ -192,6 +217,7 @@ class InspectionResult:
     prealign: PrealignResult | None = None
     added: AddedMaterial | None = None
     hygiene: MeshHygiene | None = None
+    repeatability: Repeatability | None = None
 
     @property
     def passed(self) -> bool:
@@ -207,7 +233,9 @@ class InspectionResult:
           than the scan can have measured (over-fitting, paper Section 8.4.5);
         * the two-pass guard fired: the first pass flagged more than its limit of the covered
           surface as anomalous, so the band-limited refit fell back to a single pass
-          (Section 6.4: on the paper's real part 23.9 % against a 20 % limit).
+          (Section 6.4: on the paper's real part 23.9 % against a 20 % limit);
+        * with ``--seeds``: a resampled run whose own registration cannot be trusted (its
+          regions decided which findings persist).
         """
         out = []
         if not self.coverage_ceiling_ok:
@@ -217,10 +245,13 @@ class InspectionResult:
                        "measurement (over-fit)")
         if self.fit is not None and self.fit.fallback:
             fit = self.fit
+            limit = getattr(fit.params, "max_flagged_fraction", float("nan"))
             out.append(f"the two-pass guard fired: pass {fit.guard_pass} flagged "
                        f"{100 * fit.guard_fraction:.1f} % of the covered surface as anomalous "
-                       f"(limit {100 * fit.params.max_flagged_fraction:.0f} %), so the "
+                       f"(limit {100 * limit:.0f} %), so the "
                        "band-limited refit fell back to the single-pass fit")
+        if self.repeatability is not None:
+            out += list(self.repeatability.warnings)
         return out
 
     @property
@@ -255,8 +286,8 @@ class InspectionResult:
         """JSON-ready summary: verdict, statistics, regions, registration and parameters."""
         fit = self.fit
         p = asdict(self.params)
-        if fit is not None:
-            p["gbcicp"] = asdict(fit.params)
+        if fit is not None and fit.method == "gbcicp":
+            p["gbcicp"] = asdict(fit.params)  # defaults resolved from the part size
         return {
             "verdict": self.verdict,
             "warnings": self.trust_warnings(),
@@ -285,20 +316,40 @@ class InspectionResult:
                     "inlier_fraction": self.rigid.inlier_fraction,
                     "iterations": self.rigid.iterations,
                 },
-                "gbcicp": None if fit is None else {
-                    "iterations": fit.iterations,
-                    "passes": fit.passes,
-                    "fallback": fit.fallback,
-                    "flagged_fraction": fit.flagged_fraction,
-                    "residual_scale_mm": fit.scale,
-                    "max_displacement_mm": float(np.linalg.norm(fit.e, axis=1).max()),
+                "gbcicp": None if fit is None or fit.method != "gbcicp" else _fit_dict(fit),
+                "fit": None if fit is None else {
+                    "method": fit.method,
+                    "label": method_label(fit.method),
+                    **_fit_dict(fit),
+                    "params": _params_dict(fit.params),
                 },
             },
             "parameters": p,
+            "repeatability": (None if self.repeatability is None
+                              else self.repeatability.to_dict()),
             "mesh": {"vertices": len(self.V), "triangles": len(self.F), "scan_points": len(self.P),
                      **({} if self.hygiene is None else self.hygiene.to_dict())},
             "timings_s": self.timings,
         }
+
+
+def _fit_dict(fit: DeformResult) -> dict:
+    """JSON-ready account of a virtual fixture's convergence (any method)."""
+    return {
+        "iterations": fit.iterations,
+        "passes": fit.passes,
+        "fallback": fit.fallback,
+        "flagged_fraction": fit.flagged_fraction,
+        "residual_scale_mm": fit.scale,
+        "max_displacement_mm": float(np.linalg.norm(fit.e, axis=1).max()) if len(fit.e) else 0.0,
+    }
+
+
+def _params_dict(params) -> dict:
+    """A method's parameter dataclass as a dict (``{}`` when it is not a dataclass)."""
+    if is_dataclass(params) and not isinstance(params, type):
+        return asdict(params)
+    return dict(params) if isinstance(params, dict) else {}
 
 
 def _prealign_dict(a: PrealignResult) -> dict:
@@ -371,7 +422,8 @@ def inspect(
     P : (m, 3) scan points, mm, in any placement: a scan not already in the nominal frame
         is seated first by the pose search (``params.prealign``).
     params : :class:`InspectionParams`.
-    progress : optional callable ``progress(k)`` advanced once per GB-CICP iteration.
+    progress : optional callable ``progress(k)`` advanced once per iteration of the virtual
+        fixture (``params.method``).
     face_id : (f,) B-rep face id of each triangle (STEP nominals), for face-based zones.
     zones : tolerance zones (:func:`metrology.bands.zones_from_pmi`); default one general
         zone of half-width ``params.tolerance``. Zones that cover no triangle are dropped.
@@ -384,6 +436,8 @@ def inspect(
         Wrong units, or a scan that does not overlap the nominal after rigid alignment;
         :class:`registration.prealign.PoseNotEstablished` when no pose can be established.
     """
+    if params.method not in METHODS:
+        raise ValueError(f"unknown method {params.method!r} (one of {', '.join(METHODS)})")
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     check_units(V, P, scan_units)
@@ -418,10 +472,11 @@ def inspect(
     # chooses the sheets' sides against its own nominal
     Ns, sheets = orient_normals_consistent(Pm, pca_normals(Pm, params.gbcicp.scan_normal_k))
     if not params.rigid_only:
-        fit = gbcicp(V, F, ops, Pm, params.gbcicp, scan_normals=Ns, scan_sheets=sheets,
-                     progress=progress)
+        fit = deform(params.method, V, F, ops, Pm,
+                     params.gbcicp if params.method == "gbcicp" else None,
+                     scan_normals=Ns, scan_sheets=sheets, progress=progress)
         V_reg = fit.V
-    timings["gbcicp"] = time.perf_counter() - t0
+    timings[params.method] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
     if zones is None:
@@ -494,7 +549,8 @@ def inspect(
                         max_region_area=params.max_region_area, center=z.center)
         zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
         zone_results.append(ZoneResult(zone=z, stats=zstats, acceptance=zacc,
-                                       fixtured=fit is not None and not use_free))
+                                       fixtured=fit is not None and not use_free,
+                                       deviation=dz))
     s_area = scan_area(Pm)
     ceiling = coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
     # added material: scan points beyond the rim of the nominal are not proud of it

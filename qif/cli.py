@@ -13,8 +13,12 @@ schemas are missing), ``<nominal>.pdf``, the one-page conformance report with th
 numbers, and with ``--json`` the summary ``<nominal>.json``
 (``schemas/summary-1.schema.json``).
 
+``--method`` chooses the virtual fixture's deformable method (GB-CICP or a paper baseline,
+:mod:`registration.methods`); ``--seeds N`` adds N resampled runs and keeps as findings of the
+region criterion only the regions found in every run (:mod:`metrology.repeatability`).
+
 Exit codes: 0 the part passes, 1 the part fails, 2 the input cannot be inspected (one-line
-error on stderr naming the problem, and no output file written).
+error on stderr naming the problem, and no output file written), 3 not established.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ import logging
 import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -35,9 +39,12 @@ import numpy as np
 
 from metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
 from metrology.inspection import InspectionParams, InspectionResult, inspect
+from metrology.repeatability import KEEP_FRACTION, resample_mask
+from metrology.repeatability import apply as apply_repeatability
 from registration.errors import InputError
 from registration.gbcicp import GBCICPParams
 from registration.mesh import bounding_diagonal, load_mesh
+from registration.methods import METHODS
 from registration.pointcloud import load_scan
 from step.atomic import atomic_write_many
 from step.reader import STEP_SUFFIXES
@@ -115,6 +122,18 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--fail-on-added-material", action="store_true",
                     help="fail the part when a scan region larger than --max-region-area "
                     "stands proud of the nominal beyond the threshold (default: report it)")
+    ap.add_argument("--method", choices=list(METHODS), default="gbcicp",
+                    help="deformable method of the virtual fixture: gbcicp (default, the "
+                    "band-limited GB-CICP) or one of the paper's baselines nicp (optimal-step "
+                    "NICP), cpd (coherent point drift), rbffem (clamp-driven RBF); "
+                    "--band-limit and --passes apply to gbcicp only")
+    ap.add_argument("--seeds", type=int, default=1, metavar="N",
+                    help="repeatability (paper Section 9.2): besides the full scan, inspect N "
+                    "random resamplings of it (each scan point kept with probability "
+                    f"{KEEP_FRACTION:g}, seeds 0..N-1, from the full scan's pose) and count as "
+                    "findings of the region criterion only the out-of-tolerance regions "
+                    "found in every run; the figures reported are the full scan's. Default 1: "
+                    "no resampling")
     ap.add_argument("--rigid-only", action="store_true", help="no virtual fixture (baseline)")
     ap.add_argument("--profile", action="store_true",
                     help="print wall time and peak resident memory per stage")
@@ -159,6 +178,7 @@ def summary(res: InspectionResult) -> str:
     a, s = res.acceptance, res.vertex_stats
     lines = [
         f"verdict: {res.verdict}",
+        f"registration: {_fixture_text(res)}",
         f"deviation (area-weighted, {s.n} scored vertices): RMS {s.rms:.3f}  max {s.max_abs:.3f}"
         f"  P95 {s.p95:.3f}  P99.9 {s.p999:.3f}  mean {s.mean:+.3f} mm",
         f"area criterion: {100 * a.in_tolerance_fraction:.2f} % in tolerance "
@@ -202,8 +222,21 @@ def summary(res: InspectionResult) -> str:
             f"+{a.threshold:g} mm; {a.describe()}"
             + ("" if a.passed else " FAILED") + ("" if a.fail_on or not a.found
                                                  else " (reported, not judged)"))
+    if res.repeatability is not None:
+        lines.append(res.repeatability.describe())
     lines += [f"warning: {w}" for w in res.trust_warnings()]
     return "\n".join(lines)
+
+
+def _fixture_text(res: InspectionResult) -> str:
+    """How the virtual fixture was made, for the summary."""
+    from metrology.inspection import method_label
+
+    if res.fit is None:
+        return "rigid ICP only (no virtual fixture)"
+    fit = res.fit
+    return (f"rigid ICP + virtual fixture {method_label(fit.method)} ({fit.iterations} "
+            f"iterations, robust residual {fit.scale:.3f} mm)")
 
 
 @dataclass
@@ -266,6 +299,8 @@ def _check_args(args: argparse.Namespace) -> None:
                                                  and args.max_region_area >= 0):
         raise InputError(f"--max-region-area must be an area >= 0 mm^2, got "
                          f"{args.max_region_area}")
+    if args.seeds < 1:
+        raise InputError(f"--seeds must be a number of runs >= 1, got {args.seeds}")
     for name in ("nominal", "scan"):
         path = getattr(args, name)
         if not path.is_file():
@@ -333,6 +368,31 @@ def _check_outputs(args: argparse.Namespace) -> None:
             raise InputError(f"output directory not writable: {parent}")
 
 
+def resampled_runs(res: InspectionResult, params: InspectionParams, nom: Nominal,
+                   seeds: int, bar=None) -> None:
+    """Inspect ``seeds`` resamplings of the scan and keep only the persistent regions of
+    ``res`` (:mod:`metrology.repeatability`; ``res`` is changed in place).
+
+    Resampling ``k`` keeps each point of the scan with probability
+    :data:`metrology.repeatability.KEEP_FRACTION` (seed ``k``). It starts from ``res``'s pose:
+    the scan already moved into the nominal frame, no pose search (``prealign="never"``).
+    """
+    t0 = time.perf_counter()
+    p = replace(params, prealign="never")
+    runs = []
+    for k in range(seeds):
+        if bar is not None:
+            bar.set_description(f"resampling {k + 1}/{seeds}")
+        keep = resample_mask(len(res.P), k, KEEP_FRACTION)
+        runs.append(inspect(res.V, res.F, res.P[keep], p,
+                            progress=None if bar is None else bar.update,
+                            face_id=nom.face_id, zones=nom.zones,
+                            not_evaluated=nom.not_evaluated))
+    seconds = time.perf_counter() - t0
+    apply_repeatability(res, runs, KEEP_FRACTION, seconds=seconds)
+    res.timings["repeatability"] = seconds
+
+
 def run(args: argparse.Namespace) -> int:
     _check_args(args)
     _check_outputs(args)
@@ -348,7 +408,7 @@ def run(args: argparse.Namespace) -> int:
         tolerance=args.tolerance, min_fraction=args.min_fraction, energy=args.energy,
         edge_band=args.edge_band, boundary_band=args.boundary_band,
         rigid_only=args.rigid_only, prealign=args.prealign,
-        fail_on_added_material=args.fail_on_added_material, gbcicp=g,
+        fail_on_added_material=args.fail_on_added_material, method=args.method, gbcicp=g,
     )
     if args.max_region_area is not None:
         params.max_region_area = args.max_region_area
@@ -363,6 +423,9 @@ def run(args: argparse.Namespace) -> int:
         res = inspect(V, F, P, params, progress=None if bar is None else bar.update,
                       scan_units=args.scan_units,
                       face_id=nom.face_id, zones=nom.zones, not_evaluated=nom.not_evaluated)
+        if args.seeds > 1:
+            with _stage(prof, f"repeatability ({args.seeds} resamplings)"):
+                resampled_runs(res, params, nom, args.seeds, bar)
     finally:
         if bar is not None:
             bar.close()

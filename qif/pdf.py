@@ -18,8 +18,10 @@ matplotlib's bundled fonts). Top to bottom:
    scan points, and each tolerance on its own faces when there are two or three).
 5. **Tolerances** -- one row per toleranced surface: band, verdict, in-band area, regions,
    profile value (as in the QIF ``Value``), RMS, P99.9 and the signed extremes.
-6. **Regions** (largest first, the numbers of the maps) beside the **registration** facts.
-7. Not-evaluated PMI, warnings, sign-off line and a footer naming the QIF results file.
+6. **Regions** (largest first, the numbers of the maps) beside the **registration** facts
+   (the virtual fixture's method, ``--method``, in the title and the first row).
+7. With ``--seeds``, the repeatability row (regions persistent k of m, RMS and max spread);
+   not-evaluated PMI, warnings, sign-off line and a footer naming the QIF results file.
 
 Every number is the one the QIF writer stores (:mod:`qif.writer`), printed at a fixed
 precision: lengths in mm with 3 decimals (:func:`fmt_mm`), areas in mm^2 with 1 decimal
@@ -31,6 +33,7 @@ and shrinks the lists and the maps until the page holds them.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -41,7 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from metrology.inspection import InspectionResult
+from metrology.inspection import InspectionResult, method_label
 from metrology.statistics import DeviationStats
 
 from . import __version__
@@ -563,17 +566,26 @@ class _Report:
         else:
             fp = fit.params
             rows += [
+                ["Virtual fixture method", method_label(fit.method)],
                 ["Non-rigid residual (robust), mm", fmt_mm(fit.scale)],
                 ["Iterations / passes / fallback",
                  f"{fit.iterations} / {fit.passes} / {'YES' if fit.fallback else 'no'}"],
-                ["Flagged as defect candidates, %", fmt_pct(fit.flagged_fraction)],
-                ["Max fixture displacement, mm",
-                 fmt_mm(float(np.linalg.norm(fit.e, axis=1).max()))],
-                ["Energy; band limits l1, l2, mm",
-                 f"{res.params.energy}; {_num(fp.band_limit)}, {_num(fp.band_limit_refit)}"],
-                ["Start length; coverage radius, mm",
-                 f"{_num(fp.band_limit_start)}; {_num(fp.coverage_radius)}"],
             ]
+            if fit.method == "gbcicp":
+                rows.append(["Flagged as defect candidates, %", fmt_pct(fit.flagged_fraction)])
+            rows.append(["Max fixture displacement, mm",
+                         fmt_mm(float(np.linalg.norm(fit.e, axis=1).max()))
+                         if len(fit.e) else DASH])
+            if fit.method == "gbcicp":
+                rows += [
+                    ["Energy; band limits l1, l2, mm",
+                     f"{res.params.energy}; {_num(fp.band_limit)}, "
+                     f"{_num(fp.band_limit_refit)}"],
+                    ["Start length; coverage radius, mm",
+                     f"{_num(fp.band_limit_start)}; {_num(fp.coverage_radius)}"],
+                ]
+            else:
+                rows.append([f"{method_label(fit.method)} parameters", _params_text(fp)])
         rows.append(["Chain floor, mm",
                      fmt_mm(self.chain_floor) if self.chain_floor is not None
                      else "not measured"])
@@ -587,8 +599,8 @@ class _Report:
                            or (row[0].startswith("Pose") and res.prealign is not None
                                and (res.prealign.ambiguous
                                     or res.prealign.weakly_constrained)))
-        title = ("Registration: rigid ICP + virtual fixture (GB-CICP)" if fit is not None
-                 else "Registration: rigid ICP only (free state)")
+        title = (f"Registration: rigid ICP + virtual fixture ({method_label(fit.method)})"
+                 if fit is not None else "Registration: rigid ICP only (free state)")
         return _Table(columns=[("", width - w2, "l"), ("", w2, "r")], rows=rows,
                       title=title, head_h=0.0, emphasis=emph)
 
@@ -596,6 +608,12 @@ class _Report:
         """(text, warning) lines below the tables."""
         res = self.res
         out: list[tuple[str, bool]] = []
+        rep = res.repeatability
+        if rep is not None:
+            out.append((f"{rep.describe()}. Only persistent regions are findings (listed, "
+                        "outlined and judged); each resampling keeps every scan point with "
+                        f"probability {rep.keep_fraction:g} (seeds 0 to {rep.seeds - 1}).",
+                        False))
         ne = res.not_evaluated
         if ne:
             items = [f"{n.kind} \u201c{n.name}\u201d" + (f" #{n.step_id}" if n.step_id else "")
@@ -1263,6 +1281,24 @@ class _Report:
 
 def _num(x) -> str:
     return f"{float(x):.2f}" if _finite(x) else DASH
+
+
+def _params_text(params, limit: int = 4) -> str:
+    """The first ``limit`` set scalar fields of a method's parameter dataclass, ``k=v``."""
+    if not dataclasses.is_dataclass(params) or isinstance(params, type):
+        return "defaults"
+    items = []
+    for f in dataclasses.fields(params):
+        v = getattr(params, f.name)
+        if isinstance(v, bool) or v is None:
+            continue
+        if isinstance(v, (int, float, np.integer, np.floating)):
+            items.append(f"{f.name}={float(v):.3g}")
+        elif isinstance(v, str):
+            items.append(f"{f.name}={v}")
+        if len(items) == limit:
+            break
+    return ", ".join(items) or "defaults"
 
 
 # ----------------------------------------------------------------------------- public API

@@ -5,8 +5,9 @@ per inspection, written with lxml. What goes where:
 
 =========================================  ==================================================
 ``Header``, ``SoftwareDefinitions``         qifreport and its version, author/organization
-``AlgorithmDefinitions``                    rigid alignment and the virtual fixture (GB-CICP),
-                                            with their parameters (JSON)
+``AlgorithmDefinitions``                    rigid alignment and the virtual fixture (GB-CICP
+                                            or the ``--method`` baseline), with their
+                                            parameters (JSON)
 ``FileUnits``                               mm, degree, mm^2
 ``DatumDefinitions``, ``DatumReferenceFrames``  the datums of the PMI, one frame per datum
                                             sequence a profile tolerance cites
@@ -43,7 +44,11 @@ fraction, coverage, out-of-tolerance regions) are typed ``Attributes`` (``Attrib
 unit (``_mm``, ``_mm2``; fractions are 0..1). Whole-part results are Attributes of the
 ``MeasurementResults``; per-tolerance results are Attributes of each characteristic
 measurement. Out-of-tolerance regions are ``region_<k>_*`` attributes (area, peak, sign,
-centroid and peak location in the nominal frame), largest first.
+centroid and peak location in the nominal frame), largest first. The virtual fixture's method
+is ``fit_method`` (``gbcicp``, ``nicp``, ``cpd``, ``rbffem``) beside the other ``fit_*``
+attributes. With ``--seeds`` the regions are the persistent ones only and the resampling
+study is in ``repeatability_*`` attributes (counts, RMS/max per run and their spread as a
+half-range, the dropped regions).
 
 Lengths are ``xs:decimal`` in QIF (no exponent): they are written with
 :data:`DECIMAL_PLACES` places (0.1 um); doubles (Attributes) are written exactly (``repr``).
@@ -54,7 +59,7 @@ from __future__ import annotations
 import json
 import math
 import uuid
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, is_dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -64,7 +69,8 @@ from lxml.builder import ElementMaker
 
 from metrology.added import AddedMaterial
 from metrology.bands import ToleranceZone
-from metrology.inspection import InspectionResult, ZoneResult
+from metrology.inspection import InspectionResult, ZoneResult, method_label
+from metrology.repeatability import Repeatability
 from metrology.statistics import DeviationStats
 
 from . import __version__
@@ -81,6 +87,18 @@ DECIMAL_PLACES = 4
 MAX_REGIONS_LISTED = 50
 
 E = ElementMaker(namespace=NS, nsmap={None: NS, "xsi": XSI})
+
+#: ``Description`` of the virtual-fixture algorithm, per method (``--method``)
+METHOD_DESCRIPTIONS = {
+    "gbcicp": "GB-CICP: deformation of the nominal onto the free-state scan under a "
+              "bending-energy prior (paper Sections 4-5)",
+    "nicp": "NICP: optimal-step non-rigid ICP, deformation of the nominal onto the free-state "
+            "scan under a per-vertex affine stiffness prior (paper baseline, Section 6.3)",
+    "cpd": "CPD: coherent point drift, a Gaussian-mixture deformation of the nominal onto the "
+           "free-state scan with motion coherence (paper baseline, Section 6.2)",
+    "rbffem": "RBF-FEM: deformation of the nominal driven by its clamps with multiquadric "
+              "radial basis functions (paper baseline, Section 6.1)",
+}
 
 
 @dataclass
@@ -258,7 +276,8 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
                                  "fixturing"), id=sw_id), n="1")
     rigid_alg_id, fit_alg_id = ids(), ids()
     rigid = res.rigid
-    fit_params = asdict(res.fit.params) if res.fit is not None else None
+    method = res.fit.method if res.fit is not None else params.method
+    fit_params = _params_dict(res.fit.params) if res.fit is not None else None
     algorithms = E.AlgorithmDefinitions(
         E.Algorithm(E.SoftwareId(sw_id),
                     E.Parameters(json.dumps({"method": "robust point-to-plane ICP",
@@ -266,12 +285,11 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
                     E.Name("rigid alignment"),
                     E.Description("robust scan-to-model ICP (paper Section 3)"), id=rigid_alg_id),
         E.Algorithm(E.SoftwareId(sw_id),
-                    E.Parameters(json.dumps({"energy": res.energy,
+                    E.Parameters(json.dumps({"method": method, "energy": res.energy,
                                              "rigid_only": params.rigid_only,
-                                             "gbcicp": fit_params}, default=_json_default)),
+                                             method: fit_params}, default=_json_default)),
                     E.Name("virtual fixture" if not params.rigid_only else "none (rigid only)"),
-                    E.Description("GB-CICP: deformation of the nominal onto the free-state "
-                                  "scan under a bending-energy prior (paper Sections 4-5)"),
+                    E.Description(METHOD_DESCRIPTIONS.get(method, method)),
                     id=fit_alg_id),
         n="2")
     units = E.FileUnits(E.PrimaryUnits(
@@ -369,6 +387,11 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
         ma = _Attrs().b("fixtured", z.fixtured).d("profile_value_mm", profile_value(z))
         ma.stats(z.stats)
         _acceptance_attrs(ma, z.acceptance, res.V)
+        if res.repeatability is not None:
+            sp = next((x for x in res.repeatability.surfaces[1:] if x.key == zone.key), None)
+            if sp is not None:
+                ma.i("repeatability_regions", sp.n_regions)
+                ma.i("repeatability_persistent_regions", sp.n_persistent)
         status = _status(z, established=res.established)
         meas = [ma.element(), E.Status(E.CharacteristicStatusEnum(status)),
                 E.CharacteristicItemId(ci), _array("FeatureMeasurementIds", [fm]),
@@ -449,10 +472,13 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
     ra.d3("rigid_translation_mm", rigid.t)
     if res.fit is not None:
         fit = res.fit
+        ra.s("fit_method", fit.method).s("fit_method_name", method_label(fit.method))
         ra.i("fit_iterations", fit.iterations).i("fit_passes", fit.passes)
         ra.b("fit_fallback", fit.fallback).d("fit_flagged_fraction", fit.flagged_fraction)
         ra.d("fit_residual_scale_mm", fit.scale)
         ra.d("fit_max_displacement_mm", float(np.linalg.norm(fit.e, axis=1).max()))
+    if res.repeatability is not None:
+        _repeatability_attrs(ra, res.repeatability)
     for k, ne in enumerate(res.not_evaluated, start=1):
         ref = f" #{ne.step_id}" if ne.step_id is not None else ""
         ra.s(f"not_evaluated_{k}", f"{ne.kind} {ne.name}{ref}: {ne.reason}")
@@ -542,6 +568,34 @@ def _added_attrs(ra: _Attrs, a: AddedMaterial) -> None:
     for k, r in enumerate(a.regions[:50], start=1):
         ra.d(f"added_region_{k}_area_mm2", r.area).d(f"added_region_{k}_peak_mm", r.peak)
         ra.d3(f"added_region_{k}_centroid_mm", r.centroid)
+
+
+def _repeatability_attrs(ra: _Attrs, rep: Repeatability) -> None:
+    """The resampling study (``--seeds``) as ``repeatability_*`` attributes."""
+    ra.i("repeatability_seeds", rep.seeds).d("repeatability_keep_fraction", rep.keep_fraction)
+    ra.s("repeatability_reported_run", "full scan")
+    ra.i("repeatability_regions", rep.n_regions)
+    ra.i("repeatability_persistent_regions", rep.n_persistent)
+    ra.d("repeatability_rms_spread_mm", rep.rms_spread)
+    ra.d("repeatability_max_spread_mm", rep.max_spread)
+    for k, (rms, mx) in enumerate(zip(rep.rms, rep.max_abs, strict=True)):
+        run = "full" if k == 0 else f"seed_{k - 1}"
+        ra.d(f"repeatability_{run}_rms_mm", rms).d(f"repeatability_{run}_max_abs_mm", mx)
+    dropped = [(s.key, d) for s in rep.surfaces for d in s.dropped]
+    ra.i("repeatability_dropped_count", len(dropped))
+    for k, (key, d) in enumerate(dropped[:MAX_REGIONS_LISTED], start=1):
+        ra.s(f"repeatability_dropped_{k}_surface", key)
+        ra.d(f"repeatability_dropped_{k}_area_mm2", d.area)
+        ra.d(f"repeatability_dropped_{k}_peak_mm", d.peak)
+        ra.d3(f"repeatability_dropped_{k}_centroid_mm", d.centroid)
+        ra.i(f"repeatability_dropped_{k}_runs_found", d.runs_found)
+
+
+def _params_dict(params) -> dict | None:
+    """A method's parameter dataclass as a dict (None when it is not one)."""
+    if is_dataclass(params) and not isinstance(params, type):
+        return asdict(params)
+    return dict(params) if isinstance(params, dict) else None
 
 
 def _feature_name(zone: ToleranceZone) -> str:
