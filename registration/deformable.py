@@ -97,25 +97,35 @@ class ScanMatcher:
     radius : coverage radius, mm (tangential distance to the matched point).
     signed : the scan normals are oriented (outward); a vertex is covered only when its
         normal agrees with the matched measurement's (``n . n_scan >= gate``).
+    tree : optional ``cKDTree(P)``.
+    max_distance : vertices with no scan point within this distance (mm) are not matched
+        (not covered, zero residual, target = the vertex itself); bounding the search
+        makes it several times faster.
     """
 
     def __init__(self, P: np.ndarray, scan_normals: np.ndarray, normals: np.ndarray,
                  radius: float, signed: bool = False, gate: float = 0.0,
-                 tree: cKDTree | None = None):
+                 tree: cKDTree | None = None, max_distance: float = np.inf):
         self.P = P
         self.Ns = scan_normals
         self.N = normals
         self.radius = radius
         self.signed = signed
         self.gate = gate
-        self.tree = tree if tree is not None else cKDTree(P)
+        self.max_distance = max_distance
+        # without compact nodes the tree answers these queries (many from vertices far from
+        # any scan point: the unseen side of the part) about 4x faster (measured on the
+        # fandisk: 8 against 32 ms for 7,228 vertices on 25,670 points)
+        self.tree = tree if tree is not None else cKDTree(P, compact_nodes=False)
 
     def __call__(self, X: np.ndarray, rows: np.ndarray | None = None) -> Match:
-        """Match the vertices ``X`` (n, 3) mm (or only ``X[rows]`` against ``N[rows]``)."""
+        """Match the vertices ``X`` (n, 3) mm; with ``rows`` (k,), ``X`` (k, 3) holds the
+        positions of those vertices only (their normals are ``normals[rows]``)."""
         N = self.N if rows is None else self.N[rows]
-        X = X if rows is None else X[rows]
-        _, j = self.tree.query(X, workers=-1)
-        diff = self.P[j] - X
+        dist, j = self.tree.query(X, workers=-1, distance_upper_bound=self.max_distance)
+        found = np.isfinite(dist)
+        j = np.where(found, j, 0)
+        diff = np.where(found[:, None], self.P[j] - X, 0.0)
         ns = self.Ns[j]
         c = np.einsum("ij,ij->i", ns, N)
         s = np.sign(c)
@@ -123,7 +133,7 @@ class ScanMatcher:
         ns = ns * s[:, None]  # point-to-plane along the scan normal, turned like the vertex's
         r = np.einsum("ij,ij->i", diff, ns)
         tang = np.linalg.norm(diff - r[:, None] * ns, axis=1)
-        covered = tang < self.radius
+        covered = (tang < self.radius) & found
         if self.signed:
             covered &= c >= self.gate
         return Match(target=X + r[:, None] * ns, r=r, covered=covered,

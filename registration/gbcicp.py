@@ -35,11 +35,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
 from .deformable import DeformResult, Match, ScanMatcher
 from .icp import robust_scale
-from .linalg import SPDSolver
+from .linalg import SPDSolver, have_cholmod
 from .mesh import MeshOperators, bounding_diagonal, median_edge_length
 from .pointcloud import median_spacing, pca_normals
 
@@ -55,8 +56,9 @@ class GBCICPParams:
     band_limit : final smoothing length ``l1`` of the first pass (mm). Default: one coverage
         radius (measured on the shell benchmark: longer first-pass lengths leave compliance
         near the open boundary that the refit then holds out as if it were a defect).
-    band_limit_refit : smoothing length ``l2`` of the refit passes (mm). Default
-        ``band_limit / 2``.
+    band_limit_refit : smoothing length ``l2`` of the final full-resolution solve after a
+        refit (mm). Default ``band_limit`` (modal; the bending basis is the stiff first pass),
+        ``band_limit / 2`` (full).
     band_limit_start : initial smoothing length (mm). Default 12 % of the diagonal.
     lambda0 : if given, the paper's ``lambda = lambda0 / mean(diag Q)`` on unweighted data
         replaces the band-limit parametrisation; ``max_iter`` iterations are annealed.
@@ -74,6 +76,18 @@ class GBCICPParams:
     holdout_factor : withhold measurement within this many coverage radii of a flagged vertex.
     max_flagged_fraction : fall back to the single-pass result above this fraction (0.2).
     scan_normal_k : neighbours for the PCA scan normals.
+    solver : ``"modal"`` (default with the band-limit parametrisation): the first pass is
+        solved in the ``modes`` lowest bending modes of the part (:func:`bending_basis`, a
+        per-part precomputation), each iteration a ``modes x modes`` solve on at most
+        ``modal_rows`` vertices; the refit passes and the final ``polish_iter`` iterations
+        are full-resolution sparse solves at the band limit. ``"full"``: every iteration a
+        full-resolution sparse factorisation (the paper's Algorithm 2).
+    modes : size of the bending basis (``"modal"``).
+    modal_rows : data rows used per modal iteration (every k-th vertex beyond this).
+    modal_anneal : factor applied to lambda per modal iteration (a modal solve is global,
+        so the stiffness can fall faster than in the paper's full-resolution schedule).
+    polish_iter : full-resolution iterations closing the modal solver (at ``band_limit``, or
+        at ``band_limit_refit`` with the held-out measurement withheld after a refit).
     signed_compat : orient the scan normals (consistently per connected sheet, the side of
         each sheet by a vote against the posed nominal's normals) and use the *signed*
         normal compatibility ``n . n_scan``: a vertex whose normal faces away from the
@@ -99,6 +113,11 @@ class GBCICPParams:
     max_flagged_fraction: float = 0.2
     scan_normal_k: int = 12
     signed_compat: bool = True
+    solver: str = "modal"
+    modes: int = 100
+    modal_rows: int = 4000
+    modal_anneal: float = 0.5
+    polish_iter: int = 1
 
 
 GBCICPResult = DeformResult  # the shared result of every deformable method
@@ -134,6 +153,58 @@ def orient_scan_normals(P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndar
     return out
 
 
+@dataclass
+class BendingBasis:
+    """The lowest bending modes of a part: ``Q phi = mu M phi``, ``Phi^T M Phi = I``.
+
+    A per-part precomputation (it depends only on the nominal): every scan of the part
+    reuses it, and so does every iteration of the modal first pass.
+
+    Attributes
+    ----------
+    Phi : (n, k) M-orthonormal modes (dimensionless x mm^-1).
+    mu : (k,) bending eigenvalues, ascending, 1/mm^4 (0 for the rigid/affine modes).
+    energy : the bending energy of the operator they diagonalise.
+    seconds : time the eigen-decomposition took.
+    """
+
+    Phi: np.ndarray
+    mu: np.ndarray
+    energy: str
+    seconds: float = 0.0
+
+
+def bending_basis(ops: MeshOperators, k: int = 100) -> BendingBasis:
+    """The ``k`` lowest modes of the generalized problem ``Q phi = mu M phi``.
+
+    Shift-invert Lanczos (``scipy.sparse.linalg.eigsh``) around a small negative shift, so
+    the singular operator (its null space holds the affine fields) factorises; with the
+    CHOLMOD accelerator the shifted operator is factorised by CHOLMOD.
+
+    Parameters
+    ----------
+    ops : operators of the nominal (``Q`` 1/mm^2, ``M`` mm^2).
+    k : number of modes (capped at ``n - 2``).
+    """
+    t0 = time.perf_counter()
+    n = ops.Q.shape[0]
+    k = int(max(1, min(k, n - 2)))
+    area = float(ops.area.sum())
+    # eigenvalue of the k-th mode of a plate of this area, ~ (pi sqrt(k / area))^4: shift
+    # well below it, so the modes nearest the shift are the lowest ones
+    shift = -1e-3 * (np.pi * np.sqrt(k / max(area, 1e-300))) ** 4
+    A = (ops.Q - shift * ops.M).tocsc()
+    opinv = None
+    if have_cholmod():
+        fac = SPDSolver("cholmod").factor(A)
+        opinv = spla.LinearOperator(A.shape, matvec=lambda b: fac(b), dtype=np.float64)
+    mu, Phi = spla.eigsh(ops.Q, k=k, M=ops.M, sigma=shift, which="LM", OPinv=opinv)
+    order = np.argsort(mu)
+    mu, Phi = np.maximum(mu[order], 0.0), Phi[:, order]
+    return BendingBasis(Phi=np.ascontiguousarray(Phi), mu=mu, energy=ops.energy,
+                        seconds=time.perf_counter() - t0)
+
+
 def _weights(
     m: Match, p: GBCICPParams, hold: np.ndarray, width_floor: float = 0.0
 ) -> tuple[np.ndarray, float]:
@@ -160,6 +231,7 @@ def gbcicp(
     scan_sheets: np.ndarray | None = None,
     solver: SPDSolver | None = None,
     progress=None,
+    basis: BendingBasis | None = None,
 ) -> GBCICPResult:
     """Deform the rigidly aligned nominal ``V0`` onto the scan ``P`` (paper Algorithm 2).
 
@@ -177,6 +249,8 @@ def gbcicp(
         propagation is then not repeated.
     solver : sparse SPD solver (CHOLMOD if available, else SuperLU).
     progress : optional callable ``progress(n_iterations)`` for a progress bar.
+    basis : the part's :class:`BendingBasis` for the modal solver (computed if omitted;
+        pass it to reuse it across scans of one part).
     """
     t_start = time.perf_counter()
     p = _resolve(params or GBCICPParams(), V0, F, P)
@@ -186,8 +260,17 @@ def gbcicp(
     if p.signed_compat:
         Ns = orient_scan_normals(P, Ns, V0, ops.normals, sheets=scan_sheets)
     match = ScanMatcher(P, Ns, ops.normals, p.coverage_radius, signed=p.signed_compat,
-                     gate=p.normal_gate)
+                        gate=p.normal_gate)
+    # bound the nearest-point search (the unseen side of a part is expensive to match):
+    # well beyond the coverage radius and the largest normal residual the rigid pose left
+    probe = np.arange(0, n, max(1, n // 4000))
+    m0 = match(V0[probe], probe)
+    r0 = np.abs(m0.r[m0.covered])
+    match.max_distance = max(4.0 * p.coverage_radius,
+                             2.0 * float(np.percentile(r0, 99)) + p.coverage_radius
+                             if len(r0) else 0.0)
     Q = ops.Q
+    modal = p.solver == "modal"
     if p.lambda0 is not None:
         data_scale = np.ones(n)
         lam_start = p.lambda0 / float(Q.diagonal().mean())
@@ -198,6 +281,12 @@ def gbcicp(
         lam_start = p.band_limit_start**4
         lam_first = p.band_limit**4
         lam_refit = p.band_limit_refit**4
+    if modal:
+        if basis is None or basis.Phi.shape[0] != n or basis.energy != ops.energy:
+            basis = bending_basis(ops, p.modes)
+        stride = max(1, int(np.ceil(n / max(p.modal_rows, 1))))
+        rows = np.arange(0, n, stride)
+        Phi_r = basis.Phi[rows]
     # a whisper of mass regularisation keeps the system definite where no data reaches
     eps = 1e-9 * lam_first * (ops.M if p.lambda0 is None else sp.eye(n))
 
@@ -205,7 +294,21 @@ def gbcicp(
     e = np.zeros((n, 3))
     hold = np.zeros(n, dtype=bool)
 
-    def run_pass(e, lam_from, lam_to, hold, pass_no):
+    def record(pass_no, lam, m, delta, scale, hold):
+        fitted = m.covered & ~(hold if len(hold) == len(m.r) else hold[rows])
+        rms = float(np.sqrt(np.mean(m.r[fitted] ** 2))) if fitted.any() else np.nan
+        history.append(dict(pass_no=pass_no, lam=lam, rms=rms, delta=delta, scale=scale))
+        if progress is not None:
+            progress(1)
+
+    def full_step(lam, w, target):
+        """One full-resolution solve of (A W + lam Q) e = A W (T - V0)."""
+        Aw = data_scale * w
+        solve = solver.factor((sp.diags(Aw) + lam * Q + eps).tocsc())
+        return solve(Aw[:, None] * (target - V0))
+
+    def run_pass(e, lam_from, lam_to, hold, pass_no, iters=None):
+        """Anneal lam from lam_from to lam_to with full-resolution solves."""
         lam = lam_from
         settle = 0
         m = match(V0 + e)
@@ -218,19 +321,14 @@ def gbcicp(
             return width0 * (lam / lam_from) ** 0.25
 
         w, scale = _weights(m, p, hold, floor(lam))
-        for _ in range(p.max_iter + p.settle_iter):
-            Aw = data_scale * w
-            solve = solver.factor((sp.diags(Aw) + lam * Q + eps).tocsc())
-            e_new = solve(Aw[:, None] * (m.target - V0))
+        cap = p.max_iter + p.settle_iter if iters is None else iters
+        for _ in range(cap):
+            e_new = full_step(lam, w, m.target)
             delta = float(np.abs(e_new - e).max())
             e = e_new
             m = match(V0 + e)
             w, scale = _weights(m, p, hold, floor(max(lam * p.anneal, lam_to)))
-            fitted = m.covered & ~hold
-            rms = float(np.sqrt(np.mean(m.r[fitted] ** 2))) if fitted.any() else np.nan
-            history.append(dict(pass_no=pass_no, lam=lam, rms=rms, delta=delta, scale=scale))
-            if progress is not None:
-                progress(1)
+            record(pass_no, lam, m, delta, scale, hold)
             if lam <= lam_to * (1 + 1e-12):
                 settle += 1
                 if settle >= p.settle_iter or delta < p.tol:
@@ -238,40 +336,116 @@ def gbcicp(
             lam = max(lam * p.anneal, lam_to)
         return e, m, w, scale
 
-    e, m, w, scale = run_pass(e, lam_start, lam_first, hold, 1)
+    def modal_pass(lam_from, lam_to, hold, C, pass_no):
+        """Iterate in the bending basis: e = Phi C with
+        (Phi^T A W Phi + lam diag(mu)) C = Phi^T A W (T - V0), on the sampled rows."""
+        m = match(V0[rows] + Phi_r @ C, rows)
+        hold_r = hold[rows]
+        width0 = 0.0
+        if pass_no == 1 and m.covered.any():
+            width0 = float(np.percentile(np.abs(m.r[m.covered]), 99))
+        A_r = data_scale[rows] * stride
+        lam = lam_from
+        e_r = Phi_r @ C
+        settle = 0
+        for _ in range(p.max_iter + p.settle_iter):
+            w, scale = _weights(m, p, hold_r, width0 * (lam / lam_from) ** 0.25)
+            aw = A_r * w
+            use = aw > 0
+            Pu = Phi_r[use]
+            G = Pu.T @ (aw[use, None] * Pu)
+            G[np.diag_indices_from(G)] += lam * basis.mu + 1e-12 * max(np.trace(G), 1e-300)
+            C = np.linalg.solve(G, Pu.T @ (aw[use, None] * (m.target[use] - V0[rows][use])))
+            e_new = Phi_r @ C
+            delta = float(np.abs(e_new - e_r).max())
+            e_r = e_new
+            m = match(V0[rows] + e_r, rows)
+            record(pass_no, lam, m, delta, scale, hold_r)
+            if lam <= lam_to * (1 + 1e-12):
+                settle += 1
+                if settle >= p.settle_iter or delta < p.tol:
+                    break
+            lam = max(lam * p.modal_anneal, lam_to)
+        return C
+
+    def judge(e, hold):
+        """Full-resolution match of ``V0 + e``: (match, weights, scale, flags)."""
+        m = match(V0 + e)
+        w, scale = _weights(m, p, hold)
+        return m, w, scale, _flag(m, p, scale)
+
     passes, fallback = 1, False
-    flagged = _flag(m, p, scale)
-    n_cov = max(int(m.covered.sum()), 1)
-    flagged_fraction = float(flagged.sum()) / n_cov
     guard = (float("nan"), 0)  # (flagged fraction that fired the guard, its pass)
-    single = (e, m, w, scale)
-    if p.passes > 1 and flagged.any():
-        if flagged_fraction > p.max_flagged_fraction:
-            fallback = True
-            guard = (flagged_fraction, 1)
-            log.warning(
-                "GB-CICP: %.1f %% of covered vertices flagged (> %.0f %%): fit suspect, "
-                "keeping the single-pass result", 100 * flagged_fraction,
-                100 * p.max_flagged_fraction,
-            )
+    if modal:
+        # pass 1 in the bending basis (stiff: it cannot follow a localized defect), refits
+        # in the basis with the flagged measurement held out until the flags settle, then
+        # one full-resolution solve at the band limit (held-out measurement still withheld)
+        k = basis.Phi.shape[1]
+        C = modal_pass(lam_start, lam_first, hold, np.zeros((k, 3)), 1)
+        e = basis.Phi @ C
+        m, w, scale, flagged = judge(e, hold)
+        n_cov = max(int(m.covered.sum()), 1)
+        flagged_fraction = float(flagged.sum()) / n_cov
+        C_single = C
+        if p.passes > 1 and flagged.any():
+            if flagged_fraction > p.max_flagged_fraction:
+                fallback, guard = True, (flagged_fraction, 1)
+            else:
+                for pass_no in range(2, p.passes + 1):
+                    hold = _holdout(V0 + e, flagged, p.coverage_radius * p.holdout_factor)
+                    C = modal_pass(lam_first, lam_first, hold, C, pass_no)
+                    e = basis.Phi @ C
+                    passes = pass_no
+                    m, w, scale, new = judge(e, hold)
+                    frac = max(flagged.sum(), new.sum()) / n_cov
+                    if frac > p.max_flagged_fraction:
+                        fallback, guard = True, (frac, pass_no)
+                        C, hold = C_single, np.zeros(n, dtype=bool)
+                        e = basis.Phi @ C
+                        break
+                    if np.array_equal(new, flagged):
+                        break
+                    flagged = new
+        lam_final = lam_refit if passes > 1 else lam_first
+        if p.polish_iter > 0:
+            e, m, w, scale = run_pass(e, lam_final, lam_final, hold, passes,
+                                      iters=p.polish_iter)
         else:
-            lam_from = lam_first
-            for pass_no in range(2, p.passes + 1):
-                hold = _holdout(V0 + e, flagged, p.coverage_radius * p.holdout_factor)
-                e, m, w, scale = run_pass(e, lam_from, lam_refit, hold, pass_no)
-                passes, lam_from = pass_no, lam_refit
-                # re-evaluate every flag against the refit: a defect the fit never saw keeps
-                # its residual; compliance the first pass could not follow has now been fit
-                new = _flag(m, p, scale)
-                if max(flagged.sum(), new.sum()) / n_cov > p.max_flagged_fraction:
-                    fallback = True
-                    guard = (max(flagged.sum(), new.sum()) / n_cov, pass_no)
-                    e, m, w, scale = single
-                    hold = np.zeros(n, dtype=bool)
-                    break
-                if np.array_equal(new, flagged):
-                    break
-                flagged = new
+            m, w, scale, _ = judge(e, hold)
+    else:
+        e, m, w, scale = run_pass(e, lam_start, lam_first, hold, 1)
+        flagged = _flag(m, p, scale)
+        n_cov = max(int(m.covered.sum()), 1)
+        flagged_fraction = float(flagged.sum()) / n_cov
+        single = (e, m, w, scale)
+        if p.passes > 1 and flagged.any():
+            if flagged_fraction > p.max_flagged_fraction:
+                fallback = True
+                guard = (flagged_fraction, 1)
+            else:
+                lam_from = lam_first
+                for pass_no in range(2, p.passes + 1):
+                    hold = _holdout(V0 + e, flagged, p.coverage_radius * p.holdout_factor)
+                    e, m, w, scale = run_pass(e, lam_from, lam_refit, hold, pass_no)
+                    passes, lam_from = pass_no, lam_refit
+                    # re-evaluate every flag against the refit: a defect the fit never saw
+                    # keeps its residual; compliance the first pass could not follow is fit
+                    new = _flag(m, p, scale)
+                    if max(flagged.sum(), new.sum()) / n_cov > p.max_flagged_fraction:
+                        fallback = True
+                        guard = (max(flagged.sum(), new.sum()) / n_cov, pass_no)
+                        e, m, w, scale = single
+                        hold = np.zeros(n, dtype=bool)
+                        break
+                    if np.array_equal(new, flagged):
+                        break
+                    flagged = new
+    if fallback:
+        log.warning(
+            "GB-CICP: %.1f %% of covered vertices flagged in pass %d (> %.0f %%): fit "
+            "suspect, keeping the single-pass result", 100 * guard[0], guard[1],
+            100 * p.max_flagged_fraction,
+        )
     residual = np.where(m.covered, m.r, np.nan)
     return GBCICPResult(
         V=V0 + e,
@@ -291,6 +465,7 @@ def gbcicp(
         seconds=time.perf_counter() - t_start,
         params=p,
         history=history,
+        method="gbcicp",
     )
 
 
@@ -308,12 +483,17 @@ def _resolve(p: GBCICPParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> G
     diag = bounding_diagonal(V0)
     h = median_edge_length(V0, F)
     q = GBCICPParams(**vars(p))
+    if q.solver not in ("modal", "full"):
+        raise ValueError(f"unknown GB-CICP solver {q.solver!r} (modal or full)")
+    if q.lambda0 is not None:
+        q.solver = "full"  # the paper's parametrisation anneals full-resolution solves
     if q.coverage_radius is None:
         q.coverage_radius = 1.5 * max(h, median_spacing(P))
     if q.band_limit is None:
         q.band_limit = q.coverage_radius
     if q.band_limit_refit is None:
-        q.band_limit_refit = 0.5 * q.band_limit
+        # modal: the bending basis is the stiff first pass, the refit runs at the band limit
+        q.band_limit_refit = q.band_limit if q.solver == "modal" else 0.5 * q.band_limit
     if q.band_limit_start is None:
         q.band_limit_start = max(0.12 * diag, q.band_limit)
     return q

@@ -176,9 +176,15 @@ def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 
 def edges(F: np.ndarray) -> np.ndarray:
-    """Unique undirected edges (e, 2) of the triangles ``F``."""
+    """Unique undirected edges (e, 2) of the triangles ``F``, sorted lexicographically."""
+    F = np.asarray(F, dtype=np.int64)
     E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    return np.unique(E, axis=0)
+    if len(E) == 0:
+        return E.reshape(0, 2)
+    # one int64 key per edge: a 1-D unique is ~10x faster than np.unique(..., axis=0)
+    base = int(E.max()) + 1
+    key = np.unique(E[:, 0] * base + E[:, 1])
+    return np.stack([key // base, key % base], axis=1)
 
 
 def median_edge_length(V: np.ndarray, F: np.ndarray) -> float:
