@@ -93,7 +93,8 @@ def configs(args) -> dict[str, Config]:
                        GBCICPParams(passes=1, band_limit=args.wide), 0),
         "narrow": Config("narrow", "single pass, l = default (coverage radius)",
                          GBCICPParams(passes=1), 1),
-        "multi": Config("multi", f"multi-pass (<= {args.passes}), default l1 -> l1/2",
+        "multi": Config("multi", f"multi-pass (<= {args.passes}): modal first pass and refits, "
+                        "then the band limit l2",
                         GBCICPParams(passes=args.passes), 2),
         "matched": Config("matched", f"single pass, l = {args.matched:g} mm",
                           GBCICPParams(passes=1, band_limit=args.matched), 1),

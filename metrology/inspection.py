@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from registration.deformable import DeformResult
 from registration.errors import InputError
-from registration.gbcicp import GBCICPParams, orient_scan_normals
+from registration.gbcicp import BendingBasis, GBCICPParams, bending_basis, orient_scan_normals
 from registration.icp import RigidResult, rigid_icp
 from registration.mesh import (
     bending_operator,
@@ -192,6 +192,8 @@ class InspectionResult:
     repeatability : the resampling study of ``qifreport --seeds`` (None without it): when
         set, ``acceptance`` and each zone's acceptance hold only the persistent regions
         (:func:`metrology.repeatability.apply`).
+    basis : the nominal's GB-CICP bending basis when one was used (per-part state: pass it
+        to :func:`inspect` for further scans of the part).
     """
 
     V: np.ndarray
@@ -218,6 +220,7 @@ class InspectionResult:
     added: AddedMaterial | None = None
     hygiene: MeshHygiene | None = None
     repeatability: Repeatability | None = None
+    basis: BendingBasis | None = None
 
     @property
     def passed(self) -> bool:
@@ -413,6 +416,7 @@ def inspect(
     zones: list[ToleranceZone] | None = None,
     not_evaluated: list[NotEvaluated] | None = None,
     scan_units: str | None = None,
+    basis: BendingBasis | None = None,
 ) -> InspectionResult:
     """Inspect the scan ``P`` against the nominal ``(V, F)``.
 
@@ -429,6 +433,8 @@ def inspect(
         zone of half-width ``params.tolerance``. Zones that cover no triangle are dropped.
     not_evaluated : PMI items listed in the result but not scored.
     scan_units : the unit the user declared for the scan file (for the units hint only).
+    basis : the nominal's GB-CICP bending basis (:func:`registration.gbcicp.bending_basis`),
+        to reuse it across scans of one part; computed when needed if omitted.
 
     Raises
     ------
@@ -471,10 +477,22 @@ def inspect(
     # scan normals, oriented consistently per connected sheet once; each use below only
     # chooses the sheets' sides against its own nominal
     Ns, sheets = orient_normals_consistent(Pm, pca_normals(Pm, params.gbcicp.scan_normal_k))
+    # the scored set depends on the nominal only: vertices near a sharp crease or an open
+    # rim are neither scored nor flagged by the virtual fixture as defect candidates
+    band = (1.5 * median_edge_length(V, F) if params.edge_band is None
+            else float(params.edge_band))
+    near_crease = crease_band(V, F, band, params.crease_angle) if band > 0 else None
+    rim_band = band if params.boundary_band is None else float(params.boundary_band)
+    near_rim = near_boundary(V, boundary, rim_band)
     if not params.rigid_only:
+        if (params.method == "gbcicp" and params.gbcicp.solver == "modal"
+                and params.gbcicp.lambda0 is None and basis is None):
+            basis = bending_basis(ops, params.gbcicp.modes)
+        flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
         fit = deform(params.method, V, F, ops, Pm,
                      params.gbcicp if params.method == "gbcicp" else None,
-                     scan_normals=Ns, scan_sheets=sheets, progress=progress)
+                     scan_normals=Ns, scan_sheets=sheets, progress=progress, basis=basis,
+                     flaggable=flaggable)
         V_reg = fit.V
     timings[params.method] = time.perf_counter() - t0
 
@@ -499,12 +517,8 @@ def inspect(
         dev_free = nominal_referenced(
             V, F, Pm, normals=ops.normals,
             scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets))
-    band = (1.5 * median_edge_length(V, F) if params.edge_band is None
-            else float(params.edge_band))
-    near_crease = crease_band(V, F, band, params.crease_angle) if band > 0 else None
     hygiene = mesh_hygiene(V, F)
-    hygiene.boundary_band = band if params.boundary_band is None else float(params.boundary_band)
-    near_rim = near_boundary(V, boundary, hygiene.boundary_band)
+    hygiene.boundary_band = rim_band
     hygiene.boundary_excluded_area = float(ops.area[near_rim].sum())
     hygiene.boundary_excluded_fraction = hygiene.boundary_excluded_area / max(
         float(ops.area.sum()), 1e-300)
@@ -565,5 +579,5 @@ def inspect(
         zones=zone_results, not_evaluated=list(not_evaluated or []), bands=bands,
         energy=energy,
         edge_excluded_area=float(area[near_crease].sum()) if near_crease is not None else 0.0,
-        prealign=seat, added=added, hygiene=hygiene,
+        prealign=seat, added=added, hygiene=hygiene, basis=basis,
     )

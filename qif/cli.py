@@ -387,7 +387,7 @@ def resampled_runs(res: InspectionResult, params: InspectionParams, nom: Nominal
         runs.append(inspect(res.V, res.F, res.P[keep], p,
                             progress=None if bar is None else bar.update,
                             face_id=nom.face_id, zones=nom.zones,
-                            not_evaluated=nom.not_evaluated))
+                            not_evaluated=nom.not_evaluated, basis=res.basis))
     seconds = time.perf_counter() - t0
     apply_repeatability(res, runs, KEEP_FRACTION, seconds=seconds)
     res.timings["repeatability"] = seconds

@@ -40,7 +40,7 @@ from scipy.spatial import cKDTree
 
 from .deformable import DeformResult, Match, ScanMatcher
 from .icp import robust_scale
-from .linalg import SPDSolver, have_cholmod
+from .linalg import SPDSolver
 from .mesh import MeshOperators, bounding_diagonal, median_edge_length
 from .pointcloud import median_spacing, pca_normals
 
@@ -56,9 +56,8 @@ class GBCICPParams:
     band_limit : final smoothing length ``l1`` of the first pass (mm). Default: one coverage
         radius (measured on the shell benchmark: longer first-pass lengths leave compliance
         near the open boundary that the refit then holds out as if it were a defect).
-    band_limit_refit : smoothing length ``l2`` of the final full-resolution solve after a
-        refit (mm). Default ``band_limit`` (modal; the bending basis is the stiff first pass),
-        ``band_limit / 2`` (full).
+    band_limit_refit : smoothing length ``l2`` of the refit passes (mm). Default
+        ``band_limit / 2``.
     band_limit_start : initial smoothing length (mm). Default 12 % of the diagonal.
     lambda0 : if given, the paper's ``lambda = lambda0 / mean(diag Q)`` on unweighted data
         replaces the band-limit parametrisation; ``max_iter`` iterations are annealed.
@@ -88,6 +87,8 @@ class GBCICPParams:
         so the stiffness can fall faster than in the paper's full-resolution schedule).
     polish_iter : full-resolution iterations closing the modal solver (at ``band_limit``, or
         at ``band_limit_refit`` with the held-out measurement withheld after a refit).
+    flag_stiffness : (modal) the first pass's full-resolution solve, whose residual is
+        flagged, runs at ``flag_stiffness x band_limit``.
     signed_compat : orient the scan normals (consistently per connected sheet, the side of
         each sheet by a vote against the posed nominal's normals) and use the *signed*
         normal compatibility ``n . n_scan``: a vertex whose normal faces away from the
@@ -118,6 +119,7 @@ class GBCICPParams:
     modal_rows: int = 4000
     modal_anneal: float = 0.5
     polish_iter: int = 1
+    flag_stiffness: float = 1.0
 
 
 GBCICPResult = DeformResult  # the shared result of every deformable method
@@ -174,7 +176,7 @@ class BendingBasis:
     seconds: float = 0.0
 
 
-def bending_basis(ops: MeshOperators, k: int = 100) -> BendingBasis:
+def bending_basis(ops: MeshOperators, k: int = 100, tol: float = 1e-6) -> BendingBasis:
     """The ``k`` lowest modes of the generalized problem ``Q phi = mu M phi``.
 
     Shift-invert Lanczos (``scipy.sparse.linalg.eigsh``) around a small negative shift, so
@@ -185,6 +187,8 @@ def bending_basis(ops: MeshOperators, k: int = 100) -> BendingBasis:
     ----------
     ops : operators of the nominal (``Q`` 1/mm^2, ``M`` mm^2).
     k : number of modes (capped at ``n - 2``).
+    tol : relative accuracy of the eigenvalues (``eigsh``); the modes are then orthonormal
+        to round-off and ``Phi^T Q Phi`` diagonal to ~1e-15.
     """
     t0 = time.perf_counter()
     n = ops.Q.shape[0]
@@ -194,11 +198,12 @@ def bending_basis(ops: MeshOperators, k: int = 100) -> BendingBasis:
     # well below it, so the modes nearest the shift are the lowest ones
     shift = -1e-3 * (np.pi * np.sqrt(k / max(area, 1e-300))) ** 4
     A = (ops.Q - shift * ops.M).tocsc()
-    opinv = None
-    if have_cholmod():
-        fac = SPDSolver("cholmod").factor(A)
-        opinv = spla.LinearOperator(A.shape, matvec=lambda b: fac(b), dtype=np.float64)
-    mu, Phi = spla.eigsh(ops.Q, k=k, M=ops.M, sigma=shift, which="LM", OPinv=opinv)
+    # the shifted operator is SPD: a Cholesky (CHOLMOD) or a symmetric-mode SuperLU
+    # factorisation is cheaper than the general LU eigsh would otherwise make
+    fac = SPDSolver().factor(A)
+    opinv = spla.LinearOperator(A.shape, matvec=lambda b: fac(b), dtype=np.float64)
+    mu, Phi = spla.eigsh(ops.Q, k=k, M=ops.M, sigma=shift, which="LM", OPinv=opinv,
+                         tol=tol)
     order = np.argsort(mu)
     mu, Phi = np.maximum(mu[order], 0.0), Phi[:, order]
     return BendingBasis(Phi=np.ascontiguousarray(Phi), mu=mu, energy=ops.energy,
@@ -217,8 +222,10 @@ def _weights(
     return welsch * compat * use, scale
 
 
-def _flag(m: Match, p: GBCICPParams, scale: float) -> np.ndarray:
-    return m.covered & (np.abs(m.r) > p.flag_k * scale)
+def _flag(m: Match, p: GBCICPParams, scale: float,
+          flaggable: np.ndarray | None = None) -> np.ndarray:
+    out = m.covered & (np.abs(m.r) > p.flag_k * scale)
+    return out if flaggable is None else out & flaggable
 
 
 def gbcicp(
@@ -232,6 +239,7 @@ def gbcicp(
     solver: SPDSolver | None = None,
     progress=None,
     basis: BendingBasis | None = None,
+    flaggable: np.ndarray | None = None,
 ) -> GBCICPResult:
     """Deform the rigidly aligned nominal ``V0`` onto the scan ``P`` (paper Algorithm 2).
 
@@ -251,6 +259,10 @@ def gbcicp(
     progress : optional callable ``progress(n_iterations)`` for a progress bar.
     basis : the part's :class:`BendingBasis` for the modal solver (computed if omitted;
         pass it to reuse it across scans of one part).
+    flaggable : (n,) bool, the vertices whose residual may be flagged as a defect candidate
+        (default all). The inspection passes the vertices it scores: on a sharp crease or
+        an open rim the normal residual measures where the edge slid, not the surface, and
+        holding out the measurement around every edge would starve the refit.
     """
     t_start = time.perf_counter()
     p = _resolve(params or GBCICPParams(), V0, F, P)
@@ -281,6 +293,7 @@ def gbcicp(
         lam_start = p.band_limit_start**4
         lam_first = p.band_limit**4
         lam_refit = p.band_limit_refit**4
+    lam_flag = lam_first * p.flag_stiffness**4 if modal else lam_first
     if modal:
         if basis is None or basis.Phi.shape[0] != n or basis.energy != ops.energy:
             basis = bending_basis(ops, p.modes)
@@ -372,49 +385,47 @@ def gbcicp(
         """Full-resolution match of ``V0 + e``: (match, weights, scale, flags)."""
         m = match(V0 + e)
         w, scale = _weights(m, p, hold)
-        return m, w, scale, _flag(m, p, scale)
+        return m, w, scale, _flag(m, p, scale, flaggable)
 
     passes, fallback = 1, False
     guard = (float("nan"), 0)  # (flagged fraction that fired the guard, its pass)
     if modal:
-        # pass 1 in the bending basis (stiff: it cannot follow a localized defect), refits
-        # in the basis with the flagged measurement held out until the flags settle, then
-        # one full-resolution solve at the band limit (held-out measurement still withheld)
+        # each pass: iterations in the bending basis (warm-started, the held-out measurement
+        # withheld), then full-resolution solves at the band limit; the flags are judged on
+        # that full-resolution residual (the basis alone leaves fine compliance that the
+        # flag test would take for defects, and the hold-outs would feed on it)
         k = basis.Phi.shape[1]
-        C = modal_pass(lam_start, lam_first, hold, np.zeros((k, 3)), 1)
-        e = basis.Phi @ C
-        m, w, scale, flagged = judge(e, hold)
+        lam_pass = lam_flag
+        C = modal_pass(lam_start, lam_pass, hold, np.zeros((k, 3)), 1)
+        e, m, w, scale = run_pass(basis.Phi @ C, lam_pass, lam_pass, hold, 1,
+                                  iters=max(p.polish_iter, 1))
+        flagged = _flag(m, p, scale, flaggable)
         n_cov = max(int(m.covered.sum()), 1)
         flagged_fraction = float(flagged.sum()) / n_cov
-        C_single = C
+        single = (e, m, w, scale)
         if p.passes > 1 and flagged.any():
             if flagged_fraction > p.max_flagged_fraction:
                 fallback, guard = True, (flagged_fraction, 1)
             else:
                 for pass_no in range(2, p.passes + 1):
                     hold = _holdout(V0 + e, flagged, p.coverage_radius * p.holdout_factor)
-                    C = modal_pass(lam_first, lam_first, hold, C, pass_no)
-                    e = basis.Phi @ C
+                    C = modal_pass(lam_pass, lam_pass, hold, C, pass_no)
+                    e, m, w, scale = run_pass(basis.Phi @ C, lam_refit, lam_refit, hold,
+                                              pass_no, iters=max(p.polish_iter, 1))
                     passes = pass_no
-                    m, w, scale, new = judge(e, hold)
+                    new = _flag(m, p, scale, flaggable)
                     frac = max(flagged.sum(), new.sum()) / n_cov
                     if frac > p.max_flagged_fraction:
                         fallback, guard = True, (frac, pass_no)
-                        C, hold = C_single, np.zeros(n, dtype=bool)
-                        e = basis.Phi @ C
+                        e, m, w, scale = single
+                        hold = np.zeros(n, dtype=bool)
                         break
                     if np.array_equal(new, flagged):
                         break
                     flagged = new
-        lam_final = lam_refit if passes > 1 else lam_first
-        if p.polish_iter > 0:
-            e, m, w, scale = run_pass(e, lam_final, lam_final, hold, passes,
-                                      iters=p.polish_iter)
-        else:
-            m, w, scale, _ = judge(e, hold)
     else:
         e, m, w, scale = run_pass(e, lam_start, lam_first, hold, 1)
-        flagged = _flag(m, p, scale)
+        flagged = _flag(m, p, scale, flaggable)
         n_cov = max(int(m.covered.sum()), 1)
         flagged_fraction = float(flagged.sum()) / n_cov
         single = (e, m, w, scale)
@@ -430,7 +441,7 @@ def gbcicp(
                     passes, lam_from = pass_no, lam_refit
                     # re-evaluate every flag against the refit: a defect the fit never saw
                     # keeps its residual; compliance the first pass could not follow is fit
-                    new = _flag(m, p, scale)
+                    new = _flag(m, p, scale, flaggable)
                     if max(flagged.sum(), new.sum()) / n_cov > p.max_flagged_fraction:
                         fallback = True
                         guard = (max(flagged.sum(), new.sum()) / n_cov, pass_no)
@@ -492,8 +503,7 @@ def _resolve(p: GBCICPParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> G
     if q.band_limit is None:
         q.band_limit = q.coverage_radius
     if q.band_limit_refit is None:
-        # modal: the bending basis is the stiff first pass, the refit runs at the band limit
-        q.band_limit_refit = q.band_limit if q.solver == "modal" else 0.5 * q.band_limit
+        q.band_limit_refit = 0.5 * q.band_limit
     if q.band_limit_start is None:
         q.band_limit_start = max(0.12 * diag, q.band_limit)
     return q

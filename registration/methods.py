@@ -45,6 +45,8 @@ def deform(
     scan_sheets: np.ndarray | None = None,
     clamps: np.ndarray | None = None,
     progress: Callable[[int], Any] | None = None,
+    basis: Any = None,
+    flaggable: np.ndarray | None = None,
 ) -> DeformResult:
     """Register the rigidly aligned nominal ``V0`` (n, 3) mm onto the scan ``P`` (m, 3) mm.
 
@@ -58,10 +60,17 @@ def deform(
     clamps : (k,) vertex indices of the clamps (RBF-FEM's driving points; default: the
         corners of the part's principal rectangle). Ignored by the other methods.
     progress : optional ``progress(n_iterations)`` callback.
+    basis : the part's :class:`registration.gbcicp.BendingBasis` (GB-CICP's per-part
+        precomputation, reused across scans); ignored by the other methods.
+    flaggable : (n,) bool, vertices GB-CICP may flag as defect candidates (its multi-pass
+        scheme); ignored by the other methods, which flag nothing.
     """
     fn = method_function(method)
     kw: dict[str, Any] = dict(params=params, scan_normals=scan_normals,
                               scan_sheets=scan_sheets, progress=progress)
     if method == "rbffem":
         kw["clamps"] = clamps
+    if method == "gbcicp":
+        kw["basis"] = basis
+        kw["flaggable"] = flaggable
     return fn(V0, F, ops, P, **kw)

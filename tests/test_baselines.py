@@ -8,6 +8,8 @@ vertices (paper Section 7.2).
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -100,7 +102,12 @@ def test_cpd_warp_at_the_decimated_points_is_the_em_result(shell, results):
 
 def test_cpd_em_agrees_with_pycpd():
     """Same inputs, same iterations: our EM and the peer ``pycpd`` give the same warp."""
-    pycpd = pytest.importorskip("pycpd")
+    try:
+        import pycpd
+    except ImportError:  # a dev dependency: under CI (CI=true) its absence is a failure
+        if os.environ.get("CI") == "true":
+            raise
+        pytest.skip("pycpd not installed")
     rng = np.random.default_rng(4)
     Y = rng.uniform(-20, 20, (150, 3)) * [1.0, 1.0, 0.2]
     X = Y + 1.5 * np.sin(Y[:, [1, 2, 0]] / 10.0) + rng.normal(0, 0.05, Y.shape)

@@ -234,12 +234,11 @@ def test_cli_seats_a_posed_scan_and_finds_the_same_defect(fandisk_cli_runs):
     """The deformed fandisk with a 0.8 mm bump, scanned in the part frame and delivered at
     the paper's pose: ``qifreport`` seats the posed scan by itself (pose search reported in
     JSON and QIF) and reports the same verdict, statistics and out-of-tolerance regions, at
-    the same place on the part, as for the scan delivered in the part frame. (The virtual
-    fixture absorbs most of this broad bump -- largest region 0.4 mm^2 -- and its two-pass
-    guard fires, so neither run claims a pass: tests/test_trust.py.)"""
+    the same place on the part, as for the scan delivered in the part frame (measured: both
+    FAIL on a region of 33-36 mm^2 at the bump, peak 0.65-0.68 mm against the true 0.8)."""
     runs = fandisk_cli_runs
     for name in ("framed", "posed"):
-        assert runs[name]["rc"] in (0, 1, 3), runs[name]["stderr"]
+        assert runs[name]["rc"] == 1, runs[name]["stdout"]
     docs = {name: runs[name]["doc"] for name in ("framed", "posed")}
     framed, posed = docs["framed"], docs["posed"]
     assert framed["registration"]["prealign"]["method"] == "identity"
@@ -254,7 +253,12 @@ def test_cli_seats_a_posed_scan_and_finds_the_same_defect(fandisk_cli_runs):
     ra, rb = framed["acceptance"]["regions"][0], posed["acceptance"]["regions"][0]
     assert np.linalg.norm(np.subtract(ra["centroid"], rb["centroid"])) < 2.0, (ra, rb)
     assert abs(ra["area"] - rb["area"]) < 0.25 * ra["area"]
-    assert len(framed["acceptance"]["regions"]) == len(posed["acceptance"]["regions"])
+    # single-vertex specks (0.35 mm^2, at the edge of the data) come and go with any change
+    # of the input, as over resamplings (paper 9.2, `--seeds`); the findings are the same
+    def findings(doc):
+        return [r for r in doc["acceptance"]["regions"] if r["n_vertices"] > 3]
+
+    assert len(findings(framed)) == len(findings(posed)) == 1
     qif = etree.parse(str(runs["posed"]["out"] / "fandisk.qif"))
     attr = "//*[local-name()='{}'][@name='{}']/@value"
     assert qif.xpath(attr.format("AttributeStr", "pose_method")) == [pose["method"]]

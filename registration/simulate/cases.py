@@ -70,6 +70,7 @@ def make_case(
     defect_vertex: int | None = None,
     spec: ScanSpec | None = None,
     seed: int = 0,
+    clamp_motion: str = "rigid",
 ) -> Case:
     """Deform, optionally add a Gaussian bump, and scan.
 
@@ -84,6 +85,8 @@ def make_case(
     spec : virtual scanner settings (default :class:`ScanSpec` with ``seed`` and clamp
         dropout disks of 3 % of the diagonal); clamp
         centres are filled in from the handles when the spec has none.
+    clamp_motion : biharmonic handles move ``"rigid"`` (each clamp's patch as one piece) or
+        along each vertex's own ``"normal"`` (see :func:`biharmonic_deformation`).
     seed : seed of the analytic coefficients (``None`` keeps the fixed default field) and the
         scanner.
     """
@@ -93,7 +96,8 @@ def make_case(
     if generator == "analytic":
         d = analytic_deformation(V, F, a)
     elif generator == "biharmonic":
-        d = biharmonic_deformation(V, F, a, modes=dict(modes or {"bend": 1.0, "twist": 0.5})).d
+        d = biharmonic_deformation(V, F, a, modes=dict(modes or {"bend": 1.0, "twist": 0.5}),
+                                   clamp_motion=clamp_motion).d
     else:
         raise ValueError(f"unknown generator {generator!r}")
     V_true = V + d

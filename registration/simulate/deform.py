@@ -201,6 +201,7 @@ def biharmonic_deformation(
     modes: Mapping[str, float] = _DEFAULT_MODES,
     energy: str = "laplacian",
     handle_radius: float | None = None,
+    clamp_motion: str = "rigid",
 ) -> Deformation:
     """Minimise the bending energy ``d^T Q d`` subject to ``d_H = g`` (paper Eq. 2-3).
 
@@ -219,6 +220,10 @@ def biharmonic_deformation(
     energy : ``"laplacian"`` (``L M^-1 L``) or ``"hessian"``, see
         :func:`registration.mesh.bending_operator`.
     handle_radius : clamp group radius, mm (default 1.5 % of the bounding diagonal).
+    clamp_motion : ``"rigid"`` -- each clamp translates its patch along the patch's mean
+        normal; ``"normal"`` -- each handle vertex moves along its own normal, which crushes
+        a patch that straddles a crease (a non-physical free state no smooth fit follows:
+        the registration-failure case of the trust tests).
 
     Returns
     -------
@@ -249,8 +254,13 @@ def biharmonic_deformation(
     n_vertex = np.zeros((n, 3))
     for group, s in zip(handles.groups, signs, strict=True):
         s_vertex[group] = s
-        nc = ops.normals[group].sum(axis=0)
-        n_vertex[group] = nc / max(float(np.linalg.norm(nc)), 1e-300)
+        if clamp_motion == "normal":
+            n_vertex[group] = ops.normals[group]
+        elif clamp_motion == "rigid":
+            nc = ops.normals[group].sum(axis=0)
+            n_vertex[group] = nc / max(float(np.linalg.norm(nc)), 1e-300)
+        else:
+            raise ValueError(f"unknown clamp motion {clamp_motion!r} (rigid or normal)")
     h = handles.indices
     g = amplitude * s_vertex[h, None] * n_vertex[h]
 
