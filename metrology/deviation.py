@@ -406,7 +406,7 @@ def nominal_referenced(
     max_centroid_offset : fraction of ``radius`` (see above); None disables the rule.
     max_distance : mm; if given, the neighbourhood is the cylinder described above.
     scan_normals : (m, 3) scan normals *oriented* outward (e.g. by
-        :func:`registration.gbcicp.orient_scan_normals`); if given, a vertex only uses
+        :func:`registration.deformable.orient_scan_normals`); if given, a vertex only uses
         points whose normal is within 60 degrees of its own (``n_point . n_vertex > 0.5``).
         This keeps the back skin and the edge faces of a thin wall, closer to the front's
         measurements than ``radius``, from being scored against them.

@@ -19,9 +19,9 @@ from dataclasses import asdict, dataclass, field, is_dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from registration.deformable import DeformResult
+from registration.deformable import DeformResult, orient_scan_normals
 from registration.errors import InputError
-from registration.gbcicp import BendingBasis, GBCICPParams, bending_basis, orient_scan_normals
+from registration.gbcicp import BendingBasis, GBCICPParams, bending_basis
 from registration.icp import RigidResult, rigid_icp
 from registration.mesh import (
     bending_operator,

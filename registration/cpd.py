@@ -34,9 +34,8 @@ from typing import Any
 import numpy as np
 import scipy.linalg as sla
 
-from .deformable import DeformResult, finish
+from .deformable import DeformResult, coverage_radius, finish, scan_matcher
 from .mesh import MeshOperators, bounding_diagonal
-from .nicp import baseline_matcher, coverage_radius
 from .pointcloud import pca_normals
 
 log = logging.getLogger(__name__)
@@ -239,7 +238,7 @@ def cpd(
     P : (m, 3) scan points, mm.
     params : :class:`CPDParams` (defaults resolved from the part size).
     scan_normals, scan_sheets : used only by the final coverage match
-        (:func:`registration.nicp.baseline_matcher`); CPD itself ignores normals.
+        (:func:`registration.deformable.scan_matcher`); CPD itself ignores normals.
     progress : optional ``progress(1)`` per EM iteration.
 
     Returns
@@ -256,7 +255,7 @@ def cpd(
                  callback=progress)
     V = cpd_warp(V0, fit.Y, fit.W, p.beta, p.chunk)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
-    matcher = baseline_matcher(V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius)
+    matcher = scan_matcher(V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius)
     history = [dict(h) for h in fit.history]
     if history:
         history[0].update(source=src, scan=dst, W=fit.W, TY=fit.TY)

@@ -18,6 +18,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .icp import robust_scale
+from .mesh import MeshOperators, median_edge_length
+from .pointcloud import median_spacing, pca_normals
 
 
 @dataclass
@@ -159,3 +161,65 @@ def finish(
         flagged_fraction=0.0, iterations=int(iterations), seconds=float(seconds),
         params=params, history=list(history or []), method=method,
     )
+
+
+def orient_scan_normals(P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndarray,
+                        k: int = 10, sheets: np.ndarray | None = None) -> np.ndarray:
+    """Outward scan normals: consistent per connected sheet of the scan, each sheet's side
+    chosen by a vote of its points against the nearest vertex normal of the posed nominal.
+
+    A vote rather than a per-point test, because where the free-state deflection exceeds
+    half the wall of a thin solid the nearest nominal vertex lies on the other skin.
+
+    Parameters
+    ----------
+    P : (m, 3) scan points, mm.  Ns : (m, 3) unit scan normals.
+    V, N : (n, 3) posed nominal vertices (mm) and their unit normals.
+    k : neighbours of the propagation graph.
+    sheets : (m,) sheet label of each point when ``Ns`` is already consistent within each
+        sheet (:func:`registration.pointcloud.orient_normals_consistent`): only the vote is
+        made, so one propagation serves several nominals.
+    """
+    from .pointcloud import orient_normals_consistent
+
+    if sheets is None:
+        Ns, sheets = orient_normals_consistent(P, Ns, k=k)
+    _, near = cKDTree(V).query(P, workers=-1)
+    agree = np.einsum("ij,ij->i", Ns, N[near])
+    votes = np.bincount(sheets, weights=np.sign(agree))
+    flip = votes[sheets] < 0
+    out = Ns.copy()
+    out[flip] = -out[flip]
+    return out
+
+
+def coverage_radius(V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> float:
+    """The shared coverage radius: 1.5 x max(median edge length, median scan spacing), mm."""
+    return 1.5 * max(median_edge_length(V0, F), median_spacing(P))
+
+
+def scan_matcher(
+    V0: np.ndarray, F: np.ndarray, ops: MeshOperators, P: np.ndarray,
+    scan_normals: np.ndarray | None, scan_sheets: np.ndarray | None,
+    radius: float | None = None, gate: float = 0.5, k: int = 12,
+) -> ScanMatcher:
+    """The :class:`ScanMatcher` with which the baselines (NICP, CPD, RBF-FEM) are finished.
+
+    As :func:`registration.gbcicp.gbcicp` builds its own: coverage radius
+    :func:`coverage_radius` unless given; the unsigned compatibility ``|n . n_scan|`` unless
+    ``scan_sheets`` is given, when the scan normals are oriented per sheet by a vote against
+    the nominal (:func:`orient_scan_normals`) and a vertex facing away
+    from its matched measurement (``n . n_scan < gate``) is not covered.
+
+    Parameters
+    ----------
+    V0 : (n, 3) rigidly aligned nominal, mm.  F : (f, 3).  ops : its operators (normals).
+    P : (m, 3) scan, mm.  scan_normals : (m, 3) PCA normals or None (computed, ``k``
+    neighbours).  scan_sheets : (m,) sheet labels of consistently oriented normals, or None.
+    """
+    Ns = scan_normals if scan_normals is not None else pca_normals(P, k)
+    r = coverage_radius(V0, F, P) if radius is None else float(radius)
+    if scan_sheets is not None:
+        Ns = orient_scan_normals(P, Ns, V0, ops.normals, sheets=scan_sheets)
+        return ScanMatcher(P, Ns, ops.normals, r, signed=True, gate=gate)
+    return ScanMatcher(P, Ns, ops.normals, r, signed=False)

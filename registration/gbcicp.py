@@ -38,7 +38,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
-from .deformable import DeformResult, Match, ScanMatcher
+from .deformable import DeformResult, Match, ScanMatcher, orient_scan_normals
 from .icp import robust_scale
 from .linalg import SPDSolver
 from .mesh import MeshOperators, bounding_diagonal, median_edge_length
@@ -125,36 +125,6 @@ class GBCICPParams:
 GBCICPResult = DeformResult  # the shared result of every deformable method
 
 
-def orient_scan_normals(P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndarray,
-                        k: int = 10, sheets: np.ndarray | None = None) -> np.ndarray:
-    """Outward scan normals: consistent per connected sheet of the scan, each sheet's side
-    chosen by a vote of its points against the nearest vertex normal of the posed nominal.
-
-    A vote rather than a per-point test, because where the free-state deflection exceeds
-    half the wall of a thin solid the nearest nominal vertex lies on the other skin.
-
-    Parameters
-    ----------
-    P : (m, 3) scan points, mm.  Ns : (m, 3) unit scan normals.
-    V, N : (n, 3) posed nominal vertices (mm) and their unit normals.
-    k : neighbours of the propagation graph.
-    sheets : (m,) sheet label of each point when ``Ns`` is already consistent within each
-        sheet (:func:`registration.pointcloud.orient_normals_consistent`): only the vote is
-        made, so one propagation serves several nominals.
-    """
-    from .pointcloud import orient_normals_consistent
-
-    if sheets is None:
-        Ns, sheets = orient_normals_consistent(P, Ns, k=k)
-    _, near = cKDTree(V).query(P, workers=-1)
-    agree = np.einsum("ij,ij->i", Ns, N[near])
-    votes = np.bincount(sheets, weights=np.sign(agree))
-    flip = votes[sheets] < 0
-    out = Ns.copy()
-    out[flip] = -out[flip]
-    return out
-
-
 @dataclass
 class BendingBasis:
     """The lowest bending modes of a part: ``Q phi = mu M phi``, ``Phi^T M Phi = I``.
@@ -226,6 +196,20 @@ def _flag(m: Match, p: GBCICPParams, scale: float,
           flaggable: np.ndarray | None = None) -> np.ndarray:
     out = m.covered & (np.abs(m.r) > p.flag_k * scale)
     return out if flaggable is None else out & flaggable
+
+
+def _anneal(lam: float, lam_to: float, factor: float, settle: int, delta: float,
+            p: GBCICPParams) -> tuple[float, int, bool]:
+    """One step of the stiffness schedule: (next lambda, settle count, pass done).
+
+    Lambda falls by ``factor`` down to ``lam_to``; there the pass settles for
+    ``p.settle_iter`` iterations or stops as soon as no vertex moved more than ``p.tol`` mm.
+    """
+    if lam <= lam_to * (1 + 1e-12):
+        settle += 1
+        if settle >= p.settle_iter or delta < p.tol:
+            return lam, settle, True
+    return max(lam * factor, lam_to), settle, False
 
 
 def gbcicp(
@@ -342,11 +326,9 @@ def gbcicp(
             m = match(V0 + e)
             w, scale = _weights(m, p, hold, floor(max(lam * p.anneal, lam_to)))
             record(pass_no, lam, m, delta, scale, hold)
-            if lam <= lam_to * (1 + 1e-12):
-                settle += 1
-                if settle >= p.settle_iter or delta < p.tol:
-                    break
-            lam = max(lam * p.anneal, lam_to)
+            lam, settle, done = _anneal(lam, lam_to, p.anneal, settle, delta, p)
+            if done:
+                break
         return e, m, w, scale
 
     def modal_pass(lam_from, lam_to, hold, C, pass_no):
@@ -374,11 +356,9 @@ def gbcicp(
             e_r = e_new
             m = match(V0[rows] + e_r, rows)
             record(pass_no, lam, m, delta, scale, hold_r)
-            if lam <= lam_to * (1 + 1e-12):
-                settle += 1
-                if settle >= p.settle_iter or delta < p.tol:
-                    break
-            lam = max(lam * p.modal_anneal, lam_to)
+            lam, settle, done = _anneal(lam, lam_to, p.modal_anneal, settle, delta, p)
+            if done:
+                break
         return C
 
     def judge(e, hold):
@@ -499,7 +479,7 @@ def _resolve(p: GBCICPParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> G
     if q.lambda0 is not None:
         q.solver = "full"  # the paper's parametrisation anneals full-resolution solves
     if q.coverage_radius is None:
-        q.coverage_radius = 1.5 * max(h, median_spacing(P))
+        q.coverage_radius = 1.5 * max(h, median_spacing(P))  # = deformable.coverage_radius
     if q.band_limit is None:
         q.band_limit = q.coverage_radius
     if q.band_limit_refit is None:

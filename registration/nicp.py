@@ -56,11 +56,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .deformable import DeformResult, ScanMatcher, finish
+from .deformable import DeformResult, ScanMatcher, coverage_radius, finish, scan_matcher
 from .icp import robust_scale
 from .linalg import SPDSolver, have_cholmod
-from .mesh import MeshOperators, bounding_diagonal, edges, median_edge_length, vertex_normals
-from .pointcloud import median_spacing, pca_normals
+from .mesh import MeshOperators, bounding_diagonal, edges, vertex_normals
+from .pointcloud import pca_normals
 
 log = logging.getLogger(__name__)
 
@@ -120,40 +120,6 @@ class NICPParams:
     scan_normal_k: int = 12
     cg_rtol: float = 1e-8
     targets: str = "point"
-
-
-def coverage_radius(V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> float:
-    """The shared coverage radius: 1.5 x max(median edge length, median scan spacing), mm."""
-    return 1.5 * max(median_edge_length(V0, F), median_spacing(P))
-
-
-def baseline_matcher(
-    V0: np.ndarray, F: np.ndarray, ops: MeshOperators, P: np.ndarray,
-    scan_normals: np.ndarray | None, scan_sheets: np.ndarray | None,
-    radius: float | None = None, gate: float = 0.5, k: int = 12,
-) -> ScanMatcher:
-    """The :class:`ScanMatcher` with which the baselines (NICP, CPD, RBF-FEM) are finished.
-
-    As :func:`registration.gbcicp.gbcicp` builds its own: coverage radius
-    :func:`coverage_radius` unless given; the unsigned compatibility ``|n . n_scan|`` unless
-    ``scan_sheets`` is given, when the scan normals are oriented per sheet by a vote against
-    the nominal (:func:`registration.gbcicp.orient_scan_normals`) and a vertex facing away
-    from its matched measurement (``n . n_scan < gate``) is not covered.
-
-    Parameters
-    ----------
-    V0 : (n, 3) rigidly aligned nominal, mm.  F : (f, 3).  ops : its operators (normals).
-    P : (m, 3) scan, mm.  scan_normals : (m, 3) PCA normals or None (computed, ``k``
-    neighbours).  scan_sheets : (m,) sheet labels of consistently oriented normals, or None.
-    """
-    from .gbcicp import orient_scan_normals
-
-    Ns = scan_normals if scan_normals is not None else pca_normals(P, k)
-    r = coverage_radius(V0, F, P) if radius is None else float(radius)
-    if scan_sheets is not None:
-        Ns = orient_scan_normals(P, Ns, V0, ops.normals, sheets=scan_sheets)
-        return ScanMatcher(P, Ns, ops.normals, r, signed=True, gate=gate)
-    return ScanMatcher(P, Ns, ops.normals, r, signed=False)
 
 
 class _AffineSystem:
@@ -332,7 +298,7 @@ def nicp(
     params : :class:`NICPParams` (defaults resolved from the part size and mesh).
     scan_normals : (m, 3) PCA scan normals (computed when None).
     scan_sheets : (m,) sheet labels of consistently oriented ``scan_normals``: when given,
-        the signed normal compatibility is used (see :func:`baseline_matcher`).
+        the signed normal compatibility is used (see :func:`scan_matcher`).
     progress : optional ``progress(1)`` per iteration.
 
     Returns
@@ -345,8 +311,8 @@ def nicp(
     t0 = time.perf_counter()
     p = _resolve(params or NICPParams(), V0, F, ops, P)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
-    match = baseline_matcher(V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius,
-                             gate=p.normal_gate)
+    match = scan_matcher(V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius,
+                         gate=p.normal_gate)
     final = ScanMatcher(match.P, match.Ns, ops.normals, match.radius, signed=match.signed,
                         gate=match.gate, tree=match.tree)
     c = V0.mean(axis=0)

@@ -30,9 +30,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .deformable import DeformResult, finish
+from .deformable import DeformResult, coverage_radius, finish, scan_matcher
 from .mesh import MeshOperators
-from .nicp import baseline_matcher, coverage_radius
 from .pointcloud import pca_normals
 
 log = logging.getLogger(__name__)
@@ -152,7 +151,7 @@ def rbffem(
     if progress is not None:
         progress(1)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
-    matcher = baseline_matcher(V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius)
+    matcher = scan_matcher(V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius)
     history = [dict(clamps=C, t=T, g=G, fallback=fell)]
     return finish("rbffem", V0, V, matcher, p, 1, time.perf_counter() - t0, history)
 
