@@ -369,68 +369,57 @@ def gbcicp(
 
     passes, fallback = 1, False
     guard = (float("nan"), 0)  # (flagged fraction that fired the guard, its pass)
-    if modal:
-        # each pass: iterations in the bending basis (warm-started, the held-out measurement
-        # withheld), then full-resolution solves at the band limit; the flags are judged on
-        # that full-resolution residual (the basis alone leaves fine compliance that the
-        # flag test would take for defects, and the hold-outs would feed on it)
-        k = basis.Phi.shape[1]
-        lam_pass = lam_flag
-        C = modal_pass(lam_start, lam_pass, hold, np.zeros((k, 3)), 1)
-        e, m, w, scale = run_pass(basis.Phi @ C, lam_pass, lam_pass, hold, 1,
-                                  iters=max(p.polish_iter, 1))
-        flagged = _flag(m, p, scale, flaggable)
-        n_cov = max(int(m.covered.sum()), 1)
-        flagged_fraction = float(flagged.sum()) / n_cov
-        single = (e, m, w, scale)
-        if p.passes > 1 and flagged.any():
-            if flagged_fraction > p.max_flagged_fraction:
-                fallback, guard = True, (flagged_fraction, 1)
-            else:
-                for pass_no in range(2, p.passes + 1):
-                    hold = _holdout(V0 + e, flagged, p.coverage_radius * p.holdout_factor)
-                    C = modal_pass(lam_pass, lam_pass, hold, C, pass_no)
-                    e, m, w, scale = run_pass(basis.Phi @ C, lam_refit, lam_refit, hold,
-                                              pass_no, iters=max(p.polish_iter, 1))
-                    passes = pass_no
-                    new = _flag(m, p, scale, flaggable)
-                    frac = max(flagged.sum(), new.sum()) / n_cov
-                    if frac > p.max_flagged_fraction:
-                        fallback, guard = True, (frac, pass_no)
-                        e, m, w, scale = single
-                        hold = np.zeros(n, dtype=bool)
-                        break
-                    if np.array_equal(new, flagged):
-                        break
-                    flagged = new
-    else:
-        e, m, w, scale = run_pass(e, lam_start, lam_first, hold, 1)
-        flagged = _flag(m, p, scale, flaggable)
-        n_cov = max(int(m.covered.sum()), 1)
-        flagged_fraction = float(flagged.sum()) / n_cov
-        single = (e, m, w, scale)
-        if p.passes > 1 and flagged.any():
-            if flagged_fraction > p.max_flagged_fraction:
-                fallback = True
-                guard = (flagged_fraction, 1)
-            else:
-                lam_from = lam_first
-                for pass_no in range(2, p.passes + 1):
-                    hold = _holdout(V0 + e, flagged, p.coverage_radius * p.holdout_factor)
-                    e, m, w, scale = run_pass(e, lam_from, lam_refit, hold, pass_no)
-                    passes, lam_from = pass_no, lam_refit
-                    # re-evaluate every flag against the refit: a defect the fit never saw
-                    # keeps its residual; compliance the first pass could not follow is fit
-                    new = _flag(m, p, scale, flaggable)
-                    if max(flagged.sum(), new.sum()) / n_cov > p.max_flagged_fraction:
-                        fallback = True
-                        guard = (max(flagged.sum(), new.sum()) / n_cov, pass_no)
-                        e, m, w, scale = single
-                        hold = np.zeros(n, dtype=bool)
-                        break
-                    if np.array_equal(new, flagged):
-                        break
-                    flagged = new
+    # modal: each pass iterates in the bending basis (warm-started, the held-out measurement
+    # withheld), then solves at full resolution at the band limit; the flags are judged on
+    # that full-resolution residual (the basis alone leaves fine compliance that the flag
+    # test would take for defects, and the hold-outs would feed on it).
+    # full: the paper's schedule, every iteration a full-resolution solve.
+    C = np.zeros((basis.Phi.shape[1], 3)) if modal else None
+    lam_from = lam_first
+
+    def first_pass():
+        nonlocal C
+        if modal:
+            C = modal_pass(lam_start, lam_flag, hold, C, 1)
+            return run_pass(basis.Phi @ C, lam_flag, lam_flag, hold, 1,
+                            iters=max(p.polish_iter, 1))
+        return run_pass(e, lam_start, lam_first, hold, 1)
+
+    def refit(e, hold, pass_no):
+        nonlocal C, lam_from
+        if modal:
+            C = modal_pass(lam_flag, lam_flag, hold, C, pass_no)
+            return run_pass(basis.Phi @ C, lam_refit, lam_refit, hold, pass_no,
+                            iters=max(p.polish_iter, 1))
+        out = run_pass(e, lam_from, lam_refit, hold, pass_no)
+        lam_from = lam_refit
+        return out
+
+    e, m, w, scale = first_pass()
+    flagged = _flag(m, p, scale, flaggable)
+    n_cov = max(int(m.covered.sum()), 1)
+    flagged_fraction = float(flagged.sum()) / n_cov
+    single = (e, m, w, scale)
+    if p.passes > 1 and flagged.any():
+        if flagged_fraction > p.max_flagged_fraction:
+            fallback, guard = True, (flagged_fraction, 1)
+        else:
+            for pass_no in range(2, p.passes + 1):
+                hold = _holdout(V0 + e, flagged, p.coverage_radius * p.holdout_factor)
+                e, m, w, scale = refit(e, hold, pass_no)
+                passes = pass_no
+                # re-evaluate every flag against the refit: a defect the fit never saw keeps
+                # its residual; compliance the first pass could not follow has been fit
+                new = _flag(m, p, scale, flaggable)
+                frac = max(flagged.sum(), new.sum()) / n_cov
+                if frac > p.max_flagged_fraction:
+                    fallback, guard = True, (frac, pass_no)
+                    e, m, w, scale = single
+                    hold = np.zeros(n, dtype=bool)
+                    break
+                if np.array_equal(new, flagged):
+                    break
+                flagged = new
     if fallback:
         log.warning(
             "GB-CICP: %.1f %% of covered vertices flagged in pass %d (> %.0f %%): fit "
