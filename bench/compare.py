@@ -39,7 +39,7 @@ import igl
 import numpy as np
 import pandas as pd
 
-from metrology.hygiene import near_boundary
+from metrology.inspection import InspectionParams, unscored_bands
 from registration import methods
 from registration.cpd import CPDParams, cpd_warp, sample_points
 from registration.cpd import _resolve as resolve_cpd
@@ -49,8 +49,6 @@ from registration.mesh import (
     bending_operator,
     boundary_vertices,
     bounding_diagonal,
-    crease_band,
-    median_edge_length,
 )
 from registration.pointcloud import orient_normals_consistent, pca_normals
 from registration.simulate.cases import inspection_error, make_case
@@ -152,10 +150,10 @@ def run_table(part: str, generator: str, args) -> pd.DataFrame:
     V, F, case = build(part, generator, args.seed, args.fandisk)
     boundary = boundary_vertices(F, len(V))
     energy = "hessian" if boundary.any() else "laplacian"
-    # GB-CICP flags only what the product scores: not the crease or rim bands (1.5 median
-    # edges, creases > 45 degrees; metrology.inspection.inspect's defaults)
-    band = 1.5 * median_edge_length(V, F)
-    flaggable = ~(crease_band(V, F, band, 45.0) | near_boundary(V, boundary, band))
+    # GB-CICP flags only what the product scores: not the crease or rim bands (the
+    # inspection's defaults)
+    near_crease, near_rim, _ = unscored_bands(V, F, boundary, InspectionParams())
+    flaggable = ~(near_crease | near_rim)
     t0 = time.perf_counter()
     ops = bending_operator(V, F, energy)
     t_ops = time.perf_counter() - t0

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from registration.deformable import DeformResult, orient_scan_normals
 from registration.errors import InputError
-from registration.gbcicp import BendingBasis, GBCICPParams, bending_basis
+from registration.gbcicp import BendingBasis, GBCICPParams
 from registration.icp import RigidResult, rigid_icp
 from registration.mesh import (
     bending_operator,
@@ -405,6 +405,31 @@ def check_units(V: np.ndarray, P: np.ndarray, scan_units: str | None = None) -> 
         )
 
 
+def unscored_bands(
+    V: np.ndarray, F: np.ndarray, boundary: np.ndarray, params: InspectionParams,
+) -> tuple[np.ndarray | None, np.ndarray, float]:
+    """The vertices an inspection does not score, from the nominal alone.
+
+    Parameters
+    ----------
+    V : (n, 3) nominal vertices, mm.  F : (f, 3) triangles.
+    boundary : (n,) open-boundary vertices (:func:`registration.mesh.boundary_vertices`).
+    params : ``edge_band`` (default 1.5 median edges), ``crease_angle``, ``boundary_band``
+        (default the edge band).
+
+    Returns
+    -------
+    near_crease : (n,) bool within the edge band of a sharp crease, or None when the band
+        is 0.  near_rim : (n,) bool within the rim band of an open boundary.
+    rim_band : the rim band, mm.
+    """
+    band = (1.5 * median_edge_length(V, F) if params.edge_band is None
+            else float(params.edge_band))
+    near_crease = crease_band(V, F, band, params.crease_angle) if band > 0 else None
+    rim_band = band if params.boundary_band is None else float(params.boundary_band)
+    return near_crease, near_boundary(V, boundary, rim_band), rim_band
+
+
 def inspect(
     V: np.ndarray,
     F: np.ndarray,
@@ -479,21 +504,15 @@ def inspect(
     Ns, sheets = orient_normals_consistent(Pm, pca_normals(Pm, params.gbcicp.scan_normal_k))
     # the scored set depends on the nominal only: vertices near a sharp crease or an open
     # rim are neither scored nor flagged by the virtual fixture as defect candidates
-    band = (1.5 * median_edge_length(V, F) if params.edge_band is None
-            else float(params.edge_band))
-    near_crease = crease_band(V, F, band, params.crease_angle) if band > 0 else None
-    rim_band = band if params.boundary_band is None else float(params.boundary_band)
-    near_rim = near_boundary(V, boundary, rim_band)
+    near_crease, near_rim, rim_band = unscored_bands(V, F, boundary, params)
     if not params.rigid_only:
-        if (params.method == "gbcicp" and params.gbcicp.solver == "modal"
-                and params.gbcicp.lambda0 is None and basis is None):
-            basis = bending_basis(ops, params.gbcicp.modes)
         flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
         fit = deform(params.method, V, F, ops, Pm,
                      params.gbcicp if params.method == "gbcicp" else None,
                      scan_normals=Ns, scan_sheets=sheets, progress=progress, basis=basis,
                      flaggable=flaggable)
         V_reg = fit.V
+        basis = fit.basis
     timings[params.method] = time.perf_counter() - t0
 
     t0 = time.perf_counter()

@@ -45,6 +45,8 @@ class DeformResult:
     params : the parameters actually used (a dataclass; defaults resolved).
     history : per-iteration record.
     method : ``"gbcicp"``, ``"nicp"``, ``"cpd"`` or ``"rbffem"``.
+    basis : GB-CICP's bending basis (:class:`registration.gbcicp.BendingBasis`), per-part
+        state to reuse for further scans of the part; None for the other methods.
     """
 
     V: np.ndarray
@@ -65,6 +67,7 @@ class DeformResult:
     guard_fraction: float = float("nan")
     guard_pass: int = 0
     method: str = "gbcicp"
+    basis: Any = None
 
 
 @dataclass

@@ -38,11 +38,11 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
-from .deformable import DeformResult, Match, ScanMatcher, orient_scan_normals
+from .deformable import DeformResult, Match, ScanMatcher, coverage_radius, orient_scan_normals
 from .icp import robust_scale
 from .linalg import SPDSolver
-from .mesh import MeshOperators, bounding_diagonal, median_edge_length
-from .pointcloud import median_spacing, pca_normals
+from .mesh import MeshOperators, bounding_diagonal
+from .pointcloud import pca_normals
 
 log = logging.getLogger(__name__)
 
@@ -75,20 +75,19 @@ class GBCICPParams:
     holdout_factor : withhold measurement within this many coverage radii of a flagged vertex.
     max_flagged_fraction : fall back to the single-pass result above this fraction (0.2).
     scan_normal_k : neighbours for the PCA scan normals.
-    solver : ``"modal"`` (default with the band-limit parametrisation): the first pass is
-        solved in the ``modes`` lowest bending modes of the part (:func:`bending_basis`, a
-        per-part precomputation), each iteration a ``modes x modes`` solve on at most
-        ``modal_rows`` vertices; the refit passes and the final ``polish_iter`` iterations
-        are full-resolution sparse solves at the band limit. ``"full"``: every iteration a
+    solver : ``"modal"`` (default with the band-limit parametrisation): every pass iterates
+        in the ``modes`` lowest bending modes of the part (:func:`bending_basis`, a per-part
+        precomputation), each iteration a ``modes x modes`` solve on at most ``modal_rows``
+        vertices, and closes with ``polish_iter`` full-resolution sparse solves at the band
+        limit, on whose residual the flags are judged. ``"full"``: every iteration a
         full-resolution sparse factorisation (the paper's Algorithm 2).
     modes : size of the bending basis (``"modal"``).
     modal_rows : data rows used per modal iteration (every k-th vertex beyond this).
     modal_anneal : factor applied to lambda per modal iteration (a modal solve is global,
         so the stiffness can fall faster than in the paper's full-resolution schedule).
-    polish_iter : full-resolution iterations closing the modal solver (at ``band_limit``, or
-        at ``band_limit_refit`` with the held-out measurement withheld after a refit).
-    flag_stiffness : (modal) the first pass's full-resolution solve, whose residual is
-        flagged, runs at ``flag_stiffness x band_limit``.
+    polish_iter : full-resolution iterations closing each modal pass (at least one; at
+        ``band_limit``, or at ``band_limit_refit`` with the held-out measurement withheld in
+        a refit).
     signed_compat : orient the scan normals (consistently per connected sheet, the side of
         each sheet by a vote against the posed nominal's normals) and use the *signed*
         normal compatibility ``n . n_scan``: a vertex whose normal faces away from the
@@ -119,7 +118,6 @@ class GBCICPParams:
     modal_rows: int = 4000
     modal_anneal: float = 0.5
     polish_iter: int = 1
-    flag_stiffness: float = 1.0
 
 
 GBCICPResult = DeformResult  # the shared result of every deformable method
@@ -277,7 +275,6 @@ def gbcicp(
         lam_start = p.band_limit_start**4
         lam_first = p.band_limit**4
         lam_refit = p.band_limit_refit**4
-    lam_flag = lam_first * p.flag_stiffness**4 if modal else lam_first
     if modal:
         if basis is None or basis.Phi.shape[0] != n or basis.energy != ops.energy:
             basis = bending_basis(ops, p.modes)
@@ -292,7 +289,7 @@ def gbcicp(
     hold = np.zeros(n, dtype=bool)
 
     def record(pass_no, lam, m, delta, scale, hold):
-        fitted = m.covered & ~(hold if len(hold) == len(m.r) else hold[rows])
+        fitted = m.covered & ~hold
         rms = float(np.sqrt(np.mean(m.r[fitted] ** 2))) if fitted.any() else np.nan
         history.append(dict(pass_no=pass_no, lam=lam, rms=rms, delta=delta, scale=scale))
         if progress is not None:
@@ -361,12 +358,6 @@ def gbcicp(
                 break
         return C
 
-    def judge(e, hold):
-        """Full-resolution match of ``V0 + e``: (match, weights, scale, flags)."""
-        m = match(V0 + e)
-        w, scale = _weights(m, p, hold)
-        return m, w, scale, _flag(m, p, scale, flaggable)
-
     passes, fallback = 1, False
     guard = (float("nan"), 0)  # (flagged fraction that fired the guard, its pass)
     # modal: each pass iterates in the bending basis (warm-started, the held-out measurement
@@ -380,15 +371,15 @@ def gbcicp(
     def first_pass():
         nonlocal C
         if modal:
-            C = modal_pass(lam_start, lam_flag, hold, C, 1)
-            return run_pass(basis.Phi @ C, lam_flag, lam_flag, hold, 1,
+            C = modal_pass(lam_start, lam_first, hold, C, 1)
+            return run_pass(basis.Phi @ C, lam_first, lam_first, hold, 1,
                             iters=max(p.polish_iter, 1))
         return run_pass(e, lam_start, lam_first, hold, 1)
 
     def refit(e, hold, pass_no):
         nonlocal C, lam_from
         if modal:
-            C = modal_pass(lam_flag, lam_flag, hold, C, pass_no)
+            C = modal_pass(lam_first, lam_first, hold, C, pass_no)
             return run_pass(basis.Phi @ C, lam_refit, lam_refit, hold, pass_no,
                             iters=max(p.polish_iter, 1))
         out = run_pass(e, lam_from, lam_refit, hold, pass_no)
@@ -446,6 +437,7 @@ def gbcicp(
         params=p,
         history=history,
         method="gbcicp",
+        basis=basis if modal else None,
     )
 
 
@@ -461,14 +453,13 @@ def _holdout(X: np.ndarray, flagged: np.ndarray, radius: float) -> np.ndarray:
 def _resolve(p: GBCICPParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> GBCICPParams:
     """Fill in the size-dependent defaults."""
     diag = bounding_diagonal(V0)
-    h = median_edge_length(V0, F)
     q = GBCICPParams(**vars(p))
     if q.solver not in ("modal", "full"):
         raise ValueError(f"unknown GB-CICP solver {q.solver!r} (modal or full)")
     if q.lambda0 is not None:
         q.solver = "full"  # the paper's parametrisation anneals full-resolution solves
     if q.coverage_radius is None:
-        q.coverage_radius = 1.5 * max(h, median_spacing(P))  # = deformable.coverage_radius
+        q.coverage_radius = coverage_radius(V0, F, P)
     if q.band_limit is None:
         q.band_limit = q.coverage_radius
     if q.band_limit_refit is None:
