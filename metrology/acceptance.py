@@ -267,6 +267,21 @@ class Acceptance:
         }
 
 
+def region_reasons(regions: list[Region], max_region_area: float) -> list[str]:
+    """The failure reasons of the regions larger than ``max_region_area`` (mm^2): one line
+    each for the first few (regions are largest first), then a count of the rest."""
+    big = [r for r in regions if r.area > max_region_area]
+    out = []
+    for r in big[:_MAX_REASONS]:
+        x, y, z = r.centroid
+        kind = "proud" if r.sign > 0 else "sunk"
+        out.append(f"region of {r.area:.1f} mm^2 at ({x:.1f}, {y:.1f}, {z:.1f}) exceeds "
+                   f"{max_region_area:.1f} mm^2 (peak {r.peak:+.3f} mm, {kind})")
+    if len(big) > _MAX_REASONS:
+        out.append(f"... and {len(big) - _MAX_REASONS} more regions above the limit")
+    return out
+
+
 def evaluate(
     V: np.ndarray,
     F: np.ndarray,
@@ -318,16 +333,7 @@ def evaluate(
                 f"in-tolerance area {100 * frac:.1f} % of the scored area is below "
                 f"{100 * min_fraction:.1f} %"
             )
-        big = [r for r in regions if r.area > max_region_area]
-        for r in big[:_MAX_REASONS]:
-            x, y, z = r.centroid
-            kind = "proud" if r.sign > 0 else "sunk"
-            reasons.append(
-                f"region of {r.area:.1f} mm^2 at ({x:.1f}, {y:.1f}, {z:.1f}) exceeds "
-                f"{max_region_area:.1f} mm^2 (peak {r.peak:+.3f} mm, {kind})"
-            )
-        if len(big) > _MAX_REASONS:
-            reasons.append(f"... and {len(big) - _MAX_REASONS} more regions above the limit")
+        reasons += region_reasons(regions, max_region_area)
     tol_out: float | np.ndarray = (
         float(tolerance) if np.ndim(tolerance) == 0 else np.asarray(tolerance, dtype=float)
     )

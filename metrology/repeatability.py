@@ -55,7 +55,7 @@ from typing import Any
 
 import numpy as np
 
-from .acceptance import _MAX_REASONS, Acceptance, Region
+from .acceptance import Acceptance, Region, region_reasons
 from .statistics import _json_float
 
 log = logging.getLogger(__name__)
@@ -150,14 +150,6 @@ def spread(values) -> float:
     return float(0.5 * (x.max() - x.min())) if len(x) else math.nan
 
 
-def _region_reason(r: Region, limit: float) -> str:
-    """The failure reason of one region, worded as :func:`metrology.acceptance.evaluate`."""
-    x, y, z = r.centroid
-    kind = "proud" if r.sign > 0 else "sunk"
-    return (f"region of {r.area:.1f} mm^2 at ({x:.1f}, {y:.1f}, {z:.1f}) exceeds "
-            f"{limit:.1f} mm^2 (peak {r.peak:+.3f} mm, {kind})")
-
-
 def restrict_acceptance(acc: Acceptance, keep: np.ndarray) -> Acceptance:
     """The acceptance re-judged on the regions ``acc.regions[keep]`` only.
 
@@ -178,10 +170,7 @@ def restrict_acceptance(acc: Acceptance, keep: np.ndarray) -> Acceptance:
     passed = bool(acc.area_ok and region_ok and acc.scored_area > 0)
     reasons = [s for s in acc.reasons
                if not (s.startswith("region of ") or s.startswith("... and "))]
-    big = [r for r in regions if r.area > acc.max_region_area]
-    reasons += [_region_reason(r, acc.max_region_area) for r in big[:_MAX_REASONS]]
-    if len(big) > _MAX_REASONS:
-        reasons.append(f"... and {len(big) - _MAX_REASONS} more regions above the limit")
+    reasons += region_reasons(regions, acc.max_region_area)
     return replace(acc, regions=regions, largest_region_area=float(largest),
                    region_ok=region_ok, passed=passed, reasons=reasons)
 
