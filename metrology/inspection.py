@@ -24,8 +24,6 @@ from registration.errors import InputError
 from registration.gbcicp import BendingBasis, GBCICPParams
 from registration.icp import RigidResult, rigid_icp
 from registration.mesh import (
-    bending_operator,
-    boundary_vertices,
     bounding_diagonal,
     crease_band,
     median_edge_length,
@@ -53,7 +51,8 @@ from .bands import (
     zone_vertex_areas,
 )
 from .deviation import beyond_rim, closest_points, nominal_referenced
-from .hygiene import MeshHygiene, mesh_hygiene, near_boundary
+from .hygiene import MeshHygiene, near_boundary
+from .prepared import PreparedPart, hygiene_copy, prepare_part
 from .repeatability import Repeatability
 from .statistics import DeviationStats, deviation_statistics
 
@@ -442,6 +441,7 @@ def inspect(
     not_evaluated: list[NotEvaluated] | None = None,
     scan_units: str | None = None,
     basis: BendingBasis | None = None,
+    prepared: PreparedPart | None = None,
 ) -> InspectionResult:
     """Inspect the scan ``P`` against the nominal ``(V, F)``.
 
@@ -460,6 +460,10 @@ def inspect(
     scan_units : the unit the user declared for the scan file (for the units hint only).
     basis : the nominal's GB-CICP bending basis (:func:`registration.gbcicp.bending_basis`),
         to reuse it across scans of one part; computed when needed if omitted.
+    prepared : the nominal's scan-independent state (:func:`metrology.prepared.prepare_part`
+        with these ``params``), to reuse across scans of one part: operators, unscored
+        bands, hygiene, bending basis (unless ``basis`` is given) and the pose search's
+        model. ``ValueError`` if it was prepared for another mesh or other settings.
 
     Raises
     ------
@@ -472,18 +476,20 @@ def inspect(
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     check_units(V, P, scan_units)
-    boundary = boundary_vertices(F, len(V))
-    energy = params.energy
-    if energy == "auto":
-        energy = "hessian" if boundary.any() else "laplacian"
-    ops = bending_operator(V, F, energy)
+    if prepared is None:
+        prepared = prepare_part(V, F, params, basis=False, model=False)
+    else:
+        prepared.check(V, F, params)
+        if basis is None:
+            basis = prepared.basis
+    energy, ops = prepared.energy, prepared.ops
     timings["operators"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    seat = seat_scan(V, F, P, mode=params.prealign)
+    seat = seat_scan(V, F, P, mode=params.prealign, model=prepared.model)
     timings["prealign"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    tree = cKDTree(V)
+    tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
     rigid = rigid_icp(V, ops.normals, P, R0=seat.R, t0=seat.t, tree=tree)
     Pm = rigid.apply(P)
     timings["rigid"] = time.perf_counter() - t0
@@ -504,7 +510,7 @@ def inspect(
     Ns, sheets = orient_normals_consistent(Pm, pca_normals(Pm, params.gbcicp.scan_normal_k))
     # the scored set depends on the nominal only: vertices near a sharp crease or an open
     # rim are neither scored nor flagged by the virtual fixture as defect candidates
-    near_crease, near_rim, rim_band = unscored_bands(V, F, boundary, params)
+    near_crease, near_rim, rim_band = prepared.near_crease, prepared.near_rim, prepared.rim_band
     if not params.rigid_only:
         flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
         fit = deform(params.method, V, F, ops, Pm,
@@ -536,7 +542,7 @@ def inspect(
         dev_free = nominal_referenced(
             V, F, Pm, normals=ops.normals,
             scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets))
-    hygiene = mesh_hygiene(V, F)
+    hygiene = hygiene_copy(prepared.hygiene)
     hygiene.boundary_band = rim_band
     hygiene.boundary_excluded_area = float(ops.area[near_rim].sum())
     hygiene.boundary_excluded_fraction = hygiene.boundary_excluded_area / max(

@@ -25,31 +25,29 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import hashlib
 import json
 import logging
 import os
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from datetime import datetime, timezone
 from pathlib import Path
 
 import numpy as np
 
-from metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
 from metrology.inspection import InspectionParams, InspectionResult, inspect
 from metrology.repeatability import KEEP_FRACTION, resample_mask
 from metrology.repeatability import apply as apply_repeatability
 from registration.errors import InputError
 from registration.gbcicp import GBCICPParams
-from registration.mesh import bounding_diagonal, load_mesh
 from registration.methods import METHODS
 from registration.pointcloud import load_scan
 from step.atomic import atomic_write_many
-from step.reader import STEP_SUFFIXES
 
 from . import __version__
+from .cache import NominalOptions, default_cache_dir, part_state, sha256
+from .nominal import Nominal, load_nominal  # noqa: F401  (re-exported)
 from .profile import Profiler
 from .summary import SUMMARY_SCHEMA_VERSION
 
@@ -68,6 +66,14 @@ def _parser() -> argparse.ArgumentParser:
                     help="nominal: STEP (AP242 with PMI) or mesh (STL, PLY, OBJ, OFF), mm")
     ap.add_argument("scan", type=Path,
                     help="scan point cloud (PLY, STL, OBJ, OFF, XYZ, CSV, NPY, E57)")
+    add_options(ap, batch=False)
+    return ap
+
+
+def add_options(ap: argparse.ArgumentParser, batch: bool) -> None:
+    """The inspection options, shared by ``qifreport NOMINAL SCAN`` and ``qifreport batch``
+    (``batch=True`` leaves out the single-scan ones: ``--json``, ``--serial``,
+    ``--export-mesh``, ``--profile``)."""
     ap.add_argument("--tolerance", type=float, default=None, metavar="MM",
                     help="general profile tolerance half-width (|deviation| <= MM) on faces no "
                     "PMI profile covers; required for mesh nominals; STEP default 0.5")
@@ -82,8 +88,9 @@ def _parser() -> argparse.ArgumentParser:
                     "the standard's unit)")
     ap.add_argument("--force", action="store_true",
                     help="overwrite existing output files (default: refuse, exit 2)")
-    ap.add_argument("--json", action="store_true",
-                    help="write DIR/<nominal>.json with all statistics, verdict and regions")
+    if not batch:
+        ap.add_argument("--json", action="store_true",
+                        help="write DIR/<nominal>.json with all statistics, verdict and regions")
     ap.add_argument("--no-qif", action="store_true",
                     help="do not write DIR/<nominal>.qif (the QIF 3.0 results document)")
     ap.add_argument("--no-pdf", action="store_true",
@@ -94,9 +101,11 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--organization", metavar="NAME",
                     help="QIF header and traceability: inspecting organization")
     ap.add_argument("--operator", metavar="NAME", help="QIF traceability: inspection operator")
-    ap.add_argument("--serial", metavar="SN", help="serial number of the inspected part")
-    ap.add_argument("--export-mesh", type=Path, metavar="PATH",
-                    help="write the registered nominal as PLY with a per-vertex 'deviation'")
+    if not batch:
+        ap.add_argument("--serial", metavar="SN", help="serial number of the inspected part")
+    if not batch:
+        ap.add_argument("--export-mesh", type=Path, metavar="PATH",
+                        help="write the registered nominal as PLY with a per-vertex 'deviation'")
     ap.add_argument("--min-fraction", type=float, default=0.95,
                     help="area criterion: in-tolerance fraction of scored area, 0..1 "
                     "(default 0.95)")
@@ -135,21 +144,17 @@ def _parser() -> argparse.ArgumentParser:
                     "found in every run; the figures reported are the full scan's. Default 1: "
                     "no resampling")
     ap.add_argument("--rigid-only", action="store_true", help="no virtual fixture (baseline)")
-    ap.add_argument("--profile", action="store_true",
-                    help="print wall time and peak resident memory per stage")
+    ap.add_argument("--cache", type=Path, default=None, metavar="DIR",
+                    help="per-part cache of the nominal's prepared state (default "
+                    "$QIFREPORT_CACHE or the user cache directory; see `qifreport prepare`)")
+    ap.add_argument("--no-cache", action="store_true",
+                    help="prepare the nominal afresh and store nothing")
+    if not batch:
+        ap.add_argument("--profile", action="store_true",
+                        help="print wall time and peak resident memory per stage")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     ap.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     ap.add_argument("--version", action="version", version=f"qifreport {__version__}")
-    return ap
-
-
-def sha256(path: Path) -> str:
-    """Hex SHA-256 digest of a file."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def write_ply_with_scalar(
@@ -239,59 +244,8 @@ def _fixture_text(res: InspectionResult) -> str:
             f"iterations, robust residual {fit.scale:.3f} mm)")
 
 
-@dataclass
-class Nominal:
-    """The nominal as the inspection needs it: mesh, face ids, zones, provenance."""
-
-    V: np.ndarray
-    F: np.ndarray
-    face_id: np.ndarray | None
-    zones: list[ToleranceZone]
-    not_evaluated: list[NotEvaluated]
-    info: dict
-    datums: list[str] = field(default_factory=list)
-
-
-def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = None,
-                 deflection: float | None = None) -> Nominal:
-    """Read a STEP part (mesh + PMI zones) or a mesh nominal (one general zone)."""
-    if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
-        raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
-    if path.suffix.lower() in STEP_SUFFIXES:
-        from step.reader import read_step
-        from step.tessellate import tessellate
-
-        part = read_step(path)
-        if max_edge is None:
-            from step.tessellate import _shape_diagonal
-
-            max_edge = _shape_diagonal(part.shape) / 60.0
-        mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
-        zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
-        pmi = part.pmi
-        info = {
-            "format": "step", "schema": getattr(pmi, "schema", None),
-            "length_unit": getattr(pmi, "length_unit", None),
-            "b_rep_faces": len(part.faces), "solids": part.n_solids,
-            "tessellation": {"deflection_mm": mesh.deflection, "max_edge_mm": max_edge,
-                             "vertices": len(mesh.V), "triangles": len(mesh.F)},
-            "pmi_counts": {"tolerances": len(pmi.tolerances) if pmi else 0,
-                           "dimensions": len(pmi.dimensions) if pmi else 0,
-                           "datums": len(pmi.datums) if pmi else 0},
-            "timings_s": {**part.timings, "tessellate": mesh.seconds},
-        }
-        datums = [d.label for d in pmi.datums] if pmi is not None else []
-        return Nominal(mesh.V, mesh.F, mesh.face_id, zones, skipped, info,
-                       list(dict.fromkeys(datums)))
-    if tolerance is None:
-        raise InputError(f"{path.name} is a mesh nominal: it carries no tolerance, give "
-                         "--tolerance MM (or use the STEP file with PMI)")
-    V, F = load_mesh(path)
-    info = {"format": "mesh", "diagonal_mm": bounding_diagonal(V)}
-    return Nominal(V, F, None, [symmetric_zone(tolerance, "general")], [], info)
-
-
-def _check_args(args: argparse.Namespace) -> None:
+def _check_args_common(args: argparse.Namespace) -> None:
+    """Checks of the options shared with ``qifreport batch``."""
     if not (np.isfinite(args.min_fraction) and 0.0 < args.min_fraction <= 1.0):
         raise InputError(f"--min-fraction must be a fraction in (0, 1], got {args.min_fraction}"
                          " (0.95 means 95 %)")
@@ -301,6 +255,10 @@ def _check_args(args: argparse.Namespace) -> None:
                          f"{args.max_region_area}")
     if args.seeds < 1:
         raise InputError(f"--seeds must be a number of runs >= 1, got {args.seeds}")
+
+
+def _check_args(args: argparse.Namespace) -> None:
+    _check_args_common(args)
     for name in ("nominal", "scan"):
         path = getattr(args, name)
         if not path.is_file():
@@ -343,9 +301,10 @@ def _stage(prof: Profiler | None, name: str):
     return prof.stage(name) if prof is not None else contextlib.nullcontext()
 
 
-def output_paths(args: argparse.Namespace) -> dict[str, Path]:
-    """The files this run will write: ``qif``, ``pdf``, ``json``, ``mesh`` (those asked for)."""
-    stem = args.nominal.stem
+def output_paths(args: argparse.Namespace, stem: str | None = None) -> dict[str, Path]:
+    """The files this run will write: ``qif``, ``pdf``, ``json``, ``mesh`` (those asked for),
+    named ``<stem>.*`` in ``args.out`` (default stem: the nominal's)."""
+    stem = args.nominal.stem if stem is None else stem
     out = {"qif": None if args.no_qif else args.out / f"{stem}.qif",
            "pdf": None if args.no_pdf else args.out / f"{stem}.pdf",
            "json": args.out / f"{stem}.json" if args.json else None,
@@ -369,7 +328,7 @@ def _check_outputs(args: argparse.Namespace) -> None:
 
 
 def resampled_runs(res: InspectionResult, params: InspectionParams, nom: Nominal,
-                   seeds: int, bar=None) -> None:
+                   seeds: int, bar=None, prepared=None) -> None:
     """Inspect ``seeds`` resamplings of the scan and keep only the persistent regions of
     ``res`` (:mod:`metrology.repeatability`; ``res`` is changed in place).
 
@@ -387,54 +346,24 @@ def resampled_runs(res: InspectionResult, params: InspectionParams, nom: Nominal
         runs.append(inspect(res.V, res.F, res.P[keep], p,
                             progress=None if bar is None else bar.update,
                             face_id=nom.face_id, zones=nom.zones,
-                            not_evaluated=nom.not_evaluated, basis=res.basis))
+                            not_evaluated=nom.not_evaluated, basis=res.basis,
+                            prepared=prepared))
     seconds = time.perf_counter() - t0
     apply_repeatability(res, runs, KEEP_FRACTION, seconds=seconds)
     res.timings["repeatability"] = seconds
 
 
-def run(args: argparse.Namespace) -> int:
-    _check_args(args)
-    _check_outputs(args)
-    started = datetime.now(timezone.utc)
-    prof = Profiler().start() if args.profile else None
-    with _stage(prof, "load nominal"):
-        nom = load_nominal(args.nominal, args.tolerance, args.max_edge, args.deflection)
-    V, F = nom.V, nom.F
-    with _stage(prof, "load scan"):
-        P = load_scan(args.scan, units=args.scan_units)
-    g = GBCICPParams(passes=max(1, args.passes), band_limit=args.band_limit)
-    params = InspectionParams(
-        tolerance=args.tolerance, min_fraction=args.min_fraction, energy=args.energy,
-        edge_band=args.edge_band, boundary_band=args.boundary_band,
-        rigid_only=args.rigid_only, prealign=args.prealign,
-        fail_on_added_material=args.fail_on_added_material, method=args.method, gbcicp=g,
-    )
-    if args.max_region_area is not None:
-        params.max_region_area = args.max_region_area
+def output_writers(res: InspectionResult, nom: Nominal, args: argparse.Namespace,
+                   paths: dict[str, Path], digests: dict[str, str], started: datetime,
+                   finished: datetime) -> tuple[list, dict | None]:
+    """The writers ``[(path, write(tmp))]`` of one inspection's outputs, in writing order
+    (the QIF first: the JSON summary reports its validation), and the QIF's state block.
 
-    bar = None
-    if not args.quiet:
-        from tqdm import tqdm
-
-        bar = tqdm(desc="virtual fixturing", unit="it", file=sys.stderr, leave=False)
-    t_inspect = time.perf_counter()
-    try:
-        res = inspect(V, F, P, params, progress=None if bar is None else bar.update,
-                      scan_units=args.scan_units,
-                      face_id=nom.face_id, zones=nom.zones, not_evaluated=nom.not_evaluated)
-        if args.seeds > 1:
-            with _stage(prof, f"repeatability ({args.seeds} resamplings)"):
-                resampled_runs(res, params, nom, args.seeds, bar)
-    finally:
-        if bar is not None:
-            bar.close()
-    if prof is not None:
-        prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
-    finished = datetime.now(timezone.utc)
-    digests = {"nominal": sha256(args.nominal), "scan": sha256(args.scan)}
-
-    paths = output_paths(args)
+    ``args`` gives the names recorded in the outputs (``nominal``, ``scan``), the header
+    fields (``author``, ``organization``, ``operator``, ``serial``) and the choices
+    (``no_qif``, ``no_pdf``, ``json``, ``page``); ``paths`` is :func:`output_paths`.
+    """
+    F = nom.F
     outputs: list = []
     qif_state = None
     prov = None
@@ -480,6 +409,75 @@ def run(args: argparse.Namespace) -> int:
     if "mesh" in paths:
         outputs.append((paths["mesh"], lambda p: write_ply_with_scalar(
             p, res.V_registered, F, "deviation", res.deviation)))
+    return outputs, qif_state
+
+
+def inspection_params(args: argparse.Namespace) -> InspectionParams:
+    """The :class:`InspectionParams` of the command line."""
+    g = GBCICPParams(passes=max(1, args.passes), band_limit=args.band_limit)
+    params = InspectionParams(
+        tolerance=args.tolerance, min_fraction=args.min_fraction, energy=args.energy,
+        edge_band=args.edge_band, boundary_band=args.boundary_band,
+        rigid_only=args.rigid_only, prealign=args.prealign,
+        fail_on_added_material=args.fail_on_added_material, method=args.method, gbcicp=g,
+    )
+    if args.max_region_area is not None:
+        params.max_region_area = args.max_region_area
+    return params
+
+
+def nominal_options(args: argparse.Namespace) -> NominalOptions:
+    """How the command line reads the nominal."""
+    if args.tolerance is not None and not (np.isfinite(args.tolerance) and args.tolerance > 0):
+        raise InputError(f"--tolerance must be a positive length in mm, got {args.tolerance}")
+    return NominalOptions(args.tolerance, args.max_edge, args.deflection)
+
+
+def cache_dir(args: argparse.Namespace) -> Path | None:
+    """The cache directory of the command line (None with ``--no-cache``)."""
+    if getattr(args, "no_cache", False):
+        return None
+    return args.cache if args.cache is not None else default_cache_dir()
+
+
+def run(args: argparse.Namespace) -> int:
+    _check_args(args)
+    _check_outputs(args)
+    started = datetime.now(timezone.utc)
+    prof = Profiler().start() if args.profile else None
+    params = inspection_params(args)
+    with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
+        P = load_scan(args.scan, units=args.scan_units)
+    with _stage(prof, "prepare part (cache)"):
+        state, cache = part_state(args.nominal, nominal_options(args), params,
+                                  cache_dir(args))
+    log.info("%s", cache.describe())
+    nom = state.nominal
+    V, F = nom.V, nom.F
+
+    bar = None
+    if not args.quiet:
+        from tqdm import tqdm
+
+        bar = tqdm(desc="virtual fixturing", unit="it", file=sys.stderr, leave=False)
+    t_inspect = time.perf_counter()
+    try:
+        res = inspect(V, F, P, params, progress=None if bar is None else bar.update,
+                      scan_units=args.scan_units, face_id=nom.face_id, zones=nom.zones,
+                      not_evaluated=nom.not_evaluated, prepared=state.prepared)
+        if args.seeds > 1:
+            with _stage(prof, f"repeatability ({args.seeds} resamplings)"):
+                resampled_runs(res, params, nom, args.seeds, bar, prepared=state.prepared)
+    finally:
+        if bar is not None:
+            bar.close()
+    if prof is not None:
+        prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
+    finished = datetime.now(timezone.utc)
+    digests = {"nominal": state.nominal_sha256, "scan": sha256(args.scan)}
+
+    paths = output_paths(args)
+    outputs, qif_state = output_writers(res, nom, args, paths, digests, started, finished)
     # all outputs or none: a failure in any writer publishes nothing
     with _stage(prof, "write outputs"):
         atomic_write_many(outputs)
@@ -541,6 +539,41 @@ def _pmi_main(argv: list[str]) -> int:
     return 0
 
 
+def _prepare_main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(
+        prog="qifreport prepare",
+        description="Read a nominal and store its prepared state (tessellation, zones, "
+        "operators, bands, bending basis, pose-search model) in the per-part cache, so "
+        "every later inspection of the part loads it instead of building it.")
+    ap.add_argument("nominal", type=Path, help="nominal: STEP (AP242 with PMI) or mesh, mm")
+    for flag in ("--tolerance", "--max-edge", "--deflection", "--edge-band",
+                 "--boundary-band"):
+        ap.add_argument(flag, type=float, default=None, metavar="MM",
+                        help="as for the inspection (the cache key includes it)")
+    ap.add_argument("--energy", choices=["auto", "hessian", "laplacian"], default="auto")
+    ap.add_argument("--cache", type=Path, default=None, metavar="DIR",
+                    help="cache directory (default $QIFREPORT_CACHE or the user cache dir)")
+    ap.add_argument("--rebuild", action="store_true", help="ignore an existing entry")
+    ap.add_argument("-v", "--verbose", action="store_true")
+    args = ap.parse_args(argv)
+    if not args.nominal.is_file():
+        raise InputError(f"nominal file not found: {args.nominal}")
+    defaults = _parser().parse_args([str(args.nominal), "-"])
+    for k in ("tolerance", "max_edge", "deflection", "edge_band", "boundary_band", "energy",
+              "cache"):
+        setattr(defaults, k, getattr(args, k))
+    state, outcome = part_state(args.nominal, nominal_options(defaults),
+                                inspection_params(defaults), cache_dir(defaults),
+                                rebuild=args.rebuild)
+    print(outcome.describe())
+    if outcome.timings:
+        print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in outcome.timings.items()))
+    n = state.nominal
+    print(f"  {len(n.V)} vertices, {len(n.F)} triangles, {len(n.zones)} zone(s), "
+          f"key {state.key[:16]}")
+    return 0
+
+
 def _guard(fn, verbose: bool) -> int:
     """Run ``fn()``; map input errors and internal errors to exit 2 with one line."""
     try:
@@ -570,6 +603,14 @@ def main(argv: list[str] | None = None) -> int:
 
         logging.basicConfig(level=logging.WARNING, format="qifreport: %(levelname)s: %(message)s")
         sys.exit(validate_main(argv[1:]))
+    if argv and argv[0] == "batch":
+        from .batch import batch_main
+
+        sys.exit(_guard(lambda: batch_main(argv[1:]), verbose="-v" in argv))
+    if argv and argv[0] == "prepare":
+        logging.basicConfig(level=logging.INFO if "-v" in argv else logging.WARNING,
+                            format="qifreport: %(levelname)s: %(message)s")
+        sys.exit(_guard(lambda: _prepare_main(argv[1:]), verbose="-v" in argv))
     if argv and argv[0] == "pmi":
         logging.basicConfig(level=logging.WARNING, format="qifreport: %(levelname)s: %(message)s")
         sys.exit(_guard(lambda: _pmi_main(argv[1:]), verbose="-v" in argv))

@@ -702,6 +702,8 @@ def already_in_frame(
     max_motion_frac: float = 0.05,
     sample: int = 3000,
     seed: int = 0,
+    tree: cKDTree | None = None,
+    normals: np.ndarray | None = None,
 ) -> bool:
     """Cheap test: does the scan already lie on the nominal, in the model frame?
 
@@ -717,17 +719,21 @@ def already_in_frame(
     V : (n, 3) nominal vertices, mm.  P : (m, 3) scan, mm.
     F : (f, 3) faces, for vertex normals (point-to-plane targets); without it the ICP uses
         normals of the vertex cloud's PCA.
+    tree, normals : ``cKDTree(V)`` and the (n, 3) vertex normals, when already at hand
+        (a :class:`PreparedModel`'s).
     """
     V = np.asarray(V, dtype=np.float64)
     P = np.asarray(P, dtype=np.float64)
     diag = bounding_diagonal(V)
     rng = np.random.default_rng(seed)
     S = P[rng.choice(len(P), size=min(sample, len(P)), replace=False)]
-    tree = cKDTree(V)
+    tree = cKDTree(V) if tree is None else tree
     d0, _ = tree.query(S, distance_upper_bound=0.05 * diag, workers=-1)
     if np.isfinite(d0).mean() < 1.0 / 3.0:
         return False
-    if F is not None:
+    if normals is not None:
+        N = normals
+    elif F is not None:
         N = vertex_normals(V, np.asarray(F, dtype=np.int64))
     else:
         from .pointcloud import pca_normals
@@ -976,12 +982,17 @@ def seat_scan(
         raise ValueError(f"unknown prealignment mode {mode!r} (auto, always or never)")
     t0 = time.perf_counter()
     P = validate_scan(P)
-    if mode == "always" or (mode == "auto" and not already_in_frame(V, P, F=F, seed=seed)):
+    tree = normals = None
+    if model is not None and model.V.shape == np.shape(V):
+        tree, normals = model.tree, model.N
+    if mode == "always" or (mode == "auto" and not already_in_frame(
+            V, P, F=F, seed=seed, tree=tree, normals=normals)):
         return prealign(V, F, P, seed=seed, params=params, model=model)
     p = params or (model.params if model is not None else PrealignParams())
     diag = bounding_diagonal(V)
     tau = p.gate * diag
-    d, _ = cKDTree(V).query(P, distance_upper_bound=tau, workers=-1)
+    d, _ = (cKDTree(V) if tree is None else tree).query(P, distance_upper_bound=tau,
+                                                          workers=-1)
     inl = np.isfinite(d)
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
     return PrealignResult(

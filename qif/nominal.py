@@ -1,0 +1,70 @@
+"""The nominal as an inspection needs it: a STEP part (mesh + PMI zones) or a mesh.
+
+:func:`load_nominal` reads a STEP AP242 file through :mod:`step` (tessellation with per-face
+ids, semantic PMI turned into tolerance zones by :func:`metrology.bands.zones_from_pmi`) or a
+mesh nominal (STL/PLY/OBJ/OFF) with one general zone of the given tolerance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
+from registration.errors import InputError
+from registration.mesh import bounding_diagonal, load_mesh
+from step.reader import STEP_SUFFIXES
+
+
+@dataclass
+class Nominal:
+    """The nominal as the inspection needs it: mesh, face ids, zones, provenance."""
+
+    V: np.ndarray
+    F: np.ndarray
+    face_id: np.ndarray | None
+    zones: list[ToleranceZone]
+    not_evaluated: list[NotEvaluated]
+    info: dict
+    datums: list[str] = field(default_factory=list)
+
+
+def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = None,
+                 deflection: float | None = None) -> Nominal:
+    """Read a STEP part (mesh + PMI zones) or a mesh nominal (one general zone)."""
+    if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
+        raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
+    if path.suffix.lower() in STEP_SUFFIXES:
+        from step.reader import read_step
+        from step.tessellate import tessellate
+
+        part = read_step(path)
+        if max_edge is None:
+            from step.tessellate import _shape_diagonal
+
+            max_edge = _shape_diagonal(part.shape) / 60.0
+        mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
+        zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
+        pmi = part.pmi
+        info = {
+            "format": "step", "schema": getattr(pmi, "schema", None),
+            "length_unit": getattr(pmi, "length_unit", None),
+            "b_rep_faces": len(part.faces), "solids": part.n_solids,
+            "tessellation": {"deflection_mm": mesh.deflection, "max_edge_mm": max_edge,
+                             "vertices": len(mesh.V), "triangles": len(mesh.F)},
+            "pmi_counts": {"tolerances": len(pmi.tolerances) if pmi else 0,
+                           "dimensions": len(pmi.dimensions) if pmi else 0,
+                           "datums": len(pmi.datums) if pmi else 0},
+            "timings_s": {**part.timings, "tessellate": mesh.seconds},
+        }
+        datums = [d.label for d in pmi.datums] if pmi is not None else []
+        return Nominal(mesh.V, mesh.F, mesh.face_id, zones, skipped, info,
+                       list(dict.fromkeys(datums)))
+    if tolerance is None:
+        raise InputError(f"{path.name} is a mesh nominal: it carries no tolerance, give "
+                         "--tolerance MM (or use the STEP file with PMI)")
+    V, F = load_mesh(path)
+    info = {"format": "mesh", "diagonal_mm": bounding_diagonal(V)}
+    return Nominal(V, F, None, [symmetric_zone(tolerance, "general")], [], info)
