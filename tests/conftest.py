@@ -32,6 +32,21 @@ def shared_file(rel: str) -> Path:
     return p
 
 
+@pytest.fixture(scope="session", autouse=True)
+def qifreport_cache(tmp_path_factory):
+    """One per-part cache directory for the session (``$QIFREPORT_CACHE``, inherited by the
+    CLI subprocesses): the tests never write the user's cache, and a part prepared by one
+    test is loaded by the next, as in production."""
+    d = tmp_path_factory.mktemp("qifreport-cache")
+    old = os.environ.get("QIFREPORT_CACHE")
+    os.environ["QIFREPORT_CACHE"] = str(d)
+    yield d
+    if old is None:
+        os.environ.pop("QIFREPORT_CACHE", None)
+    else:
+        os.environ["QIFREPORT_CACHE"] = old
+
+
 @pytest.fixture(scope="session")
 def shell():
     from registration.simulate.shapes import thin_shell
