@@ -1,0 +1,217 @@
+"""``qifreport batch``: every scan recorded, failures isolated, resume, local processes and a
+real Dask cluster (scheduler and two worker processes on loopback) that loses a worker."""
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import trimesh
+
+from qif.batch import plan
+from registration.errors import InputError
+from registration.pointcloud import load_scan
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "samples"
+NOMINAL = SAMPLES / "shell_nominal.ply"
+EXE = Path(sys.executable).parent / "qifreport"
+GOOD = ["noisy_0", "noisy_1", "noisy_2", "shell_scan", "shell_scan_defect"]
+
+
+def batch(*args, **kw):
+    return subprocess.Popen([str(EXE), "batch", NOMINAL, *map(str, args), "--tolerance", "0.5",
+                             "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, **kw)
+
+
+def finish(proc, timeout=600):
+    out, err = proc.communicate(timeout=timeout)
+    return proc.returncode, out, err
+
+
+@pytest.fixture(scope="module")
+def scans(tmp_path_factory):
+    """Six scans of the shell: the two samples, three re-noised copies, one corrupt file."""
+    d = tmp_path_factory.mktemp("scans")
+    for name in ("shell_scan.ply", "shell_scan_defect.ply"):
+        (d / name).write_bytes((SAMPLES / name).read_bytes())
+    P = load_scan(SAMPLES / "shell_scan.ply")
+    rng = np.random.default_rng(7)
+    for k in range(3):
+        Q = P + rng.normal(0.0, 0.005, P.shape)
+        trimesh.PointCloud(Q).export(d / f"noisy_{k}.ply")
+    (d / "broken.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 5\n"
+                                   b"property float x\nend_header\n1\n2\n")
+    return d
+
+
+def records(out: Path) -> dict[str, dict]:
+    return {p.name.removesuffix(".record.json"): json.loads(p.read_text())
+            for p in (out / "scans").glob("*.record.json")}
+
+
+def check_complete(out: Path) -> pd.DataFrame:
+    """Every scan has its record and outputs; the summary has a row for each, in order."""
+    rec = records(out)
+    assert sorted(rec) == sorted([*GOOD, "broken"])
+    for name in GOOD:
+        r = rec[name]
+        assert r["ok"], r
+        for ext in ("qif", "pdf", "json"):
+            assert (out / "scans" / f"{name}.{ext}").stat().st_size > 1000
+    assert not rec["broken"]["ok"] and "broken.ply" in rec["broken"]["error"]
+    assert "\n" not in rec["broken"]["error"]
+    assert not list((out / "scans").glob("broken.*[!n]"))  # only its record
+    df = pd.read_csv(out / "summary.csv", keep_default_na=False)
+    pq = pd.read_parquet(out / "summary.parquet")
+    assert list(df["id"]) == list(pq["id"]) == ["broken", *GOOD]  # plan order (by name)
+    v = dict(zip(df["id"], df["verdict"], strict=True))
+    assert v["broken"] == "ERROR"
+    assert v["shell_scan_defect"] == "FAIL" and "region" in \
+        df.set_index("id").loc["shell_scan_defect", "criterion"]
+    assert all(v[n] == "PASS" for n in GOOD if n != "shell_scan_defect")
+    # the profile column is the per-scan QIF's value (written to 4 decimals), read back
+    from qif.reader import read_results
+
+    for name in GOOD:
+        q = read_results(out / "scans" / f"{name}.qif").characteristic("general")
+        assert pq.set_index("id").loc[name, "profile_general_mm"] == pytest.approx(q.value,
+                                                                                   abs=5.1e-5)
+    check_statistics(out, pq)
+    return pq
+
+
+def check_statistics(out: Path, pq: pd.DataFrame) -> None:
+    """The QIF Statistics document is valid and its count, mean and pass/fail counts equal
+    those of the per-scan QIF files (both read with plain XPath); the trend PDF is one page
+    with the pass rate."""
+    from lxml import etree
+
+    from qif.validate import validate
+
+    stats = out / "shell_nominal_statistics.qif"
+    rep = validate(stats, strict=True, checks=True)
+    assert not rep.errors(), rep.errors()
+    ns = {"q": "http://qifstandards.org/xsd/qif3"}
+    values, status = [], []
+    for name in GOOD:
+        t = etree.parse(str(out / "scans" / f"{name}.qif"))
+        m = t.find(".//q:SurfaceProfileCharacteristicMeasurement", ns)
+        values.append(float(m.findtext("q:Value", namespaces=ns)))
+        status.append(m.findtext("q:Status/q:CharacteristicStatusEnum", namespaces=ns))
+    block = etree.parse(str(stats)).find(".//q:SurfaceProfileCharacteristicStats", ns)
+    vs = block.find("q:ValueStats", ns)
+    assert int(vs.findtext("q:EffectiveNumber/q:Value", namespaces=ns)) == len(GOOD)
+    assert float(vs.findtext("q:Average/q:Value", namespaces=ns)) == pytest.approx(
+        np.mean(values), abs=1e-9)
+    attrs = {a.get("name"): a.get("value") for a in block.find("q:Attributes", ns)}
+    assert int(attrs["n_pass"]) == status.count("PASS") == 4
+    assert int(attrs["n_fail"]) == status.count("FAIL") == 1
+    trend = out / "shell_nominal_trend.pdf"
+    info = subprocess.run(["pdfinfo", trend], capture_output=True, text=True).stdout
+    assert re.search(r"^Pages:\s+1$", info, re.M), info
+    text = subprocess.run(["pdftotext", trend, "-"], capture_output=True, text=True).stdout
+    assert "80.0 %" in text  # 4 PASS of 5 scans with a verdict (the corrupt one has none)
+
+
+def test_plan_folders_globs_and_manifest(scans, tmp_path):
+    items = plan(NOMINAL, [str(scans)])
+    assert [i.id for i in items] == ["broken", *GOOD]
+    items = plan(NOMINAL, [str(scans / "noisy_*.ply"), str(scans / "noisy_1.ply")])
+    assert [i.id for i in items] == ["noisy_0", "noisy_1", "noisy_2"]  # each scan once
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "noisy_0.ply").write_bytes((scans / "noisy_0.ply").read_bytes())
+    m = tmp_path / "manifest.csv"
+    m.write_text(f"scan,serial\n{scans / 'noisy_0.ply'},SN-001\nsub/noisy_0.ply,\n"
+                 f"{scans / 'shell_scan.ply'},SN 002/b\n")
+    items = plan(NOMINAL, [str(m)])
+    assert items[0].id == "SN-001" and items[0].serial == "SN-001"
+    assert items[1].id == "noisy_0" and items[1].scan == tmp_path / "sub" / "noisy_0.ply"
+    assert items[2].id == "SN_002_b"  # made a safe file name
+    with pytest.raises(InputError, match="no file matches"):
+        plan(NOMINAL, [str(tmp_path / "*.e57")])
+    bad = tmp_path / "bad.csv"
+    bad.write_text("file,serial\na.ply,1\n")
+    assert plan(NOMINAL, [str(bad)])[0].scan == bad  # not a manifest: a (CSV) scan
+
+
+@pytest.mark.slow
+def test_local_batch_records_everything_and_resumes(scans, tmp_path):
+    out = tmp_path / "out"
+    rc, stdout, stderr = finish(batch(scans, "--out", out, "--jobs", "2"))
+    assert rc == 1, stdout + stderr  # a FAIL and an ERROR among the scans
+    assert "6 scans: 4 PASS, 1 FAIL, 0 NOT ESTABLISHED, 1 ERROR (6 inspected now" in stdout
+    df = check_complete(out)
+    assert df["worker"].nunique() == 2  # two processes shared the work
+    # the same command again does no work and rewrites nothing
+    before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
+    rc, stdout, _ = finish(batch(scans, "--out", out, "--jobs", "2"))
+    assert rc == 1 and "(0 inspected now, 6 done earlier)" in stdout, stdout
+    assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
+    # a changed scan is redone, alone; --retry-failed retries the corrupt file
+    P = load_scan(scans / "noisy_2.ply")
+    trimesh.PointCloud(P + 0.001).export(scans / "noisy_2.ply")
+    rc, stdout, _ = finish(batch(scans, "--out", out, "--jobs", "1", "--retry-failed"))
+    assert "(2 inspected now, 4 done earlier)" in stdout, stdout
+    assert records(out)["noisy_2"]["ok"]
+
+
+@pytest.mark.slow
+def test_dask_batch_survives_a_killed_worker(scans, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    out = tmp_path / "out"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  host="127.0.0.1", dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        proc = batch(scans, "--out", out, "--scheduler", cluster.scheduler_address)
+        # wait for the first finished scan, then kill a worker that is busy with another
+        deadline = time.monotonic() + 300
+        victim, keys = None, []
+        while victim is None and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.2)
+            if not any(r["ok"] for r in records(out).values()) if (out / "scans").exists() \
+                    else True:
+                continue
+            busy = {w: ks for w, ks in client.processing().items() if ks}
+            if busy:
+                victim, keys = next(iter(busy.items()))
+        assert victim is not None, "the batch finished before a worker could be killed"
+        pid = client.run(os.getpid, workers=[victim])[victim]
+        os.kill(pid, signal.SIGKILL)
+        # the scans the victim held (task keys "qifreport-<id>-<digest>")
+        lost = [str(k).removeprefix("qifreport-").rsplit("-", 1)[0] for k in keys]
+        rc, stdout, stderr = finish(proc)
+        assert rc == 1, stdout + stderr
+        assert "6 scans: 4 PASS, 1 FAIL, 0 NOT ESTABLISHED, 1 ERROR" in stdout, stdout
+        check_complete(out)
+        rec = records(out)
+        # the scans the killed worker held were rescheduled and finished by another worker
+        assert lost and all(i in rec for i in lost), (lost, sorted(rec))
+        for i in lost:
+            assert rec[i]["worker"] != victim, rec[i]
+        assert victim not in client.scheduler_info()["workers"]
+        # a second run of the same command does no work
+        before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
+        rc, stdout, _ = finish(batch(scans, "--out", out, "--scheduler",
+                                     cluster.scheduler_address))
+        assert "(0 inspected now, 6 done earlier)" in stdout, stdout
+        assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
+
+
+def test_batch_bad_nominal_and_no_scans(tmp_path):
+    r = subprocess.run([str(EXE), "batch", tmp_path / "missing.step", SAMPLES, "--out",
+                        tmp_path / "o", "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 2 and "nominal file not found" in r.stderr
+    (tmp_path / "empty").mkdir()
+    r = subprocess.run([str(EXE), "batch", NOMINAL, tmp_path / "empty", "--tolerance", "0.5",
+                        "--out", tmp_path / "o", "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 2 and "no scan files" in r.stderr
+    assert r.stderr.count("\n") == 1

@@ -1,0 +1,424 @@
+"""The one-page trend report of a batch (:mod:`qif.trend`): complete, one page, legible.
+
+A synthetic batch summary (the frame ``qifreport batch`` writes) is drawn; the PDF is checked
+with poppler-utils: ``pdfinfo`` (one page, its size), ``pdftotext`` (the counts, the pass rate
+and the statistics as computed here from the frame, the tolerance labels) and ``pdftoppm``
+(the points are at their place in their colour, the tolerance line is a horizontal line at
+the tolerance, the errored scans are marked). Long (2000 scans), short (3 scans) and wide
+(8 characteristics) batches must still give one page.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import time
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from PIL import Image
+
+from qif.pdf import fmt_mm
+from qif.trend import (
+    MAX_CHARTS,
+    ChartGeometry,
+    TrendCharacteristic,
+    TrendLayout,
+    plan_trend,
+    seq_ticks,
+    write_trend_pdf,
+)
+from tests.consumers import fail_or_skip
+
+DPI = 100
+CREATED = datetime(2025, 3, 4, 5, 6, 7, tzinfo=timezone.utc)
+SHA = "0123456789abcdef" + "f" * 48
+CHARS = [
+    TrendCharacteristic("T1", "surface profile 1 mm |A|B|C| [-0.5, +0.5] (pmi #1444)", 1.0),
+    TrendCharacteristic("general", "general profile tolerance 0.6 mm", 0.6),
+]
+
+
+def _tool(name: str) -> str:
+    exe = shutil.which(name)
+    if exe is None:
+        fail_or_skip(f"{name} not found: install Debian package poppler-utils "
+                     "(`make system-deps`)")
+    return exe
+
+
+def batch_frame(n: int, chars: list[TrendCharacteristic] = CHARS, *, seed: int = 0,
+                fail_at: tuple[int, ...] = (), error_at: tuple[int, ...] = (),
+                ne_at: tuple[int, ...] = ()) -> pd.DataFrame:
+    """A batch summary of ``n`` scans: profile values well inside the tolerance, except the
+    scans ``fail_at`` (1-based) whose first characteristic is 1.3 to 1.6 times its tolerance
+    (FAIL), the scans ``error_at`` (ERROR, no values) and ``ne_at`` (NOT ESTABLISHED)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for s in range(1, n + 1):
+        row: dict = {"seq": s, "scan": f"scan_{s:04d}.ply", "serial": f"SN-{1000 + s}",
+                     "verdict": "PASS", "decided_by": "", "error": "",
+                     "rms_mm": 0.05 + 0.01 * rng.random(), "p999_mm": 0.2}
+        for j, ch in enumerate(chars):
+            v = ch.tolerance_mm * (0.35 + 0.25 * rng.random())
+            status = "PASS"
+            if s in fail_at and j == 0:
+                v = ch.tolerance_mm * (1.3 + 0.3 * rng.random())
+                status = "FAIL"
+            if s in ne_at:
+                status = "NOT ESTABLISHED"
+            row[f"profile_{ch.key}_mm"] = v
+            row[f"status_{ch.key}"] = status
+        if s in fail_at:
+            row["verdict"] = "FAIL"
+            row["decided_by"] = (f"{chars[0].key}: region criterion, a region of 41.2 mm^2 "
+                                 "exceeds 25 mm^2")
+        if s in ne_at:
+            row["verdict"] = "NOT ESTABLISHED"
+            row["decided_by"] = "registration not trusted: the pose search is ambiguous"
+        if s in error_at:
+            row.update(verdict="ERROR", error="ValueError: scan has no points inside the "
+                       "bounding box of the nominal", rms_mm=np.nan, p999_mm=np.nan)
+            for ch in chars:
+                row[f"profile_{ch.key}_mm"] = np.nan
+                row[f"status_{ch.key}"] = ""
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+@dataclass
+class Out:
+    lay: TrendLayout
+    text: str  # pdftotext -layout
+    img: np.ndarray  # RGB 0..1 at DPI
+    info: dict  # pdfinfo fields
+    seconds: float  # write_trend_pdf
+    pdf: Path
+
+
+def _render(d: Path, name: str, df: pd.DataFrame, chars=CHARS, page: str = "A4",
+            part: str = "bracket-7731") -> Out:
+    """Write the trend report, read its text and rasterize it."""
+    pdf = d / f"{name}.pdf"
+    t0 = time.perf_counter()
+    write_trend_pdf(pdf, df, chars, part_name=part, created=CREATED, nominal_sha256=SHA,
+                    page=page)
+    seconds = time.perf_counter() - t0
+    lay = plan_trend(df, chars, part_name=part, created=CREATED, nominal_sha256=SHA,
+                     page=page)
+    info = subprocess.run([_tool("pdfinfo"), str(pdf)], check=True, capture_output=True,
+                          text=True).stdout
+    fields = dict(line.split(":", 1) for line in info.splitlines() if ":" in line)
+    fields = {k.strip(): v.strip() for k, v in fields.items()}
+    text = subprocess.run([_tool("pdftotext"), "-layout", str(pdf), "-"], check=True,
+                          capture_output=True, text=True).stdout
+    subprocess.run([_tool("pdftoppm"), "-r", str(DPI), "-png", "-singlefile", str(pdf),
+                    str(d / name)], check=True)
+    img = np.asarray(Image.open(d / f"{name}.png").convert("RGB"), dtype=float) / 255.0
+    return Out(lay, text, img, fields, seconds, pdf)
+
+
+def _words(pdf: Path, height: float) -> list[tuple[str, float, float]]:
+    """Every word of the page with the centre of its box (page points, origin bottom-left)."""
+    html = subprocess.run([_tool("pdftotext"), "-bbox", str(pdf), "-"], check=True,
+                          capture_output=True, text=True).stdout
+    out = []
+    for m in re.finditer(r'<word xMin="([\d.]+)" yMin="([\d.]+)" xMax="([\d.]+)" '
+                         r'yMax="([\d.]+)">([^<]*)</word>', html):
+        x0, y0, x1, y1 = (float(m.group(k)) for k in range(1, 5))
+        out.append((m.group(5), (x0 + x1) / 2, height - (y0 + y1) / 2))
+    return out
+
+
+def _px(lay: TrendLayout, x: float, y: float) -> tuple[int, int]:
+    """Pixel (row, column) of page point (x, y) (origin bottom-left)."""
+    k = DPI / 72.0
+    return int(round((lay.height - y) * k)), int(round(x * k))
+
+
+def _patch(img: np.ndarray, rc: tuple[int, int], r: int = 1) -> np.ndarray:
+    i, j = rc
+    return img[i - r:i + r + 1, j - r:j + r + 1].reshape(-1, 3)
+
+
+def _is_red(p: np.ndarray) -> np.ndarray:
+    return (p[..., 0] > 0.55) & (p[..., 0] - np.maximum(p[..., 1], p[..., 2]) > 0.35)
+
+
+def _is_green(p: np.ndarray) -> np.ndarray:
+    return (p[..., 1] > 0.5) & (p[..., 1] - np.maximum(p[..., 0], p[..., 2]) > 0.2)
+
+
+def _is_grey(p: np.ndarray) -> np.ndarray:
+    return (np.ptp(p, axis=-1) < 0.06) & (p.mean(axis=-1) < 0.8) & (p.mean(axis=-1) > 0.3)
+
+
+N = 25
+FAILS, ERRORS, NES = (6, 13, 21), (17,), (9,)
+
+
+@pytest.fixture(scope="module")
+def batch(tmp_path_factory):
+    df = batch_frame(N, fail_at=FAILS, error_at=ERRORS, ne_at=NES)
+    d = tmp_path_factory.mktemp("trend")
+    return df, _render(d, "batch", df)
+
+
+def test_one_page_and_header_numbers(batch):
+    df, out = batch
+    text, info = out.text, out.info
+    assert info["Pages"] == "1"
+    w, h = (float(v) for v in re.findall(r"[\d.]+", info["Page size"])[:2])
+    assert (round(w), round(h)) == (595, 842)
+    assert "bracket-7731" in text
+    assert SHA[:16] in text and SHA[:17] not in text
+    assert "2025-03-04 05:06:07 UTC" in text
+    counts = df["verdict"].value_counts()
+    n_pass, n_fail = int(counts.get("PASS", 0)), int(counts.get("FAIL", 0))
+    n_ne, n_err = int(counts.get("NOT ESTABLISHED", 0)), int(counts.get("ERROR", 0))
+    assert (n_pass, n_fail, n_ne, n_err) == (20, 3, 1, 1)
+    for word, k in (("PASS", n_pass), ("FAIL", n_fail), ("NOT ESTABLISHED", n_ne),
+                    ("ERROR", n_err)):
+        assert re.search(rf"\b{word} {k}\b", text), word
+    judged = n_pass + n_fail + n_ne
+    rate = 100.0 * n_pass / judged
+    assert f"{rate:.1f} %" in text  # 83.3 %: the errored scan is not counted
+    assert f"{n_pass} PASS of {judged} scans with a verdict" in text
+    assert f"{n_err} errored" in text
+    assert re.search(rf"\b{N}\b \(sequence 1 to {N}\)", text)
+
+
+def test_chart_statistics_and_labels(batch):
+    df, out = batch
+    lay, text = out.lay, out.text
+    assert [g.key for g in lay.charts] == ["T1", "general"] and not lay.omitted
+    for ch in CHARS:
+        v = df[f"profile_{ch.key}_mm"].to_numpy(float)
+        v = v[np.isfinite(v)]
+        mean, sigma = v.mean(), v.std(ddof=1)
+        cpk = (ch.tolerance_mm - mean) / (3 * sigma)
+        n_pass = int((df[f"status_{ch.key}"] == "PASS").sum())
+        n_judged = int(df[f"status_{ch.key}"].isin(["PASS", "FAIL", "NOT ESTABLISHED"]).sum())
+        line = (f"n {len(v)}   mean {fmt_mm(mean)}   \u03c3 {fmt_mm(sigma)}   max "
+                f"{fmt_mm(v.max())} mm   Cpk {cpk:.2f}   PASS {n_pass} of {n_judged}")
+        assert " ".join(line.split()) in " ".join(text.split()), line
+        assert ch.key in text and ch.description[:30] in text
+    # the tolerance labels beside their lines
+    assert len(re.findall(r"\btol\b", text)) >= 2
+    for ch in CHARS:
+        assert fmt_mm(ch.tolerance_mm) in text
+    # the table of the scans that did not pass, with their reasons
+    assert "Scans that did not pass (5" in text
+    for s in FAILS + ERRORS + NES:
+        assert f"SN-{1000 + s}" in text
+    assert "region criterion" in text and "ValueError" in text
+
+
+def test_points_colours_and_tolerance_line(batch):
+    df, out = batch
+    lay, img = out.lay, out.img
+    geo: ChartGeometry = lay.charts[0]  # T1: three values above the tolerance
+    tol = CHARS[0].tolerance_mm
+    v = df["profile_T1_mm"].to_numpy(float)
+    red = green = 0
+    for s in range(1, N + 1):
+        if not np.isfinite(v[s - 1]):
+            continue
+        p = _patch(img, _px(lay, float(geo.x(s)), float(geo.y(v[s - 1]))))
+        if s in FAILS:
+            assert v[s - 1] > tol and _is_red(p).sum() >= 5, s
+            red += 1
+        elif s in NES:
+            assert _is_grey(p).sum() >= 5 and not _is_green(p).any(), s
+        else:
+            assert _is_green(p).sum() >= 5 and not _is_red(p).any(), s
+            green += 1
+    assert red == len(FAILS) and green == N - len(FAILS) - len(ERRORS) - len(NES)
+    # no red point below the tolerance line: the passing points are green, not red
+    k = DPI / 72.0
+    top_row = _px(lay, 0, float(geo.y(tol)))[0] + 3
+    bottom_row = _px(lay, 0, geo.plot.y)[0] - 1
+    c0, c1 = int(geo.plot.x * k) + 2, int((geo.plot.x + geo.plot.w) * k) - 2
+    assert not _is_red(img[top_row:bottom_row, c0:c1]).any()
+    # the tolerance line: a horizontal run of its colour across the plot, at the tolerance
+    row = _px(lay, 0, float(geo.y(tol)))[0]
+    band = img[row - 2:row + 3, c0:c1]
+    runs = _is_red(band).mean(axis=1)
+    assert runs.max() > 0.9, runs
+    # ... and nowhere else in the plot so long (no such line at the wrong height)
+    rows = _is_red(img[_px(lay, 0, geo.plot.top)[0] + 2:bottom_row, c0:c1]).mean(axis=1)
+    assert np.flatnonzero(rows > 0.9).size <= 3
+    # the errored scan: a grey cross in the strip below zero, no point above it
+    for s in ERRORS:
+        x = float(geo.x(s))
+        cross = _patch(img, _px(lay, x, geo.plot.y + 3.5), 2)
+        assert (cross.mean(axis=1) < 0.7).sum() >= 3
+        column = img[_px(lay, 0, geo.y_low + 3)[0]:_px(lay, 0, geo.plot.top - 2)[0],
+                     _px(lay, x, 0)[1]]
+        assert not (_is_green(column).any() or _is_red(column).any())
+
+
+def test_axes_match_the_geometry(batch):
+    """The printed tick and tolerance labels sit where the points are drawn from: the page
+    reads the values the frame holds."""
+    df, out = batch
+    lay = out.lay
+    words = _words(out.pdf, lay.height)
+    for geo, ch in zip(lay.charts, CHARS, strict=True):
+        pa = geo.plot
+        yticks = [(float(w), y) for w, x, y in words
+                  if re.fullmatch(r"\d+\.\d+", w) and pa.x - 25 < x < pa.x
+                  and pa.y - 2 < y < pa.top + 2]
+        assert len(yticks) >= 3, ch.key
+        for v, y in yticks:
+            assert abs(y - float(geo.y(v))) < 2.0, (ch.key, v)
+        xticks = [(int(w), x) for w, x, y in words
+                  if w.isdigit() and pa.x - 5 < x < pa.x + pa.w + 5 and pa.y - 10 < y < pa.y]
+        assert [t for t, _ in xticks] == [1, 5, 10, 15, 20, 25]
+        for t, x in xticks:
+            assert abs(x - float(geo.x(t))) < 1.0
+        # the tolerance label right of the frame, at the line
+        label = [(x, y) for w, x, y in words if w == fmt_mm(ch.tolerance_mm)
+                 and pa.x + pa.w < x < pa.x + pa.w + 30 and pa.y < y < pa.top]
+        assert len(label) == 1 and abs(label[0][1] - float(geo.y(ch.tolerance_mm))) < 6.0
+    # the final cumulative pass rate printed at the end of its curve
+    geo = lay.pass_rate
+    v = df["verdict"]
+    rate = 100.0 * (v == "PASS").sum() / v.isin(["PASS", "FAIL", "NOT ESTABLISHED"]).sum()
+    end = [(x, y) for w, x, y in words if w == f"{rate:.1f}"
+           and geo.plot.x + geo.plot.w < x < geo.plot.x + geo.plot.w + 20
+           and geo.plot.y < y < geo.plot.top]
+    assert len(end) == 1 and abs(end[0][1] - float(geo.y(rate))) < 2.0
+
+
+def test_pass_rate_chart_ends_at_the_pass_rate(batch):
+    df, out = batch
+    lay, img = out.lay, out.img
+    geo = lay.pass_rate
+    v = df["verdict"].to_numpy()
+    judged = np.isin(v, ["PASS", "FAIL", "NOT ESTABLISHED"])
+    rate = 100.0 * np.cumsum(v == "PASS") / np.maximum(np.cumsum(judged), 1)
+    for s in (1, 12, N):  # the cumulative curve passes through its values (dark ink)
+        p = _patch(img, _px(lay, float(geo.x(s)), float(geo.y(rate[s - 1]))), 1)
+        assert (p.mean(axis=1) < 0.45).sum() >= 2, s
+    # the failures marked red along the bottom
+    for s in FAILS:
+        p = _patch(img, _px(lay, float(geo.x(s)), geo.plot.y + 3.5), 1)
+        assert _is_red(p).any(), s
+
+
+def test_letter_page(tmp_path):
+    df = batch_frame(12, fail_at=(3,))
+    out = _render(tmp_path, "letter", df, page="Letter")
+    lay, text, info = out.lay, out.text, out.info
+    assert info["Pages"] == "1"
+    assert [round(float(x)) for x in re.findall(r"[\d.]+", info["Page size"])[:2]] == [612, 792]
+    assert f"{100 * 11 / 12:.1f} %" in text
+    assert lay.failures.y > 30
+
+
+def test_long_batch(tmp_path):
+    """2000 scans: one page, drawn in reasonable time, sensible ticks, no point labels."""
+    n = 2000
+    fails = tuple(range(37, n, 97))
+    df = batch_frame(n, fail_at=fails, error_at=(5, 1500), ne_at=(700,), seed=3)
+    out = _render(tmp_path, "long", df)
+    lay, text, img, info, seconds = out.lay, out.text, out.img, out.info, out.seconds
+    assert info["Pages"] == "1"
+    assert seconds < 10.0
+    rate = 100.0 * (n - len(fails) - 3) / (n - 2)
+    assert f"{rate:.1f} %" in text
+    assert f"+{len(fails) + 3 - 7} more" in text  # the table is cut to 8 rows
+    for geo in (lay.charts[0], lay.pass_rate):  # labels neither crowded nor sparse
+        ticks = seq_ticks(n, geo.plot.w)
+        assert 3 <= len(ticks) <= 15 and ticks[0] == 1 and ticks[-1] == n
+        assert np.diff(geo.x(np.array(ticks))).min() >= 30.0
+        assert all(re.search(rf"\b{t}\b", text) for t in ticks)
+    # no number for every scan: the text stays short
+    assert len(re.findall(r"\d+", text)) < 300
+    # failing points (1.3 to 1.6 times the tolerance) are red above the tolerance line
+    geo = lay.charts[0]
+    above = img[_px(lay, 0, geo.plot.top)[0] + 1:_px(lay, 0, float(geo.y(1.25)))[0],
+                int(geo.plot.x * DPI / 72) + 1:int((geo.plot.x + geo.plot.w) * DPI / 72) - 1]
+    assert _is_red(above).sum() >= len(fails)
+
+
+def test_three_scans(tmp_path):
+    df = batch_frame(3, fail_at=(2,))
+    out = _render(tmp_path, "three", df)
+    lay, text, img, info = out.lay, out.text, out.img, out.info
+    assert info["Pages"] == "1"
+    assert seq_ticks(3, lay.charts[0].plot.w) == [1, 2, 3]
+    assert re.search(r"\b1\s+2\s+3\b", text)
+    assert "50.0 %" not in text and f"{100 * 2 / 3:.1f} %" in text
+    geo = lay.charts[0]
+    v = df["profile_T1_mm"].to_numpy(float)
+    assert _is_red(_patch(img, _px(lay, float(geo.x(2)), float(geo.y(v[1]))))).sum() >= 5
+    assert _is_green(_patch(img, _px(lay, float(geo.x(3)), float(geo.y(v[2]))))).sum() >= 5
+
+
+def test_many_characteristics_shows_the_smallest_margins(tmp_path):
+    chars = [TrendCharacteristic(f"T{k}", f"surface profile {0.2 * k:g} mm", 0.2 * k)
+             for k in range(1, 9)]
+    df = batch_frame(15, chars, seed=5)
+    # T7 and T3 close to their tolerance: they must be charted
+    df.loc[4, "profile_T7_mm"] = 0.99 * 1.4
+    df.loc[6, "profile_T3_mm"] = 0.98 * 0.6
+    df.loc[2, "profile_T5_mm"] = 0.97 * 1.0
+    out = _render(tmp_path, "wide", df, chars)
+    lay, text, info = out.lay, out.text, out.info
+    assert info["Pages"] == "1"
+    shown = [g.key for g in lay.charts]
+    assert len(shown) == MAX_CHARTS and {"T3", "T5", "T7"} <= set(shown)
+    assert shown == [c.key for c in chars if c.key in shown]  # the caller's order
+    assert len(lay.omitted) == 2 and set(lay.omitted).isdisjoint(shown)
+    assert "+ 2 more characteristics not charted" in text
+    for key in lay.omitted:
+        assert key in text
+
+
+def test_outlier_clipped_to_the_top(tmp_path):
+    df = batch_frame(30, fail_at=(8,))
+    df.loc[7, "profile_T1_mm"] = 25.0  # a wild value: the chart keeps its scale
+    out = _render(tmp_path, "outlier", df)
+    lay, img, info = out.lay, out.img, out.info
+    assert info["Pages"] == "1"
+    geo = lay.charts[0]
+    assert geo.top < 5.0
+    p = _patch(img, _px(lay, float(geo.x(8)), geo.plot.top - 2.5), 1)
+    assert _is_red(p).any()
+
+
+def test_bad_page_size(tmp_path):
+    with pytest.raises(ValueError):
+        write_trend_pdf(tmp_path / "x.pdf", batch_frame(3), CHARS, part_name="p",
+                        created=CREATED, page="A3")
+
+
+@pytest.mark.parametrize("case", ["no scans", "all errored", "no characteristics",
+                                  "no tolerance, no columns"])
+def test_degenerate_batches_still_one_page(tmp_path, case):
+    chars = CHARS
+    if case == "no scans":
+        df = batch_frame(0, chars).reindex(columns=["seq", "scan", "serial", "verdict",
+                                                    "decided_by", "error"])
+    elif case == "all errored":
+        df = batch_frame(4, error_at=(1, 2, 3, 4))
+    elif case == "no characteristics":
+        df, chars = batch_frame(5, fail_at=(2,)), []
+    else:
+        df = batch_frame(6)
+        chars = [TrendCharacteristic("T1", "", float("nan")),
+                 TrendCharacteristic("zz", "not in the summary", 0.5)]
+    out = _render(tmp_path, "degenerate", df, chars)
+    assert out.info["Pages"] == "1"
+    assert [g.key for g in out.lay.charts] == [c.key for c in chars]
+    if case in ("no scans", "all errored"):
+        # no rate without a verdict: a dash
+        assert re.search(r"\u2014\s+0 PASS of 0 scans with a verdict", out.text)
+        assert not re.search(r"\d %", out.text)
