@@ -64,7 +64,7 @@ def main() -> None:
     exe = Path(sys.executable).parent / "qifreport"
     t1 = time.perf_counter()
     r = subprocess.run([str(exe), nominal, scan, "--tolerance", "1.0", "--out", work / "out",
-                        "--json", "--profile", "--quiet", "--force"],
+                        "--json", "--profile", "--quiet", "--force", "--no-cache"],
                        capture_output=True, text=True)
     wall = time.perf_counter() - t1
     print(r.stdout)

@@ -48,7 +48,6 @@ import json
 import logging
 import os
 import re
-import resource
 import socket
 import sys
 import tempfile
@@ -86,6 +85,9 @@ _COLUMNS = (
     "in_tolerance_pct", "coverage_pct", "regions", "largest_region_mm2", "rigid_rms_mm",
     "fit_residual_mm", "flagged_fraction",
 )
+#: the QIF characteristic status -> the summary's words
+_STATUS = {"PASS": "PASS", "FAIL": "FAIL", "INDETERMINATE": "NOT ESTABLISHED",
+           "NOT_ANALYZED": "NOT ANALYZED"}
 _TAIL = ("decided_by", "seconds", "worker", "peak_rss_mib", "scan_sha256")
 
 
@@ -240,7 +242,9 @@ class TaskResult:
 
 
 def _peak_rss_mib() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    from .profile import peak_rss_bytes
+
+    return peak_rss_bytes() / 2**20
 
 
 def _worker_name() -> str:
@@ -313,7 +317,7 @@ def run_task(task: ScanTask, state: PartState, opts: argparse.Namespace) -> Task
 
 def summary_row(res, item: ScanItem, scan_sha256: str, seconds: float) -> dict:
     """One row of ``summary.csv`` for an inspected scan (lengths mm, areas mm^2)."""
-    from .writer import profile_value
+    from .writer import _status, profile_value
 
     s, a = res.vertex_stats, res.acceptance
     fit = res.fit
@@ -339,8 +343,7 @@ def summary_row(res, item: ScanItem, scan_sha256: str, seconds: float) -> dict:
         k = z.zone.key
         row[f"profile_{k}_mm"] = profile_value(z)
         row[f"tolerance_{k}_mm"] = z.zone.upper - z.zone.lower
-        row[f"status_{k}"] = ("NOT ESTABLISHED" if not res.established
-                              else "PASS" if z.acceptance.passed else "FAIL")
+        row[f"status_{k}"] = _STATUS[_status(z, res.established)]  # as in the QIF
         row[f"in_tolerance_{k}_pct"] = 100.0 * z.acceptance.in_tolerance_fraction
     return row
 

@@ -2,8 +2,11 @@
 
 A sampler thread reads the process's resident set size (``/proc/self/statm``; elsewhere the
 running peak of ``getrusage``) every ``interval`` seconds; a stage's peak is the largest
-sample inside its time window, and the whole run's peak is the kernel's ``ru_maxrss`` (exact,
-whatever the sampling missed).
+sample inside its time window, and the whole run's peak is the kernel's high-water mark
+(exact, whatever the sampling missed): ``VmHWM`` of ``/proc/self/status``, which belongs to
+this program's address space. (``ru_maxrss`` is not used where ``/proc`` exists: Linux
+carries it across ``exec``, so a process started by a large parent reports the parent's
+resident size at ``fork`` as its own peak.)
 """
 
 from __future__ import annotations
@@ -27,7 +30,15 @@ def rss_bytes() -> int:
 
 
 def peak_rss_bytes() -> int:
-    """Peak resident set size of this process so far, bytes (``ru_maxrss``, KiB on Linux)."""
+    """Peak resident set size of this process so far, bytes (``VmHWM``; elsewhere
+    ``ru_maxrss``)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024  # kB
+    except (OSError, ValueError, IndexError):
+        pass
     return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
 
 

@@ -52,7 +52,15 @@ def _views(k: int = 3, tilt_deg: float = 25.0) -> np.ndarray:
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def panel_scans(step_path: Path, out: Path) -> None:
+def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
+    """Simulated free-state scans of the STEP panel, one per case (float32, mm).
+
+    Each case is a dict with ``amplitude`` (fraction of the diagonal, default 0.015),
+    ``field_seed`` (None: the default analytic field), ``scan_seed`` (noise and dropout,
+    default :data:`SEED`), ``defect`` (None or ``(a, sigma)`` mm, on the crown at
+    :data:`PANEL_DEFECT_AT` shifted by ``defect_shift`` mm in x) and ``pose`` (None or a
+    ``(R, t)`` applied to the points: a scan delivered in the scanner's frame).
+    """
     from step.reader import read_step
     from step.tessellate import tessellate
 
@@ -60,17 +68,30 @@ def panel_scans(step_path: Path, out: Path) -> None:
     m = tessellate(part.shape, part.faces, max_edge=PANEL_EDGE)
     V, F = m.V, m.F
     diag = float(np.linalg.norm(np.ptp(V, axis=0)))
-    d = analytic_deformation(V, F, 0.015 * diag, direction=(0.0, 0.0, 1.0))
-    V_true = V + d
-    spec = ScanSpec(directions=_views(), noise=0.02, seed=SEED)
     skin = np.unique(m.F[m.face_id == _skin_face(m)])
-    dv = int(skin[np.argmin(np.linalg.norm(V[skin] - np.array(PANEL_DEFECT_AT), axis=1))])
-    for name, defect in (("panel_scan.ply", None), ("panel_scan_defect.ply", (0.45, 6.0))):
-        Vs = V_true
-        if defect is not None:
-            N = vertex_normals(V_true, F)
-            Vs = V_true + gaussian_bump(V_true, N, V_true[dv], defect[0], defect[1])
-        P = virtual_scan(Vs, F, spec).P.astype(np.float32)
+    out = []
+    for c in cases:
+        d = analytic_deformation(V, F, c.get("amplitude", 0.015) * diag,
+                                 seed=c.get("field_seed"), direction=(0.0, 0.0, 1.0))
+        Vs = V + d
+        if c.get("defect") is not None:
+            at = np.array(PANEL_DEFECT_AT) + np.array([c.get("defect_shift", 0.0), 0.0, 0.0])
+            dv = int(skin[np.argmin(np.linalg.norm(V[skin] - at, axis=1))])
+            N = vertex_normals(Vs, F)
+            Vs = Vs + gaussian_bump(Vs, N, Vs[dv], *c["defect"])
+        spec = ScanSpec(directions=_views(), noise=0.02, seed=c.get("scan_seed", SEED))
+        P = virtual_scan(Vs, F, spec).P
+        if c.get("pose") is not None:
+            R, t = c["pose"]
+            P = P @ np.asarray(R).T + np.asarray(t)
+        out.append(P.astype(np.float32))
+    return out
+
+
+def panel_scans(step_path: Path, out: Path) -> None:
+    names = ("panel_scan.ply", "panel_scan_defect.ply")
+    scans = panel_scan_set(step_path, [{}, {"defect": (0.45, 6.0)}])
+    for name, P in zip(names, scans, strict=True):
         trimesh.PointCloud(P).export(out / name)
         print(f"{name}: {len(P)} points")
 

@@ -206,6 +206,46 @@ def test_dask_batch_survives_a_killed_worker(scans, tmp_path):
         assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
 
 
+def _pool_workers(pid: int) -> list[int]:
+    """The process-pool workers among the children of ``pid`` (not the resource tracker)."""
+    kids = []
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/task/{tid}/children") as fh:
+            kids += [int(c) for c in fh.read().split()]
+    out = []
+    for k in kids:
+        try:
+            cmd = Path(f"/proc/{k}/cmdline").read_bytes().replace(b"\0", b" ")
+        except OSError:
+            continue
+        if b"spawn_main" in cmd and b"resource_tracker" not in cmd:
+            out.append(k)
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
+def test_local_batch_survives_a_killed_process(scans, tmp_path):
+    out = tmp_path / "out"
+    proc = batch(scans, "--out", out, "--jobs", "2")
+    deadline = time.monotonic() + 300
+    killed = None
+    while killed is None and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+        if not (out / "scans").exists() or not any(r["ok"] for r in records(out).values()):
+            continue
+        workers = _pool_workers(proc.pid)
+        if workers:
+            killed = workers[0]
+            os.kill(killed, signal.SIGKILL)
+    assert killed is not None, "the batch finished before a worker could be killed"
+    rc, stdout, stderr = finish(proc)
+    assert rc == 1, stdout + stderr
+    assert "6 scans: 4 PASS, 1 FAIL, 0 NOT ESTABLISHED, 1 ERROR (6 inspected now" in stdout
+    assert "a worker process died" in stderr  # the pool was replaced, its tasks resubmitted
+    check_complete(out)
+
+
 def test_batch_bad_nominal_and_no_scans(tmp_path):
     r = subprocess.run([str(EXE), "batch", tmp_path / "missing.step", SAMPLES, "--out",
                         tmp_path / "o", "--quiet"], capture_output=True, text=True)
