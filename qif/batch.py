@@ -708,7 +708,7 @@ def write_summaries(out: Path, items: list[ScanItem], records: list[dict],
         stem = _safe_id(nom.stem)
         per_part.append((nom, st, out / f"{stem}_statistics.qif", out / f"{stem}_trend.pdf"))
         files += per_part[-1][2:]
-    if not changed and all(f.is_file() for f in files):
+    if not changed and all(f.is_file() for f in files) and _same_rows(files[0], df):
         return files
     writers = [(files[0], lambda p: df.to_csv(p, index=False)),
                (files[1], lambda p: df.to_parquet(p, index=False))]
@@ -719,6 +719,21 @@ def write_summaries(out: Path, items: list[ScanItem], records: list[dict],
         writers.append((pdf_path, _trend_writer(sub, st, nom.stem, opts)))
     atomic_write_many(writers)
     return files
+
+
+def _same_rows(csv_path: Path, df) -> bool:
+    """Does the existing ``summary.csv`` list the same scans, in order, with the same
+    digests and verdicts (a re-run over a subset or a new order rewrites it)?"""
+    import pandas as pd
+
+    try:
+        old = pd.read_csv(csv_path, keep_default_na=False, dtype=str)
+    except (OSError, ValueError):
+        return False
+    cols = ["id", "scan_sha256", "verdict"]
+    if any(c not in old.columns for c in cols) or len(old) != len(df):
+        return False
+    return all(list(old[c]) == [str(v) for v in df[c]] for c in cols)
 
 
 def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: str,

@@ -162,6 +162,10 @@ def test_local_batch_records_everything_and_resumes(scans, tmp_path):
     rc, stdout, _ = finish(batch(scans, "--out", out, "--jobs", "1", "--retry-failed"))
     assert "(2 inspected now, 4 done earlier)" in stdout, stdout
     assert records(out)["noisy_2"]["ok"]
+    # a re-run over a subset inspects nothing and summarises just that subset
+    rc, stdout, _ = finish(batch(scans / "noisy_0.ply", scans / "shell_scan.ply", "--out", out))
+    assert rc == 0 and "2 scans: 2 PASS" in stdout and "(0 inspected now, 2 done" in stdout
+    assert list(pd.read_csv(out / "summary.csv")["id"]) == ["noisy_0", "shell_scan"]
 
 
 @pytest.mark.slow
