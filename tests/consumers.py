@@ -65,6 +65,18 @@ def fail_or_skip(msg: str):
     pytest.skip(msg)
 
 
+def poppler_tool(name: str) -> str:
+    """Path of a poppler-utils command (``pdftoppm``, ``pdftotext``, ``pdfinfo``,
+    ``pdffonts``); fails under CI and skips elsewhere when it is missing."""
+    import shutil
+
+    exe = shutil.which(name)
+    if exe is None:
+        fail_or_skip(f"{name} not found: install Debian package poppler-utils "
+                     "(`make system-deps`)")
+    return exe
+
+
 def shared_xsd_dir() -> Path:
     """The official QIF 3.0 XSD root in ../shared (``QIFApplications/``, ``QIFLibrary/``).
 

@@ -18,6 +18,7 @@ import trimesh
 from qif.batch import plan
 from registration.errors import InputError
 from registration.pointcloud import load_scan
+from tests.consumers import poppler_tool
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"
@@ -116,9 +117,11 @@ def check_statistics(out: Path, pq: pd.DataFrame) -> None:
     assert int(attrs["n_pass"]) == status.count("PASS") == 4
     assert int(attrs["n_fail"]) == status.count("FAIL") == 1
     trend = out / "shell_nominal_trend.pdf"
-    info = subprocess.run(["pdfinfo", trend], capture_output=True, text=True).stdout
+    info = subprocess.run([poppler_tool("pdfinfo"), trend], capture_output=True,
+                          text=True).stdout
     assert re.search(r"^Pages:\s+1$", info, re.M), info
-    text = subprocess.run(["pdftotext", trend, "-"], capture_output=True, text=True).stdout
+    text = subprocess.run([poppler_tool("pdftotext"), trend, "-"], capture_output=True,
+                          text=True).stdout
     assert "80.0 %" in text  # 4 PASS of 5 scans with a verdict (the corrupt one has none)
 
 

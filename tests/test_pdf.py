@@ -13,7 +13,6 @@ from __future__ import annotations
 import copy
 import dataclasses
 import re
-import shutil
 import subprocess
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
@@ -25,17 +24,11 @@ from qif.pdf import fmt_area, fmt_mm, fmt_pct, fmt_smm, plan_layout, write_repor
 from qif.reader import read_results
 from qif.writer import Provenance, build_qif, profile_value, write_qif
 from tests.conftest import ROOT
-from tests.consumers import fail_or_skip
+from tests.consumers import poppler_tool as _tool
 
 DPI = 60
 
 
-def _tool(name: str) -> str:
-    exe = shutil.which(name)
-    if exe is None:
-        fail_or_skip(f"{name} not found: install Debian package poppler-utils "
-                     "(`make system-deps`)")
-    return exe
 
 
 def _prov(name: str, nominal: str, scan: str) -> Provenance:

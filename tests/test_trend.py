@@ -11,7 +11,6 @@ the tolerance, the errored scans are marked). Long (2000 scans), short (3 scans)
 from __future__ import annotations
 
 import re
-import shutil
 import subprocess
 import time
 from dataclasses import dataclass
@@ -33,7 +32,7 @@ from qif.trend import (
     seq_ticks,
     write_trend_pdf,
 )
-from tests.consumers import fail_or_skip
+from tests.consumers import poppler_tool as _tool
 
 DPI = 100
 CREATED = datetime(2025, 3, 4, 5, 6, 7, tzinfo=timezone.utc)
@@ -44,12 +43,6 @@ CHARS = [
 ]
 
 
-def _tool(name: str) -> str:
-    exe = shutil.which(name)
-    if exe is None:
-        fail_or_skip(f"{name} not found: install Debian package poppler-utils "
-                     "(`make system-deps`)")
-    return exe
 
 
 def batch_frame(n: int, chars: list[TrendCharacteristic] = CHARS, *, seed: int = 0,
