@@ -543,10 +543,19 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
     return etree.ElementTree(root)
 
 
+#: the XML declaration, double-quoted (lxml's own is single-quoted; strict QIF readers want
+#: double quotes throughout: ../shared/README.md)
+XML_DECLARATION = b'<?xml version="1.0" encoding="UTF-8" standalone="no"?>\n'
+
+
 def write_qif(path: Path, tree: etree._ElementTree) -> None:
-    """Write the document: UTF-8, XML declaration, no BOM, default namespace, indented."""
+    """Write the document: UTF-8, a double-quoted XML declaration, no BOM, default
+    namespace, indented."""
     etree.indent(tree, space="  ")
-    tree.write(str(path), xml_declaration=True, encoding="UTF-8", standalone=False)
+    body = etree.tostring(tree, encoding="UTF-8", xml_declaration=False)
+    with open(path, "wb") as fh:
+        fh.write(XML_DECLARATION)
+        fh.write(body)
 
 
 def _status(z: ZoneResult, established: bool = True) -> str:
