@@ -48,7 +48,8 @@ system-deps:
 	fi
 
 # Inspect the bundled samples: the STEP panel with semantic PMI (tolerances from the part
-# itself, no --tolerance) and the mesh shell (fallback input, explicit tolerance).
+# itself, no --tolerance), the mesh shell (fallback input, explicit tolerance), and a
+# two-scan batch of the panel (summary table, QIF Statistics document, trend PDF).
 demo: install system-deps
 	mkdir -p $(OUT)
 	$(VENV)/bin/qifreport pmi samples/panel.step
@@ -61,8 +62,14 @@ demo: install system-deps
 	  if [ $$rc -gt 1 ]; then exit $$rc; fi
 	test -s $(OUT)/shell_nominal.json && test -s $(OUT)/shell_nominal.pdf \
 	  && test -s $(OUT)/shell_registered.ply
-	$(VENV)/bin/qifreport validate $(OUT)/panel.qif $(OUT)/shell_nominal.qif
-	@echo "demo outputs in $(OUT)/"
+	$(VENV)/bin/qifreport batch samples/panel.step samples/panel_scan.ply \
+	  samples/panel_scan_defect.ply --out $(OUT)/batch --force; rc=$$?; \
+	  if [ $$rc -gt 1 ]; then exit $$rc; fi
+	test -s $(OUT)/batch/summary.csv && test -s $(OUT)/batch/panel_statistics.qif \
+	  && test -s $(OUT)/batch/panel_trend.pdf
+	$(VENV)/bin/qifreport validate $(OUT)/panel.qif $(OUT)/shell_nominal.qif \
+	  $(OUT)/batch/panel_statistics.qif
+	@echo "demo outputs in $(OUT)/ (a two-scan batch of the panel in $(OUT)/batch/)"
 
 test: install system-deps
 	$(PY) -m pytest -q
