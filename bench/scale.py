@@ -5,7 +5,7 @@ at ~200k vertices, deformed by the analytic free state to about the paper's real
 deflection (4.6 mm), scanned from 3 views; the nominal and the scan are written as PLY and
 ``qifreport --profile`` runs on them in a fresh process (so its peak memory is its own).
 Prints the part, the scan, the CLI's per-stage table (wall time, peak resident memory) and
-the child's peak RSS from the kernel.
+the child's own peak RSS (its ``VmHWM``, from the profile; ``--no-cache``: a cold run).
 
     python bench/scale.py [--vertices 200000] [--points 400000] [--keep DIR]
 """
@@ -13,7 +13,7 @@ the child's peak RSS from the kernel.
 from __future__ import annotations
 
 import argparse
-import resource
+import re
 import subprocess
 import sys
 import tempfile
@@ -71,7 +71,11 @@ def main() -> None:
     if r.returncode not in (0, 1, 3):
         print(r.stderr)
         raise SystemExit(f"qifreport exited {r.returncode}")
-    child = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20  # KiB -> GiB
+    # the profile's total row: the child's own high-water mark (VmHWM). Not the kernel's
+    # RUSAGE_CHILDREN ru_maxrss: Linux carries ru_maxrss across exec, so the child would
+    # report this (large) process's size at fork as its own peak
+    m = re.search(r"^total\s+[\d.]+\s+([\d.]+)\s*$", r.stdout, re.M)
+    child = float(m.group(1)) / 1024 if m else float("nan")  # MiB -> GiB
     print(f"exit {r.returncode}; wall {wall:.0f} s; peak RSS of the qifreport process "
           f"{child:.2f} GiB (limit 24 GiB)")
 

@@ -169,11 +169,21 @@ def entry_path(cache_dir: Path, nominal: Path, key: str) -> Path:
 
 
 def build_state(nominal: Path, options: NominalOptions, params, nominal_sha256: str,
-                key: str = "") -> PartState:
-    """Read the nominal and prepare it (no cache)."""
+                key: str = "", complete: bool = True) -> PartState:
+    """Read the nominal and prepare it.
+
+    ``complete``: everything any inspection of the part may need (a cache entry serves
+    them all); otherwise only what an inspection with ``params`` needs up front (the bending
+    basis for GB-CICP; the pose search builds its model itself if the scan needs it).
+    """
     t0 = time.perf_counter()
     nom = load_nominal(nominal, options.tolerance, options.max_edge, options.deflection)
-    prepared = prepare_part(nom.V, nom.F, params)
+    if complete:
+        prepared = prepare_part(nom.V, nom.F, params)
+    else:
+        basis = params.method == "gbcicp" and not params.rigid_only and \
+            params.gbcicp.solver == "modal"
+        prepared = prepare_part(nom.V, nom.F, params, basis=basis, model=False)
     return PartState(nominal=nom, prepared=prepared, nominal_sha256=nominal_sha256, key=key,
                      build_seconds=time.perf_counter() - t0)
 
@@ -254,8 +264,8 @@ def part_state(nominal: Path, options: NominalOptions, params, cache_dir: Path |
     digest = sha256(nominal)
     material = key_material(digest, options, params)
     key = cache_key(material)
-    if cache_dir is None:
-        state = build_state(nominal, options, params, digest, key)
+    if cache_dir is None:  # one inspection: build only what it needs
+        state = build_state(nominal, options, params, digest, key, complete=False)
         return state, CacheOutcome("off", None, time.perf_counter() - t0, state.build_seconds,
                                    timings=dict(state.prepared.timings))
     path = entry_path(cache_dir, nominal, key)

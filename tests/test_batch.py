@@ -54,6 +54,22 @@ def scans(tmp_path_factory):
     return d
 
 
+def assert_close(a, b, where=""):
+    """Equal structures; floats to 1e-6 relative (the batch worker runs one BLAS thread)."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for k in a:
+            assert_close(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), where
+        for k, (x, y) in enumerate(zip(a, b, strict=True)):
+            assert_close(x, y, f"{where}[{k}]")
+    elif isinstance(a, float):
+        assert b == pytest.approx(a, rel=1e-6, abs=1e-9), where
+    else:
+        assert a == b, where
+
+
 def records(out: Path) -> dict[str, dict]:
     return {p.name.removesuffix(".record.json"): json.loads(p.read_text())
             for p in (out / "scans").glob("*.record.json")}
@@ -154,6 +170,25 @@ def test_local_batch_records_everything_and_resumes(scans, tmp_path):
     assert "6 scans: 4 PASS, 1 FAIL, 0 NOT ESTABLISHED, 1 ERROR (6 inspected now" in stdout
     df = check_complete(out)
     assert df["worker"].nunique() == 2  # two processes shared the work
+    # a batch output is what the single-scan command writes for that scan
+    from qif.reader import read_results
+
+    one = tmp_path / "one"
+    r = subprocess.run([str(EXE), NOMINAL, scans / "shell_scan_defect.ply", "--tolerance",
+                        "0.5", "--out", one, "--json", "--quiet"], capture_output=True,
+                       text=True)
+    assert r.returncode == 1, r.stderr
+    a = read_results(one / "shell_nominal.qif")
+    b = read_results(out / "scans" / "shell_scan_defect.qif")
+    assert a.status == b.status == "FAIL"
+    assert [(c.designator, c.status) for c in a.characteristics] == \
+        [(c.designator, c.status) for c in b.characteristics]
+    assert [c.value for c in a.characteristics] == pytest.approx(
+        [c.value for c in b.characteristics], abs=1.01e-4)  # 4 decimals in the QIF
+    ja = json.loads((one / "shell_nominal.json").read_text())
+    jb = json.loads((out / "scans" / "shell_scan_defect.json").read_text())
+    for key in ("verdict", "acceptance", "vertex_deviation", "tolerances", "coverage"):
+        assert_close(ja[key], jb[key], key)
     # the same command again does no work and rewrites nothing
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
     rc, stdout, _ = finish(batch(scans, "--out", out, "--jobs", "2"))

@@ -170,3 +170,13 @@ def test_prepare_command_bad_nominal(tmp_path):
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "part.step" in r.stderr
     assert not list(tmp_path.rglob("*.qprep"))  # nothing cached for an unreadable part
+
+
+def test_without_cache_only_what_the_inspection_needs(built):
+    """``--no-cache``: one inspection builds no bending basis for a baseline method and no
+    pose-search model up front (the pose search builds it if the scan needs it)."""
+    nominal = built[0]
+    state, outcome = part_state(nominal, OPTS, InspectionParams(method="nicp"), None)
+    assert outcome.status == "off" and outcome.path is None
+    assert state.prepared.basis is None and state.prepared.model is None
+    assert state.prepared.ops.Q.shape == (len(state.nominal.V),) * 2
