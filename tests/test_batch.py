@@ -297,3 +297,33 @@ def test_batch_bad_nominal_and_no_scans(tmp_path):
                         "--out", tmp_path / "o", "--quiet"], capture_output=True, text=True)
     assert r.returncode == 2 and "no scan files" in r.stderr
     assert r.stderr.count("\n") == 1
+
+
+@pytest.mark.slow
+def test_manifest_with_a_nominal_per_row(scans, tmp_path):
+    """Rows may name their own nominal: each is prepared once and summarised on its own; a
+    row whose nominal is missing is recorded as an error and the others go on."""
+    for name in ("left.ply", "right.ply"):
+        (tmp_path / name).write_bytes(NOMINAL.read_bytes())
+    m = tmp_path / "manifest.csv"
+    m.write_text("scan,serial,nominal\n"
+                 f"{scans / 'shell_scan.ply'},L-1,left.ply\n"
+                 f"{scans / 'noisy_0.ply'},R-1,right.ply\n"
+                 f"{scans / 'noisy_1.ply'},X-1,missing.ply\n")
+    out = tmp_path / "out"
+    rc, stdout, stderr = finish(batch(m, "--out", out, "--jobs", "1"))
+    assert rc == 1, stdout + stderr
+    assert "3 scans: 2 PASS, 0 FAIL, 0 NOT ESTABLISHED, 1 ERROR" in stdout, stdout
+    df = pd.read_csv(out / "summary.csv", keep_default_na=False).set_index("id")
+    assert list(df.index) == ["L-1", "R-1", "X-1"]
+    assert list(df["serial"]) == ["L-1", "R-1", "X-1"]
+    assert list(df["nominal"]) == ["left.ply", "right.ply", "missing.ply"]
+    assert "nominal file not found" in df.loc["X-1", "error"]
+    from qif.reader import read_results
+
+    assert read_results(out / "scans" / "L-1.qif").serial_number == "L-1"
+    for part in ("left", "right"):
+        stats = out / f"{part}_statistics.qif"
+        assert stats.is_file() and (out / f"{part}_trend.pdf").is_file()
+        text = stats.read_text()
+        assert text.count("<SurfaceProfileCharacteristicMeasurement ") == 1  # its own scan
