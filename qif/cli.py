@@ -6,6 +6,10 @@ itself) or a mesh (STL/PLY/OBJ/OFF, with ``--tolerance``). Sub-commands:
 * ``qifreport pmi PART.step [--json]`` lists the semantic PMI read from a STEP file.
 * ``qifreport validate FILE.qif [...]`` checks QIF files against the official QIF 3.0 schemas
   (libxml2 and xmlschema, key/keyref included) and the DMSC XSLT checks.
+* ``qifreport prepare PART`` stores the nominal's prepared state in the per-part cache
+  (:mod:`qif.cache`); every inspection also uses the cache (``--cache DIR``, ``--no-cache``).
+* ``qifreport batch PART SCANS... --out DIR`` inspects many scans of one part, in parallel on
+  local processes or a Dask cluster, resumably (:mod:`qif.batch`).
 
 Outputs (in ``--out``, all or none): ``<nominal>.qif``, the QIF 3.0 results document
 (validated against the official schemas before it is published; never called valid when the
