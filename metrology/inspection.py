@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass, field, is_dataclass
+from dataclasses import asdict, dataclass, field, is_dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -52,7 +52,7 @@ from .bands import (
 )
 from .deviation import beyond_rim, closest_points, nominal_referenced
 from .hygiene import MeshHygiene, near_boundary
-from .prepared import PreparedPart, hygiene_copy, prepare_part
+from .prepared import PreparedPart, prepare_part
 from .repeatability import Repeatability
 from .statistics import DeviationStats, deviation_statistics
 
@@ -542,7 +542,7 @@ def inspect(
         dev_free = nominal_referenced(
             V, F, Pm, normals=ops.normals,
             scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets))
-    hygiene = hygiene_copy(prepared.hygiene)
+    hygiene = replace(prepared.hygiene)  # a copy: the rim band is this inspection's
     hygiene.boundary_band = rim_band
     hygiene.boundary_excluded_area = float(ops.area[near_rim].sum())
     hygiene.boundary_excluded_fraction = hygiene.boundary_excluded_area / max(

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -89,16 +89,6 @@ class PreparedPart:
                     if self.settings.get(k) != v}
             raise ValueError(f"prepared state built with other settings: {diff}")
 
-    @property
-    def nbytes(self) -> int:
-        """Approximate size of the arrays held, bytes."""
-        n = self.V.nbytes + self.F.nbytes
-        for M in (self.ops.L, self.ops.M, self.ops.Q):
-            n += M.data.nbytes + M.indices.nbytes + M.indptr.nbytes
-        if self.basis is not None:
-            n += self.basis.Phi.nbytes
-        return n
-
 
 def prepare_part(V: np.ndarray, F: np.ndarray, params, *, basis: bool = True,
                  model: bool = True) -> PreparedPart:
@@ -145,7 +135,3 @@ def prepare_part(V: np.ndarray, F: np.ndarray, params, *, basis: bool = True,
                         hygiene=hygiene, basis=b, model=m, settings=part_settings(params),
                         timings=timings)
 
-
-def hygiene_copy(h: MeshHygiene) -> MeshHygiene:
-    """A fresh copy (an inspection fills in the rim band of its own copy)."""
-    return MeshHygiene(**asdict(h))

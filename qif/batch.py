@@ -65,6 +65,7 @@ from step.atomic import atomic_write_many
 
 from . import __version__
 from .cache import PartState, part_state, sha256
+from .cli import _finite, _json_default
 
 log = logging.getLogger("qifreport.batch")
 
@@ -335,8 +336,7 @@ def summary_row(res, item: ScanItem, scan_sha256: str, seconds: float) -> dict:
         "largest_region_mm2": a.largest_region_area,
         "rigid_rms_mm": res.rigid.rms,
         "fit_residual_mm": fit.scale if fit is not None else float("nan"),
-        "flagged_fraction": (fit.flagged_fraction if fit is not None
-                             and hasattr(fit, "flagged_fraction") else float("nan")),
+        "flagged_fraction": fit.flagged_fraction if fit is not None else float("nan"),
         "seconds": seconds, "scan_sha256": scan_sha256,
     }
     for z in res.zones:
@@ -408,16 +408,6 @@ def read_record(out: Path, item: ScanItem, digest: str) -> dict | None:
     return rec
 
 
-def _finite(o):
-    if isinstance(o, dict):
-        return {k: _finite(v) for k, v in o.items()}
-    if isinstance(o, (float, np.floating)):
-        return float(o) if np.isfinite(o) else None
-    if isinstance(o, np.integer):
-        return int(o)
-    return o
-
-
 def commit(out: Path, item: ScanItem, digest: str, result: TaskResult) -> dict:
     """Write a scan's outputs and then its record, all or none; return the record."""
     scans = out / "scans"
@@ -431,7 +421,8 @@ def commit(out: Path, item: ScanItem, digest: str, result: TaskResult) -> dict:
            "row": _finite(result.row)}
     items = [(scans / name, _bytes_writer(data)) for name, data in result.files.items()]
     items.append((record_path(out, item),
-                  lambda p: p.write_text(json.dumps(rec, indent=1, allow_nan=False))))
+                  lambda p: p.write_text(json.dumps(rec, indent=1, allow_nan=False,
+                                                    default=_json_default))))
     atomic_write_many(items)  # the record is renamed last: it marks a finished scan
     return rec
 
@@ -670,12 +661,10 @@ def run_batch(opts: argparse.Namespace) -> BatchReport:
 
     ordered = [records[i.id] for i in items if i.id in records]
     counts = {v: sum(r["row"].get("verdict") == v for r in ordered) for v in VERDICTS}
-    report = BatchReport(ordered, len(todo), skipped, counts, outcomes,
-                         time.perf_counter() - t_start)
-    report.summary_files = write_summaries(out, items, ordered, states, opts,
-                                           changed=bool(todo) or opts.force)
-    report.seconds = time.perf_counter() - t_start
-    return report
+    files = write_summaries(out, items, ordered, states, opts,
+                            changed=bool(todo) or opts.force)
+    return BatchReport(ordered, len(todo), skipped, counts, outcomes,
+                       time.perf_counter() - t_start, files)
 
 
 def summary_frame(records: list[dict]):
@@ -738,9 +727,12 @@ def _same_rows(csv_path: Path, df) -> bool:
 
 def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: str,
                        target: Path):
+    """The writer of the statistics document: validated before it is published, as the
+    results documents are (:func:`qif.cli.qif_writer`)."""
     def write(p: Path) -> None:
+        from .cli import qif_writer
         from .reader import read_results
-        from .statistics import build_statistics, write_statistics
+        from .statistics import build_statistics
 
         names = [n for r in recs if r["ok"] for n in r["outputs"] if n.endswith(".qif")]
         results = [read_results(out / "scans" / n) for n in names]
@@ -748,24 +740,12 @@ def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: st
             results, part_name=part_name, created=datetime.now(timezone.utc),
             nominal_sha256=st.nominal_sha256, sources=[f"scans/{n}" for n in names],
             software_version=__version__)
-        write_statistics(p, tree)
-        _validate_written(p, target)
+        state: dict = {}
+        qif_writer(tree, state)(p)
+        if state["valid"] is None:
+            log.warning("%s written, %s", target, state["message"])
 
     return write
-
-
-def _validate_written(tmp: Path, target: Path) -> None:
-    """The statistics document must be schema-valid before it is published."""
-    from .validate import SchemasUnavailable, validate_lxml
-
-    try:
-        errors = [f for f in validate_lxml(tmp) if f.severity == "error"]
-    except SchemasUnavailable:
-        log.warning("%s written, NOT validated: the QIF 3.0 schemas were not found", target)
-        return
-    if errors:
-        raise RuntimeError(f"the statistics document is not valid (line {errors[0].line}: "
-                           f"{errors[0].message}); nothing written")
 
 
 def _trend_writer(df, st: PartState, part_name: str, opts: argparse.Namespace):
