@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from registration.gbcicp import GBCICPParams, gbcicp
-from registration.icp import rigid_icp
-from registration.mesh import bending_operator
-from registration.simulate.cases import inspection_error, make_case
-from registration.simulate.scanner import ScanSpec
-from registration.simulate.shapes import fandisk, thin_shell
+from qifreport.registration.gbcicp import GBCICPParams, gbcicp
+from qifreport.registration.icp import rigid_icp
+from qifreport.registration.mesh import bending_operator
+from qifreport.simulate.cases import inspection_error, make_case
+from qifreport.simulate.scanner import ScanSpec
+from qifreport.simulate.shapes import fandisk, thin_shell
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = {  # paper Table 5 / Section 7.1, fandisk: RMS, max, P95 (mm), seconds

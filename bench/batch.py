@@ -134,8 +134,8 @@ def main() -> None:
         shutil.rmtree(work / d, ignore_errors=True)
 
     # preparation stages, cold and warm, in this process (5 loads)
-    from metrology.inspection import InspectionParams
-    from qif.cache import NominalOptions, part_state
+    from qifreport.cache import NominalOptions, part_state
+    from qifreport.metrology.inspection import InspectionParams
 
     t = time.perf_counter()
     part_state(PART, NominalOptions(), InspectionParams(), cache)

@@ -39,21 +39,21 @@ import igl
 import numpy as np
 import pandas as pd
 
-from metrology.inspection import InspectionParams, unscored_bands
-from registration import methods
-from registration.cpd import CPDParams, cpd_warp, sample_points
-from registration.cpd import _resolve as resolve_cpd
-from registration.gbcicp import GBCICPParams, bending_basis
-from registration.icp import rigid_icp
-from registration.mesh import (
+from qifreport.metrology.inspection import InspectionParams, unscored_bands
+from qifreport.registration import methods
+from qifreport.registration.cpd import CPDParams, cpd_warp, sample_points
+from qifreport.registration.cpd import _resolve as resolve_cpd
+from qifreport.registration.gbcicp import GBCICPParams, bending_basis
+from qifreport.registration.icp import rigid_icp
+from qifreport.registration.mesh import (
     bending_operator,
     boundary_vertices,
     bounding_diagonal,
 )
-from registration.pointcloud import orient_normals_consistent, pca_normals
-from registration.simulate.cases import inspection_error, make_case
-from registration.simulate.scanner import ScanSpec
-from registration.simulate.shapes import fandisk, housing
+from qifreport.registration.pointcloud import orient_normals_consistent, pca_normals
+from qifreport.simulate.cases import inspection_error, make_case
+from qifreport.simulate.scanner import ScanSpec
+from qifreport.simulate.shapes import fandisk, housing
 
 ROOT = Path(__file__).resolve().parents[1]
 OURS = ("rigid", "rbffem", "cpd", "nicp", "gbcicp", "gbcicp-1pass")

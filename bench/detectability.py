@@ -6,11 +6,11 @@ the closed-form analytic generator (2 % of the diagonal: it shares no prior with
 scanned with 0.03 mm range noise. The defect sits at one fixed vertex in every cell.
 
 What is scored is what the product reports: every cell runs the real pipeline
-(:func:`metrology.inspection.inspect`) and takes its nominal-referenced deviation field on
+(:func:`qifreport.metrology.inspection.inspect`) and takes its nominal-referenced deviation field on
 the registered nominal (``InspectionResult.deviation``; NaN = not scored: uncovered, or in
 the rim/crease exclusion band). ``x0`` is the defect centre in the nominal frame,
 ``V[case.defect_vertex]``. Detectability per Eqs. 18-19 with the fixed radii R_d = 12 mm,
-R_b = 60 mm (:mod:`registration.simulate.detectability`).
+R_b = 60 mm (:mod:`qifreport.simulate.detectability`).
 
 Configurations (column groups of Table 3), in this product's parametrisation (band limit
 ``l`` is a length, ``lambda = l^4``, gain ``1 / (1 + (k l)^4)``; not the paper's feature
@@ -44,14 +44,14 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from metrology.inspection import InspectionParams, inspect
-from registration.gbcicp import GBCICPParams
-from registration.mesh import boundary_vertices, bounding_diagonal
-from registration.simulate.cases import defect_site, make_case
-from registration.simulate.deform import pca_frame
-from registration.simulate.detectability import detectability
-from registration.simulate.scanner import ScanSpec
-from registration.simulate.shapes import thin_shell
+from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.registration.gbcicp import GBCICPParams
+from qifreport.registration.mesh import boundary_vertices, bounding_diagonal
+from qifreport.simulate.cases import defect_site, make_case
+from qifreport.simulate.deform import pca_frame
+from qifreport.simulate.detectability import detectability
+from qifreport.simulate.scanner import ScanSpec
+from qifreport.simulate.shapes import thin_shell
 
 AMPLITUDES = (0.3, 0.6, 0.9, 1.5)  # mm
 SIGMAS = (3.0, 7.0, 12.0)  # mm

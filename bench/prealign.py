@@ -8,9 +8,9 @@ onto itself; bend + twist at 2 %, 4 views as the paper's controller, Section 8.2
 scan is placed at ``--poses`` uniformly random rotations and translations of up to half the
 diagonal, and seated by
 
-* ``prealign``: :func:`registration.prealign.prealign` (descriptors + RANSAC + restarts,
+* ``prealign``: :func:`qifreport.registration.prealign.prealign` (descriptors + RANSAC + restarts,
   ending with the robust rigid ICP), and
-* ``icp``: plain :func:`registration.icp.rigid_icp` from the identity (the posed scan as
+* ``icp``: plain :func:`qifreport.registration.icp.rigid_icp` from the identity (the posed scan as
   delivered), and ``icp+centroid``: the same with the scan's centroid moved onto the model's
   and no distance cut-off (the fairest plain-ICP start without a pose search).
 
@@ -21,7 +21,7 @@ stage later removes. So three success levels are printed:
 * ``ok_truth``: the issue's bound against the generator frame (rotation < 1 degree and
   displacement of the scan centroid < 0.5 % of the diagonal);
 * ``ok_ref``: the same bound against the *reference*, the same final refinement
-  (:func:`registration.prealign.refine_pose`) started at the ground truth -- the success
+  (:func:`qifreport.registration.prealign.refine_pose`) started at the ground truth -- the success
   criterion of the pose search;
 * ``equiv``: within 10 degrees and 5 % of the diagonal of the reference with a fit (MSAC
   cost) at most 10 % worse: an equivalent rigid pose. On smooth deformed parts the rigid
@@ -31,9 +31,9 @@ stage later removes. So three success levels are printed:
 
 ``refused`` counts :class:`PoseNotEstablished`; ``wrong`` counts accepted poses that are
 not ``equiv`` (silent failures, the thing that must not happen). ``cond`` is the median pose
-conditioning the confidence report gives (:func:`registration.icp.pose_conditioning`; below
+conditioning the confidence report gives (:func:`qifreport.registration.icp.pose_conditioning`; below
 1e-3 the seen surface slides along itself). ``downstream``: for the first ``--downstream``
-accepted poses of each part the whole inspection (:func:`metrology.inspection.inspect`: rigid
+accepted poses of each part the whole inspection (:func:`qifreport.metrology.inspection.inspect`: rigid
 ICP, GB-CICP, normal deviations) is run on the pre-registered scan and on the same scan
 delivered in the part frame, and the largest difference of the deviation RMS and P99.9 is
 printed (what a wrong or merely different rigid pose would change).
@@ -51,10 +51,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from metrology.inspection import InspectionParams, inspect
-from registration.icp import rigid_icp
-from registration.mesh import bounding_diagonal
-from registration.prealign import (
+from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.registration.icp import rigid_icp
+from qifreport.registration.mesh import bounding_diagonal
+from qifreport.registration.prealign import (
     PoseNotEstablished,
     PrealignParams,
     pose_distance,
@@ -63,9 +63,9 @@ from registration.prealign import (
     refine_pose,
     score_pose,
 )
-from registration.simulate.cases import make_case
-from registration.simulate.scanner import ScanSpec
-from registration.simulate.shapes import fandisk, housing, thin_shell
+from qifreport.simulate.cases import make_case
+from qifreport.simulate.scanner import ScanSpec
+from qifreport.simulate.shapes import fandisk, housing, thin_shell
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -1,6 +1,6 @@
 """Scale run (issue 7): a 600 mm part, a ~200k-vertex nominal and a ~400k-point scan.
 
-The thin shell (:func:`registration.simulate.shapes.thin_shell`) scaled to 600 mm and meshed
+The thin shell (:func:`qifreport.simulate.shapes.thin_shell`) scaled to 600 mm and meshed
 at ~200k vertices, deformed by the analytic free state to about the paper's real-part
 deflection (4.6 mm), scanned from 3 views; the nominal and the scan are written as PLY and
 ``qifreport --profile`` runs on them in a fresh process (so its peak memory is its own).
@@ -23,10 +23,10 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from registration.mesh import bounding_diagonal
-from registration.simulate.cases import make_case
-from registration.simulate.scanner import ScanSpec
-from registration.simulate.shapes import thin_shell
+from qifreport.registration.mesh import bounding_diagonal
+from qifreport.simulate.cases import make_case
+from qifreport.simulate.scanner import ScanSpec
+from qifreport.simulate.shapes import thin_shell
 
 
 def build(vertices: int, points: int, length: float = 600.0, deflection: float = 4.6):

@@ -1,6 +1,6 @@
 """Uncertainty budget of the deviation field on the thin shell (paper Section 9, Table 6).
 
-Runs the validation ladder of :mod:`registration.simulate.ladder` through the real
+Runs the validation ladder of :mod:`qifreport.simulate.ladder` through the real
 inspection chain (``metrology.inspection.inspect``) and prints one Table-6-like table --
 sensor noise propagated, case A chain floor, case B unremoved compliance, registration
 repeatability, and their combination in quadrature -- beside the paper's values, followed
@@ -19,8 +19,8 @@ import time
 import numpy as np
 import pandas as pd
 
-from registration.curvature import scan_curvatures
-from registration.simulate import ladder as L
+from qifreport.registration.curvature import scan_curvatures
+from qifreport.simulate import ladder as L
 
 
 def main() -> None:

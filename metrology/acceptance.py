@@ -37,7 +37,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from registration.mesh import adjacency, vertex_areas
+from qifreport.registration.mesh import adjacency, vertex_areas
 
 from .statistics import _json_float
 
@@ -160,7 +160,7 @@ def find_regions(
     ----------
     V : (n, 3) float, mm.  F : (f, 3) int.  dev : (n,) signed deviation, mm, NaN unscored.
     tolerance : scalar or (n,) per-vertex tolerance band, mm (``|dev| <= tol`` passes).
-    area : (n,) vertex areas, mm^2; default :func:`registration.mesh.vertex_areas`.
+    area : (n,) vertex areas, mm^2; default :func:`qifreport.registration.mesh.vertex_areas`.
     center : scalar or (n,) band centre, mm (0: a symmetric band).
 
     Returns
@@ -298,7 +298,7 @@ def evaluate(
     ----------
     V : (n, 3) float, mm.  F : (f, 3) int.  dev : (n,) signed deviation, mm, NaN unscored.
     tolerance : scalar or (n,) per-vertex band, mm.
-    area : (n,) vertex areas, mm^2; default :func:`registration.mesh.vertex_areas`.
+    area : (n,) vertex areas, mm^2; default :func:`qifreport.registration.mesh.vertex_areas`.
     min_fraction : required in-tolerance share of the scored area; the comparison is
         ``>=`` (exactly 95 % passes), with a 1e-12 relative slack for summation round-off.
     max_region_area : mm^2; a region passes if its area is ``<=`` this.

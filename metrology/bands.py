@@ -158,7 +158,7 @@ def zones_from_pmi(
 
     Parameters
     ----------
-    pmi : :class:`step.pmi.PMI` (values in mm) or None.
+    pmi : :class:`qifreport.step.pmi.PMI` (values in mm) or None.
     face_index : STEP face entity id -> face id of the tessellated part.
     general : half-width of the general zone from the command line (mm), or None for
         :data:`DEFAULT_GENERAL_TOLERANCE`.

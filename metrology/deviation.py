@@ -28,7 +28,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as _triangle_closest_point
 
-from registration.mesh import edge_uses, face_normals, median_edge_length, vertex_normals
+from qifreport.registration.mesh import edge_uses, face_normals, median_edge_length, vertex_normals
 
 log = logging.getLogger(__name__)
 
@@ -236,7 +236,7 @@ def closest_points(
     V : (n, 3) float, mm.  F : (f, 3) int, outward-oriented winding.
     P : (m, 3) float, scan points, mm.
     normals : (n, 3) unit vertex normals used for the sign where the closest point lies on
-        an edge or vertex; default :func:`registration.mesh.vertex_normals`.
+        an edge or vertex; default :func:`qifreport.registration.mesh.vertex_normals`.
 
     Returns
     -------
@@ -400,13 +400,13 @@ def nominal_referenced(
     ----------
     V : (n, 3) float, mm.  F : (f, 3) int.  P : (m, 3) float scan points, mm.
     normals : (n, 3) unit outward vertex normals; default
-        :func:`registration.mesh.vertex_normals`.
+        :func:`qifreport.registration.mesh.vertex_normals`.
     radius : neighbourhood radius, mm; default 1.5 x the median edge length.
     min_points : a vertex with fewer scan points than this in its neighbourhood is unscored.
     max_centroid_offset : fraction of ``radius`` (see above); None disables the rule.
     max_distance : mm; if given, the neighbourhood is the cylinder described above.
     scan_normals : (m, 3) scan normals *oriented* outward (e.g. by
-        :func:`registration.deformable.orient_scan_normals`); if given, a vertex only uses
+        :func:`qifreport.registration.deformable.orient_scan_normals`); if given, a vertex only uses
         points whose normal is within 60 degrees of its own (``n_point . n_vertex > 0.5``).
         This keeps the back skin and the edge faces of a thin wall, closer to the front's
         measurements than ``radius``, from being scored against them.

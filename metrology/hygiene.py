@@ -17,7 +17,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from registration.mesh import adjacency, edge_uses
+from qifreport.registration.mesh import adjacency, edge_uses
 
 
 @dataclass

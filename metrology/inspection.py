@@ -19,19 +19,19 @@ from dataclasses import asdict, dataclass, field, is_dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from registration.deformable import DeformResult, orient_scan_normals
-from registration.errors import InputError
-from registration.gbcicp import BendingBasis, GBCICPParams
-from registration.icp import RigidResult, rigid_icp
-from registration.mesh import (
+from qifreport.errors import InputError
+from qifreport.registration.deformable import DeformResult, orient_scan_normals
+from qifreport.registration.gbcicp import BendingBasis, GBCICPParams
+from qifreport.registration.icp import RigidResult, rigid_icp
+from qifreport.registration.mesh import (
     bounding_diagonal,
     crease_band,
     median_edge_length,
     vertex_normals,
 )
-from registration.methods import METHODS, deform
-from registration.pointcloud import orient_normals_consistent, pca_normals
-from registration.prealign import PrealignResult, seat_scan
+from qifreport.registration.methods import METHODS, deform
+from qifreport.registration.pointcloud import orient_normals_consistent, pca_normals
+from qifreport.registration.prealign import PrealignResult, seat_scan
 
 from .acceptance import (
     DEFAULT_MAX_REGION_AREA,
@@ -58,7 +58,7 @@ from .statistics import DeviationStats, deviation_statistics
 
 log = logging.getLogger(__name__)
 
-#: display name of each deformable method of :data:`registration.methods.METHODS`
+#: display name of each deformable method of :data:`qifreport.registration.methods.METHODS`
 METHOD_LABELS = {"gbcicp": "GB-CICP", "nicp": "NICP", "cpd": "CPD", "rbffem": "RBF-FEM"}
 
 
@@ -78,7 +78,7 @@ class InspectionParams:
     ----------
     tolerance : half-width of the general profile band (mm): where no other zone applies a
         vertex is in tolerance if ``|dev| <= tol``. None: the zones passed to
-        :func:`inspect` decide, with :data:`metrology.bands.DEFAULT_GENERAL_TOLERANCE`
+        :func:`inspect` decide, with :data:`qifreport.metrology.bands.DEFAULT_GENERAL_TOLERANCE`
         where none applies.
     min_fraction : area criterion, fraction of the scored area that must be in tolerance.
     max_region_area : region criterion, largest admissible connected out-of-tolerance
@@ -95,18 +95,18 @@ class InspectionParams:
         is an artefact. None: the deviation's neighbourhood radius (1.5 median edges);
         0 scores every vertex. The excluded area is reported.
     boundary_band : vertices within this distance (mm) of an open boundary of the nominal
-        (rim, holes, unwelded seams) are not scored (:mod:`metrology.hygiene`); None: the same
+        (rim, holes, unwelded seams) are not scored (:mod:`qifreport.metrology.hygiene`); None: the same
         width as ``edge_band``'s default (1.5 median edges); 0 scores the rim. The excluded
         area is reported with the mesh's defects.
     rigid_only : skip the virtual fixture (the fixtureless rigid baseline).
-    prealign : pose search before the rigid ICP (:func:`registration.prealign.seat_scan`):
+    prealign : pose search before the rigid ICP (:func:`qifreport.registration.prealign.seat_scan`):
         ``"auto"`` (default) searches only when the scan is not already in the part frame,
         ``"always"`` always searches, ``"never"`` trusts that scan and nominal share a frame.
     fail_on_added_material : a connected scan region standing proud of the nominal beyond
         the whole-part threshold and larger than ``max_region_area`` fails the part
-        (:mod:`metrology.added`); otherwise it is reported only.
+        (:mod:`qifreport.metrology.added`); otherwise it is reported only.
     method : the deformable method of the virtual fixture, a key of
-        :data:`registration.methods.METHODS`: ``"gbcicp"`` (default, paper Section 6.4) or
+        :data:`qifreport.registration.methods.METHODS`: ``"gbcicp"`` (default, paper Section 6.4) or
         one of the paper's baselines ``"nicp"``, ``"cpd"``, ``"rbffem"`` (run with their own
         default parameters).
     gbcicp : parameters of the GB-CICP stage (used only with ``method="gbcicp"``; its
@@ -141,7 +141,7 @@ class ZoneResult:
     fixtured : False when evaluated free-state (rigid alignment only).
     deviation : (n,) the deviation the zone was judged on, mm (the fixtured or free-state
         field on the zone's vertices, NaN elsewhere); None from older callers. Used by
-        :mod:`metrology.repeatability` to match regions between runs.
+        :mod:`qifreport.metrology.repeatability` to match regions between runs.
     """
 
     zone: ToleranceZone
@@ -181,7 +181,7 @@ class InspectionResult:
     rigid : the rigid alignment (pose of the scan as delivered -> nominal frame).
     fit : the virtual fixture's result (None with ``rigid_only``), from the method
         ``params.method`` (``fit.method``).
-    prealign : how the rigid ICP was started (:class:`registration.prealign.PrealignResult`;
+    prealign : how the rigid ICP was started (:class:`qifreport.registration.prealign.PrealignResult`;
         ``method == "identity"`` when the scan was already in the part frame).
     scan_area : estimated area covered by the scan, mm^2.
     coverage_ceiling_ok : coverage does not exceed scan area / nominal area (over-fit check).
@@ -190,7 +190,7 @@ class InspectionResult:
         edge band of sharp creases, not scored.
     repeatability : the resampling study of ``qifreport --seeds`` (None without it): when
         set, ``acceptance`` and each zone's acceptance hold only the persistent regions
-        (:func:`metrology.repeatability.apply`).
+        (:func:`qifreport.metrology.repeatability.apply`).
     basis : the nominal's GB-CICP bending basis when one was used (per-part state: pass it
         to :func:`inspect` for further scans of the part).
     """
@@ -412,7 +412,7 @@ def unscored_bands(
     Parameters
     ----------
     V : (n, 3) nominal vertices, mm.  F : (f, 3) triangles.
-    boundary : (n,) open-boundary vertices (:func:`registration.mesh.boundary_vertices`).
+    boundary : (n,) open-boundary vertices (:func:`qifreport.registration.mesh.boundary_vertices`).
     params : ``edge_band`` (default 1.5 median edges), ``crease_angle``, ``boundary_band``
         (default the edge band).
 
@@ -454,13 +454,13 @@ def inspect(
     progress : optional callable ``progress(k)`` advanced once per iteration of the virtual
         fixture (``params.method``).
     face_id : (f,) B-rep face id of each triangle (STEP nominals), for face-based zones.
-    zones : tolerance zones (:func:`metrology.bands.zones_from_pmi`); default one general
+    zones : tolerance zones (:func:`qifreport.metrology.bands.zones_from_pmi`); default one general
         zone of half-width ``params.tolerance``. Zones that cover no triangle are dropped.
     not_evaluated : PMI items listed in the result but not scored.
     scan_units : the unit the user declared for the scan file (for the units hint only).
-    basis : the nominal's GB-CICP bending basis (:func:`registration.gbcicp.bending_basis`),
+    basis : the nominal's GB-CICP bending basis (:func:`qifreport.registration.gbcicp.bending_basis`),
         to reuse it across scans of one part; computed when needed if omitted.
-    prepared : the nominal's scan-independent state (:func:`metrology.prepared.prepare_part`
+    prepared : the nominal's scan-independent state (:func:`qifreport.metrology.prepared.prepare_part`
         with these ``params``), to reuse across scans of one part: operators, unscored
         bands, hygiene, bending basis (unless ``basis`` is given) and the pose search's
         model. ``ValueError`` if it was prepared for another mesh or other settings.
@@ -469,7 +469,7 @@ def inspect(
     ------
     InputError
         Wrong units, or a scan that does not overlap the nominal after rigid alignment;
-        :class:`registration.prealign.PoseNotEstablished` when no pose can be established.
+        :class:`qifreport.registration.prealign.PoseNotEstablished` when no pose can be established.
     """
     if params.method not in METHODS:
         raise ValueError(f"unknown method {params.method!r} (one of {', '.join(METHODS)})")

@@ -4,8 +4,8 @@ A production line inspects every molding off the press against one nominal. The 
 depends only on the nominal -- the bending operators, the unscored crease and rim bands, the
 mesh hygiene, the GB-CICP bending basis (the costliest: an eigen-decomposition) and the
 pose search's curvature descriptors -- is done once by :func:`prepare_part` and handed to
-every :func:`metrology.inspection.inspect` of the part (``prepared=``). The per-part cache
-(:mod:`qif.cache`) stores it on disk; the batch runner (:mod:`qif.batch`) ships it to each
+every :func:`qifreport.metrology.inspection.inspect` of the part (``prepared=``). The per-part cache
+(:mod:`qifreport.cache`) stores it on disk; the batch runner (:mod:`qifreport.batch`) ships it to each
 worker once.
 
 A :class:`PreparedPart` remembers the settings it was built with (:func:`part_settings`);
@@ -21,9 +21,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from registration.gbcicp import BendingBasis, bending_basis
-from registration.mesh import MeshOperators, bending_operator, boundary_vertices
-from registration.prealign import PreparedModel, prepare_model
+from qifreport.registration.gbcicp import BendingBasis, bending_basis
+from qifreport.registration.mesh import MeshOperators, bending_operator, boundary_vertices
+from qifreport.registration.prealign import PreparedModel, prepare_model
 
 from .hygiene import MeshHygiene, mesh_hygiene
 
@@ -35,7 +35,7 @@ def part_settings(params) -> dict:
 
     Parameters
     ----------
-    params : :class:`metrology.inspection.InspectionParams`.
+    params : :class:`qifreport.metrology.inspection.InspectionParams`.
     """
     return {
         "energy": params.energy, "edge_band": params.edge_band,
@@ -97,7 +97,7 @@ def prepare_part(V: np.ndarray, F: np.ndarray, params, *, basis: bool = True,
     Parameters
     ----------
     V : (n, 3) float, mm.  F : (f, 3) int.
-    params : :class:`metrology.inspection.InspectionParams` (its :func:`part_settings`).
+    params : :class:`qifreport.metrology.inspection.InspectionParams` (its :func:`part_settings`).
     basis : build GB-CICP's bending basis (``params.gbcicp.modes`` modes; the costliest
         step, seconds on tens of thousands of vertices).
     model : build the pose search's model (curvature fields, keypoints, geodesic balls),

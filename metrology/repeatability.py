@@ -41,7 +41,7 @@ region, never add one); and ``--seeds 1`` (the default) is exactly the run witho
 resampling. The price is one inspection more than ``N``.
 
 The functions work on plain arrays (vertex indices, signed out-of-tolerance maps);
-:func:`apply` is the glue that reads them from :class:`metrology.inspection.InspectionResult`
+:func:`apply` is the glue that reads them from :class:`qifreport.metrology.inspection.InspectionResult`
 objects (duck-typed, to keep this module free of the inspection module).
 """
 
@@ -87,7 +87,7 @@ def signed_out(dev: np.ndarray, tolerance, center=0.0) -> np.ndarray:
     Returns
     -------
     (n,) int8: +1 proud beyond the band (``dev - center > tolerance``), -1 sunk beyond it,
-    0 inside the band or unscored -- the vertices :func:`metrology.acceptance.find_regions`
+    0 inside the band or unscored -- the vertices :func:`qifreport.metrology.acceptance.find_regions`
     groups into regions.
     """
     d = np.asarray(dev, dtype=np.float64) - np.asarray(center, dtype=np.float64)
@@ -329,7 +329,7 @@ def apply(res: Any, runs: Sequence[Any], keep_fraction: float = KEEP_FRACTION,
 
     Parameters
     ----------
-    res : the reported run (:class:`metrology.inspection.InspectionResult` of the full scan).
+    res : the reported run (:class:`qifreport.metrology.inspection.InspectionResult` of the full scan).
         Its ``acceptance`` and each zone's ``acceptance`` are replaced by
         :func:`restrict_acceptance` of their persistent regions, and ``res.repeatability``
         is set (so its trust warnings include the resampled runs').

@@ -1,3 +1,1 @@
-"""QIF 3.0 results output and the ``qifreport`` command line."""
-
-__version__ = "0.1.0"
+"""QIF 3.0: the results writer, the reader, schema validation and statistics documents."""

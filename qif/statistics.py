@@ -1,7 +1,7 @@
 """QIF 3.0 Statistics document of a batch of inspections.
 
 qifreport inspects many scans of one part (a batch); each scan has its QIF results document
-(:mod:`qif.writer`), read back with :func:`qif.reader.read_results`. :func:`summarize` reduces
+(:mod:`qifreport.qif.writer`), read back with :func:`qifreport.qif.reader.read_results`. :func:`summarize` reduces
 the batch to one :class:`CharacteristicSummary` per characteristic (per designator, e.g.
 ``"T1"``, ``"general"``) and :func:`build_statistics` writes it as a QIF 3.0 document whose
 ``Statistics`` section (``QIFApplications/QIFStatistics.xsd``, ``QIFLibrary/Statistics.xsd``)
@@ -54,12 +54,12 @@ and ``GeometricCharacteristicStatsEvalType``):
   ``FAIL`` or another one (``INDETERMINATE``, ``NOT_ANALYZED``...). QIF has no statistics
   element for counts of a characteristic's status: ``NumberOutOfTolerance`` counts values
   beyond the tolerance, and qifreport's status is its acceptance rule, not that comparison
-  (a part can PASS with a profile value above the tolerance, see :mod:`qif.writer`).
+  (a part can PASS with a profile value above the tolerance, see :mod:`qifreport.qif.writer`).
 * ``MeasuredIds`` (``StatsArrayIdType``): the ids of its measurements in ``Results``, all of
   them; those without a measured value are ``Exclusions`` (reason ``OtherExclusionReason``).
 * ``Status``: ``INFORMATIONAL`` (no capability requirement was given to judge against).
 * ``ValueStats`` (``StatsWithTolLinearType``), over the profile values (the measurements'
-  ``Value``, mm; see :mod:`qif.writer`): ``TotalNumber`` (measurements), ``EffectiveNumber``
+  ``Value``, mm; see :mod:`qifreport.qif.writer`): ``TotalNumber`` (measurements), ``EffectiveNumber``
   (those with a value, ``count``), ``Average``, ``StandardDeviation`` (the sample standard
   deviation, ``n - 1`` in the denominator, as the schema defines ``STDDEV``; written when
   ``count >= 2``), ``Minimum`` and ``Maximum`` (each with the ``Id`` of its measurement),
@@ -105,7 +105,8 @@ from urllib.parse import quote
 import numpy as np
 from lxml import etree
 
-from . import __version__
+from qifreport import __version__
+
 from .reader import CharacteristicResult, QIFResults
 from .writer import (
     SCHEMA_LOCATION,
@@ -258,7 +259,7 @@ def summarize(results: list[QIFResults]) -> list[CharacteristicSummary]:
     Parameters
     ----------
     results : list of QIFResults
-        The batch's results documents, read back (:func:`qif.reader.read_results`).
+        The batch's results documents, read back (:func:`qifreport.qif.reader.read_results`).
 
     Returns
     -------
@@ -613,6 +614,6 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
 
 
 def write_statistics(path: Path, tree: etree._ElementTree) -> None:
-    """Write a statistics document as :func:`qif.writer.write_qif` writes results (UTF-8,
+    """Write a statistics document as :func:`qifreport.qif.writer.write_qif` writes results (UTF-8,
     XML declaration, no BOM, default namespace, indented)."""
     write_qif(Path(path), tree)

@@ -59,6 +59,8 @@ from urllib.request import url2pathname
 
 from lxml import etree
 
+from qifreport.schemas import QIF_XSD_DIR, SCHEMA_DIR
+
 log = logging.getLogger("qifreport.validate")
 
 QIF_NS = "http://qifstandards.org/xsd/qif3"
@@ -70,8 +72,8 @@ DSIG_NAME = "xmldsig-core-schema.xsd"
 DSIG_LOCAL = Path("QIFLibrary") / DSIG_NAME
 ENV_XSD_DIR = "QIFREPORT_XSD_DIR"
 ENV_CHECKS_DIR = "QIFREPORT_CHECKS_DIR"
-#: repository root: the parent of the ``qif`` package folder
-REPO_ROOT = Path(__file__).resolve().parents[1]
+#: the repository root in an editable install (``../shared`` may sit beside it)
+REPO_ROOT = SCHEMA_DIR.parent
 #: the CheckReport categories, in report order (CheckDocuments: the linked-document checks)
 DMSC_CATEGORIES = ("CheckFormat", "CheckQuality", "CheckSemantic", "CheckConstraints",
                    "CheckDocuments")
@@ -79,8 +81,8 @@ DMSC_CATEGORIES = ("CheckFormat", "CheckQuality", "CheckSemantic", "CheckConstra
 _DMSC_SEVERITY = {"CheckFormat": "error", "CheckSemantic": "error", "CheckConstraints": "error",
                   "CheckDocuments": "error", "CheckQuality": "warning"}
 _HOWTO = ("run `make install` with ../shared present (it copies the official XSDs to "
-          "schemas/qif-3.0), or set QIFREPORT_XSD_DIR to a folder holding QIFApplications/ "
-          "and QIFLibrary/")
+          f"{QIF_XSD_DIR}), or set QIFREPORT_XSD_DIR to a folder holding QIFApplications/ "
+          f"and QIFLibrary/ (an installed wheel: or copy those two folders into {QIF_XSD_DIR})")
 
 __all__ = [
     "SchemasUnavailable", "Finding", "ValidationReport", "schema_dir", "validate_lxml",
@@ -256,7 +258,7 @@ def schema_dir() -> Path:
         raise SchemasUnavailable(
             f"QIF 3.0 XSD schemas not found: {ENV_XSD_DIR}={env} has no {ROOT_XSD.as_posix()}; "
             f"{_HOWTO}")
-    candidates = [REPO_ROOT / "schemas" / "qif-3.0", REPO_ROOT.parent / "shared" / "qif" / "xsd"]
+    candidates = [QIF_XSD_DIR, REPO_ROOT.parent / "shared" / "qif" / "xsd"]
     for p in candidates:
         if _is_schema_dir(p):
             return p.resolve()
@@ -279,7 +281,7 @@ def _checks_dir() -> Path:
         raise SchemasUnavailable(f"DMSC checks not found: {ENV_CHECKS_DIR}={env} has no "
                                  "Check.xsl; point it at the folder of Check.xsl and "
                                  "CheckParameters.xml, or skip the checks (--no-checks)")
-    candidates = [REPO_ROOT / "schemas" / "qif-checks"]
+    candidates = [SCHEMA_DIR / "qif-checks"]
     xsd_env = os.environ.get(ENV_XSD_DIR)
     if xsd_env:
         candidates.append(Path(xsd_env).expanduser().parent / "checks")

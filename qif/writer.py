@@ -67,13 +67,12 @@ import numpy as np
 from lxml import etree
 from lxml.builder import ElementMaker
 
-from metrology.added import AddedMaterial
-from metrology.bands import ToleranceZone
-from metrology.inspection import InspectionResult, ZoneResult, method_label
-from metrology.repeatability import Repeatability
-from metrology.statistics import DeviationStats
-
-from . import __version__
+from qifreport import __version__
+from qifreport.metrology.added import AddedMaterial
+from qifreport.metrology.bands import ToleranceZone
+from qifreport.metrology.inspection import InspectionResult, ZoneResult, method_label
+from qifreport.metrology.repeatability import Repeatability
+from qifreport.metrology.statistics import DeviationStats
 
 NS = "http://qifstandards.org/xsd/qif3"
 XSI = "http://www.w3.org/2001/XMLSchema-instance"

@@ -1,5 +1,5 @@
 """Registration: mesh layer, rigid ICP, GB-CICP virtual fixturing, and the simulation toolkit."""
 
-from .errors import InputError
+from qifreport.errors import InputError
 
 __all__ = ["InputError"]

@@ -238,7 +238,7 @@ def cpd(
     P : (m, 3) scan points, mm.
     params : :class:`CPDParams` (defaults resolved from the part size).
     scan_normals, scan_sheets : used only by the final coverage match
-        (:func:`registration.deformable.scan_matcher`); CPD itself ignores normals.
+        (:func:`qifreport.registration.deformable.scan_matcher`); CPD itself ignores normals.
     progress : optional ``progress(1)`` per EM iteration.
 
     Returns

@@ -45,7 +45,7 @@ class DeformResult:
     params : the parameters actually used (a dataclass; defaults resolved).
     history : per-iteration record.
     method : ``"gbcicp"``, ``"nicp"``, ``"cpd"`` or ``"rbffem"``.
-    basis : GB-CICP's bending basis (:class:`registration.gbcicp.BendingBasis`), per-part
+    basis : GB-CICP's bending basis (:class:`qifreport.registration.gbcicp.BendingBasis`), per-part
         state to reuse for further scans of the part; None for the other methods.
     """
 
@@ -180,7 +180,7 @@ def orient_scan_normals(P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndar
     V, N : (n, 3) posed nominal vertices (mm) and their unit normals.
     k : neighbours of the propagation graph.
     sheets : (m,) sheet label of each point when ``Ns`` is already consistent within each
-        sheet (:func:`registration.pointcloud.orient_normals_consistent`): only the vote is
+        sheet (:func:`qifreport.registration.pointcloud.orient_normals_consistent`): only the vote is
         made, so one propagation serves several nominals.
     """
     from .pointcloud import orient_normals_consistent
@@ -208,7 +208,7 @@ def scan_matcher(
 ) -> ScanMatcher:
     """The :class:`ScanMatcher` with which the baselines (NICP, CPD, RBF-FEM) are finished.
 
-    As :func:`registration.gbcicp.gbcicp` builds its own: coverage radius
+    As :func:`qifreport.registration.gbcicp.gbcicp` builds its own: coverage radius
     :func:`coverage_radius` unless given; the unsigned compatibility ``|n . n_scan|`` unless
     ``scan_sheets`` is given, when the scan normals are oriented per sheet by a vote against
     the nominal (:func:`orient_scan_normals`) and a vertex facing away

@@ -229,13 +229,13 @@ def gbcicp(
     ----------
     V0 : (n, 3) nominal vertices in the scan's frame after rigid alignment, mm.
     F : (f, 3) triangles.
-    ops : operators of the nominal (:func:`registration.mesh.bending_operator`); their
+    ops : operators of the nominal (:func:`qifreport.registration.mesh.bending_operator`); their
         normals are used as the vertex normals ``n_i``.
     P : (m, 3) scan points, mm.
     params : :class:`GBCICPParams` (defaults resolved from the part size and mesh).
     scan_normals : (m, 3) PCA normals of the scan (computed if omitted).
     scan_sheets : (m,) sheet labels when ``scan_normals`` are already oriented consistently
-        per sheet (:func:`registration.pointcloud.orient_normals_consistent`); the
+        per sheet (:func:`qifreport.registration.pointcloud.orient_normals_consistent`); the
         propagation is then not repeated.
     solver : sparse SPD solver (CHOLMOD if available, else SuperLU).
     progress : optional callable ``progress(n_iterations)`` for a progress bar.

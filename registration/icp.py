@@ -262,7 +262,7 @@ def converged_rigid_fit(
     V : (n, 3) model vertices, mm.  N : (n, 3) unit vertex normals.
     P : (m, 3) scan points, mm.  R0, t0 : start pose (scan -> model).
     boundary : (n,) bool, vertices on an open boundary
-        (:func:`registration.mesh.boundary_vertices`); None: a closed mesh.
+        (:func:`qifreport.registration.mesh.boundary_vertices`); None: a closed mesh.
     scale : Tukey scale, mm (default 1 % of the model diagonal: deformation residuals of a
         few mm keep their weight).  max_distance : mm (default 5 % of the diagonal).
     k : vertices blended per point.  max_iter : accepted steps at most.

@@ -20,7 +20,7 @@ import scipy.sparse as sp
 import trimesh
 from scipy.spatial import cKDTree
 
-from .errors import InputError
+from qifreport.errors import InputError
 
 log = logging.getLogger(__name__)
 

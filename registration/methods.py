@@ -3,7 +3,7 @@
 ``deform(method, V0, F, ops, P, ...)`` runs GB-CICP (the product's default, paper Section
 6.4) or one of the paper's baselines -- NICP (Amberg optimal step, 6.3), CPD (coherent point
 drift, 6.2), RBF-FEM (clamp-driven multiquadric RBF, 6.1) -- and returns a
-:class:`registration.deformable.DeformResult` on the nominal vertex set.
+:class:`qifreport.registration.deformable.DeformResult` on the nominal vertex set.
 """
 
 from __future__ import annotations
@@ -19,10 +19,10 @@ from .mesh import MeshOperators
 
 #: method name -> (module, function); imported on first use
 METHODS: dict[str, tuple[str, str]] = {
-    "gbcicp": ("registration.gbcicp", "gbcicp"),
-    "nicp": ("registration.nicp", "nicp"),
-    "cpd": ("registration.cpd", "cpd"),
-    "rbffem": ("registration.rbffem", "rbffem"),
+    "gbcicp": ("qifreport.registration.gbcicp", "gbcicp"),
+    "nicp": ("qifreport.registration.nicp", "nicp"),
+    "cpd": ("qifreport.registration.cpd", "cpd"),
+    "rbffem": ("qifreport.registration.rbffem", "rbffem"),
 }
 
 
@@ -56,11 +56,11 @@ def deform(
     F : (f, 3) triangles.  ops : operators of the nominal (normals, areas, bending).
     params : the method's own parameter dataclass (defaults when None).
     scan_normals, scan_sheets : PCA scan normals (m, 3), consistently oriented per sheet,
-        and their sheet labels (see :func:`registration.pointcloud.orient_normals_consistent`).
+        and their sheet labels (see :func:`qifreport.registration.pointcloud.orient_normals_consistent`).
     clamps : (k,) vertex indices of the clamps (RBF-FEM's driving points; default: the
         corners of the part's principal rectangle). Ignored by the other methods.
     progress : optional ``progress(n_iterations)`` callback.
-    basis : the part's :class:`registration.gbcicp.BendingBasis` (GB-CICP's per-part
+    basis : the part's :class:`qifreport.registration.gbcicp.BendingBasis` (GB-CICP's per-part
         precomputation, reused across scans); ignored by the other methods.
     flaggable : (n,) bool, vertices GB-CICP may flag as defect candidates (its multi-pass
         scheme); ignored by the other methods, which flag nothing.

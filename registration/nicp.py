@@ -24,7 +24,7 @@ SuperLU factorisation of the 115,640 unknowns).
 Choices stated:
 
 * **Targets** ``U``: the nearest scan point of each vertex, found by
-  :class:`registration.deformable.ScanMatcher` (Amberg's closest point); ``targets="plane"``
+  :class:`qifreport.registration.deformable.ScanMatcher` (Amberg's closest point); ``targets="plane"``
   uses the matcher's point-to-plane targets instead (the vertex projected onto the tangent
   plane of its nearest scan point, as GB-CICP).
 * **Gate** ``W_D``: binary as in Amberg -- weight 1, or 0 when the vertex is not covered
@@ -219,7 +219,7 @@ def nested_dissection(V: np.ndarray, F: np.ndarray, leaf: int = 64) -> np.ndarra
 class _Factorizer:
     """Sparse SPD factorisation of the 4n NICP system.
 
-    CHOLMOD through :class:`registration.linalg.SPDSolver` when installed (its symbolic
+    CHOLMOD through :class:`qifreport.registration.linalg.SPDSolver` when installed (its symbolic
     analysis is reused: the pattern is fixed). Without it, SuperLU in symmetric mode on the
     matrix permuted by a *block* nested-dissection order of the vertices (each vertex's
     four unknowns kept together); on the 28,910-vertex fandisk this factors in about half

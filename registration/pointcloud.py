@@ -14,7 +14,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from .errors import InputError
+from qifreport.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -372,7 +372,7 @@ def orient_normals_consistent(
     ``1 - |n_i . n_j|`` (Hoppe et al. 1992): each point takes the side of its parent, and the
     tree crosses creases where the normals turn least. The overall side of each connected
     component is still arbitrary: the caller chooses it (e.g. by a vote against a posed
-    nominal, :func:`registration.gbcicp.gbcicp`).
+    nominal, :func:`qifreport.registration.gbcicp.gbcicp`).
 
     Returns
     -------

@@ -7,12 +7,12 @@ refuses (:class:`PoseNotEstablished`) when it cannot establish one.
 Pipeline
 --------
 1. Curvature fields ``H, K, S, C`` on the mesh (cotangent mean-curvature normal, angle
-   defect) and on the scan (local quadric fits, :mod:`registration.curvature`), brought to
-   one resolution by a small area-weighted average (:func:`registration.descriptors.presmooth`).
+   defect) and on the scan (local quadric fits, :mod:`qifreport.registration.curvature`), brought to
+   one resolution by a small area-weighted average (:func:`qifreport.registration.descriptors.presmooth`).
 2. Geodesic bilateral filtering at ``L`` scales ``rho h`` (``h`` the model's mean edge
    length) at farthest-point keypoints of each side (Dijkstra balls of ``3 sigma_s``); range
    bandwidth ``max(r0 spread, c eta)`` from the scan noise ``eta`` measured in each field's
-   units (:mod:`registration.descriptors`).
+   units (:mod:`qifreport.registration.descriptors`).
 3. Heavy tails compressed (``asinh(f / (3 eta_f))``), joint z-score over model and scan.
    Matching keeps the ``salient`` half of the keypoints (by filtered curvedness: flat
    patches all look alike) and pairs each scan keypoint with its ``match_k`` nearest model
@@ -32,7 +32,7 @@ Pipeline
    the converged poses are grouped into *basins* (poses that place the scan within
    ``basin * tau`` RMS of each other). The best basin -- and any rival within the ambiguity
    margin -- gets :func:`refine_pose`: point-to-point ICP on all vertices, then the robust
-   rigid ICP of the foundation (:func:`registration.icp.rigid_icp`) on all scan points.
+   rigid ICP of the foundation (:func:`qifreport.registration.icp.rigid_icp`) on all scan points.
 
 Acceptance rule
 ---------------
@@ -52,7 +52,7 @@ is within ``ambiguity_margin`` (relative) of the winner's, the part is symmetric
 (a datum reference frame resolves it).
 
 Conventions: all lengths in mm. ``R, t`` map scan points into the model frame,
-``P_model = P @ R.T + t`` (as :class:`registration.icp.RigidResult`); the posed nominal of
+``P_model = P @ R.T + t`` (as :class:`qifreport.registration.icp.RigidResult`); the posed nominal of
 the paper's Algorithm 1, ``V0 = R' V + t'``, is :meth:`PrealignResult.model_pose`.
 """
 
@@ -65,6 +65,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
+
+from qifreport.errors import InputError
 
 from .curvature import mesh_curvatures, scan_curvatures
 from .descriptors import (
@@ -81,7 +83,6 @@ from .descriptors import (
     presmooth,
     range_bandwidths,
 )
-from .errors import InputError
 from .icp import RigidResult, converged_rigid_fit, kabsch, pose_conditioning, rigid_icp
 from .mesh import (
     boundary_vertices,
@@ -148,7 +149,7 @@ class PrealignParams:
     min_agreement : starts that must reach the winning basin.
     ambiguity_margin : relative MSAC-cost margin under which a rival basin is a tie.
     refuse_thin_wall : refuse the pose (:class:`PoseNotEstablished`) when most of the scan
-        lies on a wall thinner than the gate (:func:`registration.mesh.wall_thickness`): a
+        lies on a wall thinner than the gate (:func:`qifreport.registration.mesh.wall_thickness`): a
         one-sided scan of a thin solid fits the other skin, shifted by the wall, about as well
         -- measured on the demo panel (1.8 mm wall, 2.8 mm free-state deflection) at the
         paper's pose: the inner skin fits *better* (rms 0.43 against 0.62 mm) and the outer
@@ -278,7 +279,7 @@ class PrealignResult:
         ``"identity"`` when the scan was already in the model frame.
     rigid : the final :class:`RigidResult`.
     conditioning : smallest / largest eigenvalue of the point-to-plane information matrix
-        at the pose (:func:`registration.icp.pose_conditioning`); below
+        at the pose (:func:`qifreport.registration.icp.pose_conditioning`); below
         :data:`WEAK_CONDITIONING` the seen surface can slide along itself (a cap, a
         cylinder) and the rigid pose is fixed only to within that slide.
     wall : median wall thickness under the seated scan, mm (``inf``: an open sheet or a
@@ -666,9 +667,9 @@ def refine_pose(
 
     Trimmed point-to-point ICP (:func:`point_icp`, 90 % of pairs, up to 100 iterations) of a
     ``sample`` of the scan onto *all* model vertices, then the robust point-to-plane fit
-    minimised to convergence on all scan points (:func:`registration.icp.converged_rigid_fit`:
+    minimised to convergence on all scan points (:func:`qifreport.registration.icp.converged_rigid_fit`:
     Tukey at a fixed scale, damped Gauss-Newton, with the edge term at the model's open
-    boundary). The foundation's :func:`registration.icp.rigid_icp` stops after a fixed number
+    boundary). The foundation's :func:`qifreport.registration.icp.rigid_icp` stops after a fixed number
     of Kabsch steps, which on a deformed smooth part leaves the pose anywhere along a shallow
     valley (refinements from the truth perturbed by 3 degrees ended within 1 degree of each
     other only 10-20 % of the time); a minimiser ends at one pose from every start in the
@@ -707,7 +708,7 @@ def already_in_frame(
 ) -> bool:
     """Cheap test: does the scan already lie on the nominal, in the model frame?
 
-    A plain rigid ICP (:func:`registration.icp.rigid_icp`) from the identity on a sample of
+    A plain rigid ICP (:func:`qifreport.registration.icp.rigid_icp`) from the identity on a sample of
     the scan; the scan is in frame when, after it, more than ``fraction`` of the sampled
     points lie within ``gate * diagonal`` of the model vertices *and* the ICP moved the scan
     by less than ``max_motion_deg`` degrees and ``max_motion_frac * diagonal`` mm (the

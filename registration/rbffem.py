@@ -13,7 +13,7 @@ as good as the clamp displacements -- which a free-state scan measures worst (th
 regions are where the scan has dropouts).
 
 Default clamps (``clamps=None``): the vertex nearest the centre (mean position) of each
-``"corner"`` handle group of :func:`registration.simulate.deform.clamp_handles` -- the corners
+``"corner"`` handle group of :func:`qifreport.registration.handles.clamp_handles` -- the corners
 of the part's principal (PCA) bounding rectangle, the generator's driving handles -- plus
 the ``"anchor"`` (the vertex nearest the centroid), which the generator holds fixed: without
 it four corner displacements alone cannot express a bend about the middle.
@@ -59,8 +59,8 @@ class RBFFEMParams:
 
 def default_clamps(V0: np.ndarray, F: np.ndarray, anchor: bool = True) -> np.ndarray:
     """Clamp vertex indices (k,): nearest the centre of each corner handle group (and the
-    anchor's) of :func:`registration.simulate.deform.clamp_handles`."""
-    from .simulate.deform import clamp_handles
+    anchor's) of :func:`qifreport.registration.handles.clamp_handles`."""
+    from .handles import clamp_handles
 
     h = clamp_handles(V0, F)
     kinds = ("corner", "anchor") if anchor else ("corner",)

@@ -30,12 +30,12 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from registration.mesh import vertex_normals
-from registration.simulate.cases import make_case
-from registration.simulate.defects import gaussian_bump
-from registration.simulate.deform import analytic_deformation
-from registration.simulate.scanner import ScanSpec, virtual_scan
-from registration.simulate.shapes import thin_shell
+from qifreport.registration.mesh import vertex_normals
+from qifreport.simulate.cases import make_case
+from qifreport.simulate.defects import gaussian_bump
+from qifreport.simulate.deform import analytic_deformation
+from qifreport.simulate.scanner import ScanSpec, virtual_scan
+from qifreport.simulate.shapes import thin_shell
 
 SEED = 1
 #: tessellation edge for the simulation (mm); the scan does not depend on the inspection mesh
@@ -61,8 +61,8 @@ def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
     :data:`PANEL_DEFECT_AT` shifted by ``defect_shift`` mm in x) and ``pose`` (None or a
     ``(R, t)`` applied to the points: a scan delivered in the scanner's frame).
     """
-    from step.reader import read_step
-    from step.tessellate import tessellate
+    from qifreport.step.reader import read_step
+    from qifreport.step.tessellate import tessellate
 
     part = read_step(step_path, pmi=False)
     m = tessellate(part.shape, part.faces, max_edge=PANEL_EDGE)
@@ -98,7 +98,7 @@ def panel_scans(step_path: Path, out: Path) -> None:
 
 def _skin_face(m) -> int:
     """The crown's outer skin: the face with the largest upward-facing area."""
-    from registration.mesh import face_normals
+    from qifreport.registration.mesh import face_normals
 
     n = face_normals(m.V, m.F)
     a = 0.5 * np.linalg.norm(np.cross(m.V[m.F[:, 1]] - m.V[m.F[:, 0]],

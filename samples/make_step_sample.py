@@ -42,7 +42,7 @@ from OCP.TopTools import TopTools_IndexedMapOfShape
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from step.write import PMISpecDatum, PMISpecTolerance, write_step_with_pmi  # noqa: E402
+from qifreport.step.write import PMISpecDatum, PMISpecTolerance, write_step_with_pmi  # noqa: E402
 
 logger = logging.getLogger(__name__)
 

@@ -6,7 +6,7 @@ tolerances, dimensions, datums -- is read twice:
 
 * by XDE, as OCCT understands it (``XCAFDoc_DimTolTool``), kept as :class:`XdeSummary` for
   cross-checking and for the ``pmi`` report;
-* from the Part 21 text itself by :func:`step.semantic.read_pmi_text`, which is the source of
+* from the Part 21 text itself by :func:`qifreport.step.semantic.read_pmi_text`, which is the source of
   every *value* we use. XDE returns 0.0 for magnitudes stored as complex measure instances,
   mis-scales some units, and loses datum-to-face links that go through anything other than
   ``GEOMETRIC_ITEM_SPECIFIC_USAGE`` (``../shared/README.md``, "Known traps"; OCCT issues
@@ -19,7 +19,7 @@ the entity's rank in the model to its ``#id`` (OCCT loads records in file order;
 is checked on every face by entity type).
 
 Face ids: the index of a face in ``TopExp.MapShapes(shape, TopAbs_FACE)`` (0-based). The
-tessellation (:mod:`step.tessellate`) tags every triangle with this id.
+tessellation (:mod:`qifreport.step.tessellate`) tags every triangle with this id.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from qifreport.errors import InputError
 
 log = logging.getLogger(__name__)
 
@@ -82,7 +82,7 @@ class StepPart:
     faces : list of ``TopoDS_Face``; the list index is the face id.
     face_step_ids : (n_faces,) int64, STEP entity id of each face, -1 if unknown.
     n_solids : number of solids in the shape.
-    pmi : :class:`step.pmi.PMI`, semantic PMI read from the text (values in mm / deg).
+    pmi : :class:`qifreport.step.pmi.PMI`, semantic PMI read from the text (values in mm / deg).
     xde : :class:`XdeSummary`, the same PMI as OCCT's XDE reads it.
     timings : seconds per stage.
     """

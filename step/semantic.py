@@ -6,7 +6,7 @@ MEASURE_WITH_UNIT(...))`` come back as 0.0, per-measure units (an inch tolerance
 millimetre file) are left unconverted, and datum-to-face links that go through
 ITEM_IDENTIFIED_REPRESENTATION_USAGE, PLACED_DATUM_TARGET_FEATURE or
 COMPOSITE_GROUP_SHAPE_ASPECT are dropped. This module walks the instance graph of
-:class:`step.p21.P21Model` directly, following the AP242 edition 1 and 2 (and the older
+:class:`qifreport.step.p21.P21Model` directly, following the AP242 edition 1 and 2 (and the older
 AP214/AP203e2 ``DATUM_REFERENCE``) structures:
 
 * **Units** are resolved per measure, recursively: SI_UNIT with its prefix, CONVERSION_BASED_UNIT
@@ -1700,7 +1700,7 @@ def read_pmi_text(path: str | Path) -> PMI:
     Returns
     -------
     PMI
-        See :class:`step.pmi.PMI`.
+        See :class:`qifreport.step.pmi.PMI`.
 
     Raises
     ------

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import igl
 import numpy as np
 
-from .errors import InputError
+from qifreport.errors import InputError
 
 log = logging.getLogger(__name__)
 

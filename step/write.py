@@ -87,7 +87,7 @@ from OCP.XCAFDimTolObjects import (
 )
 from OCP.XCAFDoc import XCAFDoc_Datum, XCAFDoc_DocumentTool, XCAFDoc_GeomTolerance
 
-from .atomic import atomic_write
+from qifreport.atomic_io import atomic_write
 
 logger = logging.getLogger(__name__)
 

@@ -49,7 +49,7 @@ def qifreport_cache(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def shell():
-    from registration.simulate.shapes import thin_shell
+    from qifreport.simulate.shapes import thin_shell
 
     return thin_shell()
 
@@ -57,7 +57,7 @@ def shell():
 @pytest.fixture(scope="session")
 def shell_case(shell):
     """The shell, analytic free state at 2 % of the diagonal, 3 views, 0.02 mm noise."""
-    from registration.simulate.cases import make_case
+    from qifreport.simulate.cases import make_case
 
     V, F = shell
     return make_case(V, F, generator="analytic", amplitude=0.02, seed=1)
@@ -66,7 +66,7 @@ def shell_case(shell):
 @pytest.fixture(scope="session")
 def shell_case_defect(shell):
     """The same free state and scanner with a 1.0 mm / sigma 7 mm Gaussian bump."""
-    from registration.simulate.cases import make_case
+    from qifreport.simulate.cases import make_case
 
     V, F = shell
     return make_case(V, F, generator="analytic", amplitude=0.02, defect=(1.0, 7.0), seed=1)
@@ -74,8 +74,8 @@ def shell_case_defect(shell):
 
 def assert_valid_summary(doc: dict) -> None:
     """Fail, listing every violation, unless ``doc`` is a valid ``qifreport --json`` summary
-    (``schemas/summary-1.schema.json``, :func:`qif.summary.validate_summary`)."""
-    from qif.summary import validate_summary
+    (``schemas/summary-1.schema.json``, :func:`qifreport.summary.validate_summary`)."""
+    from qifreport.summary import validate_summary
 
     errors = validate_summary(doc)
     assert not errors, "summary violates schemas/summary-1.schema.json:\n" + "\n".join(errors)
@@ -115,9 +115,9 @@ def fandisk_cli_runs(tmp_path_factory) -> dict:
     from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
 
-    from registration.simulate.cases import make_case
-    from registration.simulate.scanner import ScanSpec
-    from registration.simulate.shapes import fandisk
+    from qifreport.simulate.cases import make_case
+    from qifreport.simulate.scanner import ScanSpec
+    from qifreport.simulate.shapes import fandisk
 
     V, F = fandisk(str(shared_file("meshes/fandisk.off")), diagonal=100.0, subdivide=1)
     kw = dict(generator="biharmonic", amplitude=0.02, modes={"bend": 1.0, "twist": 0.5},

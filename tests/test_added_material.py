@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from metrology.added import added_material
-from metrology.inspection import InspectionParams, inspect
-from registration.mesh import vertex_normals
-from registration.simulate.cases import make_case
-from registration.simulate.shapes import thin_shell
+from qifreport.metrology.added import added_material
+from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.registration.mesh import vertex_normals
+from qifreport.simulate.cases import make_case
+from qifreport.simulate.shapes import thin_shell
 
 FIN_LENGTH, FIN_HEIGHT = 30.0, 4.0  # mm: a rib the nominal does not model
 

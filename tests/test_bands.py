@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metrology.acceptance import evaluate
-from metrology.bands import (
+from qifreport.metrology.acceptance import evaluate
+from qifreport.metrology.bands import (
     DEFAULT_GENERAL_TOLERANCE,
     ToleranceZone,
     lay_bands,
@@ -15,7 +15,7 @@ from metrology.bands import (
     zone_vertex_areas,
     zones_from_pmi,
 )
-from step.pmi import PMI, DatumRef, Dimension, GeometricTolerance
+from qifreport.step.pmi import PMI, DatumRef, Dimension, GeometricTolerance
 
 
 def _grid(n=21, h=1.0):
@@ -131,7 +131,7 @@ def test_per_zone_criteria_fail_only_the_offending_surface():
 
 
 def test_zone_vertex_areas_partition_the_total():
-    from registration.mesh import vertex_areas
+    from qifreport.registration.mesh import vertex_areas
 
     V, F, fid = _grid()
     a0 = zone_vertex_areas(V, F, fid == 0)

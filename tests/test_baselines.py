@@ -13,15 +13,15 @@ import os
 import numpy as np
 import pytest
 
-from registration import methods
-from registration.cpd import CPDParams, cpd_em, cpd_warp
-from registration.deformable import DeformResult
-from registration.mesh import bending_operator
-from registration.nicp import NICPParams, nicp
-from registration.rbffem import RBFFEMParams
-from registration.simulate.cases import inspection_error, make_case
-from registration.simulate.scanner import ScanSpec
-from registration.simulate.shapes import thin_shell
+from qifreport.registration import methods
+from qifreport.registration.cpd import CPDParams, cpd_em, cpd_warp
+from qifreport.registration.deformable import DeformResult
+from qifreport.registration.mesh import bending_operator
+from qifreport.registration.nicp import NICPParams, nicp
+from qifreport.registration.rbffem import RBFFEMParams
+from qifreport.simulate.cases import inspection_error, make_case
+from qifreport.simulate.scanner import ScanSpec
+from qifreport.simulate.shapes import thin_shell
 
 PARAMS = {"nicp": NICPParams, "cpd": CPDParams, "rbffem": RBFFEMParams}
 

@@ -15,9 +15,9 @@ import pandas as pd
 import pytest
 import trimesh
 
-from qif.batch import plan
-from registration.errors import InputError
-from registration.pointcloud import load_scan
+from qifreport.batch import plan
+from qifreport.errors import InputError
+from qifreport.registration.pointcloud import load_scan
 from tests.consumers import poppler_tool
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -96,7 +96,7 @@ def check_complete(out: Path) -> pd.DataFrame:
         df.set_index("id").loc["shell_scan_defect", "criterion"]
     assert all(v[n] == "PASS" for n in GOOD if n != "shell_scan_defect")
     # the profile column is the per-scan QIF's value (written to 4 decimals), read back
-    from qif.reader import read_results
+    from qifreport.qif.reader import read_results
 
     for name in GOOD:
         q = read_results(out / "scans" / f"{name}.qif").characteristic("general")
@@ -112,7 +112,7 @@ def check_statistics(out: Path, pq: pd.DataFrame) -> None:
     with the pass rate."""
     from lxml import etree
 
-    from qif.validate import validate
+    from qifreport.qif.validate import validate
 
     stats = out / "shell_nominal_statistics.qif"
     rep = validate(stats, strict=True, checks=True)
@@ -171,7 +171,7 @@ def test_local_batch_records_everything_and_resumes(scans, tmp_path):
     df = check_complete(out)
     assert df["worker"].nunique() == 2  # two processes shared the work
     # a batch output is what the single-scan command writes for that scan
-    from qif.reader import read_results
+    from qifreport.qif.reader import read_results
 
     one = tmp_path / "one"
     r = subprocess.run([str(EXE), NOMINAL, scans / "shell_scan_defect.ply", "--tolerance",
@@ -319,7 +319,7 @@ def test_manifest_with_a_nominal_per_row(scans, tmp_path):
     assert list(df["serial"]) == ["L-1", "R-1", "X-1"]
     assert list(df["nominal"]) == ["left.ply", "right.ply", "missing.ply"]
     assert "nominal file not found" in df.loc["X-1", "error"]
-    from qif.reader import read_results
+    from qifreport.qif.reader import read_results
 
     assert read_results(out / "scans" / "L-1.qif").serial_number == "L-1"
     for part in ("left", "right"):

@@ -10,9 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from metrology.inspection import InspectionParams, inspect
-from metrology.prepared import prepare_part
-from qif.cache import (
+from qifreport.cache import (
     CorruptEntry,
     NominalOptions,
     cache_key,
@@ -21,7 +19,9 @@ from qif.cache import (
     part_state,
     sha256,
 )
-from registration.pointcloud import load_scan
+from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.metrology.prepared import prepare_part
+from qifreport.registration.pointcloud import load_scan
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"
@@ -133,7 +133,7 @@ def test_prepared_state_refuses_other_settings(built):
 
 
 def test_prepare_part_without_basis_or_model():
-    from registration.simulate.shapes import thin_shell
+    from qifreport.simulate.shapes import thin_shell
 
     V, F = thin_shell()
     p = prepare_part(V, F, InspectionParams(), basis=False, model=False)

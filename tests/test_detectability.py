@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from registration.simulate.detectability import Detectability, detectability
+from qifreport.simulate.detectability import Detectability, detectability
 
 
 def _grid(half: int = 100, spacing: float = 1.0) -> np.ndarray:
@@ -136,11 +136,11 @@ def test_mid_grid_cell_end_to_end_multi_pass_detects(shell):
     """Table 3's mid-grid cell (a = 0.9 mm, sigma = 7 mm, analytic free state, 0.03 mm noise)
     through the real pipeline: the product's default multi-pass scheme keeps the defect
     separable (paper: rho 11.8, 92 % recovered) and puts its peak near the true centre."""
-    from metrology.inspection import InspectionParams, inspect
-    from registration.gbcicp import GBCICPParams
-    from registration.mesh import bounding_diagonal
-    from registration.simulate.cases import make_case
-    from registration.simulate.scanner import ScanSpec
+    from qifreport.metrology.inspection import InspectionParams, inspect
+    from qifreport.registration.gbcicp import GBCICPParams
+    from qifreport.registration.mesh import bounding_diagonal
+    from qifreport.simulate.cases import make_case
+    from qifreport.simulate.scanner import ScanSpec
 
     V, F = shell
     spec = ScanSpec(noise=0.03, seed=0, dropout_radius=0.03 * bounding_diagonal(V))

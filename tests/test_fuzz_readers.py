@@ -2,7 +2,7 @@
 
 The property: for any file content, a reader either returns finite float64 arrays of the
 right shape (scan: (m, 3) points, ``m >= MIN_POINTS``; mesh: (n, 3) vertices and (f, 3)
-int64 faces indexing them) or raises :class:`registration.errors.InputError` with a one-line
+int64 faces indexing them) or raises :class:`qifreport.errors.InputError` with a one-line
 message naming the file. Any other exception, or a read that outlives :data:`TIMEOUT_S`,
 is a failure.
 
@@ -30,9 +30,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from registration.errors import InputError
-from registration.mesh import load_mesh
-from registration.pointcloud import MIN_POINTS, load_scan
+from qifreport.errors import InputError
+from qifreport.registration.mesh import load_mesh
+from qifreport.registration.pointcloud import MIN_POINTS, load_scan
 
 #: longest a reader may take on one case (s) before the case counts as a hang
 TIMEOUT_S = 10.0

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from metrology.hygiene import mesh_hygiene, near_boundary
-from metrology.inspection import InspectionParams, inspect
-from registration.mesh import boundary_vertices
-from registration.simulate.cases import make_case
-from registration.simulate.shapes import grid_triangles, thin_shell
+from qifreport.metrology.hygiene import mesh_hygiene, near_boundary
+from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.registration.mesh import boundary_vertices
+from qifreport.simulate.cases import make_case
+from qifreport.simulate.shapes import grid_triangles, thin_shell
 
 
 def test_defects_are_counted():

@@ -5,8 +5,8 @@ import pytest
 import scipy.sparse as sp
 import trimesh
 
-from registration.errors import InputError
-from registration.mesh import (
+from qifreport.errors import InputError
+from qifreport.registration.mesh import (
     bending_operator,
     boundary_vertices,
     load_mesh,
@@ -82,7 +82,7 @@ def test_operators_on_fandisk():
 def test_hessian_energy_has_natural_boundary_conditions():
     # on a flat open plate, the Hessian energy vanishes for linear functions (no boundary
     # penalty), while L M^-1 L charges them at the boundary: the reason it is the default
-    from registration.simulate.shapes import grid_triangles
+    from qifreport.simulate.shapes import grid_triangles
 
     xs, ys = np.meshgrid(np.linspace(0, 60, 31), np.linspace(0, 40, 21))  # index j * nx + i
     V = np.c_[xs.ravel(), ys.ravel(), np.zeros(xs.size)]

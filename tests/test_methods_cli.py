@@ -1,4 +1,4 @@
-"""``qifreport --method`` and ``--seeds`` on a small shell, and :mod:`metrology.repeatability`
+"""``qifreport --method`` and ``--seeds`` on a small shell, and :mod:`qifreport.metrology.repeatability`
 on plain arrays.
 
 The CLI cases use an 80 x 50 mm thin shell at a 2 mm pitch (1,066 vertices): analytic
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from metrology.acceptance import evaluate
-from metrology.repeatability import (
+from qifreport.metrology.acceptance import evaluate
+from qifreport.metrology.repeatability import (
     KEEP_FRACTION,
     apply,
     persistent_regions,
@@ -37,8 +37,8 @@ from metrology.repeatability import (
     signed_out,
     spread,
 )
-from qif.reader import read_results
-from registration.methods import METHODS
+from qifreport.qif.reader import read_results
+from qifreport.registration.methods import METHODS
 from tests.conftest import assert_valid_summary
 
 TOL = 0.5
@@ -53,8 +53,8 @@ def small(tmp_path_factory) -> dict:
     """The small shell with a real defect, written as PLY files."""
     import trimesh
 
-    from registration.simulate.cases import make_case
-    from registration.simulate.shapes import thin_shell
+    from qifreport.simulate.cases import make_case
+    from qifreport.simulate.shapes import thin_shell
 
     V, F = thin_shell(80.0, 50.0, 2.0)
     case = make_case(V, F, generator="analytic", amplitude=0.01, defect=(1.0, 5.0), seed=1)
@@ -68,7 +68,7 @@ def small(tmp_path_factory) -> dict:
 def _cli(small: dict, name: str, *extra: str, pdf: bool = True) -> dict:
     """``qifreport small.ply scan.ply --tolerance 0.5 --json EXTRA`` in-process: exit code,
     stdout, the JSON summary, the QIF path and (with ``pdf``) the PDF's text."""
-    from qif.cli import main
+    from qifreport.cli import main
 
     out = small["dir"] / name
     argv = [str(small["nominal"]), str(small["scan"]), "--tolerance", str(TOL), "--out",
@@ -102,7 +102,7 @@ def _qif_checks(path: Path, method: str) -> dict:
     returns its whole-part attributes."""
     from lxml import etree
 
-    from qif.validate import validate_lxml
+    from qifreport.qif.validate import validate_lxml
 
     errors = [f for f in validate_lxml(path) if f.severity == "error"]
     assert errors == [], errors[:3]
@@ -132,7 +132,7 @@ def _require(method: str) -> None:
 
 
 def test_cli_method_choices_are_the_registry():
-    from qif.cli import _parser
+    from qifreport.cli import _parser
 
     action = next(a for a in _parser()._actions if a.dest == "method")
     assert list(action.choices) == list(METHODS) and action.default == "gbcicp"
@@ -229,7 +229,7 @@ def test_seeds_keep_the_real_defect(seeds_run, gbcicp_run):
 
 
 def test_seeds_must_be_positive(small, capsys):
-    from qif.cli import main
+    from qifreport.cli import main
 
     with pytest.raises(SystemExit) as exc:
         main([str(small["nominal"]), str(small["scan"]), "--tolerance", "0.5", "--seeds", "0",
@@ -244,7 +244,7 @@ def test_seeds_must_be_positive(small, capsys):
 
 def _grid(nx: int = 40, ny: int = 30, h: float = 1.0):
     """A flat nx x ny vertex grid at pitch h (mm) and its triangles."""
-    from registration.simulate.shapes import grid_triangles
+    from qifreport.simulate.shapes import grid_triangles
 
     x, y = np.meshgrid(np.arange(nx) * h, np.arange(ny) * h)
     V = np.c_[x.ravel(), y.ravel(), np.zeros(nx * ny)]
@@ -324,8 +324,8 @@ def test_restrict_never_rescues_the_area_criterion():
 @pytest.fixture(scope="module")
 def small_result(small):
     """The small shell inspected in-process (GB-CICP): one defect region."""
-    from metrology.bands import symmetric_zone
-    from metrology.inspection import InspectionParams, inspect
+    from qifreport.metrology.bands import symmetric_zone
+    from qifreport.metrology.inspection import InspectionParams, inspect
 
     res = inspect(small["V"], small["F"], small["case"].P, InspectionParams(tolerance=TOL),
                   zones=[symmetric_zone(TOL, "general")])

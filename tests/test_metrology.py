@@ -9,16 +9,16 @@ import pytest
 import trimesh
 from trimesh.triangles import closest_point as triangle_closest_point
 
-from metrology.acceptance import (
+from qifreport.metrology.acceptance import (
     DEFAULT_MAX_REGION_AREA,
     coverage_ceiling_ok,
     evaluate,
     find_regions,
     scan_area,
 )
-from metrology.deviation import closest_points, data_referenced, nominal_referenced
-from metrology.statistics import deviation_statistics, tail_fractions
-from registration.mesh import vertex_areas
+from qifreport.metrology.deviation import closest_points, data_referenced, nominal_referenced
+from qifreport.metrology.statistics import deviation_statistics, tail_fractions
+from qifreport.registration.mesh import vertex_areas
 
 
 def grid_mesh(nx: int, ny: int, h: float) -> tuple[np.ndarray, np.ndarray]:

@@ -12,9 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from metrology.inspection import InspectionParams, inspect
-from qif.cli import load_nominal
-from registration.pointcloud import load_scan
+from qifreport.cli import load_nominal
+from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.registration.pointcloud import load_scan
 from tests.conftest import ROOT
 
 #: where samples/make_samples.py puts the defect (0.45 mm proud, sigma 6 mm) on the crown

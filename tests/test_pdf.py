@@ -3,7 +3,7 @@
 Real inspections (the shell passing at 0.5 mm, the shell with a 1 mm bump failing at 0.3 mm,
 the STEP panel with two PMI profile tolerances) are written as PDF and QIF; the PDF is
 rasterized with ``pdftoppm`` and its text extracted with ``pdftotext`` (poppler-utils) and
-checked against the result and against what :func:`qif.reader.read_results` reads back from
+checked against the result and against what :func:`qifreport.qif.reader.read_results` reads back from
 the QIF file, at the precision the page prints. A synthetic stress case (40 regions, 25
 tolerances) must still give one page with the lists summarised.
 """
@@ -20,9 +20,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qif.pdf import fmt_area, fmt_mm, fmt_pct, fmt_smm, plan_layout, write_report
-from qif.reader import read_results
-from qif.writer import Provenance, build_qif, profile_value, write_qif
+from qifreport.qif.reader import read_results
+from qifreport.qif.writer import Provenance, build_qif, profile_value, write_qif
+from qifreport.reports.pdf import fmt_area, fmt_mm, fmt_pct, fmt_smm, plan_layout, write_report
 from tests.conftest import ROOT
 from tests.consumers import poppler_tool as _tool
 
@@ -65,9 +65,9 @@ def _produce(d: Path, name: str, res, prov: Provenance, page: str = "A4") -> Out
 def results(shell, shell_case, shell_case_defect):
     """name -> (InspectionResult, Provenance): a passing shell, a failing shell and the STEP
     panel (two PMI profile tolerances, two PMI items not scored), inspected as qif.cli does."""
-    from metrology.inspection import InspectionParams, inspect
-    from qif.cli import load_nominal
-    from registration.pointcloud import load_scan
+    from qifreport.cli import load_nominal
+    from qifreport.metrology.inspection import InspectionParams, inspect
+    from qifreport.registration.pointcloud import load_scan
 
     V, F = shell
     out = {}
@@ -295,8 +295,8 @@ def test_letter_page(reports, tmp_path):
 def test_stress_many_regions_and_tolerances(reports, tmp_path, page):
     """40 regions and 25 tolerances (and 9 PMI items not scored) still fit one page: the
     lists are cut and the cut is stated."""
-    from metrology.acceptance import Region
-    from metrology.bands import NotEvaluated
+    from qifreport.metrology.acceptance import Region
+    from qifreport.metrology.bands import NotEvaluated
 
     base = reports["panel"].res
     res = copy.copy(base)
@@ -339,7 +339,14 @@ def test_write_time(reports):
 
 
 def test_colours_and_scale():
-    from qif.render import BLUE_DARK, GREY, RED_DARK, color_scale, deviation_colors, nice_ceil
+    from qifreport.reports.render import (
+        BLUE_DARK,
+        GREY,
+        RED_DARK,
+        color_scale,
+        deviation_colors,
+        nice_ceil,
+    )
 
     dev = np.array([0.0, 0.2, -0.2, 0.6, -0.6, 5.0, -5.0, np.nan])
     col = deviation_colors(dev, -0.3, 0.3, 1.0)
@@ -359,7 +366,7 @@ def test_colours_and_scale():
 
 @pytest.mark.parametrize("backend", ["vtk", "matplotlib"])
 def test_render_views_shows_the_region(results, backend):
-    from qif.render import render_views
+    from qifreport.reports.render import render_views
 
     res = results["fail"][0]
     b = res.bands
@@ -383,14 +390,14 @@ def test_render_views_shows_the_region(results, backend):
 
 def test_fallback_when_vtk_cannot_render(results, monkeypatch, caplog):
     """No VTK (or no EGL): matplotlib draws the maps and a warning says so."""
-    import qif.render as render
+    import qifreport.reports.render as render
 
     def broken(*args, **kwargs):
         raise RuntimeError("no EGL display")
 
     monkeypatch.setattr(render, "_render_vtk", broken)
     res = results["fail"][0]
-    with caplog.at_level("WARNING", logger="qif.render"):
+    with caplog.at_level("WARNING", logger="qifreport.reports.render"):
         views = render.render_views(res.V_registered, res.F, res.deviation, res.bands.lower,
                                     res.bands.upper, res.acceptance.regions, size=(240, 160))
     assert all(v.backend == "matplotlib" for v in views)

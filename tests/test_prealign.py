@@ -14,11 +14,11 @@ import trimesh
 from lxml import etree
 from scipy.spatial.transform import Rotation
 
-from registration.curvature import mesh_curvatures, scan_curvatures
-from registration.errors import InputError
-from registration.icp import converged_rigid_fit, pose_conditioning, rigid_icp
-from registration.mesh import boundary_vertices, bounding_diagonal, vertex_normals
-from registration.prealign import (
+from qifreport.errors import InputError
+from qifreport.registration.curvature import mesh_curvatures, scan_curvatures
+from qifreport.registration.icp import converged_rigid_fit, pose_conditioning, rigid_icp
+from qifreport.registration.mesh import boundary_vertices, bounding_diagonal, vertex_normals
+from qifreport.registration.prealign import (
     PoseNotEstablished,
     already_in_frame,
     pose_distance,
@@ -27,9 +27,9 @@ from registration.prealign import (
     refine_pose,
     seat_scan,
 )
-from registration.simulate.cases import make_case
-from registration.simulate.scanner import ScanSpec
-from registration.simulate.shapes import fandisk, grid_triangles, housing, thin_shell
+from qifreport.simulate.cases import make_case
+from qifreport.simulate.scanner import ScanSpec
+from qifreport.simulate.shapes import fandisk, grid_triangles, housing, thin_shell
 from tests.conftest import shared_file
 
 # the paper's placement (Section 8.1): extrinsic x-y-z Euler angles, plus a translation (mm)

@@ -6,7 +6,7 @@ import sys
 import numpy as np
 import pytest
 
-from qif.profile import peak_rss_bytes, rss_bytes
+from qifreport.profile import peak_rss_bytes, rss_bytes
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="Linux /proc accounting")

@@ -6,7 +6,7 @@ tolerances, a mesh nominal with no PMI) is checked by
 - the DMSC XSLT checks (zero errors in CheckFormat),
 - two consumers we did not write: a PyXB binding generated from the XSDs and Xerces-C,
 - our own structural checks (unique ids, ``idMax``, every ``n=``, QPIds are UUIDs),
-and read back with :func:`qif.reader.read_results` number by number against the JSON summary.
+and read back with :func:`qifreport.qif.reader.read_results` number by number against the JSON summary.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ import pytest
 import trimesh
 from lxml import etree
 
-from qif.reader import read_results
-from qif.writer import DECIMAL_PLACES, NS
+from qifreport.qif.reader import read_results
+from qifreport.qif.writer import DECIMAL_PLACES, NS
 from tests.conftest import ROOT, assert_valid_summary
 from tests.consumers import assert_read_by_independent_consumers
 
@@ -30,7 +30,7 @@ Q = f"{{{NS}}}"
 
 
 def _run_cli(argv: list[str]) -> int:
-    from qif.cli import main
+    from qifreport.cli import main
 
     with pytest.raises(SystemExit) as exc:
         main(argv)
@@ -98,7 +98,7 @@ def test_cli_verdicts_and_summaries(runs):
 
 @pytest.mark.parametrize("name", CASES)
 def test_valid_under_lxml_and_xmlschema(runs, name):
-    from qif.validate import validate_lxml, validate_xmlschema
+    from qifreport.qif.validate import validate_lxml, validate_xmlschema
 
     path = runs[name][1]
     assert validate_lxml(path) == []
@@ -107,7 +107,7 @@ def test_valid_under_lxml_and_xmlschema(runs, name):
 
 @pytest.mark.parametrize("name", CASES)
 def test_dmsc_checks_format_clean(runs, name):
-    from qif.validate import dmsc_checks
+    from qifreport.qif.validate import dmsc_checks
 
     findings = dmsc_checks(runs[name][1])
     assert [f for f in findings if f.category == "CheckFormat"] == []
@@ -250,7 +250,7 @@ def test_round_trip_reproduces_verdicts_and_statistics(runs, name):
 
 
 def test_validate_subcommand_catches_a_corrupted_file(runs, tmp_path, capsys):
-    from qif.cli import main
+    from qifreport.cli import main
 
     src = runs["fail"][1].read_text()
     # (a) a required element removed: the characteristic measurement's Status
@@ -298,7 +298,7 @@ def test_without_schemas_the_qif_is_written_but_never_called_valid(
 
 
 def test_outputs_are_all_or_nothing(tmp_path):
-    from step.atomic import atomic_write_many
+    from qifreport.atomic_io import atomic_write_many
 
     (tmp_path / "b.txt").write_text("old")
 

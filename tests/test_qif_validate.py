@@ -28,8 +28,8 @@ from pathlib import Path
 import pytest
 from lxml import etree
 
-from qif import validate as V
-from qif.validate import (
+from qifreport.qif import validate as V
+from qifreport.qif.validate import (
     Finding,
     SchemasUnavailable,
     ValidationReport,

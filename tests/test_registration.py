@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from metrology.inspection import InspectionParams, inspect
-from registration.gbcicp import GBCICPParams, gbcicp
-from registration.icp import kabsch, rigid_icp
-from registration.mesh import bending_operator, vertex_normals
-from registration.simulate.cases import inspection_error
+from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.registration.gbcicp import GBCICPParams, gbcicp
+from qifreport.registration.icp import kabsch, rigid_icp
+from qifreport.registration.mesh import bending_operator, vertex_normals
+from qifreport.simulate.cases import inspection_error
 
 
 def test_kabsch_exact_and_reflection_guard():
@@ -26,7 +26,7 @@ def test_kabsch_exact_and_reflection_guard():
 
 
 def _pose_recovery(V, F, step, max_iter):
-    from registration.simulate.scanner import ScanSpec, virtual_scan
+    from qifreport.simulate.scanner import ScanSpec, virtual_scan
 
     scan = virtual_scan(V, F, ScanSpec(views=3, noise=0.02, seed=3))
     R_true = Rotation.from_euler("xyz", [2.0, -1.5, 3.0], degrees=True).as_matrix()
@@ -74,7 +74,7 @@ def test_gbcicp_removes_compliance(shell_case, solver):
 def test_bending_basis_is_m_orthonormal_and_diagonalises_q(shell):
     """The per-part modes: Phi^T M Phi = I, Phi^T Q Phi = diag(mu), mu ascending from the
     affine null space (0) upwards."""
-    from registration.gbcicp import bending_basis
+    from qifreport.registration.gbcicp import bending_basis
 
     V, F = shell
     ops = bending_operator(V, F, "hessian")

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from registration.errors import InputError
-from registration.mesh import load_mesh
-from registration.pointcloud import load_scan
+from qifreport.errors import InputError
+from qifreport.registration.mesh import load_mesh
+from qifreport.registration.pointcloud import load_scan
 from tests.conftest import assert_valid_summary
 from tests.test_cli import SAMPLES, _write_points, run
 from tests.test_fuzz_readers import FORMATS, encode, expected_points, grid_mesh, seed

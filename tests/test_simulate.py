@@ -10,23 +10,23 @@ import numpy as np
 import pytest
 import trimesh
 
-from registration.mesh import (
+from qifreport.registration.mesh import (
     bending_operator,
     boundary_vertices,
     bounding_diagonal,
     vertex_areas,
     vertex_normals,
 )
-from registration.simulate.defects import gaussian_bump
-from registration.simulate.deform import (
+from qifreport.simulate.defects import gaussian_bump
+from qifreport.simulate.deform import (
     MODES,
     analytic_deformation,
     biharmonic_deformation,
     clamp_handles,
     pca_frame,
 )
-from registration.simulate.scanner import ScanSpec, aim_views, virtual_scan
-from registration.simulate.shapes import fandisk, shell_height, thin_shell
+from qifreport.simulate.scanner import ScanSpec, aim_views, virtual_scan
+from qifreport.simulate.shapes import fandisk, shell_height, thin_shell
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 FANDISK = SHARED / "meshes" / "fandisk.off"

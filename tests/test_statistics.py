@@ -20,14 +20,14 @@ from types import SimpleNamespace
 import pytest
 from lxml import etree
 
-from qif.reader import CharacteristicResult, QIFResults, read_results
-from qif.statistics import (
+from qifreport.qif.reader import CharacteristicResult, QIFResults, read_results
+from qifreport.qif.statistics import (
     NO_VALUE_REASON,
     build_statistics,
     summarize,
     write_statistics,
 )
-from qif.validate import validate
+from qifreport.qif.validate import validate
 from tests.consumers import assert_read_by_independent_consumers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -60,7 +60,7 @@ def _num(el, path: str) -> float:
 def batch(tmp_path_factory):
     """The three per-scan QIF files (``<run>/shell_nominal.qif``), the statistics document
     ``statistics.qif`` beside their folders, and what was read back."""
-    from qif.cli import main
+    from qifreport.cli import main
 
     d = tmp_path_factory.mktemp("batch")
     nominal = SAMPLES / "shell_nominal.ply"

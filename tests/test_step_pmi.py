@@ -24,7 +24,7 @@ def sample(tmp_path_factory):
 
 def test_round_trip_of_our_sample_is_exact(sample):
     """Every value written comes back identical (0.5 mm is 0.5 mm, not 500), on the same faces."""
-    from step.reader import read_step
+    from qifreport.step.reader import read_step
 
     path, spec = sample
     part = read_step(path)
@@ -52,8 +52,8 @@ def test_nist_pmi_lands_on_faces_of_the_mesh(name):
     """Each tolerance and datum of the real exports resolves to tessellated B-rep faces."""
     import numpy as np
 
-    from step.reader import read_step
-    from step.tessellate import tessellate
+    from qifreport.step.reader import read_step
+    from qifreport.step.tessellate import tessellate
 
     part = read_step(shared_file("step/nist/" + name))
     m = tessellate(part.shape, part.faces)
@@ -70,7 +70,7 @@ def test_nist_pmi_lands_on_faces_of_the_mesh(name):
 
 def test_xde_reads_zero_where_the_text_says_075():
     """The trap the text reader exists for: CTC 01's 0.75 magnitude is 0.0 through XDE."""
-    from step.reader import read_step
+    from qifreport.step.reader import read_step
 
     part = read_step(shared_file("step/nist/nist_ctc_01_asme1_ap242-e1.stp"))
     vals = sorted(t.value for t in part.pmi.tolerances)
@@ -79,7 +79,7 @@ def test_xde_reads_zero_where_the_text_says_075():
 
 
 def _run(argv, capsys):
-    from qif.cli import main
+    from qifreport.cli import main
 
     with pytest.raises(SystemExit) as exc:
         main(argv)

@@ -22,9 +22,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from step.p21 import DERIVED, Binary, Entity, Enum, P21Error, P21Model, Ref, Typed, parse_params
-from step.pmi import PMI
-from step.semantic import pmi_from_model, read_pmi_text
+from qifreport.step.p21 import (
+    DERIVED,
+    Binary,
+    Entity,
+    Enum,
+    P21Error,
+    P21Model,
+    Ref,
+    Typed,
+    parse_params,
+)
+from qifreport.step.pmi import PMI
+from qifreport.step.semantic import pmi_from_model, read_pmi_text
 from tests.conftest import NIST, shared_file
 
 #: where the NIST files live (read-only, never copied into the repository)

@@ -10,7 +10,7 @@ from tests.conftest import NIST, shared_file
 
 @pytest.fixture(scope="module")
 def ctc01():
-    from step.reader import read_step
+    from qifreport.step.reader import read_step
 
     return read_step(shared_file("step/nist/" + NIST[0]), pmi=False)
 
@@ -20,7 +20,7 @@ def test_every_face_maps_to_its_step_entity(name):
     """Each B-rep face is traced back to an ADVANCED_FACE record of the file text."""
     import re
 
-    from step.reader import read_step
+    from qifreport.step.reader import read_step
 
     path = shared_file("step/nist/" + name)
     part = read_step(path, pmi=False)
@@ -36,8 +36,8 @@ def test_tessellation_carries_face_ids_and_is_welded(ctc01):
     from OCP.BRepGProp import BRepGProp
     from OCP.GProp import GProp_GProps
 
-    from registration.mesh import boundary_vertices
-    from step.tessellate import tessellate
+    from qifreport.registration.mesh import boundary_vertices
+    from qifreport.step.tessellate import tessellate
 
     m = tessellate(ctc01.shape, ctc01.faces)
     assert m.face_id.shape == (len(m.F),)
@@ -69,8 +69,8 @@ def test_max_edge_bounds_edges_and_keeps_vertices_on_the_surface(ctc01):
     from OCP.BRepExtrema import BRepExtrema_DistShapeShape
     from OCP.gp import gp_Pnt
 
-    from registration.mesh import edges
-    from step.tessellate import tessellate
+    from qifreport.registration.mesh import edges
+    from qifreport.step.tessellate import tessellate
 
     m = tessellate(ctc01.shape, ctc01.faces, max_edge=8.0)
     E = edges(m.F)
@@ -88,8 +88,8 @@ def test_max_edge_bounds_edges_and_keeps_vertices_on_the_surface(ctc01):
 
 def test_inch_file_is_converted_to_mm():
     """FTC 06 is an inch file: OCP's geometry comes back in mm (12 in = 304.8 mm)."""
-    from step.reader import read_step
-    from step.tessellate import tessellate
+    from qifreport.step.reader import read_step
+    from qifreport.step.tessellate import tessellate
 
     part = read_step(shared_file("step/nist/nist_ftc_06_asme1_ap242-e1.stp"), pmi=False)
     m = tessellate(part.shape, part.faces)
@@ -98,8 +98,8 @@ def test_inch_file_is_converted_to_mm():
 
 
 def test_not_a_step_file_is_an_input_error(tmp_path):
-    from registration.errors import InputError
-    from step.reader import read_step
+    from qifreport.errors import InputError
+    from qifreport.step.reader import read_step
 
     bad = tmp_path / "x.step"
     bad.write_text("solid nothing\nendsolid\n")

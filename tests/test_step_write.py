@@ -42,7 +42,13 @@ from OCP.XCAFDoc import (  # noqa: E402
     XCAFDoc_ShapeTool,
 )
 
-import step.write as stepwrite  # noqa: E402
+import qifreport.step.write as stepwrite  # noqa: E402
+from qifreport.step.write import (  # noqa: E402
+    TOLERANCE_TYPES,
+    PMISpecDatum,
+    PMISpecTolerance,
+    write_step_with_pmi,
+)
 from samples.make_step_sample import (  # noqa: E402
     LENGTH,
     SKIN_RADIUS,
@@ -50,12 +56,6 @@ from samples.make_step_sample import (  # noqa: E402
     WIDTH,
     build_part,
     build_sample,
-)
-from step.write import (  # noqa: E402
-    TOLERANCE_TYPES,
-    PMISpecDatum,
-    PMISpecTolerance,
-    write_step_with_pmi,
 )
 
 # ----------------------------------------------------------------- Part 21 text parsing

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from qif.summary import (
+from qifreport.summary import (
     SUMMARY_SCHEMA_VERSION,
     summary_schema,
     summary_schema_path,
@@ -30,7 +30,7 @@ def _no_nan(token: str):
 def _cli_json(argv: list[str], out: Path, stem: str) -> tuple[int, dict]:
     """Run ``qifreport ARGV --json --quiet --out OUT`` in-process; the exit code and the JSON
     it wrote, parsed strictly (a NaN/Infinity token is an error, not a float)."""
-    from qif.cli import main
+    from qifreport.cli import main
 
     with redirect_stdout(io.StringIO()), pytest.raises(SystemExit) as exc:
         main([*argv, "--json", "--quiet", "--out", str(out)])

@@ -1,4 +1,4 @@
-"""The one-page trend report of a batch (:mod:`qif.trend`): complete, one page, legible.
+"""The one-page trend report of a batch (:mod:`qifreport.reports.trend`): complete, one page, legible.
 
 A synthetic batch summary (the frame ``qifreport batch`` writes) is drawn; the PDF is checked
 with poppler-utils: ``pdfinfo`` (one page, its size), ``pdftotext`` (the counts, the pass rate
@@ -22,8 +22,8 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from qif.pdf import fmt_mm
-from qif.trend import (
+from qifreport.reports.pdf import fmt_mm
+from qifreport.reports.trend import (
     MAX_CHARTS,
     ChartGeometry,
     TrendCharacteristic,

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from lxml import etree
 
-from qif.reader import read_results
-from registration.simulate.cases import make_case
+from qifreport.qif.reader import read_results
+from qifreport.simulate.cases import make_case
 from tests.conftest import assert_valid_summary
 
 
@@ -70,8 +70,8 @@ def test_guard_fired_is_not_established_everywhere(rippled_cli_run):
 
 
 def test_a_failing_part_stays_failed_and_a_ceiling_breach_is_a_warning():
-    from metrology.inspection import InspectionParams, inspect
-    from registration.simulate.shapes import thin_shell
+    from qifreport.metrology.inspection import InspectionParams, inspect
+    from qifreport.simulate.shapes import thin_shell
 
     V, F = thin_shell()
     case = make_case(V, F, generator="analytic", amplitude=0.02, seed=0)

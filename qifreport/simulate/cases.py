@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..mesh import bounding_diagonal, vertex_normals
+from qifreport.registration.mesh import bounding_diagonal, vertex_normals
+
 from .defects import gaussian_bump
 from .deform import analytic_deformation, biharmonic_deformation, clamp_handles, pca_frame
 from .scanner import Scan, ScanSpec, virtual_scan

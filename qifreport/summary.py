@@ -1,16 +1,12 @@
 """The versioned JSON Schema of the ``qifreport --json`` summary, and its validation.
 
-The summary document (:meth:`metrology.inspection.InspectionResult.to_dict` plus the keys
-``qif.cli.run`` adds) carries ``"schema": "qifreport-summary/1"``
+The summary document (:meth:`qifreport.metrology.inspection.InspectionResult.to_dict` plus the keys
+:mod:`qifreport.pipeline` adds) carries ``"schema": "qifreport-summary/1"``
 (:data:`SUMMARY_SCHEMA_VERSION`); its structure is the JSON Schema (draft 2020-12)
 ``schemas/summary-1.schema.json``.
 
-Where the schema lives. The canonical file is ``<repo>/schemas/summary-1.schema.json``
-(the project's rule: ``schemas/`` at the repository root holds the schemas), i.e. the
-``schemas`` directory beside the ``qif`` package directory, which is where an editable
-install (``pip install -e .``) finds it. A wheel does not ship the repository root; for a
-wheel the file has to be packaged as ``qif/schemas/summary-1.schema.json`` (package data),
-which :func:`summary_schema` also looks for (the repository copy wins when both exist).
+The schema is package data of :mod:`qifreport.schemas` (the repository's ``schemas/``
+folder, shipped in the wheel).
 """
 
 from __future__ import annotations
@@ -20,29 +16,22 @@ import json
 import math
 from pathlib import Path
 
+from qifreport.schemas import SCHEMA_DIR
+
 #: value of the summary's top-level ``"schema"`` key
 SUMMARY_SCHEMA_VERSION = "qifreport-summary/1"
 #: file name of the schema of :data:`SUMMARY_SCHEMA_VERSION`
 SUMMARY_SCHEMA_FILE = "summary-1.schema.json"
 
-_PKG = Path(__file__).resolve().parent
-
-
 def summary_schema_path() -> Path:
-    """Path of the summary schema: ``<repo>/schemas/``, else the package data ``qif/schemas/``
-    (an installed wheel).
+    """Path of the summary schema (package data of :mod:`qifreport.schemas`).
 
-    Raises FileNotFoundError naming every place looked at.
+    Raises FileNotFoundError naming the place looked at.
     """
-    candidates = [_PKG.parent / "schemas" / SUMMARY_SCHEMA_FILE,
-                  _PKG / "schemas" / SUMMARY_SCHEMA_FILE]
-    for p in candidates:
-        if p.is_file():
-            return p
-    raise FileNotFoundError(
-        f"summary schema {SUMMARY_SCHEMA_FILE} not found (looked in "
-        + ", ".join(str(p) for p in candidates) + ")"
-    )
+    p = SCHEMA_DIR / SUMMARY_SCHEMA_FILE
+    if not p.is_file():
+        raise FileNotFoundError(f"summary schema {SUMMARY_SCHEMA_FILE} not found in {SCHEMA_DIR}")
+    return p
 
 
 @functools.lru_cache(maxsize=1)

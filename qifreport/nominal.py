@@ -1,7 +1,7 @@
 """The nominal as an inspection needs it: a STEP part (mesh + PMI zones) or a mesh.
 
-:func:`load_nominal` reads a STEP AP242 file through :mod:`step` (tessellation with per-face
-ids, semantic PMI turned into tolerance zones by :func:`metrology.bands.zones_from_pmi`) or a
+:func:`load_nominal` reads a STEP AP242 file through :mod:`qifreport.step` (tessellation with per-face
+ids, semantic PMI turned into tolerance zones by :func:`qifreport.metrology.bands.zones_from_pmi`) or a
 mesh nominal (STL/PLY/OBJ/OFF) with one general zone of the given tolerance.
 """
 
@@ -12,10 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
-from metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
-from registration.errors import InputError
-from registration.mesh import bounding_diagonal, load_mesh
-from step.reader import STEP_SUFFIXES
+from qifreport.metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
+from qifreport.registration.mesh import bounding_diagonal, load_mesh
+from qifreport.step.reader import STEP_SUFFIXES
+
+from .errors import InputError
 
 
 @dataclass
@@ -37,12 +38,12 @@ def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = N
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
     if path.suffix.lower() in STEP_SUFFIXES:
-        from step.reader import read_step
-        from step.tessellate import tessellate
+        from qifreport.step.reader import read_step
+        from qifreport.step.tessellate import tessellate
 
         part = read_step(path)
         if max_edge is None:
-            from step.tessellate import _shape_diagonal
+            from qifreport.step.tessellate import _shape_diagonal
 
             max_edge = _shape_diagonal(part.shape) / 60.0
         mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)

@@ -10,7 +10,7 @@ import logging
 import igl
 import numpy as np
 
-from ..mesh import bounding_diagonal, load_mesh, weld
+from qifreport.registration.mesh import bounding_diagonal, load_mesh, weld
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +94,7 @@ def fandisk(
 
     Parameters
     ----------
-    path : the ``fandisk.off`` file (read with :func:`registration.mesh.load_mesh`).
+    path : the ``fandisk.off`` file (read with :func:`qifreport.registration.mesh.load_mesh`).
     diagonal : bounding-box diagonal (mm) after scaling.
     subdivide : number of ``igl.upsample`` passes; each splits every triangle into four
         without moving vertices, so sharp creases stay sharp (7229 -> 28910 vertices once).

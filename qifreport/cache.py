@@ -2,7 +2,7 @@
 
 ``qifreport prepare PART.step`` (and, implicitly, the first inspection of a part) reads the
 nominal, tessellates it, lays its tolerance zones and computes everything an inspection needs
-from the nominal alone (:func:`metrology.prepared.prepare_part`: operators, unscored bands,
+from the nominal alone (:func:`qifreport.metrology.prepared.prepare_part`: operators, unscored bands,
 bending basis, pose-search model). The result is one file in the cache directory::
 
     <cache>/<part stem>-<key[:20]>.qprep
@@ -42,16 +42,17 @@ from pathlib import Path
 import numpy as np
 import scipy
 
-from metrology.prepared import PreparedPart, part_settings, prepare_part
+from qifreport import __version__
+from qifreport.metrology.prepared import PreparedPart, part_settings, prepare_part
 
-from . import __version__
 from .nominal import Nominal, load_nominal
 
 log = logging.getLogger(__name__)
 
 #: version of the entry layout; bump it whenever :class:`PartState` or anything it holds
 #: changes shape
-CACHE_FORMAT = 1
+#: 2: module paths under the one import root qifreport.* (pickles name them)
+CACHE_FORMAT = 2
 SUFFIX = ".qprep"
 
 
@@ -89,8 +90,8 @@ class PartState:
 
     Attributes
     ----------
-    nominal : mesh, face ids, zones and provenance (:class:`qif.nominal.Nominal`).
-    prepared : the scan-independent state (:class:`metrology.prepared.PreparedPart`).
+    nominal : mesh, face ids, zones and provenance (:class:`qifreport.nominal.Nominal`).
+    prepared : the scan-independent state (:class:`qifreport.metrology.prepared.PreparedPart`).
     nominal_sha256 : digest of the nominal file.  key : the cache key.
     build_seconds : what reading and preparing took when the entry was built.
     """
@@ -142,7 +143,7 @@ def key_material(nominal_sha256: str, options: NominalOptions, params) -> dict:
     Parameters
     ----------
     nominal_sha256 : digest of the nominal file.  options : how it is read.
-    params : :class:`metrology.inspection.InspectionParams`.
+    params : :class:`qifreport.metrology.inspection.InspectionParams`.
     """
     return {
         "format": CACHE_FORMAT,
@@ -251,14 +252,14 @@ def part_state(nominal: Path, options: NominalOptions, params, cache_dir: Path |
     Parameters
     ----------
     nominal : the nominal file (STEP or mesh).  options : how it is read.
-    params : :class:`metrology.inspection.InspectionParams` of the inspections to come.
+    params : :class:`qifreport.metrology.inspection.InspectionParams` of the inspections to come.
     cache_dir : cache directory, None to neither read nor write one.
     rebuild : ignore an existing entry and build a fresh one.
 
     Raises
     ------
     registration.errors.InputError
-        The nominal cannot be read (as :func:`qif.nominal.load_nominal`).
+        The nominal cannot be read (as :func:`qifreport.nominal.load_nominal`).
     """
     t0 = time.perf_counter()
     digest = sha256(nominal)

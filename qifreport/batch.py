@@ -7,7 +7,7 @@ Plan
     serial number when the manifest gives one, else its file stem (made unique).
 
 Work
-    Each distinct nominal is prepared once, through the per-part cache (:mod:`qif.cache`), on
+    Each distinct nominal is prepared once, through the per-part cache (:mod:`qifreport.cache`), on
     this machine. The scans then run in parallel: on local processes by default (``--jobs``,
     each process receives the prepared state once, at start-up), or on a Dask cluster with
     ``--scheduler ADDRESS`` (the state is scattered to the workers once and every task
@@ -24,7 +24,7 @@ Outputs (``DIR``)
     internal error) gets a record with its one-line error and no other output; it does not
     stop the batch. ``summary.csv`` and ``summary.parquet`` hold one row per scan in plan
     order; per nominal, ``<part>_statistics.qif`` (the QIF 3.0 Statistics document,
-    :mod:`qif.statistics`) and ``<part>_trend.pdf`` (run charts, :mod:`qif.trend`). Every
+    :mod:`qifreport.qif.statistics`) and ``<part>_trend.pdf`` (run charts, :mod:`qifreport.reports.trend`). Every
     file is written atomically.
 
 Resume
@@ -59,13 +59,13 @@ from pathlib import Path
 
 import numpy as np
 
-from registration.errors import InputError
-from registration.pointcloud import SCAN_SUFFIXES, load_scan
-from step.atomic import atomic_write_many
+from qifreport import __version__
+from qifreport.registration.pointcloud import SCAN_SUFFIXES, load_scan
 
-from . import __version__
+from .atomic_io import atomic_write_many
 from .cache import PartState, part_state, sha256
 from .cli import _finite, _json_default
+from .errors import InputError
 
 log = logging.getLogger("qifreport.batch")
 
@@ -262,7 +262,7 @@ def run_task(task: ScanTask, state: PartState, opts: argparse.Namespace) -> Task
 
     Never raises for a problem of the scan: the error comes back in the result.
     """
-    from metrology.inspection import inspect
+    from qifreport.metrology.inspection import inspect
 
     from .cli import (
         inspection_params,
@@ -318,7 +318,7 @@ def run_task(task: ScanTask, state: PartState, opts: argparse.Namespace) -> Task
 
 def summary_row(res, item: ScanItem, scan_sha256: str, seconds: float) -> dict:
     """One row of ``summary.csv`` for an inspected scan (lengths mm, areas mm^2)."""
-    from .writer import _status, profile_value
+    from qifreport.qif.writer import _status, profile_value
 
     s, a = res.vertex_stats, res.acceptance
     fit = res.fit
@@ -561,7 +561,7 @@ class BatchReport:
     ----------
     records : one per scan, plan order.  done : scans inspected in this run.
     skipped : scans whose current record was found.  counts : verdict -> scans.
-    cache : nominal -> :class:`qif.cache.CacheOutcome`.  seconds : wall time.
+    cache : nominal -> :class:`qifreport.cache.CacheOutcome`.  seconds : wall time.
     """
 
     records: list[dict]
@@ -728,11 +728,12 @@ def _same_rows(csv_path: Path, df) -> bool:
 def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: str,
                        target: Path):
     """The writer of the statistics document: validated before it is published, as the
-    results documents are (:func:`qif.cli.qif_writer`)."""
+    results documents are (:func:`qifreport.cli.qif_writer`)."""
     def write(p: Path) -> None:
+        from qifreport.qif.reader import read_results
+        from qifreport.qif.statistics import build_statistics
+
         from .cli import qif_writer
-        from .reader import read_results
-        from .statistics import build_statistics
 
         names = [n for r in recs if r["ok"] for n in r["outputs"] if n.endswith(".qif")]
         results = [read_results(out / "scans" / n) for n in names]
@@ -750,7 +751,7 @@ def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: st
 
 def _trend_writer(df, st: PartState, part_name: str, opts: argparse.Namespace):
     def write(p: Path) -> None:
-        from .trend import TrendCharacteristic, write_trend_pdf
+        from qifreport.reports.trend import TrendCharacteristic, write_trend_pdf
 
         chars = [TrendCharacteristic(z.key, z.describe(), float(z.upper - z.lower))
                  for z in st.nominal.zones if f"profile_{z.key}_mm" in df]

@@ -16,7 +16,7 @@ band edge is where the colour jumps from green to red/blue, and every out-of-tol
 region is outlined by the iso-line ``|dev - centre| = half-width`` (drawn in black, the exact
 band edge interpolated along the triangle edges). Region numbers are not burnt into the
 images: each :class:`RenderedView` carries the pixel anchor of every region visible in it,
-so the caller draws the numbers as vector text on top (:mod:`qif.pdf`).
+so the caller draws the numbers as vector text on top (:mod:`qifreport.reports.pdf`).
 
 Rendering uses VTK offscreen through EGL (``VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow``,
 no display needed) with a parallel (orthographic) camera; if VTK cannot render (not
@@ -452,7 +452,7 @@ def render_views(
     dev : (n,) signed deviation, mm; NaN = unscored (grey).
     lower, upper : scalar or (n,) per-vertex band, mm (the governing zone's band; may be
         asymmetric, ``lower <= 0 <= upper``).
-    regions : out-of-tolerance regions (:class:`metrology.acceptance.Region`: ``vertices``,
+    regions : out-of-tolerance regions (:class:`qifreport.metrology.acceptance.Region`: ``vertices``,
         ``centroid``), numbered 1, 2, ... in list order; outlined in every view and
         returned as label anchors (:attr:`RenderedView.labels`) where visible.
     size : picture size ``(width, height)`` in pixels, one for all views or one per view

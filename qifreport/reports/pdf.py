@@ -10,7 +10,7 @@ matplotlib's bundled fonts). Top to bottom:
 2. **Decision** -- the acceptance rule and, for a failing part, the reasons (the QIF's
    ``decided_by`` lines).
 3. **Deviation maps** -- the registered nominal from two or three automatically chosen
-   directions (:mod:`qif.render`), green inside the band, red proud / blue sunk outside,
+   directions (:mod:`qifreport.reports.render`), green inside the band, red proud / blue sunk outside,
    grey unscored, out-of-tolerance regions outlined and numbered as in the region table;
    the colour bar (mm, symmetric about 0) marks each distinct band.
 4. **Histogram** of the area-weighted signed deviation with the band limits and the
@@ -23,7 +23,7 @@ matplotlib's bundled fonts). Top to bottom:
 7. With ``--seeds``, the repeatability row (regions persistent k of m, RMS and max spread);
    not-evaluated PMI, warnings, sign-off line and a footer naming the QIF results file.
 
-Every number is the one the QIF writer stores (:mod:`qif.writer`), printed at a fixed
+Every number is the one the QIF writer stores (:mod:`qifreport.qif.writer`), printed at a fixed
 precision: lengths in mm with 3 decimals (:func:`fmt_mm`), areas in mm^2 with 1 decimal
 (:func:`fmt_area`), fractions as % with 2 decimals (:func:`fmt_pct`). Lists that do not fit
 (many tolerances, many regions, many reasons) are cut and the cut is stated ("+ 12 more
@@ -44,10 +44,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from metrology.inspection import InspectionResult, method_label
-from metrology.statistics import DeviationStats
+from qifreport import __version__
+from qifreport.metrology.inspection import InspectionResult, method_label
+from qifreport.metrology.statistics import DeviationStats
+from qifreport.qif.writer import Provenance, profile_value
 
-from . import __version__
 from .render import (
     GREY,
     OUTLINE,
@@ -59,7 +60,6 @@ from .render import (
     deviation_colors,
     render_views,
 )
-from .writer import Provenance, profile_value
 
 if TYPE_CHECKING:
     from reportlab.pdfgen.canvas import Canvas
@@ -1335,7 +1335,7 @@ def write_pdf(
         minimum error, paper Section 9), or None: printed as "not measured".
     qif_name : the QIF results file named in the footer; default ``<part_name>.qif`` (the
         name ``qifreport`` gives it); ``""`` names none (no QIF written).
-    backend : renderer of the maps (:func:`qif.render.render_views`), default VTK with a
+    backend : renderer of the maps (:func:`qifreport.reports.render.render_views`), default VTK with a
         matplotlib fallback.
     """
     write_report(path, res, prov, page=page, chain_floor=chain_floor, qif_name=qif_name,

@@ -2,7 +2,7 @@
 
 ``qifreport batch`` inspects many scans of one part; its summary table (one row per scan, in
 batch order) is drawn here on one page, A4 or US Letter, in the house style of the per-scan
-report (:mod:`qif.pdf`: DejaVu Sans embedded, the same colours, number formats and tables).
+report (:mod:`qifreport.reports.pdf`: DejaVu Sans embedded, the same colours, number formats and tables).
 Top to bottom:
 
 1. **Header** -- part, nominal SHA-256 (first 16 hex digits), creation time (UTC), number of
@@ -45,7 +45,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from . import __version__
+from qifreport import __version__
+
 from .pdf import (
     DASH,
     FAIL_BG,

@@ -7,9 +7,9 @@ itself) or a mesh (STL/PLY/OBJ/OFF, with ``--tolerance``). Sub-commands:
 * ``qifreport validate FILE.qif [...]`` checks QIF files against the official QIF 3.0 schemas
   (libxml2 and xmlschema, key/keyref included) and the DMSC XSLT checks.
 * ``qifreport prepare PART`` stores the nominal's prepared state in the per-part cache
-  (:mod:`qif.cache`); every inspection also uses the cache (``--cache DIR``, ``--no-cache``).
+  (:mod:`qifreport.cache`); every inspection also uses the cache (``--cache DIR``, ``--no-cache``).
 * ``qifreport batch PART SCANS... --out DIR`` inspects many scans of one part, in parallel on
-  local processes or a Dask cluster, resumably (:mod:`qif.batch`).
+  local processes or a Dask cluster, resumably (:mod:`qifreport.batch`).
 
 Outputs (in ``--out``, all or none): ``<nominal>.qif``, the QIF 3.0 results document
 (validated against the official schemas before it is published; never called valid when the
@@ -18,8 +18,8 @@ numbers, and with ``--json`` the summary ``<nominal>.json``
 (``schemas/summary-1.schema.json``).
 
 ``--method`` chooses the virtual fixture's deformable method (GB-CICP or a paper baseline,
-:mod:`registration.methods`); ``--seeds N`` adds N resampled runs and keeps as findings of the
-region criterion only the regions found in every run (:mod:`metrology.repeatability`).
+:mod:`qifreport.registration.methods`); ``--seeds N`` adds N resampled runs and keeps as findings of the
+region criterion only the regions found in every run (:mod:`qifreport.metrology.repeatability`).
 
 Exit codes: 0 the part passes, 1 the part fails, 2 the input cannot be inspected (one-line
 error on stderr naming the problem, and no output file written), 3 not established.
@@ -40,17 +40,17 @@ from pathlib import Path
 
 import numpy as np
 
-from metrology.inspection import InspectionParams, InspectionResult, inspect
-from metrology.repeatability import KEEP_FRACTION, resample_mask
-from metrology.repeatability import apply as apply_repeatability
-from registration.errors import InputError
-from registration.gbcicp import GBCICPParams
-from registration.methods import METHODS
-from registration.pointcloud import load_scan
-from step.atomic import atomic_write_many
+from qifreport import __version__
+from qifreport.metrology.inspection import InspectionParams, InspectionResult, inspect
+from qifreport.metrology.repeatability import KEEP_FRACTION, resample_mask
+from qifreport.metrology.repeatability import apply as apply_repeatability
+from qifreport.registration.gbcicp import GBCICPParams
+from qifreport.registration.methods import METHODS
+from qifreport.registration.pointcloud import load_scan
 
-from . import __version__
+from .atomic_io import atomic_write_many
 from .cache import NominalOptions, default_cache_dir, part_state, sha256
+from .errors import InputError
 from .nominal import Nominal, load_nominal  # noqa: F401  (re-exported)
 from .profile import Profiler
 from .summary import SUMMARY_SCHEMA_VERSION
@@ -239,7 +239,7 @@ def summary(res: InspectionResult) -> str:
 
 def _fixture_text(res: InspectionResult) -> str:
     """How the virtual fixture was made, for the summary."""
-    from metrology.inspection import method_label
+    from qifreport.metrology.inspection import method_label
 
     if res.fit is None:
         return "rigid ICP only (no virtual fixture)"
@@ -277,8 +277,8 @@ def qif_writer(tree, state: dict):
     validated* (``valid: None``) with how to provide them; a document the schema rejects is a
     bug of qifreport: the writer raises, nothing is published (exit 2).
     """
-    from .validate import SchemasUnavailable, schema_dir, validate_lxml
-    from .writer import write_qif
+    from qifreport.qif.validate import SchemasUnavailable, schema_dir, validate_lxml
+    from qifreport.qif.writer import write_qif
 
     state.update(valid=None, validated_with=[], message="")
 
@@ -334,10 +334,10 @@ def _check_outputs(args: argparse.Namespace) -> None:
 def resampled_runs(res: InspectionResult, params: InspectionParams, nom: Nominal,
                    seeds: int, bar=None, prepared=None) -> None:
     """Inspect ``seeds`` resamplings of the scan and keep only the persistent regions of
-    ``res`` (:mod:`metrology.repeatability`; ``res`` is changed in place).
+    ``res`` (:mod:`qifreport.metrology.repeatability`; ``res`` is changed in place).
 
     Resampling ``k`` keeps each point of the scan with probability
-    :data:`metrology.repeatability.KEEP_FRACTION` (seed ``k``). It starts from ``res``'s pose:
+    :data:`qifreport.metrology.repeatability.KEEP_FRACTION` (seed ``k``). It starts from ``res``'s pose:
     the scan already moved into the nominal frame, no pose search (``prealign="never"``).
     """
     t0 = time.perf_counter()
@@ -372,7 +372,7 @@ def output_writers(res: InspectionResult, nom: Nominal, args: argparse.Namespace
     qif_state = None
     prov = None
     if not (args.no_qif and args.no_pdf):
-        from .writer import Provenance
+        from qifreport.qif.writer import Provenance
 
         prov = Provenance(
             part_name=args.nominal.stem, nominal_path=str(args.nominal),
@@ -383,12 +383,12 @@ def output_writers(res: InspectionResult, nom: Nominal, args: argparse.Namespace
             serial_number=args.serial,
         )
     if not args.no_qif:
-        from .writer import build_qif
+        from qifreport.qif.writer import build_qif
 
         qif_state = {"path": str(paths["qif"])}
         outputs.append((paths["qif"], qif_writer(build_qif(res, prov), qif_state)))
     if not args.no_pdf:
-        from .pdf import write_pdf
+        from qifreport.reports.pdf import write_pdf
 
         qif_name = paths["qif"].name if "qif" in paths else ""
         outputs.append((paths["pdf"], lambda p: write_pdf(p, res, prov, page=args.page,
@@ -530,8 +530,8 @@ def _pmi_main(argv: list[str]) -> int:
     ap.add_argument("step", type=Path, help="STEP AP242 file")
     ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
     args = ap.parse_args(argv)
-    from step.reader import read_step
-    from step.report import pmi_rows, pmi_table
+    from qifreport.step.reader import read_step
+    from qifreport.step.report import pmi_rows, pmi_table
 
     part = read_step(args.step)
     if args.json:
@@ -603,7 +603,7 @@ def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns (and exits with) 0 pass, 1 fail, 2 error, 3 not established."""
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] == "validate":
-        from .validate import validate_main
+        from qifreport.qif.validate import validate_main
 
         logging.basicConfig(level=logging.WARNING, format="qifreport: %(levelname)s: %(message)s")
         sys.exit(validate_main(argv[1:]))

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..mesh import face_normals, median_edge_length
+from qifreport.registration.mesh import face_normals, median_edge_length
+
 from .deform import pca_frame
 
 log = logging.getLogger(__name__)

@@ -1,0 +1,5 @@
+"""``python -m qifreport``: the command line."""
+
+from qifreport.cli import main
+
+main()
