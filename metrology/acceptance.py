@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from qifreport.registration.mesh import adjacency, vertex_areas
 
-from .statistics import _json_float
+from .statistics import json_float
 
 log = logging.getLogger(__name__)
 
@@ -76,8 +76,8 @@ class Region:
         """JSON-ready dict (the vertex list is summarised as ``n_vertices``)."""
         return {
             "n_vertices": int(len(self.vertices)),
-            "area": _json_float(self.area),
-            "peak": _json_float(self.peak),
+            "area": json_float(self.area),
+            "peak": json_float(self.peak),
             "peak_vertex": int(self.peak_vertex),
             "centroid": [float(c) for c in self.centroid],
             "sign": int(self.sign),
@@ -249,18 +249,18 @@ class Acceptance:
         uniform = len(tol) > 0 and bool(np.all(tol == tol[0]))
         return {
             "tolerance": float(tol[0]) if uniform else None,
-            "tolerance_min": _json_float(tol.min()) if len(tol) else None,
-            "tolerance_max": _json_float(tol.max()) if len(tol) else None,
+            "tolerance_min": json_float(tol.min()) if len(tol) else None,
+            "tolerance_max": json_float(tol.max()) if len(tol) else None,
             "min_fraction": float(self.min_fraction),
             "max_region_area": float(self.max_region_area),
-            "scored_area": _json_float(self.scored_area),
-            "nominal_area": _json_float(self.nominal_area),
-            "coverage": _json_float(self.coverage),
-            "in_tolerance_fraction": _json_float(self.in_tolerance_fraction),
+            "scored_area": json_float(self.scored_area),
+            "nominal_area": json_float(self.nominal_area),
+            "coverage": json_float(self.coverage),
+            "in_tolerance_fraction": json_float(self.in_tolerance_fraction),
             "area_ok": bool(self.area_ok),
             "regions": [r.to_dict() for r in self.regions],
             "n_regions": len(self.regions),
-            "largest_region_area": _json_float(self.largest_region_area),
+            "largest_region_area": json_float(self.largest_region_area),
             "region_ok": bool(self.region_ok),
             "passed": bool(self.passed),
             "reasons": list(self.reasons),

@@ -26,7 +26,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from .statistics import _json_float
+from .statistics import json_float
 
 
 @dataclass
@@ -105,16 +105,16 @@ class AddedMaterial:
 
     def to_dict(self) -> dict:
         return {
-            "threshold_mm": _json_float(self.threshold),
-            "mean_signed_mm": _json_float(self.mean_signed),
-            "p99_signed_mm": _json_float(self.p99_signed),
-            "p999_signed_mm": _json_float(self.p999_signed),
-            "max_signed_mm": _json_float(self.max_signed),
-            "min_signed_mm": _json_float(self.min_signed),
-            "frac_above": _json_float(self.frac_above),
-            "frac_below": _json_float(self.frac_below),
-            "area_per_point_mm2": _json_float(self.area_per_point),
-            "max_region_area_mm2": _json_float(self.max_region_area),
+            "threshold_mm": json_float(self.threshold),
+            "mean_signed_mm": json_float(self.mean_signed),
+            "p99_signed_mm": json_float(self.p99_signed),
+            "p999_signed_mm": json_float(self.p999_signed),
+            "max_signed_mm": json_float(self.max_signed),
+            "min_signed_mm": json_float(self.min_signed),
+            "frac_above": json_float(self.frac_above),
+            "frac_below": json_float(self.frac_below),
+            "area_per_point_mm2": json_float(self.area_per_point),
+            "max_region_area_mm2": json_float(self.max_region_area),
             "fail_on": bool(self.fail_on),
             "found": bool(self.found),
             "passed": bool(self.passed),

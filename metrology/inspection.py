@@ -21,12 +21,10 @@ from scipy.spatial import cKDTree
 
 from qifreport.errors import InputError
 from qifreport.registration.deformable import DeformResult, orient_scan_normals
-from qifreport.registration.gbcicp import BendingBasis, GBCICPParams
+from qifreport.registration.gbcicp import BendingBasis
 from qifreport.registration.icp import RigidResult, rigid_icp
 from qifreport.registration.mesh import (
     bounding_diagonal,
-    crease_band,
-    median_edge_length,
     vertex_normals,
 )
 from qifreport.registration.methods import METHODS, deform
@@ -34,7 +32,6 @@ from qifreport.registration.pointcloud import orient_normals_consistent, pca_nor
 from qifreport.registration.prealign import PrealignResult, seat_scan
 
 from .acceptance import (
-    DEFAULT_MAX_REGION_AREA,
     Acceptance,
     coverage_ceiling_ok,
     evaluate,
@@ -51,80 +48,26 @@ from .bands import (
     zone_vertex_areas,
 )
 from .deviation import beyond_rim, closest_points, nominal_referenced
-from .hygiene import MeshHygiene, near_boundary
+from .hygiene import MeshHygiene
+from .params import METHOD_LABELS, InspectionParams, method_label
 from .prepared import PreparedPart, prepare_part
 from .repeatability import Repeatability
 from .statistics import DeviationStats, deviation_statistics
 
+__all__ = [
+    "METHOD_LABELS",
+    "InspectionParams",
+    "InspectionResult",
+    "ZoneResult",
+    "check_units",
+    "inspect",
+    "method_label",
+]
+
 log = logging.getLogger(__name__)
-
-#: display name of each deformable method of :data:`qifreport.registration.methods.METHODS`
-METHOD_LABELS = {"gbcicp": "GB-CICP", "nicp": "NICP", "cpd": "CPD", "rbffem": "RBF-FEM"}
-
-
-def method_label(method: str) -> str:
-    """Display name of a deformable method (``"gbcicp"`` -> ``"GB-CICP"``)."""
-    return METHOD_LABELS.get(method, method.upper())
 
 #: scan-to-nominal extent ratios that betray a unit mix-up, and the unit behind each
 _UNIT_FACTORS = {1 / 25.4: "in", 0.001: "m", 0.1: "cm", 25.4: "in", 1000.0: "m", 10.0: "cm"}
-
-
-@dataclass
-class InspectionParams:
-    """Parameters of :func:`inspect` (lengths in mm).
-
-    Attributes
-    ----------
-    tolerance : half-width of the general profile band (mm): where no other zone applies a
-        vertex is in tolerance if ``|dev| <= tol``. None: the zones passed to
-        :func:`inspect` decide, with :data:`qifreport.metrology.bands.DEFAULT_GENERAL_TOLERANCE`
-        where none applies.
-    min_fraction : area criterion, fraction of the scored area that must be in tolerance.
-    max_region_area : region criterion, largest admissible connected out-of-tolerance
-        region (mm^2).
-    energy : bending energy, ``"hessian"`` (natural boundary conditions at open boundaries),
-        ``"laplacian"`` (the paper's ``L M^-1 L``) or ``"auto"`` (default): Hessian for a
-        nominal with open boundary edges (a sheet: the Laplacian's boundary behaviour hurts
-        there), Laplacian for a closed solid (no boundary; the Hessian energy is degraded by
-        the needle triangles of B-rep tessellations: on the STEP panel it flags 8.4 % of the
-        covered vertices in the first pass, the Laplacian 3.1 %).
-    edge_band : vertices within this distance (mm, along the mesh) of a sharp crease
-        (dihedral angle above ``crease_angle`` degrees) are not scored: there the vertex
-        normal is the average of two faces and the local scan mixes both, so the deviation
-        is an artefact. None: the deviation's neighbourhood radius (1.5 median edges);
-        0 scores every vertex. The excluded area is reported.
-    boundary_band : vertices within this distance (mm) of an open boundary of the nominal
-        (rim, holes, unwelded seams) are not scored (:mod:`qifreport.metrology.hygiene`); None: the same
-        width as ``edge_band``'s default (1.5 median edges); 0 scores the rim. The excluded
-        area is reported with the mesh's defects.
-    rigid_only : skip the virtual fixture (the fixtureless rigid baseline).
-    prealign : pose search before the rigid ICP (:func:`qifreport.registration.prealign.seat_scan`):
-        ``"auto"`` (default) searches only when the scan is not already in the part frame,
-        ``"always"`` always searches, ``"never"`` trusts that scan and nominal share a frame.
-    fail_on_added_material : a connected scan region standing proud of the nominal beyond
-        the whole-part threshold and larger than ``max_region_area`` fails the part
-        (:mod:`qifreport.metrology.added`); otherwise it is reported only.
-    method : the deformable method of the virtual fixture, a key of
-        :data:`qifreport.registration.methods.METHODS`: ``"gbcicp"`` (default, paper Section 6.4) or
-        one of the paper's baselines ``"nicp"``, ``"cpd"``, ``"rbffem"`` (run with their own
-        default parameters).
-    gbcicp : parameters of the GB-CICP stage (used only with ``method="gbcicp"``; its
-        ``scan_normal_k`` sets the PCA scan normals for every method).
-    """
-
-    tolerance: float | None = None
-    min_fraction: float = 0.95
-    max_region_area: float = DEFAULT_MAX_REGION_AREA
-    energy: str = "auto"
-    edge_band: float | None = None
-    boundary_band: float | None = None
-    crease_angle: float = 45.0
-    rigid_only: bool = False
-    prealign: str = "auto"
-    fail_on_added_material: bool = False
-    method: str = "gbcicp"
-    gbcicp: GBCICPParams = field(default_factory=GBCICPParams)
 
 
 @dataclass
@@ -402,31 +345,6 @@ def check_units(V: np.ndarray, P: np.ndarray, scan_units: str | None = None) -> 
             f"scan extent {dp:.4g} mm vs nominal extent {dv:.4g} mm (ratio {ratio:.3g}): "
             f"wrong units or wrong part{hint}"
         )
-
-
-def unscored_bands(
-    V: np.ndarray, F: np.ndarray, boundary: np.ndarray, params: InspectionParams,
-) -> tuple[np.ndarray | None, np.ndarray, float]:
-    """The vertices an inspection does not score, from the nominal alone.
-
-    Parameters
-    ----------
-    V : (n, 3) nominal vertices, mm.  F : (f, 3) triangles.
-    boundary : (n,) open-boundary vertices (:func:`qifreport.registration.mesh.boundary_vertices`).
-    params : ``edge_band`` (default 1.5 median edges), ``crease_angle``, ``boundary_band``
-        (default the edge band).
-
-    Returns
-    -------
-    near_crease : (n,) bool within the edge band of a sharp crease, or None when the band
-        is 0.  near_rim : (n,) bool within the rim band of an open boundary.
-    rim_band : the rim band, mm.
-    """
-    band = (1.5 * median_edge_length(V, F) if params.edge_band is None
-            else float(params.edge_band))
-    near_crease = crease_band(V, F, band, params.crease_angle) if band > 0 else None
-    rim_band = band if params.boundary_band is None else float(params.boundary_band)
-    return near_crease, near_boundary(V, boundary, rim_band), rim_band
 
 
 def inspect(

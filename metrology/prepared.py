@@ -26,16 +26,18 @@ from qifreport.registration.mesh import MeshOperators, bending_operator, boundar
 from qifreport.registration.prealign import PreparedModel, prepare_model
 
 from .hygiene import MeshHygiene, mesh_hygiene
+from .params import InspectionParams
+from .unscored import unscored_bands
 
 log = logging.getLogger(__name__)
 
 
-def part_settings(params) -> dict:
+def part_settings(params: InspectionParams) -> dict:
     """The inspection parameters that change the prepared state (JSON-able).
 
     Parameters
     ----------
-    params : :class:`qifreport.metrology.inspection.InspectionParams`.
+    params : :class:`qifreport.metrology.params.InspectionParams`.
     """
     return {
         "energy": params.energy, "edge_band": params.edge_band,
@@ -78,7 +80,7 @@ class PreparedPart:
     settings: dict
     timings: dict = field(default_factory=dict)
 
-    def check(self, V: np.ndarray, F: np.ndarray, params) -> None:
+    def check(self, V: np.ndarray, F: np.ndarray, params: InspectionParams) -> None:
         """Raise ``ValueError`` unless this state was prepared for ``(V, F)`` and ``params``."""
         if self.V.shape != np.shape(V) or self.F.shape != np.shape(F) or not (
                 np.array_equal(self.F, F) and np.allclose(self.V, V, rtol=0, atol=1e-9)):
@@ -90,20 +92,19 @@ class PreparedPart:
             raise ValueError(f"prepared state built with other settings: {diff}")
 
 
-def prepare_part(V: np.ndarray, F: np.ndarray, params, *, basis: bool = True,
+def prepare_part(V: np.ndarray, F: np.ndarray, params: InspectionParams, *, basis: bool = True,
                  model: bool = True) -> PreparedPart:
     """Compute the scan-independent state of the nominal ``(V, F)``.
 
     Parameters
     ----------
     V : (n, 3) float, mm.  F : (f, 3) int.
-    params : :class:`qifreport.metrology.inspection.InspectionParams` (its :func:`part_settings`).
+    params : :class:`qifreport.metrology.params.InspectionParams` (its :func:`part_settings`).
     basis : build GB-CICP's bending basis (``params.gbcicp.modes`` modes; the costliest
         step, seconds on tens of thousands of vertices).
     model : build the pose search's model (curvature fields, keypoints, geodesic balls),
         used when a scan arrives in an arbitrary placement.
     """
-    from .inspection import unscored_bands  # inspection imports this module
 
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)

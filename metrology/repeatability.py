@@ -56,7 +56,7 @@ from typing import Any
 import numpy as np
 
 from .acceptance import Acceptance, Region, region_reasons
-from .statistics import _json_float
+from .statistics import json_float
 
 log = logging.getLogger(__name__)
 
@@ -192,7 +192,7 @@ class DroppedRegion:
     runs_found: int
 
     def to_dict(self) -> dict:
-        return {"area": _json_float(self.area), "peak": _json_float(self.peak),
+        return {"area": json_float(self.area), "peak": json_float(self.peak),
                 "sign": int(self.sign), "centroid": [float(c) for c in self.centroid],
                 "runs_found": int(self.runs_found)}
 
@@ -306,10 +306,10 @@ class Repeatability:
             "reported_run": "full scan",
             "regions": self.n_regions,
             "persistent_regions": self.n_persistent,
-            "rms_mm": [_json_float(x) for x in self.rms],
-            "max_abs_mm": [_json_float(x) for x in self.max_abs],
-            "rms_spread_mm": _json_float(self.rms_spread),
-            "max_spread_mm": _json_float(self.max_spread),
+            "rms_mm": [json_float(x) for x in self.rms],
+            "max_abs_mm": [json_float(x) for x in self.max_abs],
+            "rms_spread_mm": json_float(self.rms_spread),
+            "max_spread_mm": json_float(self.max_spread),
             "surfaces": [s.to_dict() for s in self.surfaces],
             "warnings": list(self.warnings),
             "seconds": float(self.seconds),

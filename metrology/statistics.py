@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 
-def _json_float(x: float | None) -> float | None:
+def json_float(x: float | None) -> float | None:
     """Plain ``float``, with NaN/inf mapped to ``None`` so the result is strict JSON."""
     if x is None:
         return None
@@ -85,7 +85,7 @@ class DeviationStats:
             elif key == "n":
                 out[key] = int(value)
             else:
-                out[key] = _json_float(value)
+                out[key] = json_float(value)
         return out
 
 

@@ -43,9 +43,27 @@ import numpy as np
 import scipy
 
 from qifreport import __version__
+from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.prepared import PreparedPart, part_settings, prepare_part
 
 from .nominal import Nominal, load_nominal
+from .options import NominalOptions
+
+__all__ = [
+    "CACHE_FORMAT",
+    "CacheOutcome",
+    "CorruptEntry",
+    "NominalOptions",
+    "PartState",
+    "cache_key",
+    "default_cache_dir",
+    "entry_path",
+    "key_material",
+    "load_entry",
+    "part_state",
+    "save_entry",
+    "sha256",
+]
 
 log = logging.getLogger(__name__)
 
@@ -73,15 +91,6 @@ def default_cache_dir() -> Path:
     import platformdirs
 
     return Path(platformdirs.user_cache_dir("qifreport", appauthor=False))
-
-
-@dataclass(frozen=True)
-class NominalOptions:
-    """How the nominal file is read (mm): ``--tolerance``, ``--max-edge``, ``--deflection``."""
-
-    tolerance: float | None = None
-    max_edge: float | None = None
-    deflection: float | None = None
 
 
 @dataclass
@@ -137,13 +146,14 @@ class CorruptEntry(Exception):
     """A cache entry that cannot be trusted (the message says why)."""
 
 
-def key_material(nominal_sha256: str, options: NominalOptions, params) -> dict:
+def key_material(nominal_sha256: str, options: NominalOptions,
+                 params: InspectionParams) -> dict:
     """Everything the prepared state depends on, as a JSON-able dict.
 
     Parameters
     ----------
     nominal_sha256 : digest of the nominal file.  options : how it is read.
-    params : :class:`qifreport.metrology.inspection.InspectionParams`.
+    params : :class:`qifreport.metrology.params.InspectionParams`.
     """
     return {
         "format": CACHE_FORMAT,
@@ -169,7 +179,8 @@ def entry_path(cache_dir: Path, nominal: Path, key: str) -> Path:
     return Path(cache_dir) / f"{stem}-{key[:20]}{SUFFIX}"
 
 
-def build_state(nominal: Path, options: NominalOptions, params, nominal_sha256: str,
+def build_state(nominal: Path, options: NominalOptions, params: InspectionParams,
+                nominal_sha256: str,
                 key: str = "", complete: bool = True) -> PartState:
     """Read the nominal and prepare it.
 
@@ -244,7 +255,8 @@ def load_entry(path: Path, key: str) -> PartState:
     return state
 
 
-def part_state(nominal: Path, options: NominalOptions, params, cache_dir: Path | None, *,
+def part_state(nominal: Path, options: NominalOptions, params: InspectionParams,
+               cache_dir: Path | None, *,
                rebuild: bool = False) -> tuple[PartState, CacheOutcome]:
     """The prepared state of ``nominal``: loaded from ``cache_dir`` when a trusted entry
     exists, else built (and stored there).
@@ -252,13 +264,13 @@ def part_state(nominal: Path, options: NominalOptions, params, cache_dir: Path |
     Parameters
     ----------
     nominal : the nominal file (STEP or mesh).  options : how it is read.
-    params : :class:`qifreport.metrology.inspection.InspectionParams` of the inspections to come.
+    params : :class:`qifreport.metrology.params.InspectionParams` of the inspections to come.
     cache_dir : cache directory, None to neither read nor write one.
     rebuild : ignore an existing entry and build a fresh one.
 
     Raises
     ------
-    registration.errors.InputError
+    qifreport.errors.InputError
         The nominal cannot be read (as :func:`qifreport.nominal.load_nominal`).
     """
     t0 = time.perf_counter()

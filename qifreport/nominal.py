@@ -18,6 +18,11 @@ from qifreport.step.reader import STEP_SUFFIXES
 
 from .errors import InputError
 
+__all__ = [
+    "Nominal",
+    "load_nominal",
+]
+
 
 @dataclass
 class Nominal:
@@ -43,9 +48,9 @@ def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = N
 
         part = read_step(path)
         if max_edge is None:
-            from qifreport.step.tessellate import _shape_diagonal
+            from qifreport.step.tessellate import shape_diagonal
 
-            max_edge = _shape_diagonal(part.shape) / 60.0
+            max_edge = shape_diagonal(part.shape) / 60.0
         mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
         zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
         pmi = part.pmi

@@ -17,6 +17,12 @@ import threading
 import time
 from dataclasses import dataclass, field
 
+__all__ = [
+    "Profiler",
+    "peak_rss_bytes",
+    "rss_bytes",
+]
+
 _PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
 
 

@@ -18,6 +18,14 @@ from pathlib import Path
 
 from qifreport.schemas import SCHEMA_DIR
 
+__all__ = [
+    "SUMMARY_SCHEMA_FILE",
+    "SUMMARY_SCHEMA_VERSION",
+    "summary_schema",
+    "summary_schema_path",
+    "validate_summary",
+]
+
 #: value of the summary's top-level ``"schema"`` key
 SUMMARY_SCHEMA_VERSION = "qifreport-summary/1"
 #: file name of the schema of :data:`SUMMARY_SCHEMA_VERSION`

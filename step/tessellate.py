@@ -133,7 +133,7 @@ def refine_long_edges(
     return V, F, fid
 
 
-def _shape_diagonal(shape) -> float:
+def shape_diagonal(shape) -> float:
     from OCP.Bnd import Bnd_Box
     from OCP.BRepBndLib import BRepBndLib
 
@@ -175,7 +175,7 @@ def tessellate(
     from OCP.TopLoc import TopLoc_Location
 
     t0 = time.perf_counter()
-    diag = _shape_diagonal(shape)
+    diag = shape_diagonal(shape)
     if deflection is None:
         deflection = rel_deflection * diag
     if not deflection > 0:

@@ -57,7 +57,7 @@ def test_defect_sample_fails_by_region(tmp_path):
     assert 0.6 < acc["regions"][0]["peak"] < 1.1
 
 
-def _write_points(path, P):
+def write_points(path, P):
     trimesh.PointCloud(P).export(path)
 
 
@@ -78,15 +78,15 @@ def bad_inputs(tmp: Path, P: np.ndarray):
     Pn[::100] = np.nan
     np.save(nan, Pn)
     inch = tmp / "inch.ply"
-    _write_points(inch, P * 25.4)
+    write_points(inch, P * 25.4)
     far = tmp / "far.ply"
-    _write_points(far, P + [500.0, 0.0, 0.0])
+    write_points(far, P + [500.0, 0.0, 0.0])
     # a scan of another object: a hemisphere of the shell's extent, somewhere else
     rng = np.random.default_rng(0)
     d = rng.normal(size=(8000, 3))
     d[:, 2] = np.abs(d[:, 2])
     other = tmp / "other.ply"
-    _write_points(other, 70.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    write_points(other, 70.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
                   + [400.0, -300.0, 250.0] + 0.02 * rng.standard_normal(d.shape))
     return {
         "missing nominal": ([tmp / "nope.stl", SAMPLES / "shell_scan.ply"], "not found"),

@@ -132,11 +132,15 @@ def _require(method: str) -> None:
 
 
 def test_cli_method_choices_are_the_registry():
-    from qifreport.cli import _parser
+    import argparse
 
-    action = next(a for a in _parser()._actions if a.dest == "method")
+    from qifreport.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    inspect_actions = sub.choices["inspect"]._actions
+    action = next(a for a in inspect_actions if a.dest == "method")
     assert list(action.choices) == list(METHODS) and action.default == "gbcicp"
-    seeds = next(a for a in _parser()._actions if a.dest == "seeds")
+    seeds = next(a for a in inspect_actions if a.dest == "seeds")
     assert seeds.default == 1 and "0.8" in seeds.help and "0..N-1" in seeds.help
 
 

@@ -22,7 +22,7 @@ from qifreport.errors import InputError
 from qifreport.registration.mesh import load_mesh
 from qifreport.registration.pointcloud import load_scan
 from tests.conftest import assert_valid_summary
-from tests.test_cli import SAMPLES, _write_points, run
+from tests.test_cli import SAMPLES, write_points, run
 from tests.test_fuzz_readers import FORMATS, encode, expected_points, grid_mesh, seed
 
 NOMINAL = SAMPLES / "shell_nominal.ply"
@@ -73,7 +73,7 @@ def _inf(tmp: Path, P: np.ndarray) -> list:
     f = tmp / "inf.ply"
     Q = P.copy()
     Q[::500, 1] = np.inf
-    _write_points(f, Q)
+    write_points(f, Q)
     return [NOMINAL, f]
 
 
@@ -86,7 +86,7 @@ def _no_vertices(tmp: Path, P: np.ndarray) -> list:
 
 def _truncated_ply(tmp: Path, P: np.ndarray) -> list:
     f = tmp / "cut.ply"
-    _write_points(f, P)  # binary little-endian float32
+    write_points(f, P)  # binary little-endian float32
     data = f.read_bytes()
     f.write_bytes(data[: int(0.6 * len(data))])
     return [NOMINAL, f]
@@ -113,7 +113,7 @@ def _step_truncated(tmp: Path, P: np.ndarray) -> list:
 
 def _scan_1000x(tmp: Path, P: np.ndarray) -> list:
     f = tmp / "big.ply"
-    _write_points(f, 1000.0 * P)
+    write_points(f, 1000.0 * P)
     return [NOMINAL, f]
 
 
@@ -178,7 +178,7 @@ def test_existing_output_needs_force(tmp_path):
 @pytest.mark.slow
 def test_scan_units_in_reads_an_inch_scan(tmp_path, shell_points):
     inch = tmp_path / "scan_in.ply"
-    _write_points(inch, shell_points / 25.4)
+    write_points(inch, shell_points / 25.4)
     out = tmp_path / "out"
     r = run(NOMINAL, inch, "--scan-units", "in", "--tolerance", "0.5", "--out", out,
             "--json", "--no-pdf", "--no-qif", "--quiet")

@@ -1,0 +1,82 @@
+"""The parameters of one inspection (:class:`InspectionParams`) and the deformable methods'
+display names.
+
+Kept apart from :mod:`qifreport.metrology.inspection` so that the per-part preparation
+(:mod:`qifreport.metrology.prepared`), which depends on a few of these parameters, needs
+nothing of the inspection itself.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from qifreport.registration.gbcicp import GBCICPParams
+
+from .acceptance import DEFAULT_MAX_REGION_AREA
+
+__all__ = ["METHOD_LABELS", "InspectionParams", "method_label"]
+
+#: display name of each deformable method of :data:`qifreport.registration.methods.METHODS`
+METHOD_LABELS = {"gbcicp": "GB-CICP", "nicp": "NICP", "cpd": "CPD", "rbffem": "RBF-FEM"}
+
+
+def method_label(method: str) -> str:
+    """Display name of a deformable method (``"gbcicp"`` -> ``"GB-CICP"``)."""
+    return METHOD_LABELS.get(method, method.upper())
+
+
+@dataclass
+class InspectionParams:
+    """Parameters of :func:`inspect` (lengths in mm).
+
+    Attributes
+    ----------
+    tolerance : half-width of the general profile band (mm): where no other zone applies a
+        vertex is in tolerance if ``|dev| <= tol``. None: the zones passed to
+        :func:`inspect` decide, with :data:`qifreport.metrology.bands.DEFAULT_GENERAL_TOLERANCE`
+        where none applies.
+    min_fraction : area criterion, fraction of the scored area that must be in tolerance.
+    max_region_area : region criterion, largest admissible connected out-of-tolerance
+        region (mm^2).
+    energy : bending energy, ``"hessian"`` (natural boundary conditions at open boundaries),
+        ``"laplacian"`` (the paper's ``L M^-1 L``) or ``"auto"`` (default): Hessian for a
+        nominal with open boundary edges (a sheet: the Laplacian's boundary behaviour hurts
+        there), Laplacian for a closed solid (no boundary; the Hessian energy is degraded by
+        the needle triangles of B-rep tessellations: on the STEP panel it flags 8.4 % of the
+        covered vertices in the first pass, the Laplacian 3.1 %).
+    edge_band : vertices within this distance (mm, along the mesh) of a sharp crease
+        (dihedral angle above ``crease_angle`` degrees) are not scored: there the vertex
+        normal is the average of two faces and the local scan mixes both, so the deviation
+        is an artefact. None: the deviation's neighbourhood radius (1.5 median edges);
+        0 scores every vertex. The excluded area is reported.
+    boundary_band : vertices within this distance (mm) of an open boundary of the nominal
+        (rim, holes, unwelded seams) are not scored (:mod:`qifreport.metrology.hygiene`); None: the same
+        width as ``edge_band``'s default (1.5 median edges); 0 scores the rim. The excluded
+        area is reported with the mesh's defects.
+    rigid_only : skip the virtual fixture (the fixtureless rigid baseline).
+    prealign : pose search before the rigid ICP (:func:`qifreport.registration.prealign.seat_scan`):
+        ``"auto"`` (default) searches only when the scan is not already in the part frame,
+        ``"always"`` always searches, ``"never"`` trusts that scan and nominal share a frame.
+    fail_on_added_material : a connected scan region standing proud of the nominal beyond
+        the whole-part threshold and larger than ``max_region_area`` fails the part
+        (:mod:`qifreport.metrology.added`); otherwise it is reported only.
+    method : the deformable method of the virtual fixture, a key of
+        :data:`qifreport.registration.methods.METHODS`: ``"gbcicp"`` (default, paper Section 6.4) or
+        one of the paper's baselines ``"nicp"``, ``"cpd"``, ``"rbffem"`` (run with their own
+        default parameters).
+    gbcicp : parameters of the GB-CICP stage (used only with ``method="gbcicp"``; its
+        ``scan_normal_k`` sets the PCA scan normals for every method).
+    """
+
+    tolerance: float | None = None
+    min_fraction: float = 0.95
+    max_region_area: float = DEFAULT_MAX_REGION_AREA
+    energy: str = "auto"
+    edge_band: float | None = None
+    boundary_band: float | None = None
+    crease_angle: float = 45.0
+    rigid_only: bool = False
+    prealign: str = "auto"
+    fail_on_added_material: bool = False
+    method: str = "gbcicp"
+    gbcicp: GBCICPParams = field(default_factory=GBCICPParams)

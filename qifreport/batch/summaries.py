@@ -1,0 +1,124 @@
+"""The batch's summaries: ``summary.csv`` / ``summary.parquet`` (one row per scan), and per
+nominal the QIF Statistics document and the trend PDF."""
+
+from __future__ import annotations
+
+import logging
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from qifreport import __version__
+from qifreport.atomic_io import atomic_write_many
+
+from ..cache import PartState
+from ..pipeline import qif_writer
+from .plan import ScanItem, safe_id
+
+__all__ = ["COLUMNS", "summary_frame", "write_summaries"]
+
+log = logging.getLogger("qifreport.batch")
+
+#: column order of the summary table (per-tolerance columns follow, then TAIL)
+COLUMNS = (
+    "seq", "id", "serial", "scan", "nominal", "verdict", "criterion", "error", "rms_mm",
+    "max_abs_mm", "p95_mm", "p999_mm", "mean_mm", "tail_above", "tail_below", "tail_beyond",
+    "in_tolerance_pct", "coverage_pct", "regions", "largest_region_mm2", "rigid_rms_mm",
+    "fit_residual_mm", "flagged_fraction",
+)
+TAIL = ("decided_by", "seconds", "worker", "peak_rss_mib", "scan_sha256")
+
+
+def summary_frame(records: list[dict]):
+    """The summary table (pandas DataFrame), one row per scan in plan order."""
+    import pandas as pd
+
+    df = pd.DataFrame([{**r["row"], "worker": r.get("worker", ""),
+                        "peak_rss_mib": r.get("peak_rss_mib", np.nan)} for r in records])
+    first = [c for c in COLUMNS if c in df.columns]
+    zones = [c for c in df.columns if c not in first and c not in TAIL]
+    df = df[first + zones + [c for c in TAIL if c in df.columns]]
+    for col in ("serial", "criterion", "decided_by", "error"):
+        if col in df:
+            df[col] = df[col].fillna("")
+    status = [c for c in df.columns if c.startswith("status_")]
+    df[status] = df[status].fillna("")
+    return df
+
+
+def write_summaries(out: Path, items: list[ScanItem], records: list[dict],
+                    states: dict, page: str, changed: bool) -> list[Path]:
+    """``summary.csv``, ``summary.parquet`` and, per nominal, the statistics QIF and the
+    trend PDF (rewritten when a scan was inspected in this run or a file is missing)."""
+    df = summary_frame(records)
+    files = [out / "summary.csv", out / "summary.parquet"]
+    per_part = []
+    for nom, st in states.items():
+        if isinstance(st, str):
+            continue
+        stem = safe_id(nom.stem)
+        per_part.append((nom, st, out / f"{stem}_statistics.qif", out / f"{stem}_trend.pdf"))
+        files += per_part[-1][2:]
+    if not changed and all(f.is_file() for f in files) and _same_rows(files[0], df):
+        return files
+    writers = [(files[0], lambda p: df.to_csv(p, index=False)),
+               (files[1], lambda p: df.to_parquet(p, index=False))]
+    for nom, st, qif_path, pdf_path in per_part:
+        recs = [r for r in records if r["nominal"] == str(nom)]
+        sub = df[df["nominal"] == nom.name].reset_index(drop=True)
+        writers.append((qif_path, _statistics_writer(out, recs, st, nom.stem, qif_path)))
+        writers.append((pdf_path, _trend_writer(sub, st, nom.stem, page)))
+    atomic_write_many(writers)
+    return files
+
+
+def _same_rows(csv_path: Path, df) -> bool:
+    """Does the existing ``summary.csv`` list the same scans, in order, with the same
+    digests and verdicts (a re-run over a subset or a new order rewrites it)?"""
+    import pandas as pd
+
+    try:
+        old = pd.read_csv(csv_path, keep_default_na=False, dtype=str)
+    except (OSError, ValueError):
+        return False
+    cols = ["id", "scan_sha256", "verdict"]
+    if any(c not in old.columns for c in cols) or len(old) != len(df):
+        return False
+    return all(list(old[c]) == [str(v) for v in df[c]] for c in cols)
+
+
+def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: str,
+                       target: Path):
+    """The writer of the statistics document: validated before it is published, as the
+    results documents are (:func:`qifreport.pipeline.qif_writer`)."""
+    def write(p: Path) -> None:
+        from qifreport.qif.reader import read_results
+        from qifreport.qif.statistics import build_statistics
+
+
+        names = [n for r in recs if r["ok"] for n in r["outputs"] if n.endswith(".qif")]
+        results = [read_results(out / "scans" / n) for n in names]
+        tree = build_statistics(
+            results, part_name=part_name, created=datetime.now(timezone.utc),
+            nominal_sha256=st.nominal_sha256, sources=[f"scans/{n}" for n in names],
+            software_version=__version__)
+        state: dict = {}
+        qif_writer(tree, state)(p)
+        if state["valid"] is None:
+            log.warning("%s written, %s", target, state["message"])
+
+    return write
+
+
+def _trend_writer(df, st: PartState, part_name: str, page: str):
+    def write(p: Path) -> None:
+        from qifreport.reports.trend import TrendCharacteristic, write_trend_pdf
+
+        chars = [TrendCharacteristic(z.key, z.describe(), float(z.upper - z.lower))
+                 for z in st.nominal.zones if f"profile_{z.key}_mm" in df]
+        write_trend_pdf(p, df, chars, part_name=part_name,
+                        created=datetime.now(timezone.utc),
+                        nominal_sha256=st.nominal_sha256, page=page)
+
+    return write

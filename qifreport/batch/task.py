@@ -1,0 +1,187 @@
+"""One scan of a batch on a worker: inspect it against the prepared part, render its outputs
+to bytes, and summarise it as one row of the summary table.
+
+A task carries the scan's bytes and returns the bytes of its outputs, so workers need no
+shared file system; the client does all the file writing.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+from datetime import datetime, timezone
+from pathlib import Path
+
+from qifreport.errors import InputError
+from qifreport.qif.writer import characteristic_status, profile_value
+from qifreport.registration.pointcloud import load_scan
+
+from ..cache import PartState
+from ..options import InspectJob
+from ..pipeline import inspect_state, output_writers
+from ..profile import peak_rss_bytes
+from .plan import ScanItem
+
+__all__ = [
+    "ScanTask",
+    "TaskResult",
+    "deciding_criteria",
+    "error_row",
+    "run_task",
+    "summary_row",
+]
+
+log = logging.getLogger("qifreport.batch")
+
+#: the QIF characteristic status -> the summary's words
+STATUS_WORDS = {"PASS": "PASS", "FAIL": "FAIL", "INDETERMINATE": "NOT ESTABLISHED",
+                "NOT_ANALYZED": "NOT ANALYZED"}
+
+
+@dataclass
+class ScanTask:
+    """What a worker needs for one scan (the part state travels separately)."""
+
+    item: ScanItem
+    scan_bytes: bytes
+    scan_sha256: str
+    part_key: str
+
+
+@dataclass
+class TaskResult:
+    """What a worker returns: the outputs' bytes by file name, or the error.
+
+    Attributes
+    ----------
+    id : the scan's id.  ok : inspected (any verdict).  files : name -> bytes.
+    row : the summary row.  error : one-line error ("" when ok).
+    worker : host:pid of the process that ran it.  peak_rss_mib : its peak resident memory.
+    """
+
+    id: str
+    ok: bool
+    files: dict[str, bytes] = field(default_factory=dict)
+    row: dict = field(default_factory=dict)
+    error: str = ""
+    final: bool = False
+    worker: str = ""
+    peak_rss_mib: float = 0.0
+    seconds: float = 0.0
+
+
+def _peak_rss_mib() -> float:
+    return peak_rss_bytes() / 2**20
+
+
+def _worker_name() -> str:
+    try:
+        from distributed import get_worker
+
+        return get_worker().address
+    except (ImportError, ValueError):
+        return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
+    """Inspect one scan against a prepared part and render its outputs (runs on a worker).
+
+    ``job`` is the batch's template (output directory and options); the task's scan,
+    nominal, serial and id fill it in. Never raises for a problem of the scan: the error
+    comes back in the result.
+    """
+    t0 = time.perf_counter()
+    item = task.item
+    started = datetime.now(timezone.utc)
+    try:
+        if state.key != task.part_key:
+            raise RuntimeError("worker holds another part's state")
+        with tempfile.TemporaryDirectory(prefix="qifreport-") as td:
+            scan_file = Path(td) / item.scan.name
+            scan_file.write_bytes(task.scan_bytes)
+            P = load_scan(scan_file, units=job.options.scan_units)
+            this = replace(job, nominal=item.nominal, scan=item.scan, stem=item.id,
+                           serial=item.serial or None, json=True, export_mesh=None)
+            res = inspect_state(P, state, this)
+            finished = datetime.now(timezone.utc)
+            digests = {"nominal": state.nominal_sha256, "scan": task.scan_sha256}
+            writers, _ = output_writers(res, state.nominal, this, this.output_paths(),
+                                        digests, started, finished)
+            files = {}
+            for path, write in writers:  # in order: the JSON reports the QIF's validation
+                tmp = Path(td) / path.name
+                write(tmp)
+                files[path.name] = tmp.read_bytes()
+        row = summary_row(res, item, task.scan_sha256, time.perf_counter() - t0)
+        return TaskResult(item.id, True, files, row, worker=_worker_name(),
+                          peak_rss_mib=_peak_rss_mib(), seconds=time.perf_counter() - t0)
+    except InputError as exc:
+        error, final = str(exc), True
+    except (OSError, MemoryError) as exc:
+        error, final = f"{type(exc).__name__}: {exc}", False
+    except Exception as exc:  # a bug: recorded, the batch goes on
+        log.debug("internal error on %s", item.scan, exc_info=True)
+        error, final = f"internal error: {type(exc).__name__}: {exc}", False
+    error = " ".join(error.split())
+    return TaskResult(item.id, False, {}, error_row(item, task.scan_sha256, error),
+                      error=error, final=final, worker=_worker_name(),
+                      peak_rss_mib=_peak_rss_mib(), seconds=time.perf_counter() - t0)
+
+
+def summary_row(res, item: ScanItem, scan_sha256: str, seconds: float) -> dict:
+    """One row of ``summary.csv`` for an inspected scan (lengths mm, areas mm^2)."""
+    s, a = res.vertex_stats, res.acceptance
+    fit = res.fit
+    row = {
+        "seq": item.seq, "id": item.id, "scan": item.scan.name, "serial": item.serial,
+        "nominal": item.nominal.name, "verdict": res.verdict,
+        "criterion": deciding_criteria(res),
+        "decided_by": "; ".join(res.decided_by()),
+        "error": "",
+        "rms_mm": s.rms, "max_abs_mm": s.max_abs, "p95_mm": s.p95, "p999_mm": s.p999,
+        "mean_mm": s.mean, "tail_above": s.frac_above, "tail_below": s.frac_below,
+        "tail_beyond": s.frac_beyond,
+        "in_tolerance_pct": 100.0 * a.in_tolerance_fraction,
+        "coverage_pct": 100.0 * a.coverage, "regions": len(a.regions),
+        "largest_region_mm2": a.largest_region_area,
+        "rigid_rms_mm": res.rigid.rms,
+        "fit_residual_mm": fit.scale if fit is not None else float("nan"),
+        "flagged_fraction": fit.flagged_fraction if fit is not None else float("nan"),
+        "seconds": seconds, "scan_sha256": scan_sha256,
+    }
+    for z in res.zones:
+        k = z.zone.key
+        row[f"profile_{k}_mm"] = profile_value(z)
+        row[f"tolerance_{k}_mm"] = z.zone.upper - z.zone.lower
+        row[f"status_{k}"] = STATUS_WORDS[characteristic_status(z, res.established)]  # as in the QIF
+        row[f"in_tolerance_{k}_pct"] = 100.0 * z.acceptance.in_tolerance_fraction
+    return row
+
+
+def deciding_criteria(res) -> str:
+    """The criteria that decided a verdict other than PASS, short: ``"T2:region"``,
+    ``"part:area"``, ``"added material"``, ``"not established"`` (``;``-separated)."""
+    out = []
+    for name, acc in [("part", res.acceptance)] + [(z.zone.key, z.acceptance)
+                                                     for z in res.zones]:
+        if not acc.area_ok:
+            out.append(f"{name}:area")
+        if not acc.region_ok:
+            out.append(f"{name}:region")
+    if res.added is not None and not res.added.passed:
+        out.append("added material")
+    if res.passed and not res.established:
+        out.append("not established")
+    return ";".join(out)
+
+
+def error_row(item: ScanItem, scan_sha256: str, error: str) -> dict:
+    """The row of a scan that could not be inspected."""
+    return {"seq": item.seq, "id": item.id, "scan": item.scan.name, "serial": item.serial,
+            "nominal": item.nominal.name, "verdict": "ERROR", "criterion": "error",
+            "decided_by": "",
+            "error": error, "scan_sha256": scan_sha256}

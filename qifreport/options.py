@@ -1,0 +1,165 @@
+"""Typed options between the command line and the application services.
+
+The command line (:mod:`qifreport.cli`) turns its arguments into these objects once; the
+pipeline (:mod:`qifreport.pipeline`), the batch runner (:mod:`qifreport.batch`) and the
+per-part cache (:mod:`qifreport.cache`) take nothing else. All lengths are mm, areas mm^2.
+
+* :class:`InspectOptions` -- how every scan of a run is read, fixtured, judged and reported
+  (the options ``qifreport NOMINAL SCAN`` and ``qifreport batch`` share);
+* :class:`InspectJob` -- one scan: its files, its output names and the single-scan extras
+  (``--json``, ``--serial``, ``--export-mesh``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from qifreport.errors import InputError
+from qifreport.metrology.params import InspectionParams
+from qifreport.registration.gbcicp import GBCICPParams
+
+__all__ = ["InspectJob", "InspectOptions", "NominalOptions", "RESULT_OPTIONS"]
+
+#: the options that change a scan's outputs (a batch record's digest covers them)
+RESULT_OPTIONS = (
+    "tolerance", "max_edge", "deflection", "scan_units", "no_qif", "no_pdf", "page",
+    "author", "organization", "operator", "min_fraction", "max_region_area", "energy",
+    "edge_band", "boundary_band", "band_limit", "passes", "prealign",
+    "fail_on_added_material", "method", "seeds", "rigid_only",
+)
+
+
+@dataclass(frozen=True)
+class NominalOptions:
+    """How the nominal file is read (mm): ``--tolerance``, ``--max-edge``, ``--deflection``."""
+
+    tolerance: float | None = None
+    max_edge: float | None = None
+    deflection: float | None = None
+
+
+@dataclass(frozen=True)
+class InspectOptions:
+    """The options of an inspection run (defaults: the command line's).
+
+    Attributes
+    ----------
+    tolerance : general profile half-width, mm (None: the STEP part's PMI, else 0.5).
+    max_edge, deflection : STEP tessellation, mm (None: from the part's size).
+    scan_units : ``"mm"``, ``"in"``, ``"m"`` or None (mm; E57 m).
+    no_qif, no_pdf : leave out the QIF document / the PDF report.
+    page : PDF paper size, ``"A4"`` or ``"Letter"``.
+    author, organization, operator : QIF header and traceability fields.
+    min_fraction : area criterion, in-tolerance fraction of the scored area (0, 1].
+    max_region_area : region criterion, mm^2 (None: the metrology default).
+    energy : ``"auto"``, ``"hessian"`` or ``"laplacian"``.
+    edge_band, boundary_band : unscored bands along creases and the open rim, mm.
+    band_limit : smoothing length of the first GB-CICP pass, mm (None: from the part).
+    passes : GB-CICP passes (values below 1 run one pass).
+    prealign : pose search, ``"auto"``, ``"always"`` or ``"never"``.
+    fail_on_added_material : added material beyond the region limit fails the part.
+    method : deformable method (:data:`qifreport.registration.methods.METHODS`).
+    seeds : runs of the repeatability check (1: none).
+    rigid_only : no virtual fixture.
+    cache_dir : per-part cache directory (None: no cache).
+    """
+
+    tolerance: float | None = None
+    max_edge: float | None = None
+    deflection: float | None = None
+    scan_units: str | None = None
+    no_qif: bool = False
+    no_pdf: bool = False
+    page: str = "A4"
+    author: str | None = None
+    organization: str | None = None
+    operator: str | None = None
+    min_fraction: float = 0.95
+    max_region_area: float | None = None
+    energy: str = "auto"
+    edge_band: float | None = None
+    boundary_band: float | None = None
+    band_limit: float | None = None
+    passes: int = 3
+    prealign: str = "auto"
+    fail_on_added_material: bool = False
+    method: str = "gbcicp"
+    seeds: int = 1
+    rigid_only: bool = False
+    cache_dir: Path | None = None
+
+    def check(self) -> None:
+        """Refuse values no inspection can use (:class:`~qifreport.errors.InputError`)."""
+        if not (math.isfinite(self.min_fraction) and 0.0 < self.min_fraction <= 1.0):
+            raise InputError(f"--min-fraction must be a fraction in (0, 1], got "
+                             f"{self.min_fraction} (0.95 means 95 %)")
+        if self.max_region_area is not None and not (math.isfinite(self.max_region_area)
+                                                     and self.max_region_area >= 0):
+            raise InputError(f"--max-region-area must be an area >= 0 mm^2, got "
+                             f"{self.max_region_area}")
+        if self.seeds < 1:
+            raise InputError(f"--seeds must be a number of runs >= 1, got {self.seeds}")
+        if self.tolerance is not None and not (math.isfinite(self.tolerance)
+                                               and self.tolerance > 0):
+            raise InputError(f"--tolerance must be a positive length in mm, got "
+                             f"{self.tolerance}")
+
+    def inspection_params(self) -> InspectionParams:
+        """The metrology parameters of these options."""
+        g = GBCICPParams(passes=max(1, self.passes), band_limit=self.band_limit)
+        params = InspectionParams(
+            tolerance=self.tolerance, min_fraction=self.min_fraction, energy=self.energy,
+            edge_band=self.edge_band, boundary_band=self.boundary_band,
+            rigid_only=self.rigid_only, prealign=self.prealign,
+            fail_on_added_material=self.fail_on_added_material, method=self.method, gbcicp=g,
+        )
+        if self.max_region_area is not None:
+            params.max_region_area = self.max_region_area
+        return params
+
+    def nominal_options(self) -> NominalOptions:
+        """How the nominal is read."""
+        self.check()
+        return NominalOptions(self.tolerance, self.max_edge, self.deflection)
+
+    def result_options(self) -> dict:
+        """The options that change a scan's outputs, by name (JSON-able)."""
+        d = asdict(self)
+        return {k: d[k] for k in RESULT_OPTIONS}
+
+
+@dataclass(frozen=True)
+class InspectJob:
+    """One scan to inspect and the outputs to write.
+
+    Attributes
+    ----------
+    nominal, scan : the input files.  out : output directory.
+    options : the run's :class:`InspectOptions`.
+    stem : output file stem (default: the nominal's stem).
+    serial : serial number of the part.  json : also write ``<stem>.json``.
+    export_mesh : also write the registered nominal as PLY there.
+    force : overwrite existing outputs.
+    """
+
+    nominal: Path
+    scan: Path
+    out: Path = Path(".")
+    options: InspectOptions = field(default_factory=InspectOptions)
+    stem: str | None = None
+    serial: str | None = None
+    json: bool = False
+    export_mesh: Path | None = None
+    force: bool = False
+
+    def output_paths(self) -> dict[str, Path]:
+        """The files this job writes: ``qif``, ``pdf``, ``json``, ``mesh`` (those asked for)."""
+        stem = self.nominal.stem if self.stem is None else self.stem
+        o = self.options
+        out = {"qif": None if o.no_qif else self.out / f"{stem}.qif",
+               "pdf": None if o.no_pdf else self.out / f"{stem}.pdf",
+               "json": self.out / f"{stem}.json" if self.json else None,
+               "mesh": self.export_mesh}
+        return {k: v for k, v in out.items() if v is not None}

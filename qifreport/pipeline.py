@@ -1,0 +1,388 @@
+"""One inspection from files to outputs: read, prepare (through the cache), inspect, write.
+
+:func:`run_job` is what ``qifreport NOMINAL SCAN`` runs; :func:`inspect_state` and
+:func:`output_writers` are shared with the batch workers (:mod:`qifreport.batch`), which get
+the prepared part from their parent and return the outputs' bytes instead of writing them.
+
+Outputs (``job.out``, all or none): ``<stem>.qif``, the QIF 3.0 results document, validated
+against the official schemas before it is published (never called valid when the schemas are
+missing); ``<stem>.pdf``, the one-page conformance report; with ``json`` the summary
+``<stem>.json`` (``schemas/summary-1.schema.json``); with ``export_mesh`` the registered
+nominal as PLY with a per-vertex ``deviation``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from qifreport import __version__
+from qifreport.atomic_io import atomic_write_many
+from qifreport.errors import InputError
+from qifreport.metrology.inspection import InspectionParams, InspectionResult, inspect
+from qifreport.metrology.params import method_label
+from qifreport.metrology.repeatability import KEEP_FRACTION, resample_mask
+from qifreport.metrology.repeatability import apply as apply_repeatability
+from qifreport.registration.pointcloud import load_scan
+
+from .cache import CacheOutcome, PartState, part_state, sha256
+from .jsonio import finite, json_default
+from .nominal import Nominal
+from .options import InspectJob
+from .profile import Profiler
+from .summary import SUMMARY_SCHEMA_VERSION
+
+__all__ = [
+    "EXIT_ERROR",
+    "EXIT_FAIL",
+    "EXIT_NOT_ESTABLISHED",
+    "EXIT_PASS",
+    "JobOutcome",
+    "check_job",
+    "exit_code",
+    "inspect_state",
+    "output_writers",
+    "qif_writer",
+    "resampled_runs",
+    "run_job",
+    "summary",
+    "write_ply_with_scalar",
+]
+
+log = logging.getLogger(__name__)
+
+EXIT_PASS, EXIT_FAIL, EXIT_ERROR, EXIT_NOT_ESTABLISHED = 0, 1, 2, 3
+
+#: a writer of one output: called with the temporary path to write
+Writer = Callable[[Path], object]
+
+
+def write_ply_with_scalar(
+    path: Path, V: np.ndarray, F: np.ndarray, name: str, s: np.ndarray
+) -> None:
+    """Binary little-endian PLY of a triangle mesh with one float per-vertex property.
+
+    Parameters
+    ----------
+    V : (n, 3) vertices, mm.  F : (f, 3) int triangles.  name : the property's name.
+    s : (n,) its values (float32 in the file).
+    """
+    vert = np.empty(len(V), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), (name, "<f4")])
+    vert["x"], vert["y"], vert["z"] = V[:, 0], V[:, 1], V[:, 2]
+    vert[name] = s
+    face = np.empty(len(F), dtype=[("n", "u1"), ("v", "<i4", (3,))])
+    face["n"], face["v"] = 3, F
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment qifreport registered nominal\n"
+        f"element vertex {len(V)}\nproperty float x\nproperty float y\nproperty float z\n"
+        f"property float {name}\nelement face {len(F)}\nproperty list uchar int vertex_indices\n"
+        "end_header\n"
+    )
+    with open(path, "wb") as fh:
+        fh.write(header.encode("ascii"))
+        fh.write(vert.tobytes())
+        fh.write(face.tobytes())
+
+
+def summary(res: InspectionResult) -> str:
+    """A short human-readable summary of the inspection."""
+    a, s = res.acceptance, res.vertex_stats
+    lines = [
+        f"verdict: {res.verdict}",
+        f"registration: {fixture_text(res)}",
+        f"deviation (area-weighted, {s.n} scored vertices): RMS {s.rms:.3f}  max {s.max_abs:.3f}"
+        f"  P95 {s.p95:.3f}  P99.9 {s.p999:.3f}  mean {s.mean:+.3f} mm",
+        f"area criterion: {100 * a.in_tolerance_fraction:.2f} % in tolerance "
+        f"(>= {100 * a.min_fraction:.0f} %) {'ok' if a.area_ok else 'FAILED'}",
+        f"region criterion: largest out-of-tolerance region {a.largest_region_area:.1f} mm^2 "
+        f"(<= {a.max_region_area:g} mm^2) {'ok' if a.region_ok else 'FAILED'}; "
+        f"{len(a.regions)} region(s)",
+        f"coverage: {100 * a.coverage:.1f} % of the nominal area scored"
+        + (f" ({res.edge_excluded_area:.0f} mm^2 along sharp creases not scored)"
+           if res.edge_excluded_area > 0 else ""),
+    ]
+    if res.prealign is not None and res.prealign.method != "identity":
+        lines.append(res.prealign.summary())
+    for r in a.regions[:5]:
+        c = r.centroid
+        lines.append(
+            f"  region {r.area:7.1f} mm^2  peak {r.peak:+.3f} mm"
+            f"  at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f})"
+        )
+    lines.append("tolerances (each toleranced surface on its own faces):")
+    for z in res.zones:
+        za, zs = z.acceptance, z.stats
+        lines.append(
+            f"  {z.zone.key:8s} {'PASS' if za.passed else 'FAIL'}  {z.zone.describe()}: "
+            f"{100 * za.in_tolerance_fraction:.1f} % in band, largest region "
+            f"{za.largest_region_area:.1f} mm^2, max |dev| {zs.max_abs:.3f} mm"
+            + ("" if z.fixtured else " (free state)")
+        )
+    if res.not_evaluated:
+        lines.append(f"  {len(res.not_evaluated)} PMI item(s) listed, not scored "
+                     "(see the JSON 'not_evaluated')")
+    h = res.hygiene
+    if h is not None and (h.boundary_edges or h.non_manifold_edges or h.degenerate_faces
+                          or h.duplicate_faces):
+        lines.append(f"nominal: {h.describe()}")
+    if res.added is not None:
+        a = res.added
+        lines.append(
+            f"added material (data-referenced, scan points): P99.9 signed "
+            f"{a.p999_signed:+.3f} mm, {100 * a.frac_above:.3f} % beyond "
+            f"+{a.threshold:g} mm; {a.describe()}"
+            + ("" if a.passed else " FAILED") + ("" if a.fail_on or not a.found
+                                                 else " (reported, not judged)"))
+    if res.repeatability is not None:
+        lines.append(res.repeatability.describe())
+    lines += [f"warning: {w}" for w in res.trust_warnings()]
+    return "\n".join(lines)
+
+
+def fixture_text(res: InspectionResult) -> str:
+    """How the virtual fixture was made, for the summary."""
+    if res.fit is None:
+        return "rigid ICP only (no virtual fixture)"
+    fit = res.fit
+    return (f"rigid ICP + virtual fixture {method_label(fit.method)} ({fit.iterations} "
+            f"iterations, robust residual {fit.scale:.3f} mm)")
+
+
+def exit_code(res: InspectionResult) -> int:
+    """0 pass, 1 fail, 3 not established."""
+    return {"PASS": EXIT_PASS, "FAIL": EXIT_FAIL,
+            "NOT ESTABLISHED": EXIT_NOT_ESTABLISHED}[res.verdict]
+
+
+def qif_writer(tree, state: dict) -> Writer:
+    """A writer ``write(tmp)`` of the QIF document that validates it (libxml2) before it can
+    be published, recording the outcome in ``state`` (the JSON summary's ``qif`` block).
+
+    When the official schemas cannot be found the file is written and reported *not
+    validated* (``valid: None``) with how to provide them; a document the schema rejects is a
+    bug of qifreport: the writer raises, nothing is published (exit 2).
+    """
+    from qifreport.qif.validate import SchemasUnavailable, schema_dir, validate_lxml
+    from qifreport.qif.writer import write_qif
+
+    state.update(valid=None, validated_with=[], message="")
+
+    def write(tmp: Path) -> None:
+        write_qif(tmp, tree)
+        try:
+            xsd = schema_dir()
+        except SchemasUnavailable as exc:
+            state["message"] = f"not validated: {exc}"
+            return
+        errors = [f for f in validate_lxml(tmp) if f.severity == "error"]
+        if errors:
+            first = errors[0]
+            raise RuntimeError(f"the QIF document qifreport wrote is not valid against {xsd} "
+                               f"(line {first.line}: {first.message}); nothing written")
+        state.update(valid=True, validated_with=["lxml"],
+                     message=f"valid against the QIF 3.0 schemas in {xsd}")
+
+    return write
+
+
+def _stage(prof: Profiler | None, name: str):
+    """``prof.stage(name)``, or a no-op context without a profiler."""
+    return prof.stage(name) if prof is not None else contextlib.nullcontext()
+
+
+def check_job(job: InspectJob) -> None:
+    """Refuse before any work: bad options, a missing input, an output that exists (without
+    ``force``) or a directory that cannot be written."""
+    job.options.check()
+    for name in ("nominal", "scan"):
+        path = getattr(job, name)
+        if not path.is_file():
+            raise InputError(f"{name} file not found: {path}")
+    for path in job.output_paths().values():
+        if path.exists() and not job.force:
+            raise InputError(f"output exists: {path} (use --force to overwrite)")
+        if path.is_dir():
+            raise InputError(f"output path is a directory: {path}")
+        parent = path.parent
+        while not parent.exists() and parent != parent.parent:
+            parent = parent.parent
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise InputError(f"output directory not writable: {parent}")
+
+
+def resampled_runs(res: InspectionResult, params: InspectionParams, nom: Nominal,
+                   seeds: int, bar=None, prepared=None) -> None:
+    """Inspect ``seeds`` resamplings of the scan and keep only the persistent regions of
+    ``res`` (:mod:`qifreport.metrology.repeatability`; ``res`` is changed in place).
+
+    Resampling ``k`` keeps each point of the scan with probability
+    :data:`qifreport.metrology.repeatability.KEEP_FRACTION` (seed ``k``). It starts from
+    ``res``'s pose: the scan already moved into the nominal frame, no pose search
+    (``prealign="never"``).
+    """
+    t0 = time.perf_counter()
+    p = replace(params, prealign="never")
+    runs = []
+    for k in range(seeds):
+        if bar is not None:
+            bar.set_description(f"resampling {k + 1}/{seeds}")
+        keep = resample_mask(len(res.P), k, KEEP_FRACTION)
+        runs.append(inspect(res.V, res.F, res.P[keep], p,
+                            progress=None if bar is None else bar.update,
+                            face_id=nom.face_id, zones=nom.zones,
+                            not_evaluated=nom.not_evaluated, basis=res.basis,
+                            prepared=prepared))
+    seconds = time.perf_counter() - t0
+    apply_repeatability(res, runs, KEEP_FRACTION, seconds=seconds)
+    res.timings["repeatability"] = seconds
+
+
+def inspect_state(P: np.ndarray, state: PartState, job: InspectJob, *, bar=None,
+                  prof: Profiler | None = None) -> InspectionResult:
+    """Inspect the scan points ``P`` (mm) against a prepared part, with the job's options
+    (the repeatability runs included)."""
+    o = job.options
+    params = o.inspection_params()
+    nom = state.nominal
+    res = inspect(nom.V, nom.F, P, params, progress=None if bar is None else bar.update,
+                  scan_units=o.scan_units, face_id=nom.face_id, zones=nom.zones,
+                  not_evaluated=nom.not_evaluated, prepared=state.prepared)
+    if o.seeds > 1:
+        with _stage(prof, f"repeatability ({o.seeds} resamplings)"):
+            resampled_runs(res, params, nom, o.seeds, bar, prepared=state.prepared)
+    return res
+
+
+def output_writers(res: InspectionResult, nom: Nominal, job: InspectJob,
+                   paths: dict[str, Path], digests: dict[str, str], started: datetime,
+                   finished: datetime) -> tuple[list[tuple[Path, Writer]], dict | None]:
+    """The writers ``[(path, write(tmp))]`` of one inspection's outputs, in writing order
+    (the QIF first: the JSON summary reports its validation), and the QIF's state block.
+
+    ``job`` gives the names recorded in the outputs (``nominal``, ``scan``), the header
+    fields (options ``author``, ``organization``, ``operator``; ``serial``) and the choices
+    (``no_qif``, ``no_pdf``, ``json``, ``page``); ``paths`` is ``job.output_paths()``.
+    """
+    o = job.options
+    outputs: list = []
+    qif_state = None
+    prov = None
+    if not (o.no_qif and o.no_pdf):
+        from qifreport.qif.writer import Provenance
+
+        prov = Provenance(
+            part_name=job.nominal.stem, nominal_path=str(job.nominal),
+            scan_path=str(job.scan), nominal_sha256=digests["nominal"],
+            scan_sha256=digests["scan"], started=started, finished=finished,
+            datums=nom.datums, nominal_info=nom.info, author=o.author,
+            organization=o.organization, operator=o.operator,
+            serial_number=job.serial,
+        )
+    if not o.no_qif:
+        from qifreport.qif.writer import build_qif
+
+        qif_state = {"path": str(paths["qif"])}
+        outputs.append((paths["qif"], qif_writer(build_qif(res, prov), qif_state)))
+    if not o.no_pdf:
+        from .reports.pdf import write_pdf
+
+        qif_name = paths["qif"].name if "qif" in paths else ""
+        outputs.append((paths["pdf"], lambda p: write_pdf(p, res, prov, page=o.page,
+                                                      qif_name=qif_name)))
+    if job.json:
+        doc = res.to_dict()
+        doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}
+        doc["software"] = {"name": "qifreport", "version": __version__}
+        doc["nominal"] = nom.info
+        doc["inputs"] = {
+            "nominal": {"path": str(job.nominal), "sha256": digests["nominal"]},
+            "scan": {"path": str(job.scan), "sha256": digests["scan"]},
+        }
+
+        def write_json(p: Path) -> None:  # runs after the QIF writer: its state is known
+            if qif_state is not None:
+                doc["qif"] = qif_state
+            p.write_text(json.dumps(finite(doc), indent=2, default=json_default,
+                                    allow_nan=False))
+
+        outputs.append((paths["json"], write_json))
+    if "mesh" in paths:
+        outputs.append((paths["mesh"], lambda p: write_ply_with_scalar(
+            p, res.V_registered, nom.F, "deviation", res.deviation)))
+    return outputs, qif_state
+
+
+@dataclass
+class JobOutcome:
+    """What :func:`run_job` did.
+
+    Attributes
+    ----------
+    result : the inspection.  paths : the files written, by kind.
+    qif : the QIF's validation block (None without a QIF).  cache : how the part was obtained.
+    """
+
+    result: InspectionResult
+    paths: dict[str, Path]
+    qif: dict | None
+    cache: CacheOutcome
+
+    @property
+    def exit_code(self) -> int:
+        return exit_code(self.result)
+
+
+def run_job(job: InspectJob, *, progress: bool = True,
+            prof: Profiler | None = None) -> JobOutcome:
+    """Inspect one scan and write its outputs atomically (all or none).
+
+    Parameters
+    ----------
+    job : the files, options and outputs.  progress : a tqdm bar on stderr.
+    prof : a started :class:`~qifreport.profile.Profiler` to time the stages, or None.
+
+    Raises
+    ------
+    qifreport.errors.InputError
+        Bad input (nothing written).
+    """
+    check_job(job)
+    o = job.options
+    started = datetime.now(timezone.utc)
+    with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
+        P = load_scan(job.scan, units=o.scan_units)
+    with _stage(prof, "prepare part (cache)"):
+        state, cache = part_state(job.nominal, o.nominal_options(), o.inspection_params(),
+                                  o.cache_dir)
+    log.info("%s", cache.describe())
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(desc="virtual fixturing", unit="it", file=sys.stderr, leave=False)
+    t_inspect = time.perf_counter()
+    try:
+        res = inspect_state(P, state, job, bar=bar, prof=prof)
+    finally:
+        if bar is not None:
+            bar.close()
+    if prof is not None:
+        prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
+    finished = datetime.now(timezone.utc)
+    digests = {"nominal": state.nominal_sha256, "scan": sha256(job.scan)}
+    paths = job.output_paths()
+    outputs, qif_state = output_writers(res, state.nominal, job, paths, digests, started,
+                                        finished)
+    with _stage(prof, "write outputs"):  # all outputs or none
+        atomic_write_many(outputs)
+    return JobOutcome(res, paths, qif_state, cache)

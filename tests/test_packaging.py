@@ -1,0 +1,81 @@
+"""A wheel install, as a new user gets it: one top-level package, the JSON schema shipped,
+the QIF XSDs not shipped, and the inspection running from the installed copy (outside the
+repository) with ``QIFREPORT_XSD_DIR`` pointing at the official schemas."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from tests.conftest import shared_file
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def wheel(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("wheel")
+    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(d),
+                        str(ROOT)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    (whl,) = d.glob("qifreport-*.whl")
+    return whl
+
+
+@pytest.fixture(scope="module")
+def installed(wheel, tmp_path_factory) -> Path:
+    target = tmp_path_factory.mktemp("site")
+    r = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target",
+                        str(target), str(wheel)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return target
+
+
+def test_wheel_has_one_top_level_package_and_the_json_schema(wheel):
+    with zipfile.ZipFile(wheel) as z:
+        names = z.namelist()
+        (top,) = [n for n in names if n.endswith(".dist-info/top_level.txt")]
+        assert z.read(top).decode().split() == ["qifreport"]
+    roots = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
+    assert roots == {"qifreport"}, roots
+    assert "qifreport/schemas/summary-1.schema.json" in names
+    for sub in ("step", "registration", "metrology", "qif", "batch", "reports"):
+        assert f"qifreport/{sub}/__init__.py" in names, sub
+    assert not [n for n in names if n.endswith(".xsd")], "the QIF XSDs must never be shipped"
+
+
+def _run(installed: Path, args: list[str], cwd: Path, **env) -> subprocess.CompletedProcess:
+    e = {**os.environ, "PYTHONPATH": str(installed), **env}
+    return subprocess.run([sys.executable, *args], cwd=cwd, env=e, capture_output=True,
+                          text=True, timeout=900)
+
+
+def test_installed_copy_inspects_the_sample_panel(installed, tmp_path):
+    xsd = shared_file("qif/xsd")
+    out = tmp_path / "out"
+    r = _run(installed, ["-c", "import qifreport, qifreport.step; print(qifreport.__file__);"
+                         "print(qifreport.step.__file__)"], cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert all(line.startswith(str(installed)) for line in r.stdout.split()), r.stdout
+    r = _run(installed, ["-m", "qifreport", str(ROOT / "samples" / "panel.step"),
+                         str(ROOT / "samples" / "panel_scan.ply"), "--out", str(out),
+                         "--json", "--quiet"], cwd=tmp_path, QIFREPORT_XSD_DIR=str(xsd))
+    assert r.returncode == 0, r.stdout + r.stderr
+    doc = json.loads((out / "panel.json").read_text())
+    assert doc["verdict"] == "PASS" and doc["qif"]["valid"] is True, doc["qif"]
+    assert (out / "panel.pdf").stat().st_size > 10_000
+
+
+def test_installed_copy_without_xsds_says_where_to_put_them(installed, tmp_path):
+    """No XSDs: the QIF is written and called not validated, naming the folder to fill."""
+    r = _run(installed, ["-c", "from qifreport.qif.validate import schema_dir; schema_dir()"],
+             cwd=tmp_path, QIFREPORT_XSD_DIR="")
+    assert r.returncode != 0
+    assert "SchemasUnavailable" in r.stderr and "QIFREPORT_XSD_DIR" in r.stderr
+    assert str(installed / "qifreport" / "schemas" / "qif-3.0") in r.stderr, r.stderr
