@@ -41,8 +41,7 @@ import pandas as pd
 
 from qifreport.metrology.inspection import InspectionParams, unscored_bands
 from qifreport.registration import methods
-from qifreport.registration.cpd import CPDParams, cpd_warp, sample_points
-from qifreport.registration.cpd import _resolve as resolve_cpd
+from qifreport.registration.cpd import CPDParams, cpd_warp, resolve_params, sample_points
 from qifreport.registration.gbcicp import GBCICPParams, bending_basis
 from qifreport.registration.icp import rigid_icp
 from qifreport.registration.mesh import (
@@ -194,7 +193,7 @@ def run_table(part: str, generator: str, args) -> pd.DataFrame:
             rows[-1]["prepare_s"] = t_basis
         print(f"  {part}/{generator} {name}: {secs:.1f} s", flush=True)
     if not args.no_peers:
-        cpd_p = resolve_cpd(CPDParams(), V, F, Pm)
+        cpd_p = resolve_params(CPDParams(), V, F, Pm)
         Vh, secs = timed(lambda: pycpd_peer(V, Pm, cpd_p), args.peer_repeats)
         rows.append(score("pycpd", Vh, secs))
         print(f"  {part}/{generator} pycpd: {secs:.1f} s", flush=True)

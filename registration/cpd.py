@@ -248,7 +248,7 @@ def cpd(
     the kernel coefficients ``W`` and the EM's moved centroids ``TY``.
     """
     t0 = time.perf_counter()
-    p = _resolve(params or CPDParams(), V0, F, P)
+    p = resolve_params(params or CPDParams(), V0, F, P)
     src = sample_points(V0, p.n_source, p.sampling, p.seed)
     dst = sample_points(P, p.n_scan, p.sampling, p.seed + 1)
     fit = cpd_em(P[dst], V0[src], p.beta, p.lam, p.w, p.sigma2, p.max_iter, p.tol,
@@ -264,8 +264,26 @@ def cpd(
                   history)
 
 
-def _resolve(p: CPDParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> CPDParams:
-    """Fill in the size-dependent defaults."""
+def resolve_params(p: CPDParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> CPDParams:
+    """The settings :func:`cpd` actually runs with: ``p`` with its size-dependent defaults.
+
+    Parameters
+    ----------
+    p : the requested settings (not modified).
+    V0 : (n, 3) nominal vertices in the scan's frame, mm.  F : (f, 3) triangles.
+    P : (m, 3) scan points, mm.
+
+    Returns
+    -------
+    A copy of ``p`` with ``beta`` (10 % of the bounding diagonal of ``V0``) and
+    ``coverage_radius`` (:func:`qifreport.registration.deformable.coverage_radius`) filled in
+    where they are None.
+
+    Raises
+    ------
+    ValueError
+        The outlier weight ``w`` is not in [0, 1).
+    """
     q = CPDParams(**vars(p))
     if q.beta is None:
         q.beta = 0.1 * bounding_diagonal(V0)

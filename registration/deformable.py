@@ -180,8 +180,8 @@ def orient_scan_normals(P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndar
     V, N : (n, 3) posed nominal vertices (mm) and their unit normals.
     k : neighbours of the propagation graph.
     sheets : (m,) sheet label of each point when ``Ns`` is already consistent within each
-        sheet (:func:`qifreport.registration.pointcloud.orient_normals_consistent`): only the vote is
-        made, so one propagation serves several nominals.
+        sheet (:func:`qifreport.registration.pointcloud.orient_normals_consistent`): only the
+        vote is made, so one propagation serves several nominals.
     """
     from .pointcloud import orient_normals_consistent
 

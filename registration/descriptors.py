@@ -1,8 +1,8 @@
 """Geodesic bilateral curvature descriptors (paper Sections 5.1.2-5.1.3).
 
-Each curvature field ``f`` in ``{H, K, S, C}`` (:mod:`qifreport.registration.curvature`) is smoothed by a
-bilateral filter whose spatial weight is a Gaussian of the geodesic distance ``g(i, j)`` and
-whose range weight is a Gaussian of the field difference,
+Each curvature field ``f`` in ``{H, K, S, C}`` (:mod:`qifreport.registration.curvature`) is
+smoothed by a bilateral filter whose spatial weight is a Gaussian of the geodesic distance
+``g(i, j)`` and whose range weight is a Gaussian of the field difference,
 
     B[f]_i = sum_j a_j exp(-g^2 / (2 s^2)) exp(-(f_i - f_j)^2 / (2 r_f^2)) f_j / Z_i,
 
@@ -38,9 +38,9 @@ Measured on the fandisk (100 mm, subdivided once, 2 views, 0.02 mm noise): descr
 corresponding points correlate 0.6-0.9 per feature, but flat faces and repeated creases make
 most descriptors non-unique: of the paper's mutual nearest neighbours with a ratio test only
 ~3-8 % land within 2 % of the diagonal of the true correspondence (the paper reports 103 of
-209). :mod:`qifreport.registration.prealign` therefore matches only the salient half of the keypoints,
-keeps 3 candidates per scan keypoint and lets a compatibility-guided RANSAC find the
-consistent few.
+209). :mod:`qifreport.registration.prealign` therefore matches only the salient half of the
+keypoints, keeps 3 candidates per scan keypoint and lets a compatibility-guided RANSAC find
+the consistent few.
 """
 
 from __future__ import annotations
@@ -307,7 +307,8 @@ def presmooth(
     while a quadric fit spreads it over its neighbourhood; both integrate to the same
     curvature measure, which this average (a small ``sigma``, ~ one edge length, where
     Euclidean and geodesic balls coincide) turns into the same smooth field. ``S`` and ``C``
-    are recomputed from the averaged ``H, K`` (:func:`qifreport.registration.curvature.shape_fields`).
+    are recomputed from the averaged ``H, K``
+    (:func:`qifreport.registration.curvature.shape_fields`).
     """
     if sigma <= 0:
         S, C = shape_fields(H, K, planar_tol)

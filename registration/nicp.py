@@ -24,9 +24,9 @@ SuperLU factorisation of the 115,640 unknowns).
 Choices stated:
 
 * **Targets** ``U``: the nearest scan point of each vertex, found by
-  :class:`qifreport.registration.deformable.ScanMatcher` (Amberg's closest point); ``targets="plane"``
-  uses the matcher's point-to-plane targets instead (the vertex projected onto the tangent
-  plane of its nearest scan point, as GB-CICP).
+  :class:`qifreport.registration.deformable.ScanMatcher` (Amberg's closest point);
+  ``targets="plane"`` uses the matcher's point-to-plane targets instead (the vertex projected
+  onto the tangent plane of its nearest scan point, as GB-CICP).
 * **Gate** ``W_D``: binary as in Amberg -- weight 1, or 0 when the vertex is not covered
   (matched point farther than the coverage radius tangentially), when the normal
   compatibility ``|n . n_scan|`` (with the *current* deformed vertex normals) is below
