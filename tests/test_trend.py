@@ -22,7 +22,7 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from qifreport.reports.pdf import fmt_mm
+from qifreport.reports.kit import fmt_mm
 from qifreport.reports.trend import (
     MAX_CHARTS,
     ChartGeometry,

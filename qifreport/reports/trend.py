@@ -2,8 +2,8 @@
 
 ``qifreport batch`` inspects many scans of one part; its summary table (one row per scan, in
 batch order) is drawn here on one page, A4 or US Letter, in the house style of the per-scan
-report (:mod:`qifreport.reports.pdf`: DejaVu Sans embedded, the same colours, number formats and tables).
-Top to bottom:
+report (:mod:`qifreport.reports.kit`: DejaVu Sans embedded, the same colours, number formats
+and tables). Top to bottom:
 
 1. **Header** -- part, nominal SHA-256 (first 16 hex digits), creation time (UTC), number of
    scans and the count of each verdict (PASS, FAIL, NOT ESTABLISHED, ERROR); on the right the
@@ -30,6 +30,9 @@ Top to bottom:
 Nothing is labelled per point and the axis ticks are chosen from the page space, so the page
 reads the same for 3 scans and for 2000. :func:`plan_trend` returns where everything goes
 (used by :func:`write_trend_pdf`, and by the tests to find the points on a rasterized page).
+
+The statistics (mean, sigma, Cpk, pass rates) are computed by :mod:`qifreport.metrology.spc`,
+the axes and marks of the charts drawn with :mod:`qifreport.reports.charts`.
 """
 
 from __future__ import annotations
@@ -46,12 +49,24 @@ import numpy as np
 import pandas as pd
 
 from qifreport import __version__
+from qifreport.metrology import spc
+from qifreport.metrology.spc import CharacteristicStats
 
-from .pdf import (
+from .charts import (
+    ChartGeometry,
+    decimals,
+    draw_frame,
+    draw_marker,
+    draw_polyline,
+    draw_y_title,
+    nice_step,
+    seq_ticks,
+)
+from .failures import MAX_FAILURE_ROWS, failure_table
+from .kit import (
     DASH,
     FAIL_BG,
     FAIL_INK,
-    FONT,
     HEAD_BG,
     INK,
     MUTED,
@@ -59,16 +74,15 @@ from .pdf import (
     RULE,
     UNSURE_BG,
     Box,
-    _fit,
-    _page_size,
-    _register_fonts,
-    _Report,
-    _short,
-    _Table,
-    _utc,
-    _width,
-    _wrap,
+    ReportPage,
+    draw_table,
+    draw_text,
+    fit_text,
     fmt_mm,
+    fmt_utc,
+    short_sha,
+    text_width,
+    wrap_text,
 )
 from .render import GREEN_ZERO
 
@@ -78,14 +92,13 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 __all__ = ["TrendCharacteristic", "TrendLayout", "ChartGeometry", "plan_trend",
-           "write_trend_pdf", "characteristic_stats", "CharacteristicStats", "seq_ticks"]
+           "write_trend_pdf", "characteristic_stats", "CharacteristicStats", "seq_ticks",
+           "MAX_CHARTS", "MAX_FAILURE_ROWS", "VERDICTS"]
 
 #: run charts on the page at most; the rest are named (smallest margin drawn first)
 MAX_CHARTS = 6
-#: rows of the table of scans that did not pass
-MAX_FAILURE_ROWS = 8
 #: verdicts of the summary table, in the order they are counted
-VERDICTS = ("PASS", "FAIL", "NOT ESTABLISHED", "ERROR")
+VERDICTS = spc.VERDICTS
 #: point colours by the characteristic's verdict on the scan (RGB 0..1)
 POINT_COLORS = {"PASS": GREEN_ZERO, "FAIL": FAIL_BG, "NOT ESTABLISHED": (0.62, 0.62, 0.62)}
 #: the tolerance (upper limit) line and the mean line
@@ -120,32 +133,6 @@ class TrendCharacteristic:
     tolerance_mm: float
 
 
-@dataclass
-class CharacteristicStats:
-    """Statistics of one characteristic's profile value over the scans that measured it.
-
-    Attributes
-    ----------
-    n : scans with a finite profile value.
-    mean, sigma, max : mm; sigma is the sample standard deviation (n - 1), NaN for n < 2.
-    cpk : one-sided upper capability ``(tolerance - mean) / (3 sigma)``; NaN unless
-        ``n >= 2`` and ``sigma > 0`` (and the tolerance is positive).
-    n_pass : scans on which the characteristic passed.
-    n_judged : scans on which it has a verdict (PASS, FAIL or NOT ESTABLISHED).
-    margin : ``(tolerance - max) / tolerance``, the worst scan's relative room below the
-        tolerance (negative beyond it); +inf when nothing was measured.
-    """
-
-    n: int
-    mean: float
-    sigma: float
-    max: float
-    cpk: float
-    n_pass: int
-    n_judged: int
-    margin: float
-
-
 def _column(df: pd.DataFrame, name: str, kind: type) -> np.ndarray:
     """Column ``name`` as floats (NaN where missing) or strings ("" where missing)."""
     if name not in df.columns:
@@ -157,7 +144,8 @@ def _column(df: pd.DataFrame, name: str, kind: type) -> np.ndarray:
 
 
 def characteristic_stats(df: pd.DataFrame, ch: TrendCharacteristic) -> CharacteristicStats:
-    """The statistics printed above a characteristic's run chart.
+    """The statistics printed above a characteristic's run chart: those of
+    :func:`qifreport.metrology.spc.characteristic_stats` on its columns of the summary.
 
     Parameters
     ----------
@@ -169,104 +157,12 @@ def characteristic_stats(df: pd.DataFrame, ch: TrendCharacteristic) -> Character
     CharacteristicStats
         Over every scan with a finite profile value (NOT ESTABLISHED ones included).
     """
-    v = _column(df, f"profile_{ch.key}_mm", float)
-    status = _column(df, f"status_{ch.key}", str)
-    v = v[np.isfinite(v)]
-    n = len(v)
-    tol = float(ch.tolerance_mm)
-    mean = float(v.mean()) if n else math.nan
-    sigma = float(v.std(ddof=1)) if n >= 2 else math.nan
-    vmax = float(v.max()) if n else math.nan
-    cpk = ((tol - mean) / (3.0 * sigma)
-           if n >= 2 and sigma > 0 and math.isfinite(tol) and tol > 0 else math.nan)
-    margin = ((tol - vmax) / tol if n and math.isfinite(tol) and tol > 0 else math.inf)
-    judged = np.isin(status, ("PASS", "FAIL", "NOT ESTABLISHED"))
-    return CharacteristicStats(n=n, mean=mean, sigma=sigma, max=vmax, cpk=cpk,
-                               n_pass=int(np.sum(status == "PASS")),
-                               n_judged=int(judged.sum()), margin=margin)
-
-
-def _counts(df: pd.DataFrame) -> dict[str, int]:
-    verdict = _column(df, "verdict", str)
-    return {v: int(np.sum(verdict == v)) for v in VERDICTS}
-
-
-def _pass_rate(counts: dict[str, int]) -> float:
-    """PASS over the scans that produced a verdict (PASS, FAIL, NOT ESTABLISHED); NaN if none."""
-    judged = counts["PASS"] + counts["FAIL"] + counts["NOT ESTABLISHED"]
-    return counts["PASS"] / judged if judged else math.nan
+    return spc.characteristic_stats(_column(df, f"profile_{ch.key}_mm", float),
+                                    _column(df, f"status_{ch.key}", str), ch.tolerance_mm)
 
 
 def _fmt_rate(rate: float) -> str:
     return f"{100.0 * rate:.1f} %" if math.isfinite(rate) else DASH
-
-
-# ------------------------------------------------------------------------------ the axes
-
-
-def _nice_step(raw: float, mantissas: tuple[float, ...] = (1.0, 2.0, 2.5, 5.0)) -> float:
-    """The smallest ``m * 10**k`` (m in ``mantissas``) not below ``raw`` (> 0)."""
-    e = 10.0 ** math.floor(math.log10(raw))
-    for m in (*mantissas, 10.0):
-        if m * e >= raw * (1 - 1e-9):
-            return m * e
-    return 10.0 * e
-
-
-def _decimals(step: float) -> int:
-    """Decimals that print every multiple of ``step`` exactly (at most 4)."""
-    for d in range(5):
-        if abs(round(step, d) - step) < 1e-9 * max(step, 1e-12):
-            return d
-    return 4
-
-
-def seq_ticks(n: int, width: float, min_gap: float = 42.0) -> list[int]:
-    """Sequence numbers to label on an axis of ``n`` scans ``width`` points wide.
-
-    Multiples of a step of 1, 2 or 5 times a power of ten, at least ``min_gap`` points apart,
-    and scan 1 when it does not crowd the first multiple.
-    """
-    if n <= 1:
-        return [1]
-    step = max(1, int(_nice_step(max(n / max(width / min_gap, 1.0), 1.0), (1.0, 2.0, 5.0))))
-    ticks = list(range(step, n + 1, step))
-    if not ticks or ticks[0] - 1 >= 0.5 * step:
-        ticks.insert(0, 1)
-    return ticks
-
-
-@dataclass
-class ChartGeometry:
-    """A plot area and its data-to-page transform (points, origin at the page's bottom-left).
-
-    Attributes
-    ----------
-    key : the characteristic's key (``"pass rate"`` for the pass-rate chart).
-    plot : the frame of the plot.
-    n_scans : scans on the x axis; scan ``s`` sits at ``(s - 0.5) / n_scans`` of the width.
-    y_low : page y of the value ``bottom`` (above the strip of marks along the bottom).
-    top : value at the top of the frame (mm, or % for the pass-rate chart).
-    bottom : value at ``y_low`` (0 for the run charts).
-    """
-
-    key: str
-    plot: Box
-    n_scans: int
-    y_low: float
-    top: float
-    bottom: float = 0.0
-
-    def x(self, seq: float | np.ndarray) -> float | np.ndarray:
-        """Page x of scan sequence number ``seq`` (1-based)."""
-        return self.plot.x + (np.asarray(seq, dtype=float) - 0.5) / max(self.n_scans, 1) \
-            * self.plot.w
-
-    def y(self, value: float | np.ndarray) -> float | np.ndarray:
-        """Page y of ``value``, clipped to the frame's top and to ``bottom``."""
-        v = np.clip(np.asarray(value, dtype=float), self.bottom, self.top)
-        return self.y_low + (v - self.bottom) / (self.top - self.bottom) \
-            * (self.plot.top - self.y_low)
 
 
 @dataclass
@@ -295,7 +191,7 @@ class TrendLayout:
 # ---------------------------------------------------------------------------- the report
 
 
-class _Trend:
+class _Trend(ReportPage):
     """Measures and draws the trend page of one batch."""
 
     GAP = 8.0
@@ -309,22 +205,14 @@ class _Trend:
     #: tallest run chart (a lone characteristic does not fill the page)
     CHART_MAX_H = 300.0
 
-    # the table and text primitives of the per-scan report, shared rather than copied
-    _text = _Report._text
-    _draw_table = _Report._draw_table
-
     def __init__(self, df: pd.DataFrame, characteristics: list[TrendCharacteristic],
                  part_name: str, created: datetime, nominal_sha256: str | None, page: str):
-        _register_fonts()
+        super().__init__(page)
         self.df = df.reset_index(drop=True)
         self.chars = list(characteristics)
         self.part_name = part_name
         self.created = created
         self.sha = nominal_sha256 or ""
-        self.page, (self.W, self.H) = _page_size(page)
-        self.M = 28.0 if self.page == "A4" else 30.0
-        self.MT = 26.0
-        self.CW = self.W - 2 * self.M
         self.n = len(self.df)
         if "seq" in self.df.columns:
             self.seq = pd.to_numeric(self.df["seq"], errors="coerce").to_numpy(dtype=float)
@@ -333,8 +221,8 @@ class _Trend:
         # positions on the x axis: the batch order (seq is 1..n in the summary)
         self.pos = np.arange(1, self.n + 1, dtype=float)
         self.verdict = _column(self.df, "verdict", str)
-        self.counts = _counts(self.df)
-        self.rate = _pass_rate(self.counts)
+        self.counts = spc.verdict_counts(self.verdict)
+        self.rate = spc.pass_rate(self.counts)
         self.stats = {ch.key: characteristic_stats(self.df, ch) for ch in self.chars}
         self.values = {ch.key: _column(self.df, f"profile_{ch.key}_mm", float)
                        for ch in self.chars}
@@ -370,10 +258,12 @@ class _Trend:
             hi = 1.5 * typical
         if hi <= 0:
             hi = 1.0
-        step = _nice_step(hi / 8.0)
+        step = nice_step(hi / 8.0)
         return step * math.ceil(1.06 * hi / step - 1e-9)
 
     def plan(self) -> TrendLayout:
+        """Where everything goes: header, legend, the grid of run charts (one or two
+        columns), the pass-rate chart beside the table of scans that did not pass, footer."""
         chosen, omitted = self._chosen()
         x0, top = self.M, self.H - self.MT
         blocks: dict = {}
@@ -426,10 +316,8 @@ class _Trend:
     # ------------------------------------------------------------------------ drawing
 
     def draw(self, path: Path, lay: TrendLayout) -> None:
-        from reportlab.pdfgen.canvas import Canvas
-
-        c = Canvas(str(path), pagesize=(self.W, self.H), pageCompression=1,
-                   initialFontName=FONT, initialFontSize=7)
+        """Write the page laid out as ``lay`` to ``path``."""
+        c = self.new_canvas(path)
         c.setTitle(f"Batch trend report: {self.part_name}")
         c.setAuthor("qifreport")
         c.setSubject(f"{self.n} scans; pass rate {_fmt_rate(self.rate)}; nominal SHA-256 "
@@ -443,16 +331,16 @@ class _Trend:
         for cell, geo in zip(b["cells"], lay.charts, strict=True):
             self._draw_run_chart(c, cell, geo, by_key[geo.key])
         if not lay.charts:
-            self._text(c, self.M, b["legend"].y - 20, "No characteristic to chart.", 8, False,
-                       MUTED)
+            draw_text(c, self.M, b["legend"].y - 20, "No characteristic to chart.", 8, False,
+                      MUTED)
         if lay.omitted:
             box = b["omitted"]
             keys = ", ".join(lay.omitted)
-            self._text(c, box.x, box.y + 2,
-                       _fit(f"+ {len(lay.omitted)} more characteristic"
-                            f"{'s' if len(lay.omitted) != 1 else ''} not charted (the "
-                            f"{MAX_CHARTS} with the smallest margin below the tolerance are "
-                            f"shown): {keys}", box.w, 6.8), 6.8, False, MUTED)
+            draw_text(c, box.x, box.y + 2,
+                      fit_text(f"+ {len(lay.omitted)} more characteristic"
+                               f"{'s' if len(lay.omitted) != 1 else ''} not charted (the "
+                               f"{MAX_CHARTS} with the smallest margin below the tolerance are "
+                               f"shown): {keys}", box.w, 6.8), 6.8, False, MUTED)
         self._draw_pass_rate(c, b["rate_cell"], lay.pass_rate)
         self._draw_failures(c, lay.failures)
         self._draw_footer(c, b["footer_top"])
@@ -471,78 +359,55 @@ class _Trend:
         c.setFillColorRGB(*color)
         c.roundRect(vx, box.y, vw, box.h, 4, stroke=0, fill=1)
         white = (1.0, 1.0, 1.0)
-        self._text(c, vx + vw / 2, box.top - 13, "PASS RATE", 7.5, True, white, "c")
-        self._text(c, vx + vw / 2, box.top - 41, _fmt_rate(rate), 26, True, white, "c")
-        self._text(c, vx + vw / 2, box.top - 55,
-                   f"{counts['PASS']} PASS of {judged} scan{'s' if judged != 1 else ''} "
-                   "with a verdict", 6.8, False, white, "c")
+        draw_text(c, vx + vw / 2, box.top - 13, "PASS RATE", 7.5, True, white, "c")
+        draw_text(c, vx + vw / 2, box.top - 41, _fmt_rate(rate), 26, True, white, "c")
+        draw_text(c, vx + vw / 2, box.top - 55,
+                  f"{counts['PASS']} PASS of {judged} scan{'s' if judged != 1 else ''} "
+                  "with a verdict", 6.8, False, white, "c")
         err = counts["ERROR"]
-        self._text(c, vx + vw / 2, box.top - 64,
-                   f"{err} errored (no verdict, not counted)" if err else "none errored",
-                   6.8, False, white, "c")
+        draw_text(c, vx + vw / 2, box.top - 64,
+                  f"{err} errored (no verdict, not counted)" if err else "none errored",
+                  6.8, False, white, "c")
         # title and facts
         tw = box.w - vw - 12
-        self._text(c, box.x, box.top - 8, "BATCH TREND REPORT \u2014 PROFILE OF EACH "
-                   "CHARACTERISTIC BY SCAN", 7.0, True, MUTED)
-        self._text(c, box.x, box.top - 24, _fit(self.part_name, tw, 16, True), 16, True)
+        draw_text(c, box.x, box.top - 8, "BATCH TREND REPORT \u2014 PROFILE OF EACH "
+                  "CHARACTERISTIC BY SCAN", 7.0, True, MUTED)
+        draw_text(c, box.x, box.top - 24, fit_text(self.part_name, tw, 16, True), 16, True)
         seq = self.seq[np.isfinite(self.seq)]
         span = f" (sequence {int(seq.min())} to {int(seq.max())})" if len(seq) else ""
         rows = [
-            ("Nominal", f"SHA-256 {_short(self.sha)}\u2026" if self.sha else DASH),
-            ("Created", _utc(self.created)),
+            ("Nominal", f"SHA-256 {short_sha(self.sha)}\u2026" if self.sha else DASH),
+            ("Created", fmt_utc(self.created)),
             ("Scans", f"{self.n}{span}; {len(self.chars)} characteristic"
                       f"{'s' if len(self.chars) != 1 else ''}, profile values in mm"),
         ]
         yy = box.top - 35
         for k, v in rows:
-            self._text(c, box.x, yy, k, 7.0, True, MUTED)
-            self._text(c, box.x + 46, yy, _fit(v, tw - 46, 7.0), 7.0)
+            draw_text(c, box.x, yy, k, 7.0, True, MUTED)
+            draw_text(c, box.x + 46, yy, fit_text(v, tw - 46, 7.0), 7.0)
             yy -= 8.6
         # verdict counts as coloured chips
-        self._text(c, box.x, yy - 2, "Verdicts", 7.0, True, MUTED)
+        draw_text(c, box.x, yy - 2, "Verdicts", 7.0, True, MUTED)
         x = box.x + 46
         chips = {"PASS": PASS_BG, "FAIL": FAIL_BG, "NOT ESTABLISHED": UNSURE_BG,
                  "ERROR": ERROR_COLOR}
         for v, col in chips.items():
             s = f"{v} {counts[v]}"
-            w = _width(s, 7.0, True) + 8
+            w = text_width(s, 7.0, True) + 8
             c.setFillColorRGB(*(col if counts[v] else HEAD_BG))  # none: a quiet chip
             c.roundRect(x, yy - 5, w, 10.5, 2, stroke=0, fill=1)
-            self._text(c, x + 4, yy - 2, s, 7.0, True, white if counts[v] else MUTED)
+            draw_text(c, x + 4, yy - 2, s, 7.0, True, white if counts[v] else MUTED)
             x += w + 5
         c.setStrokeColorRGB(*RULE)
         c.setLineWidth(0.6)
         c.line(box.x, box.y - 4, box.x + box.w, box.y - 4)
 
-    def _marker(self, c: Canvas, kind: str, x: float, y: float, size: float,
-                color: tuple[float, float, float], weight: float | None = None) -> None:
-        """A legend or data mark: ``dot``, ``cross``, ``tri`` (pointing up) or ``tick`` (a
-        vertical stroke ``weight`` points wide)."""
-        c.setFillColorRGB(*color)
-        c.setStrokeColorRGB(*color)
-        if kind == "dot":
-            c.circle(x, y, size, stroke=0, fill=1)
-        elif kind == "cross":
-            c.setLineWidth(max(0.5, size * 0.45))
-            c.line(x - size, y - size, x + size, y + size)
-            c.line(x - size, y + size, x + size, y - size)
-        elif kind == "tri":
-            p = c.beginPath()
-            p.moveTo(x - size, y - size * 0.8)
-            p.lineTo(x + size, y - size * 0.8)
-            p.lineTo(x, y + size * 0.9)
-            p.close()
-            c.drawPath(p, stroke=0, fill=1)
-        elif kind == "tick":
-            c.setLineWidth(weight if weight is not None else max(0.4, size * 0.4))
-            c.line(x, y - size, x, y + size)
-
     def _draw_legend(self, c: Canvas, box: Box, lay: TrendLayout) -> None:
         y = box.y + 3
         x = box.x
         head = "Run charts \u2014 point colour: the characteristic\u2019s verdict"
-        self._text(c, x, y, head, 6.8, True)
-        x += _width(head, 6.8, True) + 10
+        draw_text(c, x, y, head, 6.8, True)
+        x += text_width(head, 6.8, True) + 10
         items: list[tuple[str, str, tuple[float, float, float]]] = [
             ("dot", "PASS", POINT_COLORS["PASS"]), ("dot", "FAIL", POINT_COLORS["FAIL"]),
             ("dot", "not established", POINT_COLORS["NOT ESTABLISHED"]),
@@ -560,27 +425,16 @@ class _Trend:
                 c.setDash()
                 x += 15
             else:
-                self._marker(c, kind, x + 2.5, y + 2.3, 2.3 if kind != "cross" else 1.8, col)
+                draw_marker(c, kind, x + 2.5, y + 2.3, 2.3 if kind != "cross" else 1.8, col)
                 x += 7.5
-            self._text(c, x, y, label, 6.8)
-            x += _width(label, 6.8) + 9
+            draw_text(c, x, y, label, 6.8)
+            x += text_width(label, 6.8) + 9
 
     def _seq_label(self, pos: int) -> str:
         """The sequence number printed under x position ``pos`` (1-based batch order)."""
         if pos <= self.n and math.isfinite(self.seq[pos - 1]):
             return str(int(self.seq[pos - 1]))
         return str(pos)
-
-    def _frame_and_xaxis(self, c: Canvas, geo: ChartGeometry) -> None:
-        """Frame of a plot and its sequence ticks, labelled below the frame."""
-        pa = geo.plot
-        c.setStrokeColorRGB(*INK)
-        c.setLineWidth(0.5)
-        c.rect(pa.x, pa.y, pa.w, pa.h, stroke=1, fill=0)
-        for pos in seq_ticks(self.n, pa.w):
-            x = float(geo.x(pos))
-            c.line(x, pa.y, x, pa.y - 2.0)
-            self._text(c, x, pa.y - 8.2, self._seq_label(pos), 6.0, False, INK, "c")
 
     def _draw_run_chart(self, c: Canvas, cell: Box, geo: ChartGeometry,
                         ch: TrendCharacteristic) -> None:
@@ -589,15 +443,15 @@ class _Trend:
         tol = float(ch.tolerance_mm)
         # title and statistics
         title = f"{ch.key} \u2014 {ch.description}" if ch.description else ch.key
-        self._text(c, cell.x, cell.top - 7.5, _fit(title, cell.w, 7.5, True), 7.5, True)
+        draw_text(c, cell.x, cell.top - 7.5, fit_text(title, cell.w, 7.5, True), 7.5, True)
         cpk = f"{st.cpk:.2f}" if math.isfinite(st.cpk) else DASH
         sigma = fmt_mm(st.sigma)
         line = (f"n {st.n}   mean {fmt_mm(st.mean)}   \u03c3 {sigma}   max {fmt_mm(st.max)} mm"
                 f"   Cpk {cpk}   PASS {st.n_pass} of {st.n_judged}")
-        self._text(c, cell.x, cell.top - 16.5, _fit(line, cell.w, 6.6), 6.6, False, MUTED)
+        draw_text(c, cell.x, cell.top - 16.5, fit_text(line, cell.w, 6.6), 6.6, False, MUTED)
         # grid and value axis
-        step = _nice_step(geo.top / 4.2)
-        d = _decimals(step)
+        step = nice_step(geo.top / 4.2)
+        d = decimals(step)
         c.setLineWidth(0.3)
         for k in range(math.floor(geo.top / step + 1e-9) + 1):
             v = k * step
@@ -605,11 +459,11 @@ class _Trend:
             c.setStrokeColorRGB(*RULE)
             if 0 < k and v < geo.top - 1e-9:
                 c.line(pa.x, y, pa.x + pa.w, y)
-            self._text(c, pa.x - 3, y - 2.2, f"{v:.{d}f}", 6.0, False, MUTED, "r")
+            draw_text(c, pa.x - 3, y - 2.2, f"{v:.{d}f}", 6.0, False, MUTED, "r")
         c.setStrokeColorRGB(*RULE)
         c.setLineWidth(0.5)
         c.line(pa.x, geo.y_low, pa.x + pa.w, geo.y_low)  # zero, the lower limit
-        self._y_title(c, cell.x + 5, pa, "profile, mm")
+        draw_y_title(c, cell.x + 5, pa, "profile, mm")
         # tolerance and mean
         right = pa.x + pa.w
         if math.isfinite(tol) and tol > 0:
@@ -617,8 +471,8 @@ class _Trend:
             c.setStrokeColorRGB(*TOL_COLOR)
             c.setLineWidth(1.1)
             c.line(pa.x, y_tol, right, y_tol)
-            self._text(c, right + 3, y_tol + 1.2, "tol", 6.0, True, TOL_COLOR)
-            self._text(c, right + 3, y_tol - 5.6, fmt_mm(tol), 6.0, False, TOL_COLOR)
+            draw_text(c, right + 3, y_tol + 1.2, "tol", 6.0, True, TOL_COLOR)
+            draw_text(c, right + 3, y_tol - 5.6, fmt_mm(tol), 6.0, False, TOL_COLOR)
         else:
             y_tol = math.nan
         if math.isfinite(st.mean):
@@ -629,17 +483,9 @@ class _Trend:
             c.line(pa.x, y_mean, right, y_mean)
             c.setDash()
             if not abs(y_mean - y_tol) < 14.0 and y_mean < pa.top - 2:
-                self._text(c, right + 3, y_mean - 2.2, "mean", 6.0, False, MEAN_COLOR)
+                draw_text(c, right + 3, y_mean - 2.2, "mean", 6.0, False, MEAN_COLOR)
         self._draw_points(c, geo, ch)
-        self._frame_and_xaxis(c, geo)
-
-    def _y_title(self, c: Canvas, x: float, pa: Box, title: str) -> None:
-        """``title`` written upwards at ``x``, centred on the plot ``pa``."""
-        c.saveState()
-        c.translate(x, pa.y + pa.h / 2)
-        c.rotate(90)
-        self._text(c, 0, 0, title, 6.0, False, MUTED, "c")
-        c.restoreState()
+        draw_frame(c, geo, self._seq_label)
 
     def _radius(self, geo: ChartGeometry) -> float:
         return float(np.clip(0.32 * geo.plot.w / max(self.n, 1), 0.65, 2.3))
@@ -655,7 +501,7 @@ class _Trend:
         if geo.plot.w / max(self.n, 1) >= 1.0:
             c.setStrokeColorRGB(*JOIN_COLOR)
             c.setLineWidth(0.45 if r > 1.2 else 0.25)
-            self._polyline(c, xs, ys, ok)
+            draw_polyline(c, xs, ys, ok)
         # the points: the characteristic's verdict; a value without one by the tolerance
         kind = np.where(np.isin(status, tuple(POINT_COLORS)), status,
                         np.where(np.isfinite(tol) & (v > tol), "FAIL", "PASS"))
@@ -668,37 +514,29 @@ class _Trend:
             c.setFillColorRGB(*POINT_COLORS[name])
             for i in np.flatnonzero(ok & (kind == name)):
                 if clipped[i]:
-                    self._marker(c, "tri", float(xs[i]), geo.plot.top - 1.2 * rr, 1.2 * rr,
-                                 POINT_COLORS[name])
+                    draw_marker(c, "tri", float(xs[i]), geo.plot.top - 1.2 * rr, 1.2 * rr,
+                                POINT_COLORS[name])
                 else:
                     c.circle(float(xs[i]), float(ys[i]), rr, stroke=int(rr >= 1.5), fill=1)
         # scans that errored: crosses in the strip below zero
         err = np.flatnonzero(self.verdict == "ERROR")
         size = 1.6
         for i in err:
-            self._marker(c, "cross", float(xs[i]), geo.plot.y + ERROR_STRIP / 2, size,
-                         ERROR_COLOR)
+            draw_marker(c, "cross", float(xs[i]), geo.plot.y + ERROR_STRIP / 2, size,
+                        ERROR_COLOR)
 
     def rates(self) -> tuple[np.ndarray, np.ndarray | None, int]:
         """Cumulative and rolling pass rate (%) after each scan, and the rolling window.
 
         NaN until a scan has a verdict; the rolling rate (over the last ``window`` scans)
-        only for batches of 30 scans or more (else None and window 0).
+        only for batches of :data:`~qifreport.metrology.spc.ROLLING_MIN_SCANS` scans or more
+        (else None and window 0).
         """
-        judged = np.isin(self.verdict, ("PASS", "FAIL", "NOT ESTABLISHED")).astype(float)
-        passed = (self.verdict == "PASS").astype(float)
-        cum_j = np.cumsum(judged)
-        cum = np.full(self.n, np.nan)
-        np.divide(100.0 * np.cumsum(passed), cum_j, out=cum, where=cum_j > 0)
-        if self.n < 30:
+        cum = spc.cumulative_pass_rate(self.verdict)
+        window = spc.rolling_window(self.n)
+        if not window:
             return cum, None, 0
-        window = int(np.clip(round(self.n / 10), 10, 200))
-        kern = np.ones(window)
-        rj = np.convolve(judged, kern)[:self.n]
-        rp = np.convolve(passed, kern)[:self.n]
-        roll = np.full(self.n, np.nan)
-        np.divide(100.0 * rp, rj, out=roll, where=(rj > 0) & (np.arange(self.n) >= window - 1))
-        return cum, roll, window
+        return cum, spc.rolling_pass_rate(self.verdict, window), window
 
     def _rate_bottom(self) -> float:
         """Lowest % of the pass-rate axis: 0, or 50, 80, 90, 95 when every rate is above it
@@ -709,28 +547,13 @@ class _Trend:
         low = float(vals.min()) if len(vals) else 0.0
         return max(b for b in (0.0, 50.0, 80.0, 90.0, 95.0) if b <= low - 1.0 or b == 0.0)
 
-    @staticmethod
-    def _polyline(c: Canvas, xs: np.ndarray, ys: np.ndarray, ok: np.ndarray) -> None:
-        """One path through the points ``ok``, broken where ``ok`` is False."""
-        path = c.beginPath()
-        pen = False
-        for x, y, good in zip(xs, ys, ok, strict=True):
-            if not good:
-                pen = False
-            elif pen:
-                path.lineTo(float(x), float(y))
-            else:
-                path.moveTo(float(x), float(y))
-                pen = True
-        c.drawPath(path, stroke=1, fill=0)
-
     def _draw_pass_rate(self, c: Canvas, cell: Box, geo: ChartGeometry) -> None:
         pa = geo.plot
         head = "Pass rate by scan"
-        self._text(c, cell.x, cell.top - 8, head, 8, True)
-        x = cell.x + _width(head, 8, True) + 6
-        self._text(c, x, cell.top - 8, _fit("(% PASS of the scans with a verdict)",
-                                            cell.x + cell.w - x, 6.4), 6.4, False, MUTED)
+        draw_text(c, cell.x, cell.top - 8, head, 8, True)
+        x = cell.x + text_width(head, 8, True) + 6
+        draw_text(c, x, cell.top - 8, fit_text("(% PASS of the scans with a verdict)",
+                                               cell.x + cell.w - x, 6.4), 6.4, False, MUTED)
         cum, roll, window = self.rates()
         # grid and value axis
         step = 25.0 if geo.bottom == 0 else 10.0 if geo.bottom == 50 else 5.0 \
@@ -741,10 +564,10 @@ class _Trend:
             c.setLineWidth(0.3)
             if v > geo.bottom:
                 c.line(pa.x, y, pa.x + pa.w, y)
-            self._text(c, pa.x - 3, y - 2.2, f"{v:g}", 6.0, False, MUTED, "r")
+            draw_text(c, pa.x - 3, y - 2.2, f"{v:g}", 6.0, False, MUTED, "r")
         c.setLineWidth(0.5)
         c.line(pa.x, geo.y_low, pa.x + pa.w, geo.y_low)
-        self._y_title(c, cell.x + 5, pa, "pass rate, %")
+        draw_y_title(c, cell.x + 5, pa, "pass rate, %")
         xs = geo.x(self.pos)
         for vals, color, width in ((cum, INK, 1.0), (roll, ROLL_COLOR, 0.8)):
             if vals is None:
@@ -753,7 +576,7 @@ class _Trend:
             ys = geo.y(np.where(ok, vals, geo.bottom))
             c.setStrokeColorRGB(*color)
             c.setLineWidth(width)
-            self._polyline(c, xs, ys, ok)
+            draw_polyline(c, xs, ys, ok)
             if self.n <= 40:  # few scans: the values as dots
                 c.setFillColorRGB(*color)
                 for i in np.flatnonzero(ok):
@@ -764,13 +587,13 @@ class _Trend:
         for name, kind, col in (("NOT ESTABLISHED", "tick", UNSURE_BG),
                                 ("FAIL", "tick", FAIL_BG), ("ERROR", "cross", ERROR_COLOR)):
             for i in np.flatnonzero(self.verdict == name):
-                self._marker(c, kind, float(xs[i]), ym, 2.6 if kind == "tick" else 1.6, col,
-                             weight)
+                draw_marker(c, kind, float(xs[i]), ym, 2.6 if kind == "tick" else 1.6, col,
+                            weight)
         last = cum[np.isfinite(cum)]
         if len(last):
-            self._text(c, pa.x + pa.w + 3, float(geo.y(last[-1])) - 2.2, f"{last[-1]:.1f}",
-                       6.0, True, INK)
-        self._frame_and_xaxis(c, geo)
+            draw_text(c, pa.x + pa.w + 3, float(geo.y(last[-1])) - 2.2, f"{last[-1]:.1f}",
+                      6.0, True, INK)
+        draw_frame(c, geo, self._seq_label)
         # legend under the ticks
         y = cell.y + 1.5
         x = pa.x
@@ -786,51 +609,16 @@ class _Trend:
                 c.line(x, y + 2.2, x + 10, y + 2.2)
                 x += 13
             else:
-                self._marker(c, kind, x + 2, y + 2.2, 2.4 if kind == "tick" else 1.6, col)
+                draw_marker(c, kind, x + 2, y + 2.2, 2.4 if kind == "tick" else 1.6, col)
                 x += 6.5
-            self._text(c, x, y, label, 6.0)
-            x += _width(label, 6.0) + 7
-
-    def _failure_rows(self) -> tuple[list[list[str]], list[bool], str, int]:
-        """Rows of the table (batch order), their emphasis, the note and how many in all."""
-        verdict = self.verdict
-        idx = np.flatnonzero(np.isin(verdict, ("FAIL", "NOT ESTABLISHED", "ERROR")))
-        serial = _column(self.df, "serial", str)
-        scan = _column(self.df, "scan", str)
-        decided = _column(self.df, "decided_by", str)
-        error = _column(self.df, "error", str)
-        shown = idx[:MAX_FAILURE_ROWS] if len(idx) <= MAX_FAILURE_ROWS \
-            else idx[:MAX_FAILURE_ROWS - 1]
-        rows, emph = [], []
-        for i in shown:
-            v = verdict[i]
-            who = f"{serial[i]} \u00b7 {scan[i]}" if serial[i] and scan[i] else (
-                serial[i] or scan[i] or DASH)
-            why = error[i] if v == "ERROR" else decided[i]
-            seq = self.seq[i]
-            rows.append([str(int(seq)) if math.isfinite(seq) else str(i + 1), who,
-                         "N/E" if v == "NOT ESTABLISHED" else v,
-                         " ".join(why.split()) or DASH])
-            emph.append(v == "FAIL")
-        note = ""
-        rest = idx[len(shown):]
-        if len(rest):
-            parts = [f"{int(np.sum(verdict[rest] == v))} {v if v != 'NOT ESTABLISHED' else 'N/E'}"
-                     for v in ("FAIL", "NOT ESTABLISHED", "ERROR") if np.any(verdict[rest] == v)]
-            note = f"+{len(rest)} more ({', '.join(parts)}): see the batch summary"
-        return rows, emph, note, len(idx)
+            draw_text(c, x, y, label, 6.0)
+            x += text_width(label, 6.0) + 7
 
     def _draw_failures(self, c: Canvas, box: Box) -> None:
-        rows, emph, note, total = self._failure_rows()
-        cols = [("Seq", 24.0, "r"), ("Serial / scan", 100.0, "l"), ("Verdict", 36.0, "c")]
-        cols.append(("Deciding criterion / error", box.w - sum(w for _, w, _ in cols), "l"))
-        if not rows:
-            rows = [["", "none", "", "every scan passed" if self.n else "no scans"]]
-            emph = [False]
-        t = _Table(columns=cols, rows=rows, note=note, emphasis=emph,
-                   title=f"Scans that did not pass ({total}: failed, not established or "
-                         "errored)")
-        self._draw_table(c, box.x, box.top, t)
+        t = failure_table(self.verdict, self.seq, _column(self.df, "serial", str),
+                          _column(self.df, "scan", str), _column(self.df, "decided_by", str),
+                          _column(self.df, "error", str), box.w)
+        draw_table(c, box.x, box.top, t)
 
     def _draw_footer(self, c: Canvas, top: float) -> None:
         defs = ("Profile value: width of the smallest zone about the band centre that holds "
@@ -840,12 +628,12 @@ class _Trend:
                 "least 0), \u03c3 the sample standard deviation (n \u2212 1) of the measured "
                 "scans; pass rate = PASS / (PASS + FAIL + NOT ESTABLISHED).")
         y = top - 1
-        for s in _wrap(defs, self.CW, 6.2)[:3]:
-            self._text(c, self.M, y - 6, s, 6.2, False, MUTED)
+        for s in wrap_text(defs, self.CW, 6.2)[:3]:
+            draw_text(c, self.M, y - 6, s, 6.2, False, MUTED)
             y -= 7.4
         foot = (f"qifreport {__version__} \u00b7 batch trend \u00b7 page 1 of 1 \u00b7 "
-                f"{self.n} scans of {self.part_name} \u00b7 created {_utc(self.created)}")
-        self._text(c, self.M, self.MT, _fit(foot, self.CW, 6.2), 6.2, False, MUTED)
+                f"{self.n} scans of {self.part_name} \u00b7 created {fmt_utc(self.created)}")
+        draw_text(c, self.M, self.MT, fit_text(foot, self.CW, 6.2), 6.2, False, MUTED)
 
 
 # ----------------------------------------------------------------------------- public API

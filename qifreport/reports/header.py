@@ -1,0 +1,198 @@
+"""The top of the inspection page: the title block with the verdict, and the decision.
+
+* **Title block** -- part, input files with their SHA-256 (first 16 hex digits), time of the
+  inspection, software version, serial number, operator, organization, author, units; on the
+  right the **verdict**, large, with the criteria that decided it (area, region; whole part
+  and per tolerance).
+* **Decision** -- the acceptance rule and, for a failing part, the reasons (the QIF's
+  ``decided_by`` lines), cut to a number of reasons with the rest counted.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from qifreport import __version__
+from qifreport.metrology.inspection import InspectionResult
+
+from .context import ReportContext
+from .kit import (
+    DASH,
+    FAIL_BG,
+    FAIL_INK,
+    INK,
+    MUTED,
+    PASS_BG,
+    RULE,
+    UNSURE_BG,
+    Box,
+    draw_text,
+    finite,
+    fit_text,
+    fmt_utc,
+    join_names,
+    short_sha,
+    text_width,
+    wrap_text,
+)
+
+if TYPE_CHECKING:
+    from reportlab.pdfgen.canvas import Canvas
+
+__all__ = ["HEADER_H", "criteria", "verdict_lines", "rule_text", "reasons", "decision_lines",
+           "draw_header", "draw_decision"]
+
+#: height of the title block, points
+HEADER_H = 72.0
+
+
+def criteria(res: InspectionResult) -> tuple[list[str], list[str], list[str]]:
+    """Who failed the area criterion, the region criterion, and who had nothing scored.
+
+    Returns
+    -------
+    area, region, empty : names (``"whole part"`` or zone keys), in that order.
+    """
+    area, region, empty = [], [], []
+    items = [("whole part", res.acceptance)] + [(z.zone.key, z.acceptance) for z in res.zones]
+    for name, acc in items:
+        if not acc.scored_area > 0:
+            empty.append(name)
+            continue
+        if not acc.area_ok:
+            area.append(name)
+        if not acc.region_ok:
+            region.append(name)
+    return area, region, empty
+
+
+def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) -> list[str]:
+    """Which criteria decided the verdict, for whom (names cut to fit ``width`` points)."""
+    area, region, empty = criteria(res)
+    if res.passed:
+        n = len(res.zones)
+        if res.verdict != "PASS":
+            return ["criteria met, but the registration", "cannot be trusted (warnings below)"]
+        return [f"whole part and {n} tolerance{'s' if n != 1 else ''}:",
+                "area and region criteria met"]
+
+    def line(head: str, names: list[str]) -> str:
+        for limit in range(4, 0, -1):
+            s = f"{head}: {join_names(names, limit)}"
+            if text_width(s, size) <= width:
+                return s
+        return s
+
+    out = []
+    if area:
+        out.append(line("area criterion", area))
+    if region:
+        out.append(line("region criterion", region))
+    if empty:
+        out.append(line("nothing scored", empty))
+    if res.added is not None and not res.added.passed:
+        out.append(f"added material: {res.added.largest_area:.0f} mm\u00b2 proud")
+    return out
+
+
+def rule_text(res: InspectionResult) -> str:
+    """The acceptance rule in one sentence, with this inspection's limits."""
+    p = res.params
+    return (f"Acceptance rule (whole part and each tolerance on its own faces): at least "
+            f"{100 * p.min_fraction:g} % of the scored area inside the band (area "
+            f"criterion) and no connected out-of-tolerance region larger than "
+            f"{p.max_region_area:g} mm\u00b2 (region criterion).")
+
+
+def _display(s: str) -> str:
+    """Library text for print: ``mm^2`` as mm\u00b2."""
+    return s.replace("mm^2", "mm\u00b2")
+
+
+def reasons(res: InspectionResult) -> list[str]:
+    """The reasons of the decision (the QIF's ``decided_by`` lines), as printed."""
+    return [_display(s) for s in res.decided_by()]
+
+
+def decision_lines(res: InspectionResult, width: float,
+                   limit: int) -> tuple[list[tuple[str, bool]], int]:
+    """Wrapped lines of the decision block ``width`` points wide and how many reasons it lists.
+
+    Returns
+    -------
+    lines : ``(text, reason)`` per line; reasons print in the fail colour.
+    shown : the number of reasons listed (at most ``limit``; the rest are counted).
+    """
+    lines = [(s, False) for s in wrap_text(rule_text(res), width, 7.0)]
+    rs = reasons(res)
+    shown = rs[:limit]
+    for r in shown:
+        for j, s in enumerate(wrap_text(r, width - 10, 7.0)):
+            lines.append((("\u2022 " if j == 0 else "   ") + s, True))
+    if len(rs) > len(shown):
+        lines.append((f"+ {len(rs) - len(shown)} more reason"
+                      f"{'s' if len(rs) - len(shown) != 1 else ''}: see the QIF file "
+                      "(decided_by attributes)", False))
+    return lines, len(shown)
+
+
+def draw_header(c: Canvas, ctx: ReportContext, box: Box) -> None:
+    """The title block in ``box``: facts on the left, the verdict on the right."""
+    res, prov = ctx.res, ctx.prov
+    vw = 172.0
+    # verdict
+    word = res.verdict
+    vx = box.x + box.w - vw
+    c.setFillColorRGB(*{"PASS": PASS_BG, "FAIL": FAIL_BG}.get(word, UNSURE_BG))
+    c.roundRect(vx, box.y, vw, box.h, 4, stroke=0, fill=1)
+    if word in ("PASS", "FAIL"):
+        draw_text(c, vx + vw / 2, box.top - 36, word, 34, True, (1, 1, 1), "c")
+    else:  # NOT ESTABLISHED
+        draw_text(c, vx + vw / 2, box.top - 32, word, 16, True, (1, 1, 1), "c")
+    lines = verdict_lines(res, vw - 10, 6.8)
+    yy = box.top - 50
+    for s in lines[:3]:
+        draw_text(c, vx + vw / 2, yy, fit_text(s, vw - 10, 6.8), 6.8, False, (1, 1, 1), "c")
+        yy -= 8.4
+    # title
+    tw = box.w - vw - 12
+    draw_text(c, box.x, box.top - 8, "SURFACE DEVIATION REPORT \u2014 VIRTUAL FIXTURE "
+              "INSPECTION", 7.0, True, MUTED)
+    draw_text(c, box.x, box.top - 24, fit_text(prov.part_name, tw, 16, True), 16, True)
+    dur = (prov.finished - prov.started).total_seconds() if prov.finished else math.nan
+    people = [prov.operator or DASH, f"organization {prov.organization or DASH}"]
+    if prov.author:
+        people.append(f"author {prov.author}")
+    vw_ = tw - 46
+
+    def file_line(path: str, sha: str) -> str:
+        tail = f"   SHA-256 {short_sha(sha)}\u2026"
+        return fit_text(Path(path).name, vw_ - text_width(tail, 7.0), 7.0) + tail
+
+    rows = [
+        ("Nominal", file_line(prov.nominal_path, prov.nominal_sha256)),
+        ("Scan", file_line(prov.scan_path, prov.scan_sha256)),
+        ("Inspected", f"{fmt_utc(prov.started)}" + (f" ({dur:.0f} s)" if finite(dur) else "")
+         + f"   serial number {prov.serial_number or DASH}"),
+        ("Operator", "    ".join(people)),
+        ("Software", f"qifreport {__version__}; units mm, mm\u00b2, %; deviation along "
+                     "the normal, + proud / \u2212 sunk"),
+    ]
+    yy = box.top - 35
+    for k, v in rows:
+        draw_text(c, box.x, yy, k, 7.0, True, MUTED)
+        draw_text(c, box.x + 46, yy, fit_text(v, vw_, 7.0), 7.0)
+        yy -= 8.6
+    c.setStrokeColorRGB(*RULE)
+    c.setLineWidth(0.6)
+    c.line(box.x, box.y - 3, box.x + box.w, box.y - 3)
+
+
+def draw_decision(c: Canvas, box: Box, lines: list[tuple[str, bool]]) -> None:
+    """The decision block's lines (:func:`decision_lines`) from the top of ``box``."""
+    yy = box.top - 6.5
+    for s, bold in lines:
+        draw_text(c, box.x, yy, s, 7.0, False, FAIL_INK if bold else INK)
+        yy -= 8.6

@@ -1,0 +1,275 @@
+"""The deviation maps of the inspection page and their colour bar.
+
+The registered nominal from two or three automatically chosen directions
+(:mod:`qifreport.reports.render`), green inside the band, red proud / blue sunk outside, grey
+unscored, out-of-tolerance regions outlined and numbered as in the region table. Three views
+are one large picture with the other two stacked on its right, or the three in a row,
+whichever draws the part larger (:func:`map_boxes`); each has its axes and a scale bar. The
+colour bar (mm, symmetric about 0) marks each distinct band.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from .context import ReportContext
+from .kit import (
+    INK,
+    MUTED,
+    RULE,
+    Box,
+    draw_text,
+    fit_text,
+    fmt_band,
+    join_names,
+    text_width,
+)
+from .render import GREY, OUTLINE, RenderedView, deviation_colors
+
+if TYPE_CHECKING:
+    from reportlab.pdfgen.canvas import Canvas
+
+log = logging.getLogger(__name__)
+
+__all__ = ["map_boxes", "layout_score", "map_margins", "colorbar_height", "draw_maps",
+           "draw_colorbar"]
+
+# ------------------------------------------------------------------------------- layout
+
+
+def map_boxes(ctx: ReportContext, area: Box) -> list[Box]:
+    """The pictures inside ``area`` (a caption above each).
+
+    Three views: one large picture with the other two stacked on its right, or the three
+    in a row, whichever draws the part larger (the first view counting double); two
+    views side by side.
+    """
+    n = len(ctx.views)
+    gap, cap = 8.0, 11.0
+
+    def row(k: int) -> list[Box]:
+        w = (area.w - (k - 1) * gap) / k
+        return [Box(area.x + i * (w + gap), area.y, w, area.h - cap) for i in range(k)]
+
+    if n < 3:
+        return row(max(n, 1))
+    w_main = (area.w - gap) * 0.60
+    w_side = area.w - gap - w_main
+    h_side = (area.h - 2 * cap - gap) / 2
+    xs = area.x + w_main + gap
+    stack = [Box(area.x, area.y, w_main, area.h - cap),
+             Box(xs, area.y + h_side + gap + cap, w_side, h_side),
+             Box(xs, area.y, w_side, h_side)]
+    return max((stack, row(3)), key=lambda boxes: layout_score(ctx, boxes))
+
+
+def layout_score(ctx: ReportContext, boxes: list[Box]) -> float:
+    """Sum of the log drawing scales (pt per mm) of the views, the first counting double."""
+    score = 0.0
+    for k, (b, (sx, sy)) in enumerate(zip(boxes, ctx.spans, strict=False)):
+        m = map_margins(b)
+        pt_per_mm = min(b.w * (1 - m[0] - m[1]) / sx, b.h * (1 - m[2] - m[3]) / sy)
+        score += (2.0 if k == 0 else 1.0) * math.log(max(pt_per_mm, 1e-9))
+    return score
+
+
+def map_margins(box: Box) -> tuple[float, float, float, float]:
+    """Margins of a picture (fractions): room for the axes and scale bar at the bottom."""
+    return (0.035, 0.035, 8.0 / box.h, 22.0 / box.h)
+
+
+def colorbar_height(ctx: ReportContext) -> float:
+    """Height of the colour bar block, points (a row per distinct band, at most three)."""
+    rows = min(len(ctx.bands), 3)
+    return 14.0 + 9.0 * rows + 16.0
+
+
+# ------------------------------------------------------------------------------ drawing
+
+
+def draw_maps(c: Canvas, boxes: list[Box], views: list[RenderedView], n_listed: int) -> None:
+    """The map pictures in ``boxes`` with their captions, axes, scale bars and the numbers of
+    the first ``n_listed`` regions (the ones the region table lists)."""
+    from PIL import Image
+    from reportlab.lib.utils import ImageReader
+
+    for k, (box, v) in enumerate(zip(boxes, views, strict=True)):
+        img = ImageReader(Image.fromarray(v.image))
+        c.drawImage(img, box.x, box.y, box.w, box.h)
+        c.setStrokeColorRGB(*RULE)
+        c.setLineWidth(0.5)
+        c.rect(box.x, box.y, box.w, box.h, stroke=1, fill=0)
+        x = box.x
+        if k == 0:
+            head = ("Deviation map of the registered nominal" if box.w > 280
+                    else "Deviation map")
+            draw_text(c, x, box.top + 3, head, 8, True)
+            x += text_width(head, 8, True) + 8
+        draw_text(c, x, box.top + 3, f"{'ABC'[k]}: {v.name}", 7.5, True, MUTED)
+        _draw_axes(c, box, v)
+        if not v.name.startswith("oblique"):
+            _draw_scale_bar(c, box, v)
+        _draw_labels(c, box, v, n_listed)
+
+
+def _draw_axes(c: Canvas, box: Box, v: RenderedView) -> None:
+    ox, oy, L = box.x + 12, box.y + 9, 9.0
+    c.setLineWidth(0.7)
+    c.setStrokeColorRGB(*INK)
+    for i, name in enumerate("xyz"):
+        dx, dy = v.axes[i]
+        n = math.hypot(dx, dy)
+        if n < 0.2:  # along the line of sight: the view's name says which way
+            continue
+        c.line(ox, oy, ox + L * dx, oy + L * dy)
+        draw_text(c, ox + (L + 4) * dx / max(n, 1e-9) * n - 2, oy + (L + 4) * dy - 2,
+                  name, 6.0, True)
+
+
+def _draw_scale_bar(c: Canvas, box: Box, v: RenderedView) -> None:
+    h_px, w_px = v.image.shape[:2]
+    mm_per_pt = v.mm_per_px * w_px / box.w
+    target = 0.22 * box.w * mm_per_pt
+    e = 10 ** math.floor(math.log10(target))
+    length = max(m * e for m in (1, 2, 5) if m * e <= target)
+    Lp = length / mm_per_pt
+    x1, y1 = box.x + box.w - 8, box.y + 8
+    c.setStrokeColorRGB(*INK)
+    c.setLineWidth(1.0)
+    c.line(x1 - Lp, y1, x1, y1)
+    c.line(x1 - Lp, y1 - 2, x1 - Lp, y1 + 2)
+    c.line(x1, y1 - 2, x1, y1 + 2)
+    draw_text(c, x1 - Lp / 2, y1 + 3, f"{length:g} mm", 6.0, False, INK, "c")
+
+
+def _draw_labels(c: Canvas, box: Box, v: RenderedView, n_listed: int) -> None:
+    """Region numbers beside their regions (a leader line to the anchor), never on top of
+    the region they name nor of another number."""
+    h_px, w_px = v.image.shape[:2]
+    sx, sy = box.w / w_px, box.h / h_px
+    labels = sorted((lb for lb in v.labels if lb.number <= n_listed),
+                    key=lambda lb: lb.number)
+    anchors = [(box.x + lb.x * sx, box.top - lb.y * sy) for lb in labels]
+    placed: list[tuple[float, float, float]] = []
+    for lb, (ax, ay) in zip(labels, anchors, strict=True):
+        r = 5.2 if lb.number < 10 else 6.2
+        ext = min(lb.extent * sx, 40.0)
+        spot = None
+        for dist in (ext + r + 3, ext + r + 10, ext + r + 18, r + 3, 2 * r + 12,
+                     2 * r + 24):
+            for ang in (45, 135, -45, -135, 90, -90, 0, 180, 22, 158, -22, -158):
+                px = ax + dist * math.cos(math.radians(ang))
+                py = ay + dist * math.sin(math.radians(ang))
+                if not (box.x + r + 1 <= px <= box.x + box.w - r - 1
+                        and box.y + r + 1 <= py <= box.top - r - 1):
+                    continue
+                if any(math.hypot(px - qx, py - qy) < r + qr + 1.5 for qx, qy, qr in placed):
+                    continue
+                if any(math.hypot(px - qx, py - qy) < r + 1.0 for qx, qy in anchors):
+                    continue
+                spot = (px, py)
+                break
+            if spot:
+                break
+        if spot is None:
+            log.debug("no room for the label of region %d in view %s", lb.number, v.name)
+            continue
+        px, py = spot
+        d = math.hypot(px - ax, py - ay)
+        c.setStrokeColorRGB(*INK)
+        c.setFillColorRGB(*INK)
+        c.setLineWidth(0.6)
+        c.line(ax, ay, px - (px - ax) * r / d, py - (py - ay) * r / d)
+        c.circle(ax, ay, 1.0, stroke=0, fill=1)
+        c.setFillColorRGB(1, 1, 1)
+        c.setLineWidth(0.7)
+        c.circle(px, py, r, stroke=1, fill=1)
+        draw_text(c, px, py - 2.3, str(lb.number), 6.3, True, INK, "c")
+        placed.append((px, py, r))
+
+
+def draw_colorbar(c: Canvas, ctx: ReportContext, box: Box) -> None:
+    """The colour bar in ``box``: one row per distinct band (at most three), the ticks and the
+    legend of the map's marks."""
+    S = ctx.scale
+    bands = ctx.bands[:3]
+    label_w = 118.0
+    legend_w = 150.0
+    x0 = box.x + label_w
+    bw = box.w - label_w - legend_w - 12
+    yy = box.top - 12
+    draw_text(c, box.x, yy + 2, "Colour scale: signed deviation, mm", 7.0, True)
+    xs = np.linspace(-S, S, 241)
+    mids = 0.5 * (xs[1:] + xs[:-1])
+
+    def xpos(v: float) -> float:
+        return x0 + (v + S) / (2 * S) * bw
+
+    row_h = 9.0
+    for lo, hi, keys in bands:
+        y = yy - row_h
+        cols = deviation_colors(mids, lo, hi, S)
+        start = 0
+        for i in range(1, len(mids) + 1):
+            if i == len(mids) or not np.allclose(cols[i], cols[start], atol=1e-3):
+                c.setFillColorRGB(*cols[start])
+                c.rect(xpos(xs[start]), y + 1, xpos(xs[i]) - xpos(xs[start]) + 0.3,
+                       row_h - 2, stroke=0, fill=1)
+                start = i
+        c.setStrokeColorRGB(*INK)
+        c.setLineWidth(0.8)
+        for v in (lo, hi):
+            c.line(xpos(v), y, xpos(v), y + row_h)
+        c.setLineWidth(0.4)
+        c.rect(x0, y + 1, bw, row_h - 2, stroke=1, fill=0)
+        draw_text(c, x0 - 4, y + 2.4,
+                  fit_text(f"{join_names(keys, 3)} [{fmt_band(lo)}, {fmt_band(hi)}]",
+                           label_w - 6, 6.5), 6.5, False, INK, "r")
+        yy = y
+    if len(ctx.bands) > 3:
+        draw_text(c, x0 - 4, yy - 17, f"+ {len(ctx.bands) - 3} more bands (tolerances)",
+                  6.2, False, MUTED, "r")
+    # ticks: the scale ends, 0 and the band limits
+    ticks: list[tuple[float, str, int]] = [(-S, f"\u2264{fmt_band(-S)}", 0),
+                                           (S, f"\u2265{fmt_band(S)}", 0), (0.0, "0", 1)]
+    for lo, hi, _ in bands:
+        ticks += [(lo, fmt_band(lo), 2), (hi, fmt_band(hi), 2)]
+    for v in np.linspace(-S, S, 9)[1:-1]:
+        ticks.append((float(v), fmt_band(float(v)), 3))
+    used: list[tuple[float, float]] = []
+    c.setStrokeColorRGB(*INK)
+    c.setLineWidth(0.5)
+    for v, s, _ in sorted(ticks, key=lambda t: t[2]):
+        x = xpos(v)
+        w = text_width(s, 6.2)
+        lo_x, hi_x = x - w / 2 - 4, x + w / 2 + 4
+        if any(not (hi_x < a or lo_x > b) for a, b in used):
+            continue
+        used.append((lo_x, hi_x))
+        c.line(x, yy, x, yy - 2.5)
+        draw_text(c, x, yy - 9, s, 6.2, False, INK, "c")
+    draw_text(c, x0, yy - 17, "\u2190 sunk (material below nominal)", 6.2, False, MUTED)
+    draw_text(c, x0 + bw, yy - 17, "proud (material above nominal) \u2192", 6.2, False,
+              MUTED, "r")
+    # legend
+    lx = box.x + box.w - legend_w
+    ly = box.top - 20
+    c.setFillColorRGB(*GREY)
+    c.rect(lx, ly, 10, 6, stroke=0, fill=1)
+    draw_text(c, lx + 14, ly + 0.8, "not scanned (unscored)", 6.5)
+    ly -= 10
+    c.setStrokeColorRGB(*OUTLINE)
+    c.setLineWidth(1.0)
+    c.line(lx, ly + 3, lx + 10, ly + 3)
+    draw_text(c, lx + 14, ly + 0.8, "band edge (region outline)", 6.5)
+    ly -= 11
+    c.setFillColorRGB(1, 1, 1)
+    c.setStrokeColorRGB(*INK)
+    c.setLineWidth(0.7)
+    c.circle(lx + 5, ly + 3, 4.6, stroke=1, fill=1)
+    draw_text(c, lx + 5, ly + 0.9, "1", 5.8, True, INK, "c")
+    draw_text(c, lx + 14, ly + 0.8, "region number (region table)", 6.5)

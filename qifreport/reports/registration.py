@@ -1,0 +1,115 @@
+"""The registration facts of the inspection page (beside the region table).
+
+How the scan was brought onto the nominal: the pose search that started the rigid ICP (how
+many starts agreed; ambiguous or sliding poses flagged), the rigid fit (residual RMS, inliers,
+rotation and shift) and the virtual fixture (``--method``: residual, iterations, passes,
+fallback, flagged fraction, largest displacement and the method's parameters), then the
+chain floor and the sizes of the inputs. Lengths in mm, angles in degrees.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from qifreport.metrology.inspection import InspectionResult, method_label
+
+from .kit import DASH, Table, finite, fmt_mm, fmt_pct
+
+__all__ = ["registration_table"]
+
+
+def registration_table(res: InspectionResult, chain_floor: float | None,
+                       width: float) -> Table:
+    """The registration facts, ``width`` points wide: the pose search, the rigid ICP, the
+    virtual fixture (its method, residual, iterations, fallback, displacement and
+    parameters), the chain floor (mm; None: "not measured") and the sizes of the inputs.
+    Rows that undermine the result (fallback, an ambiguous or sliding pose) are emphasised."""
+    rg, fit = res.rigid, res.fit
+    R = np.asarray(rg.R, dtype=float)
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
+    t = np.asarray(rg.t, dtype=float)
+    rows: list[list[str]] = [
+        ["Pose search: starts agreeing", _pose_text(res.prealign)],
+        ["Rigid residual RMS, mm", fmt_mm(rg.rms)],
+        ["Rigid inliers, % / iterations", f"{fmt_pct(rg.inlier_fraction)} / {rg.iterations}"],
+        ["Rigid rotation, deg / shift, mm", f"{angle:.3f} / {np.linalg.norm(t):.3f}"],
+    ]
+    if fit is None:
+        rows.append(["Non-rigid (virtual fixture)", "none: rigid only"])
+    else:
+        fp = fit.params
+        rows += [
+            ["Virtual fixture method", method_label(fit.method)],
+            ["Non-rigid residual (robust), mm", fmt_mm(fit.scale)],
+            ["Iterations / passes / fallback",
+             f"{fit.iterations} / {fit.passes} / {'YES' if fit.fallback else 'no'}"],
+        ]
+        if fit.method == "gbcicp":
+            rows.append(["Flagged as defect candidates, %", fmt_pct(fit.flagged_fraction)])
+        rows.append(["Max fixture displacement, mm",
+                     fmt_mm(float(np.linalg.norm(fit.e, axis=1).max()))
+                     if len(fit.e) else DASH])
+        if fit.method == "gbcicp":
+            rows += [
+                ["Energy; band limits l1, l2, mm",
+                 f"{res.params.energy}; {_num(fp.band_limit)}, "
+                 f"{_num(fp.band_limit_refit)}"],
+                ["Start length; coverage radius, mm",
+                 f"{_num(fp.band_limit_start)}; {_num(fp.coverage_radius)}"],
+            ]
+        else:
+            rows.append([f"{method_label(fit.method)} parameters", _params_text(fp)])
+    rows.append(["Chain floor, mm",
+                 fmt_mm(chain_floor) if chain_floor is not None
+                 else "not measured"])
+    rows.append(["Vertices / triangles / points",
+                 f"{len(res.V)} / {len(res.F)} / {len(res.P)}"])
+    w2 = width * 0.42
+    emph = [False] * len(rows)
+    for k, row in enumerate(rows):
+        emph[k] = bool((row[0] == "Iterations / passes / fallback" and fit is not None
+                        and fit.fallback)
+                       or (row[0].startswith("Pose") and res.prealign is not None
+                           and (res.prealign.ambiguous
+                                or res.prealign.weakly_constrained)))
+    title = (f"Registration: rigid ICP + virtual fixture ({method_label(fit.method)})"
+             if fit is not None else "Registration: rigid ICP only (free state)")
+    return Table(columns=[("", width - w2, "l"), ("", w2, "r")], rows=rows,
+                 title=title, head_h=0.0, emphasis=emph)
+
+
+def _num(x) -> str:
+    return f"{float(x):.2f}" if finite(x) else DASH
+
+
+def _params_text(params, limit: int = 4) -> str:
+    """The first ``limit`` set scalar fields of a method's parameter dataclass, ``k=v``."""
+    if not dataclasses.is_dataclass(params) or isinstance(params, type):
+        return "defaults"
+    items = []
+    for f in dataclasses.fields(params):
+        v = getattr(params, f.name)
+        if isinstance(v, bool) or v is None:
+            continue
+        if isinstance(v, (int, float, np.integer, np.floating)):
+            items.append(f"{f.name}={float(v):.3g}")
+        elif isinstance(v, str):
+            items.append(f"{f.name}={v}")
+        if len(items) == limit:
+            break
+    return ", ".join(items) or "defaults"
+
+
+def _pose_text(a) -> str:
+    """One cell: how the rigid ICP was started (the pose search's confidence in short)."""
+    if a is None or a.method == "identity":
+        return "none: scan in part frame"
+    text = f"{a.restart_agreement}/{a.n_starts}"
+    if a.ambiguous:
+        text += " AMBIGUOUS"
+    elif a.weakly_constrained:
+        text += " (slides)"
+    return text
