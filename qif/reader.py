@@ -4,8 +4,9 @@
 ``MeasurementResults``, its QIF type, designator, status, measured value and tolerance, and,
 for documents qifreport wrote, the product's own result objects rebuilt from the typed
 ``Attributes`` (:class:`qifreport.metrology.statistics.DeviationStats`,
-:class:`qifreport.metrology.acceptance.Acceptance` with its :class:`~qifreport.metrology.acceptance.Region` list),
-so a round trip can be checked number by number (see :mod:`qifreport.qif.writer` for the layout).
+:class:`qifreport.metrology.acceptance.Acceptance` with its
+:class:`~qifreport.metrology.acceptance.Region` list), so a round trip can be checked number
+by number (see :mod:`qifreport.qif.writer` for the layout).
 Regions come back without their vertex lists (``vertices`` empty, ``peak_vertex`` -1): QIF
 carries the area, peak, sign, centroid and peak location.
 """

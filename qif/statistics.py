@@ -1,11 +1,12 @@
 """QIF 3.0 Statistics document of a batch of inspections.
 
 qifreport inspects many scans of one part (a batch); each scan has its QIF results document
-(:mod:`qifreport.qif.writer`), read back with :func:`qifreport.qif.reader.read_results`. :func:`summarize` reduces
-the batch to one :class:`CharacteristicSummary` per characteristic (per designator, e.g.
-``"T1"``, ``"general"``) and :func:`build_statistics` writes it as a QIF 3.0 document whose
-``Statistics`` section (``QIFApplications/QIFStatistics.xsd``, ``QIFLibrary/Statistics.xsd``)
-holds one capability study with one typed statistics element per characteristic.
+(:mod:`qifreport.qif.writer`), read back with :func:`qifreport.qif.reader.read_results`.
+:func:`summarize` reduces the batch to one :class:`CharacteristicSummary` per characteristic
+(per designator, e.g. ``"T1"``, ``"general"``) and :func:`build_statistics` writes it as a
+QIF 3.0 document whose ``Statistics`` section (``QIFApplications/QIFStatistics.xsd``,
+``QIFLibrary/Statistics.xsd``) holds one capability study with one typed statistics element
+per characteristic.
 
 Layout
 ------
@@ -59,10 +60,11 @@ and ``GeometricCharacteristicStatsEvalType``):
   them; those without a measured value are ``Exclusions`` (reason ``OtherExclusionReason``).
 * ``Status``: ``INFORMATIONAL`` (no capability requirement was given to judge against).
 * ``ValueStats`` (``StatsWithTolLinearType``), over the profile values (the measurements'
-  ``Value``, mm; see :mod:`qifreport.qif.writer`): ``TotalNumber`` (measurements), ``EffectiveNumber``
-  (those with a value, ``count``), ``Average``, ``StandardDeviation`` (the sample standard
-  deviation, ``n - 1`` in the denominator, as the schema defines ``STDDEV``; written when
-  ``count >= 2``), ``Minimum`` and ``Maximum`` (each with the ``Id`` of its measurement),
+  ``Value``, mm; see :mod:`qifreport.qif.writer`): ``TotalNumber`` (measurements),
+  ``EffectiveNumber`` (those with a value, ``count``), ``Average``, ``StandardDeviation`` (the
+  sample standard deviation, ``n - 1`` in the denominator, as the schema defines ``STDDEV``;
+  written when ``count >= 2``), ``Minimum`` and ``Maximum`` (each with the ``Id`` of its
+  measurement),
   ``Range``, ``NumberOutOfTolerance`` (values above the tolerance, with their ``Ids``),
   ``Cpk``.
 * ``CapabilityCalculationMethod``: ``THREE_SIGMA`` when ``Cpk`` is written.
@@ -108,18 +110,13 @@ from lxml import etree
 from qifreport import __version__
 
 from .reader import CharacteristicResult, QIFResults
-from .writer import (
-    SCHEMA_LOCATION,
-    XSI,
-    E,
-    _array,
-    _Attrs,
-    _Ids,
-    _qpid,
-    _time,
-    _token,
-    write_qif,
-)
+from .writer import write_qif
+from .xmlkit import SCHEMA_LOCATION, XSI, Attrs, E, Ids, id_array, qpid, token, xml_time
+
+__all__ = [
+    "CHARACTERISTIC_STATUSES", "INSPECTION_STATUSES", "NO_VALUE_REASON", "SUPPORTED_KINDS",
+    "CharacteristicSummary", "build_statistics", "summarize", "write_statistics",
+]
 
 log = logging.getLogger("qifreport.statistics")
 
@@ -300,7 +297,7 @@ def _count(tag: str, n: int, refs: list[str] | None = None) -> etree._Element:
     """A ``StatsNonNegativeIntegerType`` value (``...WithReferencesType`` with ``refs``)."""
     children = [E.Value(str(int(n)))]
     if refs:
-        children.append(_array("Ids", refs))
+        children.append(id_array("Ids", refs))
     return E(tag, *children)
 
 
@@ -374,10 +371,10 @@ def _characteristic_stats(key: str, obs: list[_Observation], s: CharacteristicSu
 
     ``meas_ids[i]`` is the local id of the measurement ``obs[i]``.
     """
-    attrs = _Attrs().s("designator", key)
+    attrs = Attrs().s("designator", key)
     attrs.i("n_pass", s.n_pass).i("n_fail", s.n_fail).i("n_other", s.n_other)
     excluded = [m for o, m in zip(obs, meas_ids, strict=True) if o.value is None]
-    measured = [_array("Ids", meas_ids)]
+    measured = [id_array("Ids", meas_ids)]
     if excluded:
         measured.append(E.Exclusions(
             *[E.Exclusion(E.Id(m), E.Reason(E.OtherExclusionReason(NO_VALUE_REASON)))
@@ -457,7 +454,7 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
     """
     groups = _group(results)
     _check_batch(results, groups, sources, nominal_sha256)
-    ids = _Ids()
+    ids = Ids()
 
     std_id, sw_id = ids(), ids()
     std_org, std_des, std_year = standard
@@ -490,13 +487,13 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
         c = obs[0].char
         fd, fn, fi, cd, cn, ci = (ids() for _ in range(6))
         item_ids[key] = ci
-        fname = _token(f"SURFACE_{key}".upper())
-        name = _token(c.name or key)
+        fname = token(f"SURFACE_{key}".upper())
+        name = token(c.name or key)
         fdefs.append(E.OtherSurfaceFeatureDefinition(id=fd))
         fnoms.append(E.OtherSurfaceFeatureNominal(
-            E.Name(fname), E.UUID(_qpid()), E.FeatureDefinitionId(fd), id=fn))
+            E.Name(fname), E.UUID(qpid()), E.FeatureDefinitionId(fd), id=fn))
         fitems.append(E.OtherSurfaceFeatureItem(
-            E.FeatureNominalId(fn), E.FeatureName(fname), E.UUID(_qpid()),
+            E.FeatureNominalId(fn), E.FeatureName(fname), E.UUID(qpid()),
             E.DeterminationMode(E.Checked(E.CheckDetails(E.Measured()))), id=fi))
         description = next((o.char.description for o in obs if o.char.description), None)
         cdef = [E.Description(description)] if description else []
@@ -505,11 +502,11 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
             cdef.append(E.UnequallyDisposedZone(_num(c.unequally_disposed)))
         cdefs.append(E.SurfaceProfileCharacteristicDefinition(*cdef, id=cd))
         cnoms.append(E.SurfaceProfileCharacteristicNominal(
-            E.CharacteristicDefinitionId(cd), _array("FeatureNominalIds", [fn]), E.Name(name),
+            E.CharacteristicDefinitionId(cd), id_array("FeatureNominalIds", [fn]), E.Name(name),
             id=cn))
         citems.append(E.SurfaceProfileCharacteristicItem(
-            E.Name(name), E.CharacteristicDesignator(E.Designator(_token(key))),
-            _array("FeatureItemIds", [fi]), E.CharacteristicNominalId(cn), id=ci))
+            E.Name(name), E.CharacteristicDesignator(E.Designator(token(key))),
+            id_array("FeatureItemIds", [fi]), E.CharacteristicNominalId(cn), id=ci))
 
     # -- the batch's measurements, copied: one MeasurementResults per inspection
     meas_id: dict[tuple[int, str], str] = {}  # (inspection, source measurement id) -> id
@@ -520,7 +517,7 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
         meas = []
         for c in res.characteristics:
             m = meas_id[(k, c.id)] = ids()
-            el = [_Attrs().s("source_id", c.id).element(), _characteristic_status(c.status),
+            el = [Attrs().s("source_id", c.id).element(), _characteristic_status(c.status),
                   E.CharacteristicItemId(item_ids[_key(c)]), E.ActualComponentId(actual_id)]
             for tag, x in (("Value", c.value), ("WorstPositiveDeviation", c.worst_positive),
                            ("WorstNegativeDeviation", c.worst_negative)):
@@ -529,7 +526,7 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
             meas.append(E.SurfaceProfileCharacteristicMeasurement(*el, id=m))
         times = [(tag, _parse_time(t)) for tag, t in (("InspectionStart", res.inspection_start),
                                                       ("InspectionEnd", res.inspection_end))]
-        trace = [E(tag, _time(t)) for tag, t in times if t is not None]
+        trace = [E(tag, xml_time(t)) for tag, t in times if t is not None]
         mr = [E.InspectionTraceability(*trace)] if trace else []
         if sources is not None:
             mr.append(E.ExternalFileReferences(E.ExternalFileReference(
@@ -540,7 +537,7 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
             mr.append(E.MeasuredCharacteristics(
                 E.CharacteristicMeasurements(*meas, n=str(len(meas)))))
         mr += [_inspection_status("InspectionStatus", res.status),
-               _array("ActualComponentIds", [actual_id])]
+               id_array("ActualComponentIds", [actual_id])]
         mrs.append(E.MeasurementResults(*mr, id=mr_id))
         serial = [E.SerialNumber(res.serial_number)] if res.serial_number else []
         actuals.append(E.ActualComponent(*serial, _inspection_status("Status", res.status),
@@ -553,25 +550,25 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
              for key, obs in groups.items()]
     starts = [t for t in (_parse_time(r.inspection_start) for r in results) if t is not None]
     ends = [t for t in (_parse_time(r.inspection_end) for r in results) if t is not None]
-    trace = ([E.InspectionStart(_time(min(starts)))] if starts else []) + \
-            ([E.InspectionEnd(_time(max(ends)))] if ends else []) + \
-            [E.ReportPreparationDate(_time(created))]
-    study_attrs = _Attrs()
+    trace = ([E.InspectionStart(xml_time(min(starts)))] if starts else []) + \
+            ([E.InspectionEnd(xml_time(max(ends)))] if ends else []) + \
+            [E.ReportPreparationDate(xml_time(created))]
+    study_attrs = Attrs()
     if nominal_sha256 is not None:
         study_attrs.s("nominal_sha256", nominal_sha256)
     study = [
-        E.ThisStatisticalStudyResultsInstanceQPId(_qpid()),
+        E.ThisStatisticalStudyResultsInstanceQPId(qpid()),
         study_attrs.element(),
         _informational(),
         E.SoftwareId(sw_id),
         E.InspectionTraceability(*trace),
-        E.Name(_token(f"{part_name} batch")),
+        E.Name(token(f"{part_name} batch")),
         E.Description(f"Capability of {len(results)} inspections of {part_name}: per "
                       "characteristic, statistics of the profile values (mm) of the "
                       "measurements in Results; Cpk is the upper one-sided index "
                       "(ToleranceValue - mean) / (3 s), s the sample standard deviation; "
                       "attributes n_pass, n_fail, n_other count the characteristic statuses"),
-        _array("ResultsIds", mr_ids),
+        id_array("ResultsIds", mr_ids),
         E.CharacteristicsStats(*stats, n=str(len(stats))),
         E.NumberOfSamples(str(len(results))),
     ]
@@ -579,14 +576,14 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
         E.CapabilityStudyResults(*[x for x in study if x is not None], id=ids()), n="1"))
 
     part = E.Part(
-        E.Header(E.Name(part_name)), E.UUID(_qpid()),
-        _array("FeatureNominalIds", [f.get("id") for f in fnoms]),
-        _array("CharacteristicNominalIds", [c.get("id") for c in cnoms]), id=part_id)
+        E.Header(E.Name(part_name)), E.UUID(qpid()),
+        id_array("FeatureNominalIds", [f.get("id") for f in fnoms]),
+        id_array("CharacteristicNominalIds", [c.get("id") for c in cnoms]), id=part_id)
     product = E.Product(
         E.PartSet(part, n="1"),
-        E.ComponentSet(E.Component(E.UUID(_qpid()), E.Part(E.Id(part_id)), id=comp_id), n="1"),
+        E.ComponentSet(E.Component(E.UUID(qpid()), E.Part(E.Id(part_id)), id=comp_id), n="1"),
         E.RootPart(E.Id(part_id)),
-        E.AsmPaths(E.AsmPath(_array("ComponentIds", [comp_id]), id=path_id), n="1"))
+        E.AsmPaths(E.AsmPath(id_array("ComponentIds", [comp_id]), id=path_id), n="1"))
     features = E.Features(E.FeatureDefinitions(*fdefs, n=str(len(fdefs))),
                           E.FeatureNominals(*fnoms, n=str(len(fnoms))),
                           E.FeatureItems(*fitems, n=str(len(fitems))))
@@ -602,7 +599,7 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
         E.Application(E.Name("qifreport"), E.Organization("qifreport project")),
         E.Description(f"Batch statistics of {part_name}: {len(results)} inspections, "
                       f"{len(groups)} characteristics"))
-    children = [E.QPId(_qpid()), E.Version(E.TimeCreated(_time(created))), header, external,
+    children = [E.QPId(qpid()), E.Version(E.TimeCreated(xml_time(created))), header, external,
                 standards, software, units, product, features, characteristics, result_set,
                 statistics]
     root = E.QIFDocument(*[c for c in children if c is not None], versionQIF="3.0.0",

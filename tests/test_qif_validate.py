@@ -28,18 +28,23 @@ from pathlib import Path
 import pytest
 from lxml import etree
 
-from qifreport.qif import validate as V
+from qifreport.qif import dmsc as D
+from qifreport.qif.identities import identity_constraints, norm_value
+from qifreport.qif.lxml_validator import lxml_schema
 from qifreport.qif.validate import (
     Finding,
     SchemasUnavailable,
     ValidationReport,
+    checks_dir,
     dmsc_checks,
     schema_dir,
     validate,
     validate_lxml,
-    validate_main,
     validate_xmlschema,
 )
+from qifreport.qif.xmlschema_validator import xmlschema_findings, xmlschema_schema
+from qifreport.qif.xsd import QIF_NS, REPO_ROOT, dsig_path
+from qifreport.validate_command import validate_main
 from tests.conftest import SHARED, shared_file
 
 OFFICIAL = [
@@ -148,7 +153,7 @@ def xsd() -> Path:
 @pytest.fixture(scope="module")
 def checks_available() -> None:
     try:
-        V._checks_dir()
+        checks_dir()
     except SchemasUnavailable as exc:
         _fail_or_skip(str(exc))
 
@@ -196,16 +201,16 @@ def test_stock_xmlschema_false_keyrefs(rel, xsd):
     """
     path = shared_file(rel)
     tree = etree.parse(str(path))
-    stock = V._xmlschema_findings(tree, xsd, register_substitutes=False)
+    stock = xmlschema_findings(tree, xsd, register_substitutes=False)
     assert dict(Counter(f.rule for f in stock)) == STOCK_XMLSCHEMA.get(path.name, {})
     # every one names an id that the key's own selector does find in the document
-    idents = V._identities(xsd)
+    idents = identity_constraints(xsd)
     for f in stock:
         m = re.match(r"value (\S+) not found for key (\w+)", f.message)
         assert m, f
-        ns = {"t": V.QIF_NS}
+        ns = {"t": QIF_NS}
         key = idents[m.group(2)]
-        ids = {V._norm_value(x) for x in tree.getroot().xpath(
+        ids = {norm_value(x) for x in tree.getroot().xpath(
             f"({key.selector})/@id", namespaces=ns)}
         assert m.group(1) in ids, f"{m.group(1)} really missing from {key.name}"
         assert f.line is not None and f.line > 1
@@ -216,7 +221,7 @@ def test_stock_xmlschema_misses_duplicate_ids_of_substitutes(tmp_path, xsd):
                        '<SphericityCharacteristicItem id="6">',
                        '<SphericityCharacteristicItem id="5">')
     line = _line_of(text, '<SphericityCharacteristicItem id="5">')
-    stock = V._xmlschema_findings(etree.parse(str(p)), xsd, register_substitutes=False)
+    stock = xmlschema_findings(etree.parse(str(p)), xsd, register_substitutes=False)
     ours = validate_xmlschema(p)
     lx = validate_lxml(p)
     dup = {("key CharacteristicItemIdKey", line), ("unique QIFIdUnique", line)}
@@ -288,7 +293,7 @@ def test_dmsc_missing_linked_document(tmp_path, checks_available):
 
 def test_dmsc_array_length_extension_functions():
     """The urn:my-scripts functions the checks call (C# in checkLibraryMSXML.xsl)."""
-    dbl, intg = V._array_length(float), V._array_length(int)
+    dbl, intg = D._array_length(float), D._array_length(int)
     el = etree.fromstring("<CPs count='2'> 1 2.5\n 3e1 4 </CPs>")
     assert dbl(None, [el]) == 4
     assert dbl(None, "1 x") == -1
@@ -298,13 +303,13 @@ def test_dmsc_array_length_extension_functions():
 def test_dmsc_node_paths_and_rule_names():
     """CheckReport node paths (``Name[pos]{id}`` steps) and the rule names of its reports."""
     root = etree.fromstring(
-        f"<QIFDocument xmlns='{V.QIF_NS}'>\n<A>\n<B id='1'/>\n<B id='17'>\n<C/>\n</B>\n</A>\n"
+        f"<QIFDocument xmlns='{QIF_NS}'>\n<A>\n<B id='1'/>\n<B id='17'>\n<C/>\n</B>\n</A>\n"
         "</QIFDocument>".encode())
-    assert V._node_line(root, "/QIFDocument/A/B[2]{17}/C") == 5
-    assert V._node_line(root, "/QIFDocument/A/B{17}") == 4
-    assert V._node_line(root, "/QIFDocument/A/B") == 3
-    assert V._node_line(root, "/QIFDocument/A/X") is None
-    assert V._node_line(root, "/Other/A") is None
+    assert D._node_line(root, "/QIFDocument/A/B[2]{17}/C") == 5
+    assert D._node_line(root, "/QIFDocument/A/B{17}") == 4
+    assert D._node_line(root, "/QIFDocument/A/B") == 3
+    assert D._node_line(root, "/QIFDocument/A/X") is None
+    assert D._node_line(root, "/Other/A") is None
     examples = {  # reports quoted in CheckDescriptions.md
         'The number of array elements doesn\'t correspond to the specified "n" attribute: '
         "n(3) != nElem(2)": "n-count",
@@ -321,7 +326,7 @@ def test_dmsc_node_paths_and_rule_names():
             "body-form",
     }
     for text, rule in examples.items():
-        assert V._dmsc_rule(text, "CheckFormat") == rule, text
+        assert D._dmsc_rule(text, "CheckFormat") == rule, text
 
 
 # --------------------------------------------------------------------------------------------
@@ -447,7 +452,7 @@ def test_official_folder_without_local_dsig_uses_bundled_copy(monkeypatch):
     monkeypatch.setenv("QIFREPORT_XSD_DIR", str(official))
     import xmlschema
 
-    assert V._dsig_path(official).parent == Path(xmlschema.__file__).resolve().parent \
+    assert dsig_path(official).parent == Path(xmlschema.__file__).resolve().parent \
         / "schemas" / "DSIG"
     assert validate_lxml(shared_file(ALL_IN_ONE)) == []
 
@@ -457,7 +462,7 @@ def test_dsig_copy_with_doctype_loads(monkeypatch, tmp_path, xsd):
     d = tmp_path / "xsd"
     shutil.copytree(xsd, d)
     dsig = d / "QIFLibrary" / "xmldsig-core-schema.xsd"
-    text = V._dsig_path(xsd).read_text(encoding="utf-8")
+    text = dsig_path(xsd).read_text(encoding="utf-8")
     text = re.sub(r"<!--\s*<!DOCTYPE.*?\]>\s*-->", "", text, flags=re.S)
     head, rest = text.split("\n", 1)
     assert head.startswith("<?xml") and "<!DOCTYPE" not in rest
@@ -483,7 +488,7 @@ DSIG_DOCTYPE = """<!DOCTYPE schema
 
 def test_installed_schema_copy_has_the_dsig_schema():
     """``make install`` puts the xmldsig schema beside the official files (Makefile step)."""
-    installed = Path(V.REPO_ROOT) / "schemas" / "qif-3.0"
+    installed = Path(REPO_ROOT) / "schemas" / "qif-3.0"
     if not (installed / "QIFApplications" / "QIFDocument.xsd").is_file():
         pytest.skip("schemas/qif-3.0 not installed (make install)")
     assert (installed / "QIFLibrary" / "xmldsig-core-schema.xsd").is_file(), \
@@ -493,11 +498,11 @@ def test_installed_schema_copy_has_the_dsig_schema():
 def test_schemas_compiled_once(xsd):
     path = shared_file(ALL_IN_ONE)
     validate(path, strict=True)
-    lx, xs = V._lxml_schema.cache_info(), V._xmlschema_schema.cache_info()
+    lx, xs = lxml_schema.cache_info(), xmlschema_schema.cache_info()
     validate(path, strict=True)
-    assert V._lxml_schema.cache_info().misses == lx.misses
-    assert V._xmlschema_schema.cache_info().misses == xs.misses
-    assert V._xmlschema_schema.cache_info().hits > xs.hits
+    assert lxml_schema.cache_info().misses == lx.misses
+    assert xmlschema_schema.cache_info().misses == xs.misses
+    assert xmlschema_schema.cache_info().hits > xs.hits
 
 
 def test_report_without_validators_is_not_valid(tmp_path):
