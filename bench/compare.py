@@ -39,7 +39,8 @@ import igl
 import numpy as np
 import pandas as pd
 
-from qifreport.metrology.inspection import InspectionParams, unscored_bands
+from qifreport.metrology.inspection import InspectionParams
+from qifreport.metrology.unscored import unscored_bands
 from qifreport.registration import methods
 from qifreport.registration.cpd import CPDParams, cpd_warp, resolve_params, sample_points
 from qifreport.registration.gbcicp import GBCICPParams, bending_basis

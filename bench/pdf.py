@@ -4,11 +4,11 @@ The part is the thin shell (``registration.simulate.shapes.thin_shell``) at 0.6 
 103,578 triangles, with a synthetic inspection result: a smooth in-band deviation field, a
 proud bump and a sunk dent out of a 0.3 mm band, unscanned corners and scanner dropouts;
 statistics, regions and the acceptance decision are computed by the product's own metrology
-(:mod:`qifreport.metrology.statistics`, :mod:`qifreport.metrology.acceptance`), so the page carries realistic
-content. No registration is run: only the report is timed. Printed: the time of each run
-split into ``layout`` (measuring the page, choosing the views), ``render`` (the map
-pictures, VTK offscreen) and ``draw`` (histogram, tables, writing the PDF), and the median of
-the runs. The first run includes loading VTK and creating the EGL context.
+(:mod:`qifreport.metrology.statistics`, :mod:`qifreport.metrology.acceptance`), so the page carries
+realistic content. No registration is run: only the report is timed. Printed: the time of each run
+split into ``layout`` (measuring the page, choosing the views), ``render`` (the map pictures, VTK
+offscreen) and ``draw`` (histogram, tables, writing the PDF), and the median of the runs. The first
+run includes loading VTK and creating the EGL context.
 
     python bench/pdf.py [--runs 3] [--spacing 0.6] [--page A4] [--backend vtk] [--out DIR]
 """

@@ -31,12 +31,12 @@ stage later removes. So three success levels are printed:
 
 ``refused`` counts :class:`PoseNotEstablished`; ``wrong`` counts accepted poses that are
 not ``equiv`` (silent failures, the thing that must not happen). ``cond`` is the median pose
-conditioning the confidence report gives (:func:`qifreport.registration.icp.pose_conditioning`; below
-1e-3 the seen surface slides along itself). ``downstream``: for the first ``--downstream``
-accepted poses of each part the whole inspection (:func:`qifreport.metrology.inspection.inspect`: rigid
-ICP, GB-CICP, normal deviations) is run on the pre-registered scan and on the same scan
-delivered in the part frame, and the largest difference of the deviation RMS and P99.9 is
-printed (what a wrong or merely different rigid pose would change).
+conditioning the confidence report gives (:func:`qifreport.registration.icp.pose_conditioning`;
+below 1e-3 the seen surface slides along itself). ``downstream``: for the first ``--downstream``
+accepted poses of each part the whole inspection (:func:`qifreport.metrology.inspection.inspect`:
+rigid ICP, GB-CICP, normal deviations) is run on the pre-registered scan and on the same scan
+delivered in the part frame, and the largest difference of the deviation RMS and P99.9 is printed
+(what a wrong or merely different rigid pose would change).
 
     python bench/prealign.py [--poses 50] [--quick] [--parts fandisk,shell,housing]
 """

@@ -124,8 +124,9 @@ class InspectionResult:
     rigid : the rigid alignment (pose of the scan as delivered -> nominal frame).
     fit : the virtual fixture's result (None with ``rigid_only``), from the method
         ``params.method`` (``fit.method``).
-    prealign : how the rigid ICP was started (:class:`qifreport.registration.prealign.PrealignResult`;
-        ``method == "identity"`` when the scan was already in the part frame).
+    prealign : how the rigid ICP was started
+        (:class:`qifreport.registration.prealign.PrealignResult`; ``method == "identity"`` when the
+        scan was already in the part frame).
     scan_area : estimated area covered by the scan, mm^2.
     coverage_ceiling_ok : coverage does not exceed scan area / nominal area (over-fit check).
     timings : seconds per stage.
@@ -376,12 +377,14 @@ def inspect(
         zone of half-width ``params.tolerance``. Zones that cover no triangle are dropped.
     not_evaluated : PMI items listed in the result but not scored.
     scan_units : the unit the user declared for the scan file (for the units hint only).
-    basis : the nominal's GB-CICP bending basis (:func:`qifreport.registration.gbcicp.bending_basis`),
-        to reuse it across scans of one part; computed when needed if omitted.
-    prepared : the nominal's scan-independent state (:func:`qifreport.metrology.prepared.prepare_part`
-        with these ``params``), to reuse across scans of one part: operators, unscored
-        bands, hygiene, bending basis (unless ``basis`` is given) and the pose search's
-        model. ``ValueError`` if it was prepared for another mesh or other settings.
+    basis : the nominal's GB-CICP bending basis
+        (:func:`qifreport.registration.gbcicp.bending_basis`), to reuse it across scans of one part;
+        computed when needed if omitted.
+    prepared : the nominal's scan-independent state
+        (:func:`qifreport.metrology.prepared.prepare_part` with these ``params``), to reuse across
+        scans of one part: operators, unscored bands, hygiene, bending basis (unless ``basis`` is
+        given) and the pose search's model. ``ValueError`` if it was prepared for another mesh or
+        other settings.
 
     Raises
     ------

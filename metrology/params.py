@@ -50,8 +50,8 @@ class InspectionParams:
         is an artefact. None: the deviation's neighbourhood radius (1.5 median edges);
         0 scores every vertex. The excluded area is reported.
     boundary_band : vertices within this distance (mm) of an open boundary of the nominal
-        (rim, holes, unwelded seams) are not scored (:mod:`qifreport.metrology.hygiene`); None: the same
-        width as ``edge_band``'s default (1.5 median edges); 0 scores the rim. The excluded
+        (rim, holes, unwelded seams) are not scored (:mod:`qifreport.metrology.hygiene`); None: the
+        same width as ``edge_band``'s default (1.5 median edges); 0 scores the rim. The excluded
         area is reported with the mesh's defects.
     rigid_only : skip the virtual fixture (the fixtureless rigid baseline).
     prealign : pose search before the rigid ICP (:func:`qifreport.registration.prealign.seat_scan`):

@@ -5,8 +5,8 @@ depends only on the nominal -- the bending operators, the unscored crease and ri
 mesh hygiene, the GB-CICP bending basis (the costliest: an eigen-decomposition) and the
 pose search's curvature descriptors -- is done once by :func:`prepare_part` and handed to
 every :func:`qifreport.metrology.inspection.inspect` of the part (``prepared=``). The per-part cache
-(:mod:`qifreport.cache`) stores it on disk; the batch runner (:mod:`qifreport.batch`) ships it to each
-worker once.
+(:mod:`qifreport.cache`) stores it on disk; the batch runner (:mod:`qifreport.batch`) ships it to
+each worker once.
 
 A :class:`PreparedPart` remembers the settings it was built with (:func:`part_settings`);
 :meth:`PreparedPart.check` refuses an inspection whose parameters would have built it

@@ -41,8 +41,9 @@ region, never add one); and ``--seeds 1`` (the default) is exactly the run witho
 resampling. The price is one inspection more than ``N``.
 
 The functions work on plain arrays (vertex indices, signed out-of-tolerance maps);
-:func:`apply` is the glue that reads them from :class:`qifreport.metrology.inspection.InspectionResult`
-objects (duck-typed, to keep this module free of the inspection module).
+:func:`apply` is the glue that reads them from
+:class:`qifreport.metrology.inspection.InspectionResult` objects (duck-typed, to keep this module
+free of the inspection module).
 """
 
 from __future__ import annotations
@@ -87,8 +88,8 @@ def signed_out(dev: np.ndarray, tolerance, center=0.0) -> np.ndarray:
     Returns
     -------
     (n,) int8: +1 proud beyond the band (``dev - center > tolerance``), -1 sunk beyond it,
-    0 inside the band or unscored -- the vertices :func:`qifreport.metrology.acceptance.find_regions`
-    groups into regions.
+    0 inside the band or unscored -- the vertices
+    :func:`qifreport.metrology.acceptance.find_regions` groups into regions.
     """
     d = np.asarray(dev, dtype=np.float64) - np.asarray(center, dtype=np.float64)
     tol = np.asarray(tolerance, dtype=np.float64)
@@ -329,10 +330,10 @@ def apply(res: Any, runs: Sequence[Any], keep_fraction: float = KEEP_FRACTION,
 
     Parameters
     ----------
-    res : the reported run (:class:`qifreport.metrology.inspection.InspectionResult` of the full scan).
-        Its ``acceptance`` and each zone's ``acceptance`` are replaced by
-        :func:`restrict_acceptance` of their persistent regions, and ``res.repeatability``
-        is set (so its trust warnings include the resampled runs').
+    res : the reported run (:class:`qifreport.metrology.inspection.InspectionResult` of the full
+        scan). Its ``acceptance`` and each zone's ``acceptance`` are replaced by
+        :func:`restrict_acceptance` of their persistent regions, and ``res.repeatability`` is set
+        (so its trust warnings include the resampled runs').
     runs : the resampled runs' results, seed 0 first (same nominal and zones).
     keep_fraction : the resampling's keep probability (reported).
     seconds : wall time of the resampled runs (reported).

@@ -2,8 +2,8 @@
 
 ``qifreport prepare PART.step`` (and, implicitly, the first inspection of a part) reads the
 nominal, tessellates it, lays its tolerance zones and computes everything an inspection needs
-from the nominal alone (:func:`qifreport.metrology.prepared.prepare_part`: operators, unscored bands,
-bending basis, pose-search model). The result is one file in the cache directory::
+from the nominal alone (:func:`qifreport.metrology.prepared.prepare_part`: operators, unscored
+bands, bending basis, pose-search model). The result is one file in the cache directory::
 
     <cache>/<part stem>-<key[:20]>.qprep
 

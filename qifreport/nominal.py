@@ -1,8 +1,9 @@
 """The nominal as an inspection needs it: a STEP part (mesh + PMI zones) or a mesh.
 
-:func:`load_nominal` reads a STEP AP242 file through :mod:`qifreport.step` (tessellation with per-face
-ids, semantic PMI turned into tolerance zones by :func:`qifreport.metrology.bands.zones_from_pmi`) or a
-mesh nominal (STL/PLY/OBJ/OFF) with one general zone of the given tolerance.
+:func:`load_nominal` reads a STEP AP242 file through :mod:`qifreport.step` (tessellation with
+per-face ids, semantic PMI turned into tolerance zones by
+:func:`qifreport.metrology.bands.zones_from_pmi`) or a mesh nominal (STL/PLY/OBJ/OFF) with one
+general zone of the given tolerance.
 """
 
 from __future__ import annotations

@@ -1,9 +1,9 @@
 """Semantic PMI (product and manufacturing information) of a STEP AP242 part, as plain data.
 
-These dataclasses are the interface between the STEP readers (:mod:`qifreport.step.semantic`) and the
-rest of the tool. Lengths are in millimetres and angles in degrees whatever the file's units;
-the text the file actually carries is kept alongside (``value_text``) for traceability. STEP
-entity ids (``#n`` in the file) identify tolerances, dimensions, datums and faces.
+These dataclasses are the interface between the STEP readers (:mod:`qifreport.step.semantic`) and
+the rest of the tool. Lengths are in millimetres and angles in degrees whatever the file's units;
+the text the file actually carries is kept alongside (``value_text``) for traceability. STEP entity
+ids (``#n`` in the file) identify tolerances, dimensions, datums and faces.
 
 A value that could not be established is ``None`` (never ``0`` as a placeholder) and each
 object says why in its ``problems`` list. Everything converts to JSON through

@@ -6,11 +6,11 @@ tolerances, dimensions, datums -- is read twice:
 
 * by XDE, as OCCT understands it (``XCAFDoc_DimTolTool``), kept as :class:`XdeSummary` for
   cross-checking and for the ``pmi`` report;
-* from the Part 21 text itself by :func:`qifreport.step.semantic.read_pmi_text`, which is the source of
-  every *value* we use. XDE returns 0.0 for magnitudes stored as complex measure instances,
+* from the Part 21 text itself by :func:`qifreport.step.semantic.read_pmi_text`, which is the source
+  of every *value* we use. XDE returns 0.0 for magnitudes stored as complex measure instances,
   mis-scales some units, and loses datum-to-face links that go through anything other than
-  ``GEOMETRIC_ITEM_SPECIFIC_USAGE`` (``../shared/README.md``, "Known traps"; OCCT issues
-  #1368, #384, #1138). The text reader resolves units recursively and follows every link.
+  ``GEOMETRIC_ITEM_SPECIFIC_USAGE`` (``../shared/README.md``, "Known traps"; OCCT issues #1368,
+  #384, #1138). The text reader resolves units recursively and follows every link.
 
 The two are joined through the B-rep faces: the Part 21 reader names faces by their STEP
 entity id (``#764 = ADVANCED_FACE(...)``); this module maps each face of the transferred shape

@@ -1,5 +1,5 @@
-"""``qifreport --method`` and ``--seeds`` on a small shell, and :mod:`qifreport.metrology.repeatability`
-on plain arrays.
+"""``qifreport --method`` and ``--seeds`` on a small shell, and
+:mod:`qifreport.metrology.repeatability` on plain arrays.
 
 The CLI cases use an 80 x 50 mm thin shell at a 2 mm pitch (1,066 vertices): analytic
 compliance at 1 % of the diagonal (0.91 mm at most), a 1.0 mm / sigma 5 mm Gaussian bump,

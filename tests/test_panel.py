@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.cli import load_nominal
 from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.nominal import load_nominal
 from qifreport.registration.pointcloud import load_scan
 from tests.conftest import ROOT
 

@@ -3,8 +3,8 @@
 Real inspections (the shell passing at 0.5 mm, the shell with a 1 mm bump failing at 0.3 mm,
 the STEP panel with two PMI profile tolerances) are written as PDF and QIF; the PDF is
 rasterized with ``pdftoppm`` and its text extracted with ``pdftotext`` (poppler-utils) and
-checked against the result and against what :func:`qifreport.qif.reader.read_results` reads back from
-the QIF file, at the precision the page prints. A synthetic stress case (40 regions, 25
+checked against the result and against what :func:`qifreport.qif.reader.read_results` reads back
+from the QIF file, at the precision the page prints. A synthetic stress case (40 regions, 25
 tolerances) must still give one page with the lists summarised.
 """
 
@@ -65,8 +65,8 @@ def _produce(d: Path, name: str, res, prov: Provenance, page: str = "A4") -> Out
 def results(shell, shell_case, shell_case_defect):
     """name -> (InspectionResult, Provenance): a passing shell, a failing shell and the STEP
     panel (two PMI profile tolerances, two PMI items not scored), inspected as qif.cli does."""
-    from qifreport.cli import load_nominal
     from qifreport.metrology.inspection import InspectionParams, inspect
+    from qifreport.nominal import load_nominal
     from qifreport.registration.pointcloud import load_scan
 
     V, F = shell

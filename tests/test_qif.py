@@ -6,7 +6,8 @@ tolerances, a mesh nominal with no PMI) is checked by
 - the DMSC XSLT checks (zero errors in CheckFormat),
 - two consumers we did not write: a PyXB binding generated from the XSDs and Xerces-C,
 - our own structural checks (unique ids, ``idMax``, every ``n=``, QPIds are UUIDs),
-and read back with :func:`qifreport.qif.reader.read_results` number by number against the JSON summary.
+and read back with :func:`qifreport.qif.reader.read_results` number by number against the JSON
+summary.
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ from qifreport.errors import InputError
 from qifreport.registration.mesh import load_mesh
 from qifreport.registration.pointcloud import load_scan
 from tests.conftest import assert_valid_summary
-from tests.test_cli import SAMPLES, write_points, run
+from tests.test_cli import SAMPLES, run, write_points
 from tests.test_fuzz_readers import FORMATS, encode, expected_points, grid_mesh, seed
 
 NOMINAL = SAMPLES / "shell_nominal.ply"

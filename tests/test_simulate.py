@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import time
 from pathlib import Path
 
 import numpy as np
@@ -211,15 +210,13 @@ def test_mode_weights_and_hessian_energy():
         biharmonic_deformation(V, F, 1.0, {"wobble": 1.0})
 
 
-def test_fandisk_biharmonic_and_scan_speed(fandisk_mesh):
+def test_fandisk_biharmonic_and_scan(fandisk_mesh):
+    """The generator and scanner on the fandisk (their speed: bench/io_speed.py)."""
     V, F = fandisk_mesh
     D = biharmonic_deformation(V, F, 2.0, {"bend": 1.0, "twist": 0.5})
     assert np.abs(D.d[D.handles.indices] - D.g).max() < 1e-8
     assert np.isfinite(D.d).all() and len(D.handles.groups) == 5
-    t = time.perf_counter()
     S = virtual_scan(V + D.d, F, ScanSpec(views=2, seed=1))
-    per_view = (time.perf_counter() - t) / 2
-    assert per_view < 2.0
     assert len(S.P) > 10000 and set(np.unique(S.view)) == {0, 1}
     # a closed solid: aimed along -u3, two opposing tilted views
     dirs = aim_views(V, F, 2, 25.0)

@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
-import time
 from collections import Counter
 from functools import cache
 from pathlib import Path
@@ -626,15 +624,10 @@ def test_thread_geometry_maps_to_the_tapped_holes():
 # ============================================================================================
 
 
-def test_speed_on_the_largest_file():
+def test_the_largest_file_parses_whole():
+    """Every entity of the largest shared file parses (its speed: bench/io_speed.py)."""
     path = shared_file("step/nist/nist_ftc_06_asme1_ap242-e1.stp")  # 3.2 MB
-    t0 = time.perf_counter()
     model = P21Model.read(path)
     model.parse_all()
-    parse = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    read_pmi_text(path)
-    full = time.perf_counter() - t0
-    assert parse < 2.0, f"full parse took {parse:.2f} s"
-    assert full < 3.0, f"read_pmi_text took {full:.2f} s"
-    assert len(model) == 16954 and not math.isnan(parse)
+    assert len(model) == 16954
+    assert read_pmi_text(path).tolerances

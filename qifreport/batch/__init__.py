@@ -24,8 +24,8 @@ Outputs (``DIR``)
     internal error) gets a record with its one-line error and no other output; it does not
     stop the batch. ``summary.csv`` and ``summary.parquet`` hold one row per scan in plan
     order; per nominal, ``<part>_statistics.qif`` (the QIF 3.0 Statistics document,
-    :mod:`qifreport.qif.statistics`) and ``<part>_trend.pdf`` (run charts, :mod:`qifreport.reports.trend`). Every
-    file is written atomically.
+    :mod:`qifreport.qif.statistics`) and ``<part>_trend.pdf`` (run charts,
+    :mod:`qifreport.reports.trend`). Every file is written atomically.
 
 Resume
     Running the same command again skips every scan whose record and outputs exist and

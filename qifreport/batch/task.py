@@ -157,7 +157,8 @@ def summary_row(res, item: ScanItem, scan_sha256: str, seconds: float) -> dict:
         k = z.zone.key
         row[f"profile_{k}_mm"] = profile_value(z)
         row[f"tolerance_{k}_mm"] = z.zone.upper - z.zone.lower
-        row[f"status_{k}"] = STATUS_WORDS[characteristic_status(z, res.established)]  # as in the QIF
+        # as in the QIF
+        row[f"status_{k}"] = STATUS_WORDS[characteristic_status(z, res.established)]
         row[f"in_tolerance_{k}_pct"] = 100.0 * z.acceptance.in_tolerance_fraction
     return row
 

@@ -213,7 +213,8 @@ def local_plane_noise(
 
 def deviation_radius(V: np.ndarray, F: np.ndarray) -> float:
     """Neighbourhood radius of the nominal-referenced deviation as ``inspect`` calls it
-    (the default of :func:`qifreport.metrology.deviation.nominal_referenced`: 1.5 median edges), mm."""
+    (the default of :func:`qifreport.metrology.deviation.nominal_referenced`: 1.5 median edges),
+    mm."""
     return 1.5 * median_edge_length(V, F)
 
 
