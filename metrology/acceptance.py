@@ -41,6 +41,17 @@ from qifreport.registration.mesh import adjacency, vertex_areas
 
 from .statistics import json_float
 
+__all__ = [
+    "DEFAULT_MAX_REGION_AREA",
+    "Acceptance",
+    "coverage_ceiling_ok",
+    "evaluate",
+    "find_regions",
+    "Region",
+    "region_reasons",
+    "scan_area",
+]
+
 log = logging.getLogger(__name__)
 
 #: mm^2; a 5 mm x 5 mm patch (see the module docstring)

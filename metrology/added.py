@@ -28,6 +28,12 @@ from scipy.spatial import cKDTree
 
 from .statistics import json_float
 
+__all__ = [
+    "added_material",
+    "AddedMaterial",
+    "AddedRegion",
+]
+
 
 @dataclass
 class AddedRegion:

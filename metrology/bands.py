@@ -41,6 +41,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+__all__ = [
+    "DEFAULT_GENERAL_TOLERANCE",
+    "PROFILE_TYPES",
+    "BandField",
+    "lay_bands",
+    "NotEvaluated",
+    "profile_band",
+    "symmetric_zone",
+    "ToleranceZone",
+    "triangle_zone_mask",
+    "zone_vertex_areas",
+    "zones_from_pmi",
+]
+
 log = logging.getLogger(__name__)
 
 #: mm, half-width of the general profile band (zone 1.0 mm) used on faces that no profile

@@ -30,6 +30,14 @@ from trimesh.triangles import closest_point as _triangle_closest_point
 
 from qifreport.registration.mesh import edge_uses, face_normals, median_edge_length, vertex_normals
 
+__all__ = [
+    "beyond_rim",
+    "closest_points",
+    "data_referenced",
+    "nominal_referenced",
+    "vertex_face_csr",
+]
+
 log = logging.getLogger(__name__)
 
 #: nearest mesh vertices whose incident faces are the fast-path candidates

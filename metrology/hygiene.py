@@ -19,6 +19,12 @@ from scipy.spatial import cKDTree
 
 from qifreport.registration.mesh import adjacency, edge_uses
 
+__all__ = [
+    "mesh_hygiene",
+    "MeshHygiene",
+    "near_boundary",
+]
+
 
 @dataclass
 class MeshHygiene:

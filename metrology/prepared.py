@@ -29,6 +29,12 @@ from .hygiene import MeshHygiene, mesh_hygiene
 from .params import InspectionParams
 from .unscored import unscored_bands
 
+__all__ = [
+    "part_settings",
+    "prepare_part",
+    "PreparedPart",
+]
+
 log = logging.getLogger(__name__)
 
 

@@ -59,6 +59,23 @@ import numpy as np
 from .acceptance import Acceptance, Region, region_reasons
 from .statistics import json_float
 
+__all__ = [
+    "KEEP_FRACTION",
+    "WHOLE_PART",
+    "apply",
+    "DroppedRegion",
+    "persistent_regions",
+    "region_hits",
+    "region_sign_map",
+    "Repeatability",
+    "resample_mask",
+    "restrict_acceptance",
+    "signed_out",
+    "spread",
+    "surface_persistence",
+    "SurfacePersistence",
+]
+
 log = logging.getLogger(__name__)
 
 #: probability with which each scan point is kept in a resampling

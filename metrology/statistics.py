@@ -29,6 +29,14 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+__all__ = [
+    "deviation_statistics",
+    "DeviationStats",
+    "json_float",
+    "tail_fractions",
+    "weighted_percentile",
+]
+
 
 def json_float(x: float | None) -> float | None:
     """Plain ``float``, with NaN/inf mapped to ``None`` so the result is strict JSON."""

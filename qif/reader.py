@@ -25,6 +25,15 @@ from qifreport.metrology.statistics import DeviationStats
 
 from .writer import NS
 
+__all__ = [
+    "acceptance_from_attributes",
+    "CharacteristicResult",
+    "QIFResults",
+    "read_attributes",
+    "read_results",
+    "stats_from_attributes",
+]
+
 _Q = f"{{{NS}}}"
 _STATS_KEYS = ("rms", "mean", "max_abs", "max_pos", "min_neg", "p95", "p99", "p999")
 

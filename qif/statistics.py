@@ -108,6 +108,7 @@ import numpy as np
 from lxml import etree
 
 from qifreport import __version__
+from qifreport.metrology.spc import upper_cpk
 
 from .reader import CharacteristicResult, QIFResults
 from .writer import write_qif
@@ -234,9 +235,8 @@ def _summary(key: str, obs: list[_Observation]) -> CharacteristicSummary:
     mean = float(values.mean()) if count else math.nan
     std = float(values.std(ddof=1)) if count >= 2 else math.nan
     tol = first.tolerance
-    cpk = None
-    if tol is not None and count >= 2 and std > 0:
-        cpk = (tol - mean) / (3.0 * std)
+    cpk = None if tol is None else upper_cpk(mean, std, tol, count)
+    cpk = None if cpk is None or math.isnan(cpk) else cpk
     statuses = [o.char.status for o in obs]
     n_pass, n_fail = statuses.count("PASS"), statuses.count("FAIL")
     return CharacteristicSummary(

@@ -69,10 +69,10 @@ from dataclasses import asdict, dataclass, field, is_dataclass
 from datetime import datetime
 from pathlib import Path
 
-import numpy as np
 from lxml import etree
 
 from qifreport import __version__
+from qifreport.jsonio import json_default
 from qifreport.metrology.bands import ToleranceZone
 from qifreport.metrology.inspection import InspectionResult, ZoneResult
 
@@ -303,7 +303,7 @@ def _algorithm_definitions(res: InspectionResult, sw_id: str, rigid_alg_id: str,
         E.Algorithm(E.SoftwareId(sw_id),
                     E.Parameters(json.dumps({"method": method, "energy": res.energy,
                                              "rigid_only": params.rigid_only,
-                                             method: fit_params}, default=_json_default)),
+                                             method: fit_params}, default=json_default)),
                     E.Name("virtual fixture" if not params.rigid_only else "none (rigid only)"),
                     E.Description(METHOD_DESCRIPTIONS.get(method, method)),
                     id=fit_alg_id),
@@ -606,11 +606,3 @@ def _uri(path: str) -> str:
 def _file_spec(path: str) -> str:
     suffix = Path(path).suffix.lower().lstrip(".")
     return {"stp": "STEP", "step": "STEP", "p21": "STEP"}.get(suffix, suffix.upper() or "DATA")
-
-
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    return str(o)

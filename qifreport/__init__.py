@@ -16,3 +16,5 @@ simulator, never imported by the product.
 """
 
 __version__ = "0.1.0"
+
+__all__ = ["__version__"]

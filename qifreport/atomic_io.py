@@ -7,6 +7,11 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+__all__ = [
+    "atomic_write",
+    "atomic_write_many",
+]
+
 
 def atomic_write(path: str | Path, write: Callable[[Path], object]) -> None:
     """Write through ``write(tmp_path)`` into a temp file beside ``path``, then rename.

@@ -5,6 +5,10 @@ Defined here, in the most upstream package, so that every stage (``step`` ->
 downstream one.
 """
 
+__all__ = [
+    "InputError",
+]
+
 
 class InputError(ValueError):
     """An input file or array that cannot be inspected (missing, corrupt, empty, NaN, ...)."""

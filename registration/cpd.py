@@ -38,6 +38,17 @@ from .deformable import DeformResult, coverage_radius, finish, scan_matcher
 from .mesh import MeshOperators, bounding_diagonal
 from .pointcloud import pca_normals
 
+__all__ = [
+    "cpd",
+    "cpd_em",
+    "cpd_warp",
+    "CPDFit",
+    "CPDParams",
+    "gaussian_kernel",
+    "resolve_params",
+    "sample_points",
+]
+
 log = logging.getLogger(__name__)
 
 

@@ -39,6 +39,17 @@ from scipy.spatial import cKDTree
 
 from .mesh import adjacency, boundary_vertices, bounding_diagonal, vertex_normals
 
+__all__ = [
+    "PLANAR_REL",
+    "CurvatureFields",
+    "mesh_curvatures",
+    "orient_normals",
+    "principal_from_hk",
+    "scan_curvatures",
+    "ScanCurvatures",
+    "shape_fields",
+]
+
 log = logging.getLogger(__name__)
 
 #: Curvedness below ``PLANAR_REL / diagonal`` counts as planar (radius > 1000 diagonals).

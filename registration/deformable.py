@@ -21,6 +21,16 @@ from .icp import robust_scale
 from .mesh import MeshOperators, median_edge_length
 from .pointcloud import median_spacing, pca_normals
 
+__all__ = [
+    "coverage_radius",
+    "DeformResult",
+    "finish",
+    "Match",
+    "orient_scan_normals",
+    "scan_matcher",
+    "ScanMatcher",
+]
+
 
 @dataclass
 class DeformResult:

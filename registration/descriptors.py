@@ -56,6 +56,24 @@ from scipy.spatial import cKDTree
 from .curvature import CurvatureFields, shape_fields
 from .mesh import edges
 
+__all__ = [
+    "FIELDS",
+    "SCALES",
+    "bilateral_descriptors",
+    "bilateral_filter",
+    "DescriptorSet",
+    "farthest_points",
+    "field_noise",
+    "geodesic_balls",
+    "GeodesicBalls",
+    "joint_normalize",
+    "knn_graph",
+    "mesh_graph",
+    "presmooth",
+    "range_bandwidths",
+    "robust_spread",
+]
+
 log = logging.getLogger(__name__)
 
 #: Default spatial scales, in mean edge lengths (paper Section 8.1).

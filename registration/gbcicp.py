@@ -44,6 +44,14 @@ from .linalg import SPDSolver
 from .mesh import MeshOperators, bounding_diagonal
 from .pointcloud import pca_normals
 
+__all__ = [
+    "bending_basis",
+    "BendingBasis",
+    "gbcicp",
+    "GBCICPParams",
+    "GBCICPResult",
+]
+
 log = logging.getLogger(__name__)
 
 

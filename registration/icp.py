@@ -15,6 +15,20 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+__all__ = [
+    "MAD_SCALE",
+    "TUKEY_C",
+    "converged_rigid_fit",
+    "kabsch",
+    "point_to_plane_step",
+    "pose_conditioning",
+    "rigid_icp",
+    "RigidResult",
+    "robust_scale",
+    "tukey_rho",
+    "tukey_weights",
+]
+
 log = logging.getLogger(__name__)
 
 TUKEY_C = 4.685

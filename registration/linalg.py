@@ -13,6 +13,11 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+__all__ = [
+    "have_cholmod",
+    "SPDSolver",
+]
+
 try:  # optional accelerator
     from sksparse.cholmod import analyze as _cholmod_analyze
 except Exception:  # pragma: no cover - depends on the machine

@@ -22,6 +22,27 @@ from scipy.spatial import cKDTree
 
 from qifreport.errors import InputError
 
+__all__ = [
+    "MESH_SUFFIXES",
+    "adjacency",
+    "bending_operator",
+    "boundary_vertices",
+    "bounding_diagonal",
+    "crease_band",
+    "edge_uses",
+    "edges",
+    "face_normals",
+    "load_mesh",
+    "median_edge_length",
+    "MeshOperators",
+    "remove_degenerate",
+    "remove_unreferenced",
+    "vertex_areas",
+    "vertex_normals",
+    "wall_thickness",
+    "weld",
+]
+
 log = logging.getLogger(__name__)
 
 MESH_SUFFIXES = (".stl", ".ply", ".obj", ".off")

@@ -17,6 +17,12 @@ import numpy as np
 from .deformable import DeformResult
 from .mesh import MeshOperators
 
+__all__ = [
+    "METHODS",
+    "deform",
+    "method_function",
+]
+
 #: method name -> (module, function); imported on first use
 METHODS: dict[str, tuple[str, str]] = {
     "gbcicp": ("qifreport.registration.gbcicp", "gbcicp"),

@@ -62,6 +62,12 @@ from .linalg import SPDSolver, have_cholmod
 from .mesh import MeshOperators, bounding_diagonal, edges, vertex_normals
 from .pointcloud import pca_normals
 
+__all__ = [
+    "nested_dissection",
+    "nicp",
+    "NICPParams",
+]
+
 log = logging.getLogger(__name__)
 
 

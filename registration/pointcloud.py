@@ -16,6 +16,22 @@ from scipy.spatial import cKDTree
 
 from qifreport.errors import InputError
 
+__all__ = [
+    "FORMAT_UNITS",
+    "MIN_POINTS",
+    "SCAN_SUFFIXES",
+    "SCAN_UNITS",
+    "check_declared_counts",
+    "load_scan",
+    "MalformedFile",
+    "median_spacing",
+    "one_line",
+    "orient_normals_consistent",
+    "pca_normals",
+    "read_trimesh",
+    "validate_scan",
+]
+
 log = logging.getLogger(__name__)
 
 SCAN_SUFFIXES = (".ply", ".xyz", ".txt", ".csv", ".npy", ".stl", ".obj", ".off", ".e57")

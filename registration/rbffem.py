@@ -34,6 +34,14 @@ from .deformable import DeformResult, coverage_radius, finish, scan_matcher
 from .mesh import MeshOperators
 from .pointcloud import pca_normals
 
+__all__ = [
+    "clamp_targets",
+    "default_clamps",
+    "multiquadric",
+    "rbffem",
+    "RBFFEMParams",
+]
+
 log = logging.getLogger(__name__)
 
 

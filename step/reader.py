@@ -35,6 +35,14 @@ import numpy as np
 
 from qifreport.errors import InputError
 
+__all__ = [
+    "STEP_SUFFIXES",
+    "read_step",
+    "StepPart",
+    "XdeItem",
+    "XdeSummary",
+]
+
 log = logging.getLogger(__name__)
 
 STEP_SUFFIXES = (".step", ".stp", ".p21")

@@ -13,6 +13,11 @@ from collections import defaultdict
 
 from .reader import StepPart
 
+__all__ = [
+    "pmi_rows",
+    "pmi_table",
+]
+
 
 def _fmt(x: float | None, unit: str = "") -> str:
     if x is None:

@@ -34,6 +34,15 @@ import numpy as np
 
 from qifreport.errors import InputError
 
+__all__ = [
+    "DEFAULT_ANGLE",
+    "DEFAULT_REL_DEFLECTION",
+    "FaceMesh",
+    "refine_long_edges",
+    "shape_diagonal",
+    "tessellate",
+]
+
 log = logging.getLogger(__name__)
 
 DEFAULT_REL_DEFLECTION = 1e-3

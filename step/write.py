@@ -89,6 +89,15 @@ from OCP.XCAFDoc import XCAFDoc_Datum, XCAFDoc_DocumentTool, XCAFDoc_GeomToleran
 
 from qifreport.atomic_io import atomic_write
 
+__all__ = [
+    "DATUM_REQUIRED_TYPES",
+    "FORM_TYPES",
+    "TOLERANCE_TYPES",
+    "PMISpecDatum",
+    "PMISpecTolerance",
+    "write_step_with_pmi",
+]
+
 logger = logging.getLogger(__name__)
 
 _T = XCAFDimTolObjects_GeomToleranceType

@@ -64,7 +64,7 @@ def _produce(d: Path, name: str, res, prov: Provenance, page: str = "A4") -> Out
 @pytest.fixture(scope="module")
 def results(shell, shell_case, shell_case_defect):
     """name -> (InspectionResult, Provenance): a passing shell, a failing shell and the STEP
-    panel (two PMI profile tolerances, two PMI items not scored), inspected as qif.cli does."""
+    panel (two PMI profile tolerances, two PMI items not scored), inspected as the CLI does."""
     from qifreport.metrology.inspection import InspectionParams, inspect
     from qifreport.nominal import load_nominal
     from qifreport.registration.pointcloud import load_scan

@@ -16,7 +16,7 @@ def test_child_peak_is_not_the_parents():
     big = np.ones(400 * 2**20 // 8)  # 400 MiB resident in this (parent) process
     big[::512] += 1.0
     assert rss_bytes() > 400 * 2**20
-    code = ("import resource; from qif.profile import peak_rss_bytes; "
+    code = ("import resource; from qifreport.profile import peak_rss_bytes; "
             "print(peak_rss_bytes(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True).stdout.split()

@@ -1,4 +1,4 @@
-"""qif.validate on the shared QIF 3.0 corpus: lxml, xmlschema, the DMSC checks and the CLI.
+"""qifreport.qif.validate on the shared QIF 3.0 corpus: lxml, xmlschema, DMSC checks, the CLI.
 
 Real validation throughout (no mocks). The XSDs are compiled once per session (the cache in
 qif.validate): lxml in about 0.1 s, xmlschema in about 6-7 s; all 30 samples under both and

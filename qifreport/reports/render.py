@@ -34,6 +34,25 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+__all__ = [
+    "GREEN_PROUD",
+    "GREEN_SUNK",
+    "GREEN_ZERO",
+    "GREY",
+    "OUTLINE",
+    "band_outline",
+    "camera_frame",
+    "choose_views",
+    "color_scale",
+    "deviation_colors",
+    "nice_ceil",
+    "RegionLabel",
+    "render_views",
+    "RenderedView",
+    "view_from_direction",
+    "ViewSpec",
+]
+
 log = logging.getLogger(__name__)
 
 #: RGB (0..1) of unscored surface

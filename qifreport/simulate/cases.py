@@ -19,6 +19,13 @@ from .defects import gaussian_bump
 from .deform import analytic_deformation, biharmonic_deformation, clamp_handles, pca_frame
 from .scanner import Scan, ScanSpec, virtual_scan
 
+__all__ = [
+    "Case",
+    "defect_site",
+    "inspection_error",
+    "make_case",
+]
+
 
 @dataclass
 class Case:

@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+__all__ = [
+    "gaussian_bump",
+]
+
 
 def gaussian_bump(
     V: np.ndarray, normals: np.ndarray, center: np.ndarray, amplitude: float, sigma: float

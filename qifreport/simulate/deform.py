@@ -30,6 +30,16 @@ from qifreport.registration.mesh import (
     vertex_normals,
 )
 
+__all__ = [
+    "MODES",
+    "analytic_deformation",
+    "biharmonic_deformation",
+    "clamp_handles",
+    "Deformation",
+    "handle_signs",
+    "pca_frame",
+]
+
 log = logging.getLogger(__name__)
 
 #: Sign pattern ``s_c`` of each canonical mode, per handle kind, in the order

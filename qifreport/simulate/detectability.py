@@ -23,6 +23,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+__all__ = [
+    "detectability",
+    "Detectability",
+]
+
 
 @dataclass(frozen=True)
 class Detectability:

@@ -47,6 +47,39 @@ from .cases import Case, inspection_error, make_case
 from .scanner import ScanSpec
 from .shapes import thin_shell
 
+__all__ = [
+    "DEFAULT_AMPLITUDE",
+    "DEFAULT_NOISE",
+    "NOISE_RADIUS_SPACINGS",
+    "PAPER_TABLE6",
+    "PAPER_TEXT",
+    "POSE_EULER_DEG",
+    "POSE_TRANSLATION",
+    "Budget",
+    "case_a",
+    "case_b",
+    "chain_floor",
+    "combine_quadrature",
+    "deviation_radius",
+    "deviation_summary",
+    "direct_noise_floor",
+    "ingest_posed",
+    "ladder_shell",
+    "local_plane_noise",
+    "NoiseEstimate",
+    "pose_matrix",
+    "propagate_noise",
+    "repeat_scanner_seeds",
+    "repeat_subsets",
+    "sample_spacing",
+    "scan_spec",
+    "scored_deviation",
+    "spread",
+    "subset",
+    "true_normal_noise",
+    "unremoved_compliance",
+]
+
 #: paper Table 6 (thin shell): contribution -> (RMS mm, max mm or None)
 PAPER_TABLE6: dict[str, tuple[float, float | None]] = {
     "noise": (0.013, None),

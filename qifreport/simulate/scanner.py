@@ -19,6 +19,14 @@ from qifreport.registration.mesh import face_normals, median_edge_length
 
 from .deform import pca_frame
 
+__all__ = [
+    "aim_views",
+    "rasterize",
+    "Scan",
+    "ScanSpec",
+    "virtual_scan",
+]
+
 log = logging.getLogger(__name__)
 
 # Upper bound on (triangle, pixel) candidates rasterised at once (bounds memory to ~100 MB).

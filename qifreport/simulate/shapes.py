@@ -12,6 +12,14 @@ import numpy as np
 
 from qifreport.registration.mesh import bounding_diagonal, load_mesh, weld
 
+__all__ = [
+    "fandisk",
+    "grid_triangles",
+    "housing",
+    "shell_height",
+    "thin_shell",
+]
+
 log = logging.getLogger(__name__)
 
 # Height field of the thin shell, w(x, y) in mm over x, y in mm. Two unequal radii make it
