@@ -45,9 +45,20 @@ def run(part: str, V, F, seed: int, **case_kw) -> list[dict]:
     rows = []
     for method, Vh, secs in (("rigid", V, t_rigid), ("GB-CICP", fit.V, t_rigid + t_fit)):
         e = inspection_error(Vh, V_true, F)[S]
-        rows.append(dict(part=part, method=method, seed=seed, rms=np.sqrt(np.mean(e**2)),
-                         max=e.max(), p95=np.percentile(e, 95), seconds=secs,
-                         points=len(case.P), vertices=len(V), iterations=fit.iterations))
+        rows.append(
+            dict(
+                part=part,
+                method=method,
+                seed=seed,
+                rms=np.sqrt(np.mean(e**2)),
+                max=e.max(),
+                p95=np.percentile(e, 95),
+                seconds=secs,
+                points=len(case.P),
+                vertices=len(V),
+                iterations=fit.iterations,
+            )
+        )
     return rows
 
 
@@ -63,12 +74,20 @@ def main() -> None:
         # shell: analytic free state (no shared prior), 2 % of the diagonal, 3 views
         rows += run("shell", Vs, Fs, seed, generator="analytic", amplitude=0.02)
         # fandisk: 100 mm diagonal, subdivided once, 2 views, bend + mild twist at a = 2 mm
-        rows += run("fandisk", Vf, Ff, seed, generator="biharmonic", amplitude=0.02,
-                    modes={"bend": 1.0, "twist": 0.5},
-                    spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=seed))
+        rows += run(
+            "fandisk",
+            Vf,
+            Ff,
+            seed,
+            generator="biharmonic",
+            amplitude=0.02,
+            modes={"bend": 1.0, "twist": 0.5},
+            spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=seed),
+        )
     df = pd.DataFrame(rows)
     med = df.groupby(["part", "method"], sort=False)[
-        ["rms", "max", "p95", "seconds", "points", "vertices", "iterations"]].median()
+        ["rms", "max", "p95", "seconds", "points", "vertices", "iterations"]
+    ].median()
     for key, (rms, mx, p95, secs) in PAPER.items():
         if key in med.index:
             med.loc[key, ["paper_rms", "paper_max", "paper_p95", "paper_s"]] = [rms, mx, p95, secs]

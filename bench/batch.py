@@ -47,8 +47,7 @@ def cases(n: int) -> list[dict]:
     rng = np.random.default_rng(2026)
     out = []
     for k in range(n):
-        c = {"amplitude": 0.010 + 0.00125 * (k % 5), "field_seed": 100 + k,
-             "scan_seed": 1000 + k}
+        c = {"amplitude": 0.010 + 0.00125 * (k % 5), "field_seed": 100 + k, "scan_seed": 1000 + k}
         if k in DEFECTS:
             c.update(defect=(0.45, 6.0), defect_shift=DEFECTS[k])
         if k in POSED:
@@ -99,26 +98,38 @@ def sequential(scans: list[Path], out: Path, cache: Path | None) -> dict:
         walls.append(wall)
         peaks.append(profile_row(text, "total")[1])
         prep.append(profile_row(text, "prepare part (cache)")[0])
-    return {"verdicts": verdicts, "wall": sum(walls), "median": statistics.median(walls),
-            "peak": max(peaks), "prepare": prep}
+    return {
+        "verdicts": verdicts,
+        "wall": sum(walls),
+        "median": statistics.median(walls),
+        "peak": max(peaks),
+        "prepare": prep,
+    }
 
 
 def batch(scans: list[Path], out: Path, cache: Path, extra: list) -> dict:
-    rc, text, wall = run([EXE, "batch", PART, *scans, "--out", out, "--quiet", "--cache",
-                          cache, *extra])
+    rc, text, wall = run(
+        [EXE, "batch", PART, *scans, "--out", out, "--quiet", "--cache", cache, *extra]
+    )
     recs = [json.loads(p.read_text()) for p in (out / "scans").glob("*.record.json")]
     by_worker: dict[str, float] = {}
     for r in recs:
         by_worker[r["worker"]] = max(by_worker.get(r["worker"], 0.0), r["peak_rss_mib"])
-    return {"verdicts": {Path(r["scan"]).stem: r["row"]["verdict"] for r in recs},
-            "wall": wall, "peak_by_worker": by_worker, "text": text, "rc": rc}
+    return {
+        "verdicts": {Path(r["scan"]).stem: r["row"]["verdict"] for r in recs},
+        "wall": wall,
+        "peak_by_worker": by_worker,
+        "text": text,
+        "rc": rc,
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scans", type=int, default=20)
-    ap.add_argument("--sequential", type=int, default=None,
-                    help="scans run one at a time (default: all)")
+    ap.add_argument(
+        "--sequential", type=int, default=None, help="scans run one at a time (default: all)"
+    )
     ap.add_argument("--work", type=Path, default=None, help="keep the scans and outputs here")
     args = ap.parse_args()
     work = args.work or Path(tempfile.mkdtemp(prefix="qifreport-bench-"))
@@ -160,42 +171,60 @@ def main() -> None:
     from distributed import LocalCluster
 
     t = time.perf_counter()
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster:
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
+    ) as cluster:
         startup = time.perf_counter() - t
-        dask = batch(scans, work / "batch-dask", cache, ["--scheduler",
-                                                         cluster.scheduler_address])
+        dask = batch(scans, work / "batch-dask", cache, ["--scheduler", cluster.scheduler_address])
 
     def rate(n, wall):
         return 60.0 * n / wall
 
     n_seq, n = len(seq), len(scans)
     rows = [
-        ("sequential, no cache", n_seq, cold["wall"], cold["median"],
-         f"{cold['peak']:.0f}"),
-        ("sequential, warm cache", n_seq, warm["wall"], warm["median"],
-         f"{warm['peak']:.0f}"),
-        ("batch, 2 local processes", n, local["wall"], local["wall"] / n,
-         " / ".join(f"{v:.0f}" for v in sorted(local["peak_by_worker"].values()))),
-        ("batch, Dask 2 workers", n, dask["wall"], dask["wall"] / n,
-         " / ".join(f"{v:.0f}" for v in sorted(dask["peak_by_worker"].values()))),
+        ("sequential, no cache", n_seq, cold["wall"], cold["median"], f"{cold['peak']:.0f}"),
+        ("sequential, warm cache", n_seq, warm["wall"], warm["median"], f"{warm['peak']:.0f}"),
+        (
+            "batch, 2 local processes",
+            n,
+            local["wall"],
+            local["wall"] / n,
+            " / ".join(f"{v:.0f}" for v in sorted(local["peak_by_worker"].values())),
+        ),
+        (
+            "batch, Dask 2 workers",
+            n,
+            dask["wall"],
+            dask["wall"] / n,
+            " / ".join(f"{v:.0f}" for v in sorted(dask["peak_by_worker"].values())),
+        ),
     ]
     print()
-    print(f"{'way':28s} {'scans':>5s} {'wall s':>8s} {'s/scan':>7s} {'scans/min':>9s} "
-          f"{'x seq':>6s}  peak RSS MiB (per worker)")
+    print(
+        f"{'way':28s} {'scans':>5s} {'wall s':>8s} {'s/scan':>7s} {'scans/min':>9s} "
+        f"{'x seq':>6s}  peak RSS MiB (per worker)"
+    )
     base = rate(n_seq, cold["wall"])
     for name, k, wall, per, peak in rows:
-        print(f"{name:28s} {k:5d} {wall:8.1f} {per:7.2f} {rate(k, wall):9.2f} "
-              f"{rate(k, wall) / base:6.2f}  {peak}")
+        print(
+            f"{name:28s} {k:5d} {wall:8.1f} {per:7.2f} {rate(k, wall):9.2f} "
+            f"{rate(k, wall) / base:6.2f}  {peak}"
+        )
     print()
-    print(f"preparation stages (read STEP, tessellate, zones, operators, bands, bending "
-          f"basis, pose-search model): built {build:.1f} s, loaded {load:.2f} s "
-          f"(median of 5) -> {build / load:.0f}x; cache entry {entry_mib:.0f} MiB")
+    print(
+        f"preparation stages (read STEP, tessellate, zones, operators, bands, bending "
+        f"basis, pose-search model): built {build:.1f} s, loaded {load:.2f} s "
+        f"(median of 5) -> {build / load:.0f}x; cache entry {entry_mib:.0f} MiB"
+    )
     pc, pw = statistics.median(cold["prepare"]), statistics.median(warm["prepare"])
-    print(f"  in the CLI ('prepare part' stage, median over scans): no cache {pc:.1f} s, "
-          f"warm cache {pw:.2f} s -> {pc / pw:.0f}x")
-    print(f"  per scan, whole command: {cold['median']:.1f} s -> {warm['median']:.1f} s "
-          f"({cold['median'] / warm['median']:.1f}x from the cache alone)")
+    print(
+        f"  in the CLI ('prepare part' stage, median over scans): no cache {pc:.1f} s, "
+        f"warm cache {pw:.2f} s -> {pc / pw:.0f}x"
+    )
+    print(
+        f"  per scan, whole command: {cold['median']:.1f} s -> {warm['median']:.1f} s "
+        f"({cold['median'] / warm['median']:.1f}x from the cache alone)"
+    )
     print(f"Dask LocalCluster start-up (not in the wall time): {startup:.1f} s")
     ref = cold["verdicts"]
     for name, res in (("warm", warm), ("local", local), ("dask", dask)):

@@ -68,15 +68,28 @@ PEER_STEPS = {
 }
 # paper: (RMS, max, P95) of Table 2 (fandisk) / Table 1 (controller), Table 5 seconds (CPU),
 # Section 8.1 scan-to-model residual (fandisk), mm / s
-_T2 = {"rigid": (1.41, np.nan, np.nan), "rbffem": (2.56, 7.19, 5.12),
-       "cpd": (0.47, 1.93, 0.94), "nicp": (0.14, 1.75, 0.07), "gbcicp": (0.12, 1.40, 0.05)}
-_T1 = {"rbffem": (2.67, 7.31, 5.52), "cpd": (0.76, 2.43, 1.48), "nicp": (0.14, 1.56, 0.25),
-       "gbcicp": (0.12, 1.55, 0.17)}
+_T2 = {
+    "rigid": (1.41, np.nan, np.nan),
+    "rbffem": (2.56, 7.19, 5.12),
+    "cpd": (0.47, 1.93, 0.94),
+    "nicp": (0.14, 1.75, 0.07),
+    "gbcicp": (0.12, 1.40, 0.05),
+}
+_T1 = {
+    "rbffem": (2.67, 7.31, 5.52),
+    "cpd": (0.76, 2.43, 1.48),
+    "nicp": (0.14, 1.56, 0.25),
+    "gbcicp": (0.12, 1.55, 0.17),
+}
 _T5 = {"rigid": 0.3, "rbffem": 0.3, "cpd": 6.2, "nicp": 13.9, "gbcicp": 2.5}
 _S2M = {"rigid": 0.86, "rbffem": 1.45, "cpd": 0.65, "nicp": 0.26, "gbcicp": 0.28}
 #: which paper method a row is compared with
-PAPER_OF = {m: m for m in OURS} | {"gbcicp-1pass": "gbcicp", "pycpd": "cpd",
-                                   "trimesh-nricp": "nicp", "trimesh-nricp-reduced": "nicp"}
+PAPER_OF = {m: m for m in OURS} | {
+    "gbcicp-1pass": "gbcicp",
+    "pycpd": "cpd",
+    "trimesh-nricp": "nicp",
+    "trimesh-nricp-reduced": "nicp",
+}
 
 
 def paper_row(part: str, method: str) -> dict:
@@ -84,9 +97,13 @@ def paper_row(part: str, method: str) -> dict:
     table = _T2 if part == "fandisk" else _T1
     rms, mx, p95 = table.get(m, (np.nan,) * 3)
     fan = part == "fandisk"
-    return dict(paper_rms=rms, paper_max=mx, paper_p95=p95,
-                paper_s2m=_S2M.get(m, np.nan) if fan else np.nan,
-                paper_s=_T5.get(m, np.nan) if fan else np.nan)
+    return dict(
+        paper_rms=rms,
+        paper_max=mx,
+        paper_p95=p95,
+        paper_s2m=_S2M.get(m, np.nan) if fan else np.nan,
+        paper_s=_T5.get(m, np.nan) if fan else np.nan,
+    )
 
 
 def build(part: str, generator: str, seed: int, fandisk_path: Path):
@@ -96,12 +113,18 @@ def build(part: str, generator: str, seed: int, fandisk_path: Path):
         spec = ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=seed)
     elif part == "housing":
         V, F = housing()
-        spec = ScanSpec(views=4, noise=0.02, dropout_radius=0.03 * bounding_diagonal(V),
-                        seed=seed)
+        spec = ScanSpec(views=4, noise=0.02, dropout_radius=0.03 * bounding_diagonal(V), seed=seed)
     else:
         raise ValueError(f"unknown part {part!r}")
-    case = make_case(V, F, generator=generator, amplitude=0.02,
-                     modes={"bend": 1.0, "twist": 0.5}, spec=spec, seed=seed)
+    case = make_case(
+        V,
+        F,
+        generator=generator,
+        amplitude=0.02,
+        modes={"bend": 1.0, "twist": 0.5},
+        spec=spec,
+        seed=seed,
+    )
     return V, F, case
 
 
@@ -126,8 +149,9 @@ def pycpd_peer(V: np.ndarray, Pm: np.ndarray, p: CPDParams) -> np.ndarray:
 
     src = sample_points(V, p.n_source, p.sampling, p.seed)
     dst = sample_points(Pm, p.n_scan, p.sampling, p.seed + 1)
-    reg = DeformableRegistration(X=Pm[dst], Y=V[src], alpha=p.lam, beta=p.beta, w=p.w,
-                                 max_iterations=p.max_iter)
+    reg = DeformableRegistration(
+        X=Pm[dst], Y=V[src], alpha=p.lam, beta=p.beta, w=p.w, max_iterations=p.max_iter
+    )
     TY, _ = reg.register()
     out = cpd_warp(V, V[src], reg.W, p.beta, p.chunk)
     assert np.abs(out[src] - TY).max() < 1e-6 * max(1.0, float(np.abs(TY).max()))
@@ -173,11 +197,19 @@ def run_table(part: str, generator: str, args) -> pd.DataFrame:
 
     def score(method: str, V_hat: np.ndarray, secs: float, iters=np.nan) -> dict:
         e = inspection_error(V_hat, V_true, F)[S]
-        d2, _, _ = igl.point_mesh_squared_distance(Pm, np.ascontiguousarray(V_hat),
-                                                    np.ascontiguousarray(F))
-        return dict(method=method, rms=np.sqrt(np.mean(e**2)), max=e.max(),
-                    p95=np.percentile(e, 95), s2m=np.sqrt(np.mean(d2)), seconds=secs,
-                    iterations=iters, **paper_row(part, method))
+        d2, _, _ = igl.point_mesh_squared_distance(
+            Pm, np.ascontiguousarray(V_hat), np.ascontiguousarray(F)
+        )
+        return dict(
+            method=method,
+            rms=np.sqrt(np.mean(e**2)),
+            max=e.max(),
+            p95=np.percentile(e, 95),
+            s2m=np.sqrt(np.mean(d2)),
+            seconds=secs,
+            iterations=iters,
+            **paper_row(part, method),
+        )
 
     rows = []
     for name in args.methods:
@@ -185,10 +217,21 @@ def run_table(part: str, generator: str, args) -> pd.DataFrame:
             rows.append(score("rigid", V, t_rigid, rigid.iterations))
             continue
         method, params = VARIANTS.get(name, (name, None))
-        res, secs = timed(lambda method=method, params=params: methods.deform(
-            method, V, F, ops, Pm, params, scan_normals=Ns, scan_sheets=sheets, basis=basis,
-            flaggable=flaggable),
-            args.repeats)
+        res, secs = timed(
+            lambda method=method, params=params: methods.deform(
+                method,
+                V,
+                F,
+                ops,
+                Pm,
+                params,
+                scan_normals=Ns,
+                scan_sheets=sheets,
+                basis=basis,
+                flaggable=flaggable,
+            ),
+            args.repeats,
+        )
         rows.append(score(name, res.V, secs, res.iterations))
         if method == "gbcicp":
             rows[-1]["prepare_s"] = t_basis
@@ -201,13 +244,20 @@ def run_table(part: str, generator: str, args) -> pd.DataFrame:
         kinds = ["default", "reduced"] if args.peer_steps == "both" else [args.peer_steps]
         for kind in kinds:
             label = "trimesh-nricp" + ("" if kind == "default" else "-reduced")
-            Vh, secs = timed(lambda kind=kind: trimesh_peer(V, F, Pm, PEER_STEPS[kind]),
-                             args.peer_repeats)
+            Vh, secs = timed(
+                lambda kind=kind: trimesh_peer(V, F, Pm, PEER_STEPS[kind]), args.peer_repeats
+            )
             rows.append(score(label, Vh, secs))
             print(f"  {part}/{generator} {label}: {secs:.1f} s", flush=True)
     df = pd.DataFrame(rows).set_index("method")
-    df.attrs.update(vertices=len(V), points=len(Pm), measured=len(S), energy=energy,
-                    operators_s=t_ops, normals_s=t_normals)
+    df.attrs.update(
+        vertices=len(V),
+        points=len(Pm),
+        measured=len(S),
+        energy=energy,
+        operators_s=t_ops,
+        normals_s=t_normals,
+    )
     return df
 
 
@@ -219,8 +269,12 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-peers", action="store_true")
-    ap.add_argument("--peer-repeats", type=int, default=None,
-                    help="runs per peer (default --repeats; trimesh's takes minutes a run)")
+    ap.add_argument(
+        "--peer-repeats",
+        type=int,
+        default=None,
+        help="runs per peer (default --repeats; trimesh's takes minutes a run)",
+    )
     ap.add_argument("--peer-steps", choices=["default", "reduced", "both"], default="default")
     ap.add_argument("--fandisk", type=Path, default=ROOT.parent / "shared/meshes/fandisk.off")
     args = ap.parse_args()
@@ -238,11 +292,13 @@ def main() -> None:
             if gen != "biharmonic":  # the paper's figures are for its own generator
                 df[[c for c in df.columns if c.startswith("paper_")]] = np.nan
             a = df.attrs
-            print(f"\n{part} / {gen}: {a['vertices']} vertices, {a['points']} scan points, "
-                  f"{a['measured']} measured vertices, {a['energy']} energy (operators "
-                  f"{a['operators_s']:.2f} s, scan normals {a['normals_s']:.2f} s); "
-                  f"seed {args.seed}, median of {args.repeats} run(s); inspection "
-                  "deviation on measured vertices and scan-to-model residual (s2m), mm")
+            print(
+                f"\n{part} / {gen}: {a['vertices']} vertices, {a['points']} scan points, "
+                f"{a['measured']} measured vertices, {a['energy']} energy (operators "
+                f"{a['operators_s']:.2f} s, scan normals {a['normals_s']:.2f} s); "
+                f"seed {args.seed}, median of {args.repeats} run(s); inspection "
+                "deviation on measured vertices and scan-to-model residual (s2m), mm"
+            )
             print(df.round(4).to_string())
             print(f"(peers: median of {args.peer_repeats} run(s))")
             peers = [m for m in df.index if m.startswith("trimesh-nricp")]
@@ -250,9 +306,11 @@ def main() -> None:
                 for m in peers:
                     ratio = df.loc[m, "seconds"] / df.loc[ours, "seconds"]
                     better = df.loc[ours, "rms"] <= df.loc[m, "rms"]
-                    print(f"time ratio {m} / {ours}: {ratio:.1f}x (paper NICP/GB-CICP: "
-                          f"{13.9 / 2.5:.1f}x); {ours} RMS "
-                          f"{'<=' if better else '>'} {m}'s")
+                    print(
+                        f"time ratio {m} / {ours}: {ratio:.1f}x (paper NICP/GB-CICP: "
+                        f"{13.9 / 2.5:.1f}x); {ours} RMS "
+                        f"{'<=' if better else '>'} {m}'s"
+                    )
 
 
 if __name__ == "__main__":

@@ -89,15 +89,27 @@ class Config:
 
 def configs(args) -> dict[str, Config]:
     return {
-        "wide": Config("wide", f"single pass, l = {args.wide:g} mm",
-                       GBCICPParams(passes=1, band_limit=args.wide), 0),
-        "narrow": Config("narrow", "single pass, l = default (coverage radius)",
-                         GBCICPParams(passes=1), 1),
-        "multi": Config("multi", f"multi-pass (<= {args.passes}): modal first pass and refits, "
-                        "then the band limit l2",
-                        GBCICPParams(passes=args.passes), 2),
-        "matched": Config("matched", f"single pass, l = {args.matched:g} mm",
-                          GBCICPParams(passes=1, band_limit=args.matched), 1),
+        "wide": Config(
+            "wide",
+            f"single pass, l = {args.wide:g} mm",
+            GBCICPParams(passes=1, band_limit=args.wide),
+            0,
+        ),
+        "narrow": Config(
+            "narrow", "single pass, l = default (coverage radius)", GBCICPParams(passes=1), 1
+        ),
+        "multi": Config(
+            "multi",
+            f"multi-pass (<= {args.passes}): modal first pass and refits, then the band limit l2",
+            GBCICPParams(passes=args.passes),
+            2,
+        ),
+        "matched": Config(
+            "matched",
+            f"single pass, l = {args.matched:g} mm",
+            GBCICPParams(passes=1, band_limit=args.matched),
+            1,
+        ),
     }
 
 
@@ -118,10 +130,20 @@ def run_one(V, F, P, cfg: Config, x0, a: float | None) -> dict:
     fit = res.fit
     d = detectability(res.deviation, V, x0, None, a if a else 1.0, R_d=R_D, R_b=R_B)
     return dict(
-        config=cfg.name, a_hat=d.a_hat, rec=100 * d.recovery if a else np.nan, b=d.background,
-        rho=d.rho if a else np.nan, loc_mm=d.localisation_mm, n_D=d.n_defect, n_B=d.n_background,
-        l1=fit.params.band_limit, l2=fit.params.band_limit_refit, passes=fit.passes,
-        fallback=fit.fallback, flagged=fit.flagged_fraction, prealign=res.prealign.method,
+        config=cfg.name,
+        a_hat=d.a_hat,
+        rec=100 * d.recovery if a else np.nan,
+        b=d.background,
+        rho=d.rho if a else np.nan,
+        loc_mm=d.localisation_mm,
+        n_D=d.n_defect,
+        n_B=d.n_background,
+        l1=fit.params.band_limit,
+        l2=fit.params.band_limit_refit,
+        passes=fit.passes,
+        fallback=fit.fallback,
+        flagged=fit.flagged_fraction,
+        prealign=res.prealign.method,
         seconds=secs,
     )
 
@@ -130,15 +152,25 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0, help="scanner seed (one per cell)")
     ap.add_argument("--cells", help="subset as a:sigma pairs, e.g. 0.9:7,1.5:3 (mm)")
-    ap.add_argument("--configs", default="wide,narrow,multi",
-                    help="comma list of wide, narrow, multi, matched")
+    ap.add_argument(
+        "--configs", default="wide,narrow,multi", help="comma list of wide, narrow, multi, matched"
+    )
     ap.add_argument("--wide", type=float, default=12.0, help="wide band limit (mm)")
-    ap.add_argument("--matched", type=float, default=7.0,
-                    help="band limit of the optional 'matched' single pass (mm)")
-    ap.add_argument("--passes", type=int, default=GBCICPParams().passes,
-                    help="passes of the multi-pass scheme")
-    ap.add_argument("--offset", type=float, default=0.35,
-                    help="defect site (cases.defect_site offset; 0.35 = make_case default)")
+    ap.add_argument(
+        "--matched",
+        type=float,
+        default=7.0,
+        help="band limit of the optional 'matched' single pass (mm)",
+    )
+    ap.add_argument(
+        "--passes", type=int, default=GBCICPParams().passes, help="passes of the multi-pass scheme"
+    )
+    ap.add_argument(
+        "--offset",
+        type=float,
+        default=0.35,
+        help="defect site (cases.defect_site offset; 0.35 = make_case default)",
+    )
     ap.add_argument("--no-floor", action="store_true", help="skip the noise-floor runs")
     ap.add_argument("--csv", help="also write the per-run rows to this CSV")
     args = ap.parse_args()
@@ -162,53 +194,87 @@ def main() -> None:
 
     rows: list[dict] = []
     for a, s in cells:
-        case = make_case(V, F, generator="analytic", amplitude=0.02, defect=(a, s),
-                         defect_vertex=site, spec=ScanSpec(**spec), seed=args.seed)
+        case = make_case(
+            V,
+            F,
+            generator="analytic",
+            amplitude=0.02,
+            defect=(a, s),
+            defect_vertex=site,
+            spec=ScanSpec(**spec),
+            seed=args.seed,
+        )
         for cfg in cfgs:
             row = dict(a=a, sigma=s, **run_one(V, F, case.P, cfg, x0, a))
             rows.append(row)
-            print(f"  a={a:g} sigma={s:g} {cfg.name:8s} rec {row['rec']:5.1f} % "
-                  f"b {row['b']:.4f} rho {row['rho']:6.2f} loc {row['loc_mm']:4.1f} "
-                  f"passes {row['passes']} flagged {100 * row['flagged']:.1f} % "
-                  f"({row['seconds']:.1f} s)", file=sys.stderr, flush=True)
+            print(
+                f"  a={a:g} sigma={s:g} {cfg.name:8s} rec {row['rec']:5.1f} % "
+                f"b {row['b']:.4f} rho {row['rho']:6.2f} loc {row['loc_mm']:4.1f} "
+                f"passes {row['passes']} flagged {100 * row['flagged']:.1f} % "
+                f"({row['seconds']:.1f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
     floor = []
     if not args.no_floor:
         # no deformation, no defect, same scanner: what the deviation estimate reads by itself
-        case0 = make_case(V, F, generator="analytic", amplitude=0.0, defect=None,
-                          spec=ScanSpec(**spec), seed=args.seed)
+        case0 = make_case(
+            V,
+            F,
+            generator="analytic",
+            amplitude=0.0,
+            defect=None,
+            spec=ScanSpec(**spec),
+            seed=args.seed,
+        )
         for cfg in cfgs:
             floor.append(run_one(V, F, case0.P, cfg, x0, None))
-            print(f"  floor {cfg.name:8s} b {floor[-1]['b']:.4f} "
-                  f"({floor[-1]['seconds']:.1f} s)", file=sys.stderr, flush=True)
+            print(
+                f"  floor {cfg.name:8s} b {floor[-1]['b']:.4f} ({floor[-1]['seconds']:.1f} s)",
+                file=sys.stderr,
+                flush=True,
+            )
 
     df = pd.DataFrame(rows)
     if args.csv:
         df.to_csv(args.csv, index=False)
-    report(df, floor, cfgs, args, dict(site=site, x0=x0, centroid=c, d_rim=d_rim, diag=diag,
-                                       n=len(V)))
+    report(
+        df, floor, cfgs, args, dict(site=site, x0=x0, centroid=c, d_rim=d_rim, diag=diag, n=len(V))
+    )
 
 
 def report(df: pd.DataFrame, floor: list[dict], cfgs: list[Config], args, geo: dict) -> None:
     x0 = geo["x0"]
-    print(f"Defect detectability, thin shell ({geo['n']} vertices, diagonal {geo['diag']:.1f} mm),"
-          f" analytic free state 2 % of the diagonal, noise {NOISE} mm, seed {args.seed}")
-    print(f"defect site: vertex {geo['site']} at {np.round(x0, 1)} mm, "
-          f"{np.linalg.norm(x0 - geo['centroid']):.1f} mm from the centroid (paper: "
-          f"{PAPER_SITE:g} mm), {geo['d_rim']:.1f} mm from the open boundary; "
-          f"R_d = {R_D:g} mm, R_b = {R_B:g} mm")
-    print("rec = a_hat/a (%), b = P95 |e| over B (mm), rho = a_hat/b, loc = |v_peak - x0| (mm);"
-          " paper columns are Table 3 (two-pass: rec, b, rho; single pass: rec, rho)\n")
+    print(
+        f"Defect detectability, thin shell ({geo['n']} vertices, diagonal {geo['diag']:.1f} mm),"
+        f" analytic free state 2 % of the diagonal, noise {NOISE} mm, seed {args.seed}"
+    )
+    print(
+        f"defect site: vertex {geo['site']} at {np.round(x0, 1)} mm, "
+        f"{np.linalg.norm(x0 - geo['centroid']):.1f} mm from the centroid (paper: "
+        f"{PAPER_SITE:g} mm), {geo['d_rim']:.1f} mm from the open boundary; "
+        f"R_d = {R_D:g} mm, R_b = {R_B:g} mm"
+    )
+    print(
+        "rec = a_hat/a (%), b = P95 |e| over B (mm), rho = a_hat/b, loc = |v_peak - x0| (mm);"
+        " paper columns are Table 3 (two-pass: rec, b, rho; single pass: rec, rho)\n"
+    )
     for cfg in cfgs:
         sub = df[df.config == cfg.name]
         if sub.empty:
             continue
         l1, l2 = sub.l1.iloc[0], sub.l2.iloc[0]
         bl = f"l1 = {l1:.2f} mm" + (f", l2 = {l2:.2f} mm" if cfg.name == "multi" else "")
-        paper_label = {0: "paper l = 2.54 mm", 1: "paper l = 0.8 mm",
-                       2: "paper two-pass 0.8 -> 0.5 mm"}[cfg.paper]
+        paper_label = {
+            0: "paper l = 2.54 mm",
+            1: "paper l = 0.8 mm",
+            2: "paper two-pass 0.8 -> 0.5 mm",
+        }[cfg.paper]
         print(f"[{cfg.name}] {cfg.label} ({bl}) | beside: {paper_label}")
-        print(f"{'a':>5} {'sigma':>5} | {'rec%':>5} {'b':>6} {'rho':>6} {'loc':>5} "
-              f"{'pass':>4} {'flag%':>5} {'s':>5} | {'rec%':>5} {'b':>6} {'rho':>5}")
+        print(
+            f"{'a':>5} {'sigma':>5} | {'rec%':>5} {'b':>6} {'rho':>6} {'loc':>5} "
+            f"{'pass':>4} {'flag%':>5} {'s':>5} | {'rec%':>5} {'b':>6} {'rho':>5}"
+        )
         for _, r in sub.iterrows():
             p = PAPER.get((r.a, r.sigma))
             if p is None:
@@ -218,24 +284,32 @@ def report(df: pd.DataFrame, floor: list[dict], cfgs: list[Config], args, geo: d
             else:
                 (pr, prho), pb = p[cfg.paper], np.nan
             mark = "*" if r.rho >= 3 else " "
-            print(f"{r.a:5.2f} {r.sigma:5.0f} | {r.rec:5.1f} {r.b:6.3f} {r.rho:5.1f}{mark} "
-                  f"{r.loc_mm:5.1f} {int(r.passes):4d} {100 * r.flagged:5.1f} {r.seconds:5.1f} | "
-                  f"{pr:5.0f} {'-' if np.isnan(pb) else f'{pb:.3f}':>6} {prho:5.1f}")
+            print(
+                f"{r.a:5.2f} {r.sigma:5.0f} | {r.rec:5.1f} {r.b:6.3f} {r.rho:5.1f}{mark} "
+                f"{r.loc_mm:5.1f} {int(r.passes):4d} {100 * r.flagged:5.1f} {r.seconds:5.1f} | "
+                f"{pr:5.0f} {'-' if np.isnan(pb) else f'{pb:.3f}':>6} {prho:5.1f}"
+            )
         n_ok = int((sub.rho >= 3).sum())
         paper_ok = sum(
-            1 for (a, s), p in PAPER.items()
+            1
+            for (a, s), p in PAPER.items()
             if ((a, s) in set(zip(sub.a, sub.sigma, strict=True)))
-            and (p[2][2] if cfg.paper == 2 else p[cfg.paper][1]) >= 3)
+            and (p[2][2] if cfg.paper == 2 else p[cfg.paper][1]) >= 3
+        )
         det = sub[sub.rho > 1]
-        print(f"rho >= 3 (*): {n_ok}/{len(sub)} cells (paper: {paper_ok}/{len(sub)}); "
-              f"rec {sub.rec.min():.0f}-{sub.rec.max():.0f} %, b {sub.b.min():.3f}-"
-              f"{sub.b.max():.3f} mm, loc {det.loc_mm.min():.1f}-{det.loc_mm.max():.1f} mm where "
-              f"rho > 1; {sub.seconds.median():.1f} s per inspection (median)")
+        print(
+            f"rho >= 3 (*): {n_ok}/{len(sub)} cells (paper: {paper_ok}/{len(sub)}); "
+            f"rec {sub.rec.min():.0f}-{sub.rec.max():.0f} %, b {sub.b.min():.3f}-"
+            f"{sub.b.max():.3f} mm, loc {det.loc_mm.min():.1f}-{det.loc_mm.max():.1f} mm where "
+            f"rho > 1; {sub.seconds.median():.1f} s per inspection (median)"
+        )
         if cfg.name == "multi":
-            print(f"flagged fraction (first pass): {100 * sub.flagged.min():.1f}-"
-                  f"{100 * sub.flagged.max():.1f} % (paper {100 * PAPER_FLAGGED[0]:.1f}-"
-                  f"{100 * PAPER_FLAGGED[1]:.1f} %); passes used "
-                  f"{sorted(set(sub.passes))}; fallback fired in {int(sub.fallback.sum())} cells")
+            print(
+                f"flagged fraction (first pass): {100 * sub.flagged.min():.1f}-"
+                f"{100 * sub.flagged.max():.1f} % (paper {100 * PAPER_FLAGGED[0]:.1f}-"
+                f"{100 * PAPER_FLAGGED[1]:.1f} %); passes used "
+                f"{sorted(set(sub.passes))}; fallback fired in {int(sub.fallback.sum())} cells"
+            )
         print()
     names = set(df.config)
     if {"multi", "narrow"} <= names:
@@ -243,13 +317,17 @@ def report(df: pd.DataFrame, floor: list[dict], cfgs: list[Config], args, geo: d
         n = df[df.config == "narrow"].set_index(["a", "sigma"])
         both = (m.rec > n.rec) & (m.rho > n.rho)
         detected = m.rho >= 3
-        print(f"multi vs its own first pass (narrow): higher recovery AND higher rho in "
-              f"{int((both & detected).sum())} of the {int(detected.sum())} cells it detects "
-              "(paper: 8 of 10 against the better single pass)")
+        print(
+            f"multi vs its own first pass (narrow): higher recovery AND higher rho in "
+            f"{int((both & detected).sum())} of the {int(detected.sum())} cells it detects "
+            "(paper: 8 of 10 against the better single pass)"
+        )
     if floor:
         txt = ", ".join(f"{cfg.name} {f['b']:.4f}" for cfg, f in zip(cfgs, floor, strict=True))
-        print(f"noise floor (b on the undeformed, defect-free scan, mm): {txt} "
-              f"(paper {PAPER_NOISE_FLOOR} mm at {NOISE} mm acquisition noise)")
+        print(
+            f"noise floor (b on the undeformed, defect-free scan, mm): {txt} "
+            f"(paper {PAPER_NOISE_FLOOR} mm at {NOISE} mm acquisition noise)"
+        )
 
 
 if __name__ == "__main__":

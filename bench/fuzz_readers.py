@@ -55,8 +55,15 @@ from tests.test_fuzz_readers import (  # noqa: E402
 
 def random_ops(rng: random.Random) -> list[tuple[str, int, int, bytes]]:
     """1 to 4 mutation ops, drawn like the test's hypothesis strategy."""
-    return [(rng.choice(KINDS), rng.randrange(2**31), rng.randrange(2**31),
-             rng.randbytes(rng.randint(1, 12))) for _ in range(rng.randint(1, 4))]
+    return [
+        (
+            rng.choice(KINDS),
+            rng.randrange(2**31),
+            rng.randrange(2**31),
+            rng.randbytes(rng.randint(1, 12)),
+        )
+        for _ in range(rng.randint(1, 4))
+    ]
 
 
 def random_case(rng: random.Random, reader: str) -> tuple[str, str, bytes]:
@@ -80,14 +87,31 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=2000, help="cases per reader (default 2000)")
     ap.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    ap.add_argument("--timeout", type=float, default=10.0,
-                    help="seconds one read may take before it counts as a hang (default 10)")
-    ap.add_argument("--mem-gb", type=float, default=8.0,
-                    help="address-space cap of this process, GiB (default 8; 0: none)")
-    ap.add_argument("--reader", choices=list(READERS), action="append",
-                    help="fuzz only this reader (repeatable; default all)")
-    ap.add_argument("--save", type=Path, default=None, metavar="DIR",
-                    help="keep the first input of each escape kind in DIR")
+    ap.add_argument(
+        "--timeout",
+        type=float,
+        default=10.0,
+        help="seconds one read may take before it counts as a hang (default 10)",
+    )
+    ap.add_argument(
+        "--mem-gb",
+        type=float,
+        default=8.0,
+        help="address-space cap of this process, GiB (default 8; 0: none)",
+    )
+    ap.add_argument(
+        "--reader",
+        choices=list(READERS),
+        action="append",
+        help="fuzz only this reader (repeatable; default all)",
+    )
+    ap.add_argument(
+        "--save",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="keep the first input of each escape kind in DIR",
+    )
     args = ap.parse_args(argv)
     props.TIMEOUT_S = args.timeout
     faulthandler.enable()  # a reader that crashes the interpreter shows where
@@ -98,8 +122,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.save:
         args.save.mkdir(parents=True, exist_ok=True)
 
-    print(f"fuzz_readers: {args.cases} cases per reader, seed {args.seed}, timeout "
-          f"{args.timeout:g} s, formats: {', '.join(available_formats())}")
+    print(
+        f"fuzz_readers: {args.cases} cases per reader, seed {args.seed}, timeout "
+        f"{args.timeout:g} s, formats: {', '.join(available_formats())}"
+    )
     rng = random.Random(args.seed)
     first: dict[str, tuple[str, str]] = {}  # escape kind -> (reader/label, traceback)
     total_escapes = 0
@@ -122,23 +148,28 @@ def main(argv: list[str] | None = None) -> int:
                     c["escapes"] += 1
                     kind = escape_kind(exc)
                     if kind not in first:
-                        first[kind] = (f"{reader} {label} (case {k})", "".join(
-                            traceback.format_exception(type(exc), exc, exc.__traceback__)))
+                        first[kind] = (
+                            f"{reader} {label} (case {k})",
+                            "".join(traceback.format_exception(type(exc), exc, exc.__traceback__)),
+                        )
                         if args.save:
                             name = f"{reader}-{len(first):02d}-{label}{suffix}"
                             (args.save / name).write_bytes(data)
             tot = sum(counts.values(), Counter())
             total_escapes += tot["escapes"]
-            print(f"{reader}: {tot['cases']} cases, {tot['error']} clean errors, {tot['ok']} "
-                  f"successes, {tot['escapes']} escapes ({time.perf_counter() - t0:.1f} s)")
+            print(
+                f"{reader}: {tot['cases']} cases, {tot['error']} clean errors, {tot['ok']} "
+                f"successes, {tot['escapes']} escapes ({time.perf_counter() - t0:.1f} s)"
+            )
             for label in sorted(counts):
                 c = counts[label]
-                print(f"  {label:20s} {c['cases']:5d} cases {c['error']:5d} errors "
-                      f"{c['ok']:5d} ok {c['escapes']:4d} escapes")
+                print(
+                    f"  {label:20s} {c['cases']:5d} cases {c['error']:5d} errors "
+                    f"{c['ok']:5d} ok {c['escapes']:4d} escapes"
+                )
     for kind, (where, tb) in first.items():
         print(f"\nescape: {kind}, first in {where}:\n{tb}")
-    print(f"{'FAIL' if total_escapes else 'OK'}: {total_escapes} escapes, "
-          f"{len(first)} kind(s)")
+    print(f"{'FAIL' if total_escapes else 'OK'}: {total_escapes} escapes, {len(first)} kind(s)")
     return 1 if total_escapes else 0
 
 

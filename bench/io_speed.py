@@ -56,8 +56,10 @@ def _step_cases():
         m.parse_all()
         assert len(m) == 16954
 
-    return [("step parse (FTC 06)", parse, 2.0),
-            ("semantic PMI read (FTC 06)", lambda: read_pmi_text(path), 3.0)]
+    return [
+        ("step parse (FTC 06)", parse, 2.0),
+        ("semantic PMI read (FTC 06)", lambda: read_pmi_text(path), 3.0),
+    ]
 
 
 def _scan_case():
@@ -67,8 +69,13 @@ def _scan_case():
 
     V, F = fandisk(str(SHARED / "meshes" / "fandisk.off"))
     D = biharmonic_deformation(V, F, 2.0, {"bend": 1.0, "twist": 0.5})
-    return [("virtual scan, one view (fandisk)",
-             lambda: virtual_scan(V + D.d, F, ScanSpec(views=1, seed=1)), 2.0)]
+    return [
+        (
+            "virtual scan, one view (fandisk)",
+            lambda: virtual_scan(V + D.d, F, ScanSpec(views=1, seed=1)),
+            2.0,
+        )
+    ]
 
 
 def _trend_case(tmp: Path):
@@ -78,15 +85,31 @@ def _trend_case(tmp: Path):
 
     rng = np.random.default_rng(0)
     n = 2000
-    df = pd.DataFrame({"seq": np.arange(1, n + 1), "id": [f"s{i}" for i in range(n)],
-                       "verdict": np.where(rng.random(n) < 0.95, "PASS", "FAIL"),
-                       "profile_T1_mm": rng.normal(0.3, 0.05, n),
-                       "status_T1": "PASS"})
+    df = pd.DataFrame(
+        {
+            "seq": np.arange(1, n + 1),
+            "id": [f"s{i}" for i in range(n)],
+            "verdict": np.where(rng.random(n) < 0.95, "PASS", "FAIL"),
+            "profile_T1_mm": rng.normal(0.3, 0.05, n),
+            "status_T1": "PASS",
+        }
+    )
     chars = [TrendCharacteristic("T1", "surface profile 1 mm", 1.0)]
     created = datetime(2026, 1, 1, tzinfo=timezone.utc)
-    return [("trend pdf, 2000 scans",
-             lambda: write_trend_pdf(tmp / "t.pdf", df, chars, part_name="bench",
-                                     created=created, nominal_sha256="0" * 64), 10.0)]
+    return [
+        (
+            "trend pdf, 2000 scans",
+            lambda: write_trend_pdf(
+                tmp / "t.pdf",
+                df,
+                chars,
+                part_name="bench",
+                created=created,
+                nominal_sha256="0" * 64,
+            ),
+            10.0,
+        )
+    ]
 
 
 def main() -> None:

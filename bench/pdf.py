@@ -36,8 +36,9 @@ from qifreport.reports.pdf import write_report
 from qifreport.simulate.shapes import thin_shell
 
 
-def synthetic_result(spacing: float = 0.6, tolerance: float = 0.3,
-                     seed: int = 0) -> InspectionResult:
+def synthetic_result(
+    spacing: float = 0.6, tolerance: float = 0.3, seed: int = 0
+) -> InspectionResult:
     """An :class:`InspectionResult` of the thin shell with a synthetic deviation field."""
     rng = np.random.default_rng(seed)
     V, F = thin_shell(spacing=spacing)
@@ -46,8 +47,9 @@ def synthetic_result(spacing: float = 0.6, tolerance: float = 0.3,
     dev = 0.06 * np.sin(x / 21.0) * np.cos(y / 17.0) + 0.01 * rng.standard_normal(n)
     dev += 0.9 * np.exp(-((x - 30) ** 2 + (y - 20) ** 2) / (2 * 7.0**2))  # proud bump
     dev -= 0.7 * np.exp(-((x + 45) ** 2 + (y + 12) ** 2) / (2 * 5.0**2))  # sunk dent
-    corners = np.array([[x.min(), y.min()], [x.min(), y.max()], [x.max(), y.min()],
-                        [x.max(), y.max()]])
+    corners = np.array(
+        [[x.min(), y.min()], [x.min(), y.max()], [x.max(), y.min()], [x.max(), y.max()]]
+    )
     d_corner = np.min(np.linalg.norm(V[:, None, :2] - corners[None], axis=2), axis=1)
     dev[d_corner < 12.0] = np.nan  # unscanned corners (clamps)
     for c in rng.choice(n, 6, replace=False):  # dropouts
@@ -64,25 +66,58 @@ def synthetic_result(spacing: float = 0.6, tolerance: float = 0.3,
     P = V[keep] + N[keep] * dev[keep, None]
     pdev = dev[keep] + 0.01 * rng.standard_normal(len(keep))
     pstats = deviation_statistics(pdev, threshold=tolerance)
-    rigid = RigidResult(R=np.eye(3), t=np.zeros(3), rms=0.021, scale=0.012,
-                        inlier_fraction=0.995, iterations=14, converged=True)
+    rigid = RigidResult(
+        R=np.eye(3),
+        t=np.zeros(3),
+        rms=0.021,
+        scale=0.012,
+        inlier_fraction=0.995,
+        iterations=14,
+        converged=True,
+    )
     fit = GBCICPResult(
-        V=V, e=np.zeros_like(V), residual=dev, covered=np.isfinite(dev),
-        flagged=np.abs(np.nan_to_num(dev)) > 3 * 0.012, held_out=np.zeros(n, bool),
-        weights=np.ones(n), scale=0.012, passes=2, fallback=False, flagged_fraction=0.013,
-        iterations=46, seconds=3.1,
-        params=GBCICPParams(band_limit=1.8, band_limit_refit=0.9, band_limit_start=24.6,
-                            coverage_radius=1.8))
+        V=V,
+        e=np.zeros_like(V),
+        residual=dev,
+        covered=np.isfinite(dev),
+        flagged=np.abs(np.nan_to_num(dev)) > 3 * 0.012,
+        held_out=np.zeros(n, bool),
+        weights=np.ones(n),
+        scale=0.012,
+        passes=2,
+        fallback=False,
+        flagged_fraction=0.013,
+        iterations=46,
+        seconds=3.1,
+        params=GBCICPParams(
+            band_limit=1.8, band_limit_refit=0.9, band_limit_start=24.6, coverage_radius=1.8
+        ),
+    )
     scan_area = float(acc.scored_area) * 1.01
     return InspectionResult(
-        V=V, F=F, V_registered=V, P=P, deviation=dev, point_deviation=pdev,
-        vertex_stats=vstats, point_stats=pstats, acceptance=acc, rigid=rigid, fit=fit,
-        params=InspectionParams(tolerance=tolerance), scan_area=scan_area,
+        V=V,
+        F=F,
+        V_registered=V,
+        P=P,
+        deviation=dev,
+        point_deviation=pdev,
+        vertex_stats=vstats,
+        point_stats=pstats,
+        acceptance=acc,
+        rigid=rigid,
+        fit=fit,
+        params=InspectionParams(tolerance=tolerance),
+        scan_area=scan_area,
         coverage_ceiling_ok=bool(acc.coverage <= scan_area / acc.nominal_area * 1.05),
-        timings={}, zones=[ZoneResult(zone=zone, stats=vstats, acceptance=acc)],
-        not_evaluated=[NotEvaluated("flatness", "flatness_base", 1234,
-                                    "feature tolerance: needs a feature fit")],
-        bands=bands)
+        timings={},
+        zones=[ZoneResult(zone=zone, stats=vstats, acceptance=acc)],
+        not_evaluated=[
+            NotEvaluated(
+                "flatness", "flatness_base", 1234, "feature tolerance: needs a feature fit"
+            )
+        ],
+        bands=bands,
+    )
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -98,34 +133,47 @@ def main(argv: list[str] | None = None) -> None:
     res = synthetic_result(args.spacing)
     t_build = time.perf_counter() - t0
     now = datetime.now(timezone.utc)
-    prov = Provenance(part_name="shell_100k", nominal_path="shell_100k.ply",
-                      scan_path="shell_100k_scan.ply", nominal_sha256="0" * 64,
-                      scan_sha256="1" * 64, started=now, finished=now,
-                      operator="bench", organization="qifreport")
-    print(f"part: thin shell, {len(res.V)} vertices, {len(res.F)} triangles "
-          f"(synthetic result built in {t_build:.2f} s, not timed); verdict "
-          f"{'PASS' if res.passed else 'FAIL'}, {len(res.acceptance.regions)} regions")
+    prov = Provenance(
+        part_name="shell_100k",
+        nominal_path="shell_100k.ply",
+        scan_path="shell_100k_scan.ply",
+        nominal_sha256="0" * 64,
+        scan_sha256="1" * 64,
+        started=now,
+        finished=now,
+        operator="bench",
+        organization="qifreport",
+    )
+    print(
+        f"part: thin shell, {len(res.V)} vertices, {len(res.F)} triangles "
+        f"(synthetic result built in {t_build:.2f} s, not timed); verdict "
+        f"{'PASS' if res.passed else 'FAIL'}, {len(res.acceptance.regions)} regions"
+    )
     with tempfile.TemporaryDirectory(prefix="qifreport-bench-") as tmp:
         out_dir = args.out or Path(tmp)
         out_dir.mkdir(parents=True, exist_ok=True)
         _runs(args, res, prov, out_dir)
 
 
-def _runs(args: argparse.Namespace, res: InspectionResult, prov: Provenance,
-          out_dir: Path) -> None:
+def _runs(args: argparse.Namespace, res: InspectionResult, prov: Provenance, out_dir: Path) -> None:
     rows = []
     for k in range(args.runs):
         t = time.perf_counter()
-        split = write_report(out_dir / "shell_100k.pdf", res, prov, page=args.page,
-                             backend=args.backend)
+        split = write_report(
+            out_dir / "shell_100k.pdf", res, prov, page=args.page, backend=args.backend
+        )
         total = time.perf_counter() - t
         rows.append({**split, "total": total})
-        print(f"run {k + 1}: total {total:.3f} s = layout {split['layout']:.3f} + render "
-              f"{split['render']:.3f} + draw {split['draw']:.3f}"
-              + ("  (cold: first render in this process)" if k == 0 else ""))
+        print(
+            f"run {k + 1}: total {total:.3f} s = layout {split['layout']:.3f} + render "
+            f"{split['render']:.3f} + draw {split['draw']:.3f}"
+            + ("  (cold: first render in this process)" if k == 0 else "")
+        )
     med = {key: statistics.median(r[key] for r in rows) for key in rows[0]}
-    print(f"median of {args.runs}: {med['total']:.3f} s (layout {med['layout']:.3f}, render "
-          f"{med['render']:.3f}, draw {med['draw']:.3f}); requirement < 5 s")
+    print(
+        f"median of {args.runs}: {med['total']:.3f} s (layout {med['layout']:.3f}, render "
+        f"{med['render']:.3f}, draw {med['draw']:.3f}); requirement < 5 s"
+    )
     size = (out_dir / "shell_100k.pdf").stat().st_size / 1024
     print(f"PDF: {size:.0f} KiB" + (f", kept in {out_dir}" if args.out else ""))
 

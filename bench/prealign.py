@@ -76,9 +76,14 @@ def part_cases(name: str, fandisk_path: Path):
         V, F = fandisk(str(fandisk_path), diagonal=100.0, subdivide=1)
 
         def make(seed: int):
-            return make_case(V, F, generator="biharmonic", amplitude=0.02,
-                             modes={"bend": 1.0, "twist": 0.5},
-                             spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=seed))
+            return make_case(
+                V,
+                F,
+                generator="biharmonic",
+                amplitude=0.02,
+                modes={"bend": 1.0, "twist": 0.5},
+                spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=seed),
+            )
     elif name == "shell":
         V, F = thin_shell()
 
@@ -89,10 +94,14 @@ def part_cases(name: str, fandisk_path: Path):
         diag = bounding_diagonal(V)
 
         def make(seed: int):
-            return make_case(V, F, generator="biharmonic", amplitude=0.02,
-                             modes={"bend": 1.0, "twist": 0.5},
-                             spec=ScanSpec(views=4, noise=0.02, dropout_radius=0.03 * diag,
-                                           seed=seed))
+            return make_case(
+                V,
+                F,
+                generator="biharmonic",
+                amplitude=0.02,
+                modes={"bend": 1.0, "twist": 0.5},
+                spec=ScanSpec(views=4, noise=0.02, dropout_radius=0.03 * diag, seed=seed),
+            )
     else:
         raise ValueError(f"unknown part {name!r}")
     return V, F, make
@@ -119,10 +128,16 @@ def judge(R, t, Rt, tt, Rr, tr, P, model, ref_cost) -> dict:
     rr, dr = pose_distance(R, t, Rr, tr, at)
     cost = score_pose(model, P, R, t, 0.02 * diag).cost
     excess = cost / max(ref_cost, 1e-12) - 1.0
-    return dict(rot_truth=rt, trans_truth=dt, rot_ref=rr, trans_ref=dr, cost_excess=excess,
-                ok_truth=rt < 1.0 and dt < 0.005 * diag,
-                ok_ref=rr < 1.0 and dr < 0.005 * diag,
-                equiv=rr < 10.0 and dr < 0.05 * diag and excess <= 0.10)
+    return dict(
+        rot_truth=rt,
+        trans_truth=dt,
+        rot_ref=rr,
+        trans_ref=dr,
+        cost_excess=excess,
+        ok_truth=rt < 1.0 and dt < 0.005 * diag,
+        ok_ref=rr < 1.0 and dr < 0.005 * diag,
+        equiv=rr < 10.0 and dr < 0.05 * diag and excess <= 0.10,
+    )
 
 
 def repeatability(model, cases, refs, rng, n: int = 2) -> float:
@@ -151,8 +166,9 @@ def downstream(V, F, P_framed, P_seated, cache: dict, key) -> tuple[float, float
     return abs(a.rms - b.rms), abs(a.p999 - b.p999)
 
 
-def run_part(name: str, poses: int, n_scans: int, fandisk_path: Path, seed: int,
-             n_down: int = 3) -> list[dict]:
+def run_part(
+    name: str, poses: int, n_scans: int, fandisk_path: Path, seed: int, n_down: int = 3
+) -> list[dict]:
     V, F, make = part_cases(name, fandisk_path)
     diag = bounding_diagonal(V)
     t0 = time.perf_counter()
@@ -163,19 +179,26 @@ def run_part(name: str, poses: int, n_scans: int, fandisk_path: Path, seed: int,
         c = make(s)
         cases.append(c)
         refs.append(refine_pose(model, c.P, np.eye(3), np.zeros(3)))
-    ref_err = np.median([
-        pose_distance(r.R, r.t, np.eye(3), np.zeros(3), c.P.mean(axis=0))
-        for r, c in zip(refs, cases, strict=True)
-    ], axis=0)
+    ref_err = np.median(
+        [
+            pose_distance(r.R, r.t, np.eye(3), np.zeros(3), c.P.mean(axis=0))
+            for r, c in zip(refs, cases, strict=True)
+        ],
+        axis=0,
+    )
     npts = np.mean([len(c.P) for c in cases])
     rng = np.random.default_rng(seed)
     rep = repeatability(model, cases, refs, rng)
-    ref_costs = [score_pose(model, c.P, r.R, r.t, 0.02 * diag).cost
-                 for c, r in zip(cases, refs, strict=True)]
-    print(f"{name}: {len(V)} vertices, diagonal {diag:.1f} mm, {npts:.0f} scan points, model "
-          f"preparation {t_model:.1f} s; reference vs truth {ref_err[0]:.2f} deg "
-          f"{ref_err[1]:.2f} mm (median); refinement repeatability from 3 deg / 1 % "
-          f"perturbations of the truth: {100 * rep:.0f} % within the bound", flush=True)
+    ref_costs = [
+        score_pose(model, c.P, r.R, r.t, 0.02 * diag).cost for c, r in zip(cases, refs, strict=True)
+    ]
+    print(
+        f"{name}: {len(V)} vertices, diagonal {diag:.1f} mm, {npts:.0f} scan points, model "
+        f"preparation {t_model:.1f} s; reference vs truth {ref_err[0]:.2f} deg "
+        f"{ref_err[1]:.2f} mm (median); refinement repeatability from 3 deg / 1 % "
+        f"perturbations of the truth: {100 * rep:.0f} % within the bound",
+        flush=True,
+    )
     rows: list[dict] = []
     framed: dict = {}
     for i in range(poses):
@@ -191,18 +214,37 @@ def run_part(name: str, poses: int, n_scans: int, fandisk_path: Path, seed: int,
             r = prealign(V, F, P, seed=i, model=model)
             secs = time.perf_counter() - t1
             j = judge(r.R, r.t, Rt, tt, Rr, tr, P, model, ref_cost)
-            row = dict(base, method="prealign", seconds=secs, refused=False,
-                       wrong=not j["equiv"], agreement=r.restart_agreement,
-                       by=r.method, ambiguous=r.ambiguous, cond=r.conditioning, **j)
+            row = dict(
+                base,
+                method="prealign",
+                seconds=secs,
+                refused=False,
+                wrong=not j["equiv"],
+                agreement=r.restart_agreement,
+                by=r.method,
+                ambiguous=r.ambiguous,
+                cond=r.conditioning,
+                **j,
+            )
             if sum("d_rms" in x for x in rows) < n_down:
-                row["d_rms"], row["d_p999"] = downstream(V, F, c.P, r.apply(P), framed,
-                                                         i % n_scans)
+                row["d_rms"], row["d_p999"] = downstream(V, F, c.P, r.apply(P), framed, i % n_scans)
             rows.append(row)
         except PoseNotEstablished as exc:
             secs = time.perf_counter() - t1
             logging.getLogger("bench").info("pose %d refused: %s", i, exc)
-            rows.append(dict(base, method="prealign", seconds=secs, refused=True, wrong=False,
-                             ok_truth=False, ok_ref=False, equiv=False, by="refused"))
+            rows.append(
+                dict(
+                    base,
+                    method="prealign",
+                    seconds=secs,
+                    refused=True,
+                    wrong=False,
+                    ok_truth=False,
+                    ok_ref=False,
+                    equiv=False,
+                    by="refused",
+                )
+            )
         for method, kw in (
             ("icp", {}),
             ("icp+centroid", dict(t0=model.centroid - at, max_distance=np.inf)),
@@ -211,31 +253,41 @@ def run_part(name: str, poses: int, n_scans: int, fandisk_path: Path, seed: int,
             ri = rigid_icp(model.V, model.N, P, tree=model.tree, **kw)
             secs = time.perf_counter() - t1
             j = judge(ri.R, ri.t, Rt, tt, Rr, tr, P, model, ref_cost)
-            rows.append(dict(base, method=method, seconds=secs, refused=False,
-                             wrong=not j["equiv"], **j))
+            rows.append(
+                dict(base, method=method, seconds=secs, refused=False, wrong=not j["equiv"], **j)
+            )
         last = rows[-3]
         if last["refused"]:
             verdict = "refused"
         else:
             verdict = "ok" if last["ok_ref"] else ("equiv" if last["equiv"] else "WRONG")
-        detail = "" if last["refused"] else (
-            f", vs ref {last['rot_ref']:.2f} deg {last['trans_ref']:.2f} mm, fit "
-            f"{100 * last['cost_excess']:+.1f} %, "
-            f"agree {last['agreement']}, by {last['by']}"
-            + (", ambiguous" if last["ambiguous"] else ""))
+        detail = (
+            ""
+            if last["refused"]
+            else (
+                f", vs ref {last['rot_ref']:.2f} deg {last['trans_ref']:.2f} mm, fit "
+                f"{100 * last['cost_excess']:+.1f} %, "
+                f"agree {last['agreement']}, by {last['by']}"
+                + (", ambiguous" if last["ambiguous"] else "")
+            )
+        )
         if "d_rms" in last:
-            detail += (f"; inspection vs in-frame scan: RMS {last['d_rms']:.4f} mm, "
-                       f"P99.9 {last['d_p999']:.4f} mm apart")
+            detail += (
+                f"; inspection vs in-frame scan: RMS {last['d_rms']:.4f} mm, "
+                f"P99.9 {last['d_p999']:.4f} mm apart"
+            )
         print(f"  pose {i:3d}: prealign {verdict} {last['seconds']:.1f} s{detail}", flush=True)
     return rows
 
 
 def table(rows: list[dict]) -> str:
     out = []
-    hdr = (f"{'part':8s} {'method':13s} {'n':>3s} {'ok_truth':>8s} {'ok_ref':>7s} {'equiv':>6s} "
-           f"{'refused':>7s} {'wrong':>6s} {'med_s':>6s} {'rot_ref':>8s} {'tr_ref':>7s} "
-           f"{'rot_tru':>8s} {'tr_tru':>7s} {'fit%':>6s} {'ceiling':>7s} {'cond':>8s} "
-           f"{'dRMS':>7s} {'dP99.9':>7s}")
+    hdr = (
+        f"{'part':8s} {'method':13s} {'n':>3s} {'ok_truth':>8s} {'ok_ref':>7s} {'equiv':>6s} "
+        f"{'refused':>7s} {'wrong':>6s} {'med_s':>6s} {'rot_ref':>8s} {'tr_ref':>7s} "
+        f"{'rot_tru':>8s} {'tr_tru':>7s} {'fit%':>6s} {'ceiling':>7s} {'cond':>8s} "
+        f"{'dRMS':>7s} {'dP99.9':>7s}"
+    )
     out.append(hdr)
     keys = []
     for r in rows:
@@ -264,7 +316,8 @@ def table(rows: list[dict]) -> str:
             f"{np.median([r['seconds'] for r in sel]):6.2f} {med('rot_ref'):8.2f} "
             f"{med('trans_ref'):7.2f} {med('rot_truth'):8.2f} {med('trans_truth'):7.2f} "
             f"{100 * med('cost_excess'):6.1f} {100 * sel[0]['repeat']:6.0f}% "
-            f"{cond:8.1e} {dmax('d_rms'):7.4f} {dmax('d_p999'):7.4f}")
+            f"{cond:8.1e} {dmax('d_rms'):7.4f} {dmax('d_p999'):7.4f}"
+        )
     return "\n".join(out)
 
 
@@ -276,26 +329,33 @@ def main() -> None:
     ap.add_argument("--parts", default="fandisk,shell,housing")
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--fandisk", type=Path, default=ROOT.parent / "shared/meshes/fandisk.off")
-    ap.add_argument("--downstream", type=int, default=3,
-                    help="accepted poses per part whose whole inspection is compared")
+    ap.add_argument(
+        "--downstream",
+        type=int,
+        default=3,
+        help="accepted poses per part whose whole inspection is compared",
+    )
     ap.add_argument("-v", "--verbose", action="store_true")
     args = ap.parse_args()
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.ERROR,
-                        format="%(name)s: %(message)s")
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.ERROR, format="%(name)s: %(message)s"
+    )
     poses, scans = (10, 5) if args.quick else (args.poses, min(args.scans, args.poses))
     rows: list[dict] = []
     for name in args.parts.split(","):
         rows += run_part(name, poses, scans, args.fandisk, args.seed, args.downstream)
     print()
-    print("success: ok_truth / ok_ref = rotation < 1 deg and scan-centroid displacement "
-          "< 0.5 % of the diagonal\nagainst the generator frame / against the reference "
-          "(the same refinement started at the truth);\nequiv = within 10 deg and 5 % of the "
-          "reference with a fit at most 10 % worse; wrong = accepted\nbut not equiv; errors "
-          "are medians (deg, mm); fit% = median MSAC-cost excess over the reference;\n"
-          "ceiling = refinements from 3 deg / 1 % perturbations of the truth that meet the "
-          "ok_ref bound; cond = median pose conditioning; dRMS, dP99.9 = largest difference "
-          "(mm)\nof the inspection's deviation RMS / P99.9 between the pre-registered and the "
-          "in-frame scan")
+    print(
+        "success: ok_truth / ok_ref = rotation < 1 deg and scan-centroid displacement "
+        "< 0.5 % of the diagonal\nagainst the generator frame / against the reference "
+        "(the same refinement started at the truth);\nequiv = within 10 deg and 5 % of the "
+        "reference with a fit at most 10 % worse; wrong = accepted\nbut not equiv; errors "
+        "are medians (deg, mm); fit% = median MSAC-cost excess over the reference;\n"
+        "ceiling = refinements from 3 deg / 1 % perturbations of the truth that meet the "
+        "ok_ref bound; cond = median pose conditioning; dRMS, dP99.9 = largest difference "
+        "(mm)\nof the inspection's deviation RMS / P99.9 between the pre-registered and the "
+        "in-frame scan"
+    )
     print(table(rows))
 
 

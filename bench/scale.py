@@ -39,8 +39,14 @@ def build(vertices: int, points: int, length: float = 600.0, deflection: float =
     h = spacing * length / base_len
     # pixel pitch for ~`points` samples over 3 views of the ~length x 0.65 length sheet
     pixel = float(np.sqrt(3 * 0.81 * length * length * base_w / base_len / points))
-    case = make_case(V, F, generator="analytic", amplitude=deflection / diag, seed=0,
-                     spec=ScanSpec(views=3, noise=0.02, pixel=pixel, seed=0))
+    case = make_case(
+        V,
+        F,
+        generator="analytic",
+        amplitude=deflection / diag,
+        seed=0,
+        spec=ScanSpec(views=3, noise=0.02, pixel=pixel, seed=0),
+    )
     return V, F, case.P, h
 
 
@@ -58,14 +64,32 @@ def main() -> None:
     nominal, scan = work / "cover600.ply", work / "scan.ply"
     trimesh.Trimesh(V, F, process=False).export(nominal)
     trimesh.PointCloud(P).export(scan)
-    print(f"part: {len(V)} vertices, {len(F)} triangles, diagonal {bounding_diagonal(V):.0f} mm, "
-          f"edge ~{h:.2f} mm; scan: {len(P)} points (3 views, 0.02 mm noise); generated in "
-          f"{t_build:.0f} s", flush=True)
+    print(
+        f"part: {len(V)} vertices, {len(F)} triangles, diagonal {bounding_diagonal(V):.0f} mm, "
+        f"edge ~{h:.2f} mm; scan: {len(P)} points (3 views, 0.02 mm noise); generated in "
+        f"{t_build:.0f} s",
+        flush=True,
+    )
     exe = Path(sys.executable).parent / "qifreport"
     t1 = time.perf_counter()
-    r = subprocess.run([str(exe), nominal, scan, "--tolerance", "1.0", "--out", work / "out",
-                        "--json", "--profile", "--quiet", "--force", "--no-cache"],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            str(exe),
+            nominal,
+            scan,
+            "--tolerance",
+            "1.0",
+            "--out",
+            work / "out",
+            "--json",
+            "--profile",
+            "--quiet",
+            "--force",
+            "--no-cache",
+        ],
+        capture_output=True,
+        text=True,
+    )
     wall = time.perf_counter() - t1
     print(r.stdout)
     if r.returncode not in (0, 1, 3):
@@ -76,8 +100,10 @@ def main() -> None:
     # report this (large) process's size at fork as its own peak
     m = re.search(r"^total\s+[\d.]+\s+([\d.]+)\s*$", r.stdout, re.M)
     child = float(m.group(1)) / 1024 if m else float("nan")  # MiB -> GiB
-    print(f"exit {r.returncode}; wall {wall:.0f} s; peak RSS of the qifreport process "
-          f"{child:.2f} GiB (limit 24 GiB)")
+    print(
+        f"exit {r.returncode}; wall {wall:.0f} s; peak RSS of the qifreport process "
+        f"{child:.2f} GiB (limit 24 GiB)"
+    )
 
 
 if __name__ == "__main__":

@@ -27,10 +27,18 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=5, help="repeatability seeds (default 5)")
     ap.add_argument("--quick", action="store_true", help="coarse shell, at most 3 seeds")
-    ap.add_argument("--noise", type=float, default=L.DEFAULT_NOISE,
-                    help=f"scanner range noise, mm (default {L.DEFAULT_NOISE}, paper Table 3)")
-    ap.add_argument("--amplitude", type=float, default=L.DEFAULT_AMPLITUDE,
-                    help="case B free-state amplitude, fraction of the diagonal (default 0.02)")
+    ap.add_argument(
+        "--noise",
+        type=float,
+        default=L.DEFAULT_NOISE,
+        help=f"scanner range noise, mm (default {L.DEFAULT_NOISE}, paper Table 3)",
+    )
+    ap.add_argument(
+        "--amplitude",
+        type=float,
+        default=L.DEFAULT_AMPLITUDE,
+        help="case B free-state amplitude, fraction of the diagonal (default 0.02)",
+    )
     ap.add_argument("--fraction", type=float, default=0.8, help="subset fraction (default 0.8)")
     args = ap.parse_args()
     seeds = list(range(min(args.seeds, 3) if args.quick else args.seeds))
@@ -38,8 +46,10 @@ def main() -> None:
         ap.error("--seeds must be at least 2")
     t_start = time.perf_counter()
     V, F = L.ladder_shell(args.quick)
-    print(f"thin shell: {len(V)} vertices, {len(F)} triangles; noise {args.noise} mm; "
-          f"case B amplitude {100 * args.amplitude:g} % of the diagonal; seeds {seeds}")
+    print(
+        f"thin shell: {len(V)} vertices, {len(F)} triangles; noise {args.noise} mm; "
+        f"case B amplitude {100 * args.amplitude:g} % of the diagonal; seeds {seeds}"
+    )
 
     # case A: end to end (posed, PLY in metres, pose search) and handed over in frame
     a_posed, res_a, case_a = L.chain_floor(V, F, seed=0, noise=args.noise, posed=True)
@@ -54,12 +64,14 @@ def main() -> None:
     direct = L.direct_noise_floor(V, F, 0, args.noise, scored)
 
     # case B: unremoved compliance
-    b, res_b, case_b = L.unremoved_compliance(V, F, seed=0, noise=args.noise,
-                                              amplitude=args.amplitude)
+    b, res_b, case_b = L.unremoved_compliance(
+        V, F, seed=0, noise=args.noise, amplitude=args.amplitude
+    )
 
     # repeatability: scanner seed (same free state), and random subsets of one scan
-    rows = L.repeat_scanner_seeds(V, F, seeds, noise=args.noise, amplitude=args.amplitude,
-                                  done={0: res_b})
+    rows = L.repeat_scanner_seeds(
+        V, F, seeds, noise=args.noise, amplitude=args.amplitude, done={0: res_b}
+    )
     rows += L.repeat_subsets(V, F, case_b.P, seeds, fraction=args.fraction)
     per_seed = pd.DataFrame(rows)
     spreads = {}
@@ -70,13 +82,21 @@ def main() -> None:
     rep_max = max(s["max"]["half_range"] for s in spreads.values())
 
     budget = L.Budget(
-        noise_estimate=est.sigma, noise_setting=args.noise, noise_normal_true=normal_true,
-        noise_propagated=prop["propagated"], mean_count=prop["mean_count"],
-        floor_rms=a_posed["rms"], floor_max=a_posed["max"],
-        compliance_rms=b["rms_after"], compliance_before=b["rms_before"],
-        repeat_rms=rep_rms, repeat_max=rep_max,
-        repeat_how=(f"half-range over {len(seeds)} seeds, larger variant ({worst}); "
-                    f"max: larger half-range of the max"),
+        noise_estimate=est.sigma,
+        noise_setting=args.noise,
+        noise_normal_true=normal_true,
+        noise_propagated=prop["propagated"],
+        mean_count=prop["mean_count"],
+        floor_rms=a_posed["rms"],
+        floor_max=a_posed["max"],
+        compliance_rms=b["rms_after"],
+        compliance_before=b["rms_before"],
+        repeat_rms=rep_rms,
+        repeat_max=rep_max,
+        repeat_how=(
+            f"half-range over {len(seeds)} seeds, larger variant ({worst}); "
+            f"max: larger half-range of the max"
+        ),
     )
     pd.set_option("display.width", 250)
     pd.set_option("display.max_colwidth", 120)
@@ -91,22 +111,30 @@ def main() -> None:
             alt[f"{variant}, {stat}"] = s["rms"][stat]
         alt[f"{variant}, full range"] = 2 * s["rms"]["half_range"]
     other = [budget.noise_propagated, budget.floor_rms, budget.compliance_rms]
-    print("\nCombined with other readings of the repeatability term (paper: Table 6 uses the "
-          f"full range 0.043 -> {L.PAPER_TABLE6['combined'][0]}; the text the half-range "
-          f"{L.PAPER_TEXT['repeatability_half_range']} -> {L.PAPER_TEXT['combined']})")
+    print(
+        "\nCombined with other readings of the repeatability term (paper: Table 6 uses the "
+        f"full range 0.043 -> {L.PAPER_TABLE6['combined'][0]}; the text the half-range "
+        f"{L.PAPER_TEXT['repeatability_half_range']} -> {L.PAPER_TEXT['combined']})"
+    )
     for k, v in alt.items():
         print(f"  {k:32s} {v:.4f}  ->  combined {L.combine_quadrature(other + [v]):.4f}")
 
     print("\nSensor noise")
-    print(f"  plane-fit estimate {est.sigma:.4f} mm (radius {est.radius:.2f} mm = "
-          f"{L.NOISE_RADIUS_SPACINGS:g} x spacing {est.spacing:.3f} mm, {est.neighbourhoods} "
-          f"fits); quadric-fit estimate (registration.curvature) {quadric:.4f} mm")
-    print(f"  truth: setting {args.noise:.4f} mm along the view, {normal_true:.4f} mm along "
-          f"the surface normal")
-    print(f"  neighbours within the deviation radius {prop['radius']:.2f} mm: mean "
-          f"{prop['mean_count']:.1f} (P10-P90 {prop['count_p10']:.0f}-{prop['count_p90']:.0f})"
-          f"; propagated {prop['propagated']:.4f} mm; measured directly (noisy minus "
-          f"noise-free scan, same samples) {direct:.4f} mm")
+    print(
+        f"  plane-fit estimate {est.sigma:.4f} mm (radius {est.radius:.2f} mm = "
+        f"{L.NOISE_RADIUS_SPACINGS:g} x spacing {est.spacing:.3f} mm, {est.neighbourhoods} "
+        f"fits); quadric-fit estimate (registration.curvature) {quadric:.4f} mm"
+    )
+    print(
+        f"  truth: setting {args.noise:.4f} mm along the view, {normal_true:.4f} mm along "
+        f"the surface normal"
+    )
+    print(
+        f"  neighbours within the deviation radius {prop['radius']:.2f} mm: mean "
+        f"{prop['mean_count']:.1f} (P10-P90 {prop['count_p10']:.0f}-{prop['count_p90']:.0f})"
+        f"; propagated {prop['propagated']:.4f} mm; measured directly (noisy minus "
+        f"noise-free scan, same samples) {direct:.4f} mm"
+    )
 
     print("\nCase A (rigid, defect-free)")
     print(pd.DataFrame([a_posed, a_frame]).round(4).to_string(index=False))

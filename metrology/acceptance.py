@@ -140,8 +140,7 @@ def _prepare(V, F, dev, tolerance, area, center=0.0):
     dev = np.asarray(dev, dtype=np.float64).ravel()
     if dev.shape != (n,):
         raise ValueError(f"dev must have shape ({n},), got {dev.shape}")
-    return (V, F, dev, _tolerance_array(tolerance, n), _areas(V, F, area),
-            _center_array(center, n))
+    return (V, F, dev, _tolerance_array(tolerance, n), _areas(V, F, area), _center_array(center, n))
 
 
 def find_regions(
@@ -286,8 +285,10 @@ def region_reasons(regions: list[Region], max_region_area: float) -> list[str]:
     for r in big[:_MAX_REASONS]:
         x, y, z = r.centroid
         kind = "proud" if r.sign > 0 else "sunk"
-        out.append(f"region of {r.area:.1f} mm^2 at ({x:.1f}, {y:.1f}, {z:.1f}) exceeds "
-                   f"{max_region_area:.1f} mm^2 (peak {r.peak:+.3f} mm, {kind})")
+        out.append(
+            f"region of {r.area:.1f} mm^2 at ({x:.1f}, {y:.1f}, {z:.1f}) exceeds "
+            f"{max_region_area:.1f} mm^2 (peak {r.peak:+.3f} mm, {kind})"
+        )
     if len(big) > _MAX_REASONS:
         out.append(f"... and {len(big) - _MAX_REASONS} more regions above the limit")
     return out

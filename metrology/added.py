@@ -51,8 +51,12 @@ class AddedRegion:
     centroid: np.ndarray
 
     def to_dict(self) -> dict:
-        return {"n_points": int(self.n_points), "area": float(self.area),
-                "peak": float(self.peak), "centroid": [float(c) for c in self.centroid]}
+        return {
+            "n_points": int(self.n_points),
+            "area": float(self.area),
+            "peak": float(self.peak),
+            "centroid": [float(c) for c in self.centroid],
+        }
 
 
 @dataclass
@@ -105,9 +109,11 @@ class AddedMaterial:
             return f"no scan region beyond +{self.threshold:g} mm"
         r = self.regions[0]
         c = r.centroid
-        return (f"{len(self.regions)} scan region(s) beyond +{self.threshold:g} mm; largest "
-                f"{r.area:.1f} mm^2 (limit {self.max_region_area:g}), peak {r.peak:+.3f} mm at "
-                f"({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f})")
+        return (
+            f"{len(self.regions)} scan region(s) beyond +{self.threshold:g} mm; largest "
+            f"{r.area:.1f} mm^2 (limit {self.max_region_area:g}), peak {r.peak:+.3f} mm at "
+            f"({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f})"
+        )
 
     def to_dict(self) -> dict:
         return {
@@ -190,15 +196,19 @@ def added_material(
     counts = tree.query_ball_point(Q, r, return_length=True, workers=-1)
     a_local = np.pi * r * r / np.maximum(counts, 1)
     pairs = cKDTree(Q).query_pairs(link * max(spacing, 1e-12), output_type="ndarray")
-    A = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])),
-                      shape=(len(Q), len(Q)))
+    A = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(Q), len(Q)))
     _, labels = connected_components(A, directed=False)
     regions = []
     for k in np.unique(labels):
         members = np.flatnonzero(labels == k)
         dk = dev[proud[members]]
-        regions.append(AddedRegion(
-            n_points=len(members), area=float(a_local[members].sum()),
-            peak=float(dk.max()), centroid=Q[members].mean(axis=0)))
+        regions.append(
+            AddedRegion(
+                n_points=len(members),
+                area=float(a_local[members].sum()),
+                peak=float(dk.max()),
+                centroid=Q[members].mean(axis=0),
+            )
+        )
     out.regions = sorted(regions, key=lambda r: -r.area)
     return out

@@ -109,15 +109,24 @@ class ToleranceZone:
         """One line, e.g. ``surface profile 0.5 mm |A|B|C| [-0.25, +0.25] (pmi #1234)``."""
         drf = "|" + "|".join(self.datums) + "|" if self.datums else ""
         src = self.source if self.step_id is None else f"{self.source} #{self.step_id}"
-        return (f"{self.kind.replace('_', ' ')} {self.width:g} mm {drf} "
-                f"[{self.lower:+g}, {self.upper:+g}] ({src})").replace("  ", " ")
+        return (
+            f"{self.kind.replace('_', ' ')} {self.width:g} mm {drf} "
+            f"[{self.lower:+g}, {self.upper:+g}] ({src})"
+        ).replace("  ", " ")
 
     def to_dict(self) -> dict:
         return {
-            "key": self.key, "name": self.name, "kind": self.kind, "width_mm": self.width,
-            "lower_mm": self.lower, "upper_mm": self.upper, "source": self.source,
-            "datums": list(self.datums), "modifiers": list(self.modifiers),
-            "step_id": self.step_id, "free_state": self.free_state,
+            "key": self.key,
+            "name": self.name,
+            "kind": self.kind,
+            "width_mm": self.width,
+            "lower_mm": self.lower,
+            "upper_mm": self.upper,
+            "source": self.source,
+            "datums": list(self.datums),
+            "modifiers": list(self.modifiers),
+            "step_id": self.step_id,
+            "free_state": self.free_state,
             "n_faces": None if self.faces is None else int(len(self.faces)),
             "faces": None if self.faces is None else [int(f) for f in self.faces],
         }
@@ -133,18 +142,31 @@ class NotEvaluated:
     reason: str
 
     def to_dict(self) -> dict:
-        return {"kind": self.kind, "name": self.name, "step_id": self.step_id,
-                "reason": self.reason}
+        return {
+            "kind": self.kind,
+            "name": self.name,
+            "step_id": self.step_id,
+            "reason": self.reason,
+        }
 
 
-def symmetric_zone(half_width: float, source: str, key: str = "general",
-                   name: str = "general profile tolerance") -> ToleranceZone:
+def symmetric_zone(
+    half_width: float, source: str, key: str = "general", name: str = "general profile tolerance"
+) -> ToleranceZone:
     """A bilateral surface-profile zone ``[-h, +h]`` on every face not otherwise covered."""
     h = float(half_width)
     if not (np.isfinite(h) and h > 0):
         raise ValueError(f"tolerance half-width must be positive, got {half_width}")
-    return ToleranceZone(key=key, name=name, kind="surface_profile", width=2 * h, lower=-h,
-                         upper=h, faces=None, source=source)
+    return ToleranceZone(
+        key=key,
+        name=name,
+        kind="surface_profile",
+        width=2 * h,
+        lower=-h,
+        upper=h,
+        faces=None,
+        source=source,
+    )
 
 
 def profile_band(width: float, displacement: float | None) -> tuple[float, float]:
@@ -188,19 +210,32 @@ def zones_from_pmi(
     if pmi is not None:
         for tol in pmi.tolerances:
             if tol.type not in PROFILE_TYPES:
-                skipped.append(NotEvaluated(tol.type, tol.name, tol.step_id,
-                                            "feature tolerance: needs a feature fit, "
-                                            "not a surface band"))
+                skipped.append(
+                    NotEvaluated(
+                        tol.type,
+                        tol.name,
+                        tol.step_id,
+                        "feature tolerance: needs a feature fit, not a surface band",
+                    )
+                )
                 continue
             if tol.value is None:
-                skipped.append(NotEvaluated(tol.type, tol.name, tol.step_id,
-                                            "tolerance value could not be established: "
-                                            + "; ".join(tol.problems)))
+                skipped.append(
+                    NotEvaluated(
+                        tol.type,
+                        tol.name,
+                        tol.step_id,
+                        "tolerance value could not be established: " + "; ".join(tol.problems),
+                    )
+                )
                 continue
             faces = sorted({face_index[s] for s in tol.face_step_ids if s in face_index})
             if not faces:
-                skipped.append(NotEvaluated(tol.type, tol.name, tol.step_id,
-                                            "no B-rep face could be associated"))
+                skipped.append(
+                    NotEvaluated(
+                        tol.type, tol.name, tol.step_id, "no B-rep face could be associated"
+                    )
+                )
                 continue
             try:
                 lo, hi = profile_band(tol.value, tol.unequal_displacement)
@@ -208,16 +243,31 @@ def zones_from_pmi(
                 skipped.append(NotEvaluated(tol.type, tol.name, tol.step_id, str(exc)))
                 continue
             mods = list(tol.modifiers)
-            zones.append(ToleranceZone(
-                key=f"T{len(zones) + 1}", name=tol.name or f"#{tol.step_id}", kind=tol.type,
-                width=float(tol.value), lower=lo, upper=hi,
-                faces=np.asarray(faces, dtype=np.int64), source="pmi",
-                datums=[d.label for d in sorted(tol.datums, key=lambda d: d.precedence)],
-                modifiers=mods, step_id=tol.step_id, free_state="free_state" in mods,
-            ))
+            zones.append(
+                ToleranceZone(
+                    key=f"T{len(zones) + 1}",
+                    name=tol.name or f"#{tol.step_id}",
+                    kind=tol.type,
+                    width=float(tol.value),
+                    lower=lo,
+                    upper=hi,
+                    faces=np.asarray(faces, dtype=np.int64),
+                    source="pmi",
+                    datums=[d.label for d in sorted(tol.datums, key=lambda d: d.precedence)],
+                    modifiers=mods,
+                    step_id=tol.step_id,
+                    free_state="free_state" in mods,
+                )
+            )
         for dim in pmi.dimensions:
-            skipped.append(NotEvaluated(f"dimension ({dim.type})", dim.name, dim.step_id,
-                                        "dimension: needs a feature fit, not a surface band"))
+            skipped.append(
+                NotEvaluated(
+                    f"dimension ({dim.type})",
+                    dim.name,
+                    dim.step_id,
+                    "dimension: needs a feature fit, not a surface band",
+                )
+            )
     if general is None:
         zones.append(symmetric_zone(DEFAULT_GENERAL_TOLERANCE, "default"))
     else:
@@ -225,8 +275,9 @@ def zones_from_pmi(
     return zones, skipped
 
 
-def triangle_zone_mask(face_id: np.ndarray, zone: ToleranceZone,
-                       covered: np.ndarray | None = None) -> np.ndarray:
+def triangle_zone_mask(
+    face_id: np.ndarray, zone: ToleranceZone, covered: np.ndarray | None = None
+) -> np.ndarray:
     """(f,) bool: triangles of the zone (a general zone takes the uncovered triangles)."""
     if zone.faces is not None:
         return np.isin(face_id, zone.faces)
@@ -262,8 +313,9 @@ class BandField:
         return 0.5 * (self.upper - self.lower)
 
 
-def lay_bands(F: np.ndarray, n: int, face_id: np.ndarray | None,
-              zones: list[ToleranceZone]) -> BandField:
+def lay_bands(
+    F: np.ndarray, n: int, face_id: np.ndarray | None, zones: list[ToleranceZone]
+) -> BandField:
     """Lay the zones on the mesh; each vertex takes the tightest zone around it.
 
     Parameters
@@ -303,8 +355,7 @@ def zone_vertex_areas(V: np.ndarray, F: np.ndarray, tri_mask: np.ndarray) -> np.
     """(n,) barycentric vertex areas (mm^2) counting only the triangles in ``tri_mask``."""
     V = np.asarray(V, dtype=np.float64)
     Fz = np.asarray(F, dtype=np.int64)[tri_mask]
-    a = 0.5 * np.linalg.norm(np.cross(V[Fz[:, 1]] - V[Fz[:, 0]], V[Fz[:, 2]] - V[Fz[:, 0]]),
-                             axis=1)
+    a = 0.5 * np.linalg.norm(np.cross(V[Fz[:, 1]] - V[Fz[:, 0]], V[Fz[:, 2]] - V[Fz[:, 0]]), axis=1)
     out = np.zeros(len(V))
     np.add.at(out, Fz.ravel(), np.repeat(a / 3.0, 3))
     return out

@@ -114,8 +114,13 @@ def _evaluate_pairs(
 
 
 def _keep_nearest(
-    pid: np.ndarray, fid: np.ndarray, C: np.ndarray, d2: np.ndarray,
-    best_d2: np.ndarray, best_face: np.ndarray, best_C: np.ndarray,
+    pid: np.ndarray,
+    fid: np.ndarray,
+    C: np.ndarray,
+    d2: np.ndarray,
+    best_d2: np.ndarray,
+    best_face: np.ndarray,
+    best_C: np.ndarray,
 ) -> None:
     """Update the running best (in place) with the nearest pair of every point in ``pid``.
 
@@ -154,8 +159,13 @@ def _face_vertex_radius(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 
 def _exact_fallback(
-    V: np.ndarray, F: np.ndarray, P: np.ndarray, todo: np.ndarray,
-    best_d2: np.ndarray, best_face: np.ndarray, best_C: np.ndarray,
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    todo: np.ndarray,
+    best_d2: np.ndarray,
+    best_face: np.ndarray,
+    best_C: np.ndarray,
     candidates: np.ndarray | None = None,
 ) -> None:
     """Exact search for the points ``todo`` whose fast-path answer is not certified.
@@ -303,7 +313,11 @@ def closest_points(
 
 
 def _signed_distance(
-    V: np.ndarray, F: np.ndarray, P: np.ndarray, C: np.ndarray, face: np.ndarray,
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    C: np.ndarray,
+    face: np.ndarray,
     normals: np.ndarray,
 ) -> np.ndarray:
     """Signed ``|P - C|``: face normal for interior ``C``, interpolated normal on edges."""
@@ -322,8 +336,9 @@ def _signed_distance(
     return np.where(s < 0, -dist, dist)
 
 
-def beyond_rim(V: np.ndarray, F: np.ndarray, C: np.ndarray, face: np.ndarray,
-               tol: float | None = None) -> np.ndarray:
+def beyond_rim(
+    V: np.ndarray, F: np.ndarray, C: np.ndarray, face: np.ndarray, tol: float | None = None
+) -> np.ndarray:
     """Points whose closest point on the mesh lies on an *open boundary* edge (m,) bool.
 
     Such a scan point lies beyond the rim of the nominal: its distance to the mesh is not a
@@ -346,8 +361,12 @@ def beyond_rim(V: np.ndarray, F: np.ndarray, C: np.ndarray, face: np.ndarray,
             continue
         A, B = V[F[face[sel], a]], V[F[face[sel], b]]
         AB = B - A
-        t = np.clip(np.einsum("ij,ij->i", C[sel] - A, AB)
-                    / np.maximum(np.einsum("ij,ij->i", AB, AB), 1e-300), 0.0, 1.0)
+        t = np.clip(
+            np.einsum("ij,ij->i", C[sel] - A, AB)
+            / np.maximum(np.einsum("ij,ij->i", AB, AB), 1e-300),
+            0.0,
+            1.0,
+        )
         d = np.linalg.norm(C[sel] - (A + t[:, None] * AB), axis=1)
         out[sel[d <= tol]] = True
     return out

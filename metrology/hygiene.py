@@ -52,15 +52,16 @@ class MeshHygiene:
     boundary_excluded_fraction: float = 0.0
 
     def to_dict(self) -> dict:
-        return {k: (float(v) if isinstance(v, float) else int(v))
-                for k, v in asdict(self).items()}
+        return {k: (float(v) if isinstance(v, float) else int(v)) for k, v in asdict(self).items()}
 
     def describe(self) -> str:
-        return (f"{self.boundary_edges} open boundary edges, {self.non_manifold_edges} "
-                f"non-manifold, {self.degenerate_faces} degenerate and {self.duplicate_faces} "
-                f"duplicate triangles, {self.components} piece(s); "
-                f"{100 * self.boundary_excluded_fraction:.1f} % of the area within "
-                f"{self.boundary_band:.2g} mm of the rim not scored")
+        return (
+            f"{self.boundary_edges} open boundary edges, {self.non_manifold_edges} "
+            f"non-manifold, {self.degenerate_faces} degenerate and {self.duplicate_faces} "
+            f"duplicate triangles, {self.components} piece(s); "
+            f"{100 * self.boundary_excluded_fraction:.1f} % of the area within "
+            f"{self.boundary_band:.2g} mm of the rim not scored"
+        )
 
 
 def mesh_hygiene(V: np.ndarray, F: np.ndarray) -> MeshHygiene:
@@ -72,10 +73,13 @@ def mesh_hygiene(V: np.ndarray, F: np.ndarray) -> MeshHygiene:
     degenerate = int(np.sum(area <= 1e-12 * max(float(area.mean()), 1e-300)))
     duplicate = len(F) - len(np.unique(np.sort(F, axis=1), axis=0))
     n_comp, _ = connected_components(adjacency(F, len(V)), directed=False)
-    return MeshHygiene(boundary_edges=int(np.sum(count == 1)),
-                       non_manifold_edges=int(np.sum(count > 2)),
-                       degenerate_faces=degenerate, duplicate_faces=int(duplicate),
-                       components=int(n_comp))
+    return MeshHygiene(
+        boundary_edges=int(np.sum(count == 1)),
+        non_manifold_edges=int(np.sum(count > 2)),
+        degenerate_faces=degenerate,
+        duplicate_faces=int(duplicate),
+        components=int(n_comp),
+    )
 
 
 def near_boundary(V: np.ndarray, boundary: np.ndarray, band: float) -> np.ndarray:

@@ -169,8 +169,11 @@ class InspectionResult:
     def passed(self) -> bool:
         """The part passes when the whole surface and every toleranced surface pass (and, with
         ``fail_on_added_material``, no proud scan region exceeds the limit)."""
-        return bool(self.acceptance.passed and all(z.acceptance.passed for z in self.zones)
-                    and (self.added is None or self.added.passed))
+        return bool(
+            self.acceptance.passed
+            and all(z.acceptance.passed for z in self.zones)
+            and (self.added is None or self.added.passed)
+        )
 
     def trust_warnings(self) -> list[str]:
         """Why the registration cannot be trusted (empty when it can), one line each.
@@ -186,16 +189,20 @@ class InspectionResult:
         out = []
         if not self.coverage_ceiling_ok:
             ratio = self.scan_area / max(self.acceptance.nominal_area, 1e-300)
-            out.append(f"coverage {100 * self.acceptance.coverage:.1f} % exceeds the scanned-"
-                       f"to-nominal area ratio {100 * ratio:.1f} %: the fit followed the "
-                       "measurement (over-fit)")
+            out.append(
+                f"coverage {100 * self.acceptance.coverage:.1f} % exceeds the scanned-"
+                f"to-nominal area ratio {100 * ratio:.1f} %: the fit followed the "
+                "measurement (over-fit)"
+            )
         if self.fit is not None and self.fit.fallback:
             fit = self.fit
             limit = getattr(fit.params, "max_flagged_fraction", float("nan"))
-            out.append(f"the two-pass guard fired: pass {fit.guard_pass} flagged "
-                       f"{100 * fit.guard_fraction:.1f} % of the covered surface as anomalous "
-                       f"(limit {100 * limit:.0f} %), so the "
-                       "band-limited refit fell back to the single-pass fit")
+            out.append(
+                f"the two-pass guard fired: pass {fit.guard_pass} flagged "
+                f"{100 * fit.guard_fraction:.1f} % of the covered surface as anomalous "
+                f"(limit {100 * limit:.0f} %), so the "
+                "band-limited refit fell back to the single-pass fit"
+            )
         if self.repeatability is not None:
             out += list(self.repeatability.warnings)
         return out
@@ -263,7 +270,9 @@ class InspectionResult:
                     "iterations": self.rigid.iterations,
                 },
                 "gbcicp": None if fit is None or fit.method != "gbcicp" else _fit_dict(fit),
-                "fit": None if fit is None else {
+                "fit": None
+                if fit is None
+                else {
                     "method": fit.method,
                     "label": method_label(fit.method),
                     **_fit_dict(fit),
@@ -271,10 +280,13 @@ class InspectionResult:
                 },
             },
             "parameters": p,
-            "repeatability": (None if self.repeatability is None
-                              else self.repeatability.to_dict()),
-            "mesh": {"vertices": len(self.V), "triangles": len(self.F), "scan_points": len(self.P),
-                     **({} if self.hygiene is None else self.hygiene.to_dict())},
+            "repeatability": (None if self.repeatability is None else self.repeatability.to_dict()),
+            "mesh": {
+                "vertices": len(self.V),
+                "triangles": len(self.F),
+                "scan_points": len(self.P),
+                **({} if self.hygiene is None else self.hygiene.to_dict()),
+            },
             "timings_s": self.timings,
         }
 
@@ -333,15 +345,21 @@ def check_units(V: np.ndarray, P: np.ndarray, scan_units: str | None = None) -> 
         if abs(np.log(ratio / best)) < 0.4:
             unit = _UNIT_FACTORS[best]
             if best < 1:  # the scan is too small: its numbers are in a larger unit
-                hint = (f"; the scan looks {1 / best:g}x too small: in {unit}? use "
-                        f"--scan-units {unit}" if unit in ("in", "m") else
-                        f"; the scan looks {1 / best:g}x too small (in {unit}?)")
+                hint = (
+                    f"; the scan looks {1 / best:g}x too small: in {unit}? use --scan-units {unit}"
+                    if unit in ("in", "m")
+                    else f"; the scan looks {1 / best:g}x too small (in {unit}?)"
+                )
             elif scan_units not in (None, "mm"):
-                hint = (f"; the scan looks {best:g}x too large: it is in mm already? drop "
-                        f"--scan-units {scan_units}")
+                hint = (
+                    f"; the scan looks {best:g}x too large: it is in mm already? drop "
+                    f"--scan-units {scan_units}"
+                )
             else:
-                hint = (f"; the scan looks {best:g}x too large: is the nominal in {unit}? "
-                        "(nominals are read in mm)")
+                hint = (
+                    f"; the scan looks {best:g}x too large: is the nominal in {unit}? "
+                    "(nominals are read in mm)"
+                )
         raise InputError(
             f"scan extent {dp:.4g} mm vs nominal extent {dv:.4g} mm (ratio {ratio:.3g}): "
             f"wrong units or wrong part{hint}"
@@ -434,10 +452,19 @@ def inspect(
     near_crease, near_rim, rim_band = prepared.near_crease, prepared.near_rim, prepared.rim_band
     if not params.rigid_only:
         flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
-        fit = deform(params.method, V, F, ops, Pm,
-                     params.gbcicp if params.method == "gbcicp" else None,
-                     scan_normals=Ns, scan_sheets=sheets, progress=progress, basis=basis,
-                     flaggable=flaggable)
+        fit = deform(
+            params.method,
+            V,
+            F,
+            ops,
+            Pm,
+            params.gbcicp if params.method == "gbcicp" else None,
+            scan_normals=Ns,
+            scan_sheets=sheets,
+            progress=progress,
+            basis=basis,
+            flaggable=flaggable,
+        )
         V_reg = fit.V
         basis = fit.basis
     timings[params.method] = time.perf_counter() - t0
@@ -445,8 +472,11 @@ def inspect(
     t0 = time.perf_counter()
     if zones is None:
         tol = params.tolerance
-        zones = [symmetric_zone(DEFAULT_GENERAL_TOLERANCE, "default") if tol is None
-                 else symmetric_zone(tol, "general")]
+        zones = [
+            symmetric_zone(DEFAULT_GENERAL_TOLERANCE, "default")
+            if tol is None
+            else symmetric_zone(tol, "general")
+        ]
     bands = lay_bands(F, len(V), face_id, zones)
     keep = [i for i, m in enumerate(bands.tri_masks) if m.any()]
     if len(keep) < len(zones):
@@ -456,18 +486,27 @@ def inspect(
 
     N_reg = vertex_normals(V_reg, F)
     dev = nominal_referenced(
-        V_reg, F, Pm, normals=N_reg,
-        scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg, sheets=sheets))
+        V_reg,
+        F,
+        Pm,
+        normals=N_reg,
+        scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg, sheets=sheets),
+    )
     dev_free = None
     if fit is not None and any(z.free_state for z in bands.zones):
         dev_free = nominal_referenced(
-            V, F, Pm, normals=ops.normals,
-            scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets))
+            V,
+            F,
+            Pm,
+            normals=ops.normals,
+            scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets),
+        )
     hygiene = replace(prepared.hygiene)  # a copy: the rim band is this inspection's
     hygiene.boundary_band = rim_band
     hygiene.boundary_excluded_area = float(ops.area[near_rim].sum())
     hygiene.boundary_excluded_fraction = hygiene.boundary_excluded_area / max(
-        float(ops.area.sum()), 1e-300)
+        float(ops.area.sum()), 1e-300
+    )
     if near_rim.any():
         if near_crease is not None:  # each excluded vertex is counted once, rim first
             near_crease = near_crease & ~near_rim
@@ -491,39 +530,80 @@ def inspect(
     # under PMI profiles) the widest zone's: "beyond every band" (per-zone fractions use their
     # own band)
     general = [z for z in bands.zones if z.faces is None]
-    general_half = (general[0].half_width if general
-                    else max(z.half_width for z in bands.zones))
+    general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
     vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
     pstats = deviation_statistics(pdev, threshold=general_half)
     acc = evaluate(
-        V, F, dev_all, bands.half_width, area=area, min_fraction=params.min_fraction,
-        max_region_area=params.max_region_area, center=bands.center,
+        V,
+        F,
+        dev_all,
+        bands.half_width,
+        area=area,
+        min_fraction=params.min_fraction,
+        max_region_area=params.max_region_area,
+        center=bands.center,
     )
     zone_results = []
     for z, mask in zip(bands.zones, bands.tri_masks, strict=True):
         az = zone_vertex_areas(V, F, mask)
         use_free = z.free_state and dev_free is not None
         dz = np.where(az > 0, dev_free if use_free else dev, np.nan)
-        zacc = evaluate(V, F[mask], dz, z.half_width, area=az,
-                        min_fraction=params.min_fraction,
-                        max_region_area=params.max_region_area, center=z.center)
+        zacc = evaluate(
+            V,
+            F[mask],
+            dz,
+            z.half_width,
+            area=az,
+            min_fraction=params.min_fraction,
+            max_region_area=params.max_region_area,
+            center=z.center,
+        )
         zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
-        zone_results.append(ZoneResult(zone=z, stats=zstats, acceptance=zacc,
-                                       fixtured=fit is not None and not use_free,
-                                       deviation=dz))
+        zone_results.append(
+            ZoneResult(
+                zone=z,
+                stats=zstats,
+                acceptance=zacc,
+                fixtured=fit is not None and not use_free,
+                deviation=dz,
+            )
+        )
     s_area = scan_area(Pm)
     ceiling = coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
     # added material: scan points beyond the rim of the nominal are not proud of it
     pdev_in = np.where(rim, np.nan, pdev)
-    added = added_material(Pm, pdev_in, general_half, s_area, params.max_region_area,
-                           fail_on=params.fail_on_added_material)
+    added = added_material(
+        Pm,
+        pdev_in,
+        general_half,
+        s_area,
+        params.max_region_area,
+        fail_on=params.fail_on_added_material,
+    )
     timings["metrology"] = time.perf_counter() - t0
     return InspectionResult(
-        V=V, F=F, V_registered=V_reg, P=Pm, deviation=dev_all, point_deviation=pdev,
-        vertex_stats=vstats, point_stats=pstats, acceptance=acc, rigid=rigid, fit=fit,
-        params=params, scan_area=s_area, coverage_ceiling_ok=ceiling, timings=timings,
-        zones=zone_results, not_evaluated=list(not_evaluated or []), bands=bands,
+        V=V,
+        F=F,
+        V_registered=V_reg,
+        P=Pm,
+        deviation=dev_all,
+        point_deviation=pdev,
+        vertex_stats=vstats,
+        point_stats=pstats,
+        acceptance=acc,
+        rigid=rigid,
+        fit=fit,
+        params=params,
+        scan_area=s_area,
+        coverage_ceiling_ok=ceiling,
+        timings=timings,
+        zones=zone_results,
+        not_evaluated=list(not_evaluated or []),
+        bands=bands,
         energy=energy,
         edge_excluded_area=float(area[near_crease].sum()) if near_crease is not None else 0.0,
-        prealign=seat, added=added, hygiene=hygiene, basis=basis,
+        prealign=seat,
+        added=added,
+        hygiene=hygiene,
+        basis=basis,
     )

@@ -46,8 +46,10 @@ def part_settings(params: InspectionParams) -> dict:
     params : :class:`qifreport.metrology.params.InspectionParams`.
     """
     return {
-        "energy": params.energy, "edge_band": params.edge_band,
-        "boundary_band": params.boundary_band, "crease_angle": params.crease_angle,
+        "energy": params.energy,
+        "edge_band": params.edge_band,
+        "boundary_band": params.boundary_band,
+        "crease_angle": params.crease_angle,
         "modes": int(params.gbcicp.modes),
     }
 
@@ -88,18 +90,28 @@ class PreparedPart:
 
     def check(self, V: np.ndarray, F: np.ndarray, params: InspectionParams) -> None:
         """Raise ``ValueError`` unless this state was prepared for ``(V, F)`` and ``params``."""
-        if self.V.shape != np.shape(V) or self.F.shape != np.shape(F) or not (
-                np.array_equal(self.F, F) and np.allclose(self.V, V, rtol=0, atol=1e-9)):
+        if (
+            self.V.shape != np.shape(V)
+            or self.F.shape != np.shape(F)
+            or not (np.array_equal(self.F, F) and np.allclose(self.V, V, rtol=0, atol=1e-9))
+        ):
             raise ValueError("prepared state belongs to another nominal mesh")
         want = part_settings(params)
         if want != self.settings:
-            diff = {k: (self.settings.get(k), v) for k, v in want.items()
-                    if self.settings.get(k) != v}
+            diff = {
+                k: (self.settings.get(k), v) for k, v in want.items() if self.settings.get(k) != v
+            }
             raise ValueError(f"prepared state built with other settings: {diff}")
 
 
-def prepare_part(V: np.ndarray, F: np.ndarray, params: InspectionParams, *, basis: bool = True,
-                 model: bool = True) -> PreparedPart:
+def prepare_part(
+    V: np.ndarray,
+    F: np.ndarray,
+    params: InspectionParams,
+    *,
+    basis: bool = True,
+    model: bool = True,
+) -> PreparedPart:
     """Compute the scan-independent state of the nominal ``(V, F)``.
 
     Parameters
@@ -135,10 +147,21 @@ def prepare_part(V: np.ndarray, F: np.ndarray, params: InspectionParams, *, basi
         t0 = time.perf_counter()
         m = prepare_model(V, F)
         timings["prealign_model"] = time.perf_counter() - t0
-    log.info("prepared %d vertices: %s", len(V),
-             ", ".join(f"{k} {v:.2f} s" for k, v in timings.items()))
-    return PreparedPart(V=V, F=F, energy=energy, ops=ops, boundary=boundary,
-                        near_crease=near_crease, near_rim=near_rim, rim_band=rim_band,
-                        hygiene=hygiene, basis=b, model=m, settings=part_settings(params),
-                        timings=timings)
-
+    log.info(
+        "prepared %d vertices: %s", len(V), ", ".join(f"{k} {v:.2f} s" for k, v in timings.items())
+    )
+    return PreparedPart(
+        V=V,
+        F=F,
+        energy=energy,
+        ops=ops,
+        boundary=boundary,
+        near_crease=near_crease,
+        near_rim=near_rim,
+        rim_band=rim_band,
+        hygiene=hygiene,
+        basis=b,
+        model=m,
+        settings=part_settings(params),
+        timings=timings,
+    )

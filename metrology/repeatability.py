@@ -126,8 +126,9 @@ def region_sign_map(n: int, regions: Sequence[Region]) -> np.ndarray:
     return out
 
 
-def region_hits(regions: Sequence[np.ndarray], ref: np.ndarray,
-                runs: Sequence[np.ndarray]) -> np.ndarray:
+def region_hits(
+    regions: Sequence[np.ndarray], ref: np.ndarray, runs: Sequence[np.ndarray]
+) -> np.ndarray:
     """Which resampled runs find each region of the reported run.
 
     Parameters
@@ -153,8 +154,9 @@ def region_hits(regions: Sequence[np.ndarray], ref: np.ndarray,
     return hits
 
 
-def persistent_regions(regions: Sequence[np.ndarray], ref: np.ndarray,
-                       runs: Sequence[np.ndarray]) -> np.ndarray:
+def persistent_regions(
+    regions: Sequence[np.ndarray], ref: np.ndarray, runs: Sequence[np.ndarray]
+) -> np.ndarray:
     """(len(regions),) bool: the region is found in every run (:func:`region_hits`); with no
     run every region persists."""
     return region_hits(regions, ref, runs).all(axis=1)
@@ -186,11 +188,18 @@ def restrict_acceptance(acc: Acceptance, keep: np.ndarray) -> Acceptance:
     largest = regions[0].area if regions else 0.0  # still largest first
     region_ok = bool(largest <= acc.max_region_area)
     passed = bool(acc.area_ok and region_ok and acc.scored_area > 0)
-    reasons = [s for s in acc.reasons
-               if not (s.startswith("region of ") or s.startswith("... and "))]
+    reasons = [
+        s for s in acc.reasons if not (s.startswith("region of ") or s.startswith("... and "))
+    ]
     reasons += region_reasons(regions, acc.max_region_area)
-    return replace(acc, regions=regions, largest_region_area=float(largest),
-                   region_ok=region_ok, passed=passed, reasons=reasons)
+    return replace(
+        acc,
+        regions=regions,
+        largest_region_area=float(largest),
+        region_ok=region_ok,
+        passed=passed,
+        reasons=reasons,
+    )
 
 
 @dataclass
@@ -210,9 +219,13 @@ class DroppedRegion:
     runs_found: int
 
     def to_dict(self) -> dict:
-        return {"area": json_float(self.area), "peak": json_float(self.peak),
-                "sign": int(self.sign), "centroid": [float(c) for c in self.centroid],
-                "runs_found": int(self.runs_found)}
+        return {
+            "area": json_float(self.area),
+            "peak": json_float(self.peak),
+            "sign": int(self.sign),
+            "centroid": [float(c) for c in self.centroid],
+            "runs_found": int(self.runs_found),
+        }
 
 
 @dataclass
@@ -241,20 +254,33 @@ class SurfacePersistence:
         return int(np.count_nonzero(self.persistent))
 
     def to_dict(self) -> dict:
-        return {"key": self.key, "regions": self.n_regions, "persistent": self.n_persistent,
-                "dropped": [d.to_dict() for d in self.dropped]}
+        return {
+            "key": self.key,
+            "regions": self.n_regions,
+            "persistent": self.n_persistent,
+            "dropped": [d.to_dict() for d in self.dropped],
+        }
 
 
-def surface_persistence(key: str, acc: Acceptance, ref: np.ndarray,
-                        runs: Sequence[np.ndarray]) -> SurfacePersistence:
+def surface_persistence(
+    key: str, acc: Acceptance, ref: np.ndarray, runs: Sequence[np.ndarray]
+) -> SurfacePersistence:
     """Persistence of the regions of ``acc`` (the reported run's) against the signed maps
     ``runs`` of the resampled runs (:func:`region_hits`)."""
     hits = region_hits([r.vertices for r in acc.regions], ref, runs)
     found = hits.sum(axis=1).astype(np.int64)
     keep = hits.all(axis=1)
-    dropped = [DroppedRegion(area=r.area, peak=r.peak, sign=r.sign,
-                             centroid=np.asarray(r.centroid, dtype=float), runs_found=int(f))
-               for r, f, k in zip(acc.regions, found, keep, strict=True) if not k]
+    dropped = [
+        DroppedRegion(
+            area=r.area,
+            peak=r.peak,
+            sign=r.sign,
+            centroid=np.asarray(r.centroid, dtype=float),
+            runs_found=int(f),
+        )
+        for r, f, k in zip(acc.regions, found, keep, strict=True)
+        if not k
+    ]
     return SurfacePersistence(key=key, runs_found=found, persistent=keep, dropped=dropped)
 
 
@@ -310,11 +336,13 @@ class Repeatability:
         """One line: ``Repeatability over N resamplings: regions persistent k of m; ...``."""
         pct = f"{100 * self.keep_fraction:g} %"
         zones = sum(len(s.dropped) for s in self.surfaces[1:])
-        tail = (f"; {zones} zone region(s) not persistent" if zones else "")
-        return (f"Repeatability over {self.seeds} resamplings ({pct} of the scan points each): "
-                f"regions persistent {self.n_persistent} of {self.n_regions}; RMS spread "
-                f"+/-{self.rms_spread:.4f} mm, max spread +/-{self.max_spread:.4f} mm "
-                f"(half-ranges over {self.seeds + 1} runs){tail}")
+        tail = f"; {zones} zone region(s) not persistent" if zones else ""
+        return (
+            f"Repeatability over {self.seeds} resamplings ({pct} of the scan points each): "
+            f"regions persistent {self.n_persistent} of {self.n_regions}; RMS spread "
+            f"+/-{self.rms_spread:.4f} mm, max spread +/-{self.max_spread:.4f} mm "
+            f"(half-ranges over {self.seeds + 1} runs){tail}"
+        )
 
     def to_dict(self) -> dict:
         """JSON-ready dict (the summary's ``repeatability`` object)."""
@@ -341,8 +369,9 @@ def _surface_map(dev, tolerance, center, acc: Acceptance, n: int) -> np.ndarray:
     return signed_out(dev, tolerance, center)
 
 
-def apply(res: Any, runs: Sequence[Any], keep_fraction: float = KEEP_FRACTION,
-          seconds: float = 0.0) -> Repeatability:
+def apply(
+    res: Any, runs: Sequence[Any], keep_fraction: float = KEEP_FRACTION, seconds: float = 0.0
+) -> Repeatability:
     """Judge the reported result ``res`` on its persistent regions only, in place.
 
     Parameters
@@ -367,8 +396,9 @@ def apply(res: Any, runs: Sequence[Any], keep_fraction: float = KEEP_FRACTION,
             return region_sign_map(n, r.acceptance.regions)
         return signed_out(r.deviation, b.half_width, b.center)
 
-    surfaces = [surface_persistence(WHOLE_PART, res.acceptance, part_map(res),
-                                    [part_map(r) for r in runs])]
+    surfaces = [
+        surface_persistence(WHOLE_PART, res.acceptance, part_map(res), [part_map(r) for r in runs])
+    ]
     new_part = restrict_acceptance(res.acceptance, surfaces[0].persistent)
     for z in res.zones:
         key = z.zone.key
@@ -376,23 +406,39 @@ def apply(res: Any, runs: Sequence[Any], keep_fraction: float = KEEP_FRACTION,
         maps = []
         for r in runs:
             rz = next((q for q in r.zones if q.zone.key == key), None)
-            maps.append(np.zeros(n, dtype=np.int8) if rz is None else _surface_map(
-                rz.deviation, rz.zone.half_width, rz.zone.center, rz.acceptance, n))
+            maps.append(
+                np.zeros(n, dtype=np.int8)
+                if rz is None
+                else _surface_map(
+                    rz.deviation, rz.zone.half_width, rz.zone.center, rz.acceptance, n
+                )
+            )
         sp = surface_persistence(key, z.acceptance, ref, maps)
         surfaces.append(sp)
         z.acceptance = restrict_acceptance(z.acceptance, sp.persistent)
     res.acceptance = new_part
-    warnings = [f"resampling seed {k}: {w}" for k, r in enumerate(runs)
-                for w in r.trust_warnings()]
+    warnings = [f"resampling seed {k}: {w}" for k, r in enumerate(runs) for w in r.trust_warnings()]
     rep = Repeatability(
-        seeds=len(runs), keep_fraction=float(keep_fraction), surfaces=surfaces,
+        seeds=len(runs),
+        keep_fraction=float(keep_fraction),
+        surfaces=surfaces,
         rms=np.array([res.vertex_stats.rms] + [r.vertex_stats.rms for r in runs], dtype=float),
-        max_abs=np.array([res.vertex_stats.max_abs] + [r.vertex_stats.max_abs for r in runs],
-                         dtype=float),
-        warnings=warnings, seconds=float(seconds))
+        max_abs=np.array(
+            [res.vertex_stats.max_abs] + [r.vertex_stats.max_abs for r in runs], dtype=float
+        ),
+        warnings=warnings,
+        seconds=float(seconds),
+    )
     for s in surfaces:
         for d in s.dropped:
-            log.info("%s: region of %.1f mm^2 (peak %+.3f mm) found in %d of %d resamplings: "
-                     "not a finding", s.key, d.area, d.peak, d.runs_found, len(runs))
+            log.info(
+                "%s: region of %.1f mm^2 (peak %+.3f mm) found in %d of %d resamplings: "
+                "not a finding",
+                s.key,
+                d.area,
+                d.peak,
+                d.runs_found,
+                len(runs),
+            )
     res.repeatability = rep
     return rep

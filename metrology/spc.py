@@ -31,9 +31,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["VERDICTS", "JUDGED", "CharacteristicStats", "characteristic_stats", "upper_cpk",
-           "verdict_counts", "pass_rate", "cumulative_pass_rate", "rolling_pass_rate",
-           "rolling_window", "ROLLING_MIN_SCANS"]
+__all__ = [
+    "VERDICTS",
+    "JUDGED",
+    "CharacteristicStats",
+    "characteristic_stats",
+    "upper_cpk",
+    "verdict_counts",
+    "pass_rate",
+    "cumulative_pass_rate",
+    "rolling_pass_rate",
+    "rolling_window",
+    "ROLLING_MIN_SCANS",
+]
 
 #: verdicts of a scan in a batch, in the order they are counted (ERROR: no verdict)
 VERDICTS = ("PASS", "FAIL", "NOT ESTABLISHED", "ERROR")
@@ -89,8 +99,9 @@ def upper_cpk(mean: float, sigma: float, tolerance: float, n: int) -> float:
     return math.nan
 
 
-def characteristic_stats(values: np.ndarray, statuses: np.ndarray,
-                         tolerance: float) -> CharacteristicStats:
+def characteristic_stats(
+    values: np.ndarray, statuses: np.ndarray, tolerance: float
+) -> CharacteristicStats:
     """Capability statistics of one characteristic over a batch.
 
     Parameters
@@ -114,11 +125,18 @@ def characteristic_stats(values: np.ndarray, statuses: np.ndarray,
     sigma = float(v.std(ddof=1)) if n >= 2 else math.nan
     vmax = float(v.max()) if n else math.nan
     cpk = upper_cpk(mean, sigma, tol, n)
-    margin = ((tol - vmax) / tol if n and math.isfinite(tol) and tol > 0 else math.inf)
+    margin = (tol - vmax) / tol if n and math.isfinite(tol) and tol > 0 else math.inf
     judged = np.isin(status, JUDGED)
-    return CharacteristicStats(n=n, mean=mean, sigma=sigma, max=vmax, cpk=cpk,
-                               n_pass=int(np.sum(status == "PASS")),
-                               n_judged=int(judged.sum()), margin=margin)
+    return CharacteristicStats(
+        n=n,
+        mean=mean,
+        sigma=sigma,
+        max=vmax,
+        cpk=cpk,
+        n_pass=int(np.sum(status == "PASS")),
+        n_judged=int(judged.sum()),
+        margin=margin,
+    )
 
 
 def verdict_counts(verdicts: np.ndarray) -> dict[str, int]:

@@ -97,9 +97,7 @@ class DeviationStats:
         return out
 
 
-def _clean(
-    dev: np.ndarray, weights: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray | None]:
+def _clean(dev: np.ndarray, weights: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
     """Drop NaN deviations and zero weights; validate shapes and signs."""
     dev = np.asarray(dev, dtype=np.float64).ravel()
     if weights is None:
@@ -171,9 +169,20 @@ def deviation_statistics(
     nan = math.nan
     if n == 0:
         return DeviationStats(
-            n=0, rms=nan, mean=nan, max_abs=nan, max_pos=nan, min_neg=nan,
-            p95=nan, p99=nan, p999=nan, threshold=threshold,
-            frac_above=nan, frac_below=nan, frac_beyond=nan, weighted=weights is not None,
+            n=0,
+            rms=nan,
+            mean=nan,
+            max_abs=nan,
+            max_pos=nan,
+            min_neg=nan,
+            p95=nan,
+            p99=nan,
+            p999=nan,
+            threshold=threshold,
+            frac_above=nan,
+            frac_below=nan,
+            frac_beyond=nan,
+            weighted=weights is not None,
         )
     a = np.abs(x)
     if w is None:
@@ -190,9 +199,20 @@ def deviation_statistics(
         below = _share(x < -threshold, w)
         beyond = _share(a > threshold, w)
     return DeviationStats(
-        n=n, rms=rms, mean=mean, max_abs=float(a.max()), max_pos=float(x.max()),
-        min_neg=float(x.min()), p95=p95, p99=p99, p999=p999, threshold=threshold,
-        frac_above=above, frac_below=below, frac_beyond=beyond, weighted=weights is not None,
+        n=n,
+        rms=rms,
+        mean=mean,
+        max_abs=float(a.max()),
+        max_pos=float(x.max()),
+        min_neg=float(x.min()),
+        p95=p95,
+        p99=p99,
+        p999=p999,
+        threshold=threshold,
+        frac_above=above,
+        frac_below=below,
+        frac_beyond=beyond,
+        weighted=weights is not None,
     )
 
 

@@ -14,7 +14,10 @@ __all__ = ["unscored_bands"]
 
 
 def unscored_bands(
-    V: np.ndarray, F: np.ndarray, boundary: np.ndarray, params: InspectionParams,
+    V: np.ndarray,
+    F: np.ndarray,
+    boundary: np.ndarray,
+    params: InspectionParams,
 ) -> tuple[np.ndarray | None, np.ndarray, float]:
     """The vertices an inspection does not score, from the nominal alone.
 
@@ -31,8 +34,7 @@ def unscored_bands(
         is 0.  near_rim : (n,) bool within the rim band of an open boundary.
     rim_band : the rim band, mm.
     """
-    band = (1.5 * median_edge_length(V, F) if params.edge_band is None
-            else float(params.edge_band))
+    band = 1.5 * median_edge_length(V, F) if params.edge_band is None else float(params.edge_band)
     near_crease = crease_band(V, F, band, params.crease_angle) if band > 0 else None
     rim_band = band if params.boundary_band is None else float(params.boundary_band)
     return near_crease, near_boundary(V, boundary, rim_band), rim_band

@@ -41,8 +41,13 @@ __all__ = ["dmsc_checks", "dmsc_findings"]
 log = logging.getLogger("qifreport.validate")
 
 #: severity of a DMSC finding about this document, per category (quality checks are advice)
-_DMSC_SEVERITY = {"CheckFormat": "error", "CheckSemantic": "error", "CheckConstraints": "error",
-                  "CheckDocuments": "error", "CheckQuality": "warning"}
+_DMSC_SEVERITY = {
+    "CheckFormat": "error",
+    "CheckSemantic": "error",
+    "CheckConstraints": "error",
+    "CheckDocuments": "error",
+    "CheckQuality": "warning",
+}
 
 
 def _array_length(kind: type) -> Any:
@@ -50,8 +55,11 @@ def _array_length(kind: type) -> Any:
 
     def length(_context: Any, arg: Any) -> int:
         if isinstance(arg, list):
-            arg = "".join(arg[0].itertext()) if arg and isinstance(arg[0], etree._Element) \
+            arg = (
+                "".join(arg[0].itertext())
+                if arg and isinstance(arg[0], etree._Element)
                 else (str(arg[0]) if arg else "")
+            )
         try:
             return len([kind(x) for x in str(arg).split()])
         except ValueError:
@@ -64,13 +72,19 @@ def _array_length(kind: type) -> Any:
 def _dmsc_xslt(cd: Path) -> tuple[etree.XSLT, _LinkedDocResolver]:
     """Check.xsl compiled, with the resolver its ``document()`` calls go through."""
     t0 = time.perf_counter()
-    access = etree.XSLTAccessControl(read_file=True, write_file=False, create_dir=False,
-                                     read_network=False, write_network=False)
-    extensions = {("urn:my-scripts", "LengthArrayDouble"): _array_length(float),
-                  ("urn:my-scripts", "LengthArrayInt"): _array_length(int)}
+    access = etree.XSLTAccessControl(
+        read_file=True, write_file=False, create_dir=False, read_network=False, write_network=False
+    )
+    extensions = {
+        ("urn:my-scripts", "LengthArrayDouble"): _array_length(float),
+        ("urn:my-scripts", "LengthArrayInt"): _array_length(int),
+    }
     resolver = _LinkedDocResolver(cd)
-    xslt = etree.XSLT(etree.parse(str(cd / "Check.xsl"), xml_parser(resolver)),
-                      access_control=access, extensions=extensions)
+    xslt = etree.XSLT(
+        etree.parse(str(cd / "Check.xsl"), xml_parser(resolver)),
+        access_control=access,
+        extensions=extensions,
+    )
     log.debug("dmsc: compiled %s in %.3f s", cd / "Check.xsl", time.perf_counter() - t0)
     return xslt, resolver
 
@@ -145,8 +159,9 @@ def _qname(el: etree._Element) -> str:
     return f"{el.prefix}:{local}" if el.prefix else local
 
 
-def _parse_check_report(report: etree._Element, root: etree._Element, base: Path,
-                        extra: list[Finding]) -> list[Finding]:
+def _parse_check_report(
+    report: etree._Element, root: etree._Element, base: Path, extra: list[Finding]
+) -> list[Finding]:
     """Findings of a CheckReport; ``root`` is the checked document (for line numbers)."""
     out: list[Finding] = list(extra)
     for child in report:
@@ -158,14 +173,22 @@ def _parse_check_report(report: etree._Element, root: etree._Element, base: Path
             cat = child.tag
             for err in child.iter("Error"):
                 text = (err.findtext("Report") or "").strip()
-                out.append(Finding("dmsc", _node_line(root, err.findtext("Node")),
-                                   _dmsc_rule(text, cat), text, cat,
-                                   _DMSC_SEVERITY.get(cat, "error")))
+                out.append(
+                    Finding(
+                        "dmsc",
+                        _node_line(root, err.findtext("Node")),
+                        _dmsc_rule(text, cat),
+                        text,
+                        cat,
+                        _DMSC_SEVERITY.get(cat, "error"),
+                    )
+                )
     return out
 
 
-def _linked_findings(block: etree._Element, root: etree._Element, base: Path,
-                     chain: tuple[str, ...]) -> list[Finding]:
+def _linked_findings(
+    block: etree._Element, root: etree._Element, base: Path, chain: tuple[str, ...]
+) -> list[Finding]:
     """Findings of a ``CheckLinkedDocument`` block (category ``CheckDocuments``).
 
     Errors directly in the block (cross-document reference checks, recursion limit) are about
@@ -183,8 +206,16 @@ def _linked_findings(block: etree._Element, root: etree._Element, base: Path,
             text = (child.findtext("Report") or "").strip()
             node = child.findtext("Node")
             if len(chain) == 1:
-                out.append(Finding("dmsc", _node_line(root, node), _dmsc_rule(text,
-                                   "CheckDocuments"), text, "CheckDocuments", "error"))
+                out.append(
+                    Finding(
+                        "dmsc",
+                        _node_line(root, node),
+                        _dmsc_rule(text, "CheckDocuments"),
+                        text,
+                        "CheckDocuments",
+                        "error",
+                    )
+                )
             else:
                 out.append(_linked_finding(chain[:-1], base, node, text, "CheckDocuments"))
         elif child.tag == "CheckLinkedDocument":
@@ -192,21 +223,32 @@ def _linked_findings(block: etree._Element, root: etree._Element, base: Path,
         elif child.tag.startswith("Check"):
             for err in child.iter("Error"):
                 text = (err.findtext("Report") or "").strip()
-                f = _linked_finding(chain, base, err.findtext("Node"), text, child.tag,
-                                    linked_root)
+                f = _linked_finding(chain, base, err.findtext("Node"), text, child.tag, linked_root)
                 out.append(f)
     return out
 
 
-def _linked_finding(chain: tuple[str, ...], base: Path, node: str | None, text: str,
-                    inner: str, linked_root: etree._Element | None = None) -> Finding:
+def _linked_finding(
+    chain: tuple[str, ...],
+    base: Path,
+    node: str | None,
+    text: str,
+    inner: str,
+    linked_root: etree._Element | None = None,
+) -> Finding:
     if linked_root is None:
         linked_root = _load_linked(base, chain)
     ln = _node_line(linked_root, node) if linked_root is not None else None
     where = " -> ".join(chain) + (f" line {ln}" if ln else "")
     rule = _dmsc_rule(text, inner)
-    return Finding("dmsc", None, f"{inner}:{rule}",
-                   f"in linked document {where}: {text}", "CheckDocuments", "warning")
+    return Finding(
+        "dmsc",
+        None,
+        f"{inner}:{rule}",
+        f"in linked document {where}: {text}",
+        "CheckDocuments",
+        "warning",
+    )
 
 
 def _load_linked(base: Path, chain: tuple[str, ...]) -> etree._Element | None:
@@ -268,8 +310,14 @@ class _LinkedDocResolver(etree.Resolver):
                 return m.group(0)
             new = m.group(2).replace(b"\\", b"/")
             line = data.count(b"\n", 0, m.start()) + 1
-            fixed.append((p, line, m.group(2).decode(errors="replace").strip(),
-                          new.decode(errors="replace").strip()))
+            fixed.append(
+                (
+                    p,
+                    line,
+                    m.group(2).decode(errors="replace").strip(),
+                    new.decode(errors="replace").strip(),
+                )
+            )
             return m.group(1) + new + m.group(3)
 
         out = _RE_URI_BYTES.sub(fix, data)
@@ -301,20 +349,29 @@ def dmsc_findings(tree: etree._ElementTree, path: Path, cd: Path) -> list[Findin
     xslt, resolver = _dmsc_xslt(cd)
     extra: list[Finding] = []
     work = tree
-    bad = [u for u in tree.getroot().iterfind(f"{{{QIF_NS}}}ExternalQIFReferences/"
-                                                f"{{{QIF_NS}}}ExternalQIFDocument/{{{QIF_NS}}}URI")
-           if "\\" in (u.text or "")]
+    bad = [
+        u
+        for u in tree.getroot().iterfind(
+            f"{{{QIF_NS}}}ExternalQIFReferences/{{{QIF_NS}}}ExternalQIFDocument/{{{QIF_NS}}}URI"
+        )
+        if "\\" in (u.text or "")
+    ]
     if bad:
         work = copy.deepcopy(tree)  # keeps the base URL and the line numbers
         for uri_el in work.getroot().iter(f"{{{QIF_NS}}}URI"):
             text = (uri_el.text or "").strip()
             if "\\" in text:
                 uri_el.text = text.replace("\\", "/")
-                extra.append(Finding(
-                    "dmsc", uri_el.sourceline, "external-URI",
-                    f"URI '{text}' is not a valid URI reference (backslash): an XSLT processor "
-                    f"cannot load it (libxslt aborts); checked as '{uri_el.text}'",
-                    "CheckFormat"))
+                extra.append(
+                    Finding(
+                        "dmsc",
+                        uri_el.sourceline,
+                        "external-URI",
+                        f"URI '{text}' is not a valid URI reference (backslash): an XSLT processor "
+                        f"cannot load it (libxslt aborts); checked as '{uri_el.text}'",
+                        "CheckFormat",
+                    )
+                )
     with _DMSC_LOCK:
         resolver.fixed.clear()
         resolver.missing.clear()
@@ -323,8 +380,16 @@ def dmsc_findings(tree: etree._ElementTree, path: Path, cd: Path) -> list[Findin
         except etree.XSLTApplyError as exc:
             msgs = [e.message for e in xslt.error_log if e.message]
             detail = "; ".join(dict.fromkeys(msgs)) or str(exc)
-            return [*extra, Finding("dmsc", None, "xslt-error",
-                                    f"the DMSC checks could not run: {detail}", "CheckFormat")]
+            return [
+                *extra,
+                Finding(
+                    "dmsc",
+                    None,
+                    "xslt-error",
+                    f"the DMSC checks could not run: {detail}",
+                    "CheckFormat",
+                ),
+            ]
         linked_fixes = list(resolver.fixed)
         missing = bool(resolver.missing)
     for p, line, old, new in dict.fromkeys(linked_fixes):
@@ -332,22 +397,40 @@ def dmsc_findings(tree: etree._ElementTree, path: Path, cd: Path) -> list[Findin
             shown = os.path.relpath(p, path.parent)
         except ValueError:
             shown = str(p)
-        extra.append(Finding(
-            "dmsc", None, "CheckFormat:external-URI",
-            f"in linked document {shown} line {line}: URI '{old}' is not a valid URI reference "
-            f"(backslash); checked as '{new}'", "CheckDocuments", "warning"))
+        extra.append(
+            Finding(
+                "dmsc",
+                None,
+                "CheckFormat:external-URI",
+                f"in linked document {shown} line {line}: URI '{old}' is not a valid URI reference "
+                f"(backslash); checked as '{new}'",
+                "CheckDocuments",
+                "warning",
+            )
+        )
     report = result.getroot()
     if report is None or report.tag != "CheckReport":
-        return [*extra, Finding("dmsc", None, "no-report",
-                                "Check.xsl produced no CheckReport (is the root element "
-                                "QIFDocument in the QIF 3.0 namespace?)", "CheckFormat")]
+        return [
+            *extra,
+            Finding(
+                "dmsc",
+                None,
+                "no-report",
+                "Check.xsl produced no CheckReport (is the root element "
+                "QIFDocument in the QIF 3.0 namespace?)",
+                "CheckFormat",
+            ),
+        ]
     if missing:
         _report_missing_documents(report)
     return _parse_check_report(report, tree.getroot(), path, extra)
 
 
-_RE_QPID_EMPTY = re.compile(r"The external document has a different QPId\.\s*"
-                            r"URI = (.*?),\s*QPId\(.*?\)\s*!= QPIdExt\(\)\.?$", re.S)
+_RE_QPID_EMPTY = re.compile(
+    r"The external document has a different QPId\.\s*"
+    r"URI = (.*?),\s*QPId\(.*?\)\s*!= QPIdExt\(\)\.?$",
+    re.S,
+)
 
 
 def _report_missing_documents(report: etree._Element) -> None:

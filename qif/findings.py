@@ -15,8 +15,13 @@ from pathlib import Path
 __all__ = ["DMSC_CATEGORIES", "Finding", "ValidationReport", "format_finding"]
 
 #: the CheckReport categories, in report order (CheckDocuments: the linked-document checks)
-DMSC_CATEGORIES = ("CheckFormat", "CheckQuality", "CheckSemantic", "CheckConstraints",
-                   "CheckDocuments")
+DMSC_CATEGORIES = (
+    "CheckFormat",
+    "CheckQuality",
+    "CheckSemantic",
+    "CheckConstraints",
+    "CheckDocuments",
+)
 
 
 @dataclass
@@ -84,9 +89,13 @@ class ValidationReport:
         -------
         list of Finding
         """
-        return [f for f in self.findings if f.severity == "error"
-                and (validator is None or f.validator == validator)
-                and (category is None or f.category == category)]
+        return [
+            f
+            for f in self.findings
+            if f.severity == "error"
+            and (validator is None or f.validator == validator)
+            and (category is None or f.category == category)
+        ]
 
     @property
     def valid(self) -> bool:
@@ -97,8 +106,9 @@ class ValidationReport:
         """
         if not self.ran:
             return False
-        return not (self.errors("lxml") or self.errors("xmlschema")
-                    or self.errors("dmsc", "CheckFormat"))
+        return not (
+            self.errors("lxml") or self.errors("xmlschema") or self.errors("dmsc", "CheckFormat")
+        )
 
     def format(self) -> str:
         """A human-readable multi-line report.
@@ -148,8 +158,11 @@ def format_finding(name: str, f: Finding) -> str:
         if unknown; a severity other than error is written before the message).
     """
     where = f"{name}:{f.line}:" if f.line is not None else f"{name}:"
-    rule = f"{f.validator}/{f.category}/{f.rule}" if f.validator == "dmsc" \
+    rule = (
+        f"{f.validator}/{f.category}/{f.rule}"
+        if f.validator == "dmsc"
         else f"{f.validator}/{f.rule}"
+    )
     sev = "" if f.severity == "error" else f"{f.severity}: "
     msg = " ".join(f.message.splitlines())
     return f"{where} [{rule}] {sev}{msg}"
@@ -160,5 +173,7 @@ def _count_text(fs: list[Finding]) -> str:
     if not fs:
         return "ok"
     c = Counter(f.severity for f in fs)
-    return ", ".join(f"{n} {sev}{'s' if n > 1 else ''}" for sev, n in
-                     sorted(c.items(), key=lambda kv: ("error", "warning", "info").index(kv[0])))
+    return ", ".join(
+        f"{n} {sev}{'s' if n > 1 else ''}"
+        for sev, n in sorted(c.items(), key=lambda kv: ("error", "warning", "info").index(kv[0]))
+    )

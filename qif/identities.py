@@ -22,7 +22,10 @@ from lxml import etree
 from .xsd import QIF_NS, XSD_NS, local_name, xml_parser
 
 __all__ = [
-    "IdentityConstraint", "identity_constraints", "keys_selecting", "locate_references",
+    "IdentityConstraint",
+    "identity_constraints",
+    "keys_selecting",
+    "locate_references",
     "norm_value",
 ]
 
@@ -81,17 +84,23 @@ def identity_constraints(sd: Path) -> dict[str, IdentityConstraint]:
         for el in doc.iter(f"{{{XSD_NS}}}key", f"{{{XSD_NS}}}keyref", f"{{{XSD_NS}}}unique"):
             name = el.get("name")
             sel = el.find(f"{{{XSD_NS}}}selector")
-            scope = next((a.get("name") for a in el.iterancestors(f"{{{XSD_NS}}}element")
-                          if a.get("name")), None)
+            scope = next(
+                (a.get("name") for a in el.iterancestors(f"{{{XSD_NS}}}element") if a.get("name")),
+                None,
+            )
             if not name or sel is None or scope is None:
                 continue
             refer = el.get("refer")
             out[name] = IdentityConstraint(
-                kind=etree.QName(el).localname, name=name, scope=scope,
+                kind=etree.QName(el).localname,
+                name=name,
+                scope=scope,
                 refer=refer.split(":")[-1] if refer else None,
                 selector=re.sub(r"\s+", "", sel.get("xpath", "")),
-                fields=tuple(re.sub(r"\s+", "", f.get("xpath", ""))
-                             for f in el.iterfind(f"{{{XSD_NS}}}field")),
+                fields=tuple(
+                    re.sub(r"\s+", "", f.get("xpath", ""))
+                    for f in el.iterfind(f"{{{XSD_NS}}}field")
+                ),
                 nsmap=tuple((k, v) for k, v in el.nsmap.items() if k),
             )
     return out
@@ -136,8 +145,9 @@ def _field_values(node: etree._Element, fld: str, ns: dict[str, str]) -> list[tu
     return out
 
 
-def locate_references(tree: etree._ElementTree, ident: IdentityConstraint,
-                      values: tuple[str, ...]) -> list[int]:
+def locate_references(
+    tree: etree._ElementTree, ident: IdentityConstraint, values: tuple[str, ...]
+) -> list[int]:
     """Lines of the nodes whose fields of identity ``ident`` equal ``values``.
 
     Parameters
@@ -156,8 +166,11 @@ def locate_references(tree: etree._ElementTree, ident: IdentityConstraint,
     """
     ns = dict(ident.nsmap) or {"t": QIF_NS}
     root = tree.getroot()
-    scopes = [root] if local_name(root.tag) == ident.scope else \
-        list(root.iter(f"{{{QIF_NS}}}{ident.scope}"))
+    scopes = (
+        [root]
+        if local_name(root.tag) == ident.scope
+        else list(root.iter(f"{{{QIF_NS}}}{ident.scope}"))
+    )
     lines: list[int] = []
     for scope in scopes:
         try:
@@ -175,8 +188,9 @@ def locate_references(tree: etree._ElementTree, ident: IdentityConstraint,
     return sorted(set(lines))
 
 
-def keys_selecting(tree: etree._ElementTree, idents: dict[str, IdentityConstraint], elem: Any,
-                   fld: str) -> list[str]:
+def keys_selecting(
+    tree: etree._ElementTree, idents: dict[str, IdentityConstraint], elem: Any, fld: str
+) -> list[str]:
     """Names of the keys with field ``fld`` whose selector selects ``elem``.
 
     Parameters
@@ -202,8 +216,11 @@ def keys_selecting(tree: etree._ElementTree, idents: dict[str, IdentityConstrain
         if ident.kind != "key" or fld not in ident.fields:
             continue
         ns = dict(ident.nsmap) or {"t": QIF_NS}
-        scopes = [root] if local_name(root.tag) == ident.scope else \
-            list(root.iter(f"{{{QIF_NS}}}{ident.scope}"))
+        scopes = (
+            [root]
+            if local_name(root.tag) == ident.scope
+            else list(root.iter(f"{{{QIF_NS}}}{ident.scope}"))
+        )
         try:
             if any(elem in scope.xpath(ident.selector, namespaces=ns) for scope in scopes):
                 names.append(ident.name)

@@ -48,7 +48,8 @@ _RE_LXML_IDC = re.compile(
     r"(?:No match found for key-sequence \[(?P<seq>.*?)\] of keyref"
     r"|Duplicate key-sequence \[(?P<dup>.*?)\] in (?P<dkind>key|unique) identity-constraint"
     r"|(?P<okind>key|keyref|unique) identity-constraint)"
-    r" '(?:\{[^}]*\})?(?P<name>[^']+)'")
+    r" '(?:\{[^}]*\})?(?P<name>[^']+)'"
+)
 
 
 @functools.lru_cache(maxsize=4)
@@ -78,8 +79,12 @@ def _lxml_kind(type_name: str) -> str:
         return _LXML_KINDS[type_name]
     if "FACET" in type_name or (type_name.endswith("_VALID") and "DATATYPE" not in type_name):
         return "facet"
-    if "DATATYPE" in type_name or "CVC_TYPE" in type_name or "SIMPLE_TYPE" in type_name \
-            or "CVC_ELT" in type_name:
+    if (
+        "DATATYPE" in type_name
+        or "CVC_TYPE" in type_name
+        or "SIMPLE_TYPE" in type_name
+        or "CVC_ELT" in type_name
+    ):
         return "datatype"
     if "COMPLEX_TYPE" in type_name:
         return "content"
@@ -111,12 +116,16 @@ def lxml_findings(tree: etree._ElementTree, sd: Path) -> list[Finding]:
         line = e.line or None
         idc = _RE_LXML_IDC.search(msg) if e.type_name == "SCHEMAV_CVC_IDC" else None
         if idc:
-            kind = "keyref" if idc.group("seq") is not None else \
-                (idc.group("dkind") or idc.group("okind"))
+            kind = (
+                "keyref"
+                if idc.group("seq") is not None
+                else (idc.group("dkind") or idc.group("okind"))
+            )
             rule = f"{kind} {idc.group('name')}"
             if idc.group("seq") is not None and line is not None:
-                line = _refine_keyref_line(tree, sd, idc.group("name"),
-                                           re.findall(r"'([^']*)'", idc.group("seq")), line)
+                line = _refine_keyref_line(
+                    tree, sd, idc.group("name"), re.findall(r"'([^']*)'", idc.group("seq")), line
+                )
         else:
             kind = _lxml_kind(e.type_name)
             if kind == "content" and m and "This element is not expected" in msg:
@@ -141,8 +150,9 @@ def _parent_of(tree: etree._ElementTree, local: str, line: int) -> str | None:
     return None
 
 
-def _refine_keyref_line(tree: etree._ElementTree, sd: Path, name: str, seq: list[str],
-                        line: int) -> int:
+def _refine_keyref_line(
+    tree: etree._ElementTree, sd: Path, name: str, seq: list[str], line: int
+) -> int:
     """libxml2 reports a keyref at the selected element; give the referencing field's line."""
     ident = identity_constraints(sd).get(name)
     if ident is None:

@@ -160,23 +160,34 @@ def stats_from_attributes(a: dict, prefix: str = "") -> DeviationStats | None:
     g = {k: a.get(f"{prefix}{k}_mm", math.nan) for k in _STATS_KEYS}
     thr = a.get(f"{prefix}threshold_mm")
     fr = {k: a.get(f"{prefix}{k}", math.nan) for k in ("frac_above", "frac_below", "frac_beyond")}
-    return DeviationStats(n=int(a[f"{prefix}n_samples"]), threshold=thr,
-                          weighted=bool(a.get(f"{prefix}area_weighted", False)), **g, **fr)
+    return DeviationStats(
+        n=int(a[f"{prefix}n_samples"]),
+        threshold=thr,
+        weighted=bool(a.get(f"{prefix}area_weighted", False)),
+        **g,
+        **fr,
+    )
 
 
-def acceptance_from_attributes(a: dict, tolerance: float | None = None,
-                               prefix: str = "") -> Acceptance | None:
+def acceptance_from_attributes(
+    a: dict, tolerance: float | None = None, prefix: str = ""
+) -> Acceptance | None:
     """Rebuild :class:`Acceptance` (regions without vertex lists) from attributes."""
     if f"{prefix}in_tolerance_area_fraction" not in a and f"{prefix}region_count" not in a:
         return None
     regions = []
     k = 1
     while f"{prefix}region_{k}_area_mm2" in a:
-        regions.append(Region(
-            vertices=np.zeros(0, dtype=np.int64), area=a[f"{prefix}region_{k}_area_mm2"],
-            peak=a[f"{prefix}region_{k}_peak_mm"], peak_vertex=-1,
-            centroid=np.asarray(a.get(f"{prefix}region_{k}_centroid_mm", np.full(3, np.nan))),
-            sign=int(a[f"{prefix}region_{k}_sign"])))
+        regions.append(
+            Region(
+                vertices=np.zeros(0, dtype=np.int64),
+                area=a[f"{prefix}region_{k}_area_mm2"],
+                peak=a[f"{prefix}region_{k}_peak_mm"],
+                peak_vertex=-1,
+                centroid=np.asarray(a.get(f"{prefix}region_{k}_centroid_mm", np.full(3, np.nan))),
+                sign=int(a[f"{prefix}region_{k}_sign"]),
+            )
+        )
         k += 1
     reasons = []
     k = 1
@@ -190,13 +201,17 @@ def acceptance_from_attributes(a: dict, tolerance: float | None = None,
         tolerance=math.nan if tolerance is None else tolerance,
         min_fraction=a.get(f"{prefix}min_in_tolerance_fraction", math.nan),
         max_region_area=a.get(f"{prefix}max_region_area_mm2", math.nan),
-        scored_area=scored, nominal_area=a.get(f"{prefix}nominal_area_mm2", math.nan),
+        scored_area=scored,
+        nominal_area=a.get(f"{prefix}nominal_area_mm2", math.nan),
         coverage=a.get(f"{prefix}coverage", math.nan),
         in_tolerance_fraction=a.get(f"{prefix}in_tolerance_area_fraction", math.nan),
-        area_ok=area_ok, regions=regions,
+        area_ok=area_ok,
+        regions=regions,
         largest_region_area=a.get(f"{prefix}largest_region_area_mm2", 0.0),
-        region_ok=region_ok, passed=bool(area_ok and region_ok and scored > 0),
-        reasons=reasons)
+        region_ok=region_ok,
+        passed=bool(area_ok and region_ok and scored > 0),
+        reasons=reasons,
+    )
 
 
 def read_results(path: Path | str) -> QIFResults:
@@ -229,28 +244,36 @@ def read_results(path: Path | str) -> QIFResults:
     ours = _text(root, "q:Header/q:Application/q:Name") == "qifreport"
     chars = []
     cms = mr.find(f"{_Q}MeasuredCharacteristics/{_Q}CharacteristicMeasurements")
-    for m in (cms if cms is not None else []):
+    for m in cms if cms is not None else []:
         tag = etree.QName(m).localname
         kind = tag.removesuffix("CharacteristicMeasurement")
         item = by_id.get(_text(m, "q:CharacteristicItemId"))
         nominal = by_id.get(_text(item, "q:CharacteristicNominalId")) if item is not None else None
-        definition = (by_id.get(_text(nominal, "q:CharacteristicDefinitionId"))
-                      if nominal is not None else None)
-        status = (_text(m, "q:Status/q:CharacteristicStatusEnum")
-                  or _text(m, "q:Status/q:OtherCharacteristicStatus"))
+        definition = (
+            by_id.get(_text(nominal, "q:CharacteristicDefinitionId"))
+            if nominal is not None
+            else None
+        )
+        status = _text(m, "q:Status/q:CharacteristicStatusEnum") or _text(
+            m, "q:Status/q:OtherCharacteristicStatus"
+        )
         attrs = read_attributes(m)
         tol = _num(_text(definition, "q:ToleranceValue"))
         c = CharacteristicResult(
-            kind=kind, id=m.get("id"),
+            kind=kind,
+            id=m.get("id"),
             name=_text(item, "q:Name") or _text(definition, "q:Name"),
             designator=_text(item, "q:CharacteristicDesignator/q:Designator"),
-            status=status, value=_num(_text(m, "q:Value")),
+            status=status,
+            value=_num(_text(m, "q:Value")),
             worst_positive=_num(_text(m, "q:WorstPositiveDeviation")),
             worst_negative=_num(_text(m, "q:WorstNegativeDeviation")),
-            tolerance=tol, unequally_disposed=_num(_text(definition, "q:UnequallyDisposedZone")),
+            tolerance=tol,
+            unequally_disposed=_num(_text(definition, "q:UnequallyDisposedZone")),
             description=_text(definition, "q:Description"),
             datum_labels=drf_labels.get(_text(definition, "q:DatumReferenceFrameId"), []),
-            attributes=attrs)
+            attributes=attrs,
+        )
         if ours:
             da = read_attributes(definition)
             half = None
@@ -261,21 +284,31 @@ def read_results(path: Path | str) -> QIFResults:
         chars.append(c)
 
     attrs = read_attributes(mr)
-    inputs = [(_text(r, "q:URI") or "", _text(r, "q:Description") or "")
-              for r in mr.iterfind(f"{_Q}ExternalFileReferences/{_Q}ExternalFileReference")]
+    inputs = [
+        (_text(r, "q:URI") or "", _text(r, "q:Description") or "")
+        for r in mr.iterfind(f"{_Q}ExternalFileReferences/{_Q}ExternalFileReference")
+    ]
     sw_version = None
     for sw in root.iterfind(f"{_Q}SoftwareDefinitions/{_Q}Software"):
         if _text(sw, "q:ApplicationName") == "qifreport":
             sw_version = _text(sw, "q:Version")
     trace = mr.find(f"{_Q}InspectionTraceability")
-    actual = root.find(f"{_Q}Results/{_Q}ActualComponentSets/{_Q}ActualComponentSet/"
-                       f"{_Q}ActualComponent")
+    actual = root.find(
+        f"{_Q}Results/{_Q}ActualComponentSets/{_Q}ActualComponentSet/{_Q}ActualComponent"
+    )
     return QIFResults(
-        path=path, version=root.get("versionQIF"), qpid=_text(root, "q:QPId"),
-        application=_text(root, "q:Header/q:Application/q:Name"), software_version=sw_version,
-        status=(_text(mr, "q:InspectionStatus/q:InspectionStatusEnum")
-                or _text(mr, "q:InspectionStatus/q:OtherInspectionStatus")),
-        characteristics=chars, attributes=attrs, inputs=inputs,
+        path=path,
+        version=root.get("versionQIF"),
+        qpid=_text(root, "q:QPId"),
+        application=_text(root, "q:Header/q:Application/q:Name"),
+        software_version=sw_version,
+        status=(
+            _text(mr, "q:InspectionStatus/q:InspectionStatusEnum")
+            or _text(mr, "q:InspectionStatus/q:OtherInspectionStatus")
+        ),
+        characteristics=chars,
+        attributes=attrs,
+        inputs=inputs,
         inspection_start=_text(trace, "q:InspectionStart"),
         inspection_end=_text(trace, "q:InspectionEnd"),
         serial_number=_text(actual, "q:SerialNumber"),

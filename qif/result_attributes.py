@@ -89,8 +89,9 @@ def acceptance_attrs(a: Attrs, acc, V: np.ndarray, prefix: str = "") -> None:
         a.s(f"{prefix}reason_{k}", reason)
 
 
-def measurement_results_attrs(res: InspectionResult, nominal_sha256: str,
-                              scan_sha256: str) -> Attrs:
+def measurement_results_attrs(
+    res: InspectionResult, nominal_sha256: str, scan_sha256: str
+) -> Attrs:
     """The whole-part attributes of the ``MeasurementResults``.
 
     In this order: the verdict and why, the deviation statistics and acceptance, the scan

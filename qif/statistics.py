@@ -115,18 +115,35 @@ from .writer import write_qif
 from .xmlkit import SCHEMA_LOCATION, XSI, Attrs, E, Ids, id_array, qpid, token, xml_time
 
 __all__ = [
-    "CHARACTERISTIC_STATUSES", "INSPECTION_STATUSES", "NO_VALUE_REASON", "SUPPORTED_KINDS",
-    "CharacteristicSummary", "build_statistics", "summarize", "write_statistics",
+    "CHARACTERISTIC_STATUSES",
+    "INSPECTION_STATUSES",
+    "NO_VALUE_REASON",
+    "SUPPORTED_KINDS",
+    "CharacteristicSummary",
+    "build_statistics",
+    "summarize",
+    "write_statistics",
 ]
 
 log = logging.getLogger("qifreport.statistics")
 
 #: ``CharacteristicStatusEnumType`` values (anything else is an ``OtherCharacteristicStatus``)
-CHARACTERISTIC_STATUSES = frozenset({"PASS", "FAIL", "REWORK", "SYSERROR", "INDETERMINATE",
-                                     "NOT_ANALYZED", "BASIC_OR_TED", "UNDEFINED"})
+CHARACTERISTIC_STATUSES = frozenset(
+    {
+        "PASS",
+        "FAIL",
+        "REWORK",
+        "SYSERROR",
+        "INDETERMINATE",
+        "NOT_ANALYZED",
+        "BASIC_OR_TED",
+        "UNDEFINED",
+    }
+)
 #: ``InspectionStatusEnumType`` values (anything else is an ``OtherInspectionStatus``)
-INSPECTION_STATUSES = frozenset({"PASS", "FAIL", "REWORK", "SYSERROR", "UNKNOWN",
-                                 "NOT_CALCULATED", "NOT_MEASURED", "UNDEFINED"})
+INSPECTION_STATUSES = frozenset(
+    {"PASS", "FAIL", "REWORK", "SYSERROR", "UNKNOWN", "NOT_CALCULATED", "NOT_MEASURED", "UNDEFINED"}
+)
 #: characteristic kinds :func:`build_statistics` can write (``<kind>CharacteristicStats``)
 SUPPORTED_KINDS = frozenset({"SurfaceProfile"})
 #: exclusion reason of a measurement without a value
@@ -199,8 +216,10 @@ class _Observation:
 def _key(c: CharacteristicResult) -> str:
     key = c.designator if c.designator is not None else c.name
     if key is None:
-        raise ValueError(f"characteristic measurement {c.id} ({c.kind}) has neither a "
-                         "designator nor a name: it cannot be matched across the batch")
+        raise ValueError(
+            f"characteristic measurement {c.id} ({c.kind}) has neither a "
+            "designator nor a name: it cannot be matched across the batch"
+        )
     return key
 
 
@@ -219,11 +238,15 @@ def _group(results: list[QIFResults]) -> dict[str, list[_Observation]]:
             if obs:
                 first = obs[0].char
                 if c.kind != first.kind:
-                    raise ValueError(f"{_key(c)}: {c.kind} in {res.path.name} but {first.kind} "
-                                     "before: not one part's batch")
+                    raise ValueError(
+                        f"{_key(c)}: {c.kind} in {res.path.name} but {first.kind} "
+                        "before: not one part's batch"
+                    )
                 if c.tolerance != first.tolerance:
-                    raise ValueError(f"{_key(c)}: tolerance {c.tolerance} in {res.path.name} "
-                                     f"but {first.tolerance} before: not one part's batch")
+                    raise ValueError(
+                        f"{_key(c)}: tolerance {c.tolerance} in {res.path.name} "
+                        f"but {first.tolerance} before: not one part's batch"
+                    )
             obs.append(_Observation(k, c))
     return groups
 
@@ -240,14 +263,22 @@ def _summary(key: str, obs: list[_Observation]) -> CharacteristicSummary:
     statuses = [o.char.status for o in obs]
     n_pass, n_fail = statuses.count("PASS"), statuses.count("FAIL")
     return CharacteristicSummary(
-        designator=key, kind=first.kind,
+        designator=key,
+        kind=first.kind,
         description=next((o.char.description for o in obs if o.char.description), None),
-        tolerance=tol, count=count, mean=mean, std=std,
+        tolerance=tol,
+        count=count,
+        mean=mean,
+        std=std,
         min=float(values.min()) if count else math.nan,
         max=float(values.max()) if count else math.nan,
-        n_pass=n_pass, n_fail=n_fail, n_other=len(obs) - n_pass - n_fail,
-        cp=None, cpk=cpk,
-        n_out_of_tolerance=int((values > tol).sum()) if tol is not None else 0)
+        n_pass=n_pass,
+        n_fail=n_fail,
+        n_other=len(obs) - n_pass - n_fail,
+        cp=None,
+        cpk=cpk,
+        n_out_of_tolerance=int((values > tol).sum()) if tol is not None else 0,
+    )
 
 
 def summarize(results: list[QIFResults]) -> list[CharacteristicSummary]:
@@ -339,8 +370,12 @@ def _source_uri(source: str) -> str:
     return quote(source.replace("\\", "/"), safe="/")
 
 
-def _check_batch(results: list[QIFResults], groups: dict[str, list[_Observation]],
-                 sources: list[str] | None, nominal_sha256: str | None) -> None:
+def _check_batch(
+    results: list[QIFResults],
+    groups: dict[str, list[_Observation]],
+    sources: list[str] | None,
+    nominal_sha256: str | None,
+) -> None:
     """Raise ValueError unless the batch can be written as one statistics document."""
     if not results:
         raise ValueError("no inspection results: nothing to summarise")
@@ -352,8 +387,10 @@ def _check_batch(results: list[QIFResults], groups: dict[str, list[_Observation]
             raise ValueError(f"results without a QPId cannot be referenced: {missing}")
     kinds = sorted({obs[0].char.kind for obs in groups.values()} - SUPPORTED_KINDS)
     if kinds:
-        raise ValueError(f"characteristic types without statistics support here: {kinds} "
-                         f"(supported: {sorted(SUPPORTED_KINDS)})")
+        raise ValueError(
+            f"characteristic types without statistics support here: {kinds} "
+            f"(supported: {sorted(SUPPORTED_KINDS)})"
+        )
     untoleranced = [key for key, obs in groups.items() if obs[0].char.tolerance is None]
     if untoleranced:
         raise ValueError(f"characteristics without a ToleranceValue: {untoleranced}")
@@ -361,12 +398,15 @@ def _check_batch(results: list[QIFResults], groups: dict[str, list[_Observation]
         for r in results:
             theirs = r.attributes.get("nominal_sha256")
             if theirs is not None and theirs != nominal_sha256:
-                raise ValueError(f"{r.path.name} was inspected against another nominal "
-                                 f"(SHA-256 {theirs}, not {nominal_sha256})")
+                raise ValueError(
+                    f"{r.path.name} was inspected against another nominal "
+                    f"(SHA-256 {theirs}, not {nominal_sha256})"
+                )
 
 
-def _characteristic_stats(key: str, obs: list[_Observation], s: CharacteristicSummary,
-                          meas_ids: list[str]) -> etree._Element:
+def _characteristic_stats(
+    key: str, obs: list[_Observation], s: CharacteristicSummary, meas_ids: list[str]
+) -> etree._Element:
     """The ``SurfaceProfileCharacteristicStats`` of one characteristic.
 
     ``meas_ids[i]`` is the local id of the measurement ``obs[i]``.
@@ -376,9 +416,15 @@ def _characteristic_stats(key: str, obs: list[_Observation], s: CharacteristicSu
     excluded = [m for o, m in zip(obs, meas_ids, strict=True) if o.value is None]
     measured = [id_array("Ids", meas_ids)]
     if excluded:
-        measured.append(E.Exclusions(
-            *[E.Exclusion(E.Id(m), E.Reason(E.OtherExclusionReason(NO_VALUE_REASON)))
-              for m in excluded], n=str(len(excluded))))
+        measured.append(
+            E.Exclusions(
+                *[
+                    E.Exclusion(E.Id(m), E.Reason(E.OtherExclusionReason(NO_VALUE_REASON)))
+                    for m in excluded
+                ],
+                n=str(len(excluded)),
+            )
+        )
 
     values = [(o.value, m) for o, m in zip(obs, meas_ids, strict=True) if o.value is not None]
     vs = [_count("TotalNumber", len(obs)), _count("EffectiveNumber", s.count)]
@@ -388,8 +434,11 @@ def _characteristic_stats(key: str, obs: list[_Observation], s: CharacteristicSu
         vs.append(_stat("Average", s.mean))
         if s.count >= 2:
             vs.append(_stat("StandardDeviation", s.std))
-        vs += [_stat("Minimum", lo[0], lo[1]), _stat("Maximum", hi[0], hi[1]),
-               _stat("Range", hi[0] - lo[0])]
+        vs += [
+            _stat("Minimum", lo[0], lo[1]),
+            _stat("Maximum", hi[0], hi[1]),
+            _stat("Range", hi[0] - lo[0]),
+        ]
     above = [m for v, m in values if v > s.tolerance]
     vs.append(_count("NumberOutOfTolerance", len(above), above))
     if s.cpk is not None:
@@ -398,23 +447,36 @@ def _characteristic_stats(key: str, obs: list[_Observation], s: CharacteristicSu
     children = [attrs.element(), E.MeasuredIds(*measured), _informational(), E.ValueStats(*vs)]
     if s.cpk is not None:
         children.append(E.CapabilityCalculationMethod("THREE_SIGMA"))
-    for tag, field in (("WorstPositiveDeviationStats", "worst_positive"),
-                       ("WorstNegativeDeviationStats", "worst_negative")):
+    for tag, field in (
+        ("WorstPositiveDeviationStats", "worst_positive"),
+        ("WorstNegativeDeviationStats", "worst_negative"),
+    ):
         w = [(getattr(o.char, field), m) for o, m in zip(obs, meas_ids, strict=True)]
         w = [(x, m) for x, m in w if x is not None and math.isfinite(x)]
         if w:
             lo = min(w, key=lambda xm: xm[0])
             hi = max(w, key=lambda xm: xm[0])
-            children.append(E(tag, _stat("Average", float(np.mean([x for x, _ in w]))),
-                              _stat("Minimum", lo[0], lo[1]), _stat("Maximum", hi[0], hi[1])))
+            children.append(
+                E(
+                    tag,
+                    _stat("Average", float(np.mean([x for x, _ in w]))),
+                    _stat("Minimum", lo[0], lo[1]),
+                    _stat("Maximum", hi[0], hi[1]),
+                )
+            )
     return E.SurfaceProfileCharacteristicStats(*children)
 
 
-def build_statistics(results: list[QIFResults], *, part_name: str, created: datetime,
-                     nominal_sha256: str | None = None, sources: list[str] | None = None,
-                     software_version: str | None = None,
-                     standard: tuple[str, str, str] = ("ASME", "Y14.5", "2018"),
-                     ) -> etree._ElementTree:
+def build_statistics(
+    results: list[QIFResults],
+    *,
+    part_name: str,
+    created: datetime,
+    nominal_sha256: str | None = None,
+    sources: list[str] | None = None,
+    software_version: str | None = None,
+    standard: tuple[str, str, str] = ("ASME", "Y14.5", "2018"),
+) -> etree._ElementTree:
     """The QIF 3.0 statistics document of a batch of inspections (an lxml tree).
 
     Parameters
@@ -459,24 +521,45 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
     std_id, sw_id = ids(), ids()
     std_org, std_des, std_year = standard
     standards = E.StandardsDefinitions(
-        E.Standard(E.Organization(E.StandardsOrganizationEnum(std_org)), E.Designator(std_des),
-                   E.Year(std_year), id=std_id), n="1")
-    software = E.SoftwareDefinitions(E.Software(
-        E.VendorName("qifreport"), E.ApplicationName("qifreport"),
-        E.Version(software_version or __version__),
-        E.Description("Dimensional inspection of flexible parts by virtual fixturing"),
-        id=sw_id), n="1")
-    units = E.FileUnits(E.PrimaryUnits(E.LinearUnit(
-        E.SIUnitName("meter"), E.UnitName("mm"), E.UnitConversion(E.Factor("0.001")))))
+        E.Standard(
+            E.Organization(E.StandardsOrganizationEnum(std_org)),
+            E.Designator(std_des),
+            E.Year(std_year),
+            id=std_id,
+        ),
+        n="1",
+    )
+    software = E.SoftwareDefinitions(
+        E.Software(
+            E.VendorName("qifreport"),
+            E.ApplicationName("qifreport"),
+            E.Version(software_version or __version__),
+            E.Description("Dimensional inspection of flexible parts by virtual fixturing"),
+            id=sw_id,
+        ),
+        n="1",
+    )
+    units = E.FileUnits(
+        E.PrimaryUnits(
+            E.LinearUnit(
+                E.SIUnitName("meter"), E.UnitName("mm"), E.UnitConversion(E.Factor("0.001"))
+            )
+        )
+    )
 
     external = None
     if sources is not None:
         docs = []
         for k, (res, src) in enumerate(zip(results, sources, strict=True), start=1):
             serial = f", serial number {res.serial_number}" if res.serial_number else ""
-            docs.append(E.ExternalQIFDocument(
-                E.QPId(res.qpid), E.URI(_source_uri(src)),
-                E.Description(f"QIF results document of inspection {k}{serial}"), id=ids()))
+            docs.append(
+                E.ExternalQIFDocument(
+                    E.QPId(res.qpid),
+                    E.URI(_source_uri(src)),
+                    E.Description(f"QIF results document of inspection {k}{serial}"),
+                    id=ids(),
+                )
+            )
         external = E.ExternalQIFReferences(*docs, n=str(len(docs)))
 
     # -- one feature and one characteristic (definition, nominal, item) per designator
@@ -490,23 +573,43 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
         fname = token(f"SURFACE_{key}".upper())
         name = token(c.name or key)
         fdefs.append(E.OtherSurfaceFeatureDefinition(id=fd))
-        fnoms.append(E.OtherSurfaceFeatureNominal(
-            E.Name(fname), E.UUID(qpid()), E.FeatureDefinitionId(fd), id=fn))
-        fitems.append(E.OtherSurfaceFeatureItem(
-            E.FeatureNominalId(fn), E.FeatureName(fname), E.UUID(qpid()),
-            E.DeterminationMode(E.Checked(E.CheckDetails(E.Measured()))), id=fi))
+        fnoms.append(
+            E.OtherSurfaceFeatureNominal(
+                E.Name(fname), E.UUID(qpid()), E.FeatureDefinitionId(fd), id=fn
+            )
+        )
+        fitems.append(
+            E.OtherSurfaceFeatureItem(
+                E.FeatureNominalId(fn),
+                E.FeatureName(fname),
+                E.UUID(qpid()),
+                E.DeterminationMode(E.Checked(E.CheckDetails(E.Measured()))),
+                id=fi,
+            )
+        )
         description = next((o.char.description for o in obs if o.char.description), None)
         cdef = [E.Description(description)] if description else []
         cdef += [E.Name(name), E.ToleranceValue(_num(c.tolerance))]
         if c.unequally_disposed is not None:
             cdef.append(E.UnequallyDisposedZone(_num(c.unequally_disposed)))
         cdefs.append(E.SurfaceProfileCharacteristicDefinition(*cdef, id=cd))
-        cnoms.append(E.SurfaceProfileCharacteristicNominal(
-            E.CharacteristicDefinitionId(cd), id_array("FeatureNominalIds", [fn]), E.Name(name),
-            id=cn))
-        citems.append(E.SurfaceProfileCharacteristicItem(
-            E.Name(name), E.CharacteristicDesignator(E.Designator(token(key))),
-            id_array("FeatureItemIds", [fi]), E.CharacteristicNominalId(cn), id=ci))
+        cnoms.append(
+            E.SurfaceProfileCharacteristicNominal(
+                E.CharacteristicDefinitionId(cd),
+                id_array("FeatureNominalIds", [fn]),
+                E.Name(name),
+                id=cn,
+            )
+        )
+        citems.append(
+            E.SurfaceProfileCharacteristicItem(
+                E.Name(name),
+                E.CharacteristicDesignator(E.Designator(token(key))),
+                id_array("FeatureItemIds", [fi]),
+                E.CharacteristicNominalId(cn),
+                id=ci,
+            )
+        )
 
     # -- the batch's measurements, copied: one MeasurementResults per inspection
     meas_id: dict[tuple[int, str], str] = {}  # (inspection, source measurement id) -> id
@@ -517,42 +620,75 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
         meas = []
         for c in res.characteristics:
             m = meas_id[(k, c.id)] = ids()
-            el = [Attrs().s("source_id", c.id).element(), _characteristic_status(c.status),
-                  E.CharacteristicItemId(item_ids[_key(c)]), E.ActualComponentId(actual_id)]
-            for tag, x in (("Value", c.value), ("WorstPositiveDeviation", c.worst_positive),
-                           ("WorstNegativeDeviation", c.worst_negative)):
+            el = [
+                Attrs().s("source_id", c.id).element(),
+                _characteristic_status(c.status),
+                E.CharacteristicItemId(item_ids[_key(c)]),
+                E.ActualComponentId(actual_id),
+            ]
+            for tag, x in (
+                ("Value", c.value),
+                ("WorstPositiveDeviation", c.worst_positive),
+                ("WorstNegativeDeviation", c.worst_negative),
+            ):
                 if x is not None and math.isfinite(x):
                     el.append(E(tag, _num(x)))
             meas.append(E.SurfaceProfileCharacteristicMeasurement(*el, id=m))
-        times = [(tag, _parse_time(t)) for tag, t in (("InspectionStart", res.inspection_start),
-                                                      ("InspectionEnd", res.inspection_end))]
+        times = [
+            (tag, _parse_time(t))
+            for tag, t in (
+                ("InspectionStart", res.inspection_start),
+                ("InspectionEnd", res.inspection_end),
+            )
+        ]
         trace = [E(tag, xml_time(t)) for tag, t in times if t is not None]
         mr = [E.InspectionTraceability(*trace)] if trace else []
         if sources is not None:
-            mr.append(E.ExternalFileReferences(E.ExternalFileReference(
-                E.URI(_source_uri(sources[k])), E.FileSpec(E.OtherFileSpec("QIF")),
-                E.Description(f"the QIF results document (QPId {res.qpid}) these results "
-                              "are copied from")), n="1"))
+            mr.append(
+                E.ExternalFileReferences(
+                    E.ExternalFileReference(
+                        E.URI(_source_uri(sources[k])),
+                        E.FileSpec(E.OtherFileSpec("QIF")),
+                        E.Description(
+                            f"the QIF results document (QPId {res.qpid}) these results "
+                            "are copied from"
+                        ),
+                    ),
+                    n="1",
+                )
+            )
         if meas:
-            mr.append(E.MeasuredCharacteristics(
-                E.CharacteristicMeasurements(*meas, n=str(len(meas)))))
-        mr += [_inspection_status("InspectionStatus", res.status),
-               id_array("ActualComponentIds", [actual_id])]
+            mr.append(
+                E.MeasuredCharacteristics(E.CharacteristicMeasurements(*meas, n=str(len(meas))))
+            )
+        mr += [
+            _inspection_status("InspectionStatus", res.status),
+            id_array("ActualComponentIds", [actual_id]),
+        ]
         mrs.append(E.MeasurementResults(*mr, id=mr_id))
         serial = [E.SerialNumber(res.serial_number)] if res.serial_number else []
-        actuals.append(E.ActualComponent(*serial, _inspection_status("Status", res.status),
-                                         E.AsmPathId(path_id), id=actual_id))
+        actuals.append(
+            E.ActualComponent(
+                *serial,
+                _inspection_status("Status", res.status),
+                E.AsmPathId(path_id),
+                id=actual_id,
+            )
+        )
 
     # -- the study
     summaries = {key: _summary(key, obs) for key, obs in groups.items()}
-    stats = [_characteristic_stats(key, obs, summaries[key],
-                                   [meas_id[(o.scan, o.char.id)] for o in obs])
-             for key, obs in groups.items()]
+    stats = [
+        _characteristic_stats(key, obs, summaries[key], [meas_id[(o.scan, o.char.id)] for o in obs])
+        for key, obs in groups.items()
+    ]
     starts = [t for t in (_parse_time(r.inspection_start) for r in results) if t is not None]
     ends = [t for t in (_parse_time(r.inspection_end) for r in results) if t is not None]
-    trace = ([E.InspectionStart(xml_time(min(starts)))] if starts else []) + \
-            ([E.InspectionEnd(xml_time(max(ends)))] if ends else []) + \
-            [E.ReportPreparationDate(xml_time(created))]
+    trace = (
+        ([E.InspectionStart(xml_time(min(starts)))] if starts else [])
+        + ([E.InspectionEnd(xml_time(max(ends)))] if ends else [])
+        + [E.ReportPreparationDate(xml_time(created))]
+    )
     study_attrs = Attrs()
     if nominal_sha256 is not None:
         study_attrs.s("nominal_sha256", nominal_sha256)
@@ -563,50 +699,84 @@ def build_statistics(results: list[QIFResults], *, part_name: str, created: date
         E.SoftwareId(sw_id),
         E.InspectionTraceability(*trace),
         E.Name(token(f"{part_name} batch")),
-        E.Description(f"Capability of {len(results)} inspections of {part_name}: per "
-                      "characteristic, statistics of the profile values (mm) of the "
-                      "measurements in Results; Cpk is the upper one-sided index "
-                      "(ToleranceValue - mean) / (3 s), s the sample standard deviation; "
-                      "attributes n_pass, n_fail, n_other count the characteristic statuses"),
+        E.Description(
+            f"Capability of {len(results)} inspections of {part_name}: per "
+            "characteristic, statistics of the profile values (mm) of the "
+            "measurements in Results; Cpk is the upper one-sided index "
+            "(ToleranceValue - mean) / (3 s), s the sample standard deviation; "
+            "attributes n_pass, n_fail, n_other count the characteristic statuses"
+        ),
         id_array("ResultsIds", mr_ids),
         E.CharacteristicsStats(*stats, n=str(len(stats))),
         E.NumberOfSamples(str(len(results))),
     ]
-    statistics = E.Statistics(E.StatisticalStudiesResults(
-        E.CapabilityStudyResults(*[x for x in study if x is not None], id=ids()), n="1"))
+    statistics = E.Statistics(
+        E.StatisticalStudiesResults(
+            E.CapabilityStudyResults(*[x for x in study if x is not None], id=ids()), n="1"
+        )
+    )
 
     part = E.Part(
-        E.Header(E.Name(part_name)), E.UUID(qpid()),
+        E.Header(E.Name(part_name)),
+        E.UUID(qpid()),
         id_array("FeatureNominalIds", [f.get("id") for f in fnoms]),
-        id_array("CharacteristicNominalIds", [c.get("id") for c in cnoms]), id=part_id)
+        id_array("CharacteristicNominalIds", [c.get("id") for c in cnoms]),
+        id=part_id,
+    )
     product = E.Product(
         E.PartSet(part, n="1"),
         E.ComponentSet(E.Component(E.UUID(qpid()), E.Part(E.Id(part_id)), id=comp_id), n="1"),
         E.RootPart(E.Id(part_id)),
-        E.AsmPaths(E.AsmPath(id_array("ComponentIds", [comp_id]), id=path_id), n="1"))
-    features = E.Features(E.FeatureDefinitions(*fdefs, n=str(len(fdefs))),
-                          E.FeatureNominals(*fnoms, n=str(len(fnoms))),
-                          E.FeatureItems(*fitems, n=str(len(fitems))))
-    characteristics = E.Characteristics(E.FormalStandardId(std_id),
-                                        E.CharacteristicDefinitions(*cdefs, n=str(len(cdefs))),
-                                        E.CharacteristicNominals(*cnoms, n=str(len(cnoms))),
-                                        E.CharacteristicItems(*citems, n=str(len(citems))))
+        E.AsmPaths(E.AsmPath(id_array("ComponentIds", [comp_id]), id=path_id), n="1"),
+    )
+    features = E.Features(
+        E.FeatureDefinitions(*fdefs, n=str(len(fdefs))),
+        E.FeatureNominals(*fnoms, n=str(len(fnoms))),
+        E.FeatureItems(*fitems, n=str(len(fitems))),
+    )
+    characteristics = E.Characteristics(
+        E.FormalStandardId(std_id),
+        E.CharacteristicDefinitions(*cdefs, n=str(len(cdefs))),
+        E.CharacteristicNominals(*cnoms, n=str(len(cnoms))),
+        E.CharacteristicItems(*citems, n=str(len(citems))),
+    )
     result_set = E.Results(
         E.MeasurementResultsSet(*mrs, n=str(len(mrs))),
-        E.ActualComponentSets(E.ActualComponentSet(*actuals, n=str(len(actuals))), n="1"))
+        E.ActualComponentSets(E.ActualComponentSet(*actuals, n=str(len(actuals))), n="1"),
+    )
 
     header = E.Header(
         E.Application(E.Name("qifreport"), E.Organization("qifreport project")),
-        E.Description(f"Batch statistics of {part_name}: {len(results)} inspections, "
-                      f"{len(groups)} characteristics"))
-    children = [E.QPId(qpid()), E.Version(E.TimeCreated(xml_time(created))), header, external,
-                standards, software, units, product, features, characteristics, result_set,
-                statistics]
-    root = E.QIFDocument(*[c for c in children if c is not None], versionQIF="3.0.0",
-                         idMax=str(ids.max))
+        E.Description(
+            f"Batch statistics of {part_name}: {len(results)} inspections, "
+            f"{len(groups)} characteristics"
+        ),
+    )
+    children = [
+        E.QPId(qpid()),
+        E.Version(E.TimeCreated(xml_time(created))),
+        header,
+        external,
+        standards,
+        software,
+        units,
+        product,
+        features,
+        characteristics,
+        result_set,
+        statistics,
+    ]
+    root = E.QIFDocument(
+        *[c for c in children if c is not None], versionQIF="3.0.0", idMax=str(ids.max)
+    )
     root.set(f"{{{XSI}}}schemaLocation", SCHEMA_LOCATION)
-    log.debug("statistics of %s: %d inspections, %d characteristics, idMax %d",
-              part_name, len(results), len(groups), ids.max)
+    log.debug(
+        "statistics of %s: %d inspections, %d characteristics, idMax %d",
+        part_name,
+        len(results),
+        len(groups),
+        ids.max,
+    )
     return etree.ElementTree(root)
 
 

@@ -36,8 +36,15 @@ from .xmlschema_validator import validate_xmlschema, xmlschema_findings
 from .xsd import SchemasUnavailable, checks_dir, parse_document, schema_dir
 
 __all__ = [
-    "SchemasUnavailable", "Finding", "ValidationReport", "schema_dir", "checks_dir",
-    "validate_lxml", "validate_xmlschema", "dmsc_checks", "validate",
+    "SchemasUnavailable",
+    "Finding",
+    "ValidationReport",
+    "schema_dir",
+    "checks_dir",
+    "validate_lxml",
+    "validate_xmlschema",
+    "dmsc_checks",
+    "validate",
 ]
 
 log = logging.getLogger("qifreport.validate")

@@ -98,21 +98,33 @@ from .xmlkit import (
 )
 
 __all__ = [
-    "DECIMAL_PLACES", "MAX_REGIONS_LISTED", "METHOD_DESCRIPTIONS", "NS", "SCHEMA_LOCATION",
-    "XML_DECLARATION", "XSI", "E", "Provenance", "acceptance_rule", "build_qif",
-    "characteristic_status", "dec", "profile_value", "write_qif",
+    "DECIMAL_PLACES",
+    "MAX_REGIONS_LISTED",
+    "METHOD_DESCRIPTIONS",
+    "NS",
+    "SCHEMA_LOCATION",
+    "XML_DECLARATION",
+    "XSI",
+    "E",
+    "Provenance",
+    "acceptance_rule",
+    "build_qif",
+    "characteristic_status",
+    "dec",
+    "profile_value",
+    "write_qif",
 ]
 
 #: ``Description`` of the virtual-fixture algorithm, per method (``--method``)
 METHOD_DESCRIPTIONS = {
     "gbcicp": "GB-CICP: deformation of the nominal onto the free-state scan under a "
-              "bending-energy prior (paper Sections 4-5)",
+    "bending-energy prior (paper Sections 4-5)",
     "nicp": "NICP: optimal-step non-rigid ICP, deformation of the nominal onto the free-state "
-            "scan under a per-vertex affine stiffness prior (paper baseline, Section 6.3)",
+    "scan under a per-vertex affine stiffness prior (paper baseline, Section 6.3)",
     "cpd": "CPD: coherent point drift, a Gaussian-mixture deformation of the nominal onto the "
-           "free-state scan with motion coherence (paper baseline, Section 6.2)",
+    "free-state scan with motion coherence (paper baseline, Section 6.2)",
     "rbffem": "RBF-FEM: deformation of the nominal driven by its clamps with multiquadric "
-              "radial basis functions (paper baseline, Section 6.1)",
+    "radial basis functions (paper baseline, Section 6.1)",
 }
 
 
@@ -182,9 +194,11 @@ def characteristic_status(z: ZoneResult, established: bool = True) -> str:
 
 def acceptance_rule(min_fraction: float, max_region_area: float) -> str:
     """The conformance rule stated in every characteristic definition."""
-    return (f"qifreport virtual-fixture acceptance: at least {100 * min_fraction:g} % of the "
-            f"scored area within the zone (area criterion) and no connected out-of-tolerance "
-            f"region larger than {max_region_area:g} mm^2 (region criterion)")
+    return (
+        f"qifreport virtual-fixture acceptance: at least {100 * min_fraction:g} % of the "
+        f"scored area within the zone (area criterion) and no connected out-of-tolerance "
+        f"region larger than {max_region_area:g} mm^2 (region criterion)"
+    )
 
 
 def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
@@ -243,11 +257,20 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
         E.QPId(qpid()),
         E.Version(E.TimeCreated(xml_time(prov.finished))),
         _header(prov),
-        standards, software, algorithms, units,
-        datum_defs, drfs, product, features, characteristics, results,
+        standards,
+        software,
+        algorithms,
+        units,
+        datum_defs,
+        drfs,
+        product,
+        features,
+        characteristics,
+        results,
     ]
-    root = E.QIFDocument(*[c for c in children if c is not None], versionQIF="3.0.0",
-                         idMax=str(ids.max))
+    root = E.QIFDocument(
+        *[c for c in children if c is not None], versionQIF="3.0.0", idMax=str(ids.max)
+    )
     root.set(f"{{{XSI}}}schemaLocation", SCHEMA_LOCATION)
     return etree.ElementTree(root)
 
@@ -260,12 +283,19 @@ def _header(prov: Provenance) -> etree._Element:
     """``Header``: the application, the author and organization, what was inspected."""
     header = [E.Application(E.Name("qifreport"), E.Organization("qifreport project"))]
     if prov.author or prov.organization:
-        header.append(E.Author(*([E.Name(prov.author)] if prov.author else []),
-                               *([E.Organization(prov.organization)] if prov.organization
-                                 else [])))
-    header.append(E.Description(f"Virtual-fixturing inspection of {prov.part_name}: "
-                                f"{Path(prov.scan_path).name} against "
-                                f"{Path(prov.nominal_path).name}"))
+        header.append(
+            E.Author(
+                *([E.Name(prov.author)] if prov.author else []),
+                *([E.Organization(prov.organization)] if prov.organization else []),
+            )
+        )
+    header.append(
+        E.Description(
+            f"Virtual-fixturing inspection of {prov.part_name}: "
+            f"{Path(prov.scan_path).name} against "
+            f"{Path(prov.nominal_path).name}"
+        )
+    )
     return E.Header(*header)
 
 
@@ -273,21 +303,33 @@ def _standards_definitions(standard: tuple[str, str, str], std_id: str) -> etree
     """``StandardsDefinitions``: the tolerancing standard (organization, designator, year)."""
     std_org, std_des, std_year = standard
     return E.StandardsDefinitions(
-        E.Standard(E.Organization(E.StandardsOrganizationEnum(std_org)), E.Designator(std_des),
-                   E.Year(std_year), id=std_id), n="1")
+        E.Standard(
+            E.Organization(E.StandardsOrganizationEnum(std_org)),
+            E.Designator(std_des),
+            E.Year(std_year),
+            id=std_id,
+        ),
+        n="1",
+    )
 
 
 def _software_definitions(sw_id: str) -> etree._Element:
     """``SoftwareDefinitions``: qifreport and its version."""
     return E.SoftwareDefinitions(
-        E.Software(E.VendorName("qifreport"), E.ApplicationName("qifreport"),
-                   E.Version(__version__),
-                   E.Description("Dimensional inspection of flexible parts by virtual "
-                                 "fixturing"), id=sw_id), n="1")
+        E.Software(
+            E.VendorName("qifreport"),
+            E.ApplicationName("qifreport"),
+            E.Version(__version__),
+            E.Description("Dimensional inspection of flexible parts by virtual fixturing"),
+            id=sw_id,
+        ),
+        n="1",
+    )
 
 
-def _algorithm_definitions(res: InspectionResult, sw_id: str, rigid_alg_id: str,
-                           fit_alg_id: str) -> etree._Element:
+def _algorithm_definitions(
+    res: InspectionResult, sw_id: str, rigid_alg_id: str, fit_alg_id: str
+) -> etree._Element:
     """``AlgorithmDefinitions``: the rigid alignment and the virtual fixture (parameters as
     JSON)."""
     params = res.params
@@ -295,35 +337,62 @@ def _algorithm_definitions(res: InspectionResult, sw_id: str, rigid_alg_id: str,
     method = res.fit.method if res.fit is not None else params.method
     fit_params = _params_dict(res.fit.params) if res.fit is not None else None
     return E.AlgorithmDefinitions(
-        E.Algorithm(E.SoftwareId(sw_id),
-                    E.Parameters(json.dumps({"method": "robust point-to-plane ICP",
-                                             "iterations": int(rigid.iterations)})),
-                    E.Name("rigid alignment"),
-                    E.Description("robust scan-to-model ICP (paper Section 3)"), id=rigid_alg_id),
-        E.Algorithm(E.SoftwareId(sw_id),
-                    E.Parameters(json.dumps({"method": method, "energy": res.energy,
-                                             "rigid_only": params.rigid_only,
-                                             method: fit_params}, default=json_default)),
-                    E.Name("virtual fixture" if not params.rigid_only else "none (rigid only)"),
-                    E.Description(METHOD_DESCRIPTIONS.get(method, method)),
-                    id=fit_alg_id),
-        n="2")
+        E.Algorithm(
+            E.SoftwareId(sw_id),
+            E.Parameters(
+                json.dumps(
+                    {"method": "robust point-to-plane ICP", "iterations": int(rigid.iterations)}
+                )
+            ),
+            E.Name("rigid alignment"),
+            E.Description("robust scan-to-model ICP (paper Section 3)"),
+            id=rigid_alg_id,
+        ),
+        E.Algorithm(
+            E.SoftwareId(sw_id),
+            E.Parameters(
+                json.dumps(
+                    {
+                        "method": method,
+                        "energy": res.energy,
+                        "rigid_only": params.rigid_only,
+                        method: fit_params,
+                    },
+                    default=json_default,
+                )
+            ),
+            E.Name("virtual fixture" if not params.rigid_only else "none (rigid only)"),
+            E.Description(METHOD_DESCRIPTIONS.get(method, method)),
+            id=fit_alg_id,
+        ),
+        n="2",
+    )
 
 
 def _file_units() -> etree._Element:
     """``FileUnits``: mm^2, degree, mm."""
-    return E.FileUnits(E.PrimaryUnits(
-        E.AreaUnit(E.SIUnitName("square meter"), E.UnitName("mm^2"),
-                   E.UnitConversion(E.Factor("0.000001"))),
-        E.AngularUnit(E.SIUnitName("radian"), E.UnitName("degree"),
-                      E.UnitConversion(E.Factor("0.0174532925199433"))),
-        E.LinearUnit(E.SIUnitName("meter"), E.UnitName("mm"),
-                     E.UnitConversion(E.Factor("0.001"))),
-    ))
+    return E.FileUnits(
+        E.PrimaryUnits(
+            E.AreaUnit(
+                E.SIUnitName("square meter"),
+                E.UnitName("mm^2"),
+                E.UnitConversion(E.Factor("0.000001")),
+            ),
+            E.AngularUnit(
+                E.SIUnitName("radian"),
+                E.UnitName("degree"),
+                E.UnitConversion(E.Factor("0.0174532925199433")),
+            ),
+            E.LinearUnit(
+                E.SIUnitName("meter"), E.UnitName("mm"), E.UnitConversion(E.Factor("0.001"))
+            ),
+        )
+    )
 
 
-def _datum_ids(datums: list[str], zones: list[ZoneResult], ids: Ids
-               ) -> tuple[dict[str, str], dict[tuple[str, ...], str]]:
+def _datum_ids(
+    datums: list[str], zones: list[ZoneResult], ids: Ids
+) -> tuple[dict[str, str], dict[tuple[str, ...], str]]:
     """Ids of the datums (the PMI's, then those the zones cite) and of one datum reference
     frame per datum sequence a zone cites (first-cited order)."""
     labels = list(dict.fromkeys(list(datums) + [d for z in zones for d in z.zone.datums]))
@@ -343,11 +412,13 @@ def _datum_definitions(datum_ids: dict[str, str]) -> etree._Element | None:
         return None
     return E.DatumDefinitions(
         *[E.DatumDefinition(E.DatumLabel(lab), id=did) for lab, did in datum_ids.items()],
-        n=str(len(datum_ids)))
+        n=str(len(datum_ids)),
+    )
 
 
-def _datum_reference_frames(drf_ids: dict[tuple[str, ...], str],
-                            datum_ids: dict[str, str]) -> etree._Element | None:
+def _datum_reference_frames(
+    drf_ids: dict[tuple[str, ...], str], datum_ids: dict[str, str]
+) -> etree._Element | None:
     """``DatumReferenceFrames``, one per datum sequence (None without)."""
     if not drf_ids:
         return None
@@ -356,14 +427,26 @@ def _datum_reference_frames(drf_ids: dict[tuple[str, ...], str],
     for seq, fid in drf_ids.items():
         datums = []
         for k, lab in enumerate(seq):
-            p = (E.Precedence(E.PrecedenceEnum(prec[k])) if k < 3
-                 else E.Precedence(E.OtherPrecedence(str(k + 1))))
-            datums.append(E.Datum(
-                E.SimpleDatum(E.DatumDefinitionId(datum_ids[lab]),
-                              E.MaterialModifier("NONE"), E.ReferencedComponent("ACTUAL")),
-                p))
-        frames.append(E.DatumReferenceFrame(E.Datums(*datums, n=str(len(datums))),
-                                            E.Name("|" + "|".join(seq) + "|"), id=fid))
+            p = (
+                E.Precedence(E.PrecedenceEnum(prec[k]))
+                if k < 3
+                else E.Precedence(E.OtherPrecedence(str(k + 1)))
+            )
+            datums.append(
+                E.Datum(
+                    E.SimpleDatum(
+                        E.DatumDefinitionId(datum_ids[lab]),
+                        E.MaterialModifier("NONE"),
+                        E.ReferencedComponent("ACTUAL"),
+                    ),
+                    p,
+                )
+            )
+        frames.append(
+            E.DatumReferenceFrame(
+                E.Datums(*datums, n=str(len(datums))), E.Name("|" + "|".join(seq) + "|"), id=fid
+            )
+        )
     return E.DatumReferenceFrames(*frames, n=str(len(frames)))
 
 
@@ -393,8 +476,15 @@ class _ZoneSections:
     cnom_ids: list[str] = field(default_factory=list)
 
 
-def _add_zone(zs: _ZoneSections, z: ZoneResult, res: InspectionResult, ids: Ids, rule: str,
-              drf_ids: dict[tuple[str, ...], str], actual_id: str) -> None:
+def _add_zone(
+    zs: _ZoneSections,
+    z: ZoneResult,
+    res: InspectionResult,
+    ids: Ids,
+    rule: str,
+    drf_ids: dict[tuple[str, ...], str],
+    actual_id: str,
+) -> None:
     """One zone's surface feature (definition, nominal, item, measurement) and profile
     characteristic (definition, nominal, item, measurement)."""
     fd, fn, fi, fm = ids(), ids(), ids(), ids()
@@ -406,8 +496,9 @@ def _add_zone(zs: _ZoneSections, z: ZoneResult, res: InspectionResult, ids: Ids,
     zs.cmeas.append(_characteristic_measurement(z, res, ci, fm, actual_id, cm))
 
 
-def _add_feature(zs: _ZoneSections, zone: ToleranceZone, fd: str, fn: str, fi: str, fm: str,
-                 actual_id: str) -> None:
+def _add_feature(
+    zs: _ZoneSections, zone: ToleranceZone, fd: str, fn: str, fi: str, fm: str, actual_id: str
+) -> None:
     """An ``OtherSurfaceFeature`` definition, nominal (its B-rep faces), item, measurement."""
     fname = _feature_name(zone)
     zs.fdefs.append(E.OtherSurfaceFeatureDefinition(id=fd))
@@ -418,16 +509,33 @@ def _add_feature(zs: _ZoneSections, zone: ToleranceZone, fd: str, fn: str, fi: s
         fa.s("b_rep_faces", " ".join(str(int(f)) for f in zone.faces))
     nom = [fa.element(), E.Name(fname), E.UUID(qpid()), E.FeatureDefinitionId(fd)]
     zs.fnoms.append(E.OtherSurfaceFeatureNominal(*[x for x in nom if x is not None], id=fn))
-    zs.fitems.append(E.OtherSurfaceFeatureItem(
-        E.FeatureNominalId(fn), E.FeatureName(fname), E.UUID(qpid()),
-        E.DeterminationMode(E.Checked(E.CheckDetails(E.Measured()))), id=fi))
-    zs.fmeas.append(E.OtherSurfaceFeatureMeasurement(
-        E.FeatureItemId(fi), E.FeatureName(fname), E.ActualComponentId(actual_id), id=fm))
+    zs.fitems.append(
+        E.OtherSurfaceFeatureItem(
+            E.FeatureNominalId(fn),
+            E.FeatureName(fname),
+            E.UUID(qpid()),
+            E.DeterminationMode(E.Checked(E.CheckDetails(E.Measured()))),
+            id=fi,
+        )
+    )
+    zs.fmeas.append(
+        E.OtherSurfaceFeatureMeasurement(
+            E.FeatureItemId(fi), E.FeatureName(fname), E.ActualComponentId(actual_id), id=fm
+        )
+    )
 
 
-def _add_characteristic(zs: _ZoneSections, zone: ToleranceZone, rule: str,
-                        drf_ids: dict[tuple[str, ...], str], cd: str, cn: str, ci: str,
-                        fn: str, fi: str) -> None:
+def _add_characteristic(
+    zs: _ZoneSections,
+    zone: ToleranceZone,
+    rule: str,
+    drf_ids: dict[tuple[str, ...], str],
+    cd: str,
+    cn: str,
+    ci: str,
+    fn: str,
+    fi: str,
+) -> None:
     """A ``SurfaceProfileCharacteristic`` definition (the zone and the acceptance rule),
     nominal and item (its designator)."""
     da = Attrs().s("key", zone.key).s("source", zone.source)
@@ -436,8 +544,7 @@ def _add_characteristic(zs: _ZoneSections, zone: ToleranceZone, rule: str,
         da.i("step_entity_id", zone.step_id)
     if zone.modifiers:
         da.s("modifiers", " ".join(zone.modifiers))
-    cdef = [da.element(), E.Description(f"{zone.describe()}. {rule}."),
-            E.Name(token(zone.name))]
+    cdef = [da.element(), E.Description(f"{zone.describe()}. {rule}."), E.Name(token(zone.name))]
     if zone.free_state:
         cdef.append(E.FreeState("true"))
     cdef.append(E.ToleranceValue(dec(zone.width)))
@@ -446,19 +553,31 @@ def _add_characteristic(zs: _ZoneSections, zone: ToleranceZone, rule: str,
         cdef.append(E.UnequallyDisposedZone(dec(zone.upper)))
     if zone.datums:
         cdef.append(E.DatumReferenceFrameId(drf_ids[tuple(zone.datums)]))
-    zs.cdefs.append(E.SurfaceProfileCharacteristicDefinition(
-        *[x for x in cdef if x is not None], id=cd))
-    zs.cnoms.append(E.SurfaceProfileCharacteristicNominal(
-        E.CharacteristicDefinitionId(cd), id_array("FeatureNominalIds", [fn]),
-        E.Name(token(zone.name)), id=cn))
-    zs.citems.append(E.SurfaceProfileCharacteristicItem(
-        E.Name(token(zone.name)),
-        E.CharacteristicDesignator(E.Designator(zone.key), E.UUID(qpid())),
-        id_array("FeatureItemIds", [fi]), E.CharacteristicNominalId(cn), id=ci))
+    zs.cdefs.append(
+        E.SurfaceProfileCharacteristicDefinition(*[x for x in cdef if x is not None], id=cd)
+    )
+    zs.cnoms.append(
+        E.SurfaceProfileCharacteristicNominal(
+            E.CharacteristicDefinitionId(cd),
+            id_array("FeatureNominalIds", [fn]),
+            E.Name(token(zone.name)),
+            id=cn,
+        )
+    )
+    zs.citems.append(
+        E.SurfaceProfileCharacteristicItem(
+            E.Name(token(zone.name)),
+            E.CharacteristicDesignator(E.Designator(zone.key), E.UUID(qpid())),
+            id_array("FeatureItemIds", [fi]),
+            E.CharacteristicNominalId(cn),
+            id=ci,
+        )
+    )
 
 
-def _characteristic_measurement(z: ZoneResult, res: InspectionResult, ci: str, fm: str,
-                                actual_id: str, cm: str) -> etree._Element:
+def _characteristic_measurement(
+    z: ZoneResult, res: InspectionResult, ci: str, fm: str, actual_id: str, cm: str
+) -> etree._Element:
     """A ``SurfaceProfileCharacteristicMeasurement``: the zone's statistics and acceptance
     (Attributes), status, profile value and worst deviations."""
     ma = Attrs().b("fixtured", z.fixtured).d("profile_value_mm", profile_value(z))
@@ -470,12 +589,17 @@ def _characteristic_measurement(z: ZoneResult, res: InspectionResult, ci: str, f
             ma.i("repeatability_regions", sp.n_regions)
             ma.i("repeatability_persistent_regions", sp.n_persistent)
     status = characteristic_status(z, established=res.established)
-    meas = [ma.element(), E.Status(E.CharacteristicStatusEnum(status)),
-            E.CharacteristicItemId(ci), id_array("FeatureMeasurementIds", [fm]),
-            E.ActualComponentId(actual_id)]
+    meas = [
+        ma.element(),
+        E.Status(E.CharacteristicStatusEnum(status)),
+        E.CharacteristicItemId(ci),
+        id_array("FeatureMeasurementIds", [fm]),
+        E.ActualComponentId(actual_id),
+    ]
     if not z.acceptance.passed:
-        meas.append(E.NonConformanceDesignator(token("; ".join(z.acceptance.reasons)
-                                                     or "not conforming")))
+        meas.append(
+            E.NonConformanceDesignator(token("; ".join(z.acceptance.reasons) or "not conforming"))
+        )
     pv = profile_value(z)
     if math.isfinite(pv):
         meas.append(E.Value(dec(pv)))
@@ -484,8 +608,13 @@ def _characteristic_measurement(z: ZoneResult, res: InspectionResult, ci: str, f
     return E.SurfaceProfileCharacteristicMeasurement(*[x for x in meas if x is not None], id=cm)
 
 
-def _product(part_name: str, part: _PartIds, zs: _ZoneSections, datum_ids: dict[str, str],
-             drf_ids: dict[tuple[str, ...], str]) -> etree._Element:
+def _product(
+    part_name: str,
+    part: _PartIds,
+    zs: _ZoneSections,
+    datum_ids: dict[str, str],
+    drf_ids: dict[tuple[str, ...], str],
+) -> etree._Element:
     """``Product``: the part (its features, characteristics, datums), component, path."""
     part_el = E.Part(
         E.Header(E.Name(part_name)),
@@ -494,19 +623,21 @@ def _product(part_name: str, part: _PartIds, zs: _ZoneSections, datum_ids: dict[
         id_array("CharacteristicNominalIds", zs.cnom_ids),
         *([id_array("DatumDefinitionIds", datum_ids.values())] if datum_ids else []),
         *([id_array("DatumReferenceFrameIds", drf_ids.values())] if drf_ids else []),
-        id=part.part)
+        id=part.part,
+    )
     return E.Product(
         E.PartSet(part_el, n="1"),
-        E.ComponentSet(E.Component(E.UUID(qpid()), E.Part(E.Id(part.part)), id=part.component),
-                       n="1"),
+        E.ComponentSet(
+            E.Component(E.UUID(qpid()), E.Part(E.Id(part.part)), id=part.component), n="1"
+        ),
         E.RootPart(E.Id(part.part)),
-        E.AsmPaths(E.AsmPath(id_array("ComponentIds", [part.component]), id=part.asm_path),
-                   n="1"),
+        E.AsmPaths(E.AsmPath(id_array("ComponentIds", [part.component]), id=part.asm_path), n="1"),
     )
 
 
-def _results(res: InspectionResult, prov: Provenance, sw_id: str, zs: _ZoneSections,
-             part: _PartIds, ids: Ids) -> etree._Element:
+def _results(
+    res: InspectionResult, prov: Provenance, sw_id: str, zs: _ZoneSections, part: _PartIds, ids: Ids
+) -> etree._Element:
     """``Results``: one ``MeasurementResults`` (attributes, traceability, the input files,
     the measured features and characteristics, the status) and the actual component."""
     # NOT ESTABLISHED (would pass, registration not trusted): QIF's UNKNOWN; the reasons are
@@ -520,8 +651,7 @@ def _results(res: InspectionResult, prov: Provenance, sw_id: str, zs: _ZoneSecti
         E.ThisResultsInstanceQPId(qpid()),
         E.ExternalFileReferences(*refs, n=str(len(refs))),
         E.MeasuredFeatures(*zs.fmeas, n=str(len(zs.fmeas))),
-        E.MeasuredCharacteristics(E.CharacteristicMeasurements(*zs.cmeas,
-                                                               n=str(len(zs.cmeas)))),
+        E.MeasuredCharacteristics(E.CharacteristicMeasurements(*zs.cmeas, n=str(len(zs.cmeas)))),
         E.InspectionStatus(E.InspectionStatusEnum(verdict)),
         id_array("ActualComponentIds", [part.actual]),
         id=ids(),
@@ -529,16 +659,28 @@ def _results(res: InspectionResult, prov: Provenance, sw_id: str, zs: _ZoneSecti
     actual = [E.SerialNumber(prov.serial_number)] if prov.serial_number else []
     return E.Results(
         E.MeasurementResultsSet(mr, n="1"),
-        E.ActualComponentSets(E.ActualComponentSet(E.ActualComponent(
-            *actual, E.Status(E.InspectionStatusEnum(verdict)), E.AsmPathId(part.asm_path),
-            id=part.actual), n="1"), n="1"),
+        E.ActualComponentSets(
+            E.ActualComponentSet(
+                E.ActualComponent(
+                    *actual,
+                    E.Status(E.InspectionStatusEnum(verdict)),
+                    E.AsmPathId(part.asm_path),
+                    id=part.actual,
+                ),
+                n="1",
+            ),
+            n="1",
+        ),
     )
 
 
 def _traceability(prov: Provenance, sw_id: str) -> etree._Element:
     """``InspectionTraceability``: organization, times, software, operator, report date."""
-    trace = [E.InspectionStart(xml_time(prov.started)), E.InspectionEnd(xml_time(prov.finished)),
-             E.InspectionSoftwareItems(id_array("AnalysisSoftware", [sw_id]))]
+    trace = [
+        E.InspectionStart(xml_time(prov.started)),
+        E.InspectionEnd(xml_time(prov.finished)),
+        E.InspectionSoftwareItems(id_array("AnalysisSoftware", [sw_id])),
+    ]
     if prov.organization:
         trace.insert(0, E.InspectingOrganization(E.Name(token(prov.organization))))
     if prov.operator:
@@ -550,12 +692,16 @@ def _traceability(prov: Provenance, sw_id: str) -> etree._Element:
 def _input_file_references(prov: Provenance) -> list[etree._Element]:
     """One ``ExternalFileReference`` per input file (nominal, scan) with its SHA-256."""
     return [
-        E.ExternalFileReference(E.URI(_uri(prov.nominal_path)),
-                                E.FileSpec(E.OtherFileSpec(_file_spec(prov.nominal_path))),
-                                E.Description(f"nominal; SHA-256 {prov.nominal_sha256}")),
-        E.ExternalFileReference(E.URI(_uri(prov.scan_path)),
-                                E.FileSpec(E.OtherFileSpec(_file_spec(prov.scan_path))),
-                                E.Description(f"scan; SHA-256 {prov.scan_sha256}")),
+        E.ExternalFileReference(
+            E.URI(_uri(prov.nominal_path)),
+            E.FileSpec(E.OtherFileSpec(_file_spec(prov.nominal_path))),
+            E.Description(f"nominal; SHA-256 {prov.nominal_sha256}"),
+        ),
+        E.ExternalFileReference(
+            E.URI(_uri(prov.scan_path)),
+            E.FileSpec(E.OtherFileSpec(_file_spec(prov.scan_path))),
+            E.Description(f"scan; SHA-256 {prov.scan_sha256}"),
+        ),
     ]
 
 

@@ -21,8 +21,19 @@ from lxml import etree
 from lxml.builder import ElementMaker
 
 __all__ = [
-    "DECIMAL_PLACES", "NS", "SCHEMA_LOCATION", "XSI", "Attrs", "E", "Ids", "dec", "id_array",
-    "qpid", "token", "xml_double", "xml_time",
+    "DECIMAL_PLACES",
+    "NS",
+    "SCHEMA_LOCATION",
+    "XSI",
+    "Attrs",
+    "E",
+    "Ids",
+    "dec",
+    "id_array",
+    "qpid",
+    "token",
+    "xml_double",
+    "xml_time",
 ]
 
 NS = "http://qifstandards.org/xsd/qif3"
@@ -158,8 +169,7 @@ class Attrs:
         """An ``AttributeD3`` (three doubles); nothing unless ``xyz`` is 3 finite numbers."""
         xyz = np.asarray(xyz, dtype=float).ravel()
         if xyz.shape == (3,) and np.all(np.isfinite(xyz)):
-            self.items.append(E.AttributeD3(name=name,
-                                            value=" ".join(xml_double(v) for v in xyz)))
+            self.items.append(E.AttributeD3(name=name, value=" ".join(xml_double(v) for v in xyz)))
         return self
 
     def element(self) -> etree._Element | None:

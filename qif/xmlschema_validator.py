@@ -84,8 +84,13 @@ def xmlschema_schema(sd: Path, register_substitutes: bool = True) -> Any:
     schema = xmlschema.XMLSchema10(str(sd / ROOT_XSD), uri_mapper=uri_mapper, allow="local")
     t1 = time.perf_counter()
     n = _register_substitutes(schema) if register_substitutes else 0
-    log.debug("xmlschema: loaded %s in %.2f s, %d substitution-group registrations in %.2f s",
-              sd / ROOT_XSD, t1 - t0, n, time.perf_counter() - t1)
+    log.debug(
+        "xmlschema: loaded %s in %.2f s, %d substitution-group registrations in %.2f s",
+        sd / ROOT_XSD,
+        t1 - t0,
+        n,
+        time.perf_counter() - t1,
+    )
     return schema
 
 
@@ -121,9 +126,11 @@ def _register_substitutes(schema: Any) -> int:
 
 _RE_XS_NOT_FOUND = re.compile(
     r"value \((?P<vals>.*)\) not found for Xsd(?:Key|Unique)\(name='(?P<key>[^']+)'\)"
-    r"(?: \((?P<times>\d+) times\))?")
+    r"(?: \((?P<times>\d+) times\))?"
+)
 _RE_XS_DUP = re.compile(
-    r"duplicated value \((?P<vals>.*)\) for Xsd(?P<kind>Key|Unique)\(name='(?P<key>[^']+)'\)")
+    r"duplicated value \((?P<vals>.*)\) for Xsd(?P<kind>Key|Unique)\(name='(?P<key>[^']+)'\)"
+)
 _RE_XS_VALUE = re.compile(r"Decimal\('([^']*)'\)|'((?:[^'\\]|\\.)*)'|\"([^\"]*)\"|([-\w.+]+)")
 
 
@@ -149,16 +156,20 @@ def _xs_kind(err: Any) -> str:
         return "facet"
     if cls in ("XsdAttribute", "XsdAttributeGroup"):
         return "attribute"
-    if isinstance(err, xmlschema.XMLSchemaDecodeError) or "Atomic" in cls or cls in (
-            "XsdList", "XsdUnion", "XsdSimpleType"):
+    if (
+        isinstance(err, xmlschema.XMLSchemaDecodeError)
+        or "Atomic" in cls
+        or cls in ("XsdList", "XsdUnion", "XsdSimpleType")
+    ):
         return "datatype"
     if cls in ("XsdElement", "XsdGroup", "XsdComplexType"):
         return "content"
     return cls.removeprefix("Xsd").lower() or "schema"
 
 
-def xmlschema_findings(tree: etree._ElementTree, sd: Path,
-                       register_substitutes: bool = True) -> list[Finding]:
+def xmlschema_findings(
+    tree: etree._ElementTree, sd: Path, register_substitutes: bool = True
+) -> list[Finding]:
     """The xmlschema findings of a parsed QIF document (see :func:`validate_xmlschema`).
 
     Parameters
@@ -193,8 +204,14 @@ def xmlschema_findings(tree: etree._ElementTree, sd: Path,
         if m:
             key = m.group("key").split(":")[-1]
             vals = ", ".join(_xs_values(m.group("vals")))
-            out.append(Finding("xmlschema", line, f"{m.group('kind').lower()} {key}",
-                               f"duplicated value {vals} for {m.group('kind').lower()} {key}"))
+            out.append(
+                Finding(
+                    "xmlschema",
+                    line,
+                    f"{m.group('kind').lower()} {key}",
+                    f"duplicated value {vals} for {m.group('kind').lower()} {key}",
+                )
+            )
             continue
         elem = local_name(err.elem.tag) if err.elem is not None else ""
         kind = _xs_kind(err)
@@ -214,8 +231,13 @@ def xmlschema_findings(tree: etree._ElementTree, sd: Path,
     return out
 
 
-def _xs_keyref_findings(tree: etree._ElementTree, idents: dict[str, IdentityConstraint],
-                        m: re.Match[str], err: Any, line: int | None) -> list[Finding]:
+def _xs_keyref_findings(
+    tree: etree._ElementTree,
+    idents: dict[str, IdentityConstraint],
+    m: re.Match[str],
+    err: Any,
+    line: int | None,
+) -> list[Finding]:
     """One finding per dangling reference, located and named by the violated keyref.
 
     xmlschema names only the referred key and reports at the scope element; the keyrefs of
@@ -224,19 +246,31 @@ def _xs_keyref_findings(tree: etree._ElementTree, idents: dict[str, IdentityCons
     key = m.group("key").split(":")[-1]
     vals = _xs_values(m.group("vals"))
     scope = local_name(err.elem.tag) if err.elem is not None else None
-    cands = [i for i in idents.values() if i.kind == "keyref" and i.refer == key
-             and (scope is None or i.scope == scope)]
+    cands = [
+        i
+        for i in idents.values()
+        if i.kind == "keyref" and i.refer == key and (scope is None or i.scope == scope)
+    ]
     shown = ", ".join(vals)
     out = []
     for ident in cands:
         for ln in locate_references(tree, ident, vals):
-            out.append(Finding("xmlschema", ln, f"keyref {ident.name}",
-                               f"value {shown} not found for key {key} (keyref {ident.name})"))
+            out.append(
+                Finding(
+                    "xmlschema",
+                    ln,
+                    f"keyref {ident.name}",
+                    f"value {shown} not found for key {key} (keyref {ident.name})",
+                )
+            )
     if not out:
         name = cands[0].name if len(cands) == 1 else f"-> {key}"
         times = f" ({m.group('times')} times)" if m.group("times") else ""
-        out.append(Finding("xmlschema", line, f"keyref {name}",
-                           f"value {shown} not found for key {key}{times}"))
+        out.append(
+            Finding(
+                "xmlschema", line, f"keyref {name}", f"value {shown} not found for key {key}{times}"
+            )
+        )
     return out
 
 

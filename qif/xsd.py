@@ -24,9 +24,24 @@ from lxml import etree
 from qifreport.schemas import QIF_XSD_DIR, SCHEMA_DIR
 
 __all__ = [
-    "DSIG_LOCAL", "DSIG_NAME", "ENV_CHECKS_DIR", "ENV_XSD_DIR", "QIF_NS", "REPO_ROOT",
-    "ROOT_XSD", "XSD_NS", "LocalResolver", "SchemasUnavailable", "checks_dir", "dsig_path",
-    "is_remote_dsig", "local_name", "parse_document", "schema_dir", "strip_ns", "xml_parser",
+    "DSIG_LOCAL",
+    "DSIG_NAME",
+    "ENV_CHECKS_DIR",
+    "ENV_XSD_DIR",
+    "QIF_NS",
+    "REPO_ROOT",
+    "ROOT_XSD",
+    "XSD_NS",
+    "LocalResolver",
+    "SchemasUnavailable",
+    "checks_dir",
+    "dsig_path",
+    "is_remote_dsig",
+    "local_name",
+    "parse_document",
+    "schema_dir",
+    "strip_ns",
+    "xml_parser",
 ]
 
 log = logging.getLogger("qifreport.validate")
@@ -42,9 +57,11 @@ ENV_XSD_DIR = "QIFREPORT_XSD_DIR"
 ENV_CHECKS_DIR = "QIFREPORT_CHECKS_DIR"
 #: the repository root in an editable install (``../shared`` may sit beside it)
 REPO_ROOT = SCHEMA_DIR.parent
-_HOWTO = ("run `make install` with ../shared present (it copies the official XSDs to "
-          f"{QIF_XSD_DIR}), or set QIFREPORT_XSD_DIR to a folder holding QIFApplications/ "
-          f"and QIFLibrary/ (an installed wheel: or copy those two folders into {QIF_XSD_DIR})")
+_HOWTO = (
+    "run `make install` with ../shared present (it copies the official XSDs to "
+    f"{QIF_XSD_DIR}), or set QIFREPORT_XSD_DIR to a folder holding QIFApplications/ "
+    f"and QIFLibrary/ (an installed wheel: or copy those two folders into {QIF_XSD_DIR})"
+)
 
 
 class SchemasUnavailable(Exception):
@@ -83,14 +100,17 @@ def schema_dir() -> Path:
             return p.resolve()
         raise SchemasUnavailable(
             f"QIF 3.0 XSD schemas not found: {ENV_XSD_DIR}={env} has no {ROOT_XSD.as_posix()}; "
-            f"{_HOWTO}")
+            f"{_HOWTO}"
+        )
     candidates = [QIF_XSD_DIR, REPO_ROOT.parent / "shared" / "qif" / "xsd"]
     for p in candidates:
         if _is_schema_dir(p):
             return p.resolve()
     raise SchemasUnavailable(
-        "QIF 3.0 XSD schemas not found (looked in " + ", ".join(map(str, candidates))
-        + f" and {ENV_XSD_DIR} is not set); {_HOWTO}")
+        "QIF 3.0 XSD schemas not found (looked in "
+        + ", ".join(map(str, candidates))
+        + f" and {ENV_XSD_DIR} is not set); {_HOWTO}"
+    )
 
 
 def checks_dir() -> Path:
@@ -115,9 +135,11 @@ def checks_dir() -> Path:
         p = Path(env).expanduser()
         if (p / "Check.xsl").is_file():
             return p.resolve()
-        raise SchemasUnavailable(f"DMSC checks not found: {ENV_CHECKS_DIR}={env} has no "
-                                 "Check.xsl; point it at the folder of Check.xsl and "
-                                 "CheckParameters.xml, or skip the checks (--no-checks)")
+        raise SchemasUnavailable(
+            f"DMSC checks not found: {ENV_CHECKS_DIR}={env} has no "
+            "Check.xsl; point it at the folder of Check.xsl and "
+            "CheckParameters.xml, or skip the checks (--no-checks)"
+        )
     candidates = [SCHEMA_DIR / "qif-checks"]
     xsd_env = os.environ.get(ENV_XSD_DIR)
     if xsd_env:
@@ -127,8 +149,10 @@ def checks_dir() -> Path:
         if (p / "Check.xsl").is_file():
             return p.resolve()
     raise SchemasUnavailable(
-        "DMSC checks (Check.xsl) not found (looked in " + ", ".join(map(str, candidates))
-        + f"); set {ENV_CHECKS_DIR} to the folder of Check.xsl, or skip the checks (--no-checks)")
+        "DMSC checks (Check.xsl) not found (looked in "
+        + ", ".join(map(str, candidates))
+        + f"); set {ENV_CHECKS_DIR} to the folder of Check.xsl, or skip the checks (--no-checks)"
+    )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -198,8 +222,7 @@ def xml_parser(resolver: etree.Resolver | None = None) -> etree.XMLParser:
     -------
     lxml.etree.XMLParser
     """
-    p = etree.XMLParser(no_network=True, huge_tree=True, resolve_entities=False,
-                        load_dtd=False)
+    p = etree.XMLParser(no_network=True, huge_tree=True, resolve_entities=False, load_dtd=False)
     if resolver is not None:
         p.resolvers.add(resolver)
     return p

@@ -134,8 +134,10 @@ class CacheOutcome:
 
     def describe(self) -> str:
         if self.status == "hit":
-            return (f"part state loaded from cache in {self.seconds:.2f} s (building it took "
-                    f"{self.build_seconds:.1f} s): {self.path}")
+            return (
+                f"part state loaded from cache in {self.seconds:.2f} s (building it took "
+                f"{self.build_seconds:.1f} s): {self.path}"
+            )
         if self.status == "off":
             return f"part state prepared in {self.seconds:.1f} s (no cache)"
         why = f" (cache entry refused: {self.reason})" if self.reason else ""
@@ -146,8 +148,7 @@ class CorruptEntry(Exception):
     """A cache entry that cannot be trusted (the message says why)."""
 
 
-def key_material(nominal_sha256: str, options: NominalOptions,
-                 params: InspectionParams) -> dict:
+def key_material(nominal_sha256: str, options: NominalOptions, params: InspectionParams) -> dict:
     """Everything the prepared state depends on, as a JSON-able dict.
 
     Parameters
@@ -161,8 +162,11 @@ def key_material(nominal_sha256: str, options: NominalOptions,
         "numpy": ".".join(np.__version__.split(".")[:2]),
         "scipy": ".".join(scipy.__version__.split(".")[:2]),
         "nominal_sha256": nominal_sha256,
-        "nominal": {"tolerance": options.tolerance, "max_edge": options.max_edge,
-                    "deflection": options.deflection},
+        "nominal": {
+            "tolerance": options.tolerance,
+            "max_edge": options.max_edge,
+            "deflection": options.deflection,
+        },
         "part": part_settings(params),
     }
 
@@ -179,9 +183,14 @@ def entry_path(cache_dir: Path, nominal: Path, key: str) -> Path:
     return Path(cache_dir) / f"{stem}-{key[:20]}{SUFFIX}"
 
 
-def build_state(nominal: Path, options: NominalOptions, params: InspectionParams,
-                nominal_sha256: str,
-                key: str = "", complete: bool = True) -> PartState:
+def build_state(
+    nominal: Path,
+    options: NominalOptions,
+    params: InspectionParams,
+    nominal_sha256: str,
+    key: str = "",
+    complete: bool = True,
+) -> PartState:
     """Read the nominal and prepare it.
 
     ``complete``: everything any inspection of the part may need (a cache entry serves
@@ -193,19 +202,28 @@ def build_state(nominal: Path, options: NominalOptions, params: InspectionParams
     if complete:
         prepared = prepare_part(nom.V, nom.F, params)
     else:
-        basis = params.method == "gbcicp" and not params.rigid_only and \
-            params.gbcicp.solver == "modal"
+        basis = (
+            params.method == "gbcicp" and not params.rigid_only and params.gbcicp.solver == "modal"
+        )
         prepared = prepare_part(nom.V, nom.F, params, basis=basis, model=False)
-    return PartState(nominal=nom, prepared=prepared, nominal_sha256=nominal_sha256, key=key,
-                     build_seconds=time.perf_counter() - t0)
+    return PartState(
+        nominal=nom,
+        prepared=prepared,
+        nominal_sha256=nominal_sha256,
+        key=key,
+        build_seconds=time.perf_counter() - t0,
+    )
 
 
 def save_entry(path: Path, state: PartState, material: dict) -> None:
     """Write ``state`` to ``path`` atomically (temporary file in the same directory, renamed)."""
     payload = pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
     header = {
-        "format": CACHE_FORMAT, "key": state.key, "material": material,
-        "payload_sha256": hashlib.sha256(payload).hexdigest(), "payload_bytes": len(payload),
+        "format": CACHE_FORMAT,
+        "key": state.key,
+        "material": material,
+        "payload_sha256": hashlib.sha256(payload).hexdigest(),
+        "payload_bytes": len(payload),
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "build_seconds": state.build_seconds,
     }
@@ -237,13 +255,17 @@ def load_entry(path: Path, key: str) -> PartState:
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise CorruptEntry("header is not JSON") from exc
     if not isinstance(header, dict) or header.get("format") != CACHE_FORMAT:
-        raise CorruptEntry(f"format {header.get('format') if isinstance(header, dict) else '?'}"
-                           f", expected {CACHE_FORMAT}")
+        raise CorruptEntry(
+            f"format {header.get('format') if isinstance(header, dict) else '?'}"
+            f", expected {CACHE_FORMAT}"
+        )
     if header.get("key") != key:
         raise CorruptEntry("key differs (stale entry)")
     if len(payload) != header.get("payload_bytes"):
-        raise CorruptEntry(f"payload is {len(payload)} bytes, header says "
-                           f"{header.get('payload_bytes')} (truncated?)")
+        raise CorruptEntry(
+            f"payload is {len(payload)} bytes, header says "
+            f"{header.get('payload_bytes')} (truncated?)"
+        )
     if hashlib.sha256(payload).hexdigest() != header.get("payload_sha256"):
         raise CorruptEntry("payload SHA-256 mismatch (corrupted)")
     try:
@@ -255,9 +277,14 @@ def load_entry(path: Path, key: str) -> PartState:
     return state
 
 
-def part_state(nominal: Path, options: NominalOptions, params: InspectionParams,
-               cache_dir: Path | None, *,
-               rebuild: bool = False) -> tuple[PartState, CacheOutcome]:
+def part_state(
+    nominal: Path,
+    options: NominalOptions,
+    params: InspectionParams,
+    cache_dir: Path | None,
+    *,
+    rebuild: bool = False,
+) -> tuple[PartState, CacheOutcome]:
     """The prepared state of ``nominal``: loaded from ``cache_dir`` when a trusted entry
     exists, else built (and stored there).
 
@@ -279,16 +306,20 @@ def part_state(nominal: Path, options: NominalOptions, params: InspectionParams,
     key = cache_key(material)
     if cache_dir is None:  # one inspection: build only what it needs
         state = build_state(nominal, options, params, digest, key, complete=False)
-        return state, CacheOutcome("off", None, time.perf_counter() - t0, state.build_seconds,
-                                   timings=dict(state.prepared.timings))
+        return state, CacheOutcome(
+            "off",
+            None,
+            time.perf_counter() - t0,
+            state.build_seconds,
+            timings=dict(state.prepared.timings),
+        )
     path = entry_path(cache_dir, nominal, key)
     reason = ""
     if path.exists() and not rebuild:
         try:
             state = load_entry(path, key)
             log.info("part state loaded from %s", path)
-            return state, CacheOutcome("hit", path, time.perf_counter() - t0,
-                                       state.build_seconds)
+            return state, CacheOutcome("hit", path, time.perf_counter() - t0, state.build_seconds)
         except CorruptEntry as exc:
             reason = str(exc)
             log.warning("cache entry %s refused (%s): rebuilding it", path, reason)
@@ -300,6 +331,11 @@ def part_state(nominal: Path, options: NominalOptions, params: InspectionParams,
     except OSError as exc:  # a read-only cache must not stop an inspection
         log.warning("could not write the cache entry %s: %s", path, exc)
     status = "rebuilt" if reason else "built"
-    return state, CacheOutcome(status, path, time.perf_counter() - t0, state.build_seconds,
-                               reason=reason, timings=dict(state.prepared.timings))
-
+    return state, CacheOutcome(
+        status,
+        path,
+        time.perf_counter() - t0,
+        state.build_seconds,
+        reason=reason,
+        timings=dict(state.prepared.timings),
+    )

@@ -54,89 +54,192 @@ SUBCOMMANDS = ("inspect", "pmi", "validate", "prepare", "batch")
 def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
     """The inspection options, shared by ``inspect`` and ``batch`` (``batch=True`` leaves
     out the single-scan ones: ``--json``, ``--serial``, ``--export-mesh``, ``--profile``)."""
-    ap.add_argument("--tolerance", type=float, default=None, metavar="MM",
-                    help="general profile tolerance half-width (|deviation| <= MM) on faces no "
-                    "PMI profile covers; required for mesh nominals; STEP default 0.5")
-    ap.add_argument("--max-edge", type=float, default=None, metavar="MM",
-                    help="STEP: longest triangle edge of the tessellation (default diagonal/60)")
-    ap.add_argument("--deflection", type=float, default=None, metavar="MM",
-                    help="STEP: chord deflection of the tessellation (default 0.001 x diagonal)")
-    ap.add_argument("--out", type=Path, default=Path("."), metavar="DIR",
-                    help="output directory (default: current directory)")
-    ap.add_argument("--scan-units", choices=["mm", "in", "m"], default=None,
-                    help="length unit of the scan file, converted to mm (default: mm; E57: m, "
-                    "the standard's unit)")
-    ap.add_argument("--force", action="store_true",
-                    help="overwrite existing output files (default: refuse, exit 2)")
+    ap.add_argument(
+        "--tolerance",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="general profile tolerance half-width (|deviation| <= MM) on faces no "
+        "PMI profile covers; required for mesh nominals; STEP default 0.5",
+    )
+    ap.add_argument(
+        "--max-edge",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="STEP: longest triangle edge of the tessellation (default diagonal/60)",
+    )
+    ap.add_argument(
+        "--deflection",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="STEP: chord deflection of the tessellation (default 0.001 x diagonal)",
+    )
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=Path("."),
+        metavar="DIR",
+        help="output directory (default: current directory)",
+    )
+    ap.add_argument(
+        "--scan-units",
+        choices=["mm", "in", "m"],
+        default=None,
+        help="length unit of the scan file, converted to mm (default: mm; E57: m, "
+        "the standard's unit)",
+    )
+    ap.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite existing output files (default: refuse, exit 2)",
+    )
     if not batch:
-        ap.add_argument("--json", action="store_true",
-                        help="write DIR/<nominal>.json with all statistics, verdict and regions")
-    ap.add_argument("--no-qif", action="store_true",
-                    help="do not write DIR/<nominal>.qif (the QIF 3.0 results document)")
-    ap.add_argument("--no-pdf", action="store_true",
-                    help="do not write DIR/<nominal>.pdf (the one-page conformance report)")
-    ap.add_argument("--page", choices=["A4", "Letter"], default="A4",
-                    help="paper size of the PDF report (default A4)")
+        ap.add_argument(
+            "--json",
+            action="store_true",
+            help="write DIR/<nominal>.json with all statistics, verdict and regions",
+        )
+    ap.add_argument(
+        "--no-qif",
+        action="store_true",
+        help="do not write DIR/<nominal>.qif (the QIF 3.0 results document)",
+    )
+    ap.add_argument(
+        "--no-pdf",
+        action="store_true",
+        help="do not write DIR/<nominal>.pdf (the one-page conformance report)",
+    )
+    ap.add_argument(
+        "--page",
+        choices=["A4", "Letter"],
+        default="A4",
+        help="paper size of the PDF report (default A4)",
+    )
     ap.add_argument("--author", metavar="NAME", help="QIF header: author of the report")
-    ap.add_argument("--organization", metavar="NAME",
-                    help="QIF header and traceability: inspecting organization")
+    ap.add_argument(
+        "--organization",
+        metavar="NAME",
+        help="QIF header and traceability: inspecting organization",
+    )
     ap.add_argument("--operator", metavar="NAME", help="QIF traceability: inspection operator")
     if not batch:
         ap.add_argument("--serial", metavar="SN", help="serial number of the inspected part")
-        ap.add_argument("--export-mesh", type=Path, metavar="PATH",
-                        help="write the registered nominal as PLY with a per-vertex 'deviation'")
-    ap.add_argument("--min-fraction", type=float, default=0.95,
-                    help="area criterion: in-tolerance fraction of scored area, 0..1 "
-                    "(default 0.95)")
-    ap.add_argument("--max-region-area", type=float, default=None, metavar="MM2",
-                    help="region criterion: largest out-of-tolerance region (default 25 mm^2)")
-    ap.add_argument("--energy", choices=["auto", "hessian", "laplacian"], default="auto",
-                    help="bending energy of the virtual fixture (default auto: hessian for an "
-                    "open sheet, laplacian for a closed solid)")
-    ap.add_argument("--edge-band", type=float, default=None, metavar="MM",
-                    help="do not score vertices within MM of a sharp crease (default: the "
-                    "deviation's neighbourhood radius; 0 scores everything)")
-    ap.add_argument("--boundary-band", type=float, default=None, metavar="MM",
-                    help="vertices within MM of an open boundary of the nominal are not scored "
-                    "(default 1.5 median edges; 0 scores the rim)")
-    ap.add_argument("--band-limit", type=float, default=None, metavar="MM",
-                    help="smoothing length of the first GB-CICP pass (default from part size)")
-    ap.add_argument("--passes", type=int, default=3,
-                    help="GB-CICP passes: 1 = single pass, >=2 = band-limited scheme (default 3)")
-    ap.add_argument("--prealign", choices=["auto", "always", "never"], default="auto",
-                    help="pose search from an arbitrary placement: auto (when the scan is not "
-                    "already in the part frame), always, or never (scan and part share a "
-                    "frame)")
-    ap.add_argument("--fail-on-added-material", action="store_true",
-                    help="fail the part when a scan region larger than --max-region-area "
-                    "stands proud of the nominal beyond the threshold (default: report it)")
-    ap.add_argument("--method", choices=list(METHODS), default="gbcicp",
-                    help="deformable method of the virtual fixture: gbcicp (default, the "
-                    "band-limited GB-CICP) or one of the paper's baselines nicp (optimal-step "
-                    "NICP), cpd (coherent point drift), rbffem (clamp-driven RBF); "
-                    "--band-limit and --passes apply to gbcicp only")
-    ap.add_argument("--seeds", type=int, default=1, metavar="N",
-                    help="repeatability (paper Section 9.2): besides the full scan, inspect N "
-                    "random resamplings of it (each scan point kept with probability "
-                    f"{KEEP_FRACTION:g}, seeds 0..N-1, from the full scan's pose) and count as "
-                    "findings of the region criterion only the out-of-tolerance regions "
-                    "found in every run; the figures reported are the full scan's. Default 1: "
-                    "no resampling")
+        ap.add_argument(
+            "--export-mesh",
+            type=Path,
+            metavar="PATH",
+            help="write the registered nominal as PLY with a per-vertex 'deviation'",
+        )
+    ap.add_argument(
+        "--min-fraction",
+        type=float,
+        default=0.95,
+        help="area criterion: in-tolerance fraction of scored area, 0..1 (default 0.95)",
+    )
+    ap.add_argument(
+        "--max-region-area",
+        type=float,
+        default=None,
+        metavar="MM2",
+        help="region criterion: largest out-of-tolerance region (default 25 mm^2)",
+    )
+    ap.add_argument(
+        "--energy",
+        choices=["auto", "hessian", "laplacian"],
+        default="auto",
+        help="bending energy of the virtual fixture (default auto: hessian for an "
+        "open sheet, laplacian for a closed solid)",
+    )
+    ap.add_argument(
+        "--edge-band",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="do not score vertices within MM of a sharp crease (default: the "
+        "deviation's neighbourhood radius; 0 scores everything)",
+    )
+    ap.add_argument(
+        "--boundary-band",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="vertices within MM of an open boundary of the nominal are not scored "
+        "(default 1.5 median edges; 0 scores the rim)",
+    )
+    ap.add_argument(
+        "--band-limit",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="smoothing length of the first GB-CICP pass (default from part size)",
+    )
+    ap.add_argument(
+        "--passes",
+        type=int,
+        default=3,
+        help="GB-CICP passes: 1 = single pass, >=2 = band-limited scheme (default 3)",
+    )
+    ap.add_argument(
+        "--prealign",
+        choices=["auto", "always", "never"],
+        default="auto",
+        help="pose search from an arbitrary placement: auto (when the scan is not "
+        "already in the part frame), always, or never (scan and part share a "
+        "frame)",
+    )
+    ap.add_argument(
+        "--fail-on-added-material",
+        action="store_true",
+        help="fail the part when a scan region larger than --max-region-area "
+        "stands proud of the nominal beyond the threshold (default: report it)",
+    )
+    ap.add_argument(
+        "--method",
+        choices=list(METHODS),
+        default="gbcicp",
+        help="deformable method of the virtual fixture: gbcicp (default, the "
+        "band-limited GB-CICP) or one of the paper's baselines nicp (optimal-step "
+        "NICP), cpd (coherent point drift), rbffem (clamp-driven RBF); "
+        "--band-limit and --passes apply to gbcicp only",
+    )
+    ap.add_argument(
+        "--seeds",
+        type=int,
+        default=1,
+        metavar="N",
+        help="repeatability (paper Section 9.2): besides the full scan, inspect N "
+        "random resamplings of it (each scan point kept with probability "
+        f"{KEEP_FRACTION:g}, seeds 0..N-1, from the full scan's pose) and count as "
+        "findings of the region criterion only the out-of-tolerance regions "
+        "found in every run; the figures reported are the full scan's. Default 1: "
+        "no resampling",
+    )
     ap.add_argument("--rigid-only", action="store_true", help="no virtual fixture (baseline)")
     add_cache_options(ap)
     if not batch:
-        ap.add_argument("--profile", action="store_true",
-                        help="print wall time and peak resident memory per stage")
+        ap.add_argument(
+            "--profile",
+            action="store_true",
+            help="print wall time and peak resident memory per stage",
+        )
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
 def add_cache_options(ap: argparse.ArgumentParser) -> None:
     """``--cache DIR`` and ``--no-cache``."""
-    ap.add_argument("--cache", type=Path, default=None, metavar="DIR",
-                    help="per-part cache of the nominal's prepared state (default "
-                    "$QIFREPORT_CACHE or the user cache directory; see `qifreport prepare`)")
-    ap.add_argument("--no-cache", action="store_true",
-                    help="prepare the nominal afresh and store nothing")
+    ap.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="per-part cache of the nominal's prepared state (default "
+        "$QIFREPORT_CACHE or the user cache directory; see `qifreport prepare`)",
+    )
+    ap.add_argument(
+        "--no-cache", action="store_true", help="prepare the nominal afresh and store nothing"
+    )
 
 
 def inspect_options(args: argparse.Namespace) -> InspectOptions:
@@ -155,9 +258,16 @@ def inspect_options(args: argparse.Namespace) -> InspectOptions:
 
 
 def _run_inspect(args: argparse.Namespace) -> int:
-    job = InspectJob(nominal=args.nominal, scan=args.scan, out=args.out,
-                     options=inspect_options(args), serial=args.serial, json=args.json,
-                     export_mesh=args.export_mesh, force=args.force)
+    job = InspectJob(
+        nominal=args.nominal,
+        scan=args.scan,
+        out=args.out,
+        options=inspect_options(args),
+        serial=args.serial,
+        json=args.json,
+        export_mesh=args.export_mesh,
+        force=args.force,
+    )
     prof = Profiler().start() if args.profile else None
     outcome = run_job(job, progress=not args.quiet, prof=prof)
     print(summary(outcome.result))
@@ -170,9 +280,11 @@ def _run_inspect(args: argparse.Namespace) -> int:
         if q["valid"]:
             print(f"QIF: {q['path']} ({q['message']})")
         else:
-            print(f"QIF: {q['path']} written, NOT validated: the official QIF 3.0 "
-                  "schemas were not found (run `make install` with ../shared present, or set "
-                  "QIFREPORT_XSD_DIR)")
+            print(
+                f"QIF: {q['path']} written, NOT validated: the official QIF 3.0 "
+                "schemas were not found (run `make install` with ../shared present, or set "
+                "QIFREPORT_XSD_DIR)"
+            )
     return outcome.exit_code
 
 
@@ -182,9 +294,19 @@ def _run_pmi(args: argparse.Namespace) -> int:
 
     part = read_step(args.step)
     if args.json:
-        print(json.dumps({"file": str(args.step), "sha256": sha256(args.step),
-                          "length_unit": part.pmi.length_unit, "faces": len(part.faces),
-                          "items": pmi_rows(part)}, indent=2, default=json_default))
+        print(
+            json.dumps(
+                {
+                    "file": str(args.step),
+                    "sha256": sha256(args.step),
+                    "length_unit": part.pmi.length_unit,
+                    "faces": len(part.faces),
+                    "items": pmi_rows(part),
+                },
+                indent=2,
+                default=json_default,
+            )
+        )
     else:
         print(pmi_table(part))
     return 0
@@ -194,14 +316,16 @@ def _run_prepare(args: argparse.Namespace) -> int:
     if not args.nominal.is_file():
         raise InputError(f"nominal file not found: {args.nominal}")
     o = inspect_options(args)
-    state, outcome = part_state(args.nominal, o.nominal_options(), o.inspection_params(),
-                                o.cache_dir, rebuild=args.rebuild)
+    state, outcome = part_state(
+        args.nominal, o.nominal_options(), o.inspection_params(), o.cache_dir, rebuild=args.rebuild
+    )
     print(outcome.describe())
     if outcome.timings:
         print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in outcome.timings.items()))
     n = state.nominal
-    print(f"  {len(n.V)} vertices, {len(n.F)} triangles, {len(n.zones)} zone(s), "
-          f"key {state.key[:16]}")
+    print(
+        f"  {len(n.V)} vertices, {len(n.F)} triangles, {len(n.zones)} zone(s), key {state.key[:16]}"
+    )
     return 0
 
 
@@ -230,52 +354,80 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action="version", version=f"qifreport {__version__}")
     sub = ap.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    p = sub.add_parser("inspect", parents=[common], help="inspect one scan (the default)",
-                       description="Inspect a free-state scan against its nominal.")
-    p.add_argument("nominal", type=Path,
-                   help="nominal: STEP (AP242 with PMI) or mesh (STL, PLY, OBJ, OFF), mm")
-    p.add_argument("scan", type=Path,
-                   help="scan point cloud (PLY, STL, OBJ, OFF, XYZ, CSV, NPY, E57)")
+    p = sub.add_parser(
+        "inspect",
+        parents=[common],
+        help="inspect one scan (the default)",
+        description="Inspect a free-state scan against its nominal.",
+    )
+    p.add_argument(
+        "nominal", type=Path, help="nominal: STEP (AP242 with PMI) or mesh (STL, PLY, OBJ, OFF), mm"
+    )
+    p.add_argument(
+        "scan", type=Path, help="scan point cloud (PLY, STL, OBJ, OFF, XYZ, CSV, NPY, E57)"
+    )
     add_inspect_options(p, batch=False)
     p.add_argument("--version", action="version", version=f"qifreport {__version__}")
     p.set_defaults(run=_run_inspect)
 
-    p = sub.add_parser("pmi", parents=[common], help="list the semantic PMI of a STEP file",
-                       description="List the semantic PMI of a STEP file.")
+    p = sub.add_parser(
+        "pmi",
+        parents=[common],
+        help="list the semantic PMI of a STEP file",
+        description="List the semantic PMI of a STEP file.",
+    )
     p.add_argument("step", type=Path, help="STEP AP242 file")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.set_defaults(run=_run_pmi)
 
     from .validate_command import add_arguments as add_validate_arguments
 
-    p = sub.add_parser("validate", parents=[common], help="validate QIF files",
-                       description="Validate QIF 3.0 files against the official schemas and "
-                       "the DMSC checks.")
+    p = sub.add_parser(
+        "validate",
+        parents=[common],
+        help="validate QIF files",
+        description="Validate QIF 3.0 files against the official schemas and the DMSC checks.",
+    )
     add_validate_arguments(p)
     p.set_defaults(run=_run_validate)
 
     p = sub.add_parser(
-        "prepare", parents=[common], help="store a nominal's prepared state in the cache",
+        "prepare",
+        parents=[common],
+        help="store a nominal's prepared state in the cache",
         description="Read a nominal and store its prepared state (tessellation, zones, "
         "operators, bands, bending basis, pose-search model) in the per-part cache, so "
-        "every later inspection of the part loads it instead of building it.")
+        "every later inspection of the part loads it instead of building it.",
+    )
     p.add_argument("nominal", type=Path, help="nominal: STEP (AP242 with PMI) or mesh, mm")
-    for flag in ("--tolerance", "--max-edge", "--deflection", "--edge-band",
-                 "--boundary-band"):
-        p.add_argument(flag, type=float, default=None, metavar="MM",
-                       help="as for the inspection (the cache key includes it)")
+    for flag in ("--tolerance", "--max-edge", "--deflection", "--edge-band", "--boundary-band"):
+        p.add_argument(
+            flag,
+            type=float,
+            default=None,
+            metavar="MM",
+            help="as for the inspection (the cache key includes it)",
+        )
     p.add_argument("--energy", choices=["auto", "hessian", "laplacian"], default="auto")
-    p.add_argument("--cache", type=Path, default=None, metavar="DIR",
-                   help="cache directory (default $QIFREPORT_CACHE or the user cache dir)")
+    p.add_argument(
+        "--cache",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="cache directory (default $QIFREPORT_CACHE or the user cache dir)",
+    )
     p.add_argument("--rebuild", action="store_true", help="ignore an existing entry")
     p.set_defaults(run=_run_prepare)
 
     from .batch import add_batch_arguments
 
     p = sub.add_parser(
-        "batch", parents=[common], help="inspect many scans of one part",
+        "batch",
+        parents=[common],
+        help="inspect many scans of one part",
         description="Inspect many scans of one part: per-scan QIF + PDF, a summary table, a "
-        "QIF Statistics document and a trend report; resumable, in parallel.")
+        "QIF Statistics document and a trend report; resumable, in parallel.",
+    )
     add_batch_arguments(p)
     add_inspect_options(p, batch=True)
     p.set_defaults(run=_run_batch)
@@ -301,8 +453,11 @@ def _guard(fn: Callable[[], int], verbose: bool) -> int:
         return EXIT_ERROR
     except Exception as exc:  # a bug must never read as "part failed" (exit 1)
         log.debug("internal error", exc_info=True)
-        print(f"qifreport: internal error: {type(exc).__name__}: {exc} (run with -v for the "
-              "traceback)", file=sys.stderr)
+        print(
+            f"qifreport: internal error: {type(exc).__name__}: {exc} (run with -v for the "
+            "traceback)",
+            file=sys.stderr,
+        )
         if verbose:
             import traceback
 

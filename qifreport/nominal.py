@@ -38,8 +38,12 @@ class Nominal:
     datums: list[str] = field(default_factory=list)
 
 
-def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = None,
-                 deflection: float | None = None) -> Nominal:
+def load_nominal(
+    path: Path,
+    tolerance: float | None,
+    max_edge: float | None = None,
+    deflection: float | None = None,
+) -> Nominal:
     """Read a STEP part (mesh + PMI zones) or a mesh nominal (one general zone)."""
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
@@ -56,22 +60,33 @@ def load_nominal(path: Path, tolerance: float | None, max_edge: float | None = N
         zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
         pmi = part.pmi
         info = {
-            "format": "step", "schema": getattr(pmi, "schema", None),
+            "format": "step",
+            "schema": getattr(pmi, "schema", None),
             "length_unit": getattr(pmi, "length_unit", None),
-            "b_rep_faces": len(part.faces), "solids": part.n_solids,
-            "tessellation": {"deflection_mm": mesh.deflection, "max_edge_mm": max_edge,
-                             "vertices": len(mesh.V), "triangles": len(mesh.F)},
-            "pmi_counts": {"tolerances": len(pmi.tolerances) if pmi else 0,
-                           "dimensions": len(pmi.dimensions) if pmi else 0,
-                           "datums": len(pmi.datums) if pmi else 0},
+            "b_rep_faces": len(part.faces),
+            "solids": part.n_solids,
+            "tessellation": {
+                "deflection_mm": mesh.deflection,
+                "max_edge_mm": max_edge,
+                "vertices": len(mesh.V),
+                "triangles": len(mesh.F),
+            },
+            "pmi_counts": {
+                "tolerances": len(pmi.tolerances) if pmi else 0,
+                "dimensions": len(pmi.dimensions) if pmi else 0,
+                "datums": len(pmi.datums) if pmi else 0,
+            },
             "timings_s": {**part.timings, "tessellate": mesh.seconds},
         }
         datums = [d.label for d in pmi.datums] if pmi is not None else []
-        return Nominal(mesh.V, mesh.F, mesh.face_id, zones, skipped, info,
-                       list(dict.fromkeys(datums)))
+        return Nominal(
+            mesh.V, mesh.F, mesh.face_id, zones, skipped, info, list(dict.fromkeys(datums))
+        )
     if tolerance is None:
-        raise InputError(f"{path.name} is a mesh nominal: it carries no tolerance, give "
-                         "--tolerance MM (or use the STEP file with PMI)")
+        raise InputError(
+            f"{path.name} is a mesh nominal: it carries no tolerance, give "
+            "--tolerance MM (or use the STEP file with PMI)"
+        )
     V, F = load_mesh(path)
     info = {"format": "mesh", "diagonal_mm": bounding_diagonal(V)}
     return Nominal(V, F, None, [symmetric_zone(tolerance, "general")], [], info)

@@ -24,10 +24,28 @@ __all__ = ["InspectJob", "InspectOptions", "NominalOptions", "RESULT_OPTIONS"]
 
 #: the options that change a scan's outputs (a batch record's digest covers them)
 RESULT_OPTIONS = (
-    "tolerance", "max_edge", "deflection", "scan_units", "no_qif", "no_pdf", "page",
-    "author", "organization", "operator", "min_fraction", "max_region_area", "energy",
-    "edge_band", "boundary_band", "band_limit", "passes", "prealign",
-    "fail_on_added_material", "method", "seeds", "rigid_only",
+    "tolerance",
+    "max_edge",
+    "deflection",
+    "scan_units",
+    "no_qif",
+    "no_pdf",
+    "page",
+    "author",
+    "organization",
+    "operator",
+    "min_fraction",
+    "max_region_area",
+    "energy",
+    "edge_band",
+    "boundary_band",
+    "band_limit",
+    "passes",
+    "prealign",
+    "fail_on_added_material",
+    "method",
+    "seeds",
+    "rigid_only",
 )
 
 
@@ -93,27 +111,37 @@ class InspectOptions:
     def check(self) -> None:
         """Refuse values no inspection can use (:class:`~qifreport.errors.InputError`)."""
         if not (math.isfinite(self.min_fraction) and 0.0 < self.min_fraction <= 1.0):
-            raise InputError(f"--min-fraction must be a fraction in (0, 1], got "
-                             f"{self.min_fraction} (0.95 means 95 %)")
-        if self.max_region_area is not None and not (math.isfinite(self.max_region_area)
-                                                     and self.max_region_area >= 0):
-            raise InputError(f"--max-region-area must be an area >= 0 mm^2, got "
-                             f"{self.max_region_area}")
+            raise InputError(
+                f"--min-fraction must be a fraction in (0, 1], got "
+                f"{self.min_fraction} (0.95 means 95 %)"
+            )
+        if self.max_region_area is not None and not (
+            math.isfinite(self.max_region_area) and self.max_region_area >= 0
+        ):
+            raise InputError(
+                f"--max-region-area must be an area >= 0 mm^2, got {self.max_region_area}"
+            )
         if self.seeds < 1:
             raise InputError(f"--seeds must be a number of runs >= 1, got {self.seeds}")
-        if self.tolerance is not None and not (math.isfinite(self.tolerance)
-                                               and self.tolerance > 0):
-            raise InputError(f"--tolerance must be a positive length in mm, got "
-                             f"{self.tolerance}")
+        if self.tolerance is not None and not (
+            math.isfinite(self.tolerance) and self.tolerance > 0
+        ):
+            raise InputError(f"--tolerance must be a positive length in mm, got {self.tolerance}")
 
     def inspection_params(self) -> InspectionParams:
         """The metrology parameters of these options."""
         g = GBCICPParams(passes=max(1, self.passes), band_limit=self.band_limit)
         params = InspectionParams(
-            tolerance=self.tolerance, min_fraction=self.min_fraction, energy=self.energy,
-            edge_band=self.edge_band, boundary_band=self.boundary_band,
-            rigid_only=self.rigid_only, prealign=self.prealign,
-            fail_on_added_material=self.fail_on_added_material, method=self.method, gbcicp=g,
+            tolerance=self.tolerance,
+            min_fraction=self.min_fraction,
+            energy=self.energy,
+            edge_band=self.edge_band,
+            boundary_band=self.boundary_band,
+            rigid_only=self.rigid_only,
+            prealign=self.prealign,
+            fail_on_added_material=self.fail_on_added_material,
+            method=self.method,
+            gbcicp=g,
         )
         if self.max_region_area is not None:
             params.max_region_area = self.max_region_area
@@ -158,8 +186,10 @@ class InspectJob:
         """The files this job writes: ``qif``, ``pdf``, ``json``, ``mesh`` (those asked for)."""
         stem = self.nominal.stem if self.stem is None else self.stem
         o = self.options
-        out = {"qif": None if o.no_qif else self.out / f"{stem}.qif",
-               "pdf": None if o.no_pdf else self.out / f"{stem}.pdf",
-               "json": self.out / f"{stem}.json" if self.json else None,
-               "mesh": self.export_mesh}
+        out = {
+            "qif": None if o.no_qif else self.out / f"{stem}.qif",
+            "pdf": None if o.no_pdf else self.out / f"{stem}.pdf",
+            "json": self.out / f"{stem}.json" if self.json else None,
+            "mesh": self.export_mesh,
+        }
         return {k: v for k, v in out.items() if v is not None}

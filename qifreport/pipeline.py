@@ -108,8 +108,11 @@ def summary(res: InspectionResult) -> str:
         f"(<= {a.max_region_area:g} mm^2) {'ok' if a.region_ok else 'FAILED'}; "
         f"{len(a.regions)} region(s)",
         f"coverage: {100 * a.coverage:.1f} % of the nominal area scored"
-        + (f" ({res.edge_excluded_area:.0f} mm^2 along sharp creases not scored)"
-           if res.edge_excluded_area > 0 else ""),
+        + (
+            f" ({res.edge_excluded_area:.0f} mm^2 along sharp creases not scored)"
+            if res.edge_excluded_area > 0
+            else ""
+        ),
     ]
     if res.prealign is not None and res.prealign.method != "identity":
         lines.append(res.prealign.summary())
@@ -129,11 +132,14 @@ def summary(res: InspectionResult) -> str:
             + ("" if z.fixtured else " (free state)")
         )
     if res.not_evaluated:
-        lines.append(f"  {len(res.not_evaluated)} PMI item(s) listed, not scored "
-                     "(see the JSON 'not_evaluated')")
+        lines.append(
+            f"  {len(res.not_evaluated)} PMI item(s) listed, not scored "
+            "(see the JSON 'not_evaluated')"
+        )
     h = res.hygiene
-    if h is not None and (h.boundary_edges or h.non_manifold_edges or h.degenerate_faces
-                          or h.duplicate_faces):
+    if h is not None and (
+        h.boundary_edges or h.non_manifold_edges or h.degenerate_faces or h.duplicate_faces
+    ):
         lines.append(f"nominal: {h.describe()}")
     if res.added is not None:
         a = res.added
@@ -141,8 +147,9 @@ def summary(res: InspectionResult) -> str:
             f"added material (data-referenced, scan points): P99.9 signed "
             f"{a.p999_signed:+.3f} mm, {100 * a.frac_above:.3f} % beyond "
             f"+{a.threshold:g} mm; {a.describe()}"
-            + ("" if a.passed else " FAILED") + ("" if a.fail_on or not a.found
-                                                 else " (reported, not judged)"))
+            + ("" if a.passed else " FAILED")
+            + ("" if a.fail_on or not a.found else " (reported, not judged)")
+        )
     if res.repeatability is not None:
         lines.append(res.repeatability.describe())
     lines += [f"warning: {w}" for w in res.trust_warnings()]
@@ -154,14 +161,17 @@ def fixture_text(res: InspectionResult) -> str:
     if res.fit is None:
         return "rigid ICP only (no virtual fixture)"
     fit = res.fit
-    return (f"rigid ICP + virtual fixture {method_label(fit.method)} ({fit.iterations} "
-            f"iterations, robust residual {fit.scale:.3f} mm)")
+    return (
+        f"rigid ICP + virtual fixture {method_label(fit.method)} ({fit.iterations} "
+        f"iterations, robust residual {fit.scale:.3f} mm)"
+    )
 
 
 def exit_code(res: InspectionResult) -> int:
     """0 pass, 1 fail, 3 not established."""
-    return {"PASS": EXIT_PASS, "FAIL": EXIT_FAIL,
-            "NOT ESTABLISHED": EXIT_NOT_ESTABLISHED}[res.verdict]
+    return {"PASS": EXIT_PASS, "FAIL": EXIT_FAIL, "NOT ESTABLISHED": EXIT_NOT_ESTABLISHED}[
+        res.verdict
+    ]
 
 
 def qif_writer(tree, state: dict) -> Writer:
@@ -187,10 +197,15 @@ def qif_writer(tree, state: dict) -> Writer:
         errors = [f for f in validate_lxml(tmp) if f.severity == "error"]
         if errors:
             first = errors[0]
-            raise RuntimeError(f"the QIF document qifreport wrote is not valid against {xsd} "
-                               f"(line {first.line}: {first.message}); nothing written")
-        state.update(valid=True, validated_with=["lxml"],
-                     message=f"valid against the QIF 3.0 schemas in {xsd}")
+            raise RuntimeError(
+                f"the QIF document qifreport wrote is not valid against {xsd} "
+                f"(line {first.line}: {first.message}); nothing written"
+            )
+        state.update(
+            valid=True,
+            validated_with=["lxml"],
+            message=f"valid against the QIF 3.0 schemas in {xsd}",
+        )
 
     return write
 
@@ -220,8 +235,14 @@ def check_job(job: InspectJob) -> None:
             raise InputError(f"output directory not writable: {parent}")
 
 
-def resampled_runs(res: InspectionResult, params: InspectionParams, nom: Nominal,
-                   seeds: int, bar=None, prepared=None) -> None:
+def resampled_runs(
+    res: InspectionResult,
+    params: InspectionParams,
+    nom: Nominal,
+    seeds: int,
+    bar=None,
+    prepared=None,
+) -> None:
     """Inspect ``seeds`` resamplings of the scan and keep only the persistent regions of
     ``res`` (:mod:`qifreport.metrology.repeatability`; ``res`` is changed in place).
 
@@ -237,35 +258,60 @@ def resampled_runs(res: InspectionResult, params: InspectionParams, nom: Nominal
         if bar is not None:
             bar.set_description(f"resampling {k + 1}/{seeds}")
         keep = resample_mask(len(res.P), k, KEEP_FRACTION)
-        runs.append(inspect(res.V, res.F, res.P[keep], p,
-                            progress=None if bar is None else bar.update,
-                            face_id=nom.face_id, zones=nom.zones,
-                            not_evaluated=nom.not_evaluated, basis=res.basis,
-                            prepared=prepared))
+        runs.append(
+            inspect(
+                res.V,
+                res.F,
+                res.P[keep],
+                p,
+                progress=None if bar is None else bar.update,
+                face_id=nom.face_id,
+                zones=nom.zones,
+                not_evaluated=nom.not_evaluated,
+                basis=res.basis,
+                prepared=prepared,
+            )
+        )
     seconds = time.perf_counter() - t0
     apply_repeatability(res, runs, KEEP_FRACTION, seconds=seconds)
     res.timings["repeatability"] = seconds
 
 
-def inspect_state(P: np.ndarray, state: PartState, job: InspectJob, *, bar=None,
-                  prof: Profiler | None = None) -> InspectionResult:
+def inspect_state(
+    P: np.ndarray, state: PartState, job: InspectJob, *, bar=None, prof: Profiler | None = None
+) -> InspectionResult:
     """Inspect the scan points ``P`` (mm) against a prepared part, with the job's options
     (the repeatability runs included)."""
     o = job.options
     params = o.inspection_params()
     nom = state.nominal
-    res = inspect(nom.V, nom.F, P, params, progress=None if bar is None else bar.update,
-                  scan_units=o.scan_units, face_id=nom.face_id, zones=nom.zones,
-                  not_evaluated=nom.not_evaluated, prepared=state.prepared)
+    res = inspect(
+        nom.V,
+        nom.F,
+        P,
+        params,
+        progress=None if bar is None else bar.update,
+        scan_units=o.scan_units,
+        face_id=nom.face_id,
+        zones=nom.zones,
+        not_evaluated=nom.not_evaluated,
+        prepared=state.prepared,
+    )
     if o.seeds > 1:
         with _stage(prof, f"repeatability ({o.seeds} resamplings)"):
             resampled_runs(res, params, nom, o.seeds, bar, prepared=state.prepared)
     return res
 
 
-def output_writers(res: InspectionResult, nom: Nominal, job: InspectJob,
-                   paths: dict[str, Path], digests: dict[str, str], started: datetime,
-                   finished: datetime) -> tuple[list[tuple[Path, Writer]], dict | None]:
+def output_writers(
+    res: InspectionResult,
+    nom: Nominal,
+    job: InspectJob,
+    paths: dict[str, Path],
+    digests: dict[str, str],
+    started: datetime,
+    finished: datetime,
+) -> tuple[list[tuple[Path, Writer]], dict | None]:
     """The writers ``[(path, write(tmp))]`` of one inspection's outputs, in writing order
     (the QIF first: the JSON summary reports its validation), and the QIF's state block.
 
@@ -281,11 +327,18 @@ def output_writers(res: InspectionResult, nom: Nominal, job: InspectJob,
         from qifreport.qif.writer import Provenance
 
         prov = Provenance(
-            part_name=job.nominal.stem, nominal_path=str(job.nominal),
-            scan_path=str(job.scan), nominal_sha256=digests["nominal"],
-            scan_sha256=digests["scan"], started=started, finished=finished,
-            datums=nom.datums, nominal_info=nom.info, author=o.author,
-            organization=o.organization, operator=o.operator,
+            part_name=job.nominal.stem,
+            nominal_path=str(job.nominal),
+            scan_path=str(job.scan),
+            nominal_sha256=digests["nominal"],
+            scan_sha256=digests["scan"],
+            started=started,
+            finished=finished,
+            datums=nom.datums,
+            nominal_info=nom.info,
+            author=o.author,
+            organization=o.organization,
+            operator=o.operator,
             serial_number=job.serial,
         )
     if not o.no_qif:
@@ -297,8 +350,9 @@ def output_writers(res: InspectionResult, nom: Nominal, job: InspectJob,
         from .reports.pdf import write_pdf
 
         qif_name = paths["qif"].name if "qif" in paths else ""
-        outputs.append((paths["pdf"], lambda p: write_pdf(p, res, prov, page=o.page,
-                                                      qif_name=qif_name)))
+        outputs.append(
+            (paths["pdf"], lambda p: write_pdf(p, res, prov, page=o.page, qif_name=qif_name))
+        )
     if job.json:
         doc = res.to_dict()
         doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}
@@ -312,13 +366,18 @@ def output_writers(res: InspectionResult, nom: Nominal, job: InspectJob,
         def write_json(p: Path) -> None:  # runs after the QIF writer: its state is known
             if qif_state is not None:
                 doc["qif"] = qif_state
-            p.write_text(json.dumps(finite(doc), indent=2, default=json_default,
-                                    allow_nan=False))
+            p.write_text(json.dumps(finite(doc), indent=2, default=json_default, allow_nan=False))
 
         outputs.append((paths["json"], write_json))
     if "mesh" in paths:
-        outputs.append((paths["mesh"], lambda p: write_ply_with_scalar(
-            p, res.V_registered, nom.F, "deviation", res.deviation)))
+        outputs.append(
+            (
+                paths["mesh"],
+                lambda p: write_ply_with_scalar(
+                    p, res.V_registered, nom.F, "deviation", res.deviation
+                ),
+            )
+        )
     return outputs, qif_state
 
 
@@ -342,8 +401,7 @@ class JobOutcome:
         return exit_code(self.result)
 
 
-def run_job(job: InspectJob, *, progress: bool = True,
-            prof: Profiler | None = None) -> JobOutcome:
+def run_job(job: InspectJob, *, progress: bool = True, prof: Profiler | None = None) -> JobOutcome:
     """Inspect one scan and write its outputs atomically (all or none).
 
     Parameters
@@ -362,8 +420,9 @@ def run_job(job: InspectJob, *, progress: bool = True,
     with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
         P = load_scan(job.scan, units=o.scan_units)
     with _stage(prof, "prepare part (cache)"):
-        state, cache = part_state(job.nominal, o.nominal_options(), o.inspection_params(),
-                                  o.cache_dir)
+        state, cache = part_state(
+            job.nominal, o.nominal_options(), o.inspection_params(), o.cache_dir
+        )
     log.info("%s", cache.describe())
     bar = None
     if progress:
@@ -381,8 +440,7 @@ def run_job(job: InspectJob, *, progress: bool = True,
     finished = datetime.now(timezone.utc)
     digests = {"nominal": state.nominal_sha256, "scan": sha256(job.scan)}
     paths = job.output_paths()
-    outputs, qif_state = output_writers(res, state.nominal, job, paths, digests, started,
-                                        finished)
+    outputs, qif_state = output_writers(res, state.nominal, job, paths, digests, started, finished)
     with _stage(prof, "write outputs"):  # all outputs or none
         atomic_write_many(outputs)
     return JobOutcome(res, paths, qif_state, cache)

@@ -31,6 +31,7 @@ SUMMARY_SCHEMA_VERSION = "qifreport-summary/1"
 #: file name of the schema of :data:`SUMMARY_SCHEMA_VERSION`
 SUMMARY_SCHEMA_FILE = "summary-1.schema.json"
 
+
 def summary_schema_path() -> Path:
     """Path of the summary schema (package data of :mod:`qifreport.schemas`).
 
@@ -101,8 +102,10 @@ def validate_summary(doc: dict) -> list[str]:
     from jsonschema.exceptions import best_match
 
     v = _validator(str(summary_schema_path()))
-    found = [(list(p), f"{x!r} is not a JSON number (undefined values are null)")
-             for p, x in _non_finite(doc)]
+    found = [
+        (list(p), f"{x!r} is not a JSON number (undefined values are null)")
+        for p, x in _non_finite(doc)
+    ]
     for err in v.iter_errors(doc):
         if err.context:  # anyOf/oneOf: the sub-error that matched best
             err = best_match(err.context) or err

@@ -29,9 +29,11 @@ __all__ = ["DESCRIPTION", "PROG", "add_arguments", "run", "validate_main"]
 
 PROG = "qifreport validate"
 #: the command's description (``--help``)
-DESCRIPTION = ("Check QIF 3.0 documents against the official XSDs (lxml/libxml2 and "
-               "xmlschema, key/keyref included) and the DMSC XSLT checks. Exit 0 if every file "
-               "passes, 1 if one does not, 2 if a file cannot be read or the schemas are missing.")
+DESCRIPTION = (
+    "Check QIF 3.0 documents against the official XSDs (lxml/libxml2 and "
+    "xmlschema, key/keyref included) and the DMSC XSLT checks. Exit 0 if every file "
+    "passes, 1 if one does not, 2 if a file cannot be read or the schemas are missing."
+)
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
@@ -45,11 +47,11 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
         The (sub-)command's parser.
     """
     ap.add_argument("files", nargs="+", type=Path, metavar="FILE", help="QIF document(s)")
-    ap.add_argument("--no-strict", action="store_true",
-                    help="skip the xmlschema validation (lxml only; faster)")
+    ap.add_argument(
+        "--no-strict", action="store_true", help="skip the xmlschema validation (lxml only; faster)"
+    )
     ap.add_argument("--no-checks", action="store_true", help="skip the DMSC XSLT checks")
-    ap.add_argument("--quiet", action="store_true",
-                    help="print only the errors of failing files")
+    ap.add_argument("--quiet", action="store_true", help="print only the errors of failing files")
 
 
 def _arg_parser() -> argparse.ArgumentParser:

@@ -146,8 +146,14 @@ def gaussian_kernel(A: np.ndarray, B: np.ndarray, beta: float) -> np.ndarray:
 
 
 def cpd_em(
-    X: np.ndarray, Y: np.ndarray, beta: float, lam: float = 2.0, w: float = 0.1,
-    sigma2: float | None = None, max_iter: int = 150, tol: float = 1e-5,
+    X: np.ndarray,
+    Y: np.ndarray,
+    beta: float,
+    lam: float = 2.0,
+    w: float = 0.1,
+    sigma2: float | None = None,
+    max_iter: int = 150,
+    tol: float = 1e-5,
     callback: Callable[[int], Any] | None = None,
 ) -> CPDFit:
     """Non-rigid CPD EM of the centroids ``Y`` (M, 3) onto the data ``X`` (N, 3), mm.
@@ -190,8 +196,9 @@ def cpd_em(
         rhs = np.where(d[:, None] > 0, PX / safe[:, None], 0.0) - d[:, None] * Yc
         A = d[:, None] * G * d[None, :]
         A[np.diag_indices(M)] += lam * sigma2
-        Z = sla.cho_solve(sla.cho_factor(A, lower=True, check_finite=False), rhs,
-                          check_finite=False)
+        Z = sla.cho_solve(
+            sla.cho_factor(A, lower=True, check_finite=False), rhs, check_finite=False
+        )
         W = d[:, None] * Z
         TY = Yc + G @ W
         # variance
@@ -207,8 +214,9 @@ def cpd_em(
     return CPDFit(Y=Y, W=W, TY=TY + c0, sigma2=sigma2, iterations=it, history=history)
 
 
-def cpd_warp(V: np.ndarray, Y: np.ndarray, W: np.ndarray, beta: float,
-             chunk: int = 4_000_000) -> np.ndarray:
+def cpd_warp(
+    V: np.ndarray, Y: np.ndarray, W: np.ndarray, beta: float, chunk: int = 4_000_000
+) -> np.ndarray:
     """The CPD warp ``v + sum_i exp(-|v - y_i|^2 / (2 beta^2)) W_i`` at the points ``V``.
 
     Parameters
@@ -226,7 +234,7 @@ def cpd_warp(V: np.ndarray, Y: np.ndarray, W: np.ndarray, beta: float,
     out = np.empty_like(V)
     step = max(1, int(chunk) // max(len(Y), 1))
     for a in range(0, len(V), step):
-        out[a:a + step] = V[a:a + step] + gaussian_kernel(V[a:a + step] - c0, Yc, beta) @ W
+        out[a : a + step] = V[a : a + step] + gaussian_kernel(V[a : a + step] - c0, Yc, beta) @ W
     return out
 
 
@@ -262,8 +270,9 @@ def cpd(
     p = resolve_params(params or CPDParams(), V0, F, P)
     src = sample_points(V0, p.n_source, p.sampling, p.seed)
     dst = sample_points(P, p.n_scan, p.sampling, p.seed + 1)
-    fit = cpd_em(P[dst], V0[src], p.beta, p.lam, p.w, p.sigma2, p.max_iter, p.tol,
-                 callback=progress)
+    fit = cpd_em(
+        P[dst], V0[src], p.beta, p.lam, p.w, p.sigma2, p.max_iter, p.tol, callback=progress
+    )
     V = cpd_warp(V0, fit.Y, fit.W, p.beta, p.chunk)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
     matcher = scan_matcher(V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius)
@@ -271,8 +280,7 @@ def cpd(
     if history:
         history[0].update(source=src, scan=dst, W=fit.W, TY=fit.TY)
     log.debug("CPD: %d EM iterations, sigma2 %.3g mm^2", fit.iterations, fit.sigma2)
-    return finish("cpd", V0, V, matcher, p, fit.iterations, time.perf_counter() - t0,
-                  history)
+    return finish("cpd", V0, V, matcher, p, fit.iterations, time.perf_counter() - t0, history)
 
 
 def resolve_params(p: CPDParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> CPDParams:

@@ -112,9 +112,7 @@ def principal_from_hk(H: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndar
     return H + r, H - r
 
 
-def shape_fields(
-    H: np.ndarray, K: np.ndarray, planar_tol: float
-) -> tuple[np.ndarray, np.ndarray]:
+def shape_fields(H: np.ndarray, K: np.ndarray, planar_tol: float) -> tuple[np.ndarray, np.ndarray]:
     """Shape index ``S`` and curvedness ``C`` from ``H`` (1/mm) and ``K`` (1/mm^2).
 
     ``S`` uses ``atan2`` so a non-planar umbilic (``k1 = k2 != 0``) gets its limit

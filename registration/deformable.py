@@ -118,9 +118,17 @@ class ScanMatcher:
         makes it several times faster.
     """
 
-    def __init__(self, P: np.ndarray, scan_normals: np.ndarray, normals: np.ndarray,
-                 radius: float, signed: bool = False, gate: float = 0.0,
-                 tree: cKDTree | None = None, max_distance: float = np.inf):
+    def __init__(
+        self,
+        P: np.ndarray,
+        scan_normals: np.ndarray,
+        normals: np.ndarray,
+        radius: float,
+        signed: bool = False,
+        gate: float = 0.0,
+        tree: cKDTree | None = None,
+        max_distance: float = np.inf,
+    ):
         self.P = P
         self.Ns = scan_normals
         self.N = normals
@@ -151,13 +159,24 @@ class ScanMatcher:
         covered = (tang < self.radius) & found
         if self.signed:
             covered &= c >= self.gate
-        return Match(target=X + r[:, None] * ns, r=r, covered=covered,
-                     compat=c if self.signed else np.abs(c), j=j)
+        return Match(
+            target=X + r[:, None] * ns,
+            r=r,
+            covered=covered,
+            compat=c if self.signed else np.abs(c),
+            j=j,
+        )
 
 
 def finish(
-    method: str, V0: np.ndarray, V: np.ndarray, matcher: ScanMatcher, params: Any,
-    iterations: int, seconds: float, history: list[dict] | None = None,
+    method: str,
+    V0: np.ndarray,
+    V: np.ndarray,
+    matcher: ScanMatcher,
+    params: Any,
+    iterations: int,
+    seconds: float,
+    history: list[dict] | None = None,
 ) -> DeformResult:
     """Wrap a method's registered vertices ``V`` (n, 3) mm as a :class:`DeformResult`.
 
@@ -168,16 +187,33 @@ def finish(
     n = len(V)
     scale = robust_scale(m.r[m.covered]) if m.covered.any() else 0.0
     return DeformResult(
-        V=V, e=V - V0, residual=np.where(m.covered, m.r, np.nan), covered=m.covered,
-        flagged=np.zeros(n, dtype=bool), held_out=np.zeros(n, dtype=bool),
-        weights=m.covered.astype(float), scale=float(scale), passes=1, fallback=False,
-        flagged_fraction=0.0, iterations=int(iterations), seconds=float(seconds),
-        params=params, history=list(history or []), method=method,
+        V=V,
+        e=V - V0,
+        residual=np.where(m.covered, m.r, np.nan),
+        covered=m.covered,
+        flagged=np.zeros(n, dtype=bool),
+        held_out=np.zeros(n, dtype=bool),
+        weights=m.covered.astype(float),
+        scale=float(scale),
+        passes=1,
+        fallback=False,
+        flagged_fraction=0.0,
+        iterations=int(iterations),
+        seconds=float(seconds),
+        params=params,
+        history=list(history or []),
+        method=method,
     )
 
 
-def orient_scan_normals(P: np.ndarray, Ns: np.ndarray, V: np.ndarray, N: np.ndarray,
-                        k: int = 10, sheets: np.ndarray | None = None) -> np.ndarray:
+def orient_scan_normals(
+    P: np.ndarray,
+    Ns: np.ndarray,
+    V: np.ndarray,
+    N: np.ndarray,
+    k: int = 10,
+    sheets: np.ndarray | None = None,
+) -> np.ndarray:
     """Outward scan normals: consistent per connected sheet of the scan, each sheet's side
     chosen by a vote of its points against the nearest vertex normal of the posed nominal.
 
@@ -212,9 +248,15 @@ def coverage_radius(V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> float:
 
 
 def scan_matcher(
-    V0: np.ndarray, F: np.ndarray, ops: MeshOperators, P: np.ndarray,
-    scan_normals: np.ndarray | None, scan_sheets: np.ndarray | None,
-    radius: float | None = None, gate: float = 0.5, k: int = 12,
+    V0: np.ndarray,
+    F: np.ndarray,
+    ops: MeshOperators,
+    P: np.ndarray,
+    scan_normals: np.ndarray | None,
+    scan_sheets: np.ndarray | None,
+    radius: float | None = None,
+    gate: float = 0.5,
+    k: int = 12,
 ) -> ScanMatcher:
     """The :class:`ScanMatcher` with which the baselines (NICP, CPD, RBF-FEM) are finished.
 

@@ -178,12 +178,12 @@ def bending_basis(ops: MeshOperators, k: int = 100, tol: float = 1e-6) -> Bendin
     # factorisation is cheaper than the general LU eigsh would otherwise make
     fac = SPDSolver().factor(A)
     opinv = spla.LinearOperator(A.shape, matvec=lambda b: fac(b), dtype=np.float64)
-    mu, Phi = spla.eigsh(ops.Q, k=k, M=ops.M, sigma=shift, which="LM", OPinv=opinv,
-                         tol=tol)
+    mu, Phi = spla.eigsh(ops.Q, k=k, M=ops.M, sigma=shift, which="LM", OPinv=opinv, tol=tol)
     order = np.argsort(mu)
     mu, Phi = np.maximum(mu[order], 0.0), Phi[:, order]
-    return BendingBasis(Phi=np.ascontiguousarray(Phi), mu=mu, energy=ops.energy,
-                        seconds=time.perf_counter() - t0)
+    return BendingBasis(
+        Phi=np.ascontiguousarray(Phi), mu=mu, energy=ops.energy, seconds=time.perf_counter() - t0
+    )
 
 
 def _weights(
@@ -198,14 +198,16 @@ def _weights(
     return welsch * compat * use, scale
 
 
-def _flag(m: Match, p: GBCICPParams, scale: float,
-          flaggable: np.ndarray | None = None) -> np.ndarray:
+def _flag(
+    m: Match, p: GBCICPParams, scale: float, flaggable: np.ndarray | None = None
+) -> np.ndarray:
     out = m.covered & (np.abs(m.r) > p.flag_k * scale)
     return out if flaggable is None else out & flaggable
 
 
-def _anneal(lam: float, lam_to: float, factor: float, settle: int, delta: float,
-            p: GBCICPParams) -> tuple[float, int, bool]:
+def _anneal(
+    lam: float, lam_to: float, factor: float, settle: int, delta: float, p: GBCICPParams
+) -> tuple[float, int, bool]:
     """One step of the stiffness schedule: (next lambda, settle count, pass done).
 
     Lambda falls by ``factor`` down to ``lam_to``; there the pass settles for
@@ -261,16 +263,18 @@ def gbcicp(
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
     if p.signed_compat:
         Ns = orient_scan_normals(P, Ns, V0, ops.normals, sheets=scan_sheets)
-    match = ScanMatcher(P, Ns, ops.normals, p.coverage_radius, signed=p.signed_compat,
-                        gate=p.normal_gate)
+    match = ScanMatcher(
+        P, Ns, ops.normals, p.coverage_radius, signed=p.signed_compat, gate=p.normal_gate
+    )
     # bound the nearest-point search (the unseen side of a part is expensive to match):
     # well beyond the coverage radius and the largest normal residual the rigid pose left
     probe = np.arange(0, n, max(1, n // 4000))
     m0 = match(V0[probe], probe)
     r0 = np.abs(m0.r[m0.covered])
-    match.max_distance = max(4.0 * p.coverage_radius,
-                             2.0 * float(np.percentile(r0, 99)) + p.coverage_radius
-                             if len(r0) else 0.0)
+    match.max_distance = max(
+        4.0 * p.coverage_radius,
+        2.0 * float(np.percentile(r0, 99)) + p.coverage_radius if len(r0) else 0.0,
+    )
     Q = ops.Q
     modal = p.solver == "modal"
     if p.lambda0 is not None:
@@ -380,16 +384,18 @@ def gbcicp(
         nonlocal C
         if modal:
             C = modal_pass(lam_start, lam_first, hold, C, 1)
-            return run_pass(basis.Phi @ C, lam_first, lam_first, hold, 1,
-                            iters=max(p.polish_iter, 1))
+            return run_pass(
+                basis.Phi @ C, lam_first, lam_first, hold, 1, iters=max(p.polish_iter, 1)
+            )
         return run_pass(e, lam_start, lam_first, hold, 1)
 
     def refit(e, hold, pass_no):
         nonlocal C, lam_from
         if modal:
             C = modal_pass(lam_first, lam_first, hold, C, pass_no)
-            return run_pass(basis.Phi @ C, lam_refit, lam_refit, hold, pass_no,
-                            iters=max(p.polish_iter, 1))
+            return run_pass(
+                basis.Phi @ C, lam_refit, lam_refit, hold, pass_no, iters=max(p.polish_iter, 1)
+            )
         out = run_pass(e, lam_from, lam_refit, hold, pass_no)
         lam_from = lam_refit
         return out
@@ -422,7 +428,9 @@ def gbcicp(
     if fallback:
         log.warning(
             "GB-CICP: %.1f %% of covered vertices flagged in pass %d (> %.0f %%): fit "
-            "suspect, keeping the single-pass result", 100 * guard[0], guard[1],
+            "suspect, keeping the single-pass result",
+            100 * guard[0],
+            guard[1],
             100 * p.max_flagged_fraction,
         )
     residual = np.where(m.covered, m.r, np.nan)

@@ -350,14 +350,25 @@ def converged_rigid_fit(
     w = tukey_weights(r, scale) * near
     rms = float(np.sqrt(np.sum(w * r**2) / max(w.sum(), 1e-300)))
     log.debug("converged rigid fit: %d steps, rms %.4f mm", it, rms)
-    return RigidResult(R=R, t=t, rms=rms, scale=scale,
-                       inlier_fraction=float((w > 0).mean()) if len(w) else 0.0,
-                       iterations=it, converged=converged, history=history)
+    return RigidResult(
+        R=R,
+        t=t,
+        rms=rms,
+        scale=scale,
+        inlier_fraction=float((w > 0).mean()) if len(w) else 0.0,
+        iterations=it,
+        converged=converged,
+        history=history,
+    )
 
 
-def pose_conditioning(V: np.ndarray, N: np.ndarray, X: np.ndarray,
-                      tree: cKDTree | None = None,
-                      boundary: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+def pose_conditioning(
+    V: np.ndarray,
+    N: np.ndarray,
+    X: np.ndarray,
+    tree: cKDTree | None = None,
+    boundary: np.ndarray | None = None,
+) -> tuple[float, np.ndarray]:
     """How well the surface seen by the scan fixes a rigid pose.
 
     Eigen-analysis of the information matrix ``J^T J / m`` of the posed scan ``X``: one

@@ -91,9 +91,7 @@ def remove_unreferenced(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def remove_degenerate(V: np.ndarray, F: np.ndarray, rel_area: float = 1e-12) -> np.ndarray:
     """Faces of ``F`` whose area exceeds ``rel_area * diag^2`` (zero-area slivers removed)."""
-    area = 0.5 * np.linalg.norm(
-        np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1
-    )
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
     return F[area > rel_area * bounding_diagonal(V) ** 2]
 
 
@@ -126,8 +124,9 @@ def load_mesh(path: str | Path, weld_tol: float = 1e-6) -> tuple[np.ndarray, np.
     if not path.is_file():
         raise InputError(f"nominal mesh not found: {path}")
     if path.suffix.lower() not in MESH_SUFFIXES:
-        raise InputError(f"{path.name}: unsupported nominal format {path.suffix!r} "
-                         "(use STL, PLY, OBJ or OFF)")
+        raise InputError(
+            f"{path.name}: unsupported nominal format {path.suffix!r} (use STL, PLY, OBJ or OFF)"
+        )
     try:
         with warnings.catch_warnings():  # reader noise; problems are reported below, once
             warnings.simplefilter("ignore")
@@ -136,11 +135,15 @@ def load_mesh(path: str | Path, weld_tol: float = 1e-6) -> tuple[np.ndarray, np.
                 raise InputError(f"nominal mesh {path.name} has no triangles")
             V, F = np.asarray(tm.vertices), np.asarray(tm.faces)
             if V.ndim != 2 or V.shape[1] != 3 or V.dtype.kind not in "iuf":
-                raise InputError(f"nominal mesh {path.name}: vertices of shape {V.shape} "
-                                 f"and type {V.dtype}, expected (n, 3) numbers")
+                raise InputError(
+                    f"nominal mesh {path.name}: vertices of shape {V.shape} "
+                    f"and type {V.dtype}, expected (n, 3) numbers"
+                )
             if F.ndim != 2 or F.shape[1] != 3 or F.dtype.kind not in "iu":
-                raise InputError(f"nominal mesh {path.name}: faces of shape {F.shape} "
-                                 f"and type {F.dtype}, expected (f, 3) vertex indices")
+                raise InputError(
+                    f"nominal mesh {path.name}: faces of shape {F.shape} "
+                    f"and type {F.dtype}, expected (f, 3) vertex indices"
+                )
             V = np.ascontiguousarray(V, dtype=np.float64)
             F = np.ascontiguousarray(F, dtype=np.int64)
             check_declared_counts(path, len(V), faces=True)
@@ -148,11 +151,14 @@ def load_mesh(path: str | Path, weld_tol: float = 1e-6) -> tuple[np.ndarray, np.
                 raise InputError(f"nominal mesh {path.name} has non-finite vertex coordinates")
             bad = (F < 0) | (F >= len(V))
             if bad.any():
-                raise InputError(f"nominal mesh {path.name}: {int(bad.any(axis=1).sum())} "
-                                 f"faces index vertices outside 0..{len(V) - 1}")
+                raise InputError(
+                    f"nominal mesh {path.name}: {int(bad.any(axis=1).sum())} "
+                    f"faces index vertices outside 0..{len(V) - 1}"
+                )
             if not np.isfinite(bounding_diagonal(V)):
-                raise InputError(f"nominal mesh {path.name}: coordinates too large "
-                                 "(the extent overflows)")
+                raise InputError(
+                    f"nominal mesh {path.name}: coordinates too large (the extent overflows)"
+                )
             n_in = len(V)
             V, F = weld(V, F, weld_tol)
             F = remove_degenerate(V, F)
@@ -267,7 +273,10 @@ class MeshOperators:
 
 
 def wall_thickness(
-    V: np.ndarray, N: np.ndarray, at: np.ndarray, radius: float,
+    V: np.ndarray,
+    N: np.ndarray,
+    at: np.ndarray,
+    radius: float,
     tree: cKDTree | None = None,
 ) -> np.ndarray:
     """Distance (mm) from vertices to the opposite skin of the solid behind them.
@@ -289,8 +298,9 @@ def wall_thickness(
     tree = tree or cKDTree(V)
     at = np.asarray(at, dtype=np.int64)
     out = np.full(len(at), np.inf)
-    for k, (i, near) in enumerate(zip(at, tree.query_ball_point(V[at], radius, workers=-1),
-                                      strict=True)):
+    for k, (i, near) in enumerate(
+        zip(at, tree.query_ball_point(V[at], radius, workers=-1), strict=True)
+    ):
         w = np.asarray(near, dtype=np.int64)
         D = V[w] - V[i]
         opposite = (N[w] @ N[i] < -0.5) & (D @ N[i] < 0.0)
@@ -324,8 +334,7 @@ def bending_operator(V: np.ndarray, F: np.ndarray, energy: str = "laplacian") ->
     return MeshOperators(L=L, M=M, Q=Q, energy=energy, normals=vertex_normals(V, F), area=area)
 
 
-def crease_band(V: np.ndarray, F: np.ndarray, width: float,
-                angle_deg: float = 45.0) -> np.ndarray:
+def crease_band(V: np.ndarray, F: np.ndarray, width: float, angle_deg: float = 45.0) -> np.ndarray:
     """(n,) bool: vertices within ``width`` (mm, shortest path along the edges) of a sharp
     crease, an edge whose two triangles' normals differ by more than ``angle_deg`` degrees.
     """

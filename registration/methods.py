@@ -73,8 +73,9 @@ def deform(
         scheme); ignored by the other methods, which flag nothing.
     """
     fn = method_function(method)
-    kw: dict[str, Any] = dict(params=params, scan_normals=scan_normals,
-                              scan_sheets=scan_sheets, progress=progress)
+    kw: dict[str, Any] = dict(
+        params=params, scan_normals=scan_normals, scan_sheets=scan_sheets, progress=progress
+    )
     if method == "rbffem":
         kw["clamps"] = clamps
     if method == "gbcicp":

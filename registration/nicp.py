@@ -143,17 +143,21 @@ class _AffineSystem:
         N = 4 * n
         deg = np.bincount(E.ravel(), minlength=n).astype(float)
         Lg = sp.coo_matrix(
-            (np.r_[deg, -np.ones(2 * len(E))],
-             (np.r_[np.arange(n), E[:, 0], E[:, 1]], np.r_[np.arange(n), E[:, 1], E[:, 0]])),
-            shape=(n, n)).tocsr()
+            (
+                np.r_[deg, -np.ones(2 * len(E))],
+                (np.r_[np.arange(n), E[:, 0], E[:, 1]], np.r_[np.arange(n), E[:, 1], E[:, 0]]),
+            ),
+            shape=(n, n),
+        ).tocsr()
         K = sp.kron(Lg, sp.diags([1.0, 1.0, 1.0, gamma**2])).tocoo()
         keep = K.data != 0
         Kr, Kc, Kv = K.row[keep], K.col[keep], K.data[keep]
         blk = 4 * np.arange(n)[:, None, None]
         Br = np.broadcast_to(blk + np.arange(4)[None, :, None], (n, 4, 4)).ravel()
         Bc = np.broadcast_to(blk + np.arange(4)[None, None, :], (n, 4, 4)).ravel()
-        S = sp.csc_matrix((np.ones(len(Kr) + len(Br)), (np.r_[Kr, Br], np.r_[Kc, Bc])),
-                          shape=(N, N))
+        S = sp.csc_matrix(
+            (np.ones(len(Kr) + len(Br)), (np.r_[Kr, Br], np.r_[Kc, Bc])), shape=(N, N)
+        )
         S.sum_duplicates()
         S.sort_indices()
         self.indices, self.indptr = S.indices, S.indptr
@@ -198,8 +202,9 @@ def nested_dissection(V: np.ndarray, F: np.ndarray, leaf: int = 64) -> np.ndarra
     """
     n = len(V)
     E = edges(F)
-    adj = sp.coo_matrix((np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])),
-                        shape=(n, n)).tocsr()
+    adj = sp.coo_matrix(
+        (np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])), shape=(n, n)
+    ).tocsr()
     out: list[np.ndarray] = []
     stack: list[tuple[np.ndarray, int]] = [(np.arange(n), 0)]
     # iterative post-order: (idx, 0) = split, (idx, 1) = emit
@@ -245,8 +250,9 @@ class _Factorizer:
         if self.cholmod is not None:
             return self.cholmod.factor(A)
         Ap = sp.csc_matrix(A[self.p4][:, self.p4])
-        lu = spla.splu(Ap, permc_spec="NATURAL", diag_pivot_thresh=0.0,
-                       options={"SymmetricMode": True})
+        lu = spla.splu(
+            Ap, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
+        )
         p4, inv = self.p4, self.inv
 
         def solve(b: np.ndarray) -> np.ndarray:
@@ -255,8 +261,14 @@ class _Factorizer:
         return solve
 
 
-def _pcg(A: sp.csc_matrix, B: np.ndarray, solve: Callable[[np.ndarray], np.ndarray],
-         X0: np.ndarray, rtol: float, max_iter: int = 50) -> tuple[np.ndarray, int]:
+def _pcg(
+    A: sp.csc_matrix,
+    B: np.ndarray,
+    solve: Callable[[np.ndarray], np.ndarray],
+    X0: np.ndarray,
+    rtol: float,
+    max_iter: int = 50,
+) -> tuple[np.ndarray, int]:
     """Solve ``A X = B`` (k right-hand sides) by conjugate gradients preconditioned with the
     factor ``solve`` of a nearby matrix (the same level's, a few gate weights different).
 
@@ -317,10 +329,18 @@ def nicp(
     t0 = time.perf_counter()
     p = _resolve(params or NICPParams(), V0, F, ops, P)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
-    match = scan_matcher(V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius,
-                         gate=p.normal_gate)
-    final = ScanMatcher(match.P, match.Ns, ops.normals, match.radius, signed=match.signed,
-                        gate=match.gate, tree=match.tree)
+    match = scan_matcher(
+        V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius, gate=p.normal_gate
+    )
+    final = ScanMatcher(
+        match.P,
+        match.Ns,
+        ops.normals,
+        match.radius,
+        signed=match.signed,
+        gate=match.gate,
+        tree=match.tree,
+    )
     c = V0.mean(axis=0)
     s = bounding_diagonal(V0)
     H = np.c_[(V0 - c) / s, np.ones(len(V0))]
@@ -364,9 +384,18 @@ def nicp(
             delta_data = float(step[used].max()) if used.any() else delta
             V = V_new
             rms = float(np.sqrt(np.mean(m.r[used] ** 2))) if used.any() else float("nan")
-            history.append(dict(level=level, alpha=float(alpha), rms=rms, delta=delta,
-                                delta_data=delta_data, used=float(used.mean()), gate=gate,
-                                cg=n_cg))
+            history.append(
+                dict(
+                    level=level,
+                    alpha=float(alpha),
+                    rms=rms,
+                    delta=delta,
+                    delta_data=delta_data,
+                    used=float(used.mean()),
+                    gate=gate,
+                    cg=n_cg,
+                )
+            )
             if progress is not None:
                 progress(1)
             if delta_data < p.tol:
@@ -375,8 +404,9 @@ def nicp(
     return finish("nicp", V0, V, final, p, len(history), time.perf_counter() - t0, history)
 
 
-def _resolve(p: NICPParams, V0: np.ndarray, F: np.ndarray, ops: MeshOperators,
-             P: np.ndarray) -> NICPParams:
+def _resolve(
+    p: NICPParams, V0: np.ndarray, F: np.ndarray, ops: MeshOperators, P: np.ndarray
+) -> NICPParams:
     """Fill in the size-dependent defaults."""
     q = NICPParams(**vars(p))
     diag = bounding_diagonal(V0)

@@ -84,8 +84,10 @@ def load_scan(path: str | Path, units: str | None = None) -> np.ndarray:
         raise InputError(f"scan not found: {path}")
     suffix = path.suffix.lower()
     if suffix not in SCAN_SUFFIXES:
-        raise InputError(f"{path.name}: unsupported scan format {path.suffix!r} "
-                         "(use PLY, STL, OBJ, OFF, XYZ, TXT, CSV, NPY or E57)")
+        raise InputError(
+            f"{path.name}: unsupported scan format {path.suffix!r} "
+            "(use PLY, STL, OBJ, OFF, XYZ, TXT, CSV, NPY or E57)"
+        )
     units = FORMAT_UNITS.get(suffix, "mm") if units is None else units
     try:
         with warnings.catch_warnings():  # reader noise; problems are reported below, once
@@ -169,15 +171,19 @@ def check_declared_counts(path: Path, n_vertices: int, faces: bool = False) -> N
         counts = {name: n for name, n, _ in elements}
         nv = counts.get("vertex")
         if nv is not None and nv != n_vertices:
-            raise MalformedFile(f"the PLY header declares {nv} vertices, {n_vertices} were "
-                                "read (truncated or corrupt file)")
+            raise MalformedFile(
+                f"the PLY header declares {nv} vertices, {n_vertices} were "
+                "read (truncated or corrupt file)"
+            )
         if fmt == "ascii":  # one element a line
             with open(path, "rb") as fh:
                 fh.seek(data_start)
                 rows = sum(1 for ln in fh if ln.strip())
             if rows != sum(counts.values()):
-                raise MalformedFile(f"the PLY header declares {sum(counts.values())} data "
-                                    f"rows, the file has {rows} (truncated or corrupt file)")
+                raise MalformedFile(
+                    f"the PLY header declares {sum(counts.values())} data "
+                    f"rows, the file has {rows} (truncated or corrupt file)"
+                )
     elif suffix == ".off":
         text = path.read_bytes().decode("utf-8", "replace")
         rows = [ln.split("#", 1)[0].strip() for ln in text.split("OFF", 1)[-1].splitlines()]
@@ -186,22 +192,43 @@ def check_declared_counts(path: Path, n_vertices: int, faces: bool = False) -> N
             return
         nv, nf = (int(t) for t in rows[0].split()[:2])
         if nv != n_vertices or len(rows) - 1 != nv + nf:
-            raise MalformedFile(f"the OFF header declares {nv} vertices and {nf} faces, the "
-                                f"file has {len(rows) - 1} rows (truncated or corrupt file)")
+            raise MalformedFile(
+                f"the OFF header declares {nv} vertices and {nf} faces, the "
+                f"file has {len(rows) - 1} rows (truncated or corrupt file)"
+            )
     elif suffix == ".obj" and faces:
         with open(path, "rb") as fh:
             for ln in fh:
                 tok = ln.split()
-                if tok and tok[0] == b"f" and any(t.split(b"/")[0] in (b"0", b"-0", b"+0")
-                                                  for t in tok[1:]):
-                    raise MalformedFile("a face has vertex index 0 (OBJ indices start at 1; "
-                                        "corrupt file)")
+                if (
+                    tok
+                    and tok[0] == b"f"
+                    and any(t.split(b"/")[0] in (b"0", b"-0", b"+0") for t in tok[1:])
+                ):
+                    raise MalformedFile(
+                        "a face has vertex index 0 (OBJ indices start at 1; corrupt file)"
+                    )
 
 
 #: bytes of the PLY scalar types
-_PLY_SIZES = {"char": 1, "uchar": 1, "int8": 1, "uint8": 1, "short": 2, "ushort": 2,
-              "int16": 2, "uint16": 2, "int": 4, "uint": 4, "int32": 4, "uint32": 4,
-              "float": 4, "float32": 4, "double": 8, "float64": 8}
+_PLY_SIZES = {
+    "char": 1,
+    "uchar": 1,
+    "int8": 1,
+    "uint8": 1,
+    "short": 2,
+    "ushort": 2,
+    "int16": 2,
+    "uint16": 2,
+    "int": 4,
+    "uint": 4,
+    "int32": 4,
+    "uint32": 4,
+    "float": 4,
+    "float32": 4,
+    "double": 8,
+    "float64": 8,
+}
 
 
 def _ply_header(path: Path) -> tuple[str, list[tuple[str, int, int | None]], int] | None:
@@ -249,8 +276,10 @@ def _check_ply_size(path: Path) -> None:
     have = path.stat().st_size - data_start
     if have < need:
         what = ", ".join(f"{n} {name!r}" for name, n, _ in elements)
-        raise MalformedFile(f"truncated PLY: the header declares {what} elements (at least "
-                            f"{need} bytes of data), the file has {have} bytes")
+        raise MalformedFile(
+            f"truncated PLY: the header declares {what} elements (at least "
+            f"{need} bytes of data), the file has {have} bytes"
+        )
 
 
 def _read_obj_vertices(path: Path) -> np.ndarray:
@@ -262,8 +291,7 @@ def _read_obj_vertices(path: Path) -> np.ndarray:
             tok = ln.split()
             if tok and tok[0] == b"v":
                 if len(tok) < 4:
-                    raise MalformedFile(f"a vertex row with {len(tok) - 1} coordinates "
-                                        "(3 needed)")
+                    raise MalformedFile(f"a vertex row with {len(tok) - 1} coordinates (3 needed)")
                 rows.append(b" ".join(tok[1:4]))
     if not rows:
         return np.empty((0, 3))
@@ -320,8 +348,14 @@ def _read_e57(path: Path) -> np.ndarray:
             # transform=True applies the scan's pose when it has one; read_scan drops the
             # points whose cartesian/spherical invalid state is set
             d = e57.read_scan(i, ignore_missing_fields=True, transform=True)
-            parts.append(np.column_stack([np.asarray(d[k], dtype=np.float64).ravel()
-                                          for k in ("cartesianX", "cartesianY", "cartesianZ")]))
+            parts.append(
+                np.column_stack(
+                    [
+                        np.asarray(d[k], dtype=np.float64).ravel()
+                        for k in ("cartesianX", "cartesianY", "cartesianZ")
+                    ]
+                )
+            )
     finally:
         e57.close()
     return np.concatenate(parts) if parts else np.empty((0, 3))
@@ -353,8 +387,9 @@ def validate_scan(P: np.ndarray, name: str = "scan") -> np.ndarray:
     if bad.any():
         raise InputError(f"{name}: {int(bad.sum())} of {len(P)} points have NaN/inf coordinates")
     if len(P) < MIN_POINTS:
-        raise InputError(f"{name}: only {len(P)} point{'s' if len(P) > 1 else ''} (at least "
-                         f"{MIN_POINTS} needed)")
+        raise InputError(
+            f"{name}: only {len(P)} point{'s' if len(P) > 1 else ''} (at least {MIN_POINTS} needed)"
+        )
     return P
 
 

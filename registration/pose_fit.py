@@ -37,8 +37,9 @@ class PoseFit:
     rms: float
 
 
-def score_pose(model: PreparedModel, S: np.ndarray, R: np.ndarray, t: np.ndarray, tau: float
-               ) -> PoseFit:
+def score_pose(
+    model: PreparedModel, S: np.ndarray, R: np.ndarray, t: np.ndarray, tau: float
+) -> PoseFit:
     """Fit of the posed scan points ``S`` to the model vertices under the gate ``tau`` (mm).
 
     The ranking score is the MSAC (truncated quadratic) cost ``mean(min(d, tau)^2) / tau^2``,
@@ -120,5 +121,4 @@ def refine_pose(
     rng = np.random.default_rng(seed)
     S = P[rng.choice(len(P), size=min(sample, len(P)), replace=False)]
     R, t, _ = point_icp(model, S, R0, t0, iters=100, trim=model.params.icp_trim, fine=True)
-    return converged_rigid_fit(model.V, model.N, P, R, t, boundary=model.boundary,
-                               tree=model.tree)
+    return converged_rigid_fit(model.V, model.N, P, R, t, boundary=model.boundary, tree=model.tree)

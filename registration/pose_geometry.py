@@ -31,9 +31,7 @@ def scan_displacement(
     return float(np.sqrt(np.mean(np.sum(D * D, axis=1))))
 
 
-def principal_axes(
-    X: np.ndarray, w: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
+def principal_axes(X: np.ndarray, w: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Weighted centroid and principal axes of a point set.
 
     Parameters

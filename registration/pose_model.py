@@ -202,12 +202,29 @@ def prepare_model(
     balls = geodesic_balls(mesh_graph(V, F), kp, 3.0 * max(p.scales) * h)
     c, U = principal_axes(V, area)
     Vc = V[farthest_points(V, p.coarse_vertices, seed=seed)]
-    log.debug("model: %d vertices, h %.3f mm, %d keypoints, %d ball entries",
-              len(V), h, len(kp), len(balls.rows))
+    log.debug(
+        "model: %d vertices, h %.3f mm, %d keypoints, %d ball entries",
+        len(V),
+        h,
+        len(kp),
+        len(balls.rows),
+    )
     return PreparedModel(
-        V=V, F=F, N=vertex_normals(V, F), tree=tree, diag=diag, h=h, area=area,
-        fields=fields, balls=balls, centroid=c, axes=U, Vc=Vc, coarse_tree=cKDTree(Vc),
-        params=p, boundary=boundary_vertices(F, len(V)),
+        V=V,
+        F=F,
+        N=vertex_normals(V, F),
+        tree=tree,
+        diag=diag,
+        h=h,
+        area=area,
+        fields=fields,
+        balls=balls,
+        centroid=c,
+        axes=U,
+        Vc=Vc,
+        coarse_tree=cKDTree(Vc),
+        params=p,
+        boundary=boundary_vertices(F, len(V)),
     )
 
 
@@ -252,8 +269,9 @@ def prepare_scan(P: np.ndarray, model: PreparedModel, seed: int) -> PreparedScan
     sc = scan_curvatures(P, k=p.scan_k, tree=tree)
     area = sc.spacing**2
     eta = field_noise(sc.stack(), P, tree=tree)
-    fields = presmooth(P, sc.H, sc.K, area, p.presmooth * model.h, 1e-3 / model.diag,
-                       tree=tree).stack()
+    fields = presmooth(
+        P, sc.H, sc.K, area, p.presmooth * model.h, 1e-3 / model.diag, tree=tree
+    ).stack()
     kp = farthest_points(P, p.scan_keypoints, seed=seed)
     balls = geodesic_balls(knn_graph(P, tree=tree), kp, 3.0 * max(p.scales) * model.h)
     return PreparedScan(P, tree, fields, area, eta, sc.noise, balls)

@@ -232,9 +232,7 @@ def descriptor_hypotheses(
             cm, cs = dm.D[:, 3 * L :].mean(axis=1), side.D[:, 3 * L :].mean(axis=1)
             thr = np.quantile(np.concatenate([cm, cs]), 1.0 - p.salient)
             im, js = np.flatnonzero(cm >= thr), np.flatnonzero(cs >= thr)
-        A, B, _, _ = joint_normalize(
-            np.arcsinh(dm.D[im] / comp), np.arcsinh(side.D[js] / comp)
-        )
+        A, B, _, _ = joint_normalize(np.arcsinh(dm.D[im] / comp), np.arcsinh(side.D[js] / comp))
         pairs = mutual_matches(A, B, p.ratio) if p.match_k == 0 else knn_matches(A, B, p.match_k)
         n_matches += len(pairs)
         for R, t, cnt in ransac_triplets(

@@ -201,8 +201,10 @@ class PrealignResult:
         """One line: inliers, residual, agreement, ambiguity."""
         amb = "; AMBIGUOUS (rival pose fits as well)" if self.ambiguous else ""
         if self.weakly_constrained:
-            amb += (f"; pose weakly constrained (conditioning {self.conditioning:.1e}: the "
-                    "surface can slide along itself; normal deviations are unaffected)")
+            amb += (
+                f"; pose weakly constrained (conditioning {self.conditioning:.1e}: the "
+                "surface can slide along itself; normal deviations are unaffected)"
+            )
         return (
             f"pose by {self.method}: {self.inlier_fraction:.1%} of scan within "
             f"{self.gate:.2f} mm, rms {self.rms:.3f} mm, {self.restart_agreement}/"
@@ -270,8 +272,13 @@ def already_in_frame(
     moved_deg = rotation_angle_deg(r.R)
     moved = float(np.linalg.norm((r.R - np.eye(3)) @ S.mean(axis=0) + r.t))
     ok = inside > fraction and moved_deg < max_motion_deg and moved < max_motion_frac * diag
-    log.debug("already_in_frame: %.1f%% within gate, moved %.2f deg / %.2f mm -> %s",
-              100 * inside, moved_deg, moved, ok)
+    log.debug(
+        "already_in_frame: %.1f%% within gate, moved %.2f deg / %.2f mm -> %s",
+        100 * inside,
+        moved_deg,
+        moved,
+        ok,
+    )
     return bool(ok)
 
 
@@ -320,8 +327,12 @@ def prealign(
     scan = prepare_scan(P, model, seed)
     S = P[rng.choice(len(P), size=min(p.sample_points, len(P)), replace=False)]
     hyps, n_matches = descriptor_hypotheses(model, scan, S, tau, p, rng)
-    log.debug("descriptor matches %d, %d RANSAC hypotheses; best sample cost %.3f",
-              n_matches, len(hyps), hyps[0][0].cost if hyps else 1.0)
+    log.debug(
+        "descriptor matches %d, %d RANSAC hypotheses; best sample cost %.3f",
+        n_matches,
+        len(hyps),
+        hyps[0][0].cost if hyps else 1.0,
+    )
     best_ransac = hyps[0][3] if hyps else 0
 
     # starts: descriptor hypotheses, principal-axis hypotheses, random rotations
@@ -367,17 +378,36 @@ def prealign(
         log.warning(
             "ambiguous pose: a rival basin %.1f deg / %.1f mm away fits as well "
             "(%.1f%% vs %.1f%% within %.2f mm, rms %.3f vs %.3f mm): symmetric part?",
-            dd, dt, 100 * b.inlier_fraction, 100 * best.inlier_fraction, tau, b.rms, best.rms,
+            dd,
+            dt,
+            100 * b.inlier_fraction,
+            100 * best.inlier_fraction,
+            tau,
+            b.rms,
+            best.rms,
         )
     method = "descriptor" if "descriptor" in best.sources else "restart"
     res = PrealignResult(
-        R=best.R, t=best.t, rms=best.rms, inliers=inliers,
-        inlier_fraction=best.inlier_fraction, restart_agreement=best.support,
-        n_starts=len(starts), n_screened=n_screened, matches=n_matches, ransac_inliers=best_ransac,
-        ambiguous=bool(rivals), candidates=finals + others, gate=tau, noise=scan.noise,
-        seconds=seconds, method=method, rigid=rigid,
-        conditioning=pose_conditioning(model.V, model.N, S @ best.R.T + best.t,
-                                       tree=model.tree, boundary=model.boundary)[0],
+        R=best.R,
+        t=best.t,
+        rms=best.rms,
+        inliers=inliers,
+        inlier_fraction=best.inlier_fraction,
+        restart_agreement=best.support,
+        n_starts=len(starts),
+        n_screened=n_screened,
+        matches=n_matches,
+        ransac_inliers=best_ransac,
+        ambiguous=bool(rivals),
+        candidates=finals + others,
+        gate=tau,
+        noise=scan.noise,
+        seconds=seconds,
+        method=method,
+        rigid=rigid,
+        conditioning=pose_conditioning(
+            model.V, model.N, S @ best.R.T + best.t, tree=model.tree, boundary=model.boundary
+        )[0],
         wall=wall,
     )
     log.info("%s", res.summary())
@@ -422,19 +452,31 @@ def seat_scan(
     tree = normals = None
     if model is not None and model.V.shape == np.shape(V):
         tree, normals = model.tree, model.N
-    if mode == "always" or (mode == "auto" and not already_in_frame(
-            V, P, F=F, seed=seed, tree=tree, normals=normals)):
+    if mode == "always" or (
+        mode == "auto" and not already_in_frame(V, P, F=F, seed=seed, tree=tree, normals=normals)
+    ):
         return prealign(V, F, P, seed=seed, params=params, model=model)
     p = params or (model.params if model is not None else PrealignParams())
     diag = bounding_diagonal(V)
     tau = p.gate * diag
-    d, _ = (cKDTree(V) if tree is None else tree).query(P, distance_upper_bound=tau,
-                                                          workers=-1)
+    d, _ = (cKDTree(V) if tree is None else tree).query(P, distance_upper_bound=tau, workers=-1)
     inl = np.isfinite(d)
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
     return PrealignResult(
-        R=np.eye(3), t=np.zeros(3), rms=rms, inliers=int(inl.sum()),
-        inlier_fraction=float(inl.mean()), restart_agreement=0, n_starts=0, n_screened=0,
-        matches=0, ransac_inliers=0, ambiguous=False, candidates=[], gate=tau, noise=0.0,
-        seconds=time.perf_counter() - t0, method="identity",
+        R=np.eye(3),
+        t=np.zeros(3),
+        rms=rms,
+        inliers=int(inl.sum()),
+        inlier_fraction=float(inl.mean()),
+        restart_agreement=0,
+        n_starts=0,
+        n_screened=0,
+        matches=0,
+        ransac_inliers=0,
+        ambiguous=False,
+        candidates=[],
+        gate=tau,
+        noise=0.0,
+        seconds=time.perf_counter() - t0,
+        method="identity",
     )

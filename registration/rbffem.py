@@ -72,14 +72,16 @@ def default_clamps(V0: np.ndarray, F: np.ndarray, anchor: bool = True) -> np.nda
 
     h = clamp_handles(V0, F)
     kinds = ("corner", "anchor") if anchor else ("corner",)
-    centres = np.array([V0[g].mean(axis=0) for g, k in zip(h.groups, h.kind, strict=True)
-                        if k in kinds])
+    centres = np.array(
+        [V0[g].mean(axis=0) for g, k in zip(h.groups, h.kind, strict=True) if k in kinds]
+    )
     _, idx = cKDTree(V0).query(centres)
     return np.unique(np.asarray(idx, dtype=np.int64))
 
 
-def clamp_targets(V0: np.ndarray, clamps: np.ndarray, P: np.ndarray, radius: float,
-                  tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
+def clamp_targets(
+    V0: np.ndarray, clamps: np.ndarray, P: np.ndarray, radius: float, tree: cKDTree | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Targets ``t_c`` (k, 3) of the clamps and whether each fell back to the nearest point.
 
     ``t_c`` is the coordinate-wise median of the scan points within ``radius`` (mm) of
@@ -88,8 +90,9 @@ def clamp_targets(V0: np.ndarray, clamps: np.ndarray, P: np.ndarray, radius: flo
     tree = tree or cKDTree(P)
     T = np.empty((len(clamps), 3))
     fallback = np.zeros(len(clamps), dtype=bool)
-    for k, (c, near) in enumerate(zip(clamps, tree.query_ball_point(V0[clamps], radius),
-                                      strict=True)):
+    for k, (c, near) in enumerate(
+        zip(clamps, tree.query_ball_point(V0[clamps], radius), strict=True)
+    ):
         if near:
             T[k] = np.median(P[near], axis=0)
         else:
@@ -154,8 +157,12 @@ def rbffem(
             W = np.linalg.lstsq(Phi, G, rcond=None)[0]
         V = V0 + multiquadric(V0, Xc, eps) @ W
     if fell.any():
-        log.info("RBF-FEM: %d of %d clamps had no scan point within %.2f mm (nearest point "
-                 "used)", int(fell.sum()), len(C), p.target_radius)
+        log.info(
+            "RBF-FEM: %d of %d clamps had no scan point within %.2f mm (nearest point used)",
+            int(fell.sum()),
+            len(C),
+            p.target_radius,
+        )
     if progress is not None:
         progress(1)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)

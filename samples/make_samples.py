@@ -71,8 +71,13 @@ def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
     skin = np.unique(m.F[m.face_id == _skin_face(m)])
     out = []
     for c in cases:
-        d = analytic_deformation(V, F, c.get("amplitude", 0.015) * diag,
-                                 seed=c.get("field_seed"), direction=(0.0, 0.0, 1.0))
+        d = analytic_deformation(
+            V,
+            F,
+            c.get("amplitude", 0.015) * diag,
+            seed=c.get("field_seed"),
+            direction=(0.0, 0.0, 1.0),
+        )
         Vs = V + d
         if c.get("defect") is not None:
             at = np.array(PANEL_DEFECT_AT) + np.array([c.get("defect_shift", 0.0), 0.0, 0.0])
@@ -101,8 +106,9 @@ def _skin_face(m) -> int:
     from qifreport.registration.mesh import face_normals
 
     n = face_normals(m.V, m.F)
-    a = 0.5 * np.linalg.norm(np.cross(m.V[m.F[:, 1]] - m.V[m.F[:, 0]],
-                                      m.V[m.F[:, 2]] - m.V[m.F[:, 0]]), axis=1)
+    a = 0.5 * np.linalg.norm(
+        np.cross(m.V[m.F[:, 1]] - m.V[m.F[:, 0]], m.V[m.F[:, 2]] - m.V[m.F[:, 0]]), axis=1
+    )
     up = np.bincount(m.face_id, weights=a * (n[:, 2] > 0.5), minlength=m.n_faces)
     return int(np.argmax(up))
 

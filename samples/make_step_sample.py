@@ -114,8 +114,11 @@ def _faces(shape: TopoDS_Shape) -> list[dict]:
         BRepGProp.SurfaceProperties_s(face, props)
         c = props.CentreOfMass()
         out.append(
-            {"type": BRepAdaptor_Surface(face).GetType(), "area": props.Mass(),
-             "c": (c.X(), c.Y(), c.Z())}
+            {
+                "type": BRepAdaptor_Surface(face).GetType(),
+                "area": props.Mass(),
+                "c": (c.X(), c.Y(), c.Z()),
+            }
         )
     return out
 
@@ -146,8 +149,8 @@ def sample_spec(shape: TopoDS_Shape) -> tuple[list[PMISpecDatum], list[PMISpecTo
     def flat_at(axis: int, value: float, side: float = 0.0):
         def pred(f: dict) -> bool:
             c = f["c"]
-            return (f["type"] == GeomAbs_Plane and abs(c[axis] - value) < eps
-                    and c[0] * side >= 0.0)
+            return f["type"] == GeomAbs_Plane and abs(c[axis] - value) < eps and c[0] * side >= 0.0
+
         return pred
 
     under_left = _one(faces, "left flange underside", flat_at(2, 0.0, -1.0))
@@ -155,7 +158,8 @@ def sample_spec(shape: TopoDS_Shape) -> tuple[list[PMISpecDatum], list[PMISpecTo
     end_left = _one(faces, "left end face", flat_at(0, -x0))
     side_front = _one(faces, "front side face", flat_at(1, -WIDTH / 2))
     skin = _one(
-        faces, "outer skin",
+        faces,
+        "outer skin",
         lambda f: f["type"] == GeomAbs_Cylinder and f["area"] > 1000.0 and f["c"][2] > 7.0,
     )
     datums = [
@@ -164,12 +168,12 @@ def sample_spec(shape: TopoDS_Shape) -> tuple[list[PMISpecDatum], list[PMISpecTo
         PMISpecDatum("C", [side_front]),
     ]
     tolerances = [
-        PMISpecTolerance("surface_profile", PROFILE_ALL, list(range(len(faces))),
-                         ["A", "B", "C"], "profile_all"),
+        PMISpecTolerance(
+            "surface_profile", PROFILE_ALL, list(range(len(faces))), ["A", "B", "C"], "profile_all"
+        ),
         PMISpecTolerance("surface_profile", PROFILE_SKIN, [skin], ["A", "B"], "profile_skin"),
         PMISpecTolerance("flatness", FLATNESS_FLANGE, [under_left], [], "flatness_flange_left"),
-        PMISpecTolerance("flatness", FLATNESS_FLANGE, [under_right], [],
-                         "flatness_flange_right"),
+        PMISpecTolerance("flatness", FLATNESS_FLANGE, [under_right], [], "flatness_flange_right"),
     ]
     return datums, tolerances
 

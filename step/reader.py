@@ -156,9 +156,15 @@ def _xde_items(doc) -> XdeSummary:
         lab = labs.Value(i)
         obj = XCAFDoc_GeomTolerance.Set_s(lab).GetObject()
         nm = obj.GetSemanticName()
-        out.items.append(XdeItem("tolerance", _enum_name(obj.GetType()),
-                                 nm.ToCString() if nm is not None else "",
-                                 float(obj.GetValue()), nref(lab)))
+        out.items.append(
+            XdeItem(
+                "tolerance",
+                _enum_name(obj.GetType()),
+                nm.ToCString() if nm is not None else "",
+                float(obj.GetValue()),
+                nref(lab),
+            )
+        )
     labs = TDF_LabelSequence()
     dt.GetDimensionLabels(labs)
     for i in range(1, labs.Length() + 1):
@@ -174,8 +180,9 @@ def _xde_items(doc) -> XdeSummary:
         lab = labs.Value(i)
         obj = XCAFDoc_Datum.Set_s(lab).GetObject()
         nm = obj.GetName()
-        out.items.append(XdeItem("datum", "Datum", nm.ToCString() if nm is not None else "",
-                                 None, nref(lab)))
+        out.items.append(
+            XdeItem("datum", "Datum", nm.ToCString() if nm is not None else "", None, nref(lab))
+        )
     return out
 
 
@@ -275,8 +282,10 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
         why = f" ({occt.first()})" if occt.first() else ""
         raise InputError(f"{path.name}: the STEP reader could not parse the file{why}")
     if not transferred:
-        raise InputError(f"{path.name}: the STEP file has no solid, shell or face to inspect "
-                         "(no transferable shape)")
+        raise InputError(
+            f"{path.name}: the STEP file has no solid, shell or face to inspect "
+            "(no transferable shape)"
+        )
     timings["xde_read"] = time.perf_counter() - t0
 
     st = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
@@ -285,8 +294,9 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     shapes = [st.GetShape_s(labs.Value(i)) for i in range(1, labs.Length() + 1)]
     shapes = [s for s in shapes if not s.IsNull()]
     if not shapes:
-        raise InputError(f"{path.name}: the STEP file has no solid, shell or face to inspect "
-                         "(no shape)")
+        raise InputError(
+            f"{path.name}: the STEP file has no solid, shell or face to inspect (no shape)"
+        )
     if len(shapes) == 1:
         shape = shapes[0]
     else:
@@ -299,8 +309,9 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     TopExp.MapShapes_s(shape, TopAbs_FACE, fmap)
     faces = [TopoDS.Face_s(fmap.FindKey(i)) for i in range(1, fmap.Size() + 1)]
     if not faces:
-        raise InputError(f"{path.name}: the STEP file has no solid, shell or face to inspect "
-                         "(no surface)")
+        raise InputError(
+            f"{path.name}: the STEP file has no solid, shell or face to inspect (no surface)"
+        )
     smap = TopTools_IndexedMapOfShape()
     TopExp.MapShapes_s(shape, TopAbs_SOLID, smap)
 
@@ -312,8 +323,12 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
         tr = reader.Reader().WS().TransferReader()
         records = _record_ids(path)
         if len(records) != model.NbEntities():
-            log.warning("%s: %d records in the text, %d in OCCT's model; face ids not mapped",
-                        path.name, len(records), model.NbEntities())
+            log.warning(
+                "%s: %d records in the text, %d in OCCT's model; face ids not mapped",
+                path.name,
+                len(records),
+                model.NbEntities(),
+            )
         else:
             # keep every wrapper alive: OCP reuses the Python object of a live C++ handle,
             # so identity of the returned entity finds its rank
@@ -361,6 +376,13 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
             log.warning("%s: XDE GD&T cross-check failed: %s", path.name, exc)
         timings["pmi_xde"] = time.perf_counter() - t0
     return StepPart(
-        path=path, name=name, shape=shape, faces=faces, face_step_ids=face_ids,
-        n_solids=smap.Size(), pmi=pmi_data, xde=xde, timings=timings,
+        path=path,
+        name=name,
+        shape=shape,
+        faces=faces,
+        face_step_ids=face_ids,
+        n_solids=smap.Size(),
+        pmi=pmi_data,
+        xde=xde,
+        timings=timings,
     )

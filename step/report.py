@@ -45,32 +45,64 @@ def pmi_rows(part: StepPart) -> list[dict]:
     for t in pmi.tolerances:
         faces = sorted({idx[s] for s in t.face_step_ids if s in idx})
         xv = xde.get(t.name) or []
-        rows.append({
-            "item": "tolerance", "step_id": t.step_id, "name": t.name, "type": t.type,
-            "value": t.value, "unit": "mm", "value_text": t.value_text,
-            "zone_form": t.zone_form, "modifiers": list(t.modifiers),
-            "unequal_displacement": t.unequal_displacement,
-            "datums": "|".join(d.label for d in sorted(t.datums, key=lambda d: d.precedence)),
-            "n_faces": len(faces), "faces": faces,
-            "xde_value": xv.pop(0) if xv else None,
-            "problems": list(t.problems),
-        })
+        rows.append(
+            {
+                "item": "tolerance",
+                "step_id": t.step_id,
+                "name": t.name,
+                "type": t.type,
+                "value": t.value,
+                "unit": "mm",
+                "value_text": t.value_text,
+                "zone_form": t.zone_form,
+                "modifiers": list(t.modifiers),
+                "unequal_displacement": t.unequal_displacement,
+                "datums": "|".join(d.label for d in sorted(t.datums, key=lambda d: d.precedence)),
+                "n_faces": len(faces),
+                "faces": faces,
+                "xde_value": xv.pop(0) if xv else None,
+                "problems": list(t.problems),
+            }
+        )
     for d in pmi.dimensions:
         faces = sorted({idx[s] for s in d.face_step_ids if s in idx})
-        rows.append({
-            "item": "dimension", "step_id": d.step_id, "name": d.name,
-            "type": f"{d.kind} {d.type}".strip(), "value": d.nominal, "unit": d.unit,
-            "lower": d.lower, "upper": d.upper, "lower_limit": d.lower_limit,
-            "upper_limit": d.upper_limit, "fit": d.fit, "modifiers": list(d.qualifiers),
-            "datums": "", "n_faces": len(faces), "faces": faces, "problems": list(d.problems),
-        })
+        rows.append(
+            {
+                "item": "dimension",
+                "step_id": d.step_id,
+                "name": d.name,
+                "type": f"{d.kind} {d.type}".strip(),
+                "value": d.nominal,
+                "unit": d.unit,
+                "lower": d.lower,
+                "upper": d.upper,
+                "lower_limit": d.lower_limit,
+                "upper_limit": d.upper_limit,
+                "fit": d.fit,
+                "modifiers": list(d.qualifiers),
+                "datums": "",
+                "n_faces": len(faces),
+                "faces": faces,
+                "problems": list(d.problems),
+            }
+        )
     for d in pmi.datums:
         faces = sorted({idx[s] for s in d.face_step_ids if s in idx})
-        rows.append({
-            "item": "datum", "step_id": d.step_id, "name": d.label, "type": "datum",
-            "value": None, "unit": "", "modifiers": list(d.targets), "datums": d.label,
-            "n_faces": len(faces), "faces": faces, "problems": list(d.problems),
-        })
+        rows.append(
+            {
+                "item": "datum",
+                "step_id": d.step_id,
+                "name": d.label,
+                "type": "datum",
+                "value": None,
+                "unit": "",
+                "modifiers": list(d.targets),
+                "datums": d.label,
+                "n_faces": len(faces),
+                "faces": faces,
+                "problems": list(d.problems),
+            }
+        )
     return rows
 
 
@@ -80,11 +112,13 @@ def pmi_table(part: StepPart) -> str:
 
     pmi = part.pmi
     rows = pmi_rows(part)
-    head = (f"{part.path.name}: {len(part.faces)} faces, {part.n_solids} solid(s); "
-            f"length unit {pmi.length_unit if pmi else '?'}; "
-            f"{sum(r['item'] == 'tolerance' for r in rows)} tolerances, "
-            f"{sum(r['item'] == 'dimension' for r in rows)} dimensions, "
-            f"{sum(r['item'] == 'datum' for r in rows)} datums (values in mm / deg)")
+    head = (
+        f"{part.path.name}: {len(part.faces)} faces, {part.n_solids} solid(s); "
+        f"length unit {pmi.length_unit if pmi else '?'}; "
+        f"{sum(r['item'] == 'tolerance' for r in rows)} tolerances, "
+        f"{sum(r['item'] == 'dimension' for r in rows)} dimensions, "
+        f"{sum(r['item'] == 'datum' for r in rows)} datums (values in mm / deg)"
+    )
     if not rows:
         return head + "\nno semantic PMI in this file"
     table = []
@@ -102,14 +136,20 @@ def pmi_table(part: StepPart) -> str:
                 value += f" UZ {_fmt(r['unequal_displacement'])}"
         else:
             value = ""
-        table.append({
-            "item": r["item"], "#id": r["step_id"], "type": r["type"], "value": value,
-            "modifiers": ",".join(r["modifiers"]), "DRF": r["datums"],
-            "faces": r["n_faces"],
-            "XDE value": "" if r.get("xde_value", None) is None else _fmt(r["xde_value"]),
-            "name": r["name"],
-            "problems": "; ".join(r["problems"]),
-        })
+        table.append(
+            {
+                "item": r["item"],
+                "#id": r["step_id"],
+                "type": r["type"],
+                "value": value,
+                "modifiers": ",".join(r["modifiers"]),
+                "DRF": r["datums"],
+                "faces": r["n_faces"],
+                "XDE value": "" if r.get("xde_value", None) is None else _fmt(r["xde_value"]),
+                "name": r["name"],
+                "problems": "; ".join(r["problems"]),
+            }
+        )
     df = pd.DataFrame(table)
     with pd.option_context("display.max_colwidth", 40, "display.width", 250):
         return head + "\n" + df.to_string(index=False)

@@ -77,7 +77,7 @@ class FaceMesh:
         fi = np.repeat(self.face_id, 3)
         pairs = np.unique(np.stack([vi, fi], axis=1), axis=0)
         starts = np.searchsorted(pairs[:, 0], np.arange(n + 1))
-        return [pairs[starts[i]:starts[i + 1], 1] for i in range(n)]
+        return [pairs[starts[i] : starts[i + 1], 1] for i in range(n)]
 
 
 def refine_long_edges(
@@ -244,9 +244,16 @@ def tessellate(
     remap = np.cumsum(used) - 1
     V, F = V[used], remap[F]
     dt = time.perf_counter() - t0
-    log.info("tessellated %d faces: %d vertices, %d triangles (deflection %.3g mm) in %.2f s",
-             len(faces) - empty, len(V), len(F), deflection, dt)
+    log.info(
+        "tessellated %d faces: %d vertices, %d triangles (deflection %.3g mm) in %.2f s",
+        len(faces) - empty,
+        len(V),
+        len(F),
+        deflection,
+        dt,
+    )
     if not np.linalg.norm(np.ptp(V, axis=0)) > 0:
         raise InputError("the tessellated part has zero extent")
-    return FaceMesh(V=V, F=F, face_id=fid, n_faces=len(faces), deflection=float(deflection),
-                    seconds=dt)
+    return FaceMesh(
+        V=V, F=F, face_id=fid, n_faces=len(faces), deflection=float(deflection), seconds=dt
+    )

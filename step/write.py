@@ -123,8 +123,16 @@ TOLERANCE_TYPES: dict[str, XCAFDimTolObjects_GeomToleranceType] = {
 FORM_TYPES = frozenset({"flatness", "straightness", "circularity", "cylindricity"})
 #: Orientation, runout and the older location types: need at least one datum.
 DATUM_REQUIRED_TYPES = frozenset(
-    {"angularity", "parallelism", "perpendicularity", "circular_runout", "total_runout",
-     "coaxiality", "concentricity", "symmetry"}
+    {
+        "angularity",
+        "parallelism",
+        "perpendicularity",
+        "circular_runout",
+        "total_runout",
+        "coaxiality",
+        "concentricity",
+        "symmetry",
+    }
 )
 
 #: AP242 schema selector of ``write.step.schema`` ("AP242DIS" is OCCT's name; value 5).
@@ -231,7 +239,10 @@ def write_step_with_pmi(
     _write_atomic(doc, path, tolerances, names, timestamp)
     logger.info(
         "wrote %s: %d faces, %d datums, %d tolerances",
-        path, len(faces), len(datums), len(tolerances),
+        path,
+        len(faces),
+        len(datums),
+        len(tolerances),
     )
 
 
@@ -392,10 +403,13 @@ def _write_atomic(
         "write.step.unit": Interface_Static.CVal_s("write.step.unit"),
     }
     try:
-        if not (
-            Interface_Static.SetCVal_s("write.step.schema", _AP242_SCHEMA[0])
-            and Interface_Static.SetCVal_s("write.step.unit", "MM")
-        ) or Interface_Static.IVal_s("write.step.schema") != _AP242_SCHEMA[1]:
+        if (
+            not (
+                Interface_Static.SetCVal_s("write.step.schema", _AP242_SCHEMA[0])
+                and Interface_Static.SetCVal_s("write.step.unit", "MM")
+            )
+            or Interface_Static.IVal_s("write.step.schema") != _AP242_SCHEMA[1]
+        ):
             raise RuntimeError("could not select STEP AP242 in mm (Interface_Static)")
 
         writer = STEPCAFControl_Writer()
@@ -497,9 +511,7 @@ def _correct_tolerance_units(model) -> int:
             unit = measure.UnitComponent().NamedUnit()
             if isinstance(unit, StepBasic_SiUnitAndLengthUnit):
                 if not (
-                    unit.HasPrefix()
-                    and unit.Prefix() == ctx.Prefix()
-                    and unit.Name() == ctx.Name()
+                    unit.HasPrefix() and unit.Prefix() == ctx.Prefix() and unit.Name() == ctx.Name()
                 ):
                     unit.SetPrefix(ctx.Prefix())  # also sets HasPrefix
                     unit.SetName(ctx.Name())
@@ -514,9 +526,7 @@ def _correct_tolerance_units(model) -> int:
     return changed
 
 
-def _check_magnitudes(
-    model, tolerances: Sequence[PMISpecTolerance], names: list[str]
-) -> None:
+def _check_magnitudes(model, tolerances: Sequence[PMISpecTolerance], names: list[str]) -> None:
     """Each named tolerance in the model states its requested value in mm, exactly."""
     ctx = _context_length_unit(model)
     stated: dict[str, float] = {}

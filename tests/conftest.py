@@ -120,8 +120,12 @@ def fandisk_cli_runs(tmp_path_factory) -> dict:
     from qifreport.simulate.shapes import fandisk
 
     V, F = fandisk(str(shared_file("meshes/fandisk.off")), diagonal=100.0, subdivide=1)
-    kw = dict(generator="biharmonic", amplitude=0.02, modes={"bend": 1.0, "twist": 0.5},
-              spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=0))
+    kw = dict(
+        generator="biharmonic",
+        amplitude=0.02,
+        modes={"bend": 1.0, "twist": 0.5},
+        spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=0),
+    )
     # the bump where the views see the part best: the measured vertex farthest from any
     # unmeasured one
     seen = np.zeros(len(V), dtype=bool)
@@ -139,9 +143,15 @@ def fandisk_cli_runs(tmp_path_factory) -> dict:
         scan = d / f"{name}.ply"
         trimesh.PointCloud(P).export(scan)
         out = d / name
-        r = subprocess.run([str(exe), nominal, scan, "--tolerance", "0.3", "--out", out,
-                            "--json", "--quiet"], capture_output=True, text=True)
-        doc = (json.loads((out / "fandisk.json").read_text())
-               if (out / "fandisk.json").exists() else None)
+        r = subprocess.run(
+            [str(exe), nominal, scan, "--tolerance", "0.3", "--out", out, "--json", "--quiet"],
+            capture_output=True,
+            text=True,
+        )
+        doc = (
+            json.loads((out / "fandisk.json").read_text())
+            if (out / "fandisk.json").exists()
+            else None
+        )
         runs[name] = dict(rc=r.returncode, stdout=r.stdout, stderr=r.stderr, doc=doc, out=out)
     return runs

@@ -72,8 +72,7 @@ def poppler_tool(name: str) -> str:
 
     exe = shutil.which(name)
     if exe is None:
-        fail_or_skip(f"{name} not found: install Debian package poppler-utils "
-                     "(`make system-deps`)")
+        fail_or_skip(f"{name} not found: install Debian package poppler-utils (`make system-deps`)")
     return exe
 
 

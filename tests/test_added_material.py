@@ -28,8 +28,7 @@ def _with_fin(case) -> tuple[np.ndarray, np.ndarray, float]:
     u = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
     u /= np.linalg.norm(u)
     h = float(np.median(cKDTree(P).query(P[::50], k=2)[0][:, 1]))  # scan spacing, mm
-    s, z = np.meshgrid(np.arange(-FIN_LENGTH / 2, FIN_LENGTH / 2, h),
-                       np.arange(0.3, FIN_HEIGHT, h))
+    s, z = np.meshgrid(np.arange(-FIN_LENGTH / 2, FIN_LENGTH / 2, h), np.arange(0.3, FIN_HEIGHT, h))
     fin = c + s.reshape(-1, 1) * u + z.reshape(-1, 1) * n
     fin += 0.02 * np.random.default_rng(1).standard_normal(fin.shape)
     return np.vstack([P, fin]), c + 0.5 * FIN_HEIGHT * n, len(fin) * h * h
@@ -43,8 +42,9 @@ def fin_results():
     out = {"centre": centre, "fin_area": fin_area}
     for name, P in (("clean", case.P), ("fin", P_fin)):
         out[name] = inspect(V, F, P, InspectionParams(tolerance=0.5))
-    out["fin_judged"] = inspect(V, F, P_fin, InspectionParams(tolerance=0.5,
-                                                             fail_on_added_material=True))
+    out["fin_judged"] = inspect(
+        V, F, P_fin, InspectionParams(tolerance=0.5, fail_on_added_material=True)
+    )
     return out
 
 

@@ -25,8 +25,13 @@ PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
 PACKAGE_DIR = PYPROJECT["tool"]["setuptools"]["package-dir"]
 CONTRACTS = {c["id"]: c for c in PYPROJECT["tool"]["importlinter"]["contracts"]}
 #: the foundation modules every layer may import
-FOUNDATION = {"qifreport", "qifreport.errors", "qifreport.atomic_io", "qifreport.jsonio",
-              "qifreport.schemas"}
+FOUNDATION = {
+    "qifreport",
+    "qifreport.errors",
+    "qifreport.atomic_io",
+    "qifreport.jsonio",
+    "qifreport.schemas",
+}
 LIBRARY = {"qifreport.step", "qifreport.registration", "qifreport.metrology", "qifreport.qif"}
 
 
@@ -50,8 +55,9 @@ def installed_tree(dest: Path) -> Path:
             if any(part in ("__pycache__",) for part in rel.parts):
                 continue
             # a mapped sub-package's own files come from its own folder
-            if pkg == "qifreport" and rel.parts[0] in {p.split(".")[1] for p in PACKAGE_DIR
-                                                        if p.count(".") == 1}:
+            if pkg == "qifreport" and rel.parts[0] in {
+                p.split(".")[1] for p in PACKAGE_DIR if p.count(".") == 1
+            }:
                 continue
             out = target / rel
             out.parent.mkdir(parents=True, exist_ok=True)
@@ -61,9 +67,14 @@ def installed_tree(dest: Path) -> Path:
 
 def run_lint(tree: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(tree)}
-    return subprocess.run([lint_imports_exe(), str(ROOT / "pyproject.toml"),
-                           "--no-cache"], cwd=tree, env=env, capture_output=True, text=True,
-                          timeout=300)
+    return subprocess.run(
+        [lint_imports_exe(), str(ROOT / "pyproject.toml"), "--no-cache"],
+        cwd=tree,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -82,11 +93,17 @@ def test_contracts_hold(tree):
     "victim, bad_import, contract",
     [
         ("qifreport/step/p21.py", "import qifreport.cli", "library-below-app"),
-        ("qifreport/registration/icp.py", "import qifreport.metrology.statistics",
-         "library-layers"),
+        (
+            "qifreport/registration/icp.py",
+            "import qifreport.metrology.statistics",
+            "library-layers",
+        ),
         ("qifreport/metrology/bands.py", "import qifreport.qif.writer", "library-layers"),
-        ("qifreport/registration/rbffem.py", "import qifreport.simulate.deform",
-         "no-simulator-in-production"),
+        (
+            "qifreport/registration/rbffem.py",
+            "import qifreport.simulate.deform",
+            "no-simulator-in-production",
+        ),
         ("qifreport/options.py", "import qifreport.nominal", "app-layers"),
         ("qifreport/errors.py", "import qifreport.step.p21", "foundation"),
         ("qifreport/batch/plan.py", "import qifreport.batch.run", "acyclic"),
@@ -122,8 +139,7 @@ def test_every_application_module_is_under_contract():
     app = _app_modules()
     forbidden = set(CONTRACTS["library-below-app"]["forbidden_modules"])
     assert app <= forbidden, f"not in library-below-app: {sorted(app - forbidden)}"
-    layered = {m.strip() for layer in CONTRACTS["app-layers"]["layers"]
-               for m in layer.split("|")}
+    layered = {m.strip() for layer in CONTRACTS["app-layers"]["layers"] for m in layer.split("|")}
     assert app - {"qifreport.simulate"} <= layered, sorted(app - layered)
 
 

@@ -33,22 +33,38 @@ def _grid(n=21, h=1.0):
 
 def _tol(step_id, value, faces, typ="surface_profile", uz=None, mods=(), datums=()):
     return GeometricTolerance(
-        step_id=step_id, name=f"t{step_id}", type=typ, value=value, value_text=f"{value} MM",
-        zone_form=None, modifiers=list(mods), unequal_displacement=uz, max_value=None,
-        unit_basis=None, datums=[DatumRef(lab, i + 1, []) for i, lab in enumerate(datums)],
-        face_step_ids=list(faces), problems=[] if value is not None else ["no magnitude"],
+        step_id=step_id,
+        name=f"t{step_id}",
+        type=typ,
+        value=value,
+        value_text=f"{value} MM",
+        zone_form=None,
+        modifiers=list(mods),
+        unequal_displacement=uz,
+        max_value=None,
+        unit_basis=None,
+        datums=[DatumRef(lab, i + 1, []) for i, lab in enumerate(datums)],
+        face_step_ids=list(faces),
+        problems=[] if value is not None else ["no magnitude"],
     )
 
 
 def _pmi(tols, dims=()):
-    return PMI(schema="AP242", length_unit="mm", length_scale=1.0, tolerances=list(tols),
-               dimensions=list(dims), datums=[], problems=[])
+    return PMI(
+        schema="AP242",
+        length_unit="mm",
+        length_scale=1.0,
+        tolerances=list(tols),
+        dimensions=list(dims),
+        datums=[],
+        problems=[],
+    )
 
 
 def test_profile_band_bilateral_unequal_unilateral():
     assert profile_band(1.0, None) == (-0.5, 0.5)
     assert profile_band(1.0, 0.2) == pytest.approx((-0.8, 0.2))
-    assert profile_band(0.6, 0.6) == pytest.approx((0.0, 0.6))   # all outside the material
+    assert profile_band(0.6, 0.6) == pytest.approx((0.0, 0.6))  # all outside the material
     assert profile_band(0.6, 0.0) == pytest.approx((-0.6, 0.0))  # all inside
     with pytest.raises(ValueError):
         profile_band(0.5, 0.7)
@@ -59,16 +75,33 @@ def test_profile_band_bilateral_unequal_unilateral():
 def test_zones_from_pmi_sources_and_skips():
     # STEP face #100 -> face 0, #200 -> face 1
     fidx = {100: 0, 200: 1}
-    pmi = _pmi([
-        _tol(11, 1.0, [100, 200], datums=("A", "B", "C")),
-        _tol(12, 0.4, [200], uz=0.1),
-        _tol(13, None, [100]),                      # value not established
-        _tol(14, 0.05, [100], typ="flatness"),      # feature tolerance
-        _tol(15, 0.3, [999]),                       # faces unknown
-    ], dims=[Dimension(step_id=20, name="d", kind="size", type="diameter", unit="mm",
-                       nominal=10.0, lower=-0.1, upper=0.1, lower_limit=None,
-                       upper_limit=None, fit=None, qualifiers=[], face_step_ids=[100],
-                       problems=[])])
+    pmi = _pmi(
+        [
+            _tol(11, 1.0, [100, 200], datums=("A", "B", "C")),
+            _tol(12, 0.4, [200], uz=0.1),
+            _tol(13, None, [100]),  # value not established
+            _tol(14, 0.05, [100], typ="flatness"),  # feature tolerance
+            _tol(15, 0.3, [999]),  # faces unknown
+        ],
+        dims=[
+            Dimension(
+                step_id=20,
+                name="d",
+                kind="size",
+                type="diameter",
+                unit="mm",
+                nominal=10.0,
+                lower=-0.1,
+                upper=0.1,
+                lower_limit=None,
+                upper_limit=None,
+                fit=None,
+                qualifiers=[],
+                face_step_ids=[100],
+                problems=[],
+            )
+        ],
+    )
     zones, skipped = zones_from_pmi(pmi, fidx, general=None)
     assert [z.key for z in zones] == ["T1", "T2", "general"]
     assert zones[0].datums == ["A", "B", "C"] and zones[0].source == "pmi"
@@ -83,10 +116,8 @@ def test_zones_from_pmi_sources_and_skips():
 
 def test_tightest_zone_governs_shared_vertices_and_general_fills_gaps():
     V, F, fid = _grid()
-    wide = ToleranceZone("T1", "wide", "surface_profile", 1.0, -0.5, 0.5,
-                         np.array([0]), "pmi")
-    tight = ToleranceZone("T2", "tight", "surface_profile", 0.2, -0.1, 0.1,
-                          np.array([1]), "pmi")
+    wide = ToleranceZone("T1", "wide", "surface_profile", 1.0, -0.5, 0.5, np.array([0]), "pmi")
+    tight = ToleranceZone("T2", "tight", "surface_profile", 0.2, -0.1, 0.1, np.array([1]), "pmi")
     bands = lay_bands(F, len(V), fid, [wide, tight, symmetric_zone(0.3, "general")])
     # the general zone covers no triangle here
     assert not bands.tri_masks[2].any()
@@ -121,12 +152,12 @@ def test_per_zone_criteria_fail_only_the_offending_surface():
     uz = ToleranceZone("T2", "uz", "surface_profile", 0.4, -0.1, 0.3, np.array([1]), "pmi")
     m = lay_bands(F, len(V), fid, [uz]).tri_masks[0]
     az = zone_vertex_areas(V, F, m)
-    acc = evaluate(V, F[m], np.where(az > 0, dev, np.nan), uz.half_width, area=az,
-                   center=uz.center)
+    acc = evaluate(V, F[m], np.where(az > 0, dev, np.nan), uz.half_width, area=az, center=uz.center)
     assert acc.passed and acc.in_tolerance_fraction == pytest.approx(1.0)
     # ... and rejects a -0.3 sink of the same size
-    acc = evaluate(V, F[m], np.where(az > 0, -dev, np.nan), uz.half_width, area=az,
-                   center=uz.center)
+    acc = evaluate(
+        V, F[m], np.where(az > 0, -dev, np.nan), uz.half_width, area=az, center=uz.center
+    )
     assert not acc.passed
 
 

@@ -45,8 +45,9 @@ def results(shell, case):
     dense EM dominates the file's run time otherwise), the others with their defaults."""
     V, F, ops = shell
     params = {"cpd": CPDParams(n_source=400, n_scan=800)}
-    return {name: methods.deform(name, V, F, ops, case.P, params=params.get(name))
-            for name in PARAMS}
+    return {
+        name: methods.deform(name, V, F, ops, case.P, params=params.get(name)) for name in PARAMS
+    }
 
 
 def rms_p95(case, V_hat) -> tuple[float, float]:
@@ -113,8 +114,9 @@ def test_cpd_em_agrees_with_pycpd():
     X = Y + 1.5 * np.sin(Y[:, [1, 2, 0]] / 10.0) + rng.normal(0, 0.05, Y.shape)
     X = X[rng.permutation(len(X))[:120]]
     ours = cpd_em(X, Y, beta=8.0, lam=2.0, w=0.1, sigma2=20.0, max_iter=25, tol=0.0)
-    reg = pycpd.DeformableRegistration(X=X, Y=Y, alpha=2.0, beta=8.0, w=0.1, sigma2=20.0,
-                                       max_iterations=25, tolerance=0.0)
+    reg = pycpd.DeformableRegistration(
+        X=X, Y=Y, alpha=2.0, beta=8.0, w=0.1, sigma2=20.0, max_iterations=25, tolerance=0.0
+    )
     TY, _ = reg.register()
     assert ours.iterations == reg.iteration == 25
     assert np.abs(ours.TY - TY).max() < 1e-6
@@ -124,8 +126,14 @@ def test_cpd_em_agrees_with_pycpd():
 def test_rbffem_reproduces_a_smooth_deformation_from_clean_clamps(shell):
     """Biharmonic free state driven by the corner handles, no dropout at the clamps."""
     V, F, ops = shell
-    clean = make_case(V, F, generator="biharmonic", amplitude=0.02, seed=2,
-                      spec=ScanSpec(seed=2, dropout_radius=0.0))
+    clean = make_case(
+        V,
+        F,
+        generator="biharmonic",
+        amplitude=0.02,
+        seed=2,
+        spec=ScanSpec(seed=2, dropout_radius=0.0),
+    )
     res = methods.deform("rbffem", V, F, ops, clean.P)
     rms0, _ = rms_p95(clean, clean.V)
     rms, _ = rms_p95(clean, res.V)

@@ -28,9 +28,13 @@ GOOD = ["noisy_0", "noisy_1", "noisy_2", "shell_scan", "shell_scan_defect"]
 
 
 def batch(*args, **kw):
-    return subprocess.Popen([str(EXE), "batch", NOMINAL, *map(str, args), "--tolerance", "0.5",
-                             "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, **kw)
+    return subprocess.Popen(
+        [str(EXE), "batch", NOMINAL, *map(str, args), "--tolerance", "0.5", "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kw,
+    )
 
 
 def finish(proc, timeout=600):
@@ -49,8 +53,9 @@ def scans(tmp_path_factory):
     for k in range(3):
         Q = P + rng.normal(0.0, 0.005, P.shape)
         trimesh.PointCloud(Q).export(d / f"noisy_{k}.ply")
-    (d / "broken.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 5\n"
-                                   b"property float x\nend_header\n1\n2\n")
+    (d / "broken.ply").write_bytes(
+        b"ply\nformat ascii 1.0\nelement vertex 5\nproperty float x\nend_header\n1\n2\n"
+    )
     return d
 
 
@@ -71,8 +76,10 @@ def assert_close(a, b, where=""):
 
 
 def records(out: Path) -> dict[str, dict]:
-    return {p.name.removesuffix(".record.json"): json.loads(p.read_text())
-            for p in (out / "scans").glob("*.record.json")}
+    return {
+        p.name.removesuffix(".record.json"): json.loads(p.read_text())
+        for p in (out / "scans").glob("*.record.json")
+    }
 
 
 def check_complete(out: Path) -> pd.DataFrame:
@@ -92,16 +99,19 @@ def check_complete(out: Path) -> pd.DataFrame:
     assert list(df["id"]) == list(pq["id"]) == ["broken", *GOOD]  # plan order (by name)
     v = dict(zip(df["id"], df["verdict"], strict=True))
     assert v["broken"] == "ERROR"
-    assert v["shell_scan_defect"] == "FAIL" and "region" in \
-        df.set_index("id").loc["shell_scan_defect", "criterion"]
+    assert (
+        v["shell_scan_defect"] == "FAIL"
+        and "region" in df.set_index("id").loc["shell_scan_defect", "criterion"]
+    )
     assert all(v[n] == "PASS" for n in GOOD if n != "shell_scan_defect")
     # the profile column is the per-scan QIF's value (written to 4 decimals), read back
     from qifreport.qif.reader import read_results
 
     for name in GOOD:
         q = read_results(out / "scans" / f"{name}.qif").characteristic("general")
-        assert pq.set_index("id").loc[name, "profile_general_mm"] == pytest.approx(q.value,
-                                                                                   abs=5.1e-5)
+        assert pq.set_index("id").loc[name, "profile_general_mm"] == pytest.approx(
+            q.value, abs=5.1e-5
+        )
     check_statistics(out, pq)
     return pq
 
@@ -128,16 +138,17 @@ def check_statistics(out: Path, pq: pd.DataFrame) -> None:
     vs = block.find("q:ValueStats", ns)
     assert int(vs.findtext("q:EffectiveNumber/q:Value", namespaces=ns)) == len(GOOD)
     assert float(vs.findtext("q:Average/q:Value", namespaces=ns)) == pytest.approx(
-        np.mean(values), abs=1e-9)
+        np.mean(values), abs=1e-9
+    )
     attrs = {a.get("name"): a.get("value") for a in block.find("q:Attributes", ns)}
     assert int(attrs["n_pass"]) == status.count("PASS") == 4
     assert int(attrs["n_fail"]) == status.count("FAIL") == 1
     trend = out / "shell_nominal_trend.pdf"
-    info = subprocess.run([poppler_tool("pdfinfo"), trend], capture_output=True,
-                          text=True).stdout
+    info = subprocess.run([poppler_tool("pdfinfo"), trend], capture_output=True, text=True).stdout
     assert re.search(r"^Pages:\s+1$", info, re.M), info
-    text = subprocess.run([poppler_tool("pdftotext"), trend, "-"], capture_output=True,
-                          text=True).stdout
+    text = subprocess.run(
+        [poppler_tool("pdftotext"), trend, "-"], capture_output=True, text=True
+    ).stdout
     assert "80.0 %" in text  # 4 PASS of 5 scans with a verdict (the corrupt one has none)
 
 
@@ -149,8 +160,10 @@ def test_plan_folders_globs_and_manifest(scans, tmp_path):
     (tmp_path / "sub").mkdir()
     (tmp_path / "sub" / "noisy_0.ply").write_bytes((scans / "noisy_0.ply").read_bytes())
     m = tmp_path / "manifest.csv"
-    m.write_text(f"scan,serial\n{scans / 'noisy_0.ply'},SN-001\nsub/noisy_0.ply,\n"
-                 f"{scans / 'shell_scan.ply'},SN 002/b\n")
+    m.write_text(
+        f"scan,serial\n{scans / 'noisy_0.ply'},SN-001\nsub/noisy_0.ply,\n"
+        f"{scans / 'shell_scan.ply'},SN 002/b\n"
+    )
     items = plan(NOMINAL, [str(m)])
     assert items[0].id == "SN-001" and items[0].serial == "SN-001"
     assert items[1].id == "noisy_0" and items[1].scan == tmp_path / "sub" / "noisy_0.ply"
@@ -174,17 +187,31 @@ def test_local_batch_records_everything_and_resumes(scans, tmp_path):
     from qifreport.qif.reader import read_results
 
     one = tmp_path / "one"
-    r = subprocess.run([str(EXE), NOMINAL, scans / "shell_scan_defect.ply", "--tolerance",
-                        "0.5", "--out", one, "--json", "--quiet"], capture_output=True,
-                       text=True)
+    r = subprocess.run(
+        [
+            str(EXE),
+            NOMINAL,
+            scans / "shell_scan_defect.ply",
+            "--tolerance",
+            "0.5",
+            "--out",
+            one,
+            "--json",
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 1, r.stderr
     a = read_results(one / "shell_nominal.qif")
     b = read_results(out / "scans" / "shell_scan_defect.qif")
     assert a.status == b.status == "FAIL"
-    assert [(c.designator, c.status) for c in a.characteristics] == \
-        [(c.designator, c.status) for c in b.characteristics]
+    assert [(c.designator, c.status) for c in a.characteristics] == [
+        (c.designator, c.status) for c in b.characteristics
+    ]
     assert [c.value for c in a.characteristics] == pytest.approx(
-        [c.value for c in b.characteristics], abs=1.01e-4)  # 4 decimals in the QIF
+        [c.value for c in b.characteristics], abs=1.01e-4
+    )  # 4 decimals in the QIF
     ja = json.loads((one / "shell_nominal.json").read_text())
     jb = json.loads((out / "scans" / "shell_scan_defect.json").read_text())
     for key in ("verdict", "acceptance", "vertex_deviation", "tolerances", "coverage"):
@@ -210,17 +237,27 @@ def test_local_batch_records_everything_and_resumes(scans, tmp_path):
 def test_dask_batch_survives_a_killed_worker(scans, tmp_path):
     distributed = pytest.importorskip("distributed")
     out = tmp_path / "out"
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  host="127.0.0.1", dashboard_address=None) as cluster, \
-            distributed.Client(cluster) as client:
+    with (
+        distributed.LocalCluster(
+            n_workers=2,
+            threads_per_worker=1,
+            processes=True,
+            host="127.0.0.1",
+            dashboard_address=None,
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
         proc = batch(scans, "--out", out, "--scheduler", cluster.scheduler_address)
         # wait for the first finished scan, then kill a worker that is busy with another
         deadline = time.monotonic() + 300
         victim, keys = None, []
         while victim is None and time.monotonic() < deadline and proc.poll() is None:
             time.sleep(0.2)
-            if not any(r["ok"] for r in records(out).values()) if (out / "scans").exists() \
-                    else True:
+            if (
+                not any(r["ok"] for r in records(out).values())
+                if (out / "scans").exists()
+                else True
+            ):
                 continue
             busy = {w: ks for w, ks in client.processing().items() if ks}
             if busy:
@@ -242,8 +279,7 @@ def test_dask_batch_survives_a_killed_worker(scans, tmp_path):
         assert victim not in client.scheduler_info()["workers"]
         # a second run of the same command does no work
         before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
-        rc, stdout, _ = finish(batch(scans, "--out", out, "--scheduler",
-                                     cluster.scheduler_address))
+        rc, stdout, _ = finish(batch(scans, "--out", out, "--scheduler", cluster.scheduler_address))
         assert "(0 inspected now, 6 done earlier)" in stdout, stdout
         assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
 
@@ -289,12 +325,28 @@ def test_local_batch_survives_a_killed_process(scans, tmp_path):
 
 
 def test_batch_bad_nominal_and_no_scans(tmp_path):
-    r = subprocess.run([str(EXE), "batch", tmp_path / "missing.step", SAMPLES, "--out",
-                        tmp_path / "o", "--quiet"], capture_output=True, text=True)
+    r = subprocess.run(
+        [str(EXE), "batch", tmp_path / "missing.step", SAMPLES, "--out", tmp_path / "o", "--quiet"],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "nominal file not found" in r.stderr
     (tmp_path / "empty").mkdir()
-    r = subprocess.run([str(EXE), "batch", NOMINAL, tmp_path / "empty", "--tolerance", "0.5",
-                        "--out", tmp_path / "o", "--quiet"], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            str(EXE),
+            "batch",
+            NOMINAL,
+            tmp_path / "empty",
+            "--tolerance",
+            "0.5",
+            "--out",
+            tmp_path / "o",
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2 and "no scan files" in r.stderr
     assert r.stderr.count("\n") == 1
 
@@ -306,10 +358,12 @@ def test_manifest_with_a_nominal_per_row(scans, tmp_path):
     for name in ("left.ply", "right.ply"):
         (tmp_path / name).write_bytes(NOMINAL.read_bytes())
     m = tmp_path / "manifest.csv"
-    m.write_text("scan,serial,nominal\n"
-                 f"{scans / 'shell_scan.ply'},L-1,left.ply\n"
-                 f"{scans / 'noisy_0.ply'},R-1,right.ply\n"
-                 f"{scans / 'noisy_1.ply'},X-1,missing.ply\n")
+    m.write_text(
+        "scan,serial,nominal\n"
+        f"{scans / 'shell_scan.ply'},L-1,left.ply\n"
+        f"{scans / 'noisy_0.ply'},R-1,right.ply\n"
+        f"{scans / 'noisy_1.ply'},X-1,missing.ply\n"
+    )
     out = tmp_path / "out"
     rc, stdout, stderr = finish(batch(m, "--out", out, "--jobs", "1"))
     assert rc == 1, stdout + stderr

@@ -88,7 +88,7 @@ def test_damaged_entry_is_refused_and_rebuilt(built, tmp_path, damage):
     if damage == "flip":
         data[-1000] ^= 0x40  # one bit deep in the payload
     elif damage == "truncate":
-        del data[len(data) // 2:]
+        del data[len(data) // 2 :]
     elif damage == "header":
         data[:10] = b"garbage!!!"
     else:  # a well-formed entry of another key in this entry's place
@@ -142,22 +142,70 @@ def test_prepare_part_without_basis_or_model():
 
 def test_prepare_command_then_inspection_hits_the_cache(tmp_path):
     cache = tmp_path / "cache"
-    r = subprocess.run([str(EXE), "prepare", SAMPLES / "shell_nominal.ply", "--tolerance",
-                        "0.5", "--cache", cache], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            str(EXE),
+            "prepare",
+            SAMPLES / "shell_nominal.ply",
+            "--tolerance",
+            "0.5",
+            "--cache",
+            cache,
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stderr
     assert "prepared in" in r.stdout and "basis" in r.stdout
     assert len(list(cache.glob("shell_nominal-*.qprep"))) == 1
-    r = subprocess.run([str(EXE), "prepare", SAMPLES / "shell_nominal.ply", "--tolerance",
-                        "0.5", "--cache", cache], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            str(EXE),
+            "prepare",
+            SAMPLES / "shell_nominal.ply",
+            "--tolerance",
+            "0.5",
+            "--cache",
+            cache,
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert "loaded from cache" in r.stdout, r.stdout
-    r = subprocess.run([str(EXE), SAMPLES / "shell_nominal.ply", SAMPLES / "shell_scan.ply",
-                        "--tolerance", "0.5", "--cache", cache, "--out", tmp_path, "--quiet",
-                        "-v", "--no-pdf"], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            str(EXE),
+            SAMPLES / "shell_nominal.ply",
+            SAMPLES / "shell_scan.ply",
+            "--tolerance",
+            "0.5",
+            "--cache",
+            cache,
+            "--out",
+            tmp_path,
+            "--quiet",
+            "-v",
+            "--no-pdf",
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     assert "loaded from" in r.stderr
     # another tolerance is another entry
-    r = subprocess.run([str(EXE), "prepare", SAMPLES / "shell_nominal.ply", "--tolerance",
-                        "0.3", "--cache", cache], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            str(EXE),
+            "prepare",
+            SAMPLES / "shell_nominal.ply",
+            "--tolerance",
+            "0.3",
+            "--cache",
+            cache,
+        ],
+        capture_output=True,
+        text=True,
+    )
     assert "prepared in" in r.stdout
     assert len(list(cache.glob("shell_nominal-*.qprep"))) == 2
 
@@ -165,8 +213,9 @@ def test_prepare_command_then_inspection_hits_the_cache(tmp_path):
 def test_prepare_command_bad_nominal(tmp_path):
     bad = tmp_path / "part.step"
     bad.write_text("ISO-10303-21;\nthis is not a STEP file\n")
-    r = subprocess.run([str(EXE), "prepare", bad, "--cache", tmp_path / "c"],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [str(EXE), "prepare", bad, "--cache", tmp_path / "c"], capture_output=True, text=True
+    )
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and "part.step" in r.stderr
     assert not list(tmp_path.rglob("*.qprep"))  # nothing cached for an unreadable part

@@ -23,8 +23,18 @@ def run(*args, cwd=None):
 @pytest.mark.slow
 def test_demo_sample_passes_with_outputs(tmp_path):
     mesh_out = tmp_path / "reg.ply"
-    r = run(SAMPLES / "shell_nominal.ply", SAMPLES / "shell_scan.ply", "--tolerance", "0.5",
-            "--out", tmp_path, "--json", "--export-mesh", mesh_out, "--quiet")
+    r = run(
+        SAMPLES / "shell_nominal.ply",
+        SAMPLES / "shell_scan.ply",
+        "--tolerance",
+        "0.5",
+        "--out",
+        tmp_path,
+        "--json",
+        "--export-mesh",
+        mesh_out,
+        "--quiet",
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     assert "verdict: PASS" in r.stdout
     doc = json.loads((tmp_path / "shell_nominal.json").read_text())
@@ -44,8 +54,15 @@ def test_demo_sample_passes_with_outputs(tmp_path):
 
 @pytest.mark.slow
 def test_defect_sample_fails_by_region(tmp_path):
-    r = run(SAMPLES / "shell_nominal.ply", SAMPLES / "shell_scan_defect.ply", "--tolerance",
-            "0.5", "--out", tmp_path, "--json")  # with the progress bar
+    r = run(
+        SAMPLES / "shell_nominal.ply",
+        SAMPLES / "shell_scan_defect.ply",
+        "--tolerance",
+        "0.5",
+        "--out",
+        tmp_path,
+        "--json",
+    )  # with the progress bar
     assert r.returncode == 1, r.stdout + r.stderr
     assert "Error" not in r.stderr and "Traceback" not in r.stderr
     doc = json.loads((tmp_path / "shell_nominal.json").read_text())
@@ -69,8 +86,10 @@ def scan_points():
 def bad_inputs(tmp: Path, P: np.ndarray):
     nominal = SAMPLES / "shell_nominal.ply"
     corrupt = tmp / "corrupt.ply"
-    corrupt.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 500\n"
-                        b"property float x\nend_header\n\x01\x02")
+    corrupt.write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 500\n"
+        b"property float x\nend_header\n\x01\x02"
+    )
     empty = tmp / "empty.xyz"
     empty.write_text("")
     nan = tmp / "nan.npy"
@@ -86,8 +105,12 @@ def bad_inputs(tmp: Path, P: np.ndarray):
     d = rng.normal(size=(8000, 3))
     d[:, 2] = np.abs(d[:, 2])
     other = tmp / "other.ply"
-    write_points(other, 70.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
-                  + [400.0, -300.0, 250.0] + 0.02 * rng.standard_normal(d.shape))
+    write_points(
+        other,
+        70.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
+        + [400.0, -300.0, 250.0]
+        + 0.02 * rng.standard_normal(d.shape),
+    )
     return {
         "missing nominal": ([tmp / "nope.stl", SAMPLES / "shell_scan.ply"], "not found"),
         "missing scan": ([nominal, tmp / "nope.ply"], "not found"),
@@ -103,14 +126,34 @@ def bad_inputs(tmp: Path, P: np.ndarray):
     }
 
 
-@pytest.mark.parametrize("case", ["missing nominal", "missing scan", "corrupt scan",
-                                  "corrupt nominal", "empty scan", "NaN scan", "inch scan",
-                                  "no overlap", "another part"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "missing nominal",
+        "missing scan",
+        "corrupt scan",
+        "corrupt nominal",
+        "empty scan",
+        "NaN scan",
+        "inch scan",
+        "no overlap",
+        "another part",
+    ],
+)
 def test_bad_input_one_line_exit_2_no_output(tmp_path, scan_points, case):
     args, expect = bad_inputs(tmp_path, scan_points)[case]
     out = tmp_path / "out"
-    r = run(*args, "--tolerance", "0.5", "--out", out, "--json", "--export-mesh",
-            out / "m.ply", "--quiet")
+    r = run(
+        *args,
+        "--tolerance",
+        "0.5",
+        "--out",
+        out,
+        "--json",
+        "--export-mesh",
+        out / "m.ply",
+        "--quiet",
+    )
     assert r.returncode == 2, (case, r.stdout, r.stderr)
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("qifreport: error:"), r.stderr

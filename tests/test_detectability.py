@@ -144,8 +144,9 @@ def test_mid_grid_cell_end_to_end_multi_pass_detects(shell):
 
     V, F = shell
     spec = ScanSpec(noise=0.03, seed=0, dropout_radius=0.03 * bounding_diagonal(V))
-    case = make_case(V, F, generator="analytic", amplitude=0.02, defect=(0.9, 7.0), spec=spec,
-                     seed=0)
+    case = make_case(
+        V, F, generator="analytic", amplitude=0.02, defect=(0.9, 7.0), spec=spec, seed=0
+    )
     res = inspect(V, F, case.P, InspectionParams(gbcicp=GBCICPParams()))
     assert res.fit.passes >= 2 and not res.fit.fallback
     d = detectability(res.deviation, V, V[case.defect_vertex], None, a=0.9)

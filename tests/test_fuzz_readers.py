@@ -55,14 +55,17 @@ def grid_mesh(n: int = 11, size: float = 50.0) -> tuple[np.ndarray, np.ndarray]:
     V = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()]) + [1.0, -2.0, 3.0]
     i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
     a = (i * n + j).ravel()
-    F = np.concatenate([np.column_stack([a, a + n, a + 1]),
-                        np.column_stack([a + 1, a + n, a + n + 1])])
+    F = np.concatenate(
+        [np.column_stack([a, a + n, a + 1]), np.column_stack([a + 1, a + n, a + n + 1])]
+    )
     return V, F.astype(np.int64)
 
 
 def _ply_points(V: np.ndarray, binary: bool) -> bytes:
-    head = ("ply\nformat {} 1.0\ncomment qifreport fuzz seed\nelement vertex {}\n"
-            "property float x\nproperty float y\nproperty float z\nend_header\n")
+    head = (
+        "ply\nformat {} 1.0\ncomment qifreport fuzz seed\nelement vertex {}\n"
+        "property float x\nproperty float y\nproperty float z\nend_header\n"
+    )
     V32 = np.asarray(V, dtype="<f4")
     if binary:
         return head.format("binary_little_endian", len(V)).encode() + V32.tobytes()
@@ -91,10 +94,19 @@ def _e57(V: np.ndarray) -> bytes:
         f = Path(d) / "seed.e57"
         e = pye57.E57(str(f), mode="w")
         try:
-            e.write_scan_raw({"cartesianX": L[:, 0], "cartesianY": L[:, 1],
-                              "cartesianZ": L[:, 2]}, rotation=q, translation=t)
-            e.write_scan_raw({"cartesianX": W[:, 0], "cartesianY": W[:, 1],
-                              "cartesianZ": W[:, 2], "cartesianInvalidState": invalid})
+            e.write_scan_raw(
+                {"cartesianX": L[:, 0], "cartesianY": L[:, 1], "cartesianZ": L[:, 2]},
+                rotation=q,
+                translation=t,
+            )
+            e.write_scan_raw(
+                {
+                    "cartesianX": W[:, 0],
+                    "cartesianY": W[:, 1],
+                    "cartesianZ": W[:, 2],
+                    "cartesianInvalidState": invalid,
+                }
+            )
         finally:
             e.close()
         return f.read_bytes()
@@ -103,11 +115,13 @@ def _e57(V: np.ndarray) -> bytes:
 def _quat_matrix(q: np.ndarray) -> np.ndarray:
     """Rotation matrix (3, 3) of the unit quaternion ``q = (w, x, y, z)``."""
     w, x, y, z = q / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def _have_pye57() -> bool:
@@ -212,6 +226,7 @@ class ReaderTimeout(BaseException):
 @contextmanager
 def time_limit(seconds: float):
     """Raise :class:`ReaderTimeout` in the block after ``seconds`` (SIGALRM, main thread)."""
+
     def _alarm(signum, frame):
         raise ReaderTimeout(f"read took longer than {seconds:g} s")
 
@@ -287,10 +302,37 @@ KINDS = ("flip", "set", "truncate", "insert", "delete", "duplicate", "header")
 #: how much of a file is its header (numbers and keywords there are edited)
 HEADER_BYTES = 600
 _NUMBER = re.compile(rb"[-+]?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?")
-_EXTREME = [b"0", b"1", b"2", b"-1", b"3", b"99", b"100", b"255", b"256", b"65536",
-            b"2147483647", b"2147483648", b"4294967295", b"4294967296", b"-2147483648",
-            b"9223372036854775807", b"18446744073709551616", b"1000000000000", b"1e308",
-            b"-1e308", b"1e-320", b"nan", b"inf", b"-inf", b"0x10", b"1.5", b"", b" ", b"x"]
+_EXTREME = [
+    b"0",
+    b"1",
+    b"2",
+    b"-1",
+    b"3",
+    b"99",
+    b"100",
+    b"255",
+    b"256",
+    b"65536",
+    b"2147483647",
+    b"2147483648",
+    b"4294967295",
+    b"4294967296",
+    b"-2147483648",
+    b"9223372036854775807",
+    b"18446744073709551616",
+    b"1000000000000",
+    b"1e308",
+    b"-1e308",
+    b"1e-320",
+    b"nan",
+    b"inf",
+    b"-inf",
+    b"0x10",
+    b"1.5",
+    b"",
+    b" ",
+    b"x",
+]
 #: keyword -> replacements (PLY header, NPY header, OFF/OBJ/STL tokens)
 _SWAPS = {
     b"binary_little_endian": [b"binary_big_endian", b"ascii", b"binary"],
@@ -313,8 +355,14 @@ _SWAPS = {
     b"endsolid": [b"solid", b""],
     b"\nv ": [b"\nvn ", b"\nf ", b"\nvt "],
     b"\nf ": [b"\nv ", b"\nl ", b"\nf -", b"\nf 0 "],
-    b'type="Float"': [b'type="Integer"', b'type="ScaledInteger"', b'type="String"',
-                      b'type="Structure"', b'type="Vector"', b'type="CompressedVector"'],
+    b'type="Float"': [
+        b'type="Integer"',
+        b'type="ScaledInteger"',
+        b'type="String"',
+        b'type="Structure"',
+        b'type="Vector"',
+        b'type="CompressedVector"',
+    ],
     b'precision="single"': [b'precision="double"', b'precision=""'],
     b'type="CompressedVector"': [b'type="Vector"', b'type="Structure"'],
     b'recordCount="': [b'recordCount="-', b'recordCount="9999999999', b'recordCount="x'],
@@ -324,19 +372,31 @@ _SWAPS = {
     b"</": [b"<", b"</x", b""],
 }
 #: prefixes put before arbitrary bytes so that they reach a format's parser
-MAGICS = [b"", b"ply\nformat ascii 1.0\n", b"ply\nformat binary_little_endian 1.0\n",
-          b"ply\nformat binary_little_endian 1.0\nelement vertex 200\nproperty float x\n"
-          b"property float y\nproperty float z\nend_header\n",
-          b"\x93NUMPY\x01\x00", b"solid x\n", b"OFF\n", b"v 0 0 0\n", b"ASTM-E57"]
+MAGICS = [
+    b"",
+    b"ply\nformat ascii 1.0\n",
+    b"ply\nformat binary_little_endian 1.0\n",
+    b"ply\nformat binary_little_endian 1.0\nelement vertex 200\nproperty float x\n"
+    b"property float y\nproperty float z\nend_header\n",
+    b"\x93NUMPY\x01\x00",
+    b"solid x\n",
+    b"OFF\n",
+    b"v 0 0 0\n",
+    b"ASTM-E57",
+]
 
 
 def _header_edit(data: bytes, a: int, b: int) -> bytes:
     h0 = 0
     if data.startswith(b"ASTM-E57"):  # E57: the XML section holds the structure
         h0 = max(data.find(b"<e57Root"), 0)
-    head = data[h0:h0 + (4 if h0 else 1) * HEADER_BYTES]
-    if a % 3 == 0 and len(data) >= 84 and not h0 and not head.lstrip().startswith(
-            (b"solid", b"ply")):
+    head = data[h0 : h0 + (4 if h0 else 1) * HEADER_BYTES]
+    if (
+        a % 3 == 0
+        and len(data) >= 84
+        and not h0
+        and not head.lstrip().startswith((b"solid", b"ply"))
+    ):
         # binary STL: the little-endian uint32 triangle count after the 80-byte header
         return data[:80] + (b % 2**32).to_bytes(4, "little") + data[84:]
     if a % 3 == 1:
@@ -345,13 +405,13 @@ def _header_edit(data: bytes, a: int, b: int) -> bytes:
             k = keys[b % len(keys)]
             repl = _SWAPS[k][(b // len(keys)) % len(_SWAPS[k])]
             i = h0 + head.find(k)
-            return data[:i] + repl + data[i + len(k):]
+            return data[:i] + repl + data[i + len(k) :]
     nums = list(_NUMBER.finditer(head))
     if not nums:
         return data
     m = nums[b % len(nums)]
     repl = _EXTREME[(b // len(nums)) % len(_EXTREME)]
-    return data[:h0 + m.start()] + repl + data[h0 + m.end():]
+    return data[: h0 + m.start()] + repl + data[h0 + m.end() :]
 
 
 #: E57 files are 1024-byte pages, each 1020 bytes of content and a big-endian CRC-32C
@@ -385,14 +445,14 @@ def e57_pages(logical: bytes) -> bytes:
     n = E57_PAGE - 4
     out = bytearray()
     for i in range(0, max(len(logical), 1), n):
-        page = logical[i:i + n].ljust(n, b"\0")
+        page = logical[i : i + n].ljust(n, b"\0")
         out += page + crc32c(page).to_bytes(4, "big")
     return bytes(out)
 
 
 def e57_content(physical: bytes) -> bytes:
     """The logical content of E57 ``physical`` bytes (the checksums removed)."""
-    return b"".join(physical[i:i + E57_PAGE - 4] for i in range(0, len(physical), E57_PAGE))
+    return b"".join(physical[i : i + E57_PAGE - 4] for i in range(0, len(physical), E57_PAGE))
 
 
 def mutated(fmt: str, ops) -> bytes:
@@ -420,11 +480,11 @@ def mutate(data: bytes, ops) -> bytes:
             data = bytes(payload)
         elif kind == "flip":
             i = a % n
-            data = data[:i] + bytes([data[i] ^ (1 << (b % 8))]) + data[i + 1:]
+            data = data[:i] + bytes([data[i] ^ (1 << (b % 8))]) + data[i + 1 :]
         elif kind == "set":  # overwrite in place, the length kept
             i = a % n
             w = bytes(payload[: 1 + b % 8] or b"\x00")[: n - i]
-            data = data[:i] + w + data[i + len(w):]
+            data = data[:i] + w + data[i + len(w) :]
         elif kind == "truncate":
             data = data[: a % (n + 1)]
         elif kind == "insert":
@@ -432,10 +492,10 @@ def mutate(data: bytes, ops) -> bytes:
             data = data[:i] + bytes(payload) * (1 + b % 4) + data[i:]
         elif kind == "delete":
             i = a % n
-            data = data[:i] + data[i + 1 + b % 64:]
+            data = data[:i] + data[i + 1 + b % 64 :]
         elif kind == "duplicate":
             i = a % n
-            data = data[:i] + data[i:i + 1 + b % 256] + data[i:]
+            data = data[:i] + data[i : i + 1 + b % 256] + data[i:]
     return data
 
 
@@ -452,11 +512,23 @@ def seed(fmt: str) -> bytes:
 # ------------------------------------------------------------------------------------------
 # the in-suite run: 150 cases per reader (50 arbitrary, 100 mutated), deterministic
 
-_SETTINGS = dict(deadline=None, derandomize=True, database=None, print_blob=True,
-                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
-                                        HealthCheck.function_scoped_fixture])
-_op = st.tuples(st.sampled_from(KINDS), st.integers(0, 2**31 - 1), st.integers(0, 2**31 - 1),
-                st.binary(min_size=1, max_size=12))
+_SETTINGS = dict(
+    deadline=None,
+    derandomize=True,
+    database=None,
+    print_blob=True,
+    suppress_health_check=[
+        HealthCheck.too_slow,
+        HealthCheck.data_too_large,
+        HealthCheck.function_scoped_fixture,
+    ],
+)
+_op = st.tuples(
+    st.sampled_from(KINDS),
+    st.integers(0, 2**31 - 1),
+    st.integers(0, 2**31 - 1),
+    st.binary(min_size=1, max_size=12),
+)
 _ops = st.lists(_op, min_size=1, max_size=4)
 
 
@@ -480,7 +552,8 @@ def test_seed_files_read(case_dir):
 def test_arbitrary_bytes(reader, data, case_dir):
     suffix = data.draw(st.sampled_from(READER_SUFFIXES[reader]), label="suffix")
     body = data.draw(st.sampled_from(MAGICS), label="magic") + data.draw(
-        st.binary(max_size=4096), label="bytes")
+        st.binary(max_size=4096), label="bytes"
+    )
     check_read(reader, suffix, body, case_dir)
 
 

@@ -17,8 +17,13 @@ def test_defects_are_counted():
     V = np.column_stack([x.ravel(), y.ravel(), np.zeros(n * n)])
     F = grid_triangles(n, n)  # 4 x 4 cells, 32 triangles, 16 boundary edges
     clean = mesh_hygiene(V, F)
-    assert (clean.boundary_edges, clean.non_manifold_edges, clean.degenerate_faces,
-            clean.duplicate_faces, clean.components) == (16, 0, 0, 0, 1)
+    assert (
+        clean.boundary_edges,
+        clean.non_manifold_edges,
+        clean.degenerate_faces,
+        clean.duplicate_faces,
+        clean.components,
+    ) == (16, 0, 0, 0, 1)
     # a repeated triangle (its edges now used 3 times or twice more), a fin on an inner edge,
     # a zero-area triangle and a detached triangle
     V2 = np.vstack([V, [[1.0, 1.0, 1.0], [10, 10, 0], [11, 10, 0], [10, 11, 0]]])
@@ -38,8 +43,7 @@ def test_rim_band_is_not_scored_and_reported():
     d_rim = np.min(np.linalg.norm(V[:, None, :2] - V[edge][None, :, :2], axis=2), axis=1)
     assert np.all(d_rim[band] <= 3.0 + 1e-9) and np.all(d_rim[~band] > 3.0 - 0.5)
     case = make_case(V, F, generator="analytic", amplitude=0.02, seed=0)
-    res = inspect(V, F, case.P, InspectionParams(tolerance=0.5, boundary_band=3.0,
-                                                 rigid_only=True))
+    res = inspect(V, F, case.P, InspectionParams(tolerance=0.5, boundary_band=3.0, rigid_only=True))
     assert np.isnan(res.deviation[band]).all()
     h = res.hygiene
     assert h.boundary_edges == int(np.sum(edge)) and h.boundary_band == 3.0

@@ -71,19 +71,36 @@ def _cli(small: dict, name: str, *extra: str, pdf: bool = True) -> dict:
     from qifreport.cli import main
 
     out = small["dir"] / name
-    argv = [str(small["nominal"]), str(small["scan"]), "--tolerance", str(TOL), "--out",
-            str(out), "--json", "--quiet", *extra]
+    argv = [
+        str(small["nominal"]),
+        str(small["scan"]),
+        "--tolerance",
+        str(TOL),
+        "--out",
+        str(out),
+        "--json",
+        "--quiet",
+        *extra,
+    ]
     if not pdf:
         argv.append("--no-pdf")
     buf = io.StringIO()
     with redirect_stdout(buf), pytest.raises(SystemExit) as exc:
         main(argv)
     doc_path = out / "small.json"
-    run = {"rc": exc.value.code, "stdout": buf.getvalue(), "qif": out / "small.qif",
-           "doc": json.loads(doc_path.read_text()) if doc_path.exists() else None}
+    run = {
+        "rc": exc.value.code,
+        "stdout": buf.getvalue(),
+        "qif": out / "small.qif",
+        "doc": json.loads(doc_path.read_text()) if doc_path.exists() else None,
+    }
     if pdf and (out / "small.pdf").exists():
-        run["pdf_text"] = subprocess.run(["pdftotext", "-layout", str(out / "small.pdf"), "-"],
-                                         check=True, capture_output=True, text=True).stdout
+        run["pdf_text"] = subprocess.run(
+            ["pdftotext", "-layout", str(out / "small.pdf"), "-"],
+            check=True,
+            capture_output=True,
+            text=True,
+        ).stdout
     return run
 
 
@@ -205,8 +222,9 @@ def test_seeds_keep_the_real_defect(seeds_run, gbcicp_run):
     assert acc["n_regions"] == acc1["n_regions"] == 1 and not acc["region_ok"]
     # the reported run is the full scan's: the same numbers as without --seeds
     assert acc["regions"][0]["area"] == pytest.approx(acc1["regions"][0]["area"], rel=1e-9)
-    assert doc["vertex_deviation"]["rms"] == pytest.approx(ref["doc"]["vertex_deviation"]["rms"],
-                                                           rel=1e-9)
+    assert doc["vertex_deviation"]["rms"] == pytest.approx(
+        ref["doc"]["vertex_deviation"]["rms"], rel=1e-9
+    )
     rep = doc["repeatability"]
     assert rep["seeds"] == 3 and rep["keep_fraction"] == KEEP_FRACTION
     assert rep["regions"] == rep["persistent_regions"] == 1 and rep["warnings"] == []
@@ -236,8 +254,19 @@ def test_seeds_must_be_positive(small, capsys):
     from qifreport.cli import main
 
     with pytest.raises(SystemExit) as exc:
-        main([str(small["nominal"]), str(small["scan"]), "--tolerance", "0.5", "--seeds", "0",
-              "--out", str(small["dir"] / "zero"), "--quiet"])
+        main(
+            [
+                str(small["nominal"]),
+                str(small["scan"]),
+                "--tolerance",
+                "0.5",
+                "--seeds",
+                "0",
+                "--out",
+                str(small["dir"] / "zero"),
+                "--quiet",
+            ]
+        )
     assert exc.value.code == 2
     assert "--seeds" in capsys.readouterr().err
     assert not (small["dir"] / "zero").exists()
@@ -331,8 +360,13 @@ def small_result(small):
     from qifreport.metrology.bands import symmetric_zone
     from qifreport.metrology.inspection import InspectionParams, inspect
 
-    res = inspect(small["V"], small["F"], small["case"].P, InspectionParams(tolerance=TOL),
-                  zones=[symmetric_zone(TOL, "general")])
+    res = inspect(
+        small["V"],
+        small["F"],
+        small["case"].P,
+        InspectionParams(tolerance=TOL),
+        zones=[symmetric_zone(TOL, "general")],
+    )
     assert res.verdict == "FAIL" and len(res.acceptance.regions) == 1
     return res
 
@@ -383,9 +417,15 @@ def test_apply_decides_on_persistent_regions_only(small_result):
     assert any(w.startswith("resampling seed 1: coverage") for w in r.trust_warnings())
     # an area-criterion failure is never rescued by dropping regions
     r = _fresh(res)
-    r.acceptance = replace(res.acceptance, area_ok=False, passed=False,
-                           reasons=["in-tolerance area 90.0 % of the scored area is below "
-                                    "95.0 %", *res.acceptance.reasons])
+    r.acceptance = replace(
+        res.acceptance,
+        area_ok=False,
+        passed=False,
+        reasons=[
+            "in-tolerance area 90.0 % of the scored area is below 95.0 %",
+            *res.acceptance.reasons,
+        ],
+    )
     apply(r, [_fake_run(res, erase=region)])
     assert not r.acceptance.passed and r.acceptance.region_ok and r.verdict == "FAIL"
     assert r.acceptance.reasons == [r.acceptance.reasons[0]]

@@ -23,14 +23,23 @@ ROOT = Path(__file__).resolve().parents[1]
 def wheel(tmp_path_factory) -> Path:
     """The wheel, built from a copy of the tracked files (the build leaves the tree alone)."""
     src = tmp_path_factory.mktemp("src")
-    files = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard"],
-                           cwd=ROOT, capture_output=True, text=True, check=True).stdout.split()
+    files = subprocess.run(
+        ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
     for f in (f for f in files if (ROOT / f).is_file()):
         (src / f).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(ROOT / f, src / f)
     d = tmp_path_factory.mktemp("wheel")
-    r = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(d),
-                        str(src)], capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(d), str(src)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     (whl,) = d.glob("qifreport-*.whl")
     return whl
@@ -39,8 +48,22 @@ def wheel(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def installed(wheel, tmp_path_factory) -> Path:
     target = tmp_path_factory.mktemp("site")
-    r = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target",
-                        str(target), str(wheel)], capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--no-deps",
+            "-q",
+            "--target",
+            str(target),
+            str(wheel),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     return target
 
@@ -60,20 +83,40 @@ def test_wheel_has_one_top_level_package_and_the_json_schema(wheel):
 
 def _run(installed: Path, args: list[str], cwd: Path, **env) -> subprocess.CompletedProcess:
     e = {**os.environ, "PYTHONPATH": str(installed), **env}
-    return subprocess.run([sys.executable, *args], cwd=cwd, env=e, capture_output=True,
-                          text=True, timeout=900)
+    return subprocess.run(
+        [sys.executable, *args], cwd=cwd, env=e, capture_output=True, text=True, timeout=900
+    )
 
 
 def test_installed_copy_inspects_the_sample_panel(installed, tmp_path):
     xsd = shared_file("qif/xsd")
     out = tmp_path / "out"
-    r = _run(installed, ["-c", "import qifreport, qifreport.step; print(qifreport.__file__);"
-                         "print(qifreport.step.__file__)"], cwd=tmp_path)
+    r = _run(
+        installed,
+        [
+            "-c",
+            "import qifreport, qifreport.step; print(qifreport.__file__);"
+            "print(qifreport.step.__file__)",
+        ],
+        cwd=tmp_path,
+    )
     assert r.returncode == 0, r.stderr
     assert all(line.startswith(str(installed)) for line in r.stdout.split()), r.stdout
-    r = _run(installed, ["-m", "qifreport", str(ROOT / "samples" / "panel.step"),
-                         str(ROOT / "samples" / "panel_scan.ply"), "--out", str(out),
-                         "--json", "--quiet"], cwd=tmp_path, QIFREPORT_XSD_DIR=str(xsd))
+    r = _run(
+        installed,
+        [
+            "-m",
+            "qifreport",
+            str(ROOT / "samples" / "panel.step"),
+            str(ROOT / "samples" / "panel_scan.ply"),
+            "--out",
+            str(out),
+            "--json",
+            "--quiet",
+        ],
+        cwd=tmp_path,
+        QIFREPORT_XSD_DIR=str(xsd),
+    )
     assert r.returncode == 0, r.stdout + r.stderr
     doc = json.loads((out / "panel.json").read_text())
     assert doc["verdict"] == "PASS" and doc["qif"]["valid"] is True, doc["qif"]
@@ -82,8 +125,12 @@ def test_installed_copy_inspects_the_sample_panel(installed, tmp_path):
 
 def test_installed_copy_without_xsds_says_where_to_put_them(installed, tmp_path):
     """No XSDs: the QIF is written and called not validated, naming the folder to fill."""
-    r = _run(installed, ["-c", "from qifreport.qif.validate import schema_dir; schema_dir()"],
-             cwd=tmp_path, QIFREPORT_XSD_DIR="")
+    r = _run(
+        installed,
+        ["-c", "from qifreport.qif.validate import schema_dir; schema_dir()"],
+        cwd=tmp_path,
+        QIFREPORT_XSD_DIR="",
+    )
     assert r.returncode != 0
     assert "SchemasUnavailable" in r.stderr and "QIFREPORT_XSD_DIR" in r.stderr
     assert str(installed / "qifreport" / "schemas" / "qif-3.0") in r.stderr, r.stderr

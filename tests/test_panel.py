@@ -27,8 +27,15 @@ def panel_results():
     out = {}
     for name in ("panel_scan", "panel_scan_defect"):
         P = load_scan(ROOT / f"samples/{name}.ply")
-        out[name] = inspect(nom.V, nom.F, P, InspectionParams(), face_id=nom.face_id,
-                            zones=nom.zones, not_evaluated=nom.not_evaluated)
+        out[name] = inspect(
+            nom.V,
+            nom.F,
+            P,
+            InspectionParams(),
+            face_id=nom.face_id,
+            zones=nom.zones,
+            not_evaluated=nom.not_evaluated,
+        )
     return out
 
 
@@ -52,7 +59,6 @@ def test_defect_fails_the_functional_skin_where_it_was_put(panel_results):
     assert 0.25 < top.peak < 0.5  # 0.45 mm injected; the fixture keeps most of it
 
 
-
 def test_posed_thin_solid_is_refused_not_misjudged(tmp_path):
     """The panel's scan delivered at the paper's pose: a one-sided scan of a 1.8 mm wall
     under 2.8 mm of deflection fits the inner skin better than the outer one (measured: rms
@@ -72,8 +78,11 @@ def test_posed_thin_solid_is_refused_not_misjudged(tmp_path):
     trimesh.PointCloud(P @ R.T + [300.0, -150.0, 80.0]).export(posed)
     out = tmp_path / "out"
     exe = Path(sys.executable).parent / "qifreport"
-    r = subprocess.run([str(exe), ROOT / "samples/panel.step", posed, "--out", out, "--json",
-                        "--quiet"], capture_output=True, text=True)
+    r = subprocess.run(
+        [str(exe), ROOT / "samples/panel.step", posed, "--out", out, "--json", "--quiet"],
+        capture_output=True,
+        text=True,
+    )
     assert r.returncode == 2, (r.stdout, r.stderr)
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "wall" in lines[0] and "--prealign never" in lines[0], lines

@@ -29,14 +29,21 @@ from tests.consumers import poppler_tool as _tool
 DPI = 60
 
 
-
-
 def _prov(name: str, nominal: str, scan: str) -> Provenance:
     t = datetime(2025, 1, 2, 3, 4, 5, tzinfo=timezone.utc)
-    return Provenance(part_name=name, nominal_path=nominal, scan_path=scan,
-                      nominal_sha256="ab" * 32, scan_sha256="cd" * 32, started=t,
-                      finished=t + timedelta(seconds=9), author="Ada Auditor",
-                      organization="Test Lab", operator="Op One", serial_number="SN-0001")
+    return Provenance(
+        part_name=name,
+        nominal_path=nominal,
+        scan_path=scan,
+        nominal_sha256="ab" * 32,
+        scan_sha256="cd" * 32,
+        started=t,
+        finished=t + timedelta(seconds=9),
+        author="Ada Auditor",
+        organization="Test Lab",
+        operator="Op One",
+        serial_number="SN-0001",
+    )
 
 
 @dataclasses.dataclass
@@ -54,10 +61,13 @@ def _produce(d: Path, name: str, res, prov: Provenance, page: str = "A4") -> Out
     pdf, qif = d / f"{name}.pdf", d / f"{name}.qif"
     timings = write_report(pdf, res, prov, page=page, qif_name=qif.name)
     write_qif(qif, build_qif(res, prov))
-    subprocess.run([_tool("pdftoppm"), "-r", str(DPI), "-png", "-singlefile", str(pdf),
-                    str(d / name)], check=True)
-    text = subprocess.run([_tool("pdftotext"), "-layout", str(pdf), "-"], check=True,
-                          capture_output=True, text=True).stdout
+    subprocess.run(
+        [_tool("pdftoppm"), "-r", str(DPI), "-png", "-singlefile", str(pdf), str(d / name)],
+        check=True,
+    )
+    text = subprocess.run(
+        [_tool("pdftotext"), "-layout", str(pdf), "-"], check=True, capture_output=True, text=True
+    ).stdout
     return Out(res, prov, pdf, qif, text, d / f"{name}.png", timings)
 
 
@@ -77,8 +87,15 @@ def results(shell, shell_case, shell_case_defect):
     out["fail"] = (res, _prov("shell", "shell.ply", "shell_defect.npy"))
     nom = load_nominal(ROOT / "samples/panel.step", None, None)  # default max edge: diag/60
     P = load_scan(ROOT / "samples/panel_scan_defect.ply")
-    res = inspect(nom.V, nom.F, P, InspectionParams(tolerance=None), face_id=nom.face_id,
-                  zones=nom.zones, not_evaluated=nom.not_evaluated)
+    res = inspect(
+        nom.V,
+        nom.F,
+        P,
+        InspectionParams(tolerance=None),
+        face_id=nom.face_id,
+        zones=nom.zones,
+        not_evaluated=nom.not_evaluated,
+    )
     out["panel"] = (res, _prov("panel", "samples/panel.step", "samples/panel_scan_defect.ply"))
     return out
 
@@ -96,10 +113,12 @@ CASES = ["pass", "fail", "panel"]
 
 
 def _pdfinfo(pdf: Path) -> dict[str, str]:
-    txt = subprocess.run([_tool("pdfinfo"), str(pdf)], check=True, capture_output=True,
-                         text=True).stdout
-    return {k.strip(): v.strip() for k, v in (ln.split(":", 1) for ln in txt.splitlines()
-                                             if ":" in ln)}
+    txt = subprocess.run(
+        [_tool("pdfinfo"), str(pdf)], check=True, capture_output=True, text=True
+    ).stdout
+    return {
+        k.strip(): v.strip() for k, v in (ln.split(":", 1) for ln in txt.splitlines() if ":" in ln)
+    }
 
 
 def _tokens(text: str) -> set[str]:
@@ -149,14 +168,25 @@ def test_one_page_verdict_and_fonts(reports, case):
         assert other not in _tokens(o.text)
     assert read_results(o.qif).status == verdict
     # title block: part, files with their digest, operator, organization, units, software
-    for s in ("shell" if case != "panel" else "panel", Path(o.prov.nominal_path).name,
-              Path(o.prov.scan_path).name, "abababababababab", "cdcdcdcdcdcdcdcd", "Op One",
-              "Test Lab", "SN-0001", "qifreport", "2025-01-02 03:04:05 UTC", "mm²",
-              f"is in {o.qif.name} (QIF 3.0"):
+    for s in (
+        "shell" if case != "panel" else "panel",
+        Path(o.prov.nominal_path).name,
+        Path(o.prov.scan_path).name,
+        "abababababababab",
+        "cdcdcdcdcdcdcdcd",
+        "Op One",
+        "Test Lab",
+        "SN-0001",
+        "qifreport",
+        "2025-01-02 03:04:05 UTC",
+        "mm²",
+        f"is in {o.qif.name} (QIF 3.0",
+    ):
         assert s in o.text, s
     # every font embedded (DejaVu, no base-14 font)
-    fonts = subprocess.run([_tool("pdffonts"), str(o.pdf)], check=True, capture_output=True,
-                           text=True).stdout.splitlines()[2:]
+    fonts = subprocess.run(
+        [_tool("pdffonts"), str(o.pdf)], check=True, capture_output=True, text=True
+    ).stdout.splitlines()[2:]
     assert fonts
     for line in fonts:
         assert "DejaVuSans" in line and " yes " in line, line
@@ -172,12 +202,12 @@ def test_nothing_outside_the_page(reports, case):
 
 
 def _assert_words_inside(pdf: Path) -> None:
-    xml = subprocess.run([_tool("pdftotext"), "-bbox", str(pdf), "-"], check=True,
-                         capture_output=True, text=True).stdout
+    xml = subprocess.run(
+        [_tool("pdftotext"), "-bbox", str(pdf), "-"], check=True, capture_output=True, text=True
+    ).stdout
     page = re.search(r'<page width="([\d.]+)" height="([\d.]+)"', xml)
     W, H = float(page.group(1)), float(page.group(2))
-    words = re.findall(r'xMin="([\d.-]+)" yMin="([\d.-]+)" xMax="([\d.-]+)" yMax="([\d.-]+)"',
-                       xml)
+    words = re.findall(r'xMin="([\d.-]+)" yMin="([\d.-]+)" xMax="([\d.-]+)" yMax="([\d.-]+)"', xml)
     assert len(words) > 200
     for x0, y0, x1, y1 in (tuple(map(float, w)) for w in words):
         assert 20 <= x0 and x1 <= W - 20 and 20 <= y0 and y1 <= H - 20, (x0, y0, x1, y1)
@@ -190,18 +220,22 @@ def test_statistics_equal_result_and_qif(reports, case):
     q = read_results(o.qif)
     v, a = res.vertex_stats, res.acceptance
     # the page prints the result's numbers, and the QIF carries the same at that precision
-    pairs = [(fmt_mm(v.rms), fmt_mm(q.stats.rms)), (fmt_mm(v.p95), fmt_mm(q.stats.p95)),
-             (fmt_mm(v.p99), fmt_mm(q.stats.p99)), (fmt_mm(v.p999), fmt_mm(q.stats.p999)),
-             (fmt_smm(v.max_pos), fmt_smm(q.stats.max_pos)),
-             (fmt_smm(v.min_neg), fmt_smm(q.stats.min_neg)),
-             (fmt_smm(v.mean), fmt_smm(q.stats.mean)),
-             (fmt_pct(v.frac_beyond), fmt_pct(q.stats.frac_beyond)),
-             (fmt_pct(a.in_tolerance_fraction), fmt_pct(q.acceptance.in_tolerance_fraction)),
-             (fmt_pct(a.coverage), fmt_pct(q.acceptance.coverage)),
-             (fmt_area(a.scored_area), fmt_area(q.acceptance.scored_area)),
-             (fmt_mm(res.point_stats.rms), fmt_mm(q.point_stats.rms)),
-             (fmt_mm(res.point_stats.p999), fmt_mm(q.point_stats.p999)),
-             (fmt_mm(res.rigid.rms), fmt_mm(q.attributes["rigid_rms_mm"]))]
+    pairs = [
+        (fmt_mm(v.rms), fmt_mm(q.stats.rms)),
+        (fmt_mm(v.p95), fmt_mm(q.stats.p95)),
+        (fmt_mm(v.p99), fmt_mm(q.stats.p99)),
+        (fmt_mm(v.p999), fmt_mm(q.stats.p999)),
+        (fmt_smm(v.max_pos), fmt_smm(q.stats.max_pos)),
+        (fmt_smm(v.min_neg), fmt_smm(q.stats.min_neg)),
+        (fmt_smm(v.mean), fmt_smm(q.stats.mean)),
+        (fmt_pct(v.frac_beyond), fmt_pct(q.stats.frac_beyond)),
+        (fmt_pct(a.in_tolerance_fraction), fmt_pct(q.acceptance.in_tolerance_fraction)),
+        (fmt_pct(a.coverage), fmt_pct(q.acceptance.coverage)),
+        (fmt_area(a.scored_area), fmt_area(q.acceptance.scored_area)),
+        (fmt_mm(res.point_stats.rms), fmt_mm(q.point_stats.rms)),
+        (fmt_mm(res.point_stats.p999), fmt_mm(q.point_stats.p999)),
+        (fmt_mm(res.rigid.rms), fmt_mm(q.attributes["rigid_rms_mm"])),
+    ]
     if res.fit is not None:
         pairs.append((fmt_mm(res.fit.scale), fmt_mm(q.attributes["fit_residual_scale_mm"])))
     for printed, from_qif in pairs:
@@ -211,7 +245,7 @@ def test_statistics_equal_result_and_qif(reports, case):
     m = re.search(r"Out-of-tolerance regions, whole part \((\d+);", o.text)
     assert m and int(m.group(1)) == len(a.regions) == q.attributes["region_count"]
     lay = plan_layout(res, o.prov)
-    for k, r in enumerate(a.regions[:lay.regions_listed], start=1):
+    for k, r in enumerate(a.regions[: lay.regions_listed], start=1):
         assert fmt_area(r.area) == fmt_area(q.attributes[f"region_{k}_area_mm2"])
         assert fmt_area(r.area) in tok and fmt_smm(r.peak) in tok
     if len(a.regions) > lay.regions_listed:
@@ -219,8 +253,11 @@ def test_statistics_equal_result_and_qif(reports, case):
     # per tolerance: key, profile value, in-band share and verdict as in the QIF
     for z in res.zones:
         c = q.characteristic(z.zone.key)
-        row = next(ln for ln in o.text.splitlines()  # the tolerance table's row
-                   if ln.split()[:1] == [z.zone.key] and c.status in ln.split())
+        row = next(
+            ln
+            for ln in o.text.splitlines()  # the tolerance table's row
+            if ln.split()[:1] == [z.zone.key] and c.status in ln.split()
+        )
         cells = row.split()
         assert fmt_mm(profile_value(z)) == fmt_mm(c.attributes["profile_value_mm"])
         assert fmt_mm(profile_value(z)) in cells
@@ -229,10 +266,12 @@ def test_statistics_equal_result_and_qif(reports, case):
     # two or three tolerances: each has its own column of the statistics table
     if 2 <= len(res.zones) <= 3:
         lines = o.text.splitlines()
-        for label, key, fmt in (("P95 of |dev|, mm", "p95", fmt_mm),
-                                ("P99 of |dev|, mm", "p99", fmt_mm),
-                                ("Mean, mm", "mean", fmt_smm),
-                                ("Beyond ±τ, %", "frac_beyond", fmt_pct)):
+        for label, key, fmt in (
+            ("P95 of |dev|, mm", "p95", fmt_mm),
+            ("P99 of |dev|, mm", "p99", fmt_mm),
+            ("Mean, mm", "mean", fmt_smm),
+            ("Beyond ±τ, %", "frac_beyond", fmt_pct),
+        ):
             row = next(ln for ln in lines if label in ln).split(label, 1)[1].split()
             for z in res.zones:
                 c = q.characteristic(z.zone.key)
@@ -304,17 +343,37 @@ def test_stress_many_regions_and_tolerances(reports, tmp_path, page):
     regs = list(base.acceptance.regions)
     for c in rng.choice(len(base.V), 40 - len(regs), replace=False):
         idx = np.argsort(np.linalg.norm(base.V - base.V[c], axis=1))[:10]
-        regs.append(Region(vertices=np.sort(idx), area=float(rng.uniform(0.5, 30)),
-                           peak=float(rng.uniform(0.3, 1.5)), peak_vertex=int(c),
-                           centroid=base.V[idx].mean(axis=0), sign=1))
+        regs.append(
+            Region(
+                vertices=np.sort(idx),
+                area=float(rng.uniform(0.5, 30)),
+                peak=float(rng.uniform(0.3, 1.5)),
+                peak_vertex=int(c),
+                centroid=base.V[idx].mean(axis=0),
+                sign=1,
+            )
+        )
     res.acceptance = dataclasses.replace(base.acceptance, regions=regs)
-    res.zones = [dataclasses.replace(base.zones[k % len(base.zones)], zone=dataclasses.replace(
-        base.zones[k % len(base.zones)].zone, key=f"T{k + 1}", step_id=5000 + k,
-        name=f"a_rather_long_profile_tolerance_name_{k}")) for k in range(25)]
-    res.not_evaluated = [NotEvaluated("flatness", f"flat_{i}", 7000 + i, "feature tolerance")
-                         for i in range(9)]
-    prov = dataclasses.replace(reports["panel"].prov, part_name="p" * 120,
-                               organization="An Extremely Long Organization Name " * 4)
+    res.zones = [
+        dataclasses.replace(
+            base.zones[k % len(base.zones)],
+            zone=dataclasses.replace(
+                base.zones[k % len(base.zones)].zone,
+                key=f"T{k + 1}",
+                step_id=5000 + k,
+                name=f"a_rather_long_profile_tolerance_name_{k}",
+            ),
+        )
+        for k in range(25)
+    ]
+    res.not_evaluated = [
+        NotEvaluated("flatness", f"flat_{i}", 7000 + i, "feature tolerance") for i in range(9)
+    ]
+    prov = dataclasses.replace(
+        reports["panel"].prov,
+        part_name="p" * 120,
+        organization="An Extremely Long Organization Name " * 4,
+    )
     out = _produce(tmp_path, "stress", res, prov, page=page)
     assert _pdfinfo(out.pdf)["Pages"] == "1"
     assert re.search(r"\+ \d+ more regions", out.text)
@@ -358,8 +417,14 @@ def test_colours_and_scale():
     assert np.allclose(col[7], GREY)
     # the sign shows inside the band: the proud side is yellower than the sunk side
     assert col[1, 0] > col[2, 0]
-    assert [nice_ceil(x) for x in (0.7, 1.0, 1.3, 2.2, 7.0, 0.031)] == [0.8, 1.0, 1.5, 2.5, 8.0,
-                                                                         0.04]
+    assert [nice_ceil(x) for x in (0.7, 1.0, 1.3, 2.2, 7.0, 0.031)] == [
+        0.8,
+        1.0,
+        1.5,
+        2.5,
+        8.0,
+        0.04,
+    ]
     S = color_scale(np.array([0.01, -0.02]), np.full(2, -0.5), np.full(2, 0.5))
     assert S == 0.8  # 1.5 x the band: the band keeps a readable share of the bar
 
@@ -370,9 +435,16 @@ def test_render_views_shows_the_region(results, backend):
 
     res = results["fail"][0]
     b = res.bands
-    views = render_views(res.V_registered, res.F, res.deviation, b.lower, b.upper,
-                         res.acceptance.regions, size=[(300, 200), (160, 120), (160, 120)],
-                         backend=backend)
+    views = render_views(
+        res.V_registered,
+        res.F,
+        res.deviation,
+        b.lower,
+        b.upper,
+        res.acceptance.regions,
+        size=[(300, 200), (160, 120), (160, 120)],
+        backend=backend,
+    )
     assert 2 <= len(views) <= 3
     assert views[0].name == "top (+z)"
     for v, size in zip(views, [(300, 200), (160, 120), (160, 120)], strict=False):
@@ -384,7 +456,7 @@ def test_render_views_shows_the_region(results, backend):
     assert [lb.number for lb in lab] == [1]
     # the anchor lies on the red region
     x, y = int(round(lab[0].x)), int(round(lab[0].y))
-    patch = views[0].image[max(0, y - 2):y + 3, max(0, x - 2):x + 3].reshape(-1, 3).astype(int)
+    patch = views[0].image[max(0, y - 2) : y + 3, max(0, x - 2) : x + 3].reshape(-1, 3).astype(int)
     assert _red(patch).any()
 
 
@@ -398,12 +470,26 @@ def test_fallback_when_vtk_cannot_render(results, monkeypatch, caplog):
     monkeypatch.setattr(render, "_render_vtk", broken)
     res = results["fail"][0]
     with caplog.at_level("WARNING", logger="qifreport.reports.render"):
-        views = render.render_views(res.V_registered, res.F, res.deviation, res.bands.lower,
-                                    res.bands.upper, res.acceptance.regions, size=(240, 160))
+        views = render.render_views(
+            res.V_registered,
+            res.F,
+            res.deviation,
+            res.bands.lower,
+            res.bands.upper,
+            res.acceptance.regions,
+            size=(240, 160),
+        )
     assert all(v.backend == "matplotlib" for v in views)
     assert "VTK offscreen rendering failed" in caplog.text and "no EGL display" in caplog.text
     px = views[0].image.reshape(-1, 3).astype(int)
     assert _green(px).sum() > 50 and _red(px).sum() > 3
     with pytest.raises(RuntimeError):
-        render.render_views(res.V_registered, res.F, res.deviation, res.bands.lower,
-                            res.bands.upper, size=(64, 48), backend="vtk")
+        render.render_views(
+            res.V_registered,
+            res.F,
+            res.deviation,
+            res.bands.lower,
+            res.bands.upper,
+            size=(64, 48),
+            backend="vtk",
+        )

@@ -99,8 +99,13 @@ def _paper_pose() -> tuple[np.ndarray, np.ndarray]:
 def test_paper_pose_recovered_on_fandisk(fandisk_model):
     """Undeformed fandisk, 2 views, 0.02 mm noise at the paper's pose: ground truth exact."""
     V, F, model = fandisk_model
-    case = make_case(V, F, generator="analytic", amplitude=0.0,
-                     spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=3))
+    case = make_case(
+        V,
+        F,
+        generator="analytic",
+        amplitude=0.0,
+        spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=3),
+    )
     Rp, tp = _paper_pose()
     P = case.P @ Rp.T + tp  # the scanner's frame
     assert not already_in_frame(V, P, F=F)
@@ -121,9 +126,14 @@ def test_paper_pose_deformed_fandisk_matches_reference(fandisk_model):
     """Deformed as in the paper (bend + twist at 2 %): no rigid pose is exact, so the pose
     must match the same refinement started at the ground truth."""
     V, F, model = fandisk_model
-    case = make_case(V, F, generator="biharmonic", amplitude=0.02,
-                     modes={"bend": 1.0, "twist": 0.5},
-                     spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=0))
+    case = make_case(
+        V,
+        F,
+        generator="biharmonic",
+        amplitude=0.02,
+        modes={"bend": 1.0, "twist": 0.5},
+        spec=ScanSpec(views=2, noise=0.02, dropout_radius=3.0, seed=0),
+    )
     ref = refine_pose(model, case.P, np.eye(3), np.zeros(3))
     Rp, tp = _paper_pose()
     P = case.P @ Rp.T + tp
@@ -181,16 +191,24 @@ def test_converged_refinement_is_start_independent():
     1 % of the diagonal apart; the foundation's fixed-step ICP ends 1-3 degrees apart."""
     V, F = housing()
     diag = bounding_diagonal(V)
-    case = make_case(V, F, generator="biharmonic", amplitude=0.02,
-                     modes={"bend": 1.0, "twist": 0.5},
-                     spec=ScanSpec(views=4, noise=0.02, dropout_radius=0.03 * diag, seed=0))
+    case = make_case(
+        V,
+        F,
+        generator="biharmonic",
+        amplitude=0.02,
+        modes={"bend": 1.0, "twist": 0.5},
+        spec=ScanSpec(views=4, noise=0.02, dropout_radius=0.03 * diag, seed=0),
+    )
     P, N = case.P, vertex_normals(V, F)
     at = P.mean(axis=0)
     rng = np.random.default_rng(5)
     ends, kabsch_ends = [], []
     for k in range(3):
-        R0 = (np.eye(3) if k == 0 else Rotation.from_rotvec(
-            rng.normal(size=3) * np.radians(3.0) / np.sqrt(3)).as_matrix())
+        R0 = (
+            np.eye(3)
+            if k == 0
+            else Rotation.from_rotvec(rng.normal(size=3) * np.radians(3.0) / np.sqrt(3)).as_matrix()
+        )
         d = rng.normal(size=3)
         t0 = at - R0 @ at + (0.0 if k == 0 else 0.01 * diag * d / np.linalg.norm(d))
         r = converged_rigid_fit(V, N, P, R0, t0)
@@ -216,8 +234,9 @@ def test_conditioning_flags_a_sliding_surface():
     assert ratio < 1e-3
     assert np.linalg.norm(weakest[:3]) > 0.9  # a rotation (about the sphere's centre)
     # its rim pins the slide when the scan sees it (the refinement's edge term)
-    ratio_rim, _ = pose_conditioning(V, vertex_normals(V, F), X,
-                                     boundary=boundary_vertices(F, len(V)))
+    ratio_rim, _ = pose_conditioning(
+        V, vertex_normals(V, F), X, boundary=boundary_vertices(F, len(V))
+    )
     assert ratio_rim > 10 * ratio
 
     Vf, Ff = fandisk(str(shared_file("meshes/fandisk.off")), diagonal=100.0, subdivide=0)
@@ -253,6 +272,7 @@ def test_cli_seats_a_posed_scan_and_finds_the_same_defect(fandisk_cli_runs):
     ra, rb = framed["acceptance"]["regions"][0], posed["acceptance"]["regions"][0]
     assert np.linalg.norm(np.subtract(ra["centroid"], rb["centroid"])) < 2.0, (ra, rb)
     assert abs(ra["area"] - rb["area"]) < 0.25 * ra["area"]
+
     # single-vertex specks (0.35 mm^2, at the edge of the data) come and go with any change
     # of the input, as over resamplings (paper 9.2, `--seeds`); the findings are the same
     def findings(doc):
@@ -263,10 +283,15 @@ def test_cli_seats_a_posed_scan_and_finds_the_same_defect(fandisk_cli_runs):
     attr = "//*[local-name()='{}'][@name='{}']/@value"
     assert qif.xpath(attr.format("AttributeStr", "pose_method")) == [pose["method"]]
     assert qif.xpath(attr.format("AttributeI1", "pose_restart_agreement")) == [
-        str(pose["restart_agreement"])]
+        str(pose["restart_agreement"])
+    ]
     # the auditor's page says how the pose was found
-    text = subprocess.run(["pdftotext", "-layout", str(runs["posed"]["out"] / "fandisk.pdf"), "-"],
-                          capture_output=True, text=True, check=True).stdout
+    text = subprocess.run(
+        ["pdftotext", "-layout", str(runs["posed"]["out"] / "fandisk.pdf"), "-"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     assert "Pose search: starts agreeing" in text
     assert f"{pose['restart_agreement']}/{pose['starts']}" in text
 

@@ -16,10 +16,13 @@ def test_child_peak_is_not_the_parents():
     big = np.ones(400 * 2**20 // 8)  # 400 MiB resident in this (parent) process
     big[::512] += 1.0
     assert rss_bytes() > 400 * 2**20
-    code = ("import resource; from qifreport.profile import peak_rss_bytes; "
-            "print(peak_rss_bytes(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True).stdout.split()
+    code = (
+        "import resource; from qifreport.profile import peak_rss_bytes; "
+        "print(peak_rss_bytes(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split()
     own, maxrss = int(out[0]), int(out[1])
     # an interpreter with numpy: tens of MiB (ru_maxrss says >= 400 MiB on Linux here)
     assert own < 200 * 2**20, (own, maxrss)

@@ -52,21 +52,47 @@ def runs(tmp_path_factory, shell, shell_case, shell_case_defect):
     V, F = shell
     d = tmp_path_factory.mktemp("qif-pass")
     nom, scan = _write_shell(V, F, shell_case.P, d)
-    rc = _run_cli([str(nom), str(scan), "--tolerance", "0.5", "--out", str(d), "--json",
-                   "--quiet", "--serial", "SN-0001", "--author", "Ada Auditor",
-                   "--organization", "Test Lab", "--operator", "Op One"])
+    rc = _run_cli(
+        [
+            str(nom),
+            str(scan),
+            "--tolerance",
+            "0.5",
+            "--out",
+            str(d),
+            "--json",
+            "--quiet",
+            "--serial",
+            "SN-0001",
+            "--author",
+            "Ada Auditor",
+            "--organization",
+            "Test Lab",
+            "--operator",
+            "Op One",
+        ]
+    )
     out["pass"] = (rc, d / "shell.qif", json.loads((d / "shell.json").read_text()))
 
     d = tmp_path_factory.mktemp("qif-fail")
     nom, scan = _write_shell(V, F, shell_case_defect.P, d)
-    rc = _run_cli([str(nom), str(scan), "--tolerance", "0.3", "--out", str(d), "--json",
-                   "--quiet"])
+    rc = _run_cli([str(nom), str(scan), "--tolerance", "0.3", "--out", str(d), "--json", "--quiet"])
     out["fail"] = (rc, d / "shell.qif", json.loads((d / "shell.json").read_text()))
     out["fail_case"] = shell_case_defect
 
     d = tmp_path_factory.mktemp("qif-step")
-    rc = _run_cli([str(ROOT / "samples/panel.step"), str(ROOT / "samples/panel_scan_defect.ply"),
-                   "--max-edge", "6", "--out", str(d), "--json", "--quiet"])
+    rc = _run_cli(
+        [
+            str(ROOT / "samples/panel.step"),
+            str(ROOT / "samples/panel_scan_defect.ply"),
+            "--max-edge",
+            "6",
+            "--out",
+            str(d),
+            "--json",
+            "--quiet",
+        ]
+    )
     out["step"] = (rc, d / "panel.qif", json.loads((d / "panel.json").read_text()))
     return out
 
@@ -136,14 +162,18 @@ def test_ids_counts_and_qpids(runs, name):
     for el in root.iter():
         if el.get("n") is not None:
             assert int(el.get("n")) == len(el), f"{el.tag} n={el.get('n')} has {len(el)} children"
-    qpids = [e.text.strip() for e in root.iter(f"{Q}QPId", f"{Q}UUID",
-                                                 f"{Q}ThisResultsInstanceQPId")]
+    qpids = [
+        e.text.strip() for e in root.iter(f"{Q}QPId", f"{Q}UUID", f"{Q}ThisResultsInstanceQPId")
+    ]
     assert len(qpids) >= 4 and len(set(qpids)) == len(qpids)
     for q in qpids:
         assert str(uuid.UUID(q)) == q
     # every id reference points at an element of the document
-    refs = [e.text.strip() for e in root.iter() if etree.QName(e).localname.endswith("Id")
-            and e.text and e.text.strip().isdigit()]
+    refs = [
+        e.text.strip()
+        for e in root.iter()
+        if etree.QName(e).localname.endswith("Id") and e.text and e.text.strip().isdigit()
+    ]
     assert set(map(int, refs)) <= set(ids)
 
 
@@ -156,8 +186,7 @@ def test_failing_part_carries_fail_and_its_regions(runs):
     assert c.status == "FAIL"
     assert c.tolerance == pytest.approx(0.6)
     # the profile value found: the zone width that would contain every scored point
-    assert c.value == pytest.approx(2 * max(abs(c.worst_positive), abs(c.worst_negative)),
-                                    abs=2e-4)
+    assert c.value == pytest.approx(2 * max(abs(c.worst_positive), abs(c.worst_negative)), abs=2e-4)
     assert c.value > c.tolerance
     regions = c.acceptance.regions
     assert len(regions) == doc["tolerances"][0]["acceptance"]["n_regions"] >= 1
@@ -181,7 +210,8 @@ def test_conforming_part_passes_everywhere(runs):
     assert r.serial_number == "SN-0001"
     assert root.find(f"{Q}Header/{Q}Author/{Q}Name").text == "Ada Auditor"
     assert root.find(f".//{Q}InspectionTraceability/{Q}InspectionOperator/{Q}Name").text == (
-        "Op One")
+        "Op One"
+    )
 
 
 def test_step_part_one_characteristic_per_profile_tolerance(runs):
@@ -211,7 +241,7 @@ def test_step_part_one_characteristic_per_profile_tolerance(runs):
 def _close(a, b, places=None):
     if b is None:
         return a is None or not np.isfinite(a)
-    tol = 0.0 if places is None else 0.51 * 10.0 ** -places
+    tol = 0.0 if places is None else 0.51 * 10.0**-places
     return abs(a - b) <= tol + 1e-12 * abs(b)
 
 
@@ -224,14 +254,31 @@ def test_round_trip_reproduces_verdicts_and_statistics(runs, name):
     whole = [("vertex_deviation", r.stats), ("point_deviation", r.point_stats)]
     for key, got in whole:
         ref = doc[key]
-        for f in ("rms", "mean", "max_abs", "max_pos", "min_neg", "p95", "p99", "p999",
-                  "frac_above", "frac_below", "frac_beyond", "threshold"):
+        for f in (
+            "rms",
+            "mean",
+            "max_abs",
+            "max_pos",
+            "min_neg",
+            "p95",
+            "p99",
+            "p999",
+            "frac_above",
+            "frac_below",
+            "frac_beyond",
+            "threshold",
+        ):
             assert _close(getattr(got, f), ref[f]), (key, f, getattr(got, f), ref[f])
         assert got.n == ref["n"]
     acc, ref = r.acceptance, doc["acceptance"]
     assert acc.passed == ref["passed"] and acc.reasons == ref["reasons"]
-    for f in ("in_tolerance_fraction", "scored_area", "nominal_area", "coverage",
-              "largest_region_area"):
+    for f in (
+        "in_tolerance_fraction",
+        "scored_area",
+        "nominal_area",
+        "coverage",
+        "largest_region_area",
+    ):
         assert _close(getattr(acc, f), ref[f]), f
     assert len(acc.regions) == ref["n_regions"]
     for got_r, ref_r in zip(acc.regions, ref["regions"], strict=True):
@@ -244,10 +291,10 @@ def test_round_trip_reproduces_verdicts_and_statistics(runs, name):
         for f in ("rms", "p95", "p999", "frac_beyond"):
             assert _close(getattr(c.stats, f), z["deviation"][f]), f
         assert c.acceptance.passed == z["acceptance"]["passed"]
-        assert _close(c.acceptance.in_tolerance_fraction,
-                      z["acceptance"]["in_tolerance_fraction"])
-    assert r.attributes["rigid_rms_mm"] == pytest.approx(doc["registration"]["rigid"]["rms_mm"],
-                                                         rel=0, abs=0)
+        assert _close(c.acceptance.in_tolerance_fraction, z["acceptance"]["in_tolerance_fraction"])
+    assert r.attributes["rigid_rms_mm"] == pytest.approx(
+        doc["registration"]["rigid"]["rms_mm"], rel=0, abs=0
+    )
 
 
 def test_validate_subcommand_catches_a_corrupted_file(runs, tmp_path, capsys):
@@ -255,17 +302,23 @@ def test_validate_subcommand_catches_a_corrupted_file(runs, tmp_path, capsys):
 
     src = runs["fail"][1].read_text()
     # (a) a required element removed: the characteristic measurement's Status
-    bad = re.sub(r"<Status>\s*<CharacteristicStatusEnum>FAIL</CharacteristicStatusEnum>\s*"
-                 r"</Status>", "", src, count=1)
+    bad = re.sub(
+        r"<Status>\s*<CharacteristicStatusEnum>FAIL</CharacteristicStatusEnum>\s*"
+        r"</Status>",
+        "",
+        src,
+        count=1,
+    )
     assert bad != src
     a = tmp_path / "missing.qif"
     a.write_text(bad)
     # (b) a dangling id reference: the characteristic item points at no nominal
     m = re.search(r"<CharacteristicNominalId>(\d+)</CharacteristicNominalId>", src)
     b = tmp_path / "dangling.qif"
-    b.write_text(src.replace(m.group(0), "<CharacteristicNominalId>99999"
-                                          "</CharacteristicNominalId>"))
-    line_b = src[:m.start()].count("\n") + 1
+    b.write_text(
+        src.replace(m.group(0), "<CharacteristicNominalId>99999</CharacteristicNominalId>")
+    )
+    line_b = src[: m.start()].count("\n") + 1
     for path, needle in ((a, "Status"), (b, "99999")):
         with pytest.raises(SystemExit) as exc:
             main(["validate", str(path)])
@@ -283,11 +336,23 @@ def test_validate_subcommand_catches_a_corrupted_file(runs, tmp_path, capsys):
 
 
 def test_without_schemas_the_qif_is_written_but_never_called_valid(
-        shell, shell_case, tmp_path, monkeypatch, capsys):
+    shell, shell_case, tmp_path, monkeypatch, capsys
+):
     monkeypatch.setenv("QIFREPORT_XSD_DIR", str(tmp_path / "no-schemas-here"))
     nom, scan = _write_shell(*shell, shell_case.P, tmp_path)
-    rc = _run_cli([str(nom), str(scan), "--tolerance", "0.5", "--out", str(tmp_path),
-                   "--json", "--quiet", "--rigid-only"])
+    rc = _run_cli(
+        [
+            str(nom),
+            str(scan),
+            "--tolerance",
+            "0.5",
+            "--out",
+            str(tmp_path),
+            "--json",
+            "--quiet",
+            "--rigid-only",
+        ]
+    )
     out = capsys.readouterr().out
     assert rc in (0, 1)
     assert (tmp_path / "shell.qif").is_file()
@@ -307,11 +372,19 @@ def test_outputs_are_all_or_nothing(tmp_path):
         raise RuntimeError("render failed")
 
     with pytest.raises(RuntimeError):
-        atomic_write_many([(tmp_path / "a.qif", lambda p: p.write_text("qif")),
-                           (tmp_path / "b.txt", lambda p: p.write_text("new")),
-                           (tmp_path / "c.pdf", boom)])
+        atomic_write_many(
+            [
+                (tmp_path / "a.qif", lambda p: p.write_text("qif")),
+                (tmp_path / "b.txt", lambda p: p.write_text("new")),
+                (tmp_path / "c.pdf", boom),
+            ]
+        )
     assert sorted(x.name for x in tmp_path.iterdir()) == ["b.txt"]
     assert (tmp_path / "b.txt").read_text() == "old"
-    atomic_write_many([(tmp_path / "a.qif", lambda p: p.write_text("qif")),
-                       (tmp_path / "b.txt", lambda p: p.write_text("new"))])
+    atomic_write_many(
+        [
+            (tmp_path / "a.qif", lambda p: p.write_text("qif")),
+            (tmp_path / "b.txt", lambda p: p.write_text("new")),
+        ]
+    )
     assert (tmp_path / "a.qif").read_text() == "qif" and (tmp_path / "b.txt").read_text() == "new"

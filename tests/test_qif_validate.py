@@ -94,8 +94,12 @@ STOCK_XMLSCHEMA = {
     "QIF_PTS_SAMPLE.QIF": {FI: 39},
     "SheetMetal_QIF_Results_6_samples.QIF": {FI: 147},
     "SheetMetal_QIF_Results_6_samples_w_UUIDs.QIF": {FI: 147},
-    **{f"SheetMetal_QIF_Results_sample_{i}{s}.QIF": {FI: 42}
-       for i in range(1, 7) for s in ("", "_w_UUIDs") if (i, s) != (1, "")},
+    **{
+        f"SheetMetal_QIF_Results_sample_{i}{s}.QIF": {FI: 42}
+        for i in range(1, 7)
+        for s in ("", "_w_UUIDs")
+        if (i, s) != (1, "")
+    },
     "WIDGET_QIF_PLAN_W_QPIDS.QIF": {FI: 28},
     "WIDGET_QIF_RESULTS_W_QPIDS.QIF": {FI: 47},
     "testPython30.qif": {FI: 11, "keyref FeatureNominalIdKeyref": 3},
@@ -110,24 +114,31 @@ DMSC = {
     "WIDGET_QIF_RESULTS.QIF": {(_Q, "warning", r): 31 for r in _UV_NG},
     "WIDGET_QIF_PLAN_W_QPIDS.QIF": {(_Q, "warning", r): 31 for r in _UV_NG},
     "WIDGET_QIF_RESULTS_W_QPIDS.QIF": {(_Q, "warning", r): 31 for r in _UV_NG},
-    **{n: {(_Q, "warning", r): 24 for r in _UV_NG} for n in OFFICIAL + COMMUNITY
-       if n.startswith("SheetMetal")},
+    **{
+        n: {(_Q, "warning", r): 24 for r in _UV_NG}
+        for n in OFFICIAL + COMMUNITY
+        if n.startswith("SheetMetal")
+    },
     "All-in-one-form_only.QIF": {(_Q, "warning", r): 1 for r in _UV_NG},
     "All-in-one.QIF": {(_Q, "warning", r): 2 for r in _UV_NG},
     "Exploded-form_only_Plan.QIF": {(_Q, "warning", r): 1 for r in _UV_NG},
     "Exploded_Plan.QIF": {(_Q, "warning", r): 2 for r in _UV_NG},
     # the plan it links to (./Exploded_Plan.QIF), reported as CheckDocuments warnings
     "Exploded_Results1.QIF": {("CheckDocuments", "warning", f"{_Q}:{r}"): 2 for r in _UV_NG},
-    "Exploded_Results2.QIF": {("CheckFormat", "error", "external-URI"): 1,
-                              **{("CheckDocuments", "warning", f"{_Q}:{r}"): 2 for r in _UV_NG}},
-    "Exploded_Statistics.QIF": {("CheckFormat", "error", "external-URI"): 2,
-                                ("CheckDocuments", "warning", "CheckFormat:external-URI"): 1,
-                                ("CheckDocuments", "warning",
-                                 "CheckDocuments:MaxRecursionLevel"): 2},
-    "Mixed_Exploded_Results1.QIF": {("CheckFormat", "error", "external-URI"): 1,
-                                    **{(_Q, "warning", r): 1 for r in _UV_NG},
-                                    **{("CheckDocuments", "warning", f"{_Q}:{r}"): 1
-                                       for r in _UV_NG}},
+    "Exploded_Results2.QIF": {
+        ("CheckFormat", "error", "external-URI"): 1,
+        **{("CheckDocuments", "warning", f"{_Q}:{r}"): 2 for r in _UV_NG},
+    },
+    "Exploded_Statistics.QIF": {
+        ("CheckFormat", "error", "external-URI"): 2,
+        ("CheckDocuments", "warning", "CheckFormat:external-URI"): 1,
+        ("CheckDocuments", "warning", "CheckDocuments:MaxRecursionLevel"): 2,
+    },
+    "Mixed_Exploded_Results1.QIF": {
+        ("CheckFormat", "error", "external-URI"): 1,
+        **{(_Q, "warning", r): 1 for r in _UV_NG},
+        **{("CheckDocuments", "warning", f"{_Q}:{r}"): 1 for r in _UV_NG},
+    },
     "QIF_PTS_SAMPLE.QIF": {(_Q, "warning", r): 25 for r in _UV_NG},
     "mitutoyo_results_serialized_pass_fail_sample.QIF": {},
     "testPython30.qif": {(_Q, "warning", r): 9 for r in _UV_NG},
@@ -163,8 +174,9 @@ def _line_of(text: str, needle: str) -> int:
     return text.count("\n", 0, i) + 1
 
 
-def _corrupt(tmp_path: Path, rel: str, old: str, new: str, name: str | None = None
-             ) -> tuple[Path, str]:
+def _corrupt(
+    tmp_path: Path, rel: str, old: str, new: str, name: str | None = None
+) -> tuple[Path, str]:
     src = shared_file(rel).read_text(encoding="utf-8")
     assert src.count(old) >= 1, old
     out = src.replace(old, new, 1)
@@ -179,8 +191,9 @@ def _corrupt(tmp_path: Path, rel: str, old: str, new: str, name: str | None = No
 
 def test_sample_list_is_complete():
     folder = shared_file("qif/samples")
-    found = sorted(p.relative_to(SHARED).as_posix() for p in folder.rglob("*")
-                   if p.suffix.lower() == ".qif")
+    found = sorted(
+        p.relative_to(SHARED).as_posix() for p in folder.rglob("*") if p.suffix.lower() == ".qif"
+    )
     assert found == sorted(SAMPLES)
     assert set(DMSC) == set(OFFICIAL + COMMUNITY)
 
@@ -210,16 +223,18 @@ def test_stock_xmlschema_false_keyrefs(rel, xsd):
         assert m, f
         ns = {"t": QIF_NS}
         key = idents[m.group(2)]
-        ids = {norm_value(x) for x in tree.getroot().xpath(
-            f"({key.selector})/@id", namespaces=ns)}
+        ids = {norm_value(x) for x in tree.getroot().xpath(f"({key.selector})/@id", namespaces=ns)}
         assert m.group(1) in ids, f"{m.group(1)} really missing from {key.name}"
         assert f.line is not None and f.line > 1
 
 
 def test_stock_xmlschema_misses_duplicate_ids_of_substitutes(tmp_path, xsd):
-    p, text = _corrupt(tmp_path, "qif/samples/community/All-in-one.QIF",
-                       '<SphericityCharacteristicItem id="6">',
-                       '<SphericityCharacteristicItem id="5">')
+    p, text = _corrupt(
+        tmp_path,
+        "qif/samples/community/All-in-one.QIF",
+        '<SphericityCharacteristicItem id="6">',
+        '<SphericityCharacteristicItem id="5">',
+    )
     line = _line_of(text, '<SphericityCharacteristicItem id="5">')
     stock = xmlschema_findings(etree.parse(str(p)), xsd, register_substitutes=False)
     ours = validate_xmlschema(p)
@@ -250,19 +265,33 @@ def test_dmsc_all_in_one_details(checks_available):
     text = path.read_text()
     findings = dmsc_checks(path)
     assert [(f.line, f.rule, f.message) for f in findings] == [
-        (_line_of(text, '<SphericalDiameterCharacteristicNominal id="3">'), "A-AN-UV",
-         "Unviewed Annotation (A-AN-UV): id=3"),
-        (_line_of(text, '<SphericalDiameterCharacteristicNominal id="3">'), "A-AN-NG",
-         "Non-Graphical Annotation (A-AN-NG): id=3"),
-        (_line_of(text, '<SphericityCharacteristicNominal id="4">'), "A-AN-UV",
-         "Unviewed Annotation (A-AN-UV): id=4"),
-        (_line_of(text, '<SphericityCharacteristicNominal id="4">'), "A-AN-NG",
-         "Non-Graphical Annotation (A-AN-NG): id=4"),
+        (
+            _line_of(text, '<SphericalDiameterCharacteristicNominal id="3">'),
+            "A-AN-UV",
+            "Unviewed Annotation (A-AN-UV): id=3",
+        ),
+        (
+            _line_of(text, '<SphericalDiameterCharacteristicNominal id="3">'),
+            "A-AN-NG",
+            "Non-Graphical Annotation (A-AN-NG): id=3",
+        ),
+        (
+            _line_of(text, '<SphericityCharacteristicNominal id="4">'),
+            "A-AN-UV",
+            "Unviewed Annotation (A-AN-UV): id=4",
+        ),
+        (
+            _line_of(text, '<SphericityCharacteristicNominal id="4">'),
+            "A-AN-NG",
+            "Non-Graphical Annotation (A-AN-NG): id=4",
+        ),
     ]
     rep = validate(path, checks=True)
     assert rep.valid and rep.ran == ["lxml", "dmsc"]
-    assert "dmsc: CheckFormat ok, CheckQuality 4 warnings, CheckSemantic ok, CheckDocuments ok" \
+    assert (
+        "dmsc: CheckFormat ok, CheckQuality 4 warnings, CheckSemantic ok, CheckDocuments ok"
         in rep.format()
+    )
 
 
 def test_dmsc_windows_uri_is_a_format_error(checks_available):
@@ -271,7 +300,8 @@ def test_dmsc_windows_uri_is_a_format_error(checks_available):
     fmt = [f for f in dmsc_checks(path) if f.category == "CheckFormat"]
     assert [(f.line, f.rule) for f in fmt] == [
         (_line_of(text, r"<URI>.\Exploded_Results1.QIF</URI>"), "external-URI"),
-        (_line_of(text, r"<URI>.\Exploded_Results2.QIF</URI>"), "external-URI")]
+        (_line_of(text, r"<URI>.\Exploded_Results2.QIF</URI>"), "external-URI"),
+    ]
     assert "'.\\Exploded_Results1.QIF' is not a valid URI reference" in fmt[0].message
     rep = validate(path, checks=True)
     assert not rep.valid and rep.errors(validator="lxml") == []
@@ -285,8 +315,13 @@ def test_dmsc_missing_linked_document(tmp_path, checks_available):
     findings = dmsc_checks(p)
     text = p.read_text()
     assert [(f.category, f.line, f.rule, f.message) for f in findings] == [
-        ("CheckFormat", _line_of(text, '<ExternalQIFDocument id="1">'), "external-document",
-         "The external document was not found URI = ./Exploded_Plan.QIF.")]
+        (
+            "CheckFormat",
+            _line_of(text, '<ExternalQIFDocument id="1">'),
+            "external-document",
+            "The external document was not found URI = ./Exploded_Plan.QIF.",
+        )
+    ]
     shutil.copy(src.parent / "Exploded_Plan.QIF", tmp_path / "Exploded_Plan.QIF")
     assert [f for f in dmsc_checks(p) if f.category == "CheckFormat"] == []
 
@@ -304,7 +339,8 @@ def test_dmsc_node_paths_and_rule_names():
     """CheckReport node paths (``Name[pos]{id}`` steps) and the rule names of its reports."""
     root = etree.fromstring(
         f"<QIFDocument xmlns='{QIF_NS}'>\n<A>\n<B id='1'/>\n<B id='17'>\n<C/>\n</B>\n</A>\n"
-        "</QIFDocument>".encode())
+        "</QIFDocument>".encode()
+    )
     assert D._node_line(root, "/QIFDocument/A/B[2]{17}/C") == 5
     assert D._node_line(root, "/QIFDocument/A/B{17}") == 4
     assert D._node_line(root, "/QIFDocument/A/B") == 3
@@ -314,16 +350,15 @@ def test_dmsc_node_paths_and_rule_names():
         'The number of array elements doesn\'t correspond to the specified "n" attribute: '
         "n(3) != nElem(2)": "n-count",
         "The id of element is greater than idMax. id(1520) greater than idMax(1515).": "idMax",
-        "Nurbs12Core/Nurbs13Core: id=205, nCP(63) != nKt(66) - order(5)":
-            "nurbs-control-points",
+        "Nurbs12Core/Nurbs13Core: id=205, nCP(63) != nKt(66) - order(5)": "nurbs-control-points",
         "Nurbs12Core/Nurbs13Core/Nurbs23Core: id=208, nCP(5) != nWt(6)": "nurbs-weights",
         "ArrayPointType: nNumberActual(49) != nNumberRequired(48), count(16)": "ArrayPointType",
         "Free edge (G-SH-FR): id=204, nEdgeRef(1)": "G-SH-FR",
         "Unit vector too long: length of (1.0001 -0 0) greater than 1.00000001": "unit-vector",
         "PositionCharacteristicDefinition: id=704, ToleranceValue=0 and MaterialCondition(NONE) "
         "!= 'MAXIMUM'": "position-zero-tolerance",
-        "Body form: id(6), form(TRIMMED_SURFACE), nShell(0), nFace(0) - should refer to faces":
-            "body-form",
+        "Body form: id(6), form(TRIMMED_SURFACE), nShell(0), nFace(0) "
+        "- should refer to faces": "body-form",
     }
     for text, rule in examples.items():
         assert D._dmsc_rule(text, "CheckFormat") == rule, text
@@ -337,35 +372,48 @@ ALL_IN_ONE = "qif/samples/community/All-in-one.QIF"
 
 def test_missing_required_element(tmp_path, xsd):
     # (a) the only child of a characteristic nominal: its required CharacteristicDefinitionId
-    p, text = _corrupt(tmp_path, ALL_IN_ONE,
-                       "        <CharacteristicDefinitionId>2</CharacteristicDefinitionId>\n", "")
+    p, text = _corrupt(
+        tmp_path,
+        ALL_IN_ONE,
+        "        <CharacteristicDefinitionId>2</CharacteristicDefinitionId>\n",
+        "",
+    )
     line = _line_of(text, '<SphericityCharacteristicNominal id="4">')
     rep = validate(p, strict=True)
     assert not rep.valid and rep.ran == ["lxml", "xmlschema"]
     for v in ("lxml", "xmlschema"):
         errs = rep.errors(validator=v)
         assert [(f.line, f.rule) for f in errs] == [
-            (line, "content SphericityCharacteristicNominal")]
+            (line, "content SphericityCharacteristicNominal")
+        ]
         assert "CharacteristicDefinitionId" in errs[0].message
 
 
 def test_missing_required_element_before_a_sibling(tmp_path, xsd):
     # (a') a measurement's required Status: both report the unexpected next child's line
-    old = re.search(r"<Status>\s*<CharacteristicStatusEnum>FAIL</CharacteristicStatusEnum>"
-                    r"\s*</Status>\s*", shared_file(ALL_IN_ONE).read_text()).group(0)
+    old = re.search(
+        r"<Status>\s*<CharacteristicStatusEnum>FAIL</CharacteristicStatusEnum>"
+        r"\s*</Status>\s*",
+        shared_file(ALL_IN_ONE).read_text(),
+    ).group(0)
     p, text = _corrupt(tmp_path, ALL_IN_ONE, old, "")
     line = _line_of(text, "<CharacteristicItemId>5</CharacteristicItemId>")
     rep = validate(p, strict=True)
     for v in ("lxml", "xmlschema"):
         assert [(f.line, f.rule) for f in rep.errors(validator=v)] == [
-            (line, "content SphericalDiameterCharacteristicMeasurement")], v
+            (line, "content SphericalDiameterCharacteristicMeasurement")
+        ], v
         assert "Status" in rep.errors(validator=v)[0].message
 
 
 def test_dangling_reference(tmp_path, xsd, checks_available):
     # (b) a characteristic measurement refers to an item id that does not exist
-    p, text = _corrupt(tmp_path, ALL_IN_ONE, "<CharacteristicItemId>5</CharacteristicItemId>",
-                       "<CharacteristicItemId>55</CharacteristicItemId>")
+    p, text = _corrupt(
+        tmp_path,
+        ALL_IN_ONE,
+        "<CharacteristicItemId>5</CharacteristicItemId>",
+        "<CharacteristicItemId>55</CharacteristicItemId>",
+    )
     line = _line_of(text, "<CharacteristicItemId>55</CharacteristicItemId>")
     rep = validate(p, strict=True, checks=True)
     rule = "keyref SphericalDiameterCharacteristicMeasurementToItemKeyref"
@@ -375,14 +423,17 @@ def test_dangling_reference(tmp_path, xsd, checks_available):
         assert "55" in errs[0].message
     assert rep.errors(validator="dmsc") == []  # no DMSC check covers internal references
     assert not rep.valid
-    assert f"{p}:{line}: [xmlschema/{rule}] value 55 not found for key " \
-           "SphericalDiameterCharacteristicItemKey" in rep.format()
+    assert (
+        f"{p}:{line}: [xmlschema/{rule}] value 55 not found for key "
+        "SphericalDiameterCharacteristicItemKey" in rep.format()
+    )
 
 
 def test_dangling_feature_item_reference(tmp_path, xsd):
     # (b') where stock xmlschema gives false positives: the workaround still catches it
-    p, text = _corrupt(tmp_path, "qif/samples/SheetMetal_QIF_Results_sample_1.QIF",
-                       "<Id>10</Id>", "<Id>1010</Id>")
+    p, text = _corrupt(
+        tmp_path, "qif/samples/SheetMetal_QIF_Results_sample_1.QIF", "<Id>10</Id>", "<Id>1010</Id>"
+    )
     line = _line_of(text, "<Id>1010</Id>")
     for errs in (validate_lxml(p), validate_xmlschema(p)):
         assert [(f.line, f.rule) for f in errs] == [(line, FI)]
@@ -390,22 +441,26 @@ def test_dangling_feature_item_reference(tmp_path, xsd):
 
 def test_wrong_n_count(tmp_path, xsd, checks_available):
     # (c) no XSD validator checks n=; DMSC CheckFormat does
-    p, text = _corrupt(tmp_path, ALL_IN_ONE, '<CharacteristicItems n="2">',
-                       '<CharacteristicItems n="3">')
+    p, text = _corrupt(
+        tmp_path, ALL_IN_ONE, '<CharacteristicItems n="2">', '<CharacteristicItems n="3">'
+    )
     line = _line_of(text, '<CharacteristicItems n="3">')
     rep = validate(p, strict=True, checks=True)
     assert rep.errors(validator="lxml") == [] and rep.errors(validator="xmlschema") == []
     fmt = rep.errors(validator="dmsc", category="CheckFormat")
     assert [(f.line, f.rule) for f in fmt] == [(line, "n-count")]
-    assert 'n(3) != nElem(2)' in fmt[0].message
+    assert "n(3) != nElem(2)" in fmt[0].message
     assert not rep.valid
     assert f"{p}:{line}: [dmsc/CheckFormat/n-count] The number of array elements" in rep.format()
 
 
 def test_other_schema_errors_name_the_rule(tmp_path, xsd):
     cases = [
-        ("<CharacteristicStatusEnum>FAIL<", "<CharacteristicStatusEnum>BROKEN<",
-         "facet CharacteristicStatusEnum"),
+        (
+            "<CharacteristicStatusEnum>FAIL<",
+            "<CharacteristicStatusEnum>BROKEN<",
+            "facet CharacteristicStatusEnum",
+        ),
         ("<MaxValue>0.25</MaxValue>", "<MaxValue>0.2.5</MaxValue>", "datatype MaxValue"),
         ('<Standard id="14">', '<Standard id="14" foo="1">', "attribute Standard@foo"),
     ]
@@ -415,15 +470,22 @@ def test_other_schema_errors_name_the_rule(tmp_path, xsd):
         for errs in (validate_lxml(p), validate_xmlschema(p)):
             assert [(f.line, f.rule) for f in errs] == [(line, rule)], errs
     # a missing key field: the attribute and the key it feeds are both named
-    p, text = _corrupt(tmp_path, ALL_IN_ONE, '<SphericalDiameterCharacteristicDefinition id="1">',
-                       "<SphericalDiameterCharacteristicDefinition>", name="noid.QIF")
+    p, text = _corrupt(
+        tmp_path,
+        ALL_IN_ONE,
+        '<SphericalDiameterCharacteristicDefinition id="1">',
+        "<SphericalDiameterCharacteristicDefinition>",
+        name="noid.QIF",
+    )
     line = _line_of(text, "<SphericalDiameterCharacteristicDefinition>")
     for errs in (validate_lxml(p), validate_xmlschema(p)):
         rules = {(f.line, f.rule) for f in errs}
         assert (line, "attribute SphericalDiameterCharacteristicDefinition@id") in rules
         assert (line, "key SphericalDiameterCharacteristicDefinitionKey") in rules
-        assert (_line_of(text, "<CharacteristicDefinitionId>1<"),
-                "keyref SphericalDiameterCharacteristicNominalToDefinitionKeyref") in rules
+        assert (
+            _line_of(text, "<CharacteristicDefinitionId>1<"),
+            "keyref SphericalDiameterCharacteristicNominalToDefinitionKeyref",
+        ) in rules
 
 
 # --------------------------------------------------------------------------------------------
@@ -452,8 +514,9 @@ def test_official_folder_without_local_dsig_uses_bundled_copy(monkeypatch):
     monkeypatch.setenv("QIFREPORT_XSD_DIR", str(official))
     import xmlschema
 
-    assert dsig_path(official).parent == Path(xmlschema.__file__).resolve().parent \
-        / "schemas" / "DSIG"
+    assert (
+        dsig_path(official).parent == Path(xmlschema.__file__).resolve().parent / "schemas" / "DSIG"
+    )
     assert validate_lxml(shared_file(ALL_IN_ONE)) == []
 
 
@@ -471,7 +534,8 @@ def test_dsig_copy_with_doctype_loads(monkeypatch, tmp_path, xsd):
     assert validate_lxml(shared_file(ALL_IN_ONE)) == []
     p, _ = _corrupt(tmp_path, ALL_IN_ONE, "<CharacteristicItemId>5<", "<CharacteristicItemId>7<")
     assert [f.rule for f in validate_lxml(p)] == [
-        "keyref SphericalDiameterCharacteristicMeasurementToItemKeyref"]
+        "keyref SphericalDiameterCharacteristicMeasurementToItemKeyref"
+    ]
 
 
 DSIG_DOCTYPE = """<!DOCTYPE schema
@@ -491,8 +555,9 @@ def test_installed_schema_copy_has_the_dsig_schema():
     installed = Path(REPO_ROOT) / "schemas" / "qif-3.0"
     if not (installed / "QIFApplications" / "QIFDocument.xsd").is_file():
         pytest.skip("schemas/qif-3.0 not installed (make install)")
-    assert (installed / "QIFLibrary" / "xmldsig-core-schema.xsd").is_file(), \
+    assert (installed / "QIFLibrary" / "xmldsig-core-schema.xsd").is_file(), (
         "re-run the XSD copy step of `make install`"
+    )
 
 
 def test_schemas_compiled_once(xsd):
@@ -510,8 +575,7 @@ def test_report_without_validators_is_not_valid(tmp_path):
     assert rep.valid is False
     assert not re.search(r"\bvalid\b", rep.format())
     warn = Finding("dmsc", 3, "A-AN-UV", "m", "CheckQuality", "warning")
-    rep = ValidationReport(path=tmp_path / "x.qif", schema_dir=None, findings=[warn],
-                           ran=["dmsc"])
+    rep = ValidationReport(path=tmp_path / "x.qif", schema_dir=None, findings=[warn], ran=["dmsc"])
     assert rep.valid and rep.errors() == []
 
 
@@ -524,9 +588,12 @@ def test_validate_main_valid(capsys, xsd, checks_available):
     assert validate_main([str(path)]) == 0
     out, err = capsys.readouterr()
     lines = out.splitlines()
-    assert lines[:4] == [f"{path}: valid", "  lxml: ok", "  xmlschema: ok",
-                         "  dmsc: CheckFormat ok, CheckQuality 4 warnings, CheckSemantic ok, "
-                         "CheckDocuments ok"]
+    assert lines[:4] == [
+        f"{path}: valid",
+        "  lxml: ok",
+        "  xmlschema: ok",
+        "  dmsc: CheckFormat ok, CheckQuality 4 warnings, CheckSemantic ok, CheckDocuments ok",
+    ]
     assert lines[4].startswith(f"{path}:37: [dmsc/CheckQuality/A-AN-UV] warning: ")
     assert err == ""
     assert validate_main([str(path), "--quiet"]) == 0
@@ -534,8 +601,12 @@ def test_validate_main_valid(capsys, xsd, checks_available):
 
 
 def test_validate_main_corrupted(tmp_path, capsys, xsd, checks_available):
-    p, text = _corrupt(tmp_path, ALL_IN_ONE, "<CharacteristicItemId>5</CharacteristicItemId>",
-                       "<CharacteristicItemId>55</CharacteristicItemId>")
+    p, text = _corrupt(
+        tmp_path,
+        ALL_IN_ONE,
+        "<CharacteristicItemId>5</CharacteristicItemId>",
+        "<CharacteristicItemId>55</CharacteristicItemId>",
+    )
     line = _line_of(text, "<CharacteristicItemId>55<")
     ok = shared_file(ALL_IN_ONE)
     assert validate_main([str(ok), str(p)]) == 1
@@ -561,8 +632,7 @@ def test_validate_main_missing_or_not_xml(tmp_path, capsys, xsd, checks_availabl
     junk.write_text("this is not XML")
     assert validate_main([str(junk), str(shared_file(ALL_IN_ONE))]) == 2
     out, err = capsys.readouterr()
-    assert err.startswith(f"qifreport: error: {junk}: not well-formed XML") and \
-        err.count("\n") == 1
+    assert err.startswith(f"qifreport: error: {junk}: not well-formed XML") and err.count("\n") == 1
     assert f"{shared_file(ALL_IN_ONE)}: valid" in out  # the other file is still checked
 
 
@@ -573,8 +643,9 @@ def test_validate_main_schemas_unavailable(monkeypatch, tmp_path, capsys):
     assert validate_main([str(shared_file(ALL_IN_ONE))]) == 2
     out, err = capsys.readouterr()
     assert out == ""
-    assert err.count("\n") == 1 and err.startswith("qifreport: error: QIF 3.0 XSD schemas not "
-                                                   "found")
+    assert err.count("\n") == 1 and err.startswith(
+        "qifreport: error: QIF 3.0 XSD schemas not found"
+    )
     assert "make install" in err and "QIFREPORT_XSD_DIR" in err
     assert not re.search(r"\bvalid\b", out + err, re.I)
 

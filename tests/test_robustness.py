@@ -79,8 +79,10 @@ def _inf(tmp: Path, P: np.ndarray) -> list:
 
 def _no_vertices(tmp: Path, P: np.ndarray) -> list:
     f = tmp / "none.ply"
-    f.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 0\n"
-                  b"property float x\nproperty float y\nproperty float z\nend_header\n")
+    f.write_bytes(
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 0\n"
+        b"property float x\nproperty float y\nproperty float z\nend_header\n"
+    )
     return [NOMINAL, f]
 
 
@@ -140,8 +142,17 @@ def test_bad_input_exits_2_one_line_nothing_written(tmp_path, shell_points, case
     make, word = BAD[case]
     args = make(tmp_path, shell_points)
     out = tmp_path / "out"
-    r = run(*args, "--tolerance", "0.5", "--out", out, "--json", "--export-mesh",
-            out / "m.ply", "--quiet")
+    r = run(
+        *args,
+        "--tolerance",
+        "0.5",
+        "--out",
+        out,
+        "--json",
+        "--export-mesh",
+        out / "m.ply",
+        "--quiet",
+    )
     assert_refused(r, word, out)
 
 
@@ -180,8 +191,20 @@ def test_scan_units_in_reads_an_inch_scan(tmp_path, shell_points):
     inch = tmp_path / "scan_in.ply"
     write_points(inch, shell_points / 25.4)
     out = tmp_path / "out"
-    r = run(NOMINAL, inch, "--scan-units", "in", "--tolerance", "0.5", "--out", out,
-            "--json", "--no-pdf", "--no-qif", "--quiet")
+    r = run(
+        NOMINAL,
+        inch,
+        "--scan-units",
+        "in",
+        "--tolerance",
+        "0.5",
+        "--out",
+        out,
+        "--json",
+        "--no-pdf",
+        "--no-qif",
+        "--quiet",
+    )
     assert r.returncode in (0, 1), r.stdout + r.stderr
     assert "verdict:" in r.stdout
     doc = json.loads((out / "shell_nominal.json").read_text())
@@ -262,10 +285,15 @@ def test_scan_units(tmp_path, shell_points):
         load_scan(f, units="m")
 
 
-@pytest.mark.parametrize("array", [np.array([["1", "2", "3"]] * 200),
-                                   np.ones((200, 3), dtype=complex),
-                                   np.zeros(200, dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")])],
-                         ids=["strings", "complex", "structured"])
+@pytest.mark.parametrize(
+    "array",
+    [
+        np.array([["1", "2", "3"]] * 200),
+        np.ones((200, 3), dtype=complex),
+        np.zeros(200, dtype=[("x", "f8"), ("y", "f8"), ("z", "f8")]),
+    ],
+    ids=["strings", "complex", "structured"],
+)
 def test_npy_of_non_numbers_is_refused(tmp_path, array):
     f = tmp_path / "scan.npy"
     np.save(f, array)
@@ -297,9 +325,11 @@ def test_mesh_face_index_out_of_range(tmp_path):
     """Used to crash the interpreter (igl with indices past the vertices); found by
     bench/fuzz_readers.py from a byte flip in a binary PLY's faces."""
     f = tmp_path / "bad.ply"
-    f.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
-                 "property float z\nelement face 2\nproperty list uchar int vertex_indices\n"
-                 "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 9\n3 0 1 -5\n")
+    f.write_text(
+        "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+        "property float z\nelement face 2\nproperty list uchar int vertex_indices\n"
+        "end_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 9\n3 0 1 -5\n"
+    )
     _refuses(load_mesh, f, "outside")
     V, F = grid_mesh()
     data = bytearray(encode("ply-binary-mesh", V, F))

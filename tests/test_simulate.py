@@ -316,8 +316,9 @@ def test_depth_buffer_sphere_front_hemisphere_only():
     r, pixel = 10.0, 0.25
     ball = trimesh.creation.icosphere(subdivisions=4, radius=r)
     V, F = np.asarray(ball.vertices, float), np.asarray(ball.faces, np.int64)
-    spec = ScanSpec(directions=[[0.0, 0.0, -1.0]], pixel=pixel, noise=0.0, thinning=0.0,
-                    grazing=0.0)
+    spec = ScanSpec(
+        directions=[[0.0, 0.0, -1.0]], pixel=pixel, noise=0.0, thinning=0.0, grazing=0.0
+    )
     S = virtual_scan(V, F, spec)
     assert S.P[:, 2].min() > -0.05 * r  # nothing from the back hemisphere
     assert (S.normals[:, 2] > 0).mean() > 0.99

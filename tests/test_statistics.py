@@ -66,40 +66,76 @@ def batch(tmp_path_factory):
     nominal = SAMPLES / "shell_nominal.ply"
     for name, scan, extra in RUNS:
         with pytest.raises(SystemExit) as exc:
-            main([str(nominal), str(SAMPLES / scan), "--tolerance", "0.5", "--out",
-                  str(d / name), "--serial", name, "--no-pdf", "--quiet", *extra])
+            main(
+                [
+                    str(nominal),
+                    str(SAMPLES / scan),
+                    "--tolerance",
+                    "0.5",
+                    "--out",
+                    str(d / name),
+                    "--serial",
+                    name,
+                    "--no-pdf",
+                    "--quiet",
+                    *extra,
+                ]
+            )
         assert exc.value.code in (0, 1), f"{name}: exit {exc.value.code}"
     sources = [f"{name}/shell_nominal.qif" for name, _, _ in RUNS]
     results = [read_results(d / s) for s in sources]
     sha = hashlib.sha256(nominal.read_bytes()).hexdigest()
-    tree = build_statistics(results, part_name="shell_nominal", created=CREATED,
-                            nominal_sha256=sha, sources=sources, software_version="9.9.9")
+    tree = build_statistics(
+        results,
+        part_name="shell_nominal",
+        created=CREATED,
+        nominal_sha256=sha,
+        sources=sources,
+        software_version="9.9.9",
+    )
     path = d / "statistics.qif"
     write_statistics(path, tree)
-    return SimpleNamespace(dir=d, path=path, sources=sources, results=results,
-                           doc=etree.parse(str(path)).getroot())
+    return SimpleNamespace(
+        dir=d, path=path, sources=sources, results=results, doc=etree.parse(str(path)).getroot()
+    )
 
 
 def _per_scan(path: Path) -> list[dict]:
     """The characteristic measurements of a per-scan results document, by XPath."""
     root = etree.parse(str(path)).getroot()
     out = []
-    for m in _xp(root, "//q:MeasuredCharacteristics/q:CharacteristicMeasurements/"
-                       "q:SurfaceProfileCharacteristicMeasurement"):
-        item = _one(root, f"//q:SurfaceProfileCharacteristicItem[@id='"
-                          f"{_one(m, 'q:CharacteristicItemId/text()')}']")
-        nominal = _one(root, f"//q:SurfaceProfileCharacteristicNominal[@id='"
-                             f"{_one(item, 'q:CharacteristicNominalId/text()')}']")
-        definition = _one(root, f"//q:SurfaceProfileCharacteristicDefinition[@id='"
-                                f"{_one(nominal, 'q:CharacteristicDefinitionId/text()')}']")
+    for m in _xp(
+        root,
+        "//q:MeasuredCharacteristics/q:CharacteristicMeasurements/"
+        "q:SurfaceProfileCharacteristicMeasurement",
+    ):
+        item = _one(
+            root,
+            f"//q:SurfaceProfileCharacteristicItem[@id='"
+            f"{_one(m, 'q:CharacteristicItemId/text()')}']",
+        )
+        nominal = _one(
+            root,
+            f"//q:SurfaceProfileCharacteristicNominal[@id='"
+            f"{_one(item, 'q:CharacteristicNominalId/text()')}']",
+        )
+        definition = _one(
+            root,
+            f"//q:SurfaceProfileCharacteristicDefinition[@id='"
+            f"{_one(nominal, 'q:CharacteristicDefinitionId/text()')}']",
+        )
         value = _xp(m, "q:Value/text()")
-        out.append(dict(
-            id=m.get("id"), designator=_one(item, "q:CharacteristicDesignator/q:Designator/text()"),
-            status=_one(m, "q:Status/q:CharacteristicStatusEnum/text()"),
-            value=float(value[0]) if value else None,
-            worst_positive=_num(m, "q:WorstPositiveDeviation/text()"),
-            tolerance=_num(definition, "q:ToleranceValue/text()"),
-            qpid=_one(root, "/q:QIFDocument/q:QPId/text()")))
+        out.append(
+            dict(
+                id=m.get("id"),
+                designator=_one(item, "q:CharacteristicDesignator/q:Designator/text()"),
+                status=_one(m, "q:Status/q:CharacteristicStatusEnum/text()"),
+                value=float(value[0]) if value else None,
+                worst_positive=_num(m, "q:WorstPositiveDeviation/text()"),
+                tolerance=_num(definition, "q:ToleranceValue/text()"),
+                qpid=_one(root, "/q:QIFDocument/q:QPId/text()"),
+            )
+        )
     return out
 
 
@@ -108,8 +144,9 @@ def _expected(batch) -> dict[str, dict]:
     exp: dict[str, dict] = {}
     for src in batch.sources:
         for m in _per_scan(batch.dir / src):
-            e = exp.setdefault(m["designator"], dict(values=[], statuses=[], wpos=[],
-                                                     tolerance=m["tolerance"]))
+            e = exp.setdefault(
+                m["designator"], dict(values=[], statuses=[], wpos=[], tolerance=m["tolerance"])
+            )
             assert e["tolerance"] == m["tolerance"]
             e["statuses"].append(m["status"])
             e["wpos"].append(m["worst_positive"])
@@ -122,13 +159,17 @@ def _stats_by_designator(doc) -> dict[str, etree._Element]:
     """Each SurfaceProfileCharacteristicStats by the designator of the items its measurements
     measure (followed through the ids, not read from its own attribute)."""
     out = {}
-    for st in _xp(doc, "//q:CapabilityStudyResults/q:CharacteristicsStats/"
-                       "q:SurfaceProfileCharacteristicStats"):
+    for st in _xp(
+        doc, "//q:CapabilityStudyResults/q:CharacteristicsStats/q:SurfaceProfileCharacteristicStats"
+    ):
         designators = set()
         for mid in _xp(st, "q:MeasuredIds/q:Ids/q:Id/text()"):
             m = _one(doc, f"//q:SurfaceProfileCharacteristicMeasurement[@id='{mid}']")
-            item = _one(doc, f"//q:SurfaceProfileCharacteristicItem[@id='"
-                             f"{_one(m, 'q:CharacteristicItemId/text()')}']")
+            item = _one(
+                doc,
+                f"//q:SurfaceProfileCharacteristicItem[@id='"
+                f"{_one(m, 'q:CharacteristicItemId/text()')}']",
+            )
             designators.add(_one(item, "q:CharacteristicDesignator/q:Designator/text()"))
         assert len(designators) == 1, designators
         (key,) = designators
@@ -175,8 +216,9 @@ def test_numbers_equal_those_of_the_per_scan_documents(batch):
         assert attrs["designator"] == key
         assert int(attrs["n_pass"]) == e["statuses"].count("PASS")
         assert int(attrs["n_fail"]) == e["statuses"].count("FAIL")
-        assert int(attrs["n_other"]) == len(e["statuses"]) - e["statuses"].count("PASS") \
-            - e["statuses"].count("FAIL")
+        assert int(attrs["n_other"]) == len(e["statuses"]) - e["statuses"].count("PASS") - e[
+            "statuses"
+        ].count("FAIL")
         assert _num(vs, "q:TotalNumber/q:Value/text()") == len(e["statuses"])
         assert _num(vs, "q:EffectiveNumber/q:Value/text()") == len(values)
         mean, sd = pystats.fmean(values), pystats.stdev(values)
@@ -188,16 +230,17 @@ def test_numbers_equal_those_of_the_per_scan_documents(batch):
         above = [v for v in values if v > tol]
         assert _num(vs, "q:NumberOutOfTolerance/q:Value/text()") == len(above)
         assert len(_xp(vs, "q:NumberOutOfTolerance/q:Ids/q:Id")) == len(above)
-        assert _num(vs, "q:Cpk/q:Value/text()") == pytest.approx((tol - mean) / (3 * sd),
-                                                                 rel=1e-12)
+        assert _num(vs, "q:Cpk/q:Value/text()") == pytest.approx((tol - mean) / (3 * sd), rel=1e-12)
         assert _xp(vs, "q:Cp") == []  # one-sided tolerance: no Cp
         assert _one(st, "q:CapabilityCalculationMethod/text()") == "THREE_SIGMA"
-        assert _num(st, "q:WorstPositiveDeviationStats/q:Maximum/q:Value/text()") == \
-            max(e["wpos"])
+        assert _num(st, "q:WorstPositiveDeviationStats/q:Maximum/q:Value/text()") == max(e["wpos"])
         # the extremes name the measurements that have them
         for tag, v in (("Minimum", min(values)), ("Maximum", max(values))):
-            m = _one(doc, f"//q:SurfaceProfileCharacteristicMeasurement[@id='"
-                          f"{_one(vs, f'q:{tag}/q:Id/text()')}']")
+            m = _one(
+                doc,
+                f"//q:SurfaceProfileCharacteristicMeasurement[@id='"
+                f"{_one(vs, f'q:{tag}/q:Id/text()')}']",
+            )
             assert _num(m, "q:Value/text()") == v
 
 
@@ -250,8 +293,9 @@ def test_measurements_are_copies_traced_to_their_sources(batch):
             orig = source[_one(c, "q:Attributes/q:AttributeStr[@name='source_id']/@value")]
             assert _num(c, "q:Value/text()") == orig["value"]
             assert _one(c, "q:Status/q:CharacteristicStatusEnum/text()") == orig["status"]
-        actual = _one(doc, f"//q:ActualComponent[@id='"
-                           f"{_one(mr, 'q:ActualComponentIds/q:Id/text()')}']")
+        actual = _one(
+            doc, f"//q:ActualComponent[@id='{_one(mr, 'q:ActualComponentIds/q:Id/text()')}']"
+        )
         assert _one(actual, "q:SerialNumber/text()") == name
 
 
@@ -260,15 +304,33 @@ def test_measurements_are_copies_traced_to_their_sources(batch):
 
 def _result(path: str, chars: list[tuple], status: str = "PASS") -> QIFResults:
     """A read-back results document: ``chars`` = (designator, value, status, tolerance)."""
-    cs = [CharacteristicResult(kind="SurfaceProfile", id=str(10 + k), name=f"profile {d}",
-                               designator=d, status=st, value=v, tolerance=tol,
-                               worst_positive=None if v is None else v / 2,
-                               worst_negative=None if v is None else -v / 4)
-          for k, (d, v, st, tol) in enumerate(chars)]
-    return QIFResults(path=Path(path), version="3.0.0", qpid=None, application="qifreport",
-                      software_version="0.1.0", status=status, characteristics=cs,
-                      attributes={}, inputs=[], inspection_start="2026-01-01T10:00:00Z",
-                      inspection_end="2026-01-01T12:00:05+01:00")
+    cs = [
+        CharacteristicResult(
+            kind="SurfaceProfile",
+            id=str(10 + k),
+            name=f"profile {d}",
+            designator=d,
+            status=st,
+            value=v,
+            tolerance=tol,
+            worst_positive=None if v is None else v / 2,
+            worst_negative=None if v is None else -v / 4,
+        )
+        for k, (d, v, st, tol) in enumerate(chars)
+    ]
+    return QIFResults(
+        path=Path(path),
+        version="3.0.0",
+        qpid=None,
+        application="qifreport",
+        software_version="0.1.0",
+        status=status,
+        characteristics=cs,
+        attributes={},
+        inputs=[],
+        inspection_start="2026-01-01T10:00:00Z",
+        inspection_end="2026-01-01T12:00:05+01:00",
+    )
 
 
 def test_summarize_by_hand_and_excluded_measurements(tmp_path):
@@ -299,8 +361,9 @@ def test_summarize_by_hand_and_excluded_measurements(tmp_path):
     excl = _xp(stats["T2"], "q:MeasuredIds/q:Exclusions/q:Exclusion")
     assert len(excl) == 1
     assert _one(excl[0], "q:Reason/q:OtherExclusionReason/text()") == NO_VALUE_REASON
-    m = _one(doc, f"//q:SurfaceProfileCharacteristicMeasurement[@id='"
-                  f"{_one(excl[0], 'q:Id/text()')}']")
+    m = _one(
+        doc, f"//q:SurfaceProfileCharacteristicMeasurement[@id='{_one(excl[0], 'q:Id/text()')}']"
+    )
     assert _xp(m, "q:Value") == []
     assert _num(stats["T2"], "q:ValueStats/q:TotalNumber/q:Value/text()") == 4
     assert _num(stats["T2"], "q:ValueStats/q:EffectiveNumber/q:Value/text()") == 3

@@ -104,8 +104,10 @@ def test_cli_pmi_lists_the_sample(capsys):
 def test_cli_inspects_a_step_part_with_bands_from_its_pmi(tmp_path, capsys):
     step = ROOT / "samples" / "panel.step"
     scan = ROOT / "samples" / "panel_scan_defect.ply"
-    code, out, err = _run([str(step), str(scan), "--quiet", "--json", "--out", str(tmp_path),
-                           "--max-edge", "6"], capsys)
+    code, out, err = _run(
+        [str(step), str(scan), "--quiet", "--json", "--out", str(tmp_path), "--max-edge", "6"],
+        capsys,
+    )
     # this coarse tessellation (edges as long as the defect's sigma) lets the fit absorb
     # most of the defect: the part must never PASS (measured: FAIL, a 28 mm^2 region beside
     # the absorbed bump; both profiles pass), and the data-referenced pass still sees it
@@ -133,8 +135,15 @@ def test_cli_inspects_a_step_part_with_bands_from_its_pmi(tmp_path, capsys):
 
 
 def test_mesh_nominal_needs_a_tolerance(tmp_path, capsys):
-    code, _, err = _run([str(ROOT / "samples" / "shell_nominal.ply"),
-                         str(ROOT / "samples" / "shell_scan.ply"), "--quiet",
-                         "--out", str(tmp_path)], capsys)
+    code, _, err = _run(
+        [
+            str(ROOT / "samples" / "shell_nominal.ply"),
+            str(ROOT / "samples" / "shell_scan.ply"),
+            "--quiet",
+            "--out",
+            str(tmp_path),
+        ],
+        capsys,
+    )
     assert code == 2 and "--tolerance" in err and len(err.strip().splitlines()) == 1
     assert not any(Path(tmp_path).iterdir())

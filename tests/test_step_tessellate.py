@@ -50,17 +50,24 @@ def test_tessellation_carries_face_ids_and_is_welded(ctc01):
     # the mesh area matches the exact B-rep area within the chord error
     props = GProp_GProps()
     BRepGProp.SurfaceProperties_s(ctc01.shape, props)
-    area_mesh = 0.5 * np.linalg.norm(
-        np.cross(m.V[m.F[:, 1]] - m.V[m.F[:, 0]], m.V[m.F[:, 2]] - m.V[m.F[:, 0]]), axis=1
-    ).sum()
+    area_mesh = (
+        0.5
+        * np.linalg.norm(
+            np.cross(m.V[m.F[:, 1]] - m.V[m.F[:, 0]], m.V[m.F[:, 2]] - m.V[m.F[:, 0]]), axis=1
+        ).sum()
+    )
     assert abs(area_mesh - props.Mass()) / props.Mass() < 5e-3
     # per-face areas too: face 0's triangles vs its exact area
     for k in (0, len(ctc01.faces) // 2):
         p = GProp_GProps()
         BRepGProp.SurfaceProperties_s(ctc01.faces[k], p)
         sel = m.F[m.face_id == k]
-        a = 0.5 * np.linalg.norm(np.cross(m.V[sel[:, 1]] - m.V[sel[:, 0]],
-                                          m.V[sel[:, 2]] - m.V[sel[:, 0]]), axis=1).sum()
+        a = (
+            0.5
+            * np.linalg.norm(
+                np.cross(m.V[sel[:, 1]] - m.V[sel[:, 0]], m.V[sel[:, 2]] - m.V[sel[:, 0]]), axis=1
+            ).sum()
+        )
         assert abs(a - p.Mass()) / p.Mass() < 2e-2
 
 
@@ -106,7 +113,9 @@ def test_not_a_step_file_is_an_input_error(tmp_path):
     with pytest.raises(InputError, match="not a STEP"):
         read_step(bad)
     trunc = tmp_path / "t.step"
-    trunc.write_text("ISO-10303-21;\nHEADER;\nENDSEC;\nDATA;\n#1=CARTESIAN_POINT('',(0.,0.,0.));\n"
-                     "ENDSEC;\nEND-ISO-10303-21;\n")
+    trunc.write_text(
+        "ISO-10303-21;\nHEADER;\nENDSEC;\nDATA;\n#1=CARTESIAN_POINT('',(0.,0.,0.));\n"
+        "ENDSEC;\nEND-ISO-10303-21;\n"
+    )
     with pytest.raises(InputError, match="no (transferable )?shape|no surface"):
         read_step(trunc)

@@ -63,8 +63,15 @@ from samples.make_step_sample import (  # noqa: E402
 _ENTITY = re.compile(r"#(\d+)\s*=\s*(.*)", re.S)
 _REF = re.compile(r"#\d+")
 _TOL = re.compile(r"([A-Z_]*TOLERANCE)\('((?:[^']|'')*)','(?:[^']|'')*',(#\d+),(#\d+)\)")
-_SI_PREFIX_MM = {"$": 1000.0, "KILO": 1e6, "DECI": 100.0, "CENTI": 10.0, "MILLI": 1.0,
-                 "MICRO": 1e-3, "NANO": 1e-6}
+_SI_PREFIX_MM = {
+    "$": 1000.0,
+    "KILO": 1e6,
+    "DECI": 100.0,
+    "CENTI": 10.0,
+    "MILLI": 1.0,
+    "MICRO": 1e-3,
+    "NANO": 1e-6,
+}
 
 
 def parse_part21(text: str) -> dict[str, str]:
@@ -122,8 +129,14 @@ def tolerances_in_text(ents: dict[str, str]) -> dict[str, dict]:
         value, unit = measure_value(ents, mag)
         dsys = re.search(r"GEOMETRIC_TOLERANCE_WITH_DATUM_REFERENCE\(\((#\d+)\)\)", body)
         out[name] = {
-            "ref": ref, "body": body, "kind": kind, "measure": mag, "value": value,
-            "unit": unit, "aspect": aspect, "datum_system": dsys.group(1) if dsys else None,
+            "ref": ref,
+            "body": body,
+            "kind": kind,
+            "measure": mag,
+            "value": value,
+            "unit": unit,
+            "aspect": aspect,
+            "datum_system": dsys.group(1) if dsys else None,
         }
     return out
 
@@ -149,8 +162,9 @@ def datum_system_labels(ents: dict[str, str], dsys: str) -> list[str]:
     assert m, ents[dsys]
     letters = []
     for comp in _REF.findall(m.group(1)):
-        c = re.fullmatch(r"DATUM_REFERENCE_COMPARTMENT\('[^']*','[^']*',#\d+,\.[TF]\.,(#\d+),\$\)",
-                         ents[comp])
+        c = re.fullmatch(
+            r"DATUM_REFERENCE_COMPARTMENT\('[^']*','[^']*',#\d+,\.[TF]\.,(#\d+),\$\)", ents[comp]
+        )
         assert c, ents[comp]
         d = re.fullmatch(r"DATUM\('[^']*','[^']*',#\d+,\.[TF]\.,'([^']*)'\)", ents[c.group(1)])
         assert d, ents[c.group(1)]
@@ -191,7 +205,8 @@ def index_of(face, originals: list[tuple]) -> int:
     """
     kind, area, c = face_key(face)
     hits = [
-        i for i, (k, a, o) in enumerate(originals)
+        i
+        for i, (k, a, o) in enumerate(originals)
         if k == kind and math.isclose(a, area, rel_tol=1e-3) and math.dist(c, o) < 1e-2
     ]
     assert len(hits) == 1, f"face matches originals {hits}"
@@ -231,11 +246,15 @@ def xde_tolerances(doc) -> list[dict]:
         for d in seq_list(dls):
             dobj = XCAFDoc_Datum.Set_s(d).GetObject()
             datums.append((dobj.GetPosition(), dobj.GetName().ToCString()))
-        out.append({
-            "type": obj.GetType(), "value": obj.GetValue(), "linked": linked,
-            "faces": [XCAFDoc_ShapeTool.GetShape_s(f) for f in seq_list(firsts)],
-            "datums": [name for _, name in sorted(datums)],
-        })
+        out.append(
+            {
+                "type": obj.GetType(),
+                "value": obj.GetValue(),
+                "linked": linked,
+                "faces": [XCAFDoc_ShapeTool.GetShape_s(f) for f in seq_list(firsts)],
+                "datums": [name for _, name in sorted(datums)],
+            }
+        )
     return out
 
 
@@ -249,9 +268,7 @@ def xde_datums(doc) -> dict[str, list]:
         name = XCAFDoc_Datum.Set_s(lab).GetObject().GetName().ToCString()
         firsts, seconds = TDF_LabelSequence(), TDF_LabelSequence()
         assert XCAFDoc_DimTolTool.GetRefShapeLabel_s(lab, firsts, seconds)
-        out.setdefault(name, []).append(
-            [XCAFDoc_ShapeTool.GetShape_s(f) for f in seq_list(firsts)]
-        )
+        out.setdefault(name, []).append([XCAFDoc_ShapeTool.GetShape_s(f) for f in seq_list(firsts)])
     return out
 
 
@@ -514,8 +531,7 @@ def test_located_shape_keeps_face_indices(tmp_path):
     doc = read_xde(path)
     got = xde_tolerances(doc)
     assert [[index_of(f, expected) for f in t["faces"]] for t in got] == [[3], [11]]
-    (datum_a,) = {tuple(sorted(index_of(f, expected) for f in fs))
-                  for fs in xde_datums(doc)["A"]}
+    (datum_a,) = {tuple(sorted(index_of(f, expected) for f in fs)) for fs in xde_datums(doc)["A"]}
     assert datum_a == (0, 8)
 
 
@@ -531,8 +547,14 @@ def test_located_shape_keeps_face_indices(tmp_path):
         ([PMISpecTolerance("flatness", 0.2, [0], ["A"])], [PMISpecDatum("A", [0])], "no datum"),
         ([PMISpecTolerance("perpendicularity", 0.2, [1])], [], "needs a datum"),
         ([], [PMISpecDatum("A", [0]), PMISpecDatum("A", [1])], "duplicate datum"),
-        ([PMISpecTolerance("flatness", 0.2, [0], [], "x"),
-          PMISpecTolerance("flatness", 0.2, [8], [], "x")], [], "duplicate tolerance"),
+        (
+            [
+                PMISpecTolerance("flatness", 0.2, [0], [], "x"),
+                PMISpecTolerance("flatness", 0.2, [8], [], "x"),
+            ],
+            [],
+            "duplicate tolerance",
+        ),
     ],
 )
 def test_invalid_specification_is_rejected_before_writing(tmp_path, tols, datums, match):

@@ -40,9 +40,11 @@ def _cli_json(argv: list[str], out: Path, stem: str) -> tuple[int, dict]:
 
 @pytest.fixture(scope="module")
 def mesh_doc(tmp_path_factory):
-    code, doc = _cli_json([str(SAMPLES / "shell_nominal.ply"), str(SAMPLES / "shell_scan.ply"),
-                           "--tolerance", "0.5"], tmp_path_factory.mktemp("mesh"),
-                          "shell_nominal")
+    code, doc = _cli_json(
+        [str(SAMPLES / "shell_nominal.ply"), str(SAMPLES / "shell_scan.ply"), "--tolerance", "0.5"],
+        tmp_path_factory.mktemp("mesh"),
+        "shell_nominal",
+    )
     assert code == 0
     return doc
 
@@ -50,9 +52,17 @@ def mesh_doc(tmp_path_factory):
 @pytest.fixture(scope="module")
 def rigid_doc(tmp_path_factory):
     """--rigid-only: no GB-CICP result, unresolved GB-CICP defaults (nulls)."""
-    code, doc = _cli_json([str(SAMPLES / "shell_nominal.ply"), str(SAMPLES / "shell_scan.ply"),
-                           "--tolerance", "0.5", "--rigid-only"], tmp_path_factory.mktemp("rigid"),
-                          "shell_nominal")
+    code, doc = _cli_json(
+        [
+            str(SAMPLES / "shell_nominal.ply"),
+            str(SAMPLES / "shell_scan.ply"),
+            "--tolerance",
+            "0.5",
+            "--rigid-only",
+        ],
+        tmp_path_factory.mktemp("rigid"),
+        "shell_nominal",
+    )
     assert code in (0, 1)
     return doc
 
@@ -60,8 +70,11 @@ def rigid_doc(tmp_path_factory):
 @pytest.fixture(scope="module")
 def step_doc(tmp_path_factory):
     """The STEP panel: PMI zones, not-evaluated items, a failing part with regions."""
-    code, doc = _cli_json([str(SAMPLES / "panel.step"), str(SAMPLES / "panel_scan_defect.ply")],
-                          tmp_path_factory.mktemp("step"), "panel")
+    code, doc = _cli_json(
+        [str(SAMPLES / "panel.step"), str(SAMPLES / "panel_scan_defect.ply")],
+        tmp_path_factory.mktemp("step"),
+        "panel",
+    )
     assert code in (0, 1)
     return doc
 
@@ -132,11 +145,23 @@ def test_outputs_cover_the_variants(mesh_doc, rigid_doc, step_doc):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("qif", [
-    {"path": "out/panel.qif", "valid": True, "validated_with": ["xmlschema"], "message": "valid"},
-    {"path": "out/panel.qif", "valid": None, "validated_with": [],
-     "message": "not validated: QIF schemas not found"},
-])
+@pytest.mark.parametrize(
+    "qif",
+    [
+        {
+            "path": "out/panel.qif",
+            "valid": True,
+            "validated_with": ["xmlschema"],
+            "message": "valid",
+        },
+        {
+            "path": "out/panel.qif",
+            "valid": None,
+            "validated_with": [],
+            "message": "not validated: QIF schemas not found",
+        },
+    ],
+)
 def test_optional_qif_block_validates(mesh_doc, qif):
     assert_valid_summary({**mesh_doc, "qif": qif})
 
@@ -164,15 +189,23 @@ MISTAKES = {
     "missing verdict": ("/verdict", _DELETE, "/: 'verdict' is a required property"),
     "verdict OK": ("/verdict", "OK", "/verdict: 'OK' is not one of"),
     "zone verdict lowercase": ("/tolerances/0/verdict", "pass", "/tolerances/0/verdict:"),
-    "negative region area": ("/acceptance/regions/0/area", -12.5,
-                             "/acceptance/regions/0/area: -12.5 is less than the minimum"),
+    "negative region area": (
+        "/acceptance/regions/0/area",
+        -12.5,
+        "/acceptance/regions/0/area: -12.5 is less than the minimum",
+    ),
     "negative scored area": ("/coverage/scored_area_mm2", -1.0, "/coverage/scored_area_mm2:"),
-    "string for a number": ("/vertex_deviation/rms", "0.21",
-                            "/vertex_deviation/rms: '0.21' is not of type"),
-    "percent for a fraction": ("/acceptance/in_tolerance_fraction", 95.4,
-                               "/acceptance/in_tolerance_fraction: 95.4 is greater than"),
-    "NaN leaking": ("/coverage/coverage", math.nan,
-                    "/coverage/coverage: nan is not a JSON number"),
+    "string for a number": (
+        "/vertex_deviation/rms",
+        "0.21",
+        "/vertex_deviation/rms: '0.21' is not of type",
+    ),
+    "percent for a fraction": (
+        "/acceptance/in_tolerance_fraction",
+        95.4,
+        "/acceptance/in_tolerance_fraction: 95.4 is greater than",
+    ),
+    "NaN leaking": ("/coverage/coverage", math.nan, "/coverage/coverage: nan is not a JSON number"),
     "unknown top-level key": ("/extra", 1, "Additional properties are not allowed ('extra'"),
     "unknown zone key": ("/tolerances/0/center_mm", 0.0, "/tolerances/0: Additional properties"),
     "wrong schema version": ("/schema", "qifreport-summary/2", "/schema: 'qifreport-summary/1'"),
@@ -181,12 +214,18 @@ MISTAKES = {
     "bad region sign": ("/acceptance/regions/0/sign", 0, "/acceptance/regions/0/sign:"),
     "unknown zone source": ("/tolerances/0/source", "cli", "/tolerances/0/source:"),
     "float count": ("/mesh/vertices", 36056.5, "/mesh/vertices: 36056.5 is not of type"),
-    "step nominal without tessellation": ("/nominal/tessellation", _DELETE,
-                                          "/nominal: 'tessellation' is a required property"),
+    "step nominal without tessellation": (
+        "/nominal/tessellation",
+        _DELETE,
+        "/nominal: 'tessellation' is a required property",
+    ),
     "PASS with failing zones": ("/verdict", "PASS", "/verdict: 'PASS' was expected"),
     "empty stats with numbers": ("/vertex_deviation/n", 0, "/vertex_deviation/rms:"),
-    "bad qif block": ("/qif", {"path": "x.qif", "valid": "yes", "validated_with": [],
-                               "message": ""}, "/qif/valid: 'yes' is not of type"),
+    "bad qif block": (
+        "/qif",
+        {"path": "x.qif", "valid": "yes", "validated_with": [], "message": ""},
+        "/qif/valid: 'yes' is not of type",
+    ),
 }
 
 

@@ -43,20 +43,31 @@ CHARS = [
 ]
 
 
-
-
-def batch_frame(n: int, chars: list[TrendCharacteristic] = CHARS, *, seed: int = 0,
-                fail_at: tuple[int, ...] = (), error_at: tuple[int, ...] = (),
-                ne_at: tuple[int, ...] = ()) -> pd.DataFrame:
+def batch_frame(
+    n: int,
+    chars: list[TrendCharacteristic] = CHARS,
+    *,
+    seed: int = 0,
+    fail_at: tuple[int, ...] = (),
+    error_at: tuple[int, ...] = (),
+    ne_at: tuple[int, ...] = (),
+) -> pd.DataFrame:
     """A batch summary of ``n`` scans: profile values well inside the tolerance, except the
     scans ``fail_at`` (1-based) whose first characteristic is 1.3 to 1.6 times its tolerance
     (FAIL), the scans ``error_at`` (ERROR, no values) and ``ne_at`` (NOT ESTABLISHED)."""
     rng = np.random.default_rng(seed)
     rows = []
     for s in range(1, n + 1):
-        row: dict = {"seq": s, "scan": f"scan_{s:04d}.ply", "serial": f"SN-{1000 + s}",
-                     "verdict": "PASS", "decided_by": "", "error": "",
-                     "rms_mm": 0.05 + 0.01 * rng.random(), "p999_mm": 0.2}
+        row: dict = {
+            "seq": s,
+            "scan": f"scan_{s:04d}.ply",
+            "serial": f"SN-{1000 + s}",
+            "verdict": "PASS",
+            "decided_by": "",
+            "error": "",
+            "rms_mm": 0.05 + 0.01 * rng.random(),
+            "p999_mm": 0.2,
+        }
         for j, ch in enumerate(chars):
             v = ch.tolerance_mm * (0.35 + 0.25 * rng.random())
             status = "PASS"
@@ -69,14 +80,19 @@ def batch_frame(n: int, chars: list[TrendCharacteristic] = CHARS, *, seed: int =
             row[f"status_{ch.key}"] = status
         if s in fail_at:
             row["verdict"] = "FAIL"
-            row["decided_by"] = (f"{chars[0].key}: region criterion, a region of 41.2 mm^2 "
-                                 "exceeds 25 mm^2")
+            row["decided_by"] = (
+                f"{chars[0].key}: region criterion, a region of 41.2 mm^2 exceeds 25 mm^2"
+            )
         if s in ne_at:
             row["verdict"] = "NOT ESTABLISHED"
             row["decided_by"] = "registration not trusted: the pose search is ambiguous"
         if s in error_at:
-            row.update(verdict="ERROR", error="ValueError: scan has no points inside the "
-                       "bounding box of the nominal", rms_mm=np.nan, p999_mm=np.nan)
+            row.update(
+                verdict="ERROR",
+                error="ValueError: scan has no points inside the bounding box of the nominal",
+                rms_mm=np.nan,
+                p999_mm=np.nan,
+            )
             for ch in chars:
                 row[f"profile_{ch.key}_mm"] = np.nan
                 row[f"status_{ch.key}"] = ""
@@ -93,33 +109,40 @@ class Out:
     pdf: Path
 
 
-def _render(d: Path, name: str, df: pd.DataFrame, chars=CHARS, page: str = "A4",
-            part: str = "bracket-7731") -> Out:
+def _render(
+    d: Path, name: str, df: pd.DataFrame, chars=CHARS, page: str = "A4", part: str = "bracket-7731"
+) -> Out:
     """Write the trend report, read its text and rasterize it."""
     pdf = d / f"{name}.pdf"
-    write_trend_pdf(pdf, df, chars, part_name=part, created=CREATED, nominal_sha256=SHA,
-                    page=page)
-    lay = plan_trend(df, chars, part_name=part, created=CREATED, nominal_sha256=SHA,
-                     page=page)
-    info = subprocess.run([_tool("pdfinfo"), str(pdf)], check=True, capture_output=True,
-                          text=True).stdout
+    write_trend_pdf(pdf, df, chars, part_name=part, created=CREATED, nominal_sha256=SHA, page=page)
+    lay = plan_trend(df, chars, part_name=part, created=CREATED, nominal_sha256=SHA, page=page)
+    info = subprocess.run(
+        [_tool("pdfinfo"), str(pdf)], check=True, capture_output=True, text=True
+    ).stdout
     fields = dict(line.split(":", 1) for line in info.splitlines() if ":" in line)
     fields = {k.strip(): v.strip() for k, v in fields.items()}
-    text = subprocess.run([_tool("pdftotext"), "-layout", str(pdf), "-"], check=True,
-                          capture_output=True, text=True).stdout
-    subprocess.run([_tool("pdftoppm"), "-r", str(DPI), "-png", "-singlefile", str(pdf),
-                    str(d / name)], check=True)
+    text = subprocess.run(
+        [_tool("pdftotext"), "-layout", str(pdf), "-"], check=True, capture_output=True, text=True
+    ).stdout
+    subprocess.run(
+        [_tool("pdftoppm"), "-r", str(DPI), "-png", "-singlefile", str(pdf), str(d / name)],
+        check=True,
+    )
     img = np.asarray(Image.open(d / f"{name}.png").convert("RGB"), dtype=float) / 255.0
     return Out(lay, text, img, fields, pdf)
 
 
 def _words(pdf: Path, height: float) -> list[tuple[str, float, float]]:
     """Every word of the page with the centre of its box (page points, origin bottom-left)."""
-    html = subprocess.run([_tool("pdftotext"), "-bbox", str(pdf), "-"], check=True,
-                          capture_output=True, text=True).stdout
+    html = subprocess.run(
+        [_tool("pdftotext"), "-bbox", str(pdf), "-"], check=True, capture_output=True, text=True
+    ).stdout
     out = []
-    for m in re.finditer(r'<word xMin="([\d.]+)" yMin="([\d.]+)" xMax="([\d.]+)" '
-                         r'yMax="([\d.]+)">([^<]*)</word>', html):
+    for m in re.finditer(
+        r'<word xMin="([\d.]+)" yMin="([\d.]+)" xMax="([\d.]+)" '
+        r'yMax="([\d.]+)">([^<]*)</word>',
+        html,
+    ):
         x0, y0, x1, y1 = (float(m.group(k)) for k in range(1, 5))
         out.append((m.group(5), (x0 + x1) / 2, height - (y0 + y1) / 2))
     return out
@@ -133,7 +156,7 @@ def _px(lay: TrendLayout, x: float, y: float) -> tuple[int, int]:
 
 def _patch(img: np.ndarray, rc: tuple[int, int], r: int = 1) -> np.ndarray:
     i, j = rc
-    return img[i - r:i + r + 1, j - r:j + r + 1].reshape(-1, 3)
+    return img[i - r : i + r + 1, j - r : j + r + 1].reshape(-1, 3)
 
 
 def _is_red(p: np.ndarray) -> np.ndarray:
@@ -172,8 +195,12 @@ def test_one_page_and_header_numbers(batch):
     n_pass, n_fail = int(counts.get("PASS", 0)), int(counts.get("FAIL", 0))
     n_ne, n_err = int(counts.get("NOT ESTABLISHED", 0)), int(counts.get("ERROR", 0))
     assert (n_pass, n_fail, n_ne, n_err) == (20, 3, 1, 1)
-    for word, k in (("PASS", n_pass), ("FAIL", n_fail), ("NOT ESTABLISHED", n_ne),
-                    ("ERROR", n_err)):
+    for word, k in (
+        ("PASS", n_pass),
+        ("FAIL", n_fail),
+        ("NOT ESTABLISHED", n_ne),
+        ("ERROR", n_err),
+    ):
         assert re.search(rf"\b{word} {k}\b", text), word
     judged = n_pass + n_fail + n_ne
     rate = 100.0 * n_pass / judged
@@ -194,8 +221,10 @@ def test_chart_statistics_and_labels(batch):
         cpk = (ch.tolerance_mm - mean) / (3 * sigma)
         n_pass = int((df[f"status_{ch.key}"] == "PASS").sum())
         n_judged = int(df[f"status_{ch.key}"].isin(["PASS", "FAIL", "NOT ESTABLISHED"]).sum())
-        line = (f"n {len(v)}   mean {fmt_mm(mean)}   \u03c3 {fmt_mm(sigma)}   max "
-                f"{fmt_mm(v.max())} mm   Cpk {cpk:.2f}   PASS {n_pass} of {n_judged}")
+        line = (
+            f"n {len(v)}   mean {fmt_mm(mean)}   \u03c3 {fmt_mm(sigma)}   max "
+            f"{fmt_mm(v.max())} mm   Cpk {cpk:.2f}   PASS {n_pass} of {n_judged}"
+        )
         assert " ".join(line.split()) in " ".join(text.split()), line
         assert ch.key in text and ch.description[:30] in text
     # the tolerance labels beside their lines
@@ -237,19 +266,20 @@ def test_points_colours_and_tolerance_line(batch):
     assert not _is_red(img[top_row:bottom_row, c0:c1]).any()
     # the tolerance line: a horizontal run of its colour across the plot, at the tolerance
     row = _px(lay, 0, float(geo.y(tol)))[0]
-    band = img[row - 2:row + 3, c0:c1]
+    band = img[row - 2 : row + 3, c0:c1]
     runs = _is_red(band).mean(axis=1)
     assert runs.max() > 0.9, runs
     # ... and nowhere else in the plot so long (no such line at the wrong height)
-    rows = _is_red(img[_px(lay, 0, geo.plot.top)[0] + 2:bottom_row, c0:c1]).mean(axis=1)
+    rows = _is_red(img[_px(lay, 0, geo.plot.top)[0] + 2 : bottom_row, c0:c1]).mean(axis=1)
     assert np.flatnonzero(rows > 0.9).size <= 3
     # the errored scan: a grey cross in the strip below zero, no point above it
     for s in ERRORS:
         x = float(geo.x(s))
         cross = _patch(img, _px(lay, x, geo.plot.y + 3.5), 2)
         assert (cross.mean(axis=1) < 0.7).sum() >= 3
-        column = img[_px(lay, 0, geo.y_low + 3)[0]:_px(lay, 0, geo.plot.top - 2)[0],
-                     _px(lay, x, 0)[1]]
+        column = img[
+            _px(lay, 0, geo.y_low + 3)[0] : _px(lay, 0, geo.plot.top - 2)[0], _px(lay, x, 0)[1]
+        ]
         assert not (_is_green(column).any() or _is_red(column).any())
 
 
@@ -261,28 +291,42 @@ def test_axes_match_the_geometry(batch):
     words = _words(out.pdf, lay.height)
     for geo, ch in zip(lay.charts, CHARS, strict=True):
         pa = geo.plot
-        yticks = [(float(w), y) for w, x, y in words
-                  if re.fullmatch(r"\d+\.\d+", w) and pa.x - 25 < x < pa.x
-                  and pa.y - 2 < y < pa.top + 2]
+        yticks = [
+            (float(w), y)
+            for w, x, y in words
+            if re.fullmatch(r"\d+\.\d+", w) and pa.x - 25 < x < pa.x and pa.y - 2 < y < pa.top + 2
+        ]
         assert len(yticks) >= 3, ch.key
         for v, y in yticks:
             assert abs(y - float(geo.y(v))) < 2.0, (ch.key, v)
-        xticks = [(int(w), x) for w, x, y in words
-                  if w.isdigit() and pa.x - 5 < x < pa.x + pa.w + 5 and pa.y - 10 < y < pa.y]
+        xticks = [
+            (int(w), x)
+            for w, x, y in words
+            if w.isdigit() and pa.x - 5 < x < pa.x + pa.w + 5 and pa.y - 10 < y < pa.y
+        ]
         assert [t for t, _ in xticks] == [1, 5, 10, 15, 20, 25]
         for t, x in xticks:
             assert abs(x - float(geo.x(t))) < 1.0
         # the tolerance label right of the frame, at the line
-        label = [(x, y) for w, x, y in words if w == fmt_mm(ch.tolerance_mm)
-                 and pa.x + pa.w < x < pa.x + pa.w + 30 and pa.y < y < pa.top]
+        label = [
+            (x, y)
+            for w, x, y in words
+            if w == fmt_mm(ch.tolerance_mm)
+            and pa.x + pa.w < x < pa.x + pa.w + 30
+            and pa.y < y < pa.top
+        ]
         assert len(label) == 1 and abs(label[0][1] - float(geo.y(ch.tolerance_mm))) < 6.0
     # the final cumulative pass rate printed at the end of its curve
     geo = lay.pass_rate
     v = df["verdict"]
     rate = 100.0 * (v == "PASS").sum() / v.isin(["PASS", "FAIL", "NOT ESTABLISHED"]).sum()
-    end = [(x, y) for w, x, y in words if w == f"{rate:.1f}"
-           and geo.plot.x + geo.plot.w < x < geo.plot.x + geo.plot.w + 20
-           and geo.plot.y < y < geo.plot.top]
+    end = [
+        (x, y)
+        for w, x, y in words
+        if w == f"{rate:.1f}"
+        and geo.plot.x + geo.plot.w < x < geo.plot.x + geo.plot.w + 20
+        and geo.plot.y < y < geo.plot.top
+    ]
     assert len(end) == 1 and abs(end[0][1] - float(geo.y(rate))) < 2.0
 
 
@@ -332,8 +376,10 @@ def test_long_batch(tmp_path):
     assert len(re.findall(r"\d+", text)) < 300
     # failing points (1.3 to 1.6 times the tolerance) are red above the tolerance line
     geo = lay.charts[0]
-    above = img[_px(lay, 0, geo.plot.top)[0] + 1:_px(lay, 0, float(geo.y(1.25)))[0],
-                int(geo.plot.x * DPI / 72) + 1:int((geo.plot.x + geo.plot.w) * DPI / 72) - 1]
+    above = img[
+        _px(lay, 0, geo.plot.top)[0] + 1 : _px(lay, 0, float(geo.y(1.25)))[0],
+        int(geo.plot.x * DPI / 72) + 1 : int((geo.plot.x + geo.plot.w) * DPI / 72) - 1,
+    ]
     assert _is_red(above).sum() >= len(fails)
 
 
@@ -352,8 +398,10 @@ def test_three_scans(tmp_path):
 
 
 def test_many_characteristics_shows_the_smallest_margins(tmp_path):
-    chars = [TrendCharacteristic(f"T{k}", f"surface profile {0.2 * k:g} mm", 0.2 * k)
-             for k in range(1, 9)]
+    chars = [
+        TrendCharacteristic(f"T{k}", f"surface profile {0.2 * k:g} mm", 0.2 * k)
+        for k in range(1, 9)
+    ]
     df = batch_frame(15, chars, seed=5)
     # T7 and T3 close to their tolerance: they must be charted
     df.loc[4, "profile_T7_mm"] = 0.99 * 1.4
@@ -385,25 +433,30 @@ def test_outlier_clipped_to_the_top(tmp_path):
 
 def test_bad_page_size(tmp_path):
     with pytest.raises(ValueError):
-        write_trend_pdf(tmp_path / "x.pdf", batch_frame(3), CHARS, part_name="p",
-                        created=CREATED, page="A3")
+        write_trend_pdf(
+            tmp_path / "x.pdf", batch_frame(3), CHARS, part_name="p", created=CREATED, page="A3"
+        )
 
 
-@pytest.mark.parametrize("case", ["no scans", "all errored", "no characteristics",
-                                  "no tolerance, no columns"])
+@pytest.mark.parametrize(
+    "case", ["no scans", "all errored", "no characteristics", "no tolerance, no columns"]
+)
 def test_degenerate_batches_still_one_page(tmp_path, case):
     chars = CHARS
     if case == "no scans":
-        df = batch_frame(0, chars).reindex(columns=["seq", "scan", "serial", "verdict",
-                                                    "decided_by", "error"])
+        df = batch_frame(0, chars).reindex(
+            columns=["seq", "scan", "serial", "verdict", "decided_by", "error"]
+        )
     elif case == "all errored":
         df = batch_frame(4, error_at=(1, 2, 3, 4))
     elif case == "no characteristics":
         df, chars = batch_frame(5, fail_at=(2,)), []
     else:
         df = batch_frame(6)
-        chars = [TrendCharacteristic("T1", "", float("nan")),
-                 TrendCharacteristic("zz", "not in the summary", 0.5)]
+        chars = [
+            TrendCharacteristic("T1", "", float("nan")),
+            TrendCharacteristic("zz", "not in the summary", 0.5),
+        ]
     out = _render(tmp_path, "degenerate", df, chars)
     assert out.info["Pages"] == "1"
     assert [g.key for g in out.lay.charts] == [c.key for c in chars]

@@ -37,8 +37,21 @@ def rippled_cli_run(shell, tmp_path_factory) -> dict:
     trimesh.Trimesh(V, F, process=False).export(d / "shell.ply")
     trimesh.PointCloud(P).export(d / "rippled.ply")
     exe = Path(sys.executable).parent / "qifreport"
-    r = subprocess.run([str(exe), d / "shell.ply", d / "rippled.ply", "--tolerance", "1.0",
-                        "--out", d / "out", "--json", "--quiet"], capture_output=True, text=True)
+    r = subprocess.run(
+        [
+            str(exe),
+            d / "shell.ply",
+            d / "rippled.ply",
+            "--tolerance",
+            "1.0",
+            "--out",
+            d / "out",
+            "--json",
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+    )
     doc = json.loads((d / "out" / "shell.json").read_text())
     return dict(rc=r.returncode, stdout=r.stdout, stderr=r.stderr, doc=doc, out=d / "out")
 
@@ -59,13 +72,20 @@ def test_guard_fired_is_not_established_everywhere(rippled_cli_run):
     res = read_results(out / "shell.qif")
     assert res.status == "UNKNOWN"
     q = etree.parse(str(out / "shell.qif"))
-    status = q.xpath("//*[local-name()='CharacteristicMeasurements']//"
-                     "*[local-name()='CharacteristicStatusEnum']/text()")
+    status = q.xpath(
+        "//*[local-name()='CharacteristicMeasurements']//"
+        "*[local-name()='CharacteristicStatusEnum']/text()"
+    )
     assert status and set(status) == {"INDETERMINATE"}
     assert q.xpath("//*[local-name()='AttributeStr'][@name='verdict']/@value") == [
-        "NOT ESTABLISHED"]
-    text = subprocess.run(["pdftotext", "-layout", str(out / "shell.pdf"), "-"],
-                          capture_output=True, text=True, check=True).stdout
+        "NOT ESTABLISHED"
+    ]
+    text = subprocess.run(
+        ["pdftotext", "-layout", str(out / "shell.pdf"), "-"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     assert "NOT ESTABLISHED" in text and "PASS" not in text.split() and "n/e" in text.split()
 
 
@@ -81,7 +101,8 @@ def test_a_failing_part_stays_failed_and_a_ceiling_breach_is_a_warning():
     assert over.verdict == "NOT ESTABLISHED"
     assert "over-fit" in over.trust_warnings()[0]
     # a part that fails stays FAIL (rejected either way), the warning is still reported
-    tight = dataclasses.replace(over, acceptance=dataclasses.replace(
-        res.acceptance, passed=False, reasons=["forced"]))
+    tight = dataclasses.replace(
+        over, acceptance=dataclasses.replace(res.acceptance, passed=False, reasons=["forced"])
+    )
     assert tight.verdict == "FAIL" and tight.trust_warnings()
     assert np.isfinite(res.added.p999_signed)

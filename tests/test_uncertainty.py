@@ -31,8 +31,9 @@ def case_b_run(small_shell):
 def _noisy_plane(sigma: float, m: int = 20000, seed: int = 1) -> np.ndarray:
     """``m`` points on a tilted 60 x 60 mm plane with Gaussian noise ``sigma`` along its normal."""
     rng = np.random.default_rng(seed)
-    X = np.column_stack([rng.uniform(-30, 30, m), rng.uniform(-30, 30, m),
-                         sigma * rng.standard_normal(m)])
+    X = np.column_stack(
+        [rng.uniform(-30, 30, m), rng.uniform(-30, 30, m), sigma * rng.standard_normal(m)]
+    )
     R = Rotation.from_euler("xyz", [30.0, -20.0, 50.0], degrees=True).as_matrix()
     return X @ R.T + np.array([5.0, -3.0, 12.0])
 
@@ -98,10 +99,20 @@ def test_combine_quadrature():
     assert L.combine_quadrature(rows) == pytest.approx(t6["combined"][0], abs=5e-4)
     rows[-1] = L.PAPER_TEXT["repeatability_half_range"]
     assert L.combine_quadrature(rows) == pytest.approx(L.PAPER_TEXT["combined"], abs=1e-3)
-    b = L.Budget(noise_estimate=0.02, noise_setting=0.02, noise_normal_true=0.02,
-                 noise_propagated=0.001, mean_count=9.0, floor_rms=0.002, floor_max=0.01,
-                 compliance_rms=0.002, compliance_before=0.2, repeat_rms=0.004,
-                 repeat_max=0.1, repeat_how="test")
+    b = L.Budget(
+        noise_estimate=0.02,
+        noise_setting=0.02,
+        noise_normal_true=0.02,
+        noise_propagated=0.001,
+        mean_count=9.0,
+        floor_rms=0.002,
+        floor_max=0.01,
+        compliance_rms=0.002,
+        compliance_before=0.2,
+        repeat_rms=0.004,
+        repeat_max=0.1,
+        repeat_how="test",
+    )
     assert b.combined == pytest.approx(0.005)
     assert b.rows()[-1]["rms_mm"] == pytest.approx(0.005)
 

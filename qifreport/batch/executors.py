@@ -38,8 +38,9 @@ def _run_local(task: ScanTask, job: InspectJob) -> TaskResult:
     return run_task(task, _WORKER_STATES[task.part_key], job)
 
 
-def run_local(tasks: Iterable[ScanTask], states: dict[str, PartState],
-              job: InspectJob, jobs: int, window: int) -> Iterator[TaskResult]:
+def run_local(
+    tasks: Iterable[ScanTask], states: dict[str, PartState], job: InspectJob, jobs: int, window: int
+) -> Iterator[TaskResult]:
     """Run tasks on ``jobs`` local processes (in this process when ``jobs == 1``).
 
     A pool broken by a dying worker is replaced and its unfinished tasks resubmitted (up to
@@ -59,8 +60,9 @@ def run_local(tasks: Iterable[ScanTask], states: dict[str, PartState],
     retry: list[ScanTask] = []
     breaks = 0
     while True:
-        with ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_init_worker,
-                                 initargs=(states, blas)) as pool:
+        with ProcessPoolExecutor(
+            jobs, mp_context=ctx, initializer=_init_worker, initargs=(states, blas)
+        ) as pool:
             running: dict = {}
             broken = False
             while True:
@@ -86,20 +88,30 @@ def run_local(tasks: Iterable[ScanTask], states: dict[str, PartState],
         log.warning("a worker process died: %d task(s) resubmitted on a new pool", len(retry))
         if breaks > 3:
             for t in retry:
-                yield TaskResult(t.item.id, False, {}, error_row(
-                    t.item, t.scan_sha256, "worker process died (3 times)"),
-                    error="worker process died (3 times)")
+                yield TaskResult(
+                    t.item.id,
+                    False,
+                    {},
+                    error_row(t.item, t.scan_sha256, "worker process died (3 times)"),
+                    error="worker process died (3 times)",
+                )
             retry = []
 
 
-def run_dask(tasks: Iterable[ScanTask], states: dict[str, PartState],
-             job: InspectJob, address: str, window: int) -> Iterator[TaskResult]:
+def run_dask(
+    tasks: Iterable[ScanTask],
+    states: dict[str, PartState],
+    job: InspectJob,
+    address: str,
+    window: int,
+) -> Iterator[TaskResult]:
     """Run tasks on the Dask cluster at ``address``; the states are scattered once."""
     try:
         from distributed import Client, as_completed
     except ImportError as exc:
-        raise InputError("--scheduler needs Dask's 'distributed' package "
-                         "(pip install distributed)") from exc
+        raise InputError(
+            "--scheduler needs Dask's 'distributed' package (pip install distributed)"
+        ) from exc
     try:
         client = Client(address, timeout="20s")
     except (OSError, TimeoutError) as exc:
@@ -107,15 +119,20 @@ def run_dask(tasks: Iterable[ScanTask], states: dict[str, PartState],
     with client:
         n = max(1, len(client.scheduler_info().get("workers", {})))
         window = max(window, 2 * n)
-        futures = {k: client.scatter(s, broadcast=True, hash=False)
-                   for k, s in states.items()}
+        futures = {k: client.scatter(s, broadcast=True, hash=False) for k, s in states.items()}
         pending = iter(tasks)
         ac = as_completed()
         meta = {}
 
         def submit(t: ScanTask) -> None:
-            f = client.submit(run_task, t, futures[t.part_key], job, pure=False,
-                              key=f"qifreport-{t.item.id}-{t.scan_sha256[:12]}")
+            f = client.submit(
+                run_task,
+                t,
+                futures[t.part_key],
+                job,
+                pure=False,
+                key=f"qifreport-{t.item.id}-{t.scan_sha256[:12]}",
+            )
             meta[f.key] = t
             ac.add(f)
 
@@ -129,8 +146,9 @@ def run_dask(tasks: Iterable[ScanTask], states: dict[str, PartState],
                 yield f.result()
             except Exception as exc:  # e.g. KilledWorker after the scheduler's retries
                 msg = " ".join(f"{type(exc).__name__}: {exc}".split())
-                yield TaskResult(t.item.id, False, {}, error_row(t.item, t.scan_sha256,
-                                                                 msg), error=msg)
+                yield TaskResult(
+                    t.item.id, False, {}, error_row(t.item, t.scan_sha256, msg), error=msg
+                )
             f.release()
             nxt = next(pending, None)
             if nxt is not None:

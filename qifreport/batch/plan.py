@@ -43,9 +43,11 @@ def _is_glob(s: str) -> bool:
 
 
 def _scan_files(folder: Path) -> list[Path]:
-    return sorted(p for p in folder.iterdir()
-                  if p.is_file() and p.suffix.lower() in SCAN_SUFFIXES
-                  and not p.name.startswith("."))
+    return sorted(
+        p
+        for p in folder.iterdir()
+        if p.is_file() and p.suffix.lower() in SCAN_SUFFIXES and not p.name.startswith(".")
+    )
 
 
 def read_manifest(path: Path, nominal: Path) -> list[tuple[Path, str, Path]]:
@@ -57,19 +59,27 @@ def read_manifest(path: Path, nominal: Path) -> list[tuple[Path, str, Path]]:
             reader = csv.DictReader(fh)
             cols = [c.strip().lower() for c in (reader.fieldnames or [])]
             if "scan" not in cols:
-                raise InputError(f"manifest {path} has no 'scan' column (columns: "
-                                 f"{', '.join(cols) or 'none'})")
+                raise InputError(
+                    f"manifest {path} has no 'scan' column (columns: {', '.join(cols) or 'none'})"
+                )
             rows = []
             for k, raw in enumerate(reader, start=2):
-                row = {str(a).strip().lower(): (b or "").strip() for a, b in raw.items()
-                       if a is not None}
+                row = {
+                    str(a).strip().lower(): (b or "").strip()
+                    for a, b in raw.items()
+                    if a is not None
+                }
                 if not row.get("scan"):
                     raise InputError(f"manifest {path} line {k}: empty 'scan'")
                 scan = Path(row["scan"])
                 nom = Path(row["nominal"]) if row.get("nominal") else nominal
-                rows.append((scan if scan.is_absolute() else base / scan,
-                             row.get("serial", ""),
-                             nom if nom.is_absolute() or nom is nominal else base / nom))
+                rows.append(
+                    (
+                        scan if scan.is_absolute() else base / scan,
+                        row.get("serial", ""),
+                        nom if nom.is_absolute() or nom is nominal else base / nom,
+                    )
+                )
     except UnicodeDecodeError as exc:
         raise InputError(f"manifest {path} is not UTF-8 text") from exc
     return rows

@@ -23,12 +23,19 @@ __all__ = ["RECORD_FORMAT", "commit", "read_record", "record_digest", "record_pa
 RECORD_FORMAT = 1
 
 
-def record_digest(scan_sha256: str, nominal_sha256: str, item: ScanItem,
-                  options: InspectOptions) -> str:
+def record_digest(
+    scan_sha256: str, nominal_sha256: str, item: ScanItem, options: InspectOptions
+) -> str:
     """SHA-256 of everything that made a scan's outputs."""
-    doc = {"format": RECORD_FORMAT, "software": __version__, "scan": scan_sha256,
-           "nominal": nominal_sha256, "serial": item.serial, "id": item.id,
-           "options": options.result_options()}
+    doc = {
+        "format": RECORD_FORMAT,
+        "software": __version__,
+        "scan": scan_sha256,
+        "nominal": nominal_sha256,
+        "serial": item.serial,
+        "id": item.id,
+        "options": options.result_options(),
+    }
     return hashlib.sha256(json.dumps(doc, sort_keys=True, default=str).encode()).hexdigest()
 
 
@@ -53,18 +60,32 @@ def read_record(out: Path, item: ScanItem, digest: str) -> dict | None:
 def commit(out: Path, item: ScanItem, digest: str, result: TaskResult) -> dict:
     """Write a scan's outputs and then its record, all or none; return the record."""
     scans = out / "scans"
-    rec = {"format": RECORD_FORMAT, "digest": digest, "id": item.id, "seq": item.seq,
-           "scan": str(item.scan), "nominal": str(item.nominal), "ok": result.ok,
-           "error": result.error, "final": result.ok or result.final,
-           "outputs": sorted(result.files),
-           "worker": result.worker, "peak_rss_mib": result.peak_rss_mib,
-           "seconds": result.seconds,
-           "finished": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-           "row": finite(result.row)}
+    rec = {
+        "format": RECORD_FORMAT,
+        "digest": digest,
+        "id": item.id,
+        "seq": item.seq,
+        "scan": str(item.scan),
+        "nominal": str(item.nominal),
+        "ok": result.ok,
+        "error": result.error,
+        "final": result.ok or result.final,
+        "outputs": sorted(result.files),
+        "worker": result.worker,
+        "peak_rss_mib": result.peak_rss_mib,
+        "seconds": result.seconds,
+        "finished": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "row": finite(result.row),
+    }
     items = [(scans / name, _bytes_writer(data)) for name, data in result.files.items()]
-    items.append((record_path(out, item),
-                  lambda p: p.write_text(json.dumps(rec, indent=1, allow_nan=False,
-                                                    default=json_default))))
+    items.append(
+        (
+            record_path(out, item),
+            lambda p: p.write_text(
+                json.dumps(rec, indent=1, allow_nan=False, default=json_default)
+            ),
+        )
+    )
     atomic_write_many(items)  # the record is renamed last: it marks a finished scan
     return rec
 

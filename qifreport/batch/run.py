@@ -123,8 +123,9 @@ def run_batch(opts: BatchOptions) -> BatchReport:
     for item in items:
         st = states[item.nominal]
         if isinstance(st, str):
-            records[item.id] = commit(out, item, "", TaskResult(
-                item.id, False, {}, error_row(item, "", st), error=st))
+            records[item.id] = commit(
+                out, item, "", TaskResult(item.id, False, {}, error_row(item, "", st), error=st)
+            )
             continue
         if not item.scan.is_file():
             sd, err = "", f"scan file not found: {item.scan}"
@@ -137,8 +138,12 @@ def run_batch(opts: BatchOptions) -> BatchReport:
             skipped += 1
             continue
         if err:
-            records[item.id] = commit(out, item, digest, TaskResult(
-                item.id, False, {}, error_row(item, sd, err), error=err, final=True))
+            records[item.id] = commit(
+                out,
+                item,
+                digest,
+                TaskResult(item.id, False, {}, error_row(item, sd, err), error=err, final=True),
+            )
             continue
         todo.append((item, sd, digest))
 
@@ -177,10 +182,10 @@ def run_batch(opts: BatchOptions) -> BatchReport:
 
     ordered = [records[i.id] for i in items if i.id in records]
     counts = {v: sum(r["row"].get("verdict") == v for r in ordered) for v in VERDICTS}
-    files = write_summaries(out, items, ordered, states, o.page,
-                            changed=bool(todo) or opts.force)
-    return BatchReport(ordered, len(todo), skipped, counts, outcomes,
-                       time.perf_counter() - t_start, files)
+    files = write_summaries(out, items, ordered, states, o.page, changed=bool(todo) or opts.force)
+    return BatchReport(
+        ordered, len(todo), skipped, counts, outcomes, time.perf_counter() - t_start, files
+    )
 
 
 # ------------------------------------------------------------------------------ command
@@ -189,33 +194,55 @@ def run_batch(opts: BatchOptions) -> BatchReport:
 def add_batch_arguments(ap: argparse.ArgumentParser) -> None:
     """The ``batch`` sub-command's own arguments (the inspection options come beside)."""
     ap.add_argument("nominal", type=Path, help="nominal: STEP (AP242 with PMI) or mesh, mm")
-    ap.add_argument("scans", nargs="+", metavar="SCANS",
-                    help="scan files, folders, quoted glob patterns or manifest CSVs "
-                    "(columns scan[, serial][, nominal])")
-    ap.add_argument("--jobs", type=int, default=0, metavar="N",
-                    help="local worker processes (default: one per core; 1 runs in this "
-                    "process)")
-    ap.add_argument("--scheduler", metavar="ADDRESS",
-                    help="run on the Dask cluster whose scheduler is at ADDRESS "
-                    "(e.g. tcp://10.0.0.5:8786) instead of local processes")
-    ap.add_argument("--retry-failed", action="store_true",
-                    help="inspect again the scans recorded as failed")
+    ap.add_argument(
+        "scans",
+        nargs="+",
+        metavar="SCANS",
+        help="scan files, folders, quoted glob patterns or manifest CSVs "
+        "(columns scan[, serial][, nominal])",
+    )
+    ap.add_argument(
+        "--jobs",
+        type=int,
+        default=0,
+        metavar="N",
+        help="local worker processes (default: one per core; 1 runs in this process)",
+    )
+    ap.add_argument(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="run on the Dask cluster whose scheduler is at ADDRESS "
+        "(e.g. tcp://10.0.0.5:8786) instead of local processes",
+    )
+    ap.add_argument(
+        "--retry-failed", action="store_true", help="inspect again the scans recorded as failed"
+    )
 
 
 def batch_options(args: argparse.Namespace, options: InspectOptions) -> BatchOptions:
     """The typed options of parsed ``batch`` arguments."""
-    return BatchOptions(nominal=args.nominal, scans=tuple(args.scans), out=args.out,
-                        options=options, jobs=args.jobs, scheduler=args.scheduler,
-                        retry_failed=args.retry_failed, force=args.force, quiet=args.quiet)
+    return BatchOptions(
+        nominal=args.nominal,
+        scans=tuple(args.scans),
+        out=args.out,
+        options=options,
+        jobs=args.jobs,
+        scheduler=args.scheduler,
+        retry_failed=args.retry_failed,
+        force=args.force,
+        quiet=args.quiet,
+    )
 
 
 def run_batch_command(opts: BatchOptions) -> int:
     """Run a batch and print its account; 0 when every scan passed, else 1."""
     rep = run_batch(opts)
     c = rep.counts
-    print(f"{len(rep.records)} scans: {c['PASS']} PASS, {c['FAIL']} FAIL, "
-          f"{c['NOT ESTABLISHED']} NOT ESTABLISHED, {c['ERROR']} ERROR "
-          f"({rep.done} inspected now, {rep.skipped} done earlier) in {rep.seconds:.1f} s")
+    print(
+        f"{len(rep.records)} scans: {c['PASS']} PASS, {c['FAIL']} FAIL, "
+        f"{c['NOT ESTABLISHED']} NOT ESTABLISHED, {c['ERROR']} ERROR "
+        f"({rep.done} inspected now, {rep.skipped} done earlier) in {rep.seconds:.1f} s"
+    )
     for r in rep.records:
         if not r["ok"]:
             print(f"  {r['id']}: error: {r['error']}")

@@ -22,10 +22,29 @@ log = logging.getLogger("qifreport.batch")
 
 #: column order of the summary table (per-tolerance columns follow, then TAIL)
 COLUMNS = (
-    "seq", "id", "serial", "scan", "nominal", "verdict", "criterion", "error", "rms_mm",
-    "max_abs_mm", "p95_mm", "p999_mm", "mean_mm", "tail_above", "tail_below", "tail_beyond",
-    "in_tolerance_pct", "coverage_pct", "regions", "largest_region_mm2", "rigid_rms_mm",
-    "fit_residual_mm", "flagged_fraction",
+    "seq",
+    "id",
+    "serial",
+    "scan",
+    "nominal",
+    "verdict",
+    "criterion",
+    "error",
+    "rms_mm",
+    "max_abs_mm",
+    "p95_mm",
+    "p999_mm",
+    "mean_mm",
+    "tail_above",
+    "tail_below",
+    "tail_beyond",
+    "in_tolerance_pct",
+    "coverage_pct",
+    "regions",
+    "largest_region_mm2",
+    "rigid_rms_mm",
+    "fit_residual_mm",
+    "flagged_fraction",
 )
 TAIL = ("decided_by", "seconds", "worker", "peak_rss_mib", "scan_sha256")
 
@@ -34,8 +53,16 @@ def summary_frame(records: list[dict]):
     """The summary table (pandas DataFrame), one row per scan in plan order."""
     import pandas as pd
 
-    df = pd.DataFrame([{**r["row"], "worker": r.get("worker", ""),
-                        "peak_rss_mib": r.get("peak_rss_mib", np.nan)} for r in records])
+    df = pd.DataFrame(
+        [
+            {
+                **r["row"],
+                "worker": r.get("worker", ""),
+                "peak_rss_mib": r.get("peak_rss_mib", np.nan),
+            }
+            for r in records
+        ]
+    )
     first = [c for c in COLUMNS if c in df.columns]
     zones = [c for c in df.columns if c not in first and c not in TAIL]
     df = df[first + zones + [c for c in TAIL if c in df.columns]]
@@ -47,8 +74,9 @@ def summary_frame(records: list[dict]):
     return df
 
 
-def write_summaries(out: Path, items: list[ScanItem], records: list[dict],
-                    states: dict, page: str, changed: bool) -> list[Path]:
+def write_summaries(
+    out: Path, items: list[ScanItem], records: list[dict], states: dict, page: str, changed: bool
+) -> list[Path]:
     """``summary.csv``, ``summary.parquet`` and, per nominal, the statistics QIF and the
     trend PDF (rewritten when a scan was inspected in this run or a file is missing)."""
     df = summary_frame(records)
@@ -62,8 +90,10 @@ def write_summaries(out: Path, items: list[ScanItem], records: list[dict],
         files += per_part[-1][2:]
     if not changed and all(f.is_file() for f in files) and _same_rows(files[0], df):
         return files
-    writers = [(files[0], lambda p: df.to_csv(p, index=False)),
-               (files[1], lambda p: df.to_parquet(p, index=False))]
+    writers = [
+        (files[0], lambda p: df.to_csv(p, index=False)),
+        (files[1], lambda p: df.to_parquet(p, index=False)),
+    ]
     for nom, st, qif_path, pdf_path in per_part:
         recs = [r for r in records if r["nominal"] == str(nom)]
         sub = df[df["nominal"] == nom.name].reset_index(drop=True)
@@ -88,21 +118,24 @@ def _same_rows(csv_path: Path, df) -> bool:
     return all(list(old[c]) == [str(v) for v in df[c]] for c in cols)
 
 
-def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: str,
-                       target: Path):
+def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: str, target: Path):
     """The writer of the statistics document: validated before it is published, as the
     results documents are (:func:`qifreport.pipeline.qif_writer`)."""
+
     def write(p: Path) -> None:
         from qifreport.qif.reader import read_results
         from qifreport.qif.statistics import build_statistics
 
-
         names = [n for r in recs if r["ok"] for n in r["outputs"] if n.endswith(".qif")]
         results = [read_results(out / "scans" / n) for n in names]
         tree = build_statistics(
-            results, part_name=part_name, created=datetime.now(timezone.utc),
-            nominal_sha256=st.nominal_sha256, sources=[f"scans/{n}" for n in names],
-            software_version=__version__)
+            results,
+            part_name=part_name,
+            created=datetime.now(timezone.utc),
+            nominal_sha256=st.nominal_sha256,
+            sources=[f"scans/{n}" for n in names],
+            software_version=__version__,
+        )
         state: dict = {}
         qif_writer(tree, state)(p)
         if state["valid"] is None:
@@ -115,10 +148,19 @@ def _trend_writer(df, st: PartState, part_name: str, page: str):
     def write(p: Path) -> None:
         from qifreport.reports.trend import TrendCharacteristic, write_trend_pdf
 
-        chars = [TrendCharacteristic(z.key, z.describe(), float(z.upper - z.lower))
-                 for z in st.nominal.zones if f"profile_{z.key}_mm" in df]
-        write_trend_pdf(p, df, chars, part_name=part_name,
-                        created=datetime.now(timezone.utc),
-                        nominal_sha256=st.nominal_sha256, page=page)
+        chars = [
+            TrendCharacteristic(z.key, z.describe(), float(z.upper - z.lower))
+            for z in st.nominal.zones
+            if f"profile_{z.key}_mm" in df
+        ]
+        write_trend_pdf(
+            p,
+            df,
+            chars,
+            part_name=part_name,
+            created=datetime.now(timezone.utc),
+            nominal_sha256=st.nominal_sha256,
+            page=page,
+        )
 
     return write

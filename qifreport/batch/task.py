@@ -38,8 +38,12 @@ __all__ = [
 log = logging.getLogger("qifreport.batch")
 
 #: the QIF characteristic status -> the summary's words
-STATUS_WORDS = {"PASS": "PASS", "FAIL": "FAIL", "INDETERMINATE": "NOT ESTABLISHED",
-                "NOT_ANALYZED": "NOT ANALYZED"}
+STATUS_WORDS = {
+    "PASS": "PASS",
+    "FAIL": "FAIL",
+    "INDETERMINATE": "NOT ESTABLISHED",
+    "NOT_ANALYZED": "NOT ANALYZED",
+}
 
 
 @dataclass
@@ -104,21 +108,36 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
             scan_file = Path(td) / item.scan.name
             scan_file.write_bytes(task.scan_bytes)
             P = load_scan(scan_file, units=job.options.scan_units)
-            this = replace(job, nominal=item.nominal, scan=item.scan, stem=item.id,
-                           serial=item.serial or None, json=True, export_mesh=None)
+            this = replace(
+                job,
+                nominal=item.nominal,
+                scan=item.scan,
+                stem=item.id,
+                serial=item.serial or None,
+                json=True,
+                export_mesh=None,
+            )
             res = inspect_state(P, state, this)
             finished = datetime.now(timezone.utc)
             digests = {"nominal": state.nominal_sha256, "scan": task.scan_sha256}
-            writers, _ = output_writers(res, state.nominal, this, this.output_paths(),
-                                        digests, started, finished)
+            writers, _ = output_writers(
+                res, state.nominal, this, this.output_paths(), digests, started, finished
+            )
             files = {}
             for path, write in writers:  # in order: the JSON reports the QIF's validation
                 tmp = Path(td) / path.name
                 write(tmp)
                 files[path.name] = tmp.read_bytes()
         row = summary_row(res, item, task.scan_sha256, time.perf_counter() - t0)
-        return TaskResult(item.id, True, files, row, worker=_worker_name(),
-                          peak_rss_mib=_peak_rss_mib(), seconds=time.perf_counter() - t0)
+        return TaskResult(
+            item.id,
+            True,
+            files,
+            row,
+            worker=_worker_name(),
+            peak_rss_mib=_peak_rss_mib(),
+            seconds=time.perf_counter() - t0,
+        )
     except InputError as exc:
         error, final = str(exc), True
     except (OSError, MemoryError) as exc:
@@ -127,9 +146,17 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
         log.debug("internal error on %s", item.scan, exc_info=True)
         error, final = f"internal error: {type(exc).__name__}: {exc}", False
     error = " ".join(error.split())
-    return TaskResult(item.id, False, {}, error_row(item, task.scan_sha256, error),
-                      error=error, final=final, worker=_worker_name(),
-                      peak_rss_mib=_peak_rss_mib(), seconds=time.perf_counter() - t0)
+    return TaskResult(
+        item.id,
+        False,
+        {},
+        error_row(item, task.scan_sha256, error),
+        error=error,
+        final=final,
+        worker=_worker_name(),
+        peak_rss_mib=_peak_rss_mib(),
+        seconds=time.perf_counter() - t0,
+    )
 
 
 def summary_row(res, item: ScanItem, scan_sha256: str, seconds: float) -> dict:
@@ -137,21 +164,32 @@ def summary_row(res, item: ScanItem, scan_sha256: str, seconds: float) -> dict:
     s, a = res.vertex_stats, res.acceptance
     fit = res.fit
     row = {
-        "seq": item.seq, "id": item.id, "scan": item.scan.name, "serial": item.serial,
-        "nominal": item.nominal.name, "verdict": res.verdict,
+        "seq": item.seq,
+        "id": item.id,
+        "scan": item.scan.name,
+        "serial": item.serial,
+        "nominal": item.nominal.name,
+        "verdict": res.verdict,
         "criterion": deciding_criteria(res),
         "decided_by": "; ".join(res.decided_by()),
         "error": "",
-        "rms_mm": s.rms, "max_abs_mm": s.max_abs, "p95_mm": s.p95, "p999_mm": s.p999,
-        "mean_mm": s.mean, "tail_above": s.frac_above, "tail_below": s.frac_below,
+        "rms_mm": s.rms,
+        "max_abs_mm": s.max_abs,
+        "p95_mm": s.p95,
+        "p999_mm": s.p999,
+        "mean_mm": s.mean,
+        "tail_above": s.frac_above,
+        "tail_below": s.frac_below,
         "tail_beyond": s.frac_beyond,
         "in_tolerance_pct": 100.0 * a.in_tolerance_fraction,
-        "coverage_pct": 100.0 * a.coverage, "regions": len(a.regions),
+        "coverage_pct": 100.0 * a.coverage,
+        "regions": len(a.regions),
         "largest_region_mm2": a.largest_region_area,
         "rigid_rms_mm": res.rigid.rms,
         "fit_residual_mm": fit.scale if fit is not None else float("nan"),
         "flagged_fraction": fit.flagged_fraction if fit is not None else float("nan"),
-        "seconds": seconds, "scan_sha256": scan_sha256,
+        "seconds": seconds,
+        "scan_sha256": scan_sha256,
     }
     for z in res.zones:
         k = z.zone.key
@@ -167,8 +205,7 @@ def deciding_criteria(res) -> str:
     """The criteria that decided a verdict other than PASS, short: ``"T2:region"``,
     ``"part:area"``, ``"added material"``, ``"not established"`` (``;``-separated)."""
     out = []
-    for name, acc in [("part", res.acceptance)] + [(z.zone.key, z.acceptance)
-                                                     for z in res.zones]:
+    for name, acc in [("part", res.acceptance)] + [(z.zone.key, z.acceptance) for z in res.zones]:
         if not acc.area_ok:
             out.append(f"{name}:area")
         if not acc.region_ok:
@@ -182,7 +219,15 @@ def deciding_criteria(res) -> str:
 
 def error_row(item: ScanItem, scan_sha256: str, error: str) -> dict:
     """The row of a scan that could not be inspected."""
-    return {"seq": item.seq, "id": item.id, "scan": item.scan.name, "serial": item.serial,
-            "nominal": item.nominal.name, "verdict": "ERROR", "criterion": "error",
-            "decided_by": "",
-            "error": error, "scan_sha256": scan_sha256}
+    return {
+        "seq": item.seq,
+        "id": item.id,
+        "scan": item.scan.name,
+        "serial": item.serial,
+        "nominal": item.nominal.name,
+        "verdict": "ERROR",
+        "criterion": "error",
+        "decided_by": "",
+        "error": error,
+        "scan_sha256": scan_sha256,
+    }

@@ -20,8 +20,16 @@ from .kit import INK, MUTED, Box, draw_text
 if TYPE_CHECKING:
     from reportlab.pdfgen.canvas import Canvas
 
-__all__ = ["nice_step", "decimals", "seq_ticks", "ChartGeometry", "draw_marker",
-           "draw_polyline", "draw_y_title", "draw_frame"]
+__all__ = [
+    "nice_step",
+    "decimals",
+    "seq_ticks",
+    "ChartGeometry",
+    "draw_marker",
+    "draw_polyline",
+    "draw_y_title",
+    "draw_frame",
+]
 
 
 def nice_step(raw: float, mantissas: tuple[float, ...] = (1.0, 2.0, 2.5, 5.0)) -> float:
@@ -79,22 +87,30 @@ class ChartGeometry:
 
     def x(self, seq: float | np.ndarray) -> float | np.ndarray:
         """Page x of scan sequence number ``seq`` (1-based)."""
-        return self.plot.x + (np.asarray(seq, dtype=float) - 0.5) / max(self.n_scans, 1) \
-            * self.plot.w
+        return (
+            self.plot.x + (np.asarray(seq, dtype=float) - 0.5) / max(self.n_scans, 1) * self.plot.w
+        )
 
     def y(self, value: float | np.ndarray) -> float | np.ndarray:
         """Page y of ``value``, clipped to the frame's top and to ``bottom``."""
         v = np.clip(np.asarray(value, dtype=float), self.bottom, self.top)
-        return self.y_low + (v - self.bottom) / (self.top - self.bottom) \
-            * (self.plot.top - self.y_low)
-
+        return self.y_low + (v - self.bottom) / (self.top - self.bottom) * (
+            self.plot.top - self.y_low
+        )
 
 
 # ------------------------------------------------------------------------------ drawing
 
 
-def draw_marker(c: Canvas, kind: str, x: float, y: float, size: float,
-                color: tuple[float, float, float], weight: float | None = None) -> None:
+def draw_marker(
+    c: Canvas,
+    kind: str,
+    x: float,
+    y: float,
+    size: float,
+    color: tuple[float, float, float],
+    weight: float | None = None,
+) -> None:
     """A legend or data mark: ``dot``, ``cross``, ``tri`` (pointing up) or ``tick`` (a
     vertical stroke ``weight`` points wide)."""
     c.setFillColorRGB(*color)

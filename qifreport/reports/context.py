@@ -57,7 +57,8 @@ def distinct_bands(res: InspectionResult) -> list[tuple[float, float, list[str]]
     for z in res.zones:
         for b in out:
             if math.isclose(b[0], z.zone.lower, abs_tol=1e-9) and math.isclose(
-                    b[1], z.zone.upper, abs_tol=1e-9):
+                b[1], z.zone.upper, abs_tol=1e-9
+            ):
                 b[2].append(z.zone.key)
                 break
         else:
@@ -85,8 +86,14 @@ class ReportContext(ReportPage):
     :class:`~qifreport.reports.kit.ReportPage`.
     """
 
-    def __init__(self, res: InspectionResult, prov: Provenance, page: str,
-                 chain_floor: float | None, qif_name: str | None):
+    def __init__(
+        self,
+        res: InspectionResult,
+        prov: Provenance,
+        page: str,
+        chain_floor: float | None,
+        qif_name: str | None,
+    ):
         super().__init__(page)
         self.res, self.prov = res, prov
         self.chain_floor = chain_floor
@@ -94,11 +101,11 @@ class ReportContext(ReportPage):
         self.lower, self.upper = vertex_bands(res)
         self.scale = color_scale(res.deviation, self.lower, self.upper)
         self.bands = distinct_bands(res)
-        self.views = choose_views(res.V_registered, res.F, res.deviation,
-                                  res.acceptance.regions, n_views=3)
+        self.views = choose_views(
+            res.V_registered, res.F, res.deviation, res.acceptance.regions, n_views=3
+        )
         Vr = np.asarray(res.V_registered, dtype=float)
         self.spans = []
         for v in self.views:
             r, u, _ = camera_frame(v)
-            self.spans.append((max(float(np.ptp(Vr @ r)), 1e-6),
-                               max(float(np.ptp(Vr @ u)), 1e-6)))
+            self.spans.append((max(float(np.ptp(Vr @ r)), 1e-6), max(float(np.ptp(Vr @ u)), 1e-6)))

@@ -19,35 +19,57 @@ __all__ = ["MAX_FAILURE_ROWS", "failure_table"]
 MAX_FAILURE_ROWS = 8
 
 
-def _failure_rows(verdict: np.ndarray, seq: np.ndarray, serial: np.ndarray, scan: np.ndarray,
-                  decided: np.ndarray, error: np.ndarray
-                  ) -> tuple[list[list[str]], list[bool], str, int]:
+def _failure_rows(
+    verdict: np.ndarray,
+    seq: np.ndarray,
+    serial: np.ndarray,
+    scan: np.ndarray,
+    decided: np.ndarray,
+    error: np.ndarray,
+) -> tuple[list[list[str]], list[bool], str, int]:
     """Rows of the table (batch order), their emphasis, the note and how many in all."""
     idx = np.flatnonzero(np.isin(verdict, ("FAIL", "NOT ESTABLISHED", "ERROR")))
-    shown = idx[:MAX_FAILURE_ROWS] if len(idx) <= MAX_FAILURE_ROWS \
-        else idx[:MAX_FAILURE_ROWS - 1]
+    shown = idx[:MAX_FAILURE_ROWS] if len(idx) <= MAX_FAILURE_ROWS else idx[: MAX_FAILURE_ROWS - 1]
     rows, emph = [], []
     for i in shown:
         v = verdict[i]
-        who = f"{serial[i]} \u00b7 {scan[i]}" if serial[i] and scan[i] else (
-            serial[i] or scan[i] or DASH)
+        who = (
+            f"{serial[i]} \u00b7 {scan[i]}"
+            if serial[i] and scan[i]
+            else (serial[i] or scan[i] or DASH)
+        )
         why = error[i] if v == "ERROR" else decided[i]
         s = seq[i]
-        rows.append([str(int(s)) if math.isfinite(s) else str(i + 1), who,
-                     "N/E" if v == "NOT ESTABLISHED" else v,
-                     " ".join(why.split()) or DASH])
+        rows.append(
+            [
+                str(int(s)) if math.isfinite(s) else str(i + 1),
+                who,
+                "N/E" if v == "NOT ESTABLISHED" else v,
+                " ".join(why.split()) or DASH,
+            ]
+        )
         emph.append(v == "FAIL")
     note = ""
-    rest = idx[len(shown):]
+    rest = idx[len(shown) :]
     if len(rest):
-        parts = [f"{int(np.sum(verdict[rest] == v))} {v if v != 'NOT ESTABLISHED' else 'N/E'}"
-                 for v in ("FAIL", "NOT ESTABLISHED", "ERROR") if np.any(verdict[rest] == v)]
+        parts = [
+            f"{int(np.sum(verdict[rest] == v))} {v if v != 'NOT ESTABLISHED' else 'N/E'}"
+            for v in ("FAIL", "NOT ESTABLISHED", "ERROR")
+            if np.any(verdict[rest] == v)
+        ]
         note = f"+{len(rest)} more ({', '.join(parts)}): see the batch summary"
     return rows, emph, note, len(idx)
 
 
-def failure_table(verdict: np.ndarray, seq: np.ndarray, serial: np.ndarray, scan: np.ndarray,
-                  decided_by: np.ndarray, error: np.ndarray, width: float) -> Table:
+def failure_table(
+    verdict: np.ndarray,
+    seq: np.ndarray,
+    serial: np.ndarray,
+    scan: np.ndarray,
+    decided_by: np.ndarray,
+    error: np.ndarray,
+    width: float,
+) -> Table:
     """The table of the scans that did not pass, ``width`` points wide.
 
     Parameters
@@ -70,6 +92,10 @@ def failure_table(verdict: np.ndarray, seq: np.ndarray, serial: np.ndarray, scan
     if not rows:
         rows = [["", "none", "", "every scan passed" if len(verdict) else "no scans"]]
         emph = [False]
-    return Table(columns=cols, rows=rows, note=note, emphasis=emph,
-                 title=f"Scans that did not pass ({total}: failed, not established or "
-                       "errored)")
+    return Table(
+        columns=cols,
+        rows=rows,
+        note=note,
+        emphasis=emph,
+        title=f"Scans that did not pass ({total}: failed, not established or errored)",
+    )

@@ -41,8 +41,16 @@ from .kit import (
 if TYPE_CHECKING:
     from reportlab.pdfgen.canvas import Canvas
 
-__all__ = ["HEADER_H", "criteria", "verdict_lines", "rule_text", "reasons", "decision_lines",
-           "draw_header", "draw_decision"]
+__all__ = [
+    "HEADER_H",
+    "criteria",
+    "verdict_lines",
+    "rule_text",
+    "reasons",
+    "decision_lines",
+    "draw_header",
+    "draw_decision",
+]
 
 #: height of the title block, points
 HEADER_H = 72.0
@@ -75,8 +83,10 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
         n = len(res.zones)
         if res.verdict != "PASS":
             return ["criteria met, but the registration", "cannot be trusted (warnings below)"]
-        return [f"whole part and {n} tolerance{'s' if n != 1 else ''}:",
-                "area and region criteria met"]
+        return [
+            f"whole part and {n} tolerance{'s' if n != 1 else ''}:",
+            "area and region criteria met",
+        ]
 
     def line(head: str, names: list[str]) -> str:
         for limit in range(4, 0, -1):
@@ -100,10 +110,12 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
 def rule_text(res: InspectionResult) -> str:
     """The acceptance rule in one sentence, with this inspection's limits."""
     p = res.params
-    return (f"Acceptance rule (whole part and each tolerance on its own faces): at least "
-            f"{100 * p.min_fraction:g} % of the scored area inside the band (area "
-            f"criterion) and no connected out-of-tolerance region larger than "
-            f"{p.max_region_area:g} mm\u00b2 (region criterion).")
+    return (
+        f"Acceptance rule (whole part and each tolerance on its own faces): at least "
+        f"{100 * p.min_fraction:g} % of the scored area inside the band (area "
+        f"criterion) and no connected out-of-tolerance region larger than "
+        f"{p.max_region_area:g} mm\u00b2 (region criterion)."
+    )
 
 
 def _display(s: str) -> str:
@@ -116,8 +128,9 @@ def reasons(res: InspectionResult) -> list[str]:
     return [_display(s) for s in res.decided_by()]
 
 
-def decision_lines(res: InspectionResult, width: float,
-                   limit: int) -> tuple[list[tuple[str, bool]], int]:
+def decision_lines(
+    res: InspectionResult, width: float, limit: int
+) -> tuple[list[tuple[str, bool]], int]:
     """Wrapped lines of the decision block ``width`` points wide and how many reasons it lists.
 
     Returns
@@ -132,9 +145,14 @@ def decision_lines(res: InspectionResult, width: float,
         for j, s in enumerate(wrap_text(r, width - 10, 7.0)):
             lines.append((("\u2022 " if j == 0 else "   ") + s, True))
     if len(rs) > len(shown):
-        lines.append((f"+ {len(rs) - len(shown)} more reason"
-                      f"{'s' if len(rs) - len(shown) != 1 else ''}: see the QIF file "
-                      "(decided_by attributes)", False))
+        lines.append(
+            (
+                f"+ {len(rs) - len(shown)} more reason"
+                f"{'s' if len(rs) - len(shown) != 1 else ''}: see the QIF file "
+                "(decided_by attributes)",
+                False,
+            )
+        )
     return lines, len(shown)
 
 
@@ -158,8 +176,15 @@ def draw_header(c: Canvas, ctx: ReportContext, box: Box) -> None:
         yy -= 8.4
     # title
     tw = box.w - vw - 12
-    draw_text(c, box.x, box.top - 8, "SURFACE DEVIATION REPORT \u2014 VIRTUAL FIXTURE "
-              "INSPECTION", 7.0, True, MUTED)
+    draw_text(
+        c,
+        box.x,
+        box.top - 8,
+        "SURFACE DEVIATION REPORT \u2014 VIRTUAL FIXTURE INSPECTION",
+        7.0,
+        True,
+        MUTED,
+    )
     draw_text(c, box.x, box.top - 24, fit_text(prov.part_name, tw, 16, True), 16, True)
     dur = (prov.finished - prov.started).total_seconds() if prov.finished else math.nan
     people = [prov.operator or DASH, f"organization {prov.organization or DASH}"]
@@ -174,11 +199,18 @@ def draw_header(c: Canvas, ctx: ReportContext, box: Box) -> None:
     rows = [
         ("Nominal", file_line(prov.nominal_path, prov.nominal_sha256)),
         ("Scan", file_line(prov.scan_path, prov.scan_sha256)),
-        ("Inspected", f"{fmt_utc(prov.started)}" + (f" ({dur:.0f} s)" if finite(dur) else "")
-         + f"   serial number {prov.serial_number or DASH}"),
+        (
+            "Inspected",
+            f"{fmt_utc(prov.started)}"
+            + (f" ({dur:.0f} s)" if finite(dur) else "")
+            + f"   serial number {prov.serial_number or DASH}",
+        ),
         ("Operator", "    ".join(people)),
-        ("Software", f"qifreport {__version__}; units mm, mm\u00b2, %; deviation along "
-                     "the normal, + proud / \u2212 sunk"),
+        (
+            "Software",
+            f"qifreport {__version__}; units mm, mm\u00b2, %; deviation along "
+            "the normal, + proud / \u2212 sunk",
+        ),
     ]
     yy = box.top - 35
     for k, v in rows:

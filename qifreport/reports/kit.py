@@ -32,12 +32,39 @@ if TYPE_CHECKING:
     from reportlab.pdfgen.canvas import Canvas
 
 __all__ = [
-    "FONT", "FONT_BOLD", "PAGE_SIZES", "DASH", "SHA_DIGITS",
-    "INK", "MUTED", "RULE", "HEAD_BG", "ZEBRA", "PASS_BG", "FAIL_BG", "UNSURE_BG", "FAIL_INK",
-    "finite", "fmt_mm", "fmt_smm", "fmt_area", "fmt_pct", "fmt_band", "short_sha", "fmt_utc",
+    "FONT",
+    "FONT_BOLD",
+    "PAGE_SIZES",
+    "DASH",
+    "SHA_DIGITS",
+    "INK",
+    "MUTED",
+    "RULE",
+    "HEAD_BG",
+    "ZEBRA",
+    "PASS_BG",
+    "FAIL_BG",
+    "UNSURE_BG",
+    "FAIL_INK",
+    "finite",
+    "fmt_mm",
+    "fmt_smm",
+    "fmt_area",
+    "fmt_pct",
+    "fmt_band",
+    "short_sha",
+    "fmt_utc",
     "join_names",
-    "register_fonts", "text_width", "fit_text", "wrap_text",
-    "Box", "Table", "page_size", "ReportPage", "draw_text", "draw_table",
+    "register_fonts",
+    "text_width",
+    "fit_text",
+    "wrap_text",
+    "Box",
+    "Table",
+    "page_size",
+    "ReportPage",
+    "draw_text",
+    "draw_table",
 ]
 
 FONT, FONT_BOLD = "DejaVuSans", "DejaVuSans-Bold"
@@ -218,8 +245,12 @@ class Table:
     @property
     def height(self) -> float:
         """Height of the drawn table (title, heading, rows and note), points."""
-        return ((11.0 if self.title else 0.0) + self.head_h + self.row_h * len(self.rows)
-                + (self.row_h if self.note else 0.0))
+        return (
+            (11.0 if self.title else 0.0)
+            + self.head_h
+            + self.row_h * len(self.rows)
+            + (self.row_h if self.note else 0.0)
+        )
 
     @property
     def width(self) -> float:
@@ -262,15 +293,28 @@ class ReportPage:
         from reportlab.pdfgen.canvas import Canvas
 
         # the initial font too: otherwise reportlab references (unembedded) Helvetica
-        return Canvas(str(path), pagesize=(self.W, self.H), pageCompression=1,
-                      initialFontName=FONT, initialFontSize=7)
+        return Canvas(
+            str(path),
+            pagesize=(self.W, self.H),
+            pageCompression=1,
+            initialFontName=FONT,
+            initialFontSize=7,
+        )
 
 
 # -------------------------------------------------------------------------------- drawing
 
 
-def draw_text(c: Canvas, x: float, y: float, s: str, size: float = 7.0, bold: bool = False,
-              color: tuple[float, float, float] = INK, align: str = "l") -> None:
+def draw_text(
+    c: Canvas,
+    x: float,
+    y: float,
+    s: str,
+    size: float = 7.0,
+    bold: bool = False,
+    color: tuple[float, float, float] = INK,
+    align: str = "l",
+) -> None:
     """One line of text with its baseline at ``y``; ``align`` ``"l"``, ``"r"`` or ``"c"``
     places ``x`` at its left end, right end or centre."""
     c.setFillColorRGB(*color)
@@ -329,8 +373,9 @@ def draw_table(c: Canvas, x: float, top: float, t: Table) -> None:
             cx += w
         y -= t.row_h
     if t.note:
-        draw_text(c, x + 2, y - t.row_h + 2.4, fit_text(t.note, t.width - 4, t.size), t.size,
-                  False, MUTED)
+        draw_text(
+            c, x + 2, y - t.row_h + 2.4, fit_text(t.note, t.width - 4, t.size), t.size, False, MUTED
+        )
         y -= t.row_h
     c.setStrokeColorRGB(*RULE)
     c.setLineWidth(0.5)

@@ -35,8 +35,14 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-__all__ = ["map_boxes", "layout_score", "map_margins", "colorbar_height", "draw_maps",
-           "draw_colorbar"]
+__all__ = [
+    "map_boxes",
+    "layout_score",
+    "map_margins",
+    "colorbar_height",
+    "draw_maps",
+    "draw_colorbar",
+]
 
 # ------------------------------------------------------------------------------- layout
 
@@ -61,9 +67,11 @@ def map_boxes(ctx: ReportContext, area: Box) -> list[Box]:
     w_side = area.w - gap - w_main
     h_side = (area.h - 2 * cap - gap) / 2
     xs = area.x + w_main + gap
-    stack = [Box(area.x, area.y, w_main, area.h - cap),
-             Box(xs, area.y + h_side + gap + cap, w_side, h_side),
-             Box(xs, area.y, w_side, h_side)]
+    stack = [
+        Box(area.x, area.y, w_main, area.h - cap),
+        Box(xs, area.y + h_side + gap + cap, w_side, h_side),
+        Box(xs, area.y, w_side, h_side),
+    ]
     return max((stack, row(3)), key=lambda boxes: layout_score(ctx, boxes))
 
 
@@ -105,8 +113,7 @@ def draw_maps(c: Canvas, boxes: list[Box], views: list[RenderedView], n_listed: 
         c.rect(box.x, box.y, box.w, box.h, stroke=1, fill=0)
         x = box.x
         if k == 0:
-            head = ("Deviation map of the registered nominal" if box.w > 280
-                    else "Deviation map")
+            head = "Deviation map of the registered nominal" if box.w > 280 else "Deviation map"
             draw_text(c, x, box.top + 3, head, 8, True)
             x += text_width(head, 8, True) + 8
         draw_text(c, x, box.top + 3, f"{'ABC'[k]}: {v.name}", 7.5, True, MUTED)
@@ -126,8 +133,9 @@ def _draw_axes(c: Canvas, box: Box, v: RenderedView) -> None:
         if n < 0.2:  # along the line of sight: the view's name says which way
             continue
         c.line(ox, oy, ox + L * dx, oy + L * dy)
-        draw_text(c, ox + (L + 4) * dx / max(n, 1e-9) * n - 2, oy + (L + 4) * dy - 2,
-                  name, 6.0, True)
+        draw_text(
+            c, ox + (L + 4) * dx / max(n, 1e-9) * n - 2, oy + (L + 4) * dy - 2, name, 6.0, True
+        )
 
 
 def _draw_scale_bar(c: Canvas, box: Box, v: RenderedView) -> None:
@@ -151,21 +159,21 @@ def _draw_labels(c: Canvas, box: Box, v: RenderedView, n_listed: int) -> None:
     the region they name nor of another number."""
     h_px, w_px = v.image.shape[:2]
     sx, sy = box.w / w_px, box.h / h_px
-    labels = sorted((lb for lb in v.labels if lb.number <= n_listed),
-                    key=lambda lb: lb.number)
+    labels = sorted((lb for lb in v.labels if lb.number <= n_listed), key=lambda lb: lb.number)
     anchors = [(box.x + lb.x * sx, box.top - lb.y * sy) for lb in labels]
     placed: list[tuple[float, float, float]] = []
     for lb, (ax, ay) in zip(labels, anchors, strict=True):
         r = 5.2 if lb.number < 10 else 6.2
         ext = min(lb.extent * sx, 40.0)
         spot = None
-        for dist in (ext + r + 3, ext + r + 10, ext + r + 18, r + 3, 2 * r + 12,
-                     2 * r + 24):
+        for dist in (ext + r + 3, ext + r + 10, ext + r + 18, r + 3, 2 * r + 12, 2 * r + 24):
             for ang in (45, 135, -45, -135, 90, -90, 0, 180, 22, 158, -22, -158):
                 px = ax + dist * math.cos(math.radians(ang))
                 py = ay + dist * math.sin(math.radians(ang))
-                if not (box.x + r + 1 <= px <= box.x + box.w - r - 1
-                        and box.y + r + 1 <= py <= box.top - r - 1):
+                if not (
+                    box.x + r + 1 <= px <= box.x + box.w - r - 1
+                    and box.y + r + 1 <= py <= box.top - r - 1
+                ):
                     continue
                 if any(math.hypot(px - qx, py - qy) < r + qr + 1.5 for qx, qy, qr in placed):
                     continue
@@ -217,8 +225,14 @@ def draw_colorbar(c: Canvas, ctx: ReportContext, box: Box) -> None:
         for i in range(1, len(mids) + 1):
             if i == len(mids) or not np.allclose(cols[i], cols[start], atol=1e-3):
                 c.setFillColorRGB(*cols[start])
-                c.rect(xpos(xs[start]), y + 1, xpos(xs[i]) - xpos(xs[start]) + 0.3,
-                       row_h - 2, stroke=0, fill=1)
+                c.rect(
+                    xpos(xs[start]),
+                    y + 1,
+                    xpos(xs[i]) - xpos(xs[start]) + 0.3,
+                    row_h - 2,
+                    stroke=0,
+                    fill=1,
+                )
                 start = i
         c.setStrokeColorRGB(*INK)
         c.setLineWidth(0.8)
@@ -226,16 +240,34 @@ def draw_colorbar(c: Canvas, ctx: ReportContext, box: Box) -> None:
             c.line(xpos(v), y, xpos(v), y + row_h)
         c.setLineWidth(0.4)
         c.rect(x0, y + 1, bw, row_h - 2, stroke=1, fill=0)
-        draw_text(c, x0 - 4, y + 2.4,
-                  fit_text(f"{join_names(keys, 3)} [{fmt_band(lo)}, {fmt_band(hi)}]",
-                           label_w - 6, 6.5), 6.5, False, INK, "r")
+        draw_text(
+            c,
+            x0 - 4,
+            y + 2.4,
+            fit_text(f"{join_names(keys, 3)} [{fmt_band(lo)}, {fmt_band(hi)}]", label_w - 6, 6.5),
+            6.5,
+            False,
+            INK,
+            "r",
+        )
         yy = y
     if len(ctx.bands) > 3:
-        draw_text(c, x0 - 4, yy - 17, f"+ {len(ctx.bands) - 3} more bands (tolerances)",
-                  6.2, False, MUTED, "r")
+        draw_text(
+            c,
+            x0 - 4,
+            yy - 17,
+            f"+ {len(ctx.bands) - 3} more bands (tolerances)",
+            6.2,
+            False,
+            MUTED,
+            "r",
+        )
     # ticks: the scale ends, 0 and the band limits
-    ticks: list[tuple[float, str, int]] = [(-S, f"\u2264{fmt_band(-S)}", 0),
-                                           (S, f"\u2265{fmt_band(S)}", 0), (0.0, "0", 1)]
+    ticks: list[tuple[float, str, int]] = [
+        (-S, f"\u2264{fmt_band(-S)}", 0),
+        (S, f"\u2265{fmt_band(S)}", 0),
+        (0.0, "0", 1),
+    ]
     for lo, hi, _ in bands:
         ticks += [(lo, fmt_band(lo), 2), (hi, fmt_band(hi), 2)]
     for v in np.linspace(-S, S, 9)[1:-1]:
@@ -253,8 +285,7 @@ def draw_colorbar(c: Canvas, ctx: ReportContext, box: Box) -> None:
         c.line(x, yy, x, yy - 2.5)
         draw_text(c, x, yy - 9, s, 6.2, False, INK, "c")
     draw_text(c, x0, yy - 17, "\u2190 sunk (material below nominal)", 6.2, False, MUTED)
-    draw_text(c, x0 + bw, yy - 17, "proud (material above nominal) \u2192", 6.2, False,
-              MUTED, "r")
+    draw_text(c, x0 + bw, yy - 17, "proud (material above nominal) \u2192", 6.2, False, MUTED, "r")
     # legend
     lx = box.x + box.w - legend_w
     ly = box.top - 20

@@ -41,44 +41,65 @@ def note_lines(res: InspectionResult, chain_floor: float | None) -> list[tuple[s
     out: list[tuple[str, bool]] = []
     rep = res.repeatability
     if rep is not None:
-        out.append((f"{rep.describe()}. Only persistent regions are findings (listed, "
-                    "outlined and judged); each resampling keeps every scan point with "
-                    f"probability {rep.keep_fraction:g} (seeds 0 to {rep.seeds - 1}).",
-                    False))
+        out.append(
+            (
+                f"{rep.describe()}. Only persistent regions are findings (listed, "
+                "outlined and judged); each resampling keeps every scan point with "
+                f"probability {rep.keep_fraction:g} (seeds 0 to {rep.seeds - 1}).",
+                False,
+            )
+        )
     ne = res.not_evaluated
     if ne:
-        items = [f"{n.kind} \u201c{n.name}\u201d" + (f" #{n.step_id}" if n.step_id else "")
-                 for n in ne]
-        head = ", ".join(items[:6]) + (f" and {len(items) - 6} more" if len(items) > 6
-                                        else "")
+        items = [
+            f"{n.kind} \u201c{n.name}\u201d" + (f" #{n.step_id}" if n.step_id else "") for n in ne
+        ]
+        head = ", ".join(items[:6]) + (f" and {len(items) - 6} more" if len(items) > 6 else "")
         reasons = sorted({n.reason.split(":")[0] for n in ne})
-        out.append((f"PMI not scored ({len(ne)}): {head} \u2014 "
-                    f"{'; '.join(reasons)[:160]} (each listed with its reason in the QIF).",
-                    False))
+        out.append(
+            (
+                f"PMI not scored ({len(ne)}): {head} \u2014 "
+                f"{'; '.join(reasons)[:160]} (each listed with its reason in the QIF).",
+                False,
+            )
+        )
     h = res.hygiene
-    if h is not None and (h.boundary_edges or h.non_manifold_edges or h.degenerate_faces
-                          or h.duplicate_faces):
-        out.append((f"Nominal mesh: {h.describe()}.", bool(h.non_manifold_edges
-                                                            or h.degenerate_faces
-                                                            or h.duplicate_faces)))
+    if h is not None and (
+        h.boundary_edges or h.non_manifold_edges or h.degenerate_faces or h.duplicate_faces
+    ):
+        out.append(
+            (
+                f"Nominal mesh: {h.describe()}.",
+                bool(h.non_manifold_edges or h.degenerate_faces or h.duplicate_faces),
+            )
+        )
     for w in res.trust_warnings():
-        tail = (" A pass is therefore not claimed (NOT ESTABLISHED)." if res.passed
-                else "")
+        tail = " A pass is therefore not claimed (NOT ESTABLISHED)." if res.passed else ""
         out.append((f"Warning: {w}.{tail}", True))
     a = res.added
     if a is not None and a.regions:
-        judged = ("fails the part" if not a.passed
-                  else "reported, not judged (--fail-on-added-material)")
-        out.append((f"Added material (scan points proud of the nominal, data-referenced): "
-                    f"{a.describe()}; P99.9 signed {a.p999_signed:+.3f} mm, "
-                    f"{100 * a.frac_above:.3f} % beyond +{a.threshold:g} mm; {judged}.",
-                    a.found))
+        judged = (
+            "fails the part" if not a.passed else "reported, not judged (--fail-on-added-material)"
+        )
+        out.append(
+            (
+                f"Added material (scan points proud of the nominal, data-referenced): "
+                f"{a.describe()}; P99.9 signed {a.p999_signed:+.3f} mm, "
+                f"{100 * a.frac_above:.3f} % beyond +{a.threshold:g} mm; {judged}.",
+                a.found,
+            )
+        )
     if chain_floor is not None:
         tight = min((z.zone.half_width for z in res.zones), default=math.nan)
         if finite(tight) and tight <= chain_floor:
-            out.append((f"Warning: the tightest band half-width {fmt_mm(tight)} mm does not "
-                        f"exceed the chain floor {fmt_mm(chain_floor)} mm: it cannot "
-                        "be verified with this chain.", True))
+            out.append(
+                (
+                    f"Warning: the tightest band half-width {fmt_mm(tight)} mm does not "
+                    f"exceed the chain floor {fmt_mm(chain_floor)} mm: it cannot "
+                    "be verified with this chain.",
+                    True,
+                )
+            )
     return out
 
 
@@ -87,8 +108,9 @@ def notes_height(lines: list[tuple[str, bool]], width: float) -> float:
     return sum(8.2 * len(wrap_text(t, width, 6.8, w)) for t, w in lines) + 2.0
 
 
-def draw_notes_footer(c: Canvas, ctx: ReportContext, y: float,
-                      lines: list[tuple[str, bool]]) -> None:
+def draw_notes_footer(
+    c: Canvas, ctx: ReportContext, y: float, lines: list[tuple[str, bool]]
+) -> None:
     """The notes (:func:`note_lines`) from ``y`` down, then the sign-off line and the footer
     at the bottom margin."""
     for text, warn in lines:
@@ -107,8 +129,9 @@ def draw_notes_footer(c: Canvas, ctx: ReportContext, y: float,
     x2 = x + 185 + text_width("Date", 7.0, True) + 6
     c.line(x2, yb + 15, x2 + 90, yb + 15)
     qif = ctx.qif_name
-    foot = (f"qifreport {__version__} \u00b7 page 1 of 1 \u00b7 "
-            + (f"every number of this page is in {qif} (QIF 3.0, exact values) \u00b7 "
-               if qif else "")
-            + f"printed {fmt_utc(ctx.prov.finished)}")
+    foot = (
+        f"qifreport {__version__} \u00b7 page 1 of 1 \u00b7 "
+        + (f"every number of this page is in {qif} (QIF 3.0, exact values) \u00b7 " if qif else "")
+        + f"printed {fmt_utc(ctx.prov.finished)}"
+    )
     draw_text(c, ctx.M, yb + 2, fit_text(foot, ctx.CW, 6.2), 6.2, False, MUTED)

@@ -64,8 +64,18 @@ from .tables import pick_tolerances, region_table, tolerance_table
 log = logging.getLogger(__name__)
 
 # the number formats of the page (:mod:`qifreport.reports.kit`) are part of its contract
-__all__ = ["MAP_DPI", "MAP_MAX_PT", "PageLayout", "plan_layout", "write_pdf", "write_report",
-           "fmt_mm", "fmt_smm", "fmt_area", "fmt_pct"]
+__all__ = [
+    "MAP_DPI",
+    "MAP_MAX_PT",
+    "PageLayout",
+    "plan_layout",
+    "write_pdf",
+    "write_report",
+    "fmt_mm",
+    "fmt_smm",
+    "fmt_area",
+    "fmt_pct",
+]
 
 #: resolution of the map pictures, dots per inch of the page
 MAP_DPI = 200
@@ -149,11 +159,25 @@ class _Report(ReportContext):
             h += notes_height(notes, self.CW) + 34.0  # sign-off and footer
             return h
 
-        steps = [("map", 240.0, 5.0), ("dec", 6, 1), ("reg", 12, 1), ("tol", 10, 1),
-                 ("map", 210.0, 5.0), ("dec", 3, 1), ("reg", 8, 1), ("tol", 6, 1),
-                 ("map", 180.0, 5.0), ("reg", 5, 1), ("tol", 4, 1), ("dec", 2, 1),
-                 ("map", 140.0, 5.0), ("reg", 2, 1), ("tol", 2, 1), ("dec", 1, 1),
-                 ("map", 110.0, 5.0)]
+        steps = [
+            ("map", 240.0, 5.0),
+            ("dec", 6, 1),
+            ("reg", 12, 1),
+            ("tol", 10, 1),
+            ("map", 210.0, 5.0),
+            ("dec", 3, 1),
+            ("reg", 8, 1),
+            ("tol", 6, 1),
+            ("map", 180.0, 5.0),
+            ("reg", 5, 1),
+            ("tol", 4, 1),
+            ("dec", 2, 1),
+            ("map", 140.0, 5.0),
+            ("reg", 2, 1),
+            ("tol", 2, 1),
+            ("dec", 1, 1),
+            ("map", 110.0, 5.0),
+        ]
         history = []
         for key, floor, step in steps:
             before = st[key]
@@ -197,8 +221,10 @@ class _Report(ReportContext):
         blocks["header"] = Box(x0, y - HEADER_H, self.CW, HEADER_H)
         y -= HEADER_H + self.GAP
         dec_lines, n_dec_shown = self.decision_lines(st["dec"])
-        blocks["decision"] = (Box(x0, y - 8.6 * len(dec_lines), self.CW, 8.6 * len(dec_lines)),
-                              dec_lines)
+        blocks["decision"] = (
+            Box(x0, y - 8.6 * len(dec_lines), self.CW, 8.6 * len(dec_lines)),
+            dec_lines,
+        )
         y -= 8.6 * len(dec_lines) + self.GAP
         mh = st["map"]
         maps = map_boxes(self, Box(x0, y - mh, self.CW, mh))
@@ -215,15 +241,26 @@ class _Report(ReportContext):
         regt = self.region_table(st["reg"], reg_w)
         bottom_h = max(regt.height, regtab.height)
         blocks["regions"] = (Box(x0, y - regt.height, reg_w, regt.height), regt)
-        blocks["registration"] = (Box(x0 + reg_w + 12.0, y - regtab.height, regf_w,
-                                      regtab.height), regtab)
+        blocks["registration"] = (
+            Box(x0 + reg_w + 12.0, y - regtab.height, regf_w, regtab.height),
+            regtab,
+        )
         y -= bottom_h + self.GAP
         blocks["notes"] = (y, notes)
-        return PageLayout(page=self.page, width=self.W, height=self.H, views=self.views,
-                          maps=maps, colorbar=cb, histogram=hist,
-                          regions_listed=min(st["reg"], n_reg), tolerances_listed=len(
-                              pick_tolerances(res, st["tol"])),
-                          reasons_listed=n_dec_shown, scale=self.scale, blocks=blocks)
+        return PageLayout(
+            page=self.page,
+            width=self.W,
+            height=self.H,
+            views=self.views,
+            maps=maps,
+            colorbar=cb,
+            histogram=hist,
+            regions_listed=min(st["reg"], n_reg),
+            tolerances_listed=len(pick_tolerances(res, st["tol"])),
+            reasons_listed=n_dec_shown,
+            scale=self.scale,
+            blocks=blocks,
+        )
 
     def draw(self, path: Path, lay: PageLayout, views: list[RenderedView]) -> None:
         """Write the page laid out as ``lay``, with the rendered ``views``, to ``path``."""
@@ -231,8 +268,9 @@ class _Report(ReportContext):
         c = self.new_canvas(path)
         c.setTitle(f"Surface deviation report: {prov.part_name}")
         c.setAuthor(prov.author or prov.organization or "qifreport")
-        c.setSubject(f"{res.verdict}; nominal SHA-256 "
-                     f"{prov.nominal_sha256}; scan SHA-256 {prov.scan_sha256}")
+        c.setSubject(
+            f"{res.verdict}; nominal SHA-256 {prov.nominal_sha256}; scan SHA-256 {prov.scan_sha256}"
+        )
         c.setCreator(f"qifreport {__version__}")
         c.setKeywords(["qifreport", "QIF 3.0", "surface profile", "virtual fixture"])
         c.setFont(FONT, 7)
@@ -255,8 +293,9 @@ class _Report(ReportContext):
 # ----------------------------------------------------------------------------- public API
 
 
-def plan_layout(res: InspectionResult, prov: Provenance, *, page: str = "A4",
-                chain_floor: float | None = None) -> PageLayout:
+def plan_layout(
+    res: InspectionResult, prov: Provenance, *, page: str = "A4", chain_floor: float | None = None
+) -> PageLayout:
     """Where :func:`write_pdf` puts everything for this result (no rendering, no file).
 
     Deterministic: :func:`write_pdf` uses exactly this layout. Useful to find the maps on a
@@ -289,8 +328,9 @@ def write_pdf(
     backend : renderer of the maps (:func:`qifreport.reports.render.render_views`), default
         VTK with a matplotlib fallback.
     """
-    write_report(path, res, prov, page=page, chain_floor=chain_floor, qif_name=qif_name,
-                 backend=backend)
+    write_report(
+        path, res, prov, page=page, chain_floor=chain_floor, qif_name=qif_name, backend=backend
+    )
 
 
 def write_report(
@@ -312,15 +352,33 @@ def write_report(
     rep = _Report(res, prov, page, chain_floor, qif_name or None)
     lay = rep.plan()
     px_per_pt = MAP_DPI / 72.0
-    sizes = [(max(16, int(round(b.w * px_per_pt))), max(16, int(round(b.h * px_per_pt))))
-             for b in lay.maps]
+    sizes = [
+        (max(16, int(round(b.w * px_per_pt))), max(16, int(round(b.h * px_per_pt))))
+        for b in lay.maps
+    ]
     t1 = time.perf_counter()
-    views = render_views(res.V_registered, res.F, res.deviation, rep.lower, rep.upper,
-                         res.acceptance.regions, size=sizes, views=lay.views, scale=lay.scale,
-                         backend=backend, margin=[map_margins(b) for b in lay.maps])
+    views = render_views(
+        res.V_registered,
+        res.F,
+        res.deviation,
+        rep.lower,
+        rep.upper,
+        res.acceptance.regions,
+        size=sizes,
+        views=lay.views,
+        scale=lay.scale,
+        backend=backend,
+        margin=[map_margins(b) for b in lay.maps],
+    )
     t2 = time.perf_counter()
     rep.draw(path, lay, views)
     t3 = time.perf_counter()
-    log.info("PDF report %s: layout %.2f s, maps %.2f s (%s), drawing %.2f s", path.name,
-             t1 - t0, t2 - t1, views[0].backend if views else "-", t3 - t2)
+    log.info(
+        "PDF report %s: layout %.2f s, maps %.2f s (%s), drawing %.2f s",
+        path.name,
+        t1 - t0,
+        t2 - t1,
+        views[0].backend if views else "-",
+        t3 - t2,
+    )
     return {"layout": t1 - t0, "render": t2 - t1, "draw": t3 - t2}

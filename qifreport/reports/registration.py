@@ -21,8 +21,7 @@ from .kit import DASH, Table, finite, fmt_mm, fmt_pct
 __all__ = ["registration_table"]
 
 
-def registration_table(res: InspectionResult, chain_floor: float | None,
-                       width: float) -> Table:
+def registration_table(res: InspectionResult, chain_floor: float | None, width: float) -> Table:
     """The registration facts, ``width`` points wide: the pose search, the rigid ICP, the
     virtual fixture (its method, residual, iterations, fallback, displacement and
     parameters), the chain floor (mm; None: "not measured") and the sizes of the inputs.
@@ -44,41 +43,59 @@ def registration_table(res: InspectionResult, chain_floor: float | None,
         rows += [
             ["Virtual fixture method", method_label(fit.method)],
             ["Non-rigid residual (robust), mm", fmt_mm(fit.scale)],
-            ["Iterations / passes / fallback",
-             f"{fit.iterations} / {fit.passes} / {'YES' if fit.fallback else 'no'}"],
+            [
+                "Iterations / passes / fallback",
+                f"{fit.iterations} / {fit.passes} / {'YES' if fit.fallback else 'no'}",
+            ],
         ]
         if fit.method == "gbcicp":
             rows.append(["Flagged as defect candidates, %", fmt_pct(fit.flagged_fraction)])
-        rows.append(["Max fixture displacement, mm",
-                     fmt_mm(float(np.linalg.norm(fit.e, axis=1).max()))
-                     if len(fit.e) else DASH])
+        rows.append(
+            [
+                "Max fixture displacement, mm",
+                fmt_mm(float(np.linalg.norm(fit.e, axis=1).max())) if len(fit.e) else DASH,
+            ]
+        )
         if fit.method == "gbcicp":
             rows += [
-                ["Energy; band limits l1, l2, mm",
-                 f"{res.params.energy}; {_num(fp.band_limit)}, "
-                 f"{_num(fp.band_limit_refit)}"],
-                ["Start length; coverage radius, mm",
-                 f"{_num(fp.band_limit_start)}; {_num(fp.coverage_radius)}"],
+                [
+                    "Energy; band limits l1, l2, mm",
+                    f"{res.params.energy}; {_num(fp.band_limit)}, {_num(fp.band_limit_refit)}",
+                ],
+                [
+                    "Start length; coverage radius, mm",
+                    f"{_num(fp.band_limit_start)}; {_num(fp.coverage_radius)}",
+                ],
             ]
         else:
             rows.append([f"{method_label(fit.method)} parameters", _params_text(fp)])
-    rows.append(["Chain floor, mm",
-                 fmt_mm(chain_floor) if chain_floor is not None
-                 else "not measured"])
-    rows.append(["Vertices / triangles / points",
-                 f"{len(res.V)} / {len(res.F)} / {len(res.P)}"])
+    rows.append(
+        ["Chain floor, mm", fmt_mm(chain_floor) if chain_floor is not None else "not measured"]
+    )
+    rows.append(["Vertices / triangles / points", f"{len(res.V)} / {len(res.F)} / {len(res.P)}"])
     w2 = width * 0.42
     emph = [False] * len(rows)
     for k, row in enumerate(rows):
-        emph[k] = bool((row[0] == "Iterations / passes / fallback" and fit is not None
-                        and fit.fallback)
-                       or (row[0].startswith("Pose") and res.prealign is not None
-                           and (res.prealign.ambiguous
-                                or res.prealign.weakly_constrained)))
-    title = (f"Registration: rigid ICP + virtual fixture ({method_label(fit.method)})"
-             if fit is not None else "Registration: rigid ICP only (free state)")
-    return Table(columns=[("", width - w2, "l"), ("", w2, "r")], rows=rows,
-                 title=title, head_h=0.0, emphasis=emph)
+        emph[k] = bool(
+            (row[0] == "Iterations / passes / fallback" and fit is not None and fit.fallback)
+            or (
+                row[0].startswith("Pose")
+                and res.prealign is not None
+                and (res.prealign.ambiguous or res.prealign.weakly_constrained)
+            )
+        )
+    title = (
+        f"Registration: rigid ICP + virtual fixture ({method_label(fit.method)})"
+        if fit is not None
+        else "Registration: rigid ICP only (free state)"
+    )
+    return Table(
+        columns=[("", width - w2, "l"), ("", w2, "r")],
+        rows=rows,
+        title=title,
+        head_h=0.0,
+        emphasis=emph,
+    )
 
 
 def _num(x) -> str:

@@ -69,8 +69,14 @@ OUTLINE = (0.05, 0.05, 0.05)
 #: "nice" mantissas of the colour scale
 _NICE = (1.0, 1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0)
 #: camera names of the world axes (the side the camera is on)
-_AXIS_NAMES = {(2, 1): "top (+z)", (2, -1): "bottom (-z)", (1, -1): "front (-y)",
-               (1, 1): "back (+y)", (0, 1): "right (+x)", (0, -1): "left (-x)"}
+_AXIS_NAMES = {
+    (2, 1): "top (+z)",
+    (2, -1): "bottom (-z)",
+    (1, -1): "front (-y)",
+    (1, 1): "back (+y)",
+    (0, 1): "right (+x)",
+    (0, -1): "left (-x)",
+}
 
 
 @dataclass
@@ -249,8 +255,9 @@ def _principal_frame(V: np.ndarray, w: np.ndarray) -> np.ndarray:
     _, vecs = np.linalg.eigh(C)
     R = vecs[:, ::-1].T
     idx = np.argmax(np.abs(R), axis=1)
-    if len(set(idx.tolist())) == 3 and np.all(np.abs(R[np.arange(3), idx]) > math.cos(
-            math.radians(20))):
+    if len(set(idx.tolist())) == 3 and np.all(
+        np.abs(R[np.arange(3), idx]) > math.cos(math.radians(20))
+    ):
         return np.eye(3)[idx]
     return R
 
@@ -259,8 +266,7 @@ def _view_name(d: np.ndarray) -> str:
     k = int(np.argmax(np.abs(d)))
     if abs(d[k]) > math.cos(math.radians(10)):
         return _AXIS_NAMES[(k, 1 if d[k] > 0 else -1)]
-    parts = "".join(f"{'+' if d[i] > 0 else '-'}{'xyz'[i]}" for i in range(3)
-                    if abs(d[i]) > 0.2)
+    parts = "".join(f"{'+' if d[i] > 0 else '-'}{'xyz'[i]}" for i in range(3) if abs(d[i]) > 0.2)
     return f"oblique ({parts})"
 
 
@@ -396,8 +402,9 @@ class _Projection:
         return self.depth_max - X @ self.d
 
 
-def _projection(V: np.ndarray, view: ViewSpec, w: int, h: int,
-                margin: tuple[float, float, float, float]) -> _Projection:
+def _projection(
+    V: np.ndarray, view: ViewSpec, w: int, h: int, margin: tuple[float, float, float, float]
+) -> _Projection:
     """Fit the part into the picture inside the margins ``(left, right, top, bottom)``
     (fractions of the picture's width and height)."""
     ml, mr, mt, mb = margin
@@ -410,8 +417,17 @@ def _projection(V: np.ndarray, view: ViewSpec, w: int, h: int,
     # the centre of the free area maps to the centre of the part's extent
     cx = 0.5 * (x0 + x1) - (w * (ml - mr) / 2) / k
     cy = 0.5 * (y0 + y1) + (h * (mt - mb) / 2) / k
-    return _Projection(r=r, u=u, d=d, cx=float(cx), cy=float(cy), k=float(k),
-                       w=int(w), h=int(h), depth_max=float((V @ d).max()))
+    return _Projection(
+        r=r,
+        u=u,
+        d=d,
+        cx=float(cx),
+        cy=float(cy),
+        k=float(k),
+        w=int(w),
+        h=int(h),
+        depth_max=float((V @ d).max()),
+    )
 
 
 def band_outline(V: np.ndarray, F: np.ndarray, dev: np.ndarray, lower, upper) -> np.ndarray:
@@ -497,19 +513,26 @@ def render_views(
     if views is None or isinstance(views, int):
         views = choose_views(V, F, dev, regions, n_views=3 if views is None else views)
     views = list(views)
-    sizes = ([tuple(size)] * len(views) if np.ndim(size) == 1 else [tuple(s) for s in size])
+    sizes = [tuple(size)] * len(views) if np.ndim(size) == 1 else [tuple(s) for s in size]
     if len(sizes) < len(views):
         raise ValueError(f"{len(sizes)} sizes for {len(views)} views")
-    sizes = sizes[:len(views)]
+    sizes = sizes[: len(views)]
     if scale is None:
         scale = color_scale(dev, lower, upper)
     rgb = (deviation_colors(dev, lower, upper, scale) * 255 + 0.5).astype(np.uint8)
     outline = band_outline(V, F, dev, lower, upper)
     m = np.asarray(margin, dtype=float)
-    margins = (np.full((len(views), 4), float(m)) if m.ndim == 0
-               else np.tile(m, (len(views), 1)) if m.ndim == 1 else m[:len(views)])
-    projs = [_projection(V, v, w, h, tuple(mg))
-             for v, (w, h), mg in zip(views, sizes, margins, strict=True)]
+    margins = (
+        np.full((len(views), 4), float(m))
+        if m.ndim == 0
+        else np.tile(m, (len(views), 1))
+        if m.ndim == 1
+        else m[: len(views)]
+    )
+    projs = [
+        _projection(V, v, w, h, tuple(mg))
+        for v, (w, h), mg in zip(views, sizes, margins, strict=True)
+    ]
 
     if backend not in (None, "vtk", "matplotlib"):
         raise ValueError(f"unknown backend {backend!r}")
@@ -521,8 +544,12 @@ def render_views(
         except Exception as exc:  # no VTK, no EGL, no OpenGL: draw with matplotlib
             if backend == "vtk":
                 raise
-            log.warning("VTK offscreen rendering failed (%s: %s); drawing the deviation map "
-                        "with matplotlib instead", type(exc).__name__, exc)
+            log.warning(
+                "VTK offscreen rendering failed (%s: %s); drawing the deviation map "
+                "with matplotlib instead",
+                type(exc).__name__,
+                exc,
+            )
     if images is None:
         used = "matplotlib"
         images, depths = _render_mpl(V, F, rgb, outline, projs)
@@ -530,10 +557,18 @@ def render_views(
     out = []
     for view, pj, img, zb in zip(views, projs, images, depths, strict=True):
         axes = np.array([[pj.r[i], pj.u[i]] for i in range(3)])
-        out.append(RenderedView(
-            image=img, name=view.name, direction=pj.d.copy(), up=pj.u.copy(),
-            labels=_labels(V, regions, pj, zb), axes=axes, mm_per_px=1.0 / pj.k,
-            backend=used))
+        out.append(
+            RenderedView(
+                image=img,
+                name=view.name,
+                direction=pj.d.copy(),
+                up=pj.u.copy(),
+                labels=_labels(V, regions, pj, zb),
+                axes=axes,
+                mm_per_px=1.0 / pj.k,
+                backend=used,
+            )
+        )
     return out
 
 
@@ -549,7 +584,7 @@ def _labels(V: np.ndarray, regions: list, pj: _Projection, zbuf: np.ndarray) -> 
     # 3x3 maximum of finite depths (grazing surfaces), background stays inf
     z = np.where(np.isfinite(zbuf), zbuf, -np.inf)
     pad = np.pad(z, 1, mode="edge")
-    zmax = np.max([pad[i:i + h, j:j + w] for i in range(3) for j in range(3)], axis=0)
+    zmax = np.max([pad[i : i + h, j : j + w] for i in range(3) for j in range(3)], axis=0)
     zmax = np.where(np.isfinite(zmax), zmax, np.inf)
     tol = max(2.0 / pj.k, 1e-3 * (np.ptp(V, axis=0).max()))
     labels = []
@@ -569,8 +604,15 @@ def _labels(V: np.ndarray, regions: list, pj: _Projection, zbuf: np.ndarray) -> 
         m = pv.mean(axis=0)
         j = int(np.argmin(((pv - m) ** 2).sum(axis=1)))
         ext = float(np.sqrt(((pv - pv[j]) ** 2).sum(axis=1)).max())
-        labels.append(RegionLabel(number=num, x=float(pv[j, 0]), y=float(pv[j, 1]),
-                                  visible_fraction=float(vis.mean()), extent=ext))
+        labels.append(
+            RegionLabel(
+                number=num,
+                x=float(pv[j, 0]),
+                y=float(pv[j, 1]),
+                visible_fraction=float(vis.mean()),
+                extent=ext,
+            )
+        )
     return labels
 
 
@@ -600,9 +642,10 @@ def _render_vtk(V, F, rgb, outline, projs):
         ca = vtkCellArray()
         k = cells.shape[1]
         offsets = np.arange(0, k * len(cells) + 1, k, dtype=np.int64)
-        ca.SetData(numpy_to_vtkIdTypeArray(offsets, deep=True),
-                   numpy_to_vtkIdTypeArray(np.ascontiguousarray(cells.ravel(), dtype=np.int64),
-                                           deep=True))
+        ca.SetData(
+            numpy_to_vtkIdTypeArray(offsets, deep=True),
+            numpy_to_vtkIdTypeArray(np.ascontiguousarray(cells.ravel(), dtype=np.int64), deep=True),
+        )
         if lines:
             pd.SetLines(ca)
         else:
@@ -610,8 +653,9 @@ def _render_vtk(V, F, rgb, outline, projs):
         return pd
 
     surf = polydata(V, F, lines=False)
-    colors = numpy_to_vtk(np.ascontiguousarray(rgb), deep=True,
-                          array_type=vtkUnsignedCharArray().GetDataType())
+    colors = numpy_to_vtk(
+        np.ascontiguousarray(rgb), deep=True, array_type=vtkUnsignedCharArray().GetDataType()
+    )
     colors.SetName("rgb")
     surf.GetPointData().SetScalars(colors)
     mapper = vtkPolyDataMapper()
@@ -703,8 +747,9 @@ def _render_mpl(V, F, rgb, outline, projs):
         ax.set_xlim(0, pj.w)
         ax.set_ylim(pj.h, 0)
         ax.axis("off")
-        pc = PolyCollection(px[F[order]], facecolors=fc[order], edgecolors="none",
-                            antialiased=False)
+        pc = PolyCollection(
+            px[F[order]], facecolors=fc[order], edgecolors="none", antialiased=False
+        )
         ax.add_collection(pc)
         # vertex z-buffer with cells of about one projected edge, depth tolerance one edge
         e = np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1)
@@ -728,8 +773,7 @@ def _render_mpl(V, F, rgb, outline, projs):
     return images, depths
 
 
-def _vertex_zbuffer(px: np.ndarray, dist: np.ndarray, w: int, h: int,
-                    cell: int = 3) -> np.ndarray:
+def _vertex_zbuffer(px: np.ndarray, dist: np.ndarray, w: int, h: int, cell: int = 3) -> np.ndarray:
     """Approximate per-pixel nearest distance (mm) from the vertices alone: the nearest
     vertex in each ``cell`` x ``cell`` block; inf where no vertex projects."""
     gw, gh = (w + cell - 1) // cell, (h + cell - 1) // cell

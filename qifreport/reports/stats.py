@@ -61,7 +61,7 @@ def stats_table(res: InspectionResult) -> Table:
     def acc_row(label: str, f) -> list[str]:
         return [label] + [DASH if x is None else f(x) for x in accs]
 
-    ceiling = (res.scan_area / a.nominal_area if a.nominal_area > 0 else math.nan)
+    ceiling = res.scan_area / a.nominal_area if a.nominal_area > 0 else math.nan
     rows: list[list[str]] = [
         row("Scored samples", lambda s: str(s.n)),
         row("RMS, mm", lambda s: fmt_mm(s.rms)),
@@ -80,18 +80,25 @@ def stats_table(res: InspectionResult) -> Table:
         acc_row("Scored area, mm\u00b2", lambda x: fmt_area(x.scored_area)),
         acc_row("Nominal area, mm\u00b2", lambda x: fmt_area(x.nominal_area)),
         ["Scanned area, mm\u00b2", DASH, fmt_area(res.scan_area)] + [DASH] * len(zones),
-        ["Ceiling scanned/nominal, %", fmt_pct(ceiling),
-         "ok" if res.coverage_ceiling_ok else "EXCEEDED"] + [DASH] * len(zones),
+        [
+            "Ceiling scanned/nominal, %",
+            fmt_pct(ceiling),
+            "ok" if res.coverage_ceiling_ok else "EXCEEDED",
+        ]
+        + [DASH] * len(zones),
     ]
     emph = [False] * len(rows)
     emph[12] = not a.area_ok or any(not z.acceptance.area_ok for z in zones)
     emph[-1] = not res.coverage_ceiling_ok
     w_val = 56.0 if not zones else 44.0
-    columns = [("Statistic", 122.0 if not zones else 114.0, "l"),
-               ("Vertices\n(area-weighted)" if not zones else "Part\nvertices", w_val, "r"),
-               ("Scan points\n(data-ref.)" if not zones else "Scan\npoints", w_val, "r")]
-    columns += [(f"{fit_text(z.zone.key, w_val - 4, 6.8, True)}\nown faces", w_val, "r")
-                for z in zones]
+    columns = [
+        ("Statistic", 122.0 if not zones else 114.0, "l"),
+        ("Vertices\n(area-weighted)" if not zones else "Part\nvertices", w_val, "r"),
+        ("Scan points\n(data-ref.)" if not zones else "Scan\npoints", w_val, "r"),
+    ]
+    columns += [
+        (f"{fit_text(z.zone.key, w_val - 4, 6.8, True)}\nown faces", w_val, "r") for z in zones
+    ]
     if not zones:  # two value columns: use the width they are given
         columns = [(h, w * 1.18, al) for h, w, al in columns]
     title = "Statistics of the signed deviation"
@@ -109,8 +116,7 @@ def draw_histogram(c: Canvas, ctx: ReportContext, box: Box) -> None:
     res = ctx.res
     S = ctx.scale
     title_h, left, bottom, right = 12.0, 30.0, 24.0, 4.0
-    pa = Box(box.x + left, box.y + bottom, box.w - left - right,
-             box.h - bottom - title_h - 25)
+    pa = Box(box.x + left, box.y + bottom, box.w - left - right, box.h - bottom - title_h - 25)
     draw_text(c, box.x, box.top - 9, "Histogram of the signed deviation", 8, True)
     dev = np.asarray(res.deviation, dtype=float)
     w = vertex_areas(np.asarray(res.V, float), np.asarray(res.F, np.int64))
@@ -132,8 +138,9 @@ def draw_histogram(c: Canvas, ctx: ReportContext, box: Box) -> None:
 
     def Y(p):
         p = max(p, ymin)
-        return pa.y + (math.log10(p) - math.log10(ymin)) / (
-            math.log10(ymax) - math.log10(ymin)) * pa.h
+        return (
+            pa.y + (math.log10(p) - math.log10(ymin)) / (math.log10(ymax) - math.log10(ymin)) * pa.h
+        )
 
     # grid and axes
     c.setLineWidth(0.3)
@@ -147,14 +154,12 @@ def draw_histogram(c: Canvas, ctx: ReportContext, box: Box) -> None:
     single = len(ctx.bands) == 1
     lo1, hi1 = ctx.bands[0][0], ctx.bands[0][1]
     mids = 0.5 * (edges[1:] + edges[:-1])
-    cols = (deviation_colors(mids, lo1, hi1, S) if single
-            else np.tile([0.62, 0.66, 0.74], (nb, 1)))
+    cols = deviation_colors(mids, lo1, hi1, S) if single else np.tile([0.62, 0.66, 0.74], (nb, 1))
     for i in range(nb):
         if hv[i] <= 0:
             continue
         c.setFillColorRGB(*cols[i])
-        c.rect(X(edges[i]), pa.y, X(edges[i + 1]) - X(edges[i]), Y(hv[i]) - pa.y,
-               stroke=0, fill=1)
+        c.rect(X(edges[i]), pa.y, X(edges[i + 1]) - X(edges[i]), Y(hv[i]) - pa.y, stroke=0, fill=1)
     # data-referenced distribution: step line
     c.setStrokeColorRGB(*INK)
     c.setLineWidth(0.8)
@@ -182,8 +187,7 @@ def draw_histogram(c: Canvas, ctx: ReportContext, box: Box) -> None:
             c.line(x, pa.y, x, pa.y + pa.h)
             for k, used in enumerate(rows_used):
                 if all(abs(x - q) > 20 for q in used):
-                    draw_text(c, x, pa.y + pa.h + 2 + 7 * k, fmt_band(v), 5.8, False,
-                              INK, "c")
+                    draw_text(c, x, pa.y + pa.h + 2 + 7 * k, fmt_band(v), 5.8, False, INK, "c")
                     used.append(x)
                     break
     c.setDash()
@@ -198,8 +202,16 @@ def draw_histogram(c: Canvas, ctx: ReportContext, box: Box) -> None:
         if abs(v) == S:
             s = ("\u2264" if v < 0 else "\u2265") + s
         draw_text(c, x, pa.y - 8.5, s, 6.0, False, INK, "c")
-    draw_text(c, pa.x + pa.w / 2, box.y + 1, "signed deviation, mm (end bins collect "
-              "everything beyond)", 6.2, False, MUTED, "c")
+    draw_text(
+        c,
+        pa.x + pa.w / 2,
+        box.y + 1,
+        "signed deviation, mm (end bins collect everything beyond)",
+        6.2,
+        False,
+        MUTED,
+        "c",
+    )
     c.saveState()
     c.translate(box.x + 6, pa.y + pa.h / 2)
     c.rotate(90)
@@ -215,5 +227,10 @@ def draw_histogram(c: Canvas, ctx: ReportContext, box: Box) -> None:
     c.setLineWidth(0.8)
     lx = pa.x + 12 + text_width(first, 6.2) + 10
     c.line(lx, ly + 2.8, lx + 9, ly + 2.8)
-    draw_text(c, lx + 12, ly + 0.6, fit_text("scan points (data-ref.), %",
-                                             box.x + box.w - lx - 12, 6.2), 6.2)
+    draw_text(
+        c,
+        lx + 12,
+        ly + 0.6,
+        fit_text("scan points (data-ref.), %", box.x + box.w - lx - 12, 6.2),
+        6.2,
+    )

@@ -27,12 +27,23 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
     """One row per toleranced surface, ``width`` points wide: band, verdict, in-band area,
     regions, profile value (as in the QIF ``Value``), RMS, P99.9 and the signed extremes;
     at most ``limit`` rows (:func:`pick_tolerances`), the rest counted in the note."""
-    cols = [("Key", 30), ("Tolerance", 152), ("Band, mm", 58), ("Result", 30),
-            ("In band,\n%", 38), ("Regions /\nlargest, mm\u00b2", 60), ("Profile,\nmm", 34),
-            ("RMS,\nmm", 32), ("P99.9,\nmm", 34), ("Max,\nmm", 35), ("Min,\nmm", 35)]
+    cols = [
+        ("Key", 30),
+        ("Tolerance", 152),
+        ("Band, mm", 58),
+        ("Result", 30),
+        ("In band,\n%", 38),
+        ("Regions /\nlargest, mm\u00b2", 60),
+        ("Profile,\nmm", 34),
+        ("RMS,\nmm", 32),
+        ("P99.9,\nmm", 34),
+        ("Max,\nmm", 35),
+        ("Min,\nmm", 35),
+    ]
     scale = width / sum(c[1] for c in cols)
-    cols = [(h, w * scale, "l" if i < 3 else ("c" if i == 3 else "r"))
-            for i, (h, w) in enumerate(cols)]
+    cols = [
+        (h, w * scale, "l" if i < 3 else ("c" if i == 3 else "r")) for i, (h, w) in enumerate(cols)
+    ]
     zones = res.zones
     shown = pick_tolerances(res, limit)
     rows, emph = [], []
@@ -43,35 +54,59 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
         desc = zone.describe()
         cut = desc.find(" [")
         if cut > 0:  # the band has its own column
-            desc = desc[:cut] + desc[desc.find("]", cut) + 1:]
+            desc = desc[:cut] + desc[desc.find("]", cut) + 1 :]
         if not z.fixtured:
             desc += ", free state"
-        status = ("n/a" if not acc.scored_area > 0 else "FAIL" if not acc.passed
-                  else "PASS" if not untrusted else "n/e")
+        status = (
+            "n/a"
+            if not acc.scored_area > 0
+            else "FAIL"
+            if not acc.passed
+            else "PASS"
+            if not untrusted
+            else "n/e"
+        )
         nreg = len(acc.regions)
-        rows.append([
-            zone.key, fit_text(desc, cols[1][1] - 4, 6.8),
-            f"[{fmt_band(zone.lower)}, {fmt_band(zone.upper)}]", status,
-            fmt_pct(acc.in_tolerance_fraction),
-            f"{nreg} / {fmt_area(acc.largest_region_area)}" if nreg else "0",
-            fmt_mm(profile_value(z)), fmt_mm(s.rms), fmt_mm(s.p999), fmt_smm(s.max_pos),
-            fmt_smm(s.min_neg)])
+        rows.append(
+            [
+                zone.key,
+                fit_text(desc, cols[1][1] - 4, 6.8),
+                f"[{fmt_band(zone.lower)}, {fmt_band(zone.upper)}]",
+                status,
+                fmt_pct(acc.in_tolerance_fraction),
+                f"{nreg} / {fmt_area(acc.largest_region_area)}" if nreg else "0",
+                fmt_mm(profile_value(z)),
+                fmt_mm(s.rms),
+                fmt_mm(s.p999),
+                fmt_smm(s.max_pos),
+                fmt_smm(s.min_neg),
+            ]
+        )
         emph.append(not acc.passed)
     note = ""
     rest = [i for i in range(len(zones)) if i not in set(shown)]
     if rest:
         nf = sum(1 for i in rest if not zones[i].acceptance.passed)
         keys = join_names([zones[i].zone.key for i in rest], 8)
-        note = (f"+ {len(rest)} more tolerance{'s' if len(rest) != 1 else ''} not listed "
-                f"({nf} FAIL, {len(rest) - nf} PASS): {keys} \u2014 every tolerance is in "
-                "the QIF file")
+        note = (
+            f"+ {len(rest)} more tolerance{'s' if len(rest) != 1 else ''} not listed "
+            f"({nf} FAIL, {len(rest) - nf} PASS): {keys} \u2014 every tolerance is in "
+            "the QIF file"
+        )
     if untrusted:
-        note = ("n/e = criteria met, not established (registration not trusted; see the "
-                "warning). " + note).strip()
-    return Table(columns=cols, rows=rows, note=note, emphasis=emph,
-                 title=f"Tolerances ({len(zones)}), each on its own faces; profile = "
-                       "width of the smallest zone about the band centre holding all "
-                       "points")
+        note = (
+            "n/e = criteria met, not established (registration not trusted; see the "
+            "warning). " + note
+        ).strip()
+    return Table(
+        columns=cols,
+        rows=rows,
+        note=note,
+        emphasis=emph,
+        title=f"Tolerances ({len(zones)}), each on its own faces; profile = "
+        "width of the smallest zone about the band centre holding all "
+        "points",
+    )
 
 
 def pick_tolerances(res: InspectionResult, limit: int) -> list[int]:
@@ -81,7 +116,7 @@ def pick_tolerances(res: InspectionResult, limit: int) -> list[int]:
         return list(range(len(zones)))
     fail = [i for i, z in enumerate(zones) if not z.acceptance.passed]
     ok = [i for i, z in enumerate(zones) if z.acceptance.passed]
-    return sorted((fail + ok)[:max(limit, 0)])
+    return sorted((fail + ok)[: max(limit, 0)])
 
 
 def region_table(res: InspectionResult, limit: int, width: float) -> Table:
@@ -89,30 +124,48 @@ def region_table(res: InspectionResult, limit: int, width: float) -> Table:
     ``width`` points wide: area, peak, kind, centroid and the region criterion; at most
     ``limit`` rows, the rest summarised in the note."""
     acc = res.acceptance
-    cols = [("#", 16), ("Area, mm\u00b2", 46), ("Peak, mm", 44), ("Kind", 34),
-            ("Centroid x, y, z, mm", 118), ("Criterion", 42)]
+    cols = [
+        ("#", 16),
+        ("Area, mm\u00b2", 46),
+        ("Peak, mm", 44),
+        ("Kind", 34),
+        ("Centroid x, y, z, mm", 118),
+        ("Criterion", 42),
+    ]
     scale = width / sum(c[1] for c in cols)
-    cols = [(h, w * scale, "r" if i in (0, 1, 2) else ("l" if i in (3, 4) else "c"))
-            for i, (h, w) in enumerate(cols)]
+    cols = [
+        (h, w * scale, "r" if i in (0, 1, 2) else ("l" if i in (3, 4) else "c"))
+        for i, (h, w) in enumerate(cols)
+    ]
     regs = acc.regions
     rows, emph = [], []
     for k, r in enumerate(regs[:limit], start=1):
         c = r.centroid
         over = r.area > acc.max_region_area
-        rows.append([str(k), fmt_area(r.area), fmt_smm(r.peak),
-                     "proud" if r.sign > 0 else "sunk",
-                     ", ".join(_fmt_coord(v) for v in c[:3]),
-                     "> limit" if over else "ok"])
+        rows.append(
+            [
+                str(k),
+                fmt_area(r.area),
+                fmt_smm(r.peak),
+                "proud" if r.sign > 0 else "sunk",
+                ", ".join(_fmt_coord(v) for v in c[:3]),
+                "> limit" if over else "ok",
+            ]
+        )
         emph.append(over)
     note = ""
     if len(regs) > limit:
         rest = regs[limit:]
         nover = sum(1 for r in rest if r.area > acc.max_region_area)
-        note = (f"+ {len(rest)} more regions ({fmt_area(sum(r.area for r in rest))} mm\u00b2 "
-                f"in all, {nover} above the limit), see QIF")
+        note = (
+            f"+ {len(rest)} more regions ({fmt_area(sum(r.area for r in rest))} mm\u00b2 "
+            f"in all, {nover} above the limit), see QIF"
+        )
     if not regs:
         rows = [["", "none", "", "", "no vertex outside its band", ""]]
         emph = [False]
-    title = (f"Out-of-tolerance regions, whole part ({len(regs)}; limit "
-             f"{acc.max_region_area:g} mm\u00b2)")
+    title = (
+        f"Out-of-tolerance regions, whole part ({len(regs)}; limit "
+        f"{acc.max_region_area:g} mm\u00b2)"
+    )
     return Table(columns=cols, rows=rows, note=note, emphasis=emph, title=title)

@@ -91,9 +91,19 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-__all__ = ["TrendCharacteristic", "TrendLayout", "ChartGeometry", "plan_trend",
-           "write_trend_pdf", "characteristic_stats", "CharacteristicStats", "seq_ticks",
-           "MAX_CHARTS", "MAX_FAILURE_ROWS", "VERDICTS"]
+__all__ = [
+    "TrendCharacteristic",
+    "TrendLayout",
+    "ChartGeometry",
+    "plan_trend",
+    "write_trend_pdf",
+    "characteristic_stats",
+    "CharacteristicStats",
+    "seq_ticks",
+    "MAX_CHARTS",
+    "MAX_FAILURE_ROWS",
+    "VERDICTS",
+]
 
 #: run charts on the page at most; the rest are named (smallest margin drawn first)
 MAX_CHARTS = 6
@@ -157,8 +167,11 @@ def characteristic_stats(df: pd.DataFrame, ch: TrendCharacteristic) -> Character
     CharacteristicStats
         Over every scan with a finite profile value (NOT ESTABLISHED ones included).
     """
-    return spc.characteristic_stats(_column(df, f"profile_{ch.key}_mm", float),
-                                    _column(df, f"status_{ch.key}", str), ch.tolerance_mm)
+    return spc.characteristic_stats(
+        _column(df, f"profile_{ch.key}_mm", float),
+        _column(df, f"status_{ch.key}", str),
+        ch.tolerance_mm,
+    )
 
 
 def _fmt_rate(rate: float) -> str:
@@ -205,8 +218,15 @@ class _Trend(ReportPage):
     #: tallest run chart (a lone characteristic does not fill the page)
     CHART_MAX_H = 300.0
 
-    def __init__(self, df: pd.DataFrame, characteristics: list[TrendCharacteristic],
-                 part_name: str, created: datetime, nominal_sha256: str | None, page: str):
+    def __init__(
+        self,
+        df: pd.DataFrame,
+        characteristics: list[TrendCharacteristic],
+        part_name: str,
+        created: datetime,
+        nominal_sha256: str | None,
+        page: str,
+    ):
         super().__init__(page)
         self.df = df.reset_index(drop=True)
         self.chars = list(characteristics)
@@ -224,15 +244,16 @@ class _Trend(ReportPage):
         self.counts = spc.verdict_counts(self.verdict)
         self.rate = spc.pass_rate(self.counts)
         self.stats = {ch.key: characteristic_stats(self.df, ch) for ch in self.chars}
-        self.values = {ch.key: _column(self.df, f"profile_{ch.key}_mm", float)
-                       for ch in self.chars}
+        self.values = {ch.key: _column(self.df, f"profile_{ch.key}_mm", float) for ch in self.chars}
         self.status = {ch.key: _column(self.df, f"status_{ch.key}", str) for ch in self.chars}
-        missing = [name for ch in self.chars for name in (f"profile_{ch.key}_mm",
-                                                          f"status_{ch.key}")
-                   if name not in self.df.columns]
+        missing = [
+            name
+            for ch in self.chars
+            for name in (f"profile_{ch.key}_mm", f"status_{ch.key}")
+            if name not in self.df.columns
+        ]
         if missing:
-            log.warning("batch summary has no column %s: read as not measured",
-                        ", ".join(missing))
+            log.warning("batch summary has no column %s: read as not measured", ", ".join(missing))
 
     # ------------------------------------------------------------------------- layout
 
@@ -240,11 +261,14 @@ class _Trend(ReportPage):
         """The characteristics drawn (caller's order) and the keys left out."""
         if len(self.chars) <= MAX_CHARTS:
             return self.chars, []
-        order = sorted(range(len(self.chars)),
-                       key=lambda i: (self.stats[self.chars[i].key].margin, i))
+        order = sorted(
+            range(len(self.chars)), key=lambda i: (self.stats[self.chars[i].key].margin, i)
+        )
         keep = sorted(order[:MAX_CHARTS])
-        return ([self.chars[i] for i in keep],
-                [self.chars[i].key for i in range(len(self.chars)) if i not in set(keep)])
+        return (
+            [self.chars[i] for i in keep],
+            [self.chars[i].key for i in range(len(self.chars)) if i not in set(keep)],
+        )
 
     def _top(self, ch: TrendCharacteristic) -> float:
         """Value at the top of a run chart, mm: a round number above the tolerance and the
@@ -272,8 +296,7 @@ class _Trend(ReportPage):
         blocks["legend"] = Box(x0, y - self.LEGEND_H, self.CW, self.LEGEND_H)
         y -= self.LEGEND_H + 4.0
         omitted_h = 10.0 if omitted else 0.0
-        grid_h = (y - omitted_h - self.GAP - self.BOTTOM_H - self.GAP - self.FOOTER_H
-                  - self.MT)
+        grid_h = y - omitted_h - self.GAP - self.BOTTOM_H - self.GAP - self.FOOTER_H - self.MT
         k = len(chosen)
         cols = 1 if k <= 3 else 2
         rows = max(1, math.ceil(k / cols))
@@ -284,14 +307,17 @@ class _Trend(ReportPage):
         cells: list[Box] = []
         for i, ch in enumerate(chosen):
             r, q = divmod(i, cols)
-            cell = Box(x0 + q * (cell_w + col_gap), y - (r + 1) * cell_h - r * row_gap,
-                       cell_w, cell_h)
-            plot = Box(cell.x + self.CHART_LEFT, cell.y + self.CHART_BOTTOM,
-                       cell.w - self.CHART_LEFT - self.CHART_RIGHT,
-                       cell.h - self.CHART_TOP - self.CHART_BOTTOM)
+            cell = Box(
+                x0 + q * (cell_w + col_gap), y - (r + 1) * cell_h - r * row_gap, cell_w, cell_h
+            )
+            plot = Box(
+                cell.x + self.CHART_LEFT,
+                cell.y + self.CHART_BOTTOM,
+                cell.w - self.CHART_LEFT - self.CHART_RIGHT,
+                cell.h - self.CHART_TOP - self.CHART_BOTTOM,
+            )
             cells.append(cell)
-            charts.append(ChartGeometry(ch.key, plot, self.n, plot.y + ERROR_STRIP,
-                                        self._top(ch)))
+            charts.append(ChartGeometry(ch.key, plot, self.n, plot.y + ERROR_STRIP, self._top(ch)))
         y -= rows * cell_h + (rows - 1) * row_gap if k else 40.0
         blocks["cells"] = cells
         if omitted:
@@ -301,17 +327,34 @@ class _Trend(ReportPage):
         bottom = Box(x0, y - self.BOTTOM_H, self.CW, self.BOTTOM_H)
         rate_w = round(self.CW * 0.40)
         rate_cell = Box(bottom.x, bottom.y, rate_w, bottom.h)
-        rate_plot = Box(rate_cell.x + 30.0, rate_cell.y + 20.0, rate_cell.w - 30.0 - 30.0,
-                        rate_cell.h - 20.0 - 24.0)
+        rate_plot = Box(
+            rate_cell.x + 30.0,
+            rate_cell.y + 20.0,
+            rate_cell.w - 30.0 - 30.0,
+            rate_cell.h - 20.0 - 24.0,
+        )
         blocks["rate_cell"] = rate_cell
         failures = Box(bottom.x + rate_w + 16.0, bottom.y, self.CW - rate_w - 16.0, bottom.h)
         low = self._rate_bottom()  # and headroom above 100 %, where a good batch runs
-        pass_rate = ChartGeometry("pass rate", rate_plot, self.n, rate_plot.y + ERROR_STRIP,
-                                  100.0 + 0.05 * (100.0 - low), low)
+        pass_rate = ChartGeometry(
+            "pass rate",
+            rate_plot,
+            self.n,
+            rate_plot.y + ERROR_STRIP,
+            100.0 + 0.05 * (100.0 - low),
+            low,
+        )
         blocks["footer_top"] = bottom.y - self.GAP
-        return TrendLayout(page=self.page, width=self.W, height=self.H, charts=charts,
-                           omitted=omitted, pass_rate=pass_rate, failures=failures,
-                           blocks=blocks)
+        return TrendLayout(
+            page=self.page,
+            width=self.W,
+            height=self.H,
+            charts=charts,
+            omitted=omitted,
+            pass_rate=pass_rate,
+            failures=failures,
+            blocks=blocks,
+        )
 
     # ------------------------------------------------------------------------ drawing
 
@@ -320,8 +363,9 @@ class _Trend(ReportPage):
         c = self.new_canvas(path)
         c.setTitle(f"Batch trend report: {self.part_name}")
         c.setAuthor("qifreport")
-        c.setSubject(f"{self.n} scans; pass rate {_fmt_rate(self.rate)}; nominal SHA-256 "
-                     f"{self.sha or DASH}")
+        c.setSubject(
+            f"{self.n} scans; pass rate {_fmt_rate(self.rate)}; nominal SHA-256 {self.sha or DASH}"
+        )
         c.setCreator(f"qifreport {__version__}")
         c.setKeywords(["qifreport", "batch", "trend", "surface profile"])
         b = lay.blocks
@@ -331,16 +375,26 @@ class _Trend(ReportPage):
         for cell, geo in zip(b["cells"], lay.charts, strict=True):
             self._draw_run_chart(c, cell, geo, by_key[geo.key])
         if not lay.charts:
-            draw_text(c, self.M, b["legend"].y - 20, "No characteristic to chart.", 8, False,
-                      MUTED)
+            draw_text(c, self.M, b["legend"].y - 20, "No characteristic to chart.", 8, False, MUTED)
         if lay.omitted:
             box = b["omitted"]
             keys = ", ".join(lay.omitted)
-            draw_text(c, box.x, box.y + 2,
-                      fit_text(f"+ {len(lay.omitted)} more characteristic"
-                               f"{'s' if len(lay.omitted) != 1 else ''} not charted (the "
-                               f"{MAX_CHARTS} with the smallest margin below the tolerance are "
-                               f"shown): {keys}", box.w, 6.8), 6.8, False, MUTED)
+            draw_text(
+                c,
+                box.x,
+                box.y + 2,
+                fit_text(
+                    f"+ {len(lay.omitted)} more characteristic"
+                    f"{'s' if len(lay.omitted) != 1 else ''} not charted (the "
+                    f"{MAX_CHARTS} with the smallest margin below the tolerance are "
+                    f"shown): {keys}",
+                    box.w,
+                    6.8,
+                ),
+                6.8,
+                False,
+                MUTED,
+            )
         self._draw_pass_rate(c, b["rate_cell"], lay.pass_rate)
         self._draw_failures(c, lay.failures)
         self._draw_footer(c, b["footer_top"])
@@ -353,33 +407,58 @@ class _Trend(ReportPage):
         vw = 172.0
         vx = box.x + box.w - vw
         # red if any failed, green if every scan passed, amber otherwise
-        color = (FAIL_BG if counts["FAIL"] else PASS_BG if counts["PASS"] == self.n > 0
-                 else UNSURE_BG)
+        color = (
+            FAIL_BG if counts["FAIL"] else PASS_BG if counts["PASS"] == self.n > 0 else UNSURE_BG
+        )
         judged = counts["PASS"] + counts["FAIL"] + counts["NOT ESTABLISHED"]
         c.setFillColorRGB(*color)
         c.roundRect(vx, box.y, vw, box.h, 4, stroke=0, fill=1)
         white = (1.0, 1.0, 1.0)
         draw_text(c, vx + vw / 2, box.top - 13, "PASS RATE", 7.5, True, white, "c")
         draw_text(c, vx + vw / 2, box.top - 41, _fmt_rate(rate), 26, True, white, "c")
-        draw_text(c, vx + vw / 2, box.top - 55,
-                  f"{counts['PASS']} PASS of {judged} scan{'s' if judged != 1 else ''} "
-                  "with a verdict", 6.8, False, white, "c")
+        draw_text(
+            c,
+            vx + vw / 2,
+            box.top - 55,
+            f"{counts['PASS']} PASS of {judged} scan{'s' if judged != 1 else ''} with a verdict",
+            6.8,
+            False,
+            white,
+            "c",
+        )
         err = counts["ERROR"]
-        draw_text(c, vx + vw / 2, box.top - 64,
-                  f"{err} errored (no verdict, not counted)" if err else "none errored",
-                  6.8, False, white, "c")
+        draw_text(
+            c,
+            vx + vw / 2,
+            box.top - 64,
+            f"{err} errored (no verdict, not counted)" if err else "none errored",
+            6.8,
+            False,
+            white,
+            "c",
+        )
         # title and facts
         tw = box.w - vw - 12
-        draw_text(c, box.x, box.top - 8, "BATCH TREND REPORT \u2014 PROFILE OF EACH "
-                  "CHARACTERISTIC BY SCAN", 7.0, True, MUTED)
+        draw_text(
+            c,
+            box.x,
+            box.top - 8,
+            "BATCH TREND REPORT \u2014 PROFILE OF EACH CHARACTERISTIC BY SCAN",
+            7.0,
+            True,
+            MUTED,
+        )
         draw_text(c, box.x, box.top - 24, fit_text(self.part_name, tw, 16, True), 16, True)
         seq = self.seq[np.isfinite(self.seq)]
         span = f" (sequence {int(seq.min())} to {int(seq.max())})" if len(seq) else ""
         rows = [
             ("Nominal", f"SHA-256 {short_sha(self.sha)}\u2026" if self.sha else DASH),
             ("Created", fmt_utc(self.created)),
-            ("Scans", f"{self.n}{span}; {len(self.chars)} characteristic"
-                      f"{'s' if len(self.chars) != 1 else ''}, profile values in mm"),
+            (
+                "Scans",
+                f"{self.n}{span}; {len(self.chars)} characteristic"
+                f"{'s' if len(self.chars) != 1 else ''}, profile values in mm",
+            ),
         ]
         yy = box.top - 35
         for k, v in rows:
@@ -389,8 +468,12 @@ class _Trend(ReportPage):
         # verdict counts as coloured chips
         draw_text(c, box.x, yy - 2, "Verdicts", 7.0, True, MUTED)
         x = box.x + 46
-        chips = {"PASS": PASS_BG, "FAIL": FAIL_BG, "NOT ESTABLISHED": UNSURE_BG,
-                 "ERROR": ERROR_COLOR}
+        chips = {
+            "PASS": PASS_BG,
+            "FAIL": FAIL_BG,
+            "NOT ESTABLISHED": UNSURE_BG,
+            "ERROR": ERROR_COLOR,
+        }
         for v, col in chips.items():
             s = f"{v} {counts[v]}"
             w = text_width(s, 7.0, True) + 8
@@ -409,10 +492,13 @@ class _Trend(ReportPage):
         draw_text(c, x, y, head, 6.8, True)
         x += text_width(head, 6.8, True) + 10
         items: list[tuple[str, str, tuple[float, float, float]]] = [
-            ("dot", "PASS", POINT_COLORS["PASS"]), ("dot", "FAIL", POINT_COLORS["FAIL"]),
+            ("dot", "PASS", POINT_COLORS["PASS"]),
+            ("dot", "FAIL", POINT_COLORS["FAIL"]),
             ("dot", "not established", POINT_COLORS["NOT ESTABLISHED"]),
             ("line", "tolerance (upper limit)", TOL_COLOR),
-            ("dash", "mean", MEAN_COLOR), ("cross", "scan errored", ERROR_COLOR)]
+            ("dash", "mean", MEAN_COLOR),
+            ("cross", "scan errored", ERROR_COLOR),
+        ]
         if any(np.any(self.values[g.key] > g.top) for g in lay.charts):
             items.append(("tri", "above the scale", INK))
         for kind, label, col in items:
@@ -436,8 +522,9 @@ class _Trend(ReportPage):
             return str(int(self.seq[pos - 1]))
         return str(pos)
 
-    def _draw_run_chart(self, c: Canvas, cell: Box, geo: ChartGeometry,
-                        ch: TrendCharacteristic) -> None:
+    def _draw_run_chart(
+        self, c: Canvas, cell: Box, geo: ChartGeometry, ch: TrendCharacteristic
+    ) -> None:
         pa = geo.plot
         st = self.stats[ch.key]
         tol = float(ch.tolerance_mm)
@@ -446,8 +533,10 @@ class _Trend(ReportPage):
         draw_text(c, cell.x, cell.top - 7.5, fit_text(title, cell.w, 7.5, True), 7.5, True)
         cpk = f"{st.cpk:.2f}" if math.isfinite(st.cpk) else DASH
         sigma = fmt_mm(st.sigma)
-        line = (f"n {st.n}   mean {fmt_mm(st.mean)}   \u03c3 {sigma}   max {fmt_mm(st.max)} mm"
-                f"   Cpk {cpk}   PASS {st.n_pass} of {st.n_judged}")
+        line = (
+            f"n {st.n}   mean {fmt_mm(st.mean)}   \u03c3 {sigma}   max {fmt_mm(st.max)} mm"
+            f"   Cpk {cpk}   PASS {st.n_pass} of {st.n_judged}"
+        )
         draw_text(c, cell.x, cell.top - 16.5, fit_text(line, cell.w, 6.6), 6.6, False, MUTED)
         # grid and value axis
         step = nice_step(geo.top / 4.2)
@@ -503,8 +592,11 @@ class _Trend(ReportPage):
             c.setLineWidth(0.45 if r > 1.2 else 0.25)
             draw_polyline(c, xs, ys, ok)
         # the points: the characteristic's verdict; a value without one by the tolerance
-        kind = np.where(np.isin(status, tuple(POINT_COLORS)), status,
-                        np.where(np.isfinite(tol) & (v > tol), "FAIL", "PASS"))
+        kind = np.where(
+            np.isin(status, tuple(POINT_COLORS)),
+            status,
+            np.where(np.isfinite(tol) & (v > tol), "FAIL", "PASS"),
+        )
         clipped = ok & (v > geo.top)
         c.setStrokeColorRGB(1, 1, 1)
         c.setLineWidth(0.35)
@@ -514,16 +606,21 @@ class _Trend(ReportPage):
             c.setFillColorRGB(*POINT_COLORS[name])
             for i in np.flatnonzero(ok & (kind == name)):
                 if clipped[i]:
-                    draw_marker(c, "tri", float(xs[i]), geo.plot.top - 1.2 * rr, 1.2 * rr,
-                                POINT_COLORS[name])
+                    draw_marker(
+                        c,
+                        "tri",
+                        float(xs[i]),
+                        geo.plot.top - 1.2 * rr,
+                        1.2 * rr,
+                        POINT_COLORS[name],
+                    )
                 else:
                     c.circle(float(xs[i]), float(ys[i]), rr, stroke=int(rr >= 1.5), fill=1)
         # scans that errored: crosses in the strip below zero
         err = np.flatnonzero(self.verdict == "ERROR")
         size = 1.6
         for i in err:
-            draw_marker(c, "cross", float(xs[i]), geo.plot.y + ERROR_STRIP / 2, size,
-                        ERROR_COLOR)
+            draw_marker(c, "cross", float(xs[i]), geo.plot.y + ERROR_STRIP / 2, size, ERROR_COLOR)
 
     def rates(self) -> tuple[np.ndarray, np.ndarray | None, int]:
         """Cumulative and rolling pass rate (%) after each scan, and the rolling window.
@@ -552,12 +649,28 @@ class _Trend(ReportPage):
         head = "Pass rate by scan"
         draw_text(c, cell.x, cell.top - 8, head, 8, True)
         x = cell.x + text_width(head, 8, True) + 6
-        draw_text(c, x, cell.top - 8, fit_text("(% PASS of the scans with a verdict)",
-                                               cell.x + cell.w - x, 6.4), 6.4, False, MUTED)
+        draw_text(
+            c,
+            x,
+            cell.top - 8,
+            fit_text("(% PASS of the scans with a verdict)", cell.x + cell.w - x, 6.4),
+            6.4,
+            False,
+            MUTED,
+        )
         cum, roll, window = self.rates()
         # grid and value axis
-        step = 25.0 if geo.bottom == 0 else 10.0 if geo.bottom == 50 else 5.0 \
-            if geo.bottom == 80 else 2.0 if geo.bottom == 90 else 1.0
+        step = (
+            25.0
+            if geo.bottom == 0
+            else 10.0
+            if geo.bottom == 50
+            else 5.0
+            if geo.bottom == 80
+            else 2.0
+            if geo.bottom == 90
+            else 1.0
+        )
         for v in np.arange(geo.bottom, 100.0 + 1e-9, step):
             y = float(geo.y(v))
             c.setStrokeColorRGB(*RULE)
@@ -584,15 +697,18 @@ class _Trend(ReportPage):
         # the scans that did not pass, along the bottom
         ym = pa.y + ERROR_STRIP / 2
         weight = float(np.clip(0.6 * pa.w / max(self.n, 1), 0.3, 1.0))  # dense: thin
-        for name, kind, col in (("NOT ESTABLISHED", "tick", UNSURE_BG),
-                                ("FAIL", "tick", FAIL_BG), ("ERROR", "cross", ERROR_COLOR)):
+        for name, kind, col in (
+            ("NOT ESTABLISHED", "tick", UNSURE_BG),
+            ("FAIL", "tick", FAIL_BG),
+            ("ERROR", "cross", ERROR_COLOR),
+        ):
             for i in np.flatnonzero(self.verdict == name):
-                draw_marker(c, kind, float(xs[i]), ym, 2.6 if kind == "tick" else 1.6, col,
-                            weight)
+                draw_marker(c, kind, float(xs[i]), ym, 2.6 if kind == "tick" else 1.6, col, weight)
         last = cum[np.isfinite(cum)]
         if len(last):
-            draw_text(c, pa.x + pa.w + 3, float(geo.y(last[-1])) - 2.2, f"{last[-1]:.1f}",
-                      6.0, True, INK)
+            draw_text(
+                c, pa.x + pa.w + 3, float(geo.y(last[-1])) - 2.2, f"{last[-1]:.1f}", 6.0, True, INK
+            )
         draw_frame(c, geo, self._seq_label)
         # legend under the ticks
         y = cell.y + 1.5
@@ -600,8 +716,11 @@ class _Trend(ReportPage):
         items = [("line", "cumulative", INK)]
         if window:
             items.append(("line", f"rolling, {window} scans", ROLL_COLOR))
-        items += [("tick", "FAIL", FAIL_BG), ("tick", "not established", UNSURE_BG),
-                  ("cross", "error", ERROR_COLOR)]
+        items += [
+            ("tick", "FAIL", FAIL_BG),
+            ("tick", "not established", UNSURE_BG),
+            ("cross", "error", ERROR_COLOR),
+        ]
         for kind, label, col in items:
             if kind == "line":
                 c.setStrokeColorRGB(*col)
@@ -615,45 +734,69 @@ class _Trend(ReportPage):
             x += text_width(label, 6.0) + 7
 
     def _draw_failures(self, c: Canvas, box: Box) -> None:
-        t = failure_table(self.verdict, self.seq, _column(self.df, "serial", str),
-                          _column(self.df, "scan", str), _column(self.df, "decided_by", str),
-                          _column(self.df, "error", str), box.w)
+        t = failure_table(
+            self.verdict,
+            self.seq,
+            _column(self.df, "serial", str),
+            _column(self.df, "scan", str),
+            _column(self.df, "decided_by", str),
+            _column(self.df, "error", str),
+            box.w,
+        )
         draw_table(c, box.x, box.top, t)
 
     def _draw_footer(self, c: Canvas, top: float) -> None:
-        defs = ("Profile value: width of the smallest zone about the band centre that holds "
-                "every scored point of the surface (as in the QIF). The verdict applies the "
-                "area and region criteria, so a value above the tolerance may still pass. "
-                "Cpk = (tolerance \u2212 mean) / (3\u03c3), one-sided (a profile value is at "
-                "least 0), \u03c3 the sample standard deviation (n \u2212 1) of the measured "
-                "scans; pass rate = PASS / (PASS + FAIL + NOT ESTABLISHED).")
+        defs = (
+            "Profile value: width of the smallest zone about the band centre that holds "
+            "every scored point of the surface (as in the QIF). The verdict applies the "
+            "area and region criteria, so a value above the tolerance may still pass. "
+            "Cpk = (tolerance \u2212 mean) / (3\u03c3), one-sided (a profile value is at "
+            "least 0), \u03c3 the sample standard deviation (n \u2212 1) of the measured "
+            "scans; pass rate = PASS / (PASS + FAIL + NOT ESTABLISHED)."
+        )
         y = top - 1
         for s in wrap_text(defs, self.CW, 6.2)[:3]:
             draw_text(c, self.M, y - 6, s, 6.2, False, MUTED)
             y -= 7.4
-        foot = (f"qifreport {__version__} \u00b7 batch trend \u00b7 page 1 of 1 \u00b7 "
-                f"{self.n} scans of {self.part_name} \u00b7 created {fmt_utc(self.created)}")
+        foot = (
+            f"qifreport {__version__} \u00b7 batch trend \u00b7 page 1 of 1 \u00b7 "
+            f"{self.n} scans of {self.part_name} \u00b7 created {fmt_utc(self.created)}"
+        )
         draw_text(c, self.M, self.MT, fit_text(foot, self.CW, 6.2), 6.2, False, MUTED)
 
 
 # ----------------------------------------------------------------------------- public API
 
 
-def plan_trend(df: pd.DataFrame, characteristics: list[TrendCharacteristic], *,
-               part_name: str = "", created: datetime | None = None,
-               nominal_sha256: str | None = None, page: str = "A4") -> TrendLayout:
+def plan_trend(
+    df: pd.DataFrame,
+    characteristics: list[TrendCharacteristic],
+    *,
+    part_name: str = "",
+    created: datetime | None = None,
+    nominal_sha256: str | None = None,
+    page: str = "A4",
+) -> TrendLayout:
     """Where :func:`write_trend_pdf` puts everything for this batch (no file written).
 
     Deterministic: :func:`write_trend_pdf` draws exactly this layout. Tests use it to find the
     points on a rasterized page.
     """
-    return _Trend(df, characteristics, part_name, created or datetime.now(), nominal_sha256,
-                  page).plan()
+    return _Trend(
+        df, characteristics, part_name, created or datetime.now(), nominal_sha256, page
+    ).plan()
 
 
-def write_trend_pdf(path: Path, df: pd.DataFrame, characteristics: list[TrendCharacteristic],
-                    *, part_name: str, created: datetime, nominal_sha256: str | None = None,
-                    page: str = "A4") -> None:
+def write_trend_pdf(
+    path: Path,
+    df: pd.DataFrame,
+    characteristics: list[TrendCharacteristic],
+    *,
+    part_name: str,
+    created: datetime,
+    nominal_sha256: str | None = None,
+    page: str = "A4",
+) -> None:
     """Write the one-page trend report of a batch.
 
     Parameters
@@ -672,6 +815,11 @@ def write_trend_pdf(path: Path, df: pd.DataFrame, characteristics: list[TrendCha
     rep = _Trend(df, characteristics, part_name, created, nominal_sha256, page)
     lay = rep.plan()
     rep.draw(Path(path), lay)
-    log.info("trend report %s: %d scans, %d of %d characteristics charted, %.2f s",
-             Path(path).name, rep.n, len(lay.charts), len(characteristics),
-             time.perf_counter() - t0)
+    log.info(
+        "trend report %s: %d scans, %d of %d characteristics charted, %.2f s",
+        Path(path).name,
+        rep.n,
+        len(lay.charts),
+        len(characteristics),
+        time.perf_counter() - t0,
+    )

@@ -104,8 +104,9 @@ def make_case(
     if generator == "analytic":
         d = analytic_deformation(V, F, a)
     elif generator == "biharmonic":
-        d = biharmonic_deformation(V, F, a, modes=dict(modes or {"bend": 1.0, "twist": 0.5}),
-                                   clamp_motion=clamp_motion).d
+        d = biharmonic_deformation(
+            V, F, a, modes=dict(modes or {"bend": 1.0, "twist": 0.5}), clamp_motion=clamp_motion
+        ).d
     else:
         raise ValueError(f"unknown generator {generator!r}")
     V_true = V + d

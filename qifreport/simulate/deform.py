@@ -189,14 +189,19 @@ def biharmonic_deformation(
     if not np.isfinite(d).all():
         raise ValueError("bending system is singular: a mesh component carries no handle")
     log.debug(
-        "biharmonic %s: %d handles, max |d| %.3f mm", dict(modes), len(h),
+        "biharmonic %s: %d handles, max |d| %.3f mm",
+        dict(modes),
+        len(h),
         np.linalg.norm(d, axis=1).max(),
     )
     return Deformation(d=d, handles=handles, g=g, signs=signs)
 
 
 def analytic_deformation(
-    V: np.ndarray, F: np.ndarray, amplitude: float, seed: int | None = None,
+    V: np.ndarray,
+    F: np.ndarray,
+    amplitude: float,
+    seed: int | None = None,
     direction: np.ndarray | None = None,
 ) -> np.ndarray:
     """A closed-form smooth normal displacement that shares no prior with any method.

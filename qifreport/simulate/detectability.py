@@ -140,5 +140,12 @@ def detectability(
         rho = a_hat / b
     else:
         rho = float("inf") if a_hat > 0 else nan
-    return Detectability(a_hat=a_hat, recovery=a_hat / abs(float(a)), background=b, rho=rho,
-                         localisation_mm=loc, n_defect=n_d, n_background=n_b)
+    return Detectability(
+        a_hat=a_hat,
+        recovery=a_hat / abs(float(a)),
+        background=b,
+        rho=rho,
+        localisation_mm=loc,
+        n_defect=n_d,
+        n_background=n_b,
+    )

@@ -120,14 +120,18 @@ def case_a(V: np.ndarray, F: np.ndarray, seed: int = 0, noise: float = DEFAULT_N
 
 
 def case_b(
-    V: np.ndarray, F: np.ndarray, seed: int = 0, noise: float = DEFAULT_NOISE,
+    V: np.ndarray,
+    F: np.ndarray,
+    seed: int = 0,
+    noise: float = DEFAULT_NOISE,
     amplitude: float = DEFAULT_AMPLITUDE,
 ) -> Case:
     """Ladder case B: compliant (analytic free state, ``amplitude`` of the diagonal),
     defect-free, scanned. The free state does not depend on ``seed`` (only the scanner's
     noise and thinning do)."""
-    return make_case(V, F, generator="analytic", amplitude=amplitude,
-                     spec=scan_spec(V, seed, noise))
+    return make_case(
+        V, F, generator="analytic", amplitude=amplitude, spec=scan_spec(V, seed, noise)
+    )
 
 
 # --------------------------------------------------------------------------------------
@@ -145,15 +149,16 @@ def deviation_summary(result: InspectionResult) -> dict:
     d = scored_deviation(result)
     if len(d) == 0:
         return {"rms": math.nan, "max": math.nan, "scored": 0}
-    return {"rms": float(np.sqrt(np.mean(d**2))), "max": float(np.abs(d).max()),
-            "scored": len(d)}
+    return {"rms": float(np.sqrt(np.mean(d**2))), "max": float(np.abs(d).max()), "scored": len(d)}
 
 
 def spread(values: Sequence[float]) -> dict:
     """Spread of repeated measurements: min, max, mean, half-range and std (ddof=1)."""
     x = np.asarray(values, dtype=np.float64)
     return {
-        "min": float(x.min()), "max": float(x.max()), "mean": float(x.mean()),
+        "min": float(x.min()),
+        "max": float(x.max()),
+        "mean": float(x.mean()),
         "half_range": float(0.5 * (x.max() - x.min())),
         "std": float(x.std(ddof=1)) if len(x) > 1 else math.nan,
     }
@@ -195,8 +200,12 @@ def sample_spacing(P: np.ndarray, k: int = 8, tree: cKDTree | None = None) -> fl
 
 
 def local_plane_noise(
-    P: np.ndarray, radius: float | None = None, spacings: float = NOISE_RADIUS_SPACINGS,
-    min_points: int = 8, max_centres: int | None = 20000, seed: int = 0,
+    P: np.ndarray,
+    radius: float | None = None,
+    spacings: float = NOISE_RADIUS_SPACINGS,
+    min_points: int = 8,
+    max_centres: int | None = 20000,
+    seed: int = 0,
 ) -> NoiseEstimate:
     """Range noise (mm, 1 sigma along the surface normal) from local plane-fit residuals.
 
@@ -252,8 +261,12 @@ def deviation_radius(V: np.ndarray, F: np.ndarray) -> float:
 
 
 def propagate_noise(
-    sigma: float, V: np.ndarray, F: np.ndarray, P: np.ndarray,
-    vertices: np.ndarray | None = None, radius: float | None = None,
+    sigma: float,
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    vertices: np.ndarray | None = None,
+    radius: float | None = None,
 ) -> dict:
     """Range noise propagated into the deviation: ``sigma / sqrt(mean neighbour count)``.
 
@@ -269,9 +282,13 @@ def propagate_noise(
     if vertices is None:
         cnt = cnt[cnt > 0]
     mean = float(cnt.mean())
-    return {"propagated": float(sigma / math.sqrt(mean)), "mean_count": mean,
-            "count_p10": float(np.percentile(cnt, 10)),
-            "count_p90": float(np.percentile(cnt, 90)), "radius": r}
+    return {
+        "propagated": float(sigma / math.sqrt(mean)),
+        "mean_count": mean,
+        "count_p10": float(np.percentile(cnt, 10)),
+        "count_p90": float(np.percentile(cnt, 90)),
+        "radius": r,
+    }
 
 
 def true_normal_noise(case: Case, noise: float) -> float:
@@ -284,7 +301,11 @@ def true_normal_noise(case: Case, noise: float) -> float:
 
 
 def direct_noise_floor(
-    V: np.ndarray, F: np.ndarray, seed: int, noise: float, vertices: np.ndarray,
+    V: np.ndarray,
+    F: np.ndarray,
+    seed: int,
+    noise: float,
+    vertices: np.ndarray,
 ) -> float:
     """The propagated noise measured directly (mm): RMS over ``vertices`` of the difference
     between the deviation of case A's noisy scan and of the same scan without noise (same
@@ -318,8 +339,12 @@ def ingest_posed(P: np.ndarray, workdir: str | Path | None = None) -> np.ndarray
 
 
 def chain_floor(
-    V: np.ndarray, F: np.ndarray, seed: int = 0, noise: float = DEFAULT_NOISE,
-    posed: bool = True, params: InspectionParams | None = None,
+    V: np.ndarray,
+    F: np.ndarray,
+    seed: int = 0,
+    noise: float = DEFAULT_NOISE,
+    posed: bool = True,
+    params: InspectionParams | None = None,
 ) -> tuple[dict, InspectionResult, Case]:
     """Case A, end to end: the reported deviation RMS and max of a rigid defect-free part.
 
@@ -329,9 +354,15 @@ def chain_floor(
     case = case_a(V, F, seed=seed, noise=noise)
     P = ingest_posed(case.P) if posed else case.P
     res = inspect(V, F, P, params or InspectionParams())
-    out = {"case": "A", "posed": posed, "seed": seed, "points": len(P),
-           **deviation_summary(res), "pose": res.prealign.method if res.prealign else "",
-           "seconds": float(sum(res.timings.values()))}
+    out = {
+        "case": "A",
+        "posed": posed,
+        "seed": seed,
+        "points": len(P),
+        **deviation_summary(res),
+        "pose": res.prealign.method if res.prealign else "",
+        "seconds": float(sum(res.timings.values())),
+    }
     return out, res, case
 
 
@@ -340,8 +371,12 @@ def chain_floor(
 
 
 def unremoved_compliance(
-    V: np.ndarray, F: np.ndarray, seed: int = 0, noise: float = DEFAULT_NOISE,
-    amplitude: float = DEFAULT_AMPLITUDE, params: InspectionParams | None = None,
+    V: np.ndarray,
+    F: np.ndarray,
+    seed: int = 0,
+    noise: float = DEFAULT_NOISE,
+    amplitude: float = DEFAULT_AMPLITUDE,
+    params: InspectionParams | None = None,
 ) -> tuple[dict, InspectionResult, Case]:
     """Case B: reported deviation after virtual fixturing against rigid only.
 
@@ -358,12 +393,20 @@ def unremoved_compliance(
     scored = np.isfinite(fixed.deviation)
     # the rigid stage moved the scan (and so the free state) into the nominal frame
     err = inspection_error(fixed.V_registered, fixed.rigid.apply(case.V_true), F)[scored]
-    out = {"case": "B", "seed": seed, "amplitude": amplitude,
-           "rms_before": before["rms"], "max_before": before["max"],
-           "rms_after": after["rms"], "max_after": after["max"], "scored": after["scored"],
-           "removed": 1.0 - after["rms"] / before["rms"],
-           "truth_rms": float(np.sqrt(np.mean(err**2))), "truth_max": float(err.max()),
-           "seconds": float(sum(fixed.timings.values()))}
+    out = {
+        "case": "B",
+        "seed": seed,
+        "amplitude": amplitude,
+        "rms_before": before["rms"],
+        "max_before": before["max"],
+        "rms_after": after["rms"],
+        "max_after": after["max"],
+        "scored": after["scored"],
+        "removed": 1.0 - after["rms"] / before["rms"],
+        "truth_rms": float(np.sqrt(np.mean(err**2))),
+        "truth_max": float(err.max()),
+        "seconds": float(sum(fixed.timings.values())),
+    }
     return out, fixed, case
 
 
@@ -372,13 +415,22 @@ def unremoved_compliance(
 
 
 def _row(variant: str, seed: int, res: InspectionResult, points: int) -> dict:
-    return {"variant": variant, "seed": seed, "points": points, **deviation_summary(res),
-            "seconds": float(sum(res.timings.values()))}
+    return {
+        "variant": variant,
+        "seed": seed,
+        "points": points,
+        **deviation_summary(res),
+        "seconds": float(sum(res.timings.values())),
+    }
 
 
 def repeat_scanner_seeds(
-    V: np.ndarray, F: np.ndarray, seeds: Iterable[int], noise: float = DEFAULT_NOISE,
-    amplitude: float = DEFAULT_AMPLITUDE, params: InspectionParams | None = None,
+    V: np.ndarray,
+    F: np.ndarray,
+    seeds: Iterable[int],
+    noise: float = DEFAULT_NOISE,
+    amplitude: float = DEFAULT_AMPLITUDE,
+    params: InspectionParams | None = None,
     done: dict[int, InspectionResult] | None = None,
 ) -> list[dict]:
     """Case B re-scanned under each scanner seed (noise and thinning), same free state.
@@ -406,7 +458,11 @@ def subset(P: np.ndarray, seed: int, fraction: float = 0.8) -> np.ndarray:
 
 
 def repeat_subsets(
-    V: np.ndarray, F: np.ndarray, P: np.ndarray, seeds: Iterable[int], fraction: float = 0.8,
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    seeds: Iterable[int],
+    fraction: float = 0.8,
     params: InspectionParams | None = None,
 ) -> list[dict]:
     """One scan inspected on random ``fraction`` subsets of its points, one per seed."""
@@ -453,29 +509,53 @@ class Budget:
         pt = PAPER_TABLE6
         removed = 1.0 - self.compliance_rms / self.compliance_before
         return [
-            {"contribution": "Sensor range noise, propagated",
-             "rms_mm": self.noise_propagated, "max_mm": math.nan,
-             "paper_rms_mm": pt["noise"][0], "paper_max_mm": math.nan,
-             "measured_by": (f"plane-fit residual {self.noise_estimate:.4f} mm (setting "
-                             f"{self.noise_setting:.3f} along the view, "
-                             f"{self.noise_normal_true:.4f} normal) / sqrt("
-                             f"{self.mean_count:.1f} neighbours)")},
-            {"contribution": "Pipeline minimum error",
-             "rms_mm": self.floor_rms, "max_mm": self.floor_max,
-             "paper_rms_mm": pt["chain_floor"][0], "paper_max_mm": pt["chain_floor"][1],
-             "measured_by": "ladder case A (rigid, defect-free; posed, PLY in m, pose search)"},
-            {"contribution": "Unremoved compliance",
-             "rms_mm": self.compliance_rms, "max_mm": math.nan,
-             "paper_rms_mm": pt["compliance"][0], "paper_max_mm": math.nan,
-             "measured_by": (f"ladder case B: {self.compliance_rms:.4f} after vs "
-                             f"{self.compliance_before:.4f} rigid only "
-                             f"({100 * removed:.1f} % removed)")},
-            {"contribution": "Registration repeatability",
-             "rms_mm": self.repeat_rms, "max_mm": self.repeat_max,
-             "paper_rms_mm": pt["repeatability"][0], "paper_max_mm": pt["repeatability"][1],
-             "measured_by": self.repeat_how},
-            {"contribution": "Combined, RMS terms in quadrature",
-             "rms_mm": self.combined, "max_mm": math.nan,
-             "paper_rms_mm": pt["combined"][0], "paper_max_mm": math.nan,
-             "measured_by": "root-sum-square of the four RMS rows"},
+            {
+                "contribution": "Sensor range noise, propagated",
+                "rms_mm": self.noise_propagated,
+                "max_mm": math.nan,
+                "paper_rms_mm": pt["noise"][0],
+                "paper_max_mm": math.nan,
+                "measured_by": (
+                    f"plane-fit residual {self.noise_estimate:.4f} mm (setting "
+                    f"{self.noise_setting:.3f} along the view, "
+                    f"{self.noise_normal_true:.4f} normal) / sqrt("
+                    f"{self.mean_count:.1f} neighbours)"
+                ),
+            },
+            {
+                "contribution": "Pipeline minimum error",
+                "rms_mm": self.floor_rms,
+                "max_mm": self.floor_max,
+                "paper_rms_mm": pt["chain_floor"][0],
+                "paper_max_mm": pt["chain_floor"][1],
+                "measured_by": "ladder case A (rigid, defect-free; posed, PLY in m, pose search)",
+            },
+            {
+                "contribution": "Unremoved compliance",
+                "rms_mm": self.compliance_rms,
+                "max_mm": math.nan,
+                "paper_rms_mm": pt["compliance"][0],
+                "paper_max_mm": math.nan,
+                "measured_by": (
+                    f"ladder case B: {self.compliance_rms:.4f} after vs "
+                    f"{self.compliance_before:.4f} rigid only "
+                    f"({100 * removed:.1f} % removed)"
+                ),
+            },
+            {
+                "contribution": "Registration repeatability",
+                "rms_mm": self.repeat_rms,
+                "max_mm": self.repeat_max,
+                "paper_rms_mm": pt["repeatability"][0],
+                "paper_max_mm": pt["repeatability"][1],
+                "measured_by": self.repeat_how,
+            },
+            {
+                "contribution": "Combined, RMS terms in quadrature",
+                "rms_mm": self.combined,
+                "max_mm": math.nan,
+                "paper_rms_mm": pt["combined"][0],
+                "paper_max_mm": math.nan,
+                "measured_by": "root-sum-square of the four RMS rows",
+            },
         ]

@@ -120,7 +120,10 @@ def fandisk(
 
 
 def housing(
-    length: float = 150.0, width: float = 90.0, height: float = 40.0, power: float = 4.0,
+    length: float = 150.0,
+    width: float = 90.0,
+    height: float = 40.0,
+    power: float = 4.0,
     n: int = 48,
 ) -> tuple[np.ndarray, np.ndarray]:
     """A smooth housing-like cover: the upper half of a superellipsoid, open underneath.
@@ -155,8 +158,9 @@ def housing(
             off += len(X)
     V, F = weld(np.concatenate(Vs), np.concatenate(Fs))
     d = V / np.linalg.norm(V, axis=1, keepdims=True)
-    r = (np.abs(d[:, 0] / a) ** power + np.abs(d[:, 1] / b) ** power
-         + np.abs(d[:, 2] / c) ** power) ** (-1.0 / power)
+    r = (
+        np.abs(d[:, 0] / a) ** power + np.abs(d[:, 1] / b) ** power + np.abs(d[:, 2] / c) ** power
+    ) ** (-1.0 / power)
     V = d * r[:, None]
     F = F[V[F][:, :, 2].min(axis=1) >= -1e-9]
     used = np.unique(F)
