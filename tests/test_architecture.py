@@ -156,3 +156,16 @@ def test_one_top_level_package_and_no_private_cross_imports():
                         if a.name.startswith("_") and not a.name.startswith("__"):
                             offenders.append(f"{f.relative_to(ROOT)}:{node.lineno} {a.name}")
     assert not offenders, offenders
+
+
+def test_ruff_check_and_format_are_clean():
+    """The style rules hold in CI too: ``ruff check`` and ``ruff format --check``."""
+    ruff = Path(sys.executable).with_name("ruff")
+    if not ruff.exists():
+        msg = "ruff is not installed: make install"
+        if os.environ.get("CI") == "true":
+            pytest.fail(msg)
+        pytest.skip(msg)
+    for args in (["check", "."], ["format", "--check", "."]):
+        r = subprocess.run([str(ruff), *args], cwd=ROOT, capture_output=True, text=True)
+        assert r.returncode == 0, r.stdout + r.stderr
