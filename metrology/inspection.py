@@ -203,6 +203,11 @@ class InspectionResult:
                 f"(limit {100 * limit:.0f} %), so the "
                 "band-limited refit fell back to the single-pass fit"
             )
+        if self.fit is not None and self.fit.method == "gbcicp" and self.params.gbcicp.passes < 2:
+            out.append(
+                "single-pass virtual fixture (--passes 1): the two-pass guard that keeps "
+                "a defect from being fitted away is off, so a pass is not claimed"
+            )
         if self.repeatability is not None:
             out += list(self.repeatability.warnings)
         return out

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
+import signal
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -10,6 +12,9 @@ from pathlib import Path
 __all__ = [
     "atomic_write",
     "atomic_write_many",
+    "output_lock",
+    "remove_stale_temps",
+    "temp_name_pattern",
 ]
 
 
@@ -57,5 +62,64 @@ def atomic_write_many(items: list[tuple[str | Path, Callable[[Path], object]]]) 
         for _path, tmp in staged:
             tmp.unlink(missing_ok=True)
         raise
-    for path, tmp in staged:
-        os.replace(tmp, path)
+    # the renames are not interrupted by a signal half-way (all published, or none)
+    with _signals_held():
+        for path, tmp in staged:
+            os.replace(tmp, path)
+
+
+#: signals held while a set of files is renamed into place
+_HELD = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP) if hasattr(signal, "SIGHUP") else ()
+
+
+@contextlib.contextmanager
+def _signals_held():
+    if not _HELD or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def temp_name_pattern(path: str | Path) -> str:
+    """The glob of the temporary files :func:`atomic_write` makes for ``path`` (its folder's
+    ``.<name>.*.tmp``)."""
+    return f".{Path(path).name}.*.tmp"
+
+
+def remove_stale_temps(paths: list[Path]) -> list[Path]:
+    """Remove the temporary files a killed run left for ``paths`` (our naming only: see
+    :func:`temp_name_pattern`); call it only while no other writer of ``paths`` can run (under
+    :func:`output_lock`). Returns the files removed."""
+    removed = []
+    for path in paths:
+        path = Path(path)
+        if not path.parent.is_dir():
+            continue
+        for tmp in path.parent.glob(temp_name_pattern(path)):
+            if tmp.is_file() and not tmp.is_symlink():
+                tmp.unlink(missing_ok=True)
+                removed.append(tmp)
+    return removed
+
+
+@contextlib.contextmanager
+def output_lock(folder: str | Path):
+    """An exclusive lock on an output folder for the duration of a run: ``flock`` on the
+    folder itself (the nearest existing ancestor while it does not exist yet), so no lock
+    file is left behind. A second run into the same folder gets ``BlockingIOError`` instead
+    of overwriting the first one's files."""
+    import fcntl
+
+    target = Path(folder).absolute()
+    while not target.is_dir() and target != target.parent:
+        target = target.parent
+    fd = os.open(target, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        yield
+    finally:
+        os.close(fd)

@@ -27,7 +27,9 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import sys
+import threading
 from collections.abc import Callable
 from pathlib import Path
 
@@ -445,6 +447,9 @@ def _guard(fn: Callable[[], int], verbose: bool) -> int:
     """Run ``fn()``; map input errors and internal errors to exit 2 with one line."""
     try:
         return fn()
+    except Interrupted as exc:
+        print(f"qifreport: interrupted by {exc.name}: nothing written", file=sys.stderr)
+        return 128 + exc.signum
     except InputError as exc:
         print(f"qifreport: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
@@ -472,6 +477,28 @@ def main(argv: list[str] | None = None) -> int:
     verbose = bool(getattr(args, "verbose", False))
     level = logging.INFO if verbose and args.command != "validate" else logging.WARNING
     logging.basicConfig(level=level, format="qifreport: %(levelname)s: %(message)s")
-    if args.command == "validate":  # validate reports its own errors and exit codes
-        sys.exit(args.run(args))
+    _catch_signals()
     sys.exit(_guard(lambda: args.run(args), verbose))
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT, SIGTERM or SIGHUP during a run: the atomic writers remove their temporary files
+    on the way out, and the command ends with one line and exit ``128 + signal``."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+        self.name = signal.Signals(signum).name
+
+
+def _raise_interrupted(signum: int, frame) -> None:
+    raise Interrupted(signum)
+
+
+def _catch_signals() -> None:
+    """Turn SIGINT, SIGTERM and SIGHUP into :class:`Interrupted` (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), _raise_interrupted)

@@ -20,7 +20,13 @@ from qifreport.errors import InputError
 from qifreport.metrology.params import InspectionParams
 from qifreport.registration.gbcicp import GBCICPParams
 
-__all__ = ["InspectJob", "InspectOptions", "NominalOptions", "RESULT_OPTIONS"]
+__all__ = [
+    "RESULT_OPTIONS",
+    "InspectJob",
+    "InspectOptions",
+    "NominalOptions",
+    "check_text",
+]
 
 #: the options that change a scan's outputs (a batch record's digest covers them)
 RESULT_OPTIONS = (
@@ -47,6 +53,22 @@ RESULT_OPTIONS = (
     "seeds",
     "rigid_only",
 )
+
+
+def check_text(flag: str, value: str | None) -> None:
+    """Refuse a text option no report can carry: undecodable bytes (a non-UTF-8 argument),
+    control characters, or more than 200 characters (:class:`~qifreport.errors.InputError`)."""
+    if value is None:
+        return
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError:
+        raise InputError(f"{flag} is not valid UTF-8 text") from None
+    bad = [c for c in value if ord(c) < 32 or 127 <= ord(c) < 160]
+    if bad:
+        raise InputError(f"{flag} contains a control character ({ord(bad[0]):#04x})")
+    if len(value) > 200:
+        raise InputError(f"{flag} is longer than 200 characters ({len(value)})")
 
 
 @dataclass(frozen=True)
@@ -123,10 +145,29 @@ class InspectOptions:
             )
         if self.seeds < 1:
             raise InputError(f"--seeds must be a number of runs >= 1, got {self.seeds}")
-        if self.tolerance is not None and not (
-            math.isfinite(self.tolerance) and self.tolerance > 0
+        lengths = (
+            ("--tolerance", self.tolerance),
+            ("--max-edge", self.max_edge),
+            ("--deflection", self.deflection),
+            ("--band-limit", self.band_limit),
+        )
+        for flag, v in lengths:
+            if v is not None and not (math.isfinite(v) and v > 0):
+                raise InputError(f"{flag} must be a positive length in mm, got {v}")
+        for flag, v in (("--edge-band", self.edge_band), ("--boundary-band", self.boundary_band)):
+            if v is not None and not (math.isfinite(v) and v >= 0):
+                raise InputError(f"{flag} must be a length >= 0 mm, got {v}")
+        if self.passes < 1:
+            raise InputError(
+                "--passes must be 1 (a single pass: no two-pass guard, so never a PASS) or "
+                f"more (the band-limited scheme), got {self.passes}"
+            )
+        for flag, v in (
+            ("--author", self.author),
+            ("--organization", self.organization),
+            ("--operator", self.operator),
         ):
-            raise InputError(f"--tolerance must be a positive length in mm, got {self.tolerance}")
+            check_text(flag, v)
 
     def inspection_params(self) -> InspectionParams:
         """The metrology parameters of these options."""
@@ -181,6 +222,19 @@ class InspectJob:
     json: bool = False
     export_mesh: Path | None = None
     force: bool = False
+
+    def check(self) -> None:
+        """Refuse bad options and an output path that two outputs share."""
+        self.options.check()
+        check_text("--serial", self.serial)
+        seen: dict[Path, str] = {}
+        for kind, path in self.output_paths().items():
+            key = path.resolve()
+            if key in seen:
+                raise InputError(
+                    f"the {kind} output and the {seen[key]} output are the same file: {path}"
+                )
+            seen[key] = kind
 
     def output_paths(self) -> dict[str, Path]:
         """The files this job writes: ``qif``, ``pdf``, ``json``, ``mesh`` (those asked for)."""

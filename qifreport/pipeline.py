@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from qifreport import __version__
-from qifreport.atomic_io import atomic_write_many
+from qifreport.atomic_io import atomic_write_many, output_lock, remove_stale_temps
 from qifreport.errors import InputError
 from qifreport.metrology.inspection import InspectionParams, InspectionResult, inspect
 from qifreport.metrology.params import method_label
@@ -218,7 +218,7 @@ def _stage(prof: Profiler | None, name: str):
 def check_job(job: InspectJob) -> None:
     """Refuse before any work: bad options, a missing input, an output that exists (without
     ``force``) or a directory that cannot be written."""
-    job.options.check()
+    job.check()
     for name in ("nominal", "scan"):
         path = getattr(job, name)
         if not path.is_file():
@@ -415,6 +415,18 @@ def run_job(job: InspectJob, *, progress: bool = True, prof: Profiler | None = N
         Bad input (nothing written).
     """
     check_job(job)
+    try:
+        with output_lock(job.out):
+            return _run_locked(job, progress, prof)
+    except BlockingIOError:
+        raise InputError(
+            f"another qifreport run is writing into {job.out}: wait for it or choose another --out"
+        ) from None
+
+
+def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOutcome:
+    for tmp in remove_stale_temps(list(job.output_paths().values())):
+        log.warning("removed a temporary file an interrupted run left: %s", tmp)
     o = job.options
     started = datetime.now(timezone.utc)
     with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
