@@ -52,6 +52,7 @@ from .hygiene import MeshHygiene
 from .params import METHOD_LABELS, InspectionParams, method_label
 from .prepared import PreparedPart, prepare_part
 from .repeatability import Repeatability
+from .resolution import Resolution, range_noise, resolution
 from .statistics import DeviationStats, deviation_statistics
 
 __all__ = [
@@ -164,6 +165,7 @@ class InspectionResult:
     hygiene: MeshHygiene | None = None
     repeatability: Repeatability | None = None
     basis: BendingBasis | None = None
+    resolution: Resolution | None = None
 
     @property
     def passed(self) -> bool:
@@ -183,6 +185,9 @@ class InspectionResult:
         * the two-pass guard fired: the first pass flagged more than its limit of the covered
           surface as anomalous, so the band-limited refit fell back to a single pass
           (Section 6.4: on the paper's real part 23.9 % against a 20 % limit);
+        * the measurement scatter (range noise, fit residual) is too large to resolve a
+          tolerance zone (:mod:`qifreport.metrology.resolution`: 2 sigma <= width / 4);
+        * ``--passes 1``: the single-pass fit has no two-pass guard;
         * with ``--seeds``: a resampled run whose own registration cannot be trusted (its
           regions decided which findings persist).
         """
@@ -208,6 +213,8 @@ class InspectionResult:
                 "single-pass virtual fixture (--passes 1): the two-pass guard that keeps "
                 "a defect from being fitted away is off, so a pass is not claimed"
             )
+        if self.resolution is not None:
+            out += self.resolution.warnings()
         if self.repeatability is not None:
             out += list(self.repeatability.warnings)
         return out
@@ -286,6 +293,7 @@ class InspectionResult:
             },
             "parameters": p,
             "repeatability": (None if self.repeatability is None else self.repeatability.to_dict()),
+            "measurement": None if self.resolution is None else self.resolution.to_dict(),
             "mesh": {
                 "vertices": len(self.V),
                 "triangles": len(self.F),
@@ -586,6 +594,13 @@ def inspect(
         fail_on=params.fail_on_added_material,
     )
     timings["metrology"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    scatter = resolution(
+        range_noise(Pm),
+        fit.scale if fit is not None else rigid.scale,
+        [(z.zone.key, float(z.zone.upper - z.zone.lower)) for z in zone_results],
+    )
+    timings["resolution"] = time.perf_counter() - t0
     return InspectionResult(
         V=V,
         F=F,
@@ -611,4 +626,5 @@ def inspect(
         added=added,
         hygiene=hygiene,
         basis=basis,
+        resolution=scatter,
     )
