@@ -14,25 +14,49 @@ version and the versions of qifreport, numpy and scipy. A different part, parame
 software version is a different entry; nothing is ever looked up by file name alone.
 
 File layout: one line of JSON (the header: format, key, key material, SHA-256 and length of
-the payload, build time) followed by the payload, a pickle of :class:`PartState`. An entry is
-trusted only when the header parses, its format and key match the ones asked for, and the
-payload's length and SHA-256 match the header; anything else (truncated, bit-flipped, written
-by another version, unreadable) is logged, rebuilt and replaced -- never used. Entries are
-written to a temporary file and renamed into place, so a reader never sees half an entry and
-concurrent builders of one part are harmless (the last rename wins; both are identical).
+the payload, build time, HMAC) followed by the payload, a pickle of :class:`PartState`.
+Entries are written to a temporary file and renamed into place, so a reader never sees half an
+entry and concurrent builders of one part are harmless (the last rename wins; both are
+identical).
 
-The payload is a pickle: load entries only from a cache directory you trust as much as the
-installation itself (the default is the user's own cache directory).
+Trust. Unpickling runs code, so nothing is unpickled that anyone but the current user
+(``os.geteuid()``) could have written (POSIX ownership and modes):
+
+* the **directory** must be owned by the user and writable by nobody else (no group/other
+  write bit). A directory this module creates is made mode 0700 (``chmod`` after ``mkdir``,
+  whatever the umask); an existing directory is never changed. A directory that fails the
+  check (or cannot be created) is not used at all -- neither read nor written: one warning,
+  the inspection goes on without the cache (:class:`CacheOutcome` status ``"refused"``);
+* the directory holds the user's **secret**, ``<cache>/.key``: 32 random bytes, written to a
+  private temporary file and hard-linked into place (exclusive: an existing key is never
+  overwritten), mode 0600. A key file that is a symbolic link, not a regular file, not owned
+  by the user, not mode 0600 or not 32 bytes refuses the directory as above;
+* an **entry** is read only when it is a regular file (opened with ``O_NOFOLLOW``: never a
+  symbolic link) owned by the user and writable by nobody else, checked on the open file;
+* then its header must parse, name this format, carry the key :func:`part_state`
+  **recomputes from the inputs** (the header's key is only compared, never trusted), the
+  payload's length and SHA-256, and an HMAC-SHA256, under the secret, of the canonical header
+  (all of it but the HMAC) and the payload, compared with :func:`hmac.compare_digest`. Only
+  then is the payload unpickled. A header copied from another entry with a swapped payload
+  fails the HMAC.
+
+An entry that fails any check is logged and never used; the state is rebuilt and the entry
+replaced by a fresh one (the directory is the user's, so replacing it is the user's to do).
+Running as another user (root included) against someone's cache directory therefore runs
+without the cache.
 """
 
 from __future__ import annotations
 
 import contextlib
 import hashlib
+import hmac
 import json
 import logging
 import os
 import pickle
+import secrets
+import stat
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -53,10 +77,16 @@ __all__ = [
     "CACHE_FORMAT",
     "CacheOutcome",
     "CorruptEntry",
+    "KEY_BYTES",
+    "KEY_FILE",
     "NominalOptions",
     "PartState",
+    "UntrustedCache",
     "cache_key",
+    "cache_secret",
+    "check_cache_dir",
     "default_cache_dir",
+    "entry_mac",
     "entry_path",
     "key_material",
     "load_entry",
@@ -70,8 +100,13 @@ log = logging.getLogger(__name__)
 #: version of the entry layout; bump it whenever :class:`PartState` or anything it holds
 #: changes shape
 #: 2: module paths under the one import root qifreport.* (pickles name them)
-CACHE_FORMAT = 2
+#: 3: the header carries an HMAC-SHA256 under the per-user secret ``<cache>/.key``
+CACHE_FORMAT = 3
 SUFFIX = ".qprep"
+#: the per-user secret's file name inside the cache directory, and its length in bytes
+KEY_FILE = ".key"
+KEY_BYTES = 32
+_MAX_HEADER = 1 << 20
 
 
 def sha256(path: Path) -> str:
@@ -119,8 +154,10 @@ class CacheOutcome:
     Attributes
     ----------
     status : ``"hit"`` (loaded), ``"built"`` (no entry), ``"rebuilt"`` (an entry was
-        refused: see ``reason``) or ``"off"`` (no cache directory).
-    path : the entry file (None when off).  reason : why an entry was refused.
+        refused: see ``reason``), ``"refused"`` (the cache directory is not trusted, see
+        ``reason``: neither read nor written) or ``"off"`` (no cache directory).
+    path : the entry file (None when off or refused).
+    reason : why an entry, or the directory, was refused.
     seconds : time to obtain the state (load, or read + prepare).
     build_seconds : the entry's original build time.
     """
@@ -140,12 +177,174 @@ class CacheOutcome:
             )
         if self.status == "off":
             return f"part state prepared in {self.seconds:.1f} s (no cache)"
+        if self.status == "refused":
+            return f"part state prepared in {self.seconds:.1f} s (cache not used: {self.reason})"
         why = f" (cache entry refused: {self.reason})" if self.reason else ""
         return f"part state prepared in {self.seconds:.1f} s{why}, cached: {self.path}"
 
 
 class CorruptEntry(Exception):
     """A cache entry that cannot be trusted (the message says why)."""
+
+
+class UntrustedCache(Exception):
+    """A cache directory (or its key file) the current user cannot trust (the message names
+    it and says why): the cache is not used."""
+
+
+def _writable_by_others(mode: int) -> bool:
+    return bool(mode & (stat.S_IWGRP | stat.S_IWOTH))
+
+
+def _owner_problem(st: os.stat_result) -> str:
+    """Why a file or directory with status ``st`` is not the current user's alone ("" if it
+    is)."""
+    uid = os.geteuid()
+    if st.st_uid != uid:
+        return f"owned by uid {st.st_uid}, not by this user (uid {uid})"
+    if _writable_by_others(st.st_mode):
+        return f"writable by group or others (mode {stat.S_IMODE(st.st_mode):04o})"
+    return ""
+
+
+def check_cache_dir(cache_dir: Path, *, create: bool = True) -> None:
+    """Check that ``cache_dir`` is the current user's alone; create it (mode 0700) if missing.
+
+    Parameters
+    ----------
+    cache_dir : the cache directory.
+    create : create a missing directory (its parents with the default mode, itself 0700).
+
+    Raises
+    ------
+    UntrustedCache
+        It cannot be created, is not a directory, is not owned by the current user or is
+        writable by group or others. An existing directory is never modified.
+    """
+    cache_dir = Path(cache_dir)
+    if create and not os.path.lexists(cache_dir):
+        try:
+            cache_dir.parent.mkdir(parents=True, exist_ok=True)
+            os.mkdir(cache_dir, 0o700)
+        except FileExistsError:
+            pass  # created meanwhile (by another process): checked below like any other
+        except OSError as exc:
+            raise UntrustedCache(f"cache directory {cache_dir} cannot be created: {exc}") from exc
+        else:
+            os.chmod(cache_dir, 0o700)  # ours, just made: 0700 whatever the umask
+            log.info("created the cache directory %s (mode 0700)", cache_dir)
+    try:
+        st = os.stat(cache_dir)
+    except OSError as exc:
+        raise UntrustedCache(f"cache directory {cache_dir} is unusable: {exc}") from exc
+    if not stat.S_ISDIR(st.st_mode):
+        raise UntrustedCache(f"cache directory {cache_dir} is not a directory")
+    problem = _owner_problem(st)
+    if problem:
+        raise UntrustedCache(f"cache directory {cache_dir} is {problem}")
+
+
+def _read_secret(path: Path) -> bytes | None:
+    """The secret in ``path``, None if there is no such file; :class:`UntrustedCache` unless it
+    is a regular file of the user's, mode 0600, :data:`KEY_BYTES` long."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:  # ELOOP: a symbolic link
+        what = "a symbolic link" if os.path.islink(path) else f"unreadable ({exc})"
+        raise UntrustedCache(f"cache key file {path} is {what}") from exc
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise UntrustedCache(f"cache key file {path} is not a regular file")
+        uid = os.geteuid()
+        if st.st_uid != uid:
+            raise UntrustedCache(
+                f"cache key file {path} is owned by uid {st.st_uid}, not by this user (uid {uid})"
+            )
+        if stat.S_IMODE(st.st_mode) != 0o600:
+            raise UntrustedCache(
+                f"cache key file {path} has mode {stat.S_IMODE(st.st_mode):04o}, not 0600"
+            )
+        data = os.read(fd, KEY_BYTES + 1)
+    finally:
+        os.close(fd)
+    if len(data) != KEY_BYTES:
+        raise UntrustedCache(f"cache key file {path} is {len(data)} bytes, not {KEY_BYTES}")
+    return data
+
+
+def cache_secret(cache_dir: Path) -> bytes:
+    """The current user's secret for ``cache_dir``, created on first use.
+
+    The directory is checked (and created) by :func:`check_cache_dir`. A missing key is made
+    from :func:`secrets.token_bytes` in a private temporary file (mode 0600) and hard-linked to
+    ``<cache>/.key``: exclusive (an existing key, e.g. one another process made meanwhile,
+    is never replaced) and atomic (no reader sees a partial key).
+
+    Parameters
+    ----------
+    cache_dir : the cache directory.
+
+    Returns
+    -------
+    bytes
+        :data:`KEY_BYTES` bytes.
+
+    Raises
+    ------
+    UntrustedCache
+        The directory fails :func:`check_cache_dir`, or the key file is a symbolic link, not
+        a regular file, not owned by the current user, not mode 0600 or not
+        :data:`KEY_BYTES` long, or it cannot be created.
+    """
+    cache_dir = Path(cache_dir)
+    check_cache_dir(cache_dir)
+    path = cache_dir / KEY_FILE
+    key = _read_secret(path)
+    if key is not None:
+        return key
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-key-", dir=cache_dir)
+        try:
+            os.fchmod(fd, 0o600)
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(secrets.token_bytes(KEY_BYTES))
+                fh.flush()
+                os.fsync(fh.fileno())
+            with contextlib.suppress(FileExistsError):  # another process was first: use its key
+                os.link(tmp, path)
+        finally:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+    except OSError as exc:
+        raise UntrustedCache(f"cache key file {path} cannot be created: {exc}") from exc
+    key = _read_secret(path)
+    if key is None:
+        raise UntrustedCache(f"cache key file {path} vanished while it was created")
+    log.info("created the cache key %s", path)
+    return key
+
+
+def _canonical(header: dict) -> bytes:
+    return json.dumps(header, sort_keys=True, separators=(",", ":")).encode("utf-8")
+
+
+def entry_mac(secret: bytes, header: dict, payload: bytes) -> str:
+    """HMAC-SHA256 (hex) of an entry under ``secret``: the canonical JSON of ``header`` (every
+    field but ``"hmac"``), a newline and the payload.
+
+    Parameters
+    ----------
+    secret : the user's key (:func:`cache_secret`).  header : the entry's header.
+    payload : the pickled state.
+    """
+    mac = hmac.new(secret, digestmod=hashlib.sha256)
+    mac.update(_canonical({k: v for k, v in header.items() if k != "hmac"}))
+    mac.update(b"\n")
+    mac.update(payload)
+    return mac.hexdigest()
 
 
 def key_material(nominal_sha256: str, options: NominalOptions, params: InspectionParams) -> dict:
@@ -215,8 +414,16 @@ def build_state(
     )
 
 
-def save_entry(path: Path, state: PartState, material: dict) -> None:
-    """Write ``state`` to ``path`` atomically (temporary file in the same directory, renamed)."""
+def save_entry(path: Path, state: PartState, material: dict, secret: bytes) -> None:
+    """Write ``state`` to ``path`` atomically (temporary file in the same directory, mode 0600,
+    renamed), authenticated with ``secret``.
+
+    Parameters
+    ----------
+    path : the entry file (:func:`entry_path`), in a directory :func:`cache_secret` accepted.
+    state : the state.  material : its key material (:func:`key_material`).
+    secret : the user's key (:func:`cache_secret`).
+    """
     payload = pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
     header = {
         "format": CACHE_FORMAT,
@@ -227,7 +434,7 @@ def save_entry(path: Path, state: PartState, material: dict) -> None:
         "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "build_seconds": state.build_seconds,
     }
-    path.parent.mkdir(parents=True, exist_ok=True)
+    header["hmac"] = entry_mac(secret, header, payload)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=SUFFIX, dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as fh:
@@ -242,14 +449,46 @@ def save_entry(path: Path, state: PartState, material: dict) -> None:
         raise
 
 
-def load_entry(path: Path, key: str) -> PartState:
-    """Read and verify one entry; :class:`CorruptEntry` (with the reason) unless trusted."""
+def _open_entry(path: Path) -> tuple[bytes, bytes]:
+    """The header line and payload of ``path``, read only if it is a regular file (not a
+    symbolic link) of the current user's, writable by nobody else; else :class:`CorruptEntry`.
+    """
     try:
-        with open(path, "rb") as fh:
-            line = fh.readline(1 << 20)
-            payload = fh.read()
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError as exc:
+        if os.path.islink(path):
+            raise CorruptEntry("refused: a symbolic link") from exc
+        raise CorruptEntry(f"unreadable: {exc}") from exc
+    try:
+        st = os.fstat(fd)  # the file opened, not whatever the name points at now
+        if not stat.S_ISREG(st.st_mode):
+            raise CorruptEntry("refused: not a regular file")
+        problem = _owner_problem(st)
+        if problem:
+            raise CorruptEntry(f"refused: {problem}")
+        with os.fdopen(fd, "rb") as fh:
+            fd = -1
+            return fh.readline(_MAX_HEADER), fh.read()
     except OSError as exc:
         raise CorruptEntry(f"unreadable: {exc}") from exc
+    finally:
+        if fd >= 0:
+            os.close(fd)
+
+
+def load_entry(path: Path, key: str, secret: bytes) -> PartState:
+    """Read, check and verify one entry; :class:`CorruptEntry` (with the reason) unless trusted.
+
+    The payload is unpickled only after every check of the module docstring passed: the file
+    is the user's regular file, the header names this format and ``key``, the payload has the
+    recorded length and SHA-256, and the HMAC under ``secret`` matches.
+
+    Parameters
+    ----------
+    path : the entry file.  key : the key recomputed from the inputs (:func:`cache_key`).
+    secret : the user's key (:func:`cache_secret`).
+    """
+    line, payload = _open_entry(path)
     try:
         header = json.loads(line.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -268,9 +507,14 @@ def load_entry(path: Path, key: str) -> PartState:
         )
     if hashlib.sha256(payload).hexdigest() != header.get("payload_sha256"):
         raise CorruptEntry("payload SHA-256 mismatch (corrupted)")
+    recorded = header.get("hmac")
+    if not isinstance(recorded, str) or not hmac.compare_digest(
+        entry_mac(secret, header, payload).encode("ascii"), recorded.encode("utf-8")
+    ):
+        raise CorruptEntry("refused: HMAC mismatch (not written with this cache's key)")
     try:
         state = pickle.loads(payload)
-    except Exception as exc:  # a verified payload that does not unpickle: another build
+    except Exception as exc:  # an authenticated payload that does not unpickle: another build
         raise CorruptEntry(f"payload does not load: {type(exc).__name__}: {exc}") from exc
     if not isinstance(state, PartState) or state.key != key:
         raise CorruptEntry("payload is not this part's state")
@@ -292,7 +536,8 @@ def part_state(
     ----------
     nominal : the nominal file (STEP or mesh).  options : how it is read.
     params : :class:`qifreport.metrology.params.InspectionParams` of the inspections to come.
-    cache_dir : cache directory, None to neither read nor write one.
+    cache_dir : cache directory, None to neither read nor write one. A directory that fails
+        :func:`cache_secret` is not used either (one warning; status ``"refused"``).
     rebuild : ignore an existing entry and build a fresh one.
 
     Raises
@@ -313,21 +558,35 @@ def part_state(
             state.build_seconds,
             timings=dict(state.prepared.timings),
         )
+    try:
+        secret = cache_secret(cache_dir)
+    except UntrustedCache as exc:  # never read nor write a directory others could write
+        log.warning("%s: the part is prepared without the cache", exc)
+        state = build_state(nominal, options, params, digest, key, complete=False)
+        return state, CacheOutcome(
+            "refused",
+            None,
+            time.perf_counter() - t0,
+            state.build_seconds,
+            reason=str(exc),
+            timings=dict(state.prepared.timings),
+        )
     path = entry_path(cache_dir, nominal, key)
     reason = ""
-    if path.exists() and not rebuild:
+    exists = os.path.lexists(path)  # a symbolic link (even a dangling one) is refused
+    if exists and not rebuild:
         try:
-            state = load_entry(path, key)
+            state = load_entry(path, key, secret)
             log.info("part state loaded from %s", path)
             return state, CacheOutcome("hit", path, time.perf_counter() - t0, state.build_seconds)
         except CorruptEntry as exc:
             reason = str(exc)
             log.warning("cache entry %s refused (%s): rebuilding it", path, reason)
-    elif rebuild and path.exists():
+    elif rebuild and exists:
         reason = "rebuild asked for"
     state = build_state(nominal, options, params, digest, key)
     try:
-        save_entry(path, state, material)
+        save_entry(path, state, material, secret)
     except OSError as exc:  # a read-only cache must not stop an inspection
         log.warning("could not write the cache entry %s: %s", path, exc)
     status = "rebuilt" if reason else "built"

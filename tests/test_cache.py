@@ -14,6 +14,7 @@ from qifreport.cache import (
     CorruptEntry,
     NominalOptions,
     cache_key,
+    cache_secret,
     key_material,
     load_entry,
     part_state,
@@ -98,14 +99,14 @@ def test_damaged_entry_is_refused_and_rebuilt(built, tmp_path, damage):
         data = bytearray(json.dumps(h).encode() + b"\n" + payload)
     entry.write_bytes(bytes(data))
     with pytest.raises(CorruptEntry):
-        load_entry(entry, state.key)
+        load_entry(entry, state.key, cache_secret(cache))
     if damage != "flip":
         return  # rebuilding is the same path for every damage: once is enough (8 s)
     again, outcome = part_state(nominal, OPTS, InspectionParams(), cache)
     assert outcome.status == "rebuilt", outcome
     assert outcome.reason
     np.testing.assert_array_equal(again.prepared.V, state.prepared.V)
-    assert load_entry(entry, state.key).key == state.key  # the entry was replaced
+    assert load_entry(entry, state.key, cache_secret(cache)).key == state.key  # replaced
     assert not list(cache.glob(".tmp-*"))  # no temporary file left behind
 
 
