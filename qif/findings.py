@@ -12,7 +12,14 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["DMSC_CATEGORIES", "Finding", "ValidationReport", "format_finding"]
+__all__ = [
+    "DMSC_CATEGORIES",
+    "INTERNAL_RULE",
+    "Finding",
+    "ValidationReport",
+    "format_finding",
+    "internal_finding",
+]
 
 #: the CheckReport categories, in report order (CheckDocuments: the linked-document checks)
 DMSC_CATEGORIES = (
@@ -22,6 +29,8 @@ DMSC_CATEGORIES = (
     "CheckConstraints",
     "CheckDocuments",
 )
+#: the rule of a finding that says a validator failed on the document instead of checking it
+INTERNAL_RULE = "internal"
 
 
 @dataclass
@@ -166,6 +175,35 @@ def format_finding(name: str, f: Finding) -> str:
     sev = "" if f.severity == "error" else f"{f.severity}: "
     msg = " ".join(f.message.splitlines())
     return f"{where} [{rule}] {sev}{msg}"
+
+
+def internal_finding(validator: str, exc: BaseException) -> Finding:
+    """The finding of a validator that raised instead of reporting (rule ``internal``).
+
+    An error: the document was not checked by that validator, so it is not valid (for dmsc,
+    category ``CheckFormat``).
+
+    Parameters
+    ----------
+    validator : str
+        ``"lxml"``, ``"xmlschema"`` or ``"dmsc"``.
+    exc : BaseException
+        What it raised.
+
+    Returns
+    -------
+    Finding
+        The message names the exception on one line (at most 300 characters of it).
+    """
+    detail = " ".join(str(exc).split())[:300]
+    return Finding(
+        validator,
+        None,
+        INTERNAL_RULE,
+        f"{validator} failed on the document: {type(exc).__name__}"
+        + (f": {detail}" if detail else ""),
+        "CheckFormat" if validator == "dmsc" else "schema",
+    )
 
 
 def _count_text(fs: list[Finding]) -> str:

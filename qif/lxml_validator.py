@@ -29,6 +29,7 @@ from .xsd import (
     parse_document,
     schema_dir,
     strip_ns,
+    xml_parser,
 )
 
 __all__ = ["lxml_findings", "lxml_schema", "validate_lxml"]
@@ -66,9 +67,7 @@ def lxml_schema(sd: Path) -> etree.XMLSchema:
     lxml.etree.XMLSchema
     """
     t0 = time.perf_counter()
-    parser = etree.XMLParser(no_network=True, huge_tree=True)
-    parser.resolvers.add(LocalResolver(dsig_path(sd)))
-    doc = etree.parse(str(sd / ROOT_XSD), parser)
+    doc = etree.parse(str(sd / ROOT_XSD), xml_parser(LocalResolver(dsig_path(sd))))
     schema = etree.XMLSchema(doc)
     log.debug("lxml: compiled %s in %.2f s", sd / ROOT_XSD, time.perf_counter() - t0)
     return schema
@@ -184,6 +183,9 @@ def validate_lxml(path: Path | str) -> list[Finding]:
         No XSD folder (see :func:`qifreport.qif.xsd.schema_dir`).
     FileNotFoundError, lxml.etree.XMLSyntaxError
         The file is missing or not well-formed XML.
+    DocumentRefused
+        Not a regular file, too large, or with a DOCTYPE
+        (:func:`qifreport.qif.xsd.parse_document`).
     """
     sd = schema_dir()
     return lxml_findings(parse_document(Path(path)), sd)

@@ -21,6 +21,11 @@ Workarounds, both for defects of xmlschema:
 xmlschema names only the referred key of a dangling reference and reports it at the scope
 element: the keyrefs referring to that key are evaluated (:mod:`.identities`) to name the
 violated one and give one finding per referencing element, at its line.
+
+xmlschema is never given a tree with an entity reference (it stops with "Internal error in
+XML Schema validation"): such a tree, which :func:`qifreport.qif.xsd.parse_document` refuses
+anyway, gives the finding ``entity``; an error xmlschema raises instead of reporting gives
+the finding ``internal``.
 """
 
 from __future__ import annotations
@@ -184,15 +189,48 @@ def xmlschema_findings(
     Returns
     -------
     list of Finding
+        An entity reference in the tree gives the one finding ``entity`` (xmlschema is not
+        run); an exception of xmlschema's validation the finding ``internal`` after those
+        reported until then.
     """
     schema = xmlschema_schema(sd, register_substitutes)
     idents = identity_constraints(sd)
+    ent = next(tree.getroot().iter(etree.Entity), None)
+    if ent is not None:
+        return [
+            Finding(
+                "xmlschema",
+                ent.sourceline,
+                "entity",
+                f"entity reference {ent.text} not expanded: DTD/entity declarations are not "
+                "allowed in a QIF document (not validated)",
+            )
+        ]
+    out: list[Finding] = []
+    try:
+        _collect_findings(schema, idents, tree, out)
+    except Exception as exc:  # xmlschema raises on what it cannot validate
+        detail = " ".join(str(getattr(exc, "message", None) or exc).split())[:300]
+        out.append(
+            Finding(
+                "xmlschema",
+                None,
+                "internal",
+                f"xmlschema could not validate the document: {type(exc).__name__}: {detail}",
+            )
+        )
+    return out
+
+
+def _collect_findings(
+    schema: Any, idents: dict[str, IdentityConstraint], tree: etree._ElementTree, out: list[Finding]
+) -> None:
+    """Append the findings of xmlschema's errors on ``tree`` to ``out``."""
     if tree.getroot().xpath("boolean(//comment() | //processing-instruction())"):
         # xmlschema takes an lxml comment inside simple content for a child element ("a
         # simple content element can't have child elements"): drop them, lines are kept
         tree = copy.deepcopy(tree)
         etree.strip_tags(tree, etree.Comment, etree.ProcessingInstruction)
-    out: list[Finding] = []
     for err in schema.iter_errors(tree, use_location_hints=False):
         reason = err.reason or str(err)
         line = err.sourceline
@@ -228,7 +266,6 @@ def xmlschema_findings(
             kind, elem = "key", " ".join(names) or elem
             reason = f"missing key field '{km.group(1)}' of key {elem}"
         out.append(Finding("xmlschema", line, f"{kind} {elem}".strip(), strip_ns(reason)))
-    return out
 
 
 def _xs_keyref_findings(
@@ -295,6 +332,9 @@ def validate_xmlschema(path: Path | str) -> list[Finding]:
         No XSD folder (see :func:`qifreport.qif.xsd.schema_dir`).
     FileNotFoundError, lxml.etree.XMLSyntaxError
         The file is missing or not well-formed XML.
+    DocumentRefused
+        Not a regular file, too large, or with a DOCTYPE
+        (:func:`qifreport.qif.xsd.parse_document`).
     """
     sd = schema_dir()
     return xmlschema_findings(parse_document(Path(path)), sd)

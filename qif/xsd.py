@@ -8,19 +8,29 @@
   bundled with ``xmlschema``); :class:`LocalResolver` does it for libxml2 and refuses every
   other network URL.
 * :func:`xml_parser` is the parser every QIF or XSD file is read with (``no_network``, no
-  DTD, entities unexpanded); :func:`parse_document` reads a QIF file with it.
+  DTD loaded or validated, entities never expanded, libxml2's size and amplification limits
+  kept: no ``huge_tree``).
+* Hostile files: :func:`read_document` reads only a regular file (never a device, FIFO,
+  socket or directory) of at most :data:`MAX_DOCUMENT_BYTES`, with a bounded read;
+  :func:`parse_document_bytes` refuses a document with a DOCTYPE (DTD or entity declarations,
+  billion laughs, XXE) before and after libxml2 sees it; :func:`parse_document` does both.
+  What is refused raises :class:`DocumentRefused` (an :class:`~qifreport.errors.InputError`).
 * :func:`strip_ns` and :func:`local_name` shorten the QIF namespace in what is reported.
 """
 
 from __future__ import annotations
 
+import codecs
 import logging
 import os
+import re
+import stat
 from pathlib import Path
 from typing import Any
 
 from lxml import etree
 
+from qifreport.errors import InputError
 from qifreport.schemas import QIF_XSD_DIR, SCHEMA_DIR
 
 __all__ = [
@@ -28,17 +38,24 @@ __all__ = [
     "DSIG_NAME",
     "ENV_CHECKS_DIR",
     "ENV_XSD_DIR",
+    "MAX_DOCUMENT_BYTES",
     "QIF_NS",
     "REPO_ROOT",
     "ROOT_XSD",
     "XSD_NS",
+    "DocumentRefused",
     "LocalResolver",
     "SchemasUnavailable",
     "checks_dir",
     "dsig_path",
+    "file_kind",
+    "format_size",
     "is_remote_dsig",
     "local_name",
     "parse_document",
+    "parse_document_bytes",
+    "read_document",
+    "refuse_doctype",
     "schema_dir",
     "strip_ns",
     "xml_parser",
@@ -55,6 +72,9 @@ DSIG_NAME = "xmldsig-core-schema.xsd"
 DSIG_LOCAL = Path("QIFLibrary") / DSIG_NAME
 ENV_XSD_DIR = "QIFREPORT_XSD_DIR"
 ENV_CHECKS_DIR = "QIFREPORT_CHECKS_DIR"
+#: the largest QIF document read (command line and linked documents alike): 100 MiB. A QIF
+#: results file of a big part is a few MB; libxml2 builds a tree of 5-10 times the file size.
+MAX_DOCUMENT_BYTES = 100 * 1024 * 1024
 #: the repository root in an editable install (``../shared`` may sit beside it)
 REPO_ROOT = SCHEMA_DIR.parent
 _HOWTO = (
@@ -66,6 +86,32 @@ _HOWTO = (
 
 class SchemasUnavailable(Exception):
     """The QIF 3.0 XSDs (or the DMSC checks) cannot be found; the message says how to fix it."""
+
+
+class DocumentRefused(InputError):
+    """A file that is not read or not parsed as a QIF document, the message saying why.
+
+    Not a regular file (a device, FIFO, socket, directory), larger than
+    :data:`MAX_DOCUMENT_BYTES`, or with a DOCTYPE (DTD/entity declarations). The message
+    names the file and the problem on one line.
+
+    Parameters
+    ----------
+    name : str
+        The file (or URL), as the message is to name it.
+    reason : str
+        Why it is refused (``"not a regular file (a FIFO)"``...).
+
+    Attributes
+    ----------
+    name, reason : str
+        As given; the message is ``"NAME: REASON"``.
+    """
+
+    def __init__(self, name: str, reason: str) -> None:
+        super().__init__(f"{name}: {reason}")
+        self.name = name
+        self.reason = reason
 
 
 # ---------------------------------------------------------------------------------------------
@@ -211,7 +257,11 @@ class LocalResolver(etree.Resolver):
 
 
 def xml_parser(resolver: etree.Resolver | None = None) -> etree.XMLParser:
-    """A parser that never touches the network and keeps entities unexpanded from outside.
+    """A parser that never touches the network, loads no DTD and expands no entity.
+
+    ``no_network``, ``load_dtd=False``, ``dtd_validation=False``, ``resolve_entities=False``
+    and ``huge_tree=False`` (libxml2's limits stay on: entity amplification, text nodes of at
+    most 10 MB, nesting depth).
 
     Parameters
     ----------
@@ -222,7 +272,13 @@ def xml_parser(resolver: etree.Resolver | None = None) -> etree.XMLParser:
     -------
     lxml.etree.XMLParser
     """
-    p = etree.XMLParser(no_network=True, huge_tree=True, resolve_entities=False, load_dtd=False)
+    p = etree.XMLParser(
+        no_network=True,
+        huge_tree=False,
+        resolve_entities=False,
+        load_dtd=False,
+        dtd_validation=False,
+    )
     if resolver is not None:
         p.resolvers.add(resolver)
     return p
@@ -232,13 +288,195 @@ def xml_parser(resolver: etree.Resolver | None = None) -> etree.XMLParser:
 # helpers on instance documents
 
 
-def parse_document(path: Path) -> etree._ElementTree:
-    """Parse a QIF file with :func:`xml_parser`.
+_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def file_kind(st: os.stat_result) -> str:
+    """What a file is, for a message: ``"a regular file"``, ``"a FIFO"``...
 
     Parameters
     ----------
-    path : Path
-        The QIF document.
+    st : os.stat_result
+        Its status (:func:`os.stat`).
+
+    Returns
+    -------
+    str
+    """
+    if stat.S_ISREG(st.st_mode):
+        return "a regular file"
+    for test, kind in _KINDS:
+        if test(st.st_mode):
+            return kind
+    return "an unknown kind of file"
+
+
+def format_size(n: int) -> str:
+    """A byte count as shown in messages: ``100 MiB``, ``1.5 KiB``, ``12 bytes``."""
+    for unit, size in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n >= size:
+            return f"{n / size:.4g} {unit}"
+    return f"{n} bytes"
+
+
+def _check_stat(st: os.stat_result, name: str, max_bytes: int) -> None:
+    if not stat.S_ISREG(st.st_mode):
+        raise DocumentRefused(name, f"not a regular file ({file_kind(st)})")
+    if st.st_size > max_bytes:
+        raise DocumentRefused(name, f"larger than {format_size(max_bytes)} ({st.st_size} bytes)")
+
+
+_OPEN_FLAGS = (
+    os.O_RDONLY
+    | getattr(os, "O_NONBLOCK", 0)  # a FIFO swapped in after the stat must not block the open
+    | getattr(os, "O_NOCTTY", 0)
+    | getattr(os, "O_CLOEXEC", 0)
+    | getattr(os, "O_BINARY", 0)
+)
+_CHUNK = 1 << 20
+
+
+def read_document(path: Path | str, max_bytes: int = MAX_DOCUMENT_BYTES) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes``, read with a bounded read.
+
+    The file is checked with :func:`os.stat` before it is opened (a device, FIFO, socket or
+    directory is never opened), opened non-blocking and checked again on the open descriptor
+    (:func:`os.fstat`), then read: never more than ``max_bytes + 1`` bytes, so a file that
+    grows or lies about its size (``/proc``) is refused too.
+
+    Parameters
+    ----------
+    path : Path or str
+        The file (a symbolic link is followed; what it points to is checked).
+    max_bytes : int
+        The largest size accepted (:data:`MAX_DOCUMENT_BYTES`).
+
+    Returns
+    -------
+    bytes
+
+    Raises
+    ------
+    FileNotFoundError
+        No such file.
+    DocumentRefused
+        Not a regular file, or larger than ``max_bytes``.
+    OSError
+        The file cannot be read (permissions...).
+    """
+    name = os.fspath(path)
+    try:
+        st = os.stat(name)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{name}: no such file") from None
+    _check_stat(st, name, max_bytes)
+    fd = os.open(name, _OPEN_FLAGS)
+    try:
+        st = os.fstat(fd)
+        _check_stat(st, name, max_bytes)
+        parts = [os.read(fd, min(st.st_size, max_bytes) + 1)]
+        total = len(parts[0])
+        while parts[-1] and total <= max_bytes:
+            parts.append(os.read(fd, min(_CHUNK, max_bytes + 1 - total)))
+            total += len(parts[-1])
+    finally:
+        os.close(fd)
+    if total > max_bytes:
+        raise DocumentRefused(name, f"larger than {format_size(max_bytes)}")
+    return parts[0] if len(parts) == 1 or not parts[1] else b"".join(parts)
+
+
+_NO_DTD = "DTD/entity declarations are not allowed in a QIF document"
+_RE_BLANKS = re.compile(r"[ \t\r\n]*")
+_BOMS = (
+    (codecs.BOM_UTF32_LE, "utf-32-le"),
+    (codecs.BOM_UTF32_BE, "utf-32-be"),
+    (codecs.BOM_UTF16_LE, "utf-16-le"),
+    (codecs.BOM_UTF16_BE, "utf-16-be"),
+    (codecs.BOM_UTF8, "utf-8"),
+)
+
+
+def _prolog_has_doctype(data: bytes) -> bool:
+    """True if a DOCTYPE is seen in the first 1 MiB of a document, before its root element.
+
+    The prolog is skipped as XML defines it (XML declaration, processing instructions,
+    comments, blanks), in linear time.
+    """
+    head = data[: 1 << 20]
+    encoding = "latin-1"  # any ASCII-compatible encoding: the markup looked for is ASCII
+    for bom, enc in _BOMS:
+        if head.startswith(bom):
+            head, encoding = head[len(bom) :], enc
+            break
+    else:
+        if head.startswith(b"<\x00?\x00"):
+            encoding = "utf-16-le"
+        elif head.startswith(b"\x00<\x00?"):
+            encoding = "utf-16-be"
+    text = head.decode(encoding, errors="replace")
+    i = 0
+    while True:
+        i = _RE_BLANKS.match(text, i).end()
+        for start, end in (("<?", "?>"), ("<!--", "-->")):
+            if text.startswith(start, i):
+                j = text.find(end, i + len(start))
+                if j < 0:
+                    return False
+                i = j + len(end)
+                break
+        else:
+            return text.startswith("<!DOCTYPE", i)
+
+
+def refuse_doctype(tree: etree._ElementTree, name: str) -> None:
+    """Refuse a parsed document that has a DOCTYPE or an entity reference.
+
+    QIF documents are defined by XSDs; a DOCTYPE only brings DTD and entity declarations
+    (external entities, entity expansion bombs), none of which is loaded or expanded here.
+
+    Parameters
+    ----------
+    tree : lxml.etree._ElementTree
+        The document, parsed with :func:`xml_parser`.
+    name : str
+        The file, as the message is to name it.
+
+    Raises
+    ------
+    DocumentRefused
+        If it has a DOCTYPE (internal subset or external DTD) or an entity reference.
+    """
+    info = tree.docinfo
+    if info.internalDTD is not None or info.doctype or info.system_url or info.public_id:
+        raise DocumentRefused(name, f"{_NO_DTD} (it has a DOCTYPE)")
+    root = tree.getroot()
+    if root is not None and next(root.iter(etree.Entity), None) is not None:
+        raise DocumentRefused(name, f"{_NO_DTD} (it has entity references)")
+
+
+def parse_document_bytes(data: bytes, name: str, base_url: str | None = None) -> etree._ElementTree:
+    """Parse the bytes of a QIF document with :func:`xml_parser`, refusing any DOCTYPE.
+
+    A DOCTYPE in the prolog is refused before libxml2 parses anything (so neither an
+    entity bomb nor an external entity is looked at), and again on the parsed document
+    (:func:`refuse_doctype`), whatever its encoding.
+
+    Parameters
+    ----------
+    data : bytes
+        The document (:func:`read_document`).
+    name : str
+        The file, as messages are to name it.
+    base_url : str, optional
+        The document's URL, against which its relative references are resolved (default:
+        ``name``).
 
     Returns
     -------
@@ -246,12 +484,47 @@ def parse_document(path: Path) -> etree._ElementTree:
 
     Raises
     ------
-    FileNotFoundError, lxml.etree.XMLSyntaxError
-        The file is missing or not well-formed XML.
+    DocumentRefused
+        It has a DOCTYPE or an entity reference.
+    lxml.etree.XMLSyntaxError
+        Not well-formed XML.
     """
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
-    return etree.parse(str(path), xml_parser())
+    if _prolog_has_doctype(data):
+        raise DocumentRefused(name, f"{_NO_DTD} (it has a DOCTYPE)")
+    root = etree.fromstring(data, xml_parser(), base_url=name if base_url is None else base_url)
+    tree = root.getroottree()
+    refuse_doctype(tree, name)
+    return tree
+
+
+def parse_document(path: Path | str, max_bytes: int = MAX_DOCUMENT_BYTES) -> etree._ElementTree:
+    """Read (:func:`read_document`) and parse (:func:`parse_document_bytes`) a QIF file.
+
+    Parameters
+    ----------
+    path : Path or str
+        The QIF document.
+    max_bytes : int
+        The largest file accepted (:data:`MAX_DOCUMENT_BYTES`).
+
+    Returns
+    -------
+    lxml.etree._ElementTree
+        Its URL is ``str(path)`` (relative references resolve against it).
+
+    Raises
+    ------
+    FileNotFoundError
+        The file is missing.
+    DocumentRefused
+        Not a regular file, larger than ``max_bytes``, or with a DOCTYPE.
+    lxml.etree.XMLSyntaxError
+        Not well-formed XML.
+    OSError
+        The file cannot be read.
+    """
+    name = os.fspath(path)
+    return parse_document_bytes(read_document(name, max_bytes), name)
 
 
 def strip_ns(text: str) -> str:

@@ -5,6 +5,13 @@ disabled) on each file and prints its report (:meth:`ValidationReport.format`), 
 ``--quiet`` only the findings that make a file invalid. :func:`add_arguments` and :func:`run`
 are the sub-command for an argparse-based command line; :func:`validate_main` is the whole
 command on its own.
+
+The files checked may be hostile: a file that is not a regular file (``/dev/zero``, a FIFO, a
+directory, a socket), is larger than :data:`~qifreport.qif.validate.MAX_DOCUMENT_BYTES`
+(100 MiB) or has a DOCTYPE (DTD/entity declarations) is refused with one line on stderr and
+exit 2 before anything parses it; linked documents are followed only inside the file's own
+folder tree (see :mod:`qifreport.qif.dmsc`). No problem of a file ends the command with a
+traceback: what a validator cannot check is a finding, anything else one line and exit 2.
 """
 
 from __future__ import annotations
@@ -18,6 +25,8 @@ from lxml import etree
 
 from qifreport.qif.findings import format_finding
 from qifreport.qif.validate import (
+    MAX_DOCUMENT_BYTES,
+    DocumentRefused,
     SchemasUnavailable,
     ValidationReport,
     checks_dir,
@@ -32,7 +41,10 @@ PROG = "qifreport validate"
 DESCRIPTION = (
     "Check QIF 3.0 documents against the official XSDs (lxml/libxml2 and "
     "xmlschema, key/keyref included) and the DMSC XSLT checks. Exit 0 if every file "
-    "passes, 1 if one does not, 2 if a file cannot be read or the schemas are missing."
+    "passes, 1 if one does not, 2 if a file cannot be read or the schemas are missing. "
+    f"Only regular files of at most {MAX_DOCUMENT_BYTES >> 20} MiB without a DOCTYPE are read "
+    "(no DTD, no entity expansion, no network); the documents a file links to are followed "
+    "only inside its own folder."
 )
 
 
@@ -64,6 +76,11 @@ def _err(msg: str) -> None:
     print(f"qifreport: error: {msg}", file=sys.stderr)
 
 
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line (at most 500 characters)."""
+    return " ".join(str(exc).split())[:500]
+
+
 def run(args: argparse.Namespace) -> int:
     """Validate the files of parsed ``qifreport validate`` arguments and print the reports.
 
@@ -75,9 +92,10 @@ def run(args: argparse.Namespace) -> int:
     Returns
     -------
     int
-        0 if all files are valid, 1 if one is not, 2 if a file is missing or not XML, or the
-        schemas (or checks) are unavailable; each such problem is one line on stderr
-        (``qifreport: error: ...``).
+        0 if all files are valid, 1 if one is not, 2 if a file is missing, refused (not a
+        regular file, larger than :data:`~qifreport.qif.validate.MAX_DOCUMENT_BYTES`, with a
+        DOCTYPE), not XML or cannot be checked, or the schemas (or checks) are unavailable;
+        each such problem is one line on stderr (``qifreport: error: ...``).
     """
     strict, checks = not args.no_strict, not args.no_checks
     try:
@@ -96,11 +114,23 @@ def run(args: argparse.Namespace) -> int:
             status = 2
             continue
         except etree.XMLSyntaxError as exc:
-            _err(f"{f}: not well-formed XML: {exc}")
+            _err(f"{f}: not well-formed XML: {_one_line(exc)}")
+            status = 2
+            continue
+        except DocumentRefused as exc:
+            _err(f"{_one_line(exc)}; not checked")
             status = 2
             continue
         except (OSError, SchemasUnavailable) as exc:
-            _err(f"{f}: {exc}")
+            _err(f"{f}: {_one_line(exc)}")
+            status = 2
+            continue
+        except MemoryError:
+            _err(f"{f}: out of memory; not checked")
+            status = 2
+            continue
+        except Exception as exc:  # never a traceback: one line, exit 2
+            _err(f"{f}: internal error: {type(exc).__name__}: {_one_line(exc)}; not checked")
             status = 2
             continue
         if not rep.valid:
