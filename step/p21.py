@@ -267,6 +267,7 @@ _STRING = re.compile(r"'[^']*(?:''[^']*)*'")
 _REF = re.compile(r"#(\d+)")
 _LEADING_KEYWORD = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)")
 _SECTION = re.compile(r"\b(HEADER|DATA|ENDSEC)\b\s*(\([^;]*\))?\s*;")
+_TRAILER = re.compile(r"\s*END-ISO-10303-21\s*;")
 _CONTROL = re.compile(r"\\(X2|X4)\\([0-9A-Fa-f]*)\\X0\\|\\X\\([0-9A-Fa-f]{2})|\\S\\(.)|\\P.\\|\\\\")
 
 
@@ -428,11 +429,28 @@ class P21Model:
         their parsed parameters.
     path : Path or None
         Where the text came from.
+    data_closed : bool
+        Whether every DATA section is closed by ``ENDSEC;`` (``False`` for a file cut short).
+    terminated : bool
+        Whether ``END-ISO-10303-21;`` follows the last section.
+    fragments : list of (int or None, str)
+        Text of a DATA section that is not part of a complete ``#id = ...;`` record (a record
+        cut short, stray characters): the id of the record before it (``None`` at the start
+        of a section) and the text, cut to 80 characters. ``[]`` for a well-formed file.
+    duplicates : list of int
+        Instance ids defined more than once, in file order (the last definition is kept).
+
+    The last four are facts about the text for :mod:`qifreport.step.integrity`; this reader
+    itself accepts such text.
     """
 
     raw: dict[int, str]
     header: dict[str, tuple] = field(default_factory=dict)
     path: Path | None = None
+    data_closed: bool = True
+    terminated: bool = True
+    fragments: list[tuple[int | None, str]] = field(default_factory=list)
+    duplicates: list[int] = field(default_factory=list)
     _cache: dict[int, Entity] = field(default_factory=dict, repr=False)
     _referrers: dict[int, list[int]] | None = field(default=None, repr=False)
     _by_type: dict[str, list[int]] | None = field(default=None, repr=False)
@@ -470,18 +488,40 @@ class P21Model:
             kw = m.group(1)
             section = None if kw == "ENDSEC" else kw
             pos = m.end()
-        if section == "DATA":  # missing ENDSEC
+        data_closed = section != "DATA"
+        if not data_closed:  # missing ENDSEC
             data_parts.append(text[pos:])
         if not data_parts:
             raise P21Error(f"no DATA section in {path or 'text'}")
+        terminated = data_closed and _TRAILER.match(text, pos) is not None
         raw: dict[int, str] = {}
+        fragments: list[tuple[int | None, str]] = []
+        duplicates: list[int] = []
         for part in data_parts:
+            end, last = 0, None
             for m in _RECORD.finditer(part):
-                raw[int(m.group(1))] = m.group(2)
+                start = m.start()
+                if start > end and not part[end:start].isspace():
+                    fragments.append((last, part[end:start].strip()[:80]))
+                last = int(m.group(1))
+                if last in raw:
+                    duplicates.append(last)
+                raw[last] = m.group(2)
+                end = m.end()
+            if part[end:].strip():
+                fragments.append((last, part[end:].strip()[:80]))
         log.debug(
             "p21: %d records split in %.3f s (%s)", len(raw), time.perf_counter() - t0, path or ""
         )
-        return cls(raw=raw, header=header, path=path)
+        return cls(
+            raw=raw,
+            header=header,
+            path=path,
+            data_closed=data_closed,
+            terminated=terminated,
+            fragments=fragments,
+            duplicates=duplicates,
+        )
 
     @classmethod
     def read(cls, path: str | Path) -> P21Model:
@@ -561,9 +601,8 @@ class P21Model:
             self._by_type = index
         return [self[i] for i in self._by_type.get(type_name.upper(), ())]
 
-    def referrers(self, eid: int | Ref) -> list[int]:
-        """Ids of the instances whose parameters reference ``eid`` (sorted, unique)."""
-        key = eid.id if isinstance(eid, Ref) else eid
+    def _reverse_index(self) -> dict[int, list[int]]:
+        """Referenced id -> sorted unique referencing ids (built once; strings skipped)."""
         if self._referrers is None:
             t0 = time.perf_counter()
             back: dict[int, set[int]] = {}
@@ -574,7 +613,41 @@ class P21Model:
                     back.setdefault(int(target), set()).add(src)
             self._referrers = {k: sorted(v) for k, v in back.items()}
             log.debug("p21: reverse references in %.3f s", time.perf_counter() - t0)
-        return self._referrers.get(key, [])
+        return self._referrers
+
+    def referrers(self, eid: int | Ref) -> list[int]:
+        """Ids of the instances whose parameters reference ``eid`` (sorted, unique)."""
+        key = eid.id if isinstance(eid, Ref) else eid
+        return self._reverse_index().get(key, [])
+
+    def dangling(self) -> list[tuple[int, int]]:
+        """References to instances the model does not define.
+
+        Returns
+        -------
+        list of (int, int)
+            ``(referencing id, missing id)`` pairs, sorted; ``[]`` when every reference
+            resolves. References inside strings do not count.
+
+        Notes
+        -----
+        One regular-expression pass over all record text answers the usual case (nothing
+        missing, about 0.05 s for 17,000 records); only then is the index of
+        :meth:`referrers` built, to name the referencing records.
+        """
+        raw = self.raw
+        if self._referrers is None:
+            text = "\n".join(raw.values())  # each body holds whole strings only
+            if "'" in text:
+                text = _STRING.sub("''", text)
+            if not {int(t) for t in _REF.findall(text)}.difference(raw):
+                return []
+        return sorted(
+            (src, target)
+            for target, srcs in self._reverse_index().items()
+            if target not in raw
+            for src in srcs
+        )
 
     def referrers_of_type(self, eid: int | Ref, type_name: str) -> list[Entity]:
         """Referring instances that have ``type_name`` as type or part."""

@@ -18,6 +18,13 @@ back to the entity it came from (``XSControl_TransferReader.EntityFromShapeResul
 the entity's rank in the model to its ``#id`` (OCCT loads records in file order; the mapping
 is checked on every face by entity type).
 
+The Part 21 text is split once (:class:`qifreport.step.p21.P21Model`) and checked whole
+before OCCT reads the file (:func:`qifreport.step.integrity.check_integrity`): a reference to a
+record the file does not define, a file cut short (even if closed again with ``ENDSEC;
+END-ISO-10303-21;``), duplicate ids or no solid are refused with one line naming the entity,
+where OCCT would drop the missing records with a warning and the PMI that went with them. The
+same split gives the PMI and the record order of the face mapping.
+
 Face ids: the index of a face in ``TopExp.MapShapes(shape, TopAbs_FACE)`` (0-based). The
 tessellation (:mod:`qifreport.step.tessellate`) tags every triangle with this id.
 """
@@ -35,6 +42,9 @@ import numpy as np
 
 from qifreport.errors import InputError
 
+from .integrity import SOLID_TYPES, check_integrity
+from .p21 import P21Error, P21Model
+
 __all__ = [
     "STEP_SUFFIXES",
     "read_step",
@@ -46,6 +56,8 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 STEP_SUFFIXES = (".step", ".stp", ".p21")
+#: the first entity type name of a record body (of a complex instance: its first part)
+_FIRST_TYPE = re.compile(r"\s*\(?\s*([A-Za-z_][A-Za-z0-9_]*)")
 
 
 @dataclass
@@ -120,16 +132,17 @@ def _enum_name(e) -> str:
     return s.split("_", 1)[1] if "_" in s else s
 
 
-def _record_ids(path: Path) -> list[tuple[int, str]]:
-    """``(#id, first type name)`` of every DATA record, in file order (model ranks)."""
-    text = path.read_text(encoding="latin-1")
-    i = text.find("DATA;")
-    if i < 0:
-        raise InputError(f"{path.name}: not a STEP Part 21 file (no DATA section)")
-    # a record starts with '#id =' at the beginning of a statement; strings never start lines
-    # with '#<digits>=' in the files we met, and the count is checked against OCCT's model.
-    recs = re.findall(r"(?m)^\s*#(\d+)\s*=\s*\(?\s*([A-Za-z_0-9]+)", text[i:])
-    return [(int(a), b.upper()) for a, b in recs]
+def _record_ids(model: P21Model) -> list[tuple[int, str]]:
+    """``(#id, first type name)`` of every DATA record, in file order (model ranks).
+
+    The records of the Part 21 split, in file order (the integrity check has refused
+    duplicate ids); the count is checked against OCCT's model.
+    """
+    out = []
+    for eid, body in model.raw.items():
+        m = _FIRST_TYPE.match(body)
+        out.append((eid, m.group(1).upper() if m else ""))
+    return out
 
 
 def _xde_items(doc) -> XdeSummary:
@@ -246,7 +259,10 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     Raises
     ------
     InputError
-        Missing or unreadable file, not STEP, or no faces in the file.
+        Missing or unreadable file, not STEP, a damaged file (a reference to a record the
+        file does not define, a file cut short even if closed again, duplicate ids), no solid
+        (:mod:`qifreport.step.integrity`, checked on the text before OCCT reads it), or no
+        solid or face in OCCT's result.
     """
     from OCP.BRep import BRep_Builder
     from OCP.IFSelect import IFSelect_RetDone
@@ -268,6 +284,15 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     if not head.lstrip().startswith(b"ISO-10303-21"):
         raise InputError(f"{path.name}: not a STEP file (no ISO-10303-21 header)")
     timings: dict[str, float] = {}
+    # the Part 21 text, split once: checked whole before OCCT's result is used, then the
+    # source of the face ids and of the PMI
+    t0 = time.perf_counter()
+    try:
+        p21 = P21Model.read(path)
+    except P21Error:
+        raise InputError(f"{path.name}: not a STEP Part 21 file (no DATA section)") from None
+    timings["p21_read"] = time.perf_counter() - t0
+    timings["integrity"] = check_integrity(p21, path.name)
     t0 = time.perf_counter()
     doc = TDocStd_Document(TCollection_ExtendedString("XmlXCAF"))
     reader = STEPCAFControl_Reader()
@@ -314,6 +339,12 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
         )
     smap = TopTools_IndexedMapOfShape()
     TopExp.MapShapes_s(shape, TopAbs_SOLID, smap)
+    if smap.Size() == 0:
+        n = sum(len(p21.by_type(t)) for t in SOLID_TYPES)
+        raise InputError(
+            f"{path.name}: no solid in OpenCASCADE's result ({len(faces)} faces): the "
+            f"file's {n} solid records gave none ({occt.first() or 'no message'})"
+        )
 
     # face -> STEP entity id, through the transfer process and the model's record order
     t0 = time.perf_counter()
@@ -321,7 +352,7 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     try:
         model = reader.Reader().StepModel()
         tr = reader.Reader().WS().TransferReader()
-        records = _record_ids(path)
+        records = _record_ids(p21)
         if len(records) != model.NbEntities():
             log.warning(
                 "%s: %d records in the text, %d in OCCT's model; face ids not mapped",
@@ -364,10 +395,10 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     pmi_data = None
     xde = XdeSummary()
     if pmi:
-        from .semantic import read_pmi_text
+        from .semantic import pmi_from_model
 
         t0 = time.perf_counter()
-        pmi_data = read_pmi_text(path)
+        pmi_data = pmi_from_model(p21)
         timings["pmi_text"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         try:
