@@ -365,6 +365,7 @@ def key_material(nominal_sha256: str, options: NominalOptions, params: Inspectio
             "tolerance": options.tolerance,
             "max_edge": options.max_edge,
             "deflection": options.deflection,
+            "accept_tolerance_as_read": options.accept_tolerance_as_read,
         },
         "part": part_settings(params),
     }
@@ -397,7 +398,13 @@ def build_state(
     basis for GB-CICP; the pose search builds its model itself if the scan needs it).
     """
     t0 = time.perf_counter()
-    nom = load_nominal(nominal, options.tolerance, options.max_edge, options.deflection)
+    nom = load_nominal(
+        nominal,
+        options.tolerance,
+        options.max_edge,
+        options.deflection,
+        accept_tolerance_as_read=options.accept_tolerance_as_read,
+    )
     if complete:
         prepared = prepare_part(nom.V, nom.F, params)
     else:

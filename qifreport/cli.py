@@ -219,6 +219,7 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         "no resampling",
     )
     ap.add_argument("--rigid-only", action="store_true", help="no virtual fixture (baseline)")
+    add_accept_option(ap)
     add_cache_options(ap)
     if not batch:
         ap.add_argument(
@@ -227,6 +228,17 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
             help="print wall time and peak resident memory per stage",
         )
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def add_accept_option(ap: argparse.ArgumentParser) -> None:
+    """``--accept-tolerance-as-read``."""
+    ap.add_argument(
+        "--accept-tolerance-as-read",
+        action="store_true",
+        help="inspect a STEP part even when a tolerance it states is implausible (wider than "
+        "10 %% of the part's diagonal, e.g. a file stating mm values in metres); default: "
+        "refuse it (exit 2)",
+    )
 
 
 def add_cache_options(ap: argparse.ArgumentParser) -> None:
@@ -419,6 +431,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="cache directory (default $QIFREPORT_CACHE or the user cache dir)",
     )
     p.add_argument("--rebuild", action="store_true", help="ignore an existing entry")
+    add_accept_option(p)
     p.set_defaults(run=_run_prepare)
 
     from .batch import add_batch_arguments

@@ -43,19 +43,35 @@ def load_nominal(
     tolerance: float | None,
     max_edge: float | None = None,
     deflection: float | None = None,
+    *,
+    accept_tolerance_as_read: bool = False,
 ) -> Nominal:
-    """Read a STEP part (mesh + PMI zones) or a mesh nominal (one general zone)."""
+    """Read a STEP part (mesh + PMI zones) or a mesh nominal (one general zone).
+
+    A STEP part whose tolerances the plausibility check flags
+    (:func:`qifreport.step.plausibility.implausible_tolerances`: a zone wider than 10 % of
+    the part's diagonal, or unreadable as a length) is refused (:class:`InputError`, naming
+    the first value) unless ``accept_tolerance_as_read``; then the reasons are kept in
+    ``info["implausible_tolerances"]``.
+    """
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
     if path.suffix.lower() in STEP_SUFFIXES:
+        from qifreport.step.plausibility import implausible_tolerances
         from qifreport.step.reader import read_step
-        from qifreport.step.tessellate import tessellate
+        from qifreport.step.tessellate import shape_diagonal, tessellate
 
         part = read_step(path)
+        diagonal = shape_diagonal(part.shape)
+        implausible = implausible_tolerances(part.pmi, diagonal)
+        if implausible and not accept_tolerance_as_read:
+            more = f" (and {len(implausible) - 1} more)" if len(implausible) > 1 else ""
+            raise InputError(
+                f"{path.name}: implausible tolerance read from the file: {implausible[0]}{more}; "
+                "if the drawing really means it, run with --accept-tolerance-as-read"
+            )
         if max_edge is None:
-            from qifreport.step.tessellate import shape_diagonal
-
-            max_edge = shape_diagonal(part.shape) / 60.0
+            max_edge = diagonal / 60.0
         mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
         zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
         pmi = part.pmi
@@ -78,6 +94,8 @@ def load_nominal(
             },
             "timings_s": {**part.timings, "tessellate": mesh.seconds},
         }
+        if implausible:
+            info["implausible_tolerances"] = implausible
         datums = [d.label for d in pmi.datums] if pmi is not None else []
         return Nominal(
             mesh.V, mesh.F, mesh.face_id, zones, skipped, info, list(dict.fromkeys(datums))

@@ -52,6 +52,7 @@ RESULT_OPTIONS = (
     "method",
     "seeds",
     "rigid_only",
+    "accept_tolerance_as_read",
 )
 
 
@@ -78,6 +79,7 @@ class NominalOptions:
     tolerance: float | None = None
     max_edge: float | None = None
     deflection: float | None = None
+    accept_tolerance_as_read: bool = False
 
 
 @dataclass(frozen=True)
@@ -104,6 +106,8 @@ class InspectOptions:
     seeds : runs of the repeatability check (1: none).
     rigid_only : no virtual fixture.
     cache_dir : per-part cache directory (None: no cache).
+    accept_tolerance_as_read : inspect with tolerances the plausibility check of
+        :mod:`qifreport.step.plausibility` flags (default: refuse the part).
     """
 
     tolerance: float | None = None
@@ -129,6 +133,7 @@ class InspectOptions:
     seeds: int = 1
     rigid_only: bool = False
     cache_dir: Path | None = None
+    accept_tolerance_as_read: bool = False
 
     def check(self) -> None:
         """Refuse values no inspection can use (:class:`~qifreport.errors.InputError`)."""
@@ -191,7 +196,9 @@ class InspectOptions:
     def nominal_options(self) -> NominalOptions:
         """How the nominal is read."""
         self.check()
-        return NominalOptions(self.tolerance, self.max_edge, self.deflection)
+        return NominalOptions(
+            self.tolerance, self.max_edge, self.deflection, self.accept_tolerance_as_read
+        )
 
     def result_options(self) -> dict:
         """The options that change a scan's outputs, by name (JSON-able)."""

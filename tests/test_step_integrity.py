@@ -7,6 +7,7 @@ The damaged inputs are made from the real files, as copies in ``tmp_path``.
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 import sys
@@ -339,3 +340,44 @@ def test_the_panel_tolerances_are_plausible_and_in_metres_they_are_not(tmp_path)
     reasons = implausible_tolerances(pmi, diagonal, PANEL_WALL)
     assert len(reasons) == 4
     assert all("diagonal" in r and "METRE" in r for r in reasons), reasons
+
+
+@pytest.mark.slow
+def test_cli_refuses_implausible_tolerances_unless_accepted(tmp_path):
+    """The panel with its tolerance unit declared as metres (profiles of 1000 mm): exit 2 with
+    one line naming the value and the flag; ``--accept-tolerance-as-read`` inspects it and
+    records what was accepted."""
+    text = PANEL.read_text()
+    head, pmi_units = text.split("#1372 = ", 1)
+    f = tmp_path / "panel_metres.step"
+    f.write_text(
+        head + "#1372 = " + pmi_units.replace("SI_UNIT(.MILLI.,.METRE.)", "SI_UNIT($,.METRE.)")
+    )
+    exe = Path(sys.executable).parent / "qifreport"
+    scan = PANEL.parent / "panel_scan.ply"
+    out = tmp_path / "o"
+    r = subprocess.run(
+        [str(exe), str(f), str(scan), "--out", str(out), "--quiet"], capture_output=True, text=True
+    )
+    err = r.stderr.strip()
+    assert r.returncode == 2 and len(err.splitlines()) == 1, err
+    assert "implausible tolerance" in err and "--accept-tolerance-as-read" in err
+    assert "1000 mm" in err and not out.exists()
+    r = subprocess.run(
+        [
+            str(exe),
+            str(f),
+            str(scan),
+            "--out",
+            str(out),
+            "--quiet",
+            "--json",
+            "--no-pdf",
+            "--accept-tolerance-as-read",
+        ],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode in (0, 1, 3), r.stdout + r.stderr
+    doc = json.loads((out / "panel_metres.json").read_text())
+    assert len(doc["nominal"]["implausible_tolerances"]) == 4
