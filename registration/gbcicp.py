@@ -32,6 +32,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from inspect import signature
 
 import numpy as np
 import scipy.sparse as sp
@@ -45,8 +46,10 @@ from .mesh import MeshOperators, bounding_diagonal
 from .pointcloud import pca_normals
 
 __all__ = [
+    "BASIS_SEED",
     "bending_basis",
     "BendingBasis",
+    "canonical_modes",
     "gbcicp",
     "GBCICPParams",
     "GBCICPResult",
@@ -152,12 +155,28 @@ class BendingBasis:
     seconds: float = 0.0
 
 
+#: seed of every pseudo-random vector of :func:`bending_basis` (start vector, restarts and
+#: the reference fields of the sign and null-space conventions): a fixed seed makes the basis a
+#: function of the operators alone, bit-identical from one build to the next
+BASIS_SEED = 20240607
+
+# recent scipy draws ARPACK's restart vectors from a numpy generator (``rng=``, else seeded
+# from the OS); older releases run the Fortran ARPACK, whose own generator has a fixed seed
+_EIGSH_TAKES_RNG = "rng" in signature(spla.eigsh).parameters
+
+
 def bending_basis(ops: MeshOperators, k: int = 100, tol: float = 1e-6) -> BendingBasis:
     """The ``k`` lowest modes of the generalized problem ``Q phi = mu M phi``.
 
     Shift-invert Lanczos (``scipy.sparse.linalg.eigsh``) around a small negative shift, so
     the singular operator (its null space holds the affine fields) factorises; with the
     CHOLMOD accelerator the shifted operator is factorised by CHOLMOD.
+
+    Deterministic: the Lanczos start vector and ARPACK's restarts come from a generator seeded
+    with :data:`BASIS_SEED`, and every choice an eigen-decomposition leaves open is fixed by a
+    convention (:func:`canonical_modes`): the sign of each mode, and the basis of every
+    cluster of numerically equal eigenvalues (the null space among them). Two builds of one
+    nominal give bit-identical arrays.
 
     Parameters
     ----------
@@ -178,12 +197,94 @@ def bending_basis(ops: MeshOperators, k: int = 100, tol: float = 1e-6) -> Bendin
     # factorisation is cheaper than the general LU eigsh would otherwise make
     fac = SPDSolver().factor(A)
     opinv = spla.LinearOperator(A.shape, matvec=lambda b: fac(b), dtype=np.float64)
-    mu, Phi = spla.eigsh(ops.Q, k=k, M=ops.M, sigma=shift, which="LM", OPinv=opinv, tol=tol)
-    order = np.argsort(mu)
-    mu, Phi = np.maximum(mu[order], 0.0), Phi[:, order]
+    rng = np.random.default_rng(BASIS_SEED)
+    # ARPACK's own default start, uniform on [-1, 1], but drawn from the seeded generator
+    v0 = rng.uniform(-1.0, 1.0, n)
+    restarts = {"rng": rng} if _EIGSH_TAKES_RNG else {}
+    mu, Phi = spla.eigsh(
+        ops.Q, k=k, M=ops.M, sigma=shift, which="LM", OPinv=opinv, tol=tol, v0=v0, **restarts
+    )
+    order = np.argsort(mu, kind="stable")
+    mu, Phi = canonical_modes(mu[order], Phi[:, order], ops.area, tol=tol)
     return BendingBasis(
         Phi=np.ascontiguousarray(Phi), mu=mu, energy=ops.energy, seconds=time.perf_counter() - t0
     )
+
+
+def canonical_modes(
+    mu: np.ndarray,
+    Phi: np.ndarray,
+    mass: np.ndarray,
+    tol: float = 1e-6,
+    null_rtol: float = 1e-7,
+    seed: int = BASIS_SEED,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fix the choices an eigen-decomposition ``Q phi = mu M phi`` leaves open.
+
+    * **Sign.** Each mode of a simple eigenvalue is turned to make ``phi^T M g`` positive,
+      ``g`` a fixed pseudo-random field (standard normal per vertex, seeded): a generic
+      field, so ``|phi^T M g|`` is never near zero by symmetry of the part (as the largest
+      component or a coordinate field would be on a mirror-symmetric part, where the
+      antisymmetric modes tie); a perturbation ``eps`` of the modes flips a sign with
+      probability ~``eps``.
+    * **Clusters.** Eigenvalues closer than ``10 tol`` (relative; the eigen-solver cannot
+      tell them apart) span a subspace whose basis the solver picks arbitrarily. It is
+      replaced by a canonical one: the successive M-orthonormalised projections of fixed
+      fields onto the subspace (QR with a positive diagonal), all sharing the cluster's mean
+      eigenvalue, so the subspace's stiffness does not depend on the rotation either.
+    * **Null space.** The modes with ``mu <= null_rtol * max(mu)`` (the affine or constant
+      fields, round-off eigenvalues) form one cluster whose eigenvalue is set to 0; the
+      first field is the constant (in the null space of both bending energies), so its
+      first mode is the M-normalised constant.
+
+    Parameters
+    ----------
+    mu : (k,) eigenvalues, ascending.
+    Phi : (n, k) M-orthonormal modes.
+    mass : (n,) diagonal of ``M``.
+    tol : relative accuracy of the eigenvalues (the cluster width is ``10 tol``).
+    null_rtol : null-space threshold relative to the largest eigenvalue.
+    seed : seed of the reference fields.
+
+    Returns
+    -------
+    mu, Phi : the same spectrum (clusters at their mean, the null space at 0) and modes of
+        the same subspaces, M-orthonormal, in a canonical basis.
+    """
+    mu = np.maximum(np.array(mu, dtype=np.float64), 0.0)
+    Phi = np.array(Phi, dtype=np.float64)
+    n, k = Phi.shape
+    if k == 0:
+        return mu, Phi
+    top = float(mu[-1])
+    null = mu <= null_rtol * top if top > 0 else np.ones(k, dtype=bool)
+    # cluster boundaries: a new cluster starts where the gap exceeds 10 tol (relative)
+    starts = [0]
+    for j in range(1, k):
+        if null[j] and null[j - 1]:
+            continue
+        if null[j] != null[j - 1] or mu[j] - mu[j - 1] > 10.0 * tol * mu[j]:
+            starts.append(j)
+    bounds = list(zip(starts, starts[1:] + [k], strict=True))
+    widest = max(b - a for a, b in bounds)
+    # reference fields: the constant (the null space holds it), then standard normal fields,
+    # each its own block of draws (the sign field does not depend on the widest cluster)
+    G = np.ones((widest + 1, n))
+    G[1:] = np.random.default_rng(seed).standard_normal((widest, n))
+    S = Phi.T @ (mass[:, None] * G.T)  # (k, widest + 1): the fields' projections on the modes
+    flip = np.ones(k)
+    for a, b in bounds:
+        c = b - a
+        B = S[a:b, :c] if null[a] else S[a:b, 1 : c + 1]  # the fields in the cluster's basis
+        if c == 1:
+            flip[a] = -1.0 if B[0, 0] < 0.0 else 1.0
+        else:
+            U, R = np.linalg.qr(B)
+            U *= np.where(np.diag(R) < 0.0, -1.0, 1.0)
+            Phi[:, a:b] = Phi[:, a:b] @ U
+        mu[a:b] = 0.0 if null[a] else float(mu[a:b].mean())
+    Phi *= flip  # exact: a sign
+    return mu, Phi
 
 
 def _weights(
