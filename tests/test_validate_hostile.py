@@ -18,7 +18,6 @@ trigger quickly.
 from __future__ import annotations
 
 import os
-import resource
 import socket
 import subprocess
 import sys
@@ -60,8 +59,22 @@ class Run:
         return self.stdout + self.stderr
 
 
-def _limit_memory() -> None:
-    resource.setrlimit(resource.RLIMIT_AS, (LIMIT_AS, LIMIT_AS))
+_LAUNCH = (
+    "import os, resource, sys; n = int(sys.argv[1]); "
+    "resource.setrlimit(resource.RLIMIT_AS, (n, n)); os.execv(sys.argv[2], sys.argv[2:])"
+)
+
+
+def _vm_hwm_kib(pid: int) -> int:
+    """``VmHWM`` of a running process, KiB (0 once it has exited)."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
 
 
 def _drain(stream, sink: list[str]) -> None:
@@ -71,16 +84,18 @@ def _drain(stream, sink: list[str]) -> None:
 def run_validate(*args: object) -> Run:
     """``qifreport validate ARGS`` under RLIMIT_AS and the timeout (killed and failed after it).
 
-    The child is reaped with :func:`os.wait4` for its own peak resident memory.
+    The child's own peak resident memory is its ``VmHWM``, polled while it runs.
     """
     t0 = time.monotonic()
+    # a small launcher sets the limit and execs the command: no preexec_fn, so the child is
+    # spawned without a copy of this (possibly large) process, whose resident size Linux
+    # would otherwise carry into the child's ru_maxrss
     proc = subprocess.Popen(
-        [str(EXE), "validate", *map(str, args)],
+        [sys.executable, "-c", _LAUNCH, str(LIMIT_AS), str(EXE), "validate", *map(str, args)],
         stdin=subprocess.DEVNULL,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
-        preexec_fn=_limit_memory,
     )
     out: list[str] = []
     err: list[str] = []
@@ -90,7 +105,9 @@ def run_validate(*args: object) -> Run:
     ]
     for r in readers:
         r.start()
+    peak_kib = 0
     while True:
+        peak_kib = max(peak_kib, _vm_hwm_kib(proc.pid))
         pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
         if pid:
             break
@@ -106,7 +123,9 @@ def run_validate(*args: object) -> Run:
         r.join(10)
     proc.stdout.close()
     proc.stderr.close()
-    run = Run(proc.returncode, "".join(out), "".join(err), elapsed, usage.ru_maxrss / 1024)
+    # the child's own high-water mark (VmHWM, read while it runs): ru_maxrss would carry the
+    # resident size of this, possibly large, test process across fork and exec
+    run = Run(proc.returncode, "".join(out), "".join(err), elapsed, peak_kib / 1024)
     print(f"{' '.join(map(str, args))}: exit {run.rc}, {elapsed:.2f} s, {run.peak_mib:.0f} MiB")
     return run
 
