@@ -33,7 +33,8 @@ from qifreport.metrology.inspection import InspectionParams, InspectionResult, i
 from qifreport.metrology.params import method_label
 from qifreport.metrology.repeatability import KEEP_FRACTION, resample_mask
 from qifreport.metrology.repeatability import apply as apply_repeatability
-from qifreport.registration.pointcloud import load_scan
+from qifreport.registration.pointcloud import read_scan
+from qifreport.registration.thinning import ThinningReport, nominal_spacing, thin_scan
 
 from .cache import CacheOutcome, PartState, part_state, sha256
 from .jsonio import finite, json_default
@@ -55,6 +56,7 @@ __all__ = [
     "qif_writer",
     "resampled_runs",
     "run_job",
+    "scan_input",
     "summary",
     "write_ply_with_scalar",
 ]
@@ -311,13 +313,16 @@ def output_writers(
     digests: dict[str, str],
     started: datetime,
     finished: datetime,
+    *,
+    scan_report: ThinningReport | None = None,
 ) -> tuple[list[tuple[Path, Writer]], dict | None]:
     """The writers ``[(path, write(tmp))]`` of one inspection's outputs, in writing order
     (the QIF first: the JSON summary reports its validation), and the QIF's state block.
 
     ``job`` gives the names recorded in the outputs (``nominal``, ``scan``), the header
     fields (options ``author``, ``organization``, ``operator``; ``serial``) and the choices
-    (``no_qif``, ``no_pdf``, ``json``, ``page``); ``paths`` is ``job.output_paths()``.
+    (``no_qif``, ``no_pdf``, ``json``, ``page``); ``paths`` is ``job.output_paths()``;
+    ``scan_report`` (:func:`scan_input`) is the JSON summary's ``scan_input`` block.
     """
     o = job.options
     outputs: list = []
@@ -362,6 +367,8 @@ def output_writers(
             "nominal": {"path": str(job.nominal), "sha256": digests["nominal"]},
             "scan": {"path": str(job.scan), "sha256": digests["scan"]},
         }
+        if scan_report is not None:
+            doc["scan_input"] = scan_report.to_dict()
 
         def write_json(p: Path) -> None:  # runs after the QIF writer: its state is known
             if qif_state is not None:
@@ -379,6 +386,17 @@ def output_writers(
             )
         )
     return outputs, qif_state
+
+
+def scan_input(
+    P: np.ndarray, points_read: int, nom: Nominal, name: str = "scan"
+) -> tuple[np.ndarray, ThinningReport]:
+    """The points an inspection uses of a scan read (distinct points, mm) against a part:
+    thinned to the nominal's grid when far denser
+    (:mod:`qifreport.registration.thinning`), and the report (logged, one INFO line)."""
+    P, report = thin_scan(P, nominal_spacing(nom.V, nom.F), points_read=points_read)
+    log.info("%s: %s", name, report.describe())
+    return P, report
 
 
 @dataclass
@@ -430,12 +448,14 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     o = job.options
     started = datetime.now(timezone.utc)
     with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
-        P = load_scan(job.scan, units=o.scan_units)
+        P, n_read = read_scan(job.scan, units=o.scan_units)
     with _stage(prof, "prepare part (cache)"):
         state, cache = part_state(
             job.nominal, o.nominal_options(), o.inspection_params(), o.cache_dir
         )
     log.info("%s", cache.describe())
+    with _stage(prof, "thin scan"):
+        P, scan_report = scan_input(P, n_read, state.nominal, job.scan.name)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -452,7 +472,9 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     finished = datetime.now(timezone.utc)
     digests = {"nominal": state.nominal_sha256, "scan": sha256(job.scan)}
     paths = job.output_paths()
-    outputs, qif_state = output_writers(res, state.nominal, job, paths, digests, started, finished)
+    outputs, qif_state = output_writers(
+        res, state.nominal, job, paths, digests, started, finished, scan_report=scan_report
+    )
     with _stage(prof, "write outputs"):  # all outputs or none
         atomic_write_many(outputs)
     return JobOutcome(res, paths, qif_state, cache)

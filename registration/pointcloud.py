@@ -2,11 +2,19 @@
 
 A scan ``P`` is an (m, 3) float64 array of points in mm, as an optically tracked scanner
 delivers it: unordered, partial, noisy, already merged from all views (paper Section 4.1).
+
+Reading (:func:`read_scan`, :func:`load_scan`) checks that the file's content is the format
+its suffix names (a PLY file named ``.npy`` is refused as "looks like a PLY file"), removes
+exact duplicate points (:func:`unique_points`: a mesh format such as STL repeats every vertex
+once per triangle, and a duplicate carries no new measurement but would weigh a point twice),
+and refuses a scan that is too small or degenerate (:func:`validate_scan`: fewer than
+:data:`MIN_POINTS` distinct points, or all of them on one line).
 """
 
 from __future__ import annotations
 
 import logging
+import re
 import warnings
 from pathlib import Path
 
@@ -17,6 +25,7 @@ from scipy.spatial import cKDTree
 from qifreport.errors import InputError
 
 __all__ = [
+    "COLLINEAR_RATIO",
     "FORMAT_UNITS",
     "MIN_POINTS",
     "SCAN_SUFFIXES",
@@ -28,7 +37,11 @@ __all__ = [
     "one_line",
     "orient_normals_consistent",
     "pca_normals",
+    "read_scan",
+    "principal_spreads",
     "read_trimesh",
+    "sniff_format",
+    "unique_points",
     "validate_scan",
 ]
 
@@ -36,6 +49,9 @@ log = logging.getLogger(__name__)
 
 SCAN_SUFFIXES = (".ply", ".xyz", ".txt", ".csv", ".npy", ".stl", ".obj", ".off", ".e57")
 MIN_POINTS = 100
+#: a scan whose spread across its main direction is below this fraction of its spread along
+#: it (second over first principal standard deviation) lies on a line: refused
+COLLINEAR_RATIO = 1e-3
 
 
 class MalformedFile(ValueError):
@@ -49,15 +65,108 @@ SCAN_UNITS = {"mm": 1.0, "in": 25.4, "m": 1000.0}
 #: the unit of a format whose standard fixes one (E57: metres, ASTM E2807); others: mm
 FORMAT_UNITS = {".e57": "m"}
 
+#: format name -> what messages call it
+_FORMAT_NAMES = {
+    "ply": "PLY",
+    "npy": "NumPy .npy",
+    "e57": "E57",
+    "stl": "STL",
+    "off": "OFF",
+    "obj": "OBJ",
+    "text": "text (XYZ, TXT, CSV)",
+    "zip": "ZIP archive (NumPy .npz?)",
+}
+#: suffix -> the format its content must be
+_SUFFIX_FORMATS = {
+    ".ply": "ply",
+    ".npy": "npy",
+    ".e57": "e57",
+    ".stl": "stl",
+    ".off": "off",
+    ".obj": "obj",
+    ".xyz": "text",
+    ".txt": "text",
+    ".csv": "text",
+}
+#: formats recognised by a signature at the start of the file
+_MAGIC_FORMATS = ("ply", "npy", "e57", "zip")
+
+
+def sniff_format(path: Path) -> str | None:
+    """The format a file's content shows, from its first bytes and its size.
+
+    Recognised: ``"ply"`` (the ``ply`` magic line), ``"npy"`` (``\\x93NUMPY``), ``"e57"``
+    (``ASTM-E57``), ``"zip"`` (``PK\\x03\\x04``: a ``.npz``), ``"stl"`` (binary: a size of
+    exactly 84 + 50 n bytes for the n triangles its header declares; ASCII: ``solid`` and a
+    ``facet`` in the first KiB) and ``"off"`` (an ``OFF`` first token). None: none of these
+    (text point files and OBJ have no signature).
+    """
+    with open(path, "rb") as fh:
+        head = fh.read(1024)
+    size = path.stat().st_size
+    if re.match(rb"ply[ \t]*\r?\n", head):
+        return "ply"
+    if head.startswith(b"\x93NUMPY"):
+        return "npy"
+    if head.startswith(b"ASTM-E57"):
+        return "e57"
+    if head.startswith(b"PK\x03\x04"):
+        return "zip"
+    if size >= 84 + 50 and size == 84 + 50 * int.from_bytes(head[80:84], "little"):
+        return "stl"
+    text = head.lstrip()
+    if text.startswith(b"solid") and b"facet" in head:
+        return "stl"
+    if re.match(rb"[CN]?OFF\s", text):
+        return "off"
+    return None
+
+
+def _check_format(path: Path) -> None:
+    """Refuse a file whose content is another known format than its suffix names, or a
+    format with a signature (PLY, NPY, E57) without it; one line (:class:`InputError`)."""
+    want = _SUFFIX_FORMATS[path.suffix.lower()]
+    found = sniff_format(path)
+    if found is not None and found != want:
+        article = "an" if found in ("e57", "stl", "off", "obj") else "a"  # an STL, a PLY
+        raise InputError(
+            f"cannot read scan {path.name}: the file looks like {article} "
+            f"{_FORMAT_NAMES[found]} file, "
+            f"not {_FORMAT_NAMES[want]} (rename it or convert it)"
+        )
+    if found is None and want in _MAGIC_FORMATS:
+        raise InputError(
+            f"cannot read scan {path.name}: not a {_FORMAT_NAMES[want]} file (it does not "
+            "start with the format's signature)"
+        )
+
 
 def load_scan(path: str | Path, units: str | None = None) -> np.ndarray:
-    """Read a scan point cloud, in mm.
+    """Read a scan point cloud, in mm: :func:`read_scan`'s points (distinct, validated).
+
+    Returns
+    -------
+    P : (m, 3) float64 C-contiguous array of distinct finite points, mm; ``m >= MIN_POINTS``.
+    """
+    return read_scan(path, units)[0]
+
+
+def read_scan(
+    path: str | Path, units: str | None = None, *, deduplicate: bool = True
+) -> tuple[np.ndarray, int]:
+    """Read a scan point cloud, in mm, and how many points the file held.
 
     Formats, by suffix: PLY (points, or the vertices of a mesh; ASCII or binary), STL (ASCII
-    or binary), OBJ and OFF (vertices), XYZ/TXT/CSV (first three columns of each row; ``#``
-    comments and one header line allowed), NPY ((m, 3) numeric array) and E57 (every scan in
-    the file, each in the file frame through its pose, invalid points dropped; needs the
-    optional package ``pye57``, ``pip install 'qifreport[e57]'``).
+    or binary), OBJ and OFF (vertices), XYZ/TXT/CSV (one point a row; ``#`` comments; a
+    first line of column names selects the columns named ``x``, ``y``, ``z``, in any case and
+    with a unit suffix such as ``x_mm`` or ``X (mm)``; without one, the first three
+    columns), NPY ((m, 3) numeric array) and E57 (every scan in the file, each in the file
+    frame through its pose, invalid points dropped; needs the optional package ``pye57``,
+    ``pip install 'qifreport[e57]'``). The content must be the format the suffix names.
+
+    Exact duplicate points are removed (:func:`unique_points`, the first of each kept, in
+    file order): a mesh format repeats every vertex once per face that uses it (STL: three
+    corners per triangle), and a scanner that merges overlapping views may repeat points.
 
     Parameters
     ----------
@@ -65,17 +174,21 @@ def load_scan(path: str | Path, units: str | None = None) -> np.ndarray:
     units : the length unit of the numbers in the file, one of :data:`SCAN_UNITS` (``"mm"``,
         ``"in"``, ``"m"``); the points are converted to mm. None: the format's own unit,
         metres for E57 (the standard's unit, :data:`FORMAT_UNITS`), mm for the others.
+    deduplicate : remove exact duplicates (default); False keeps every point read (for
+        timing the reader alone).
 
     Returns
     -------
     P : (m, 3) float64 C-contiguous array of finite points, mm; ``m >= MIN_POINTS``.
+    points_read : the number of valid points in the file (``m`` plus the duplicates).
 
     Raises
     ------
     InputError
         Unknown units, missing, unsupported or unreadable file (whatever the third-party
-        reader raised is wrapped), fewer than ``MIN_POINTS`` points, or non-finite
-        coordinates; the message is one line naming the file and the problem.
+        reader raised is wrapped), content of another format than the suffix names, fewer
+        than ``MIN_POINTS`` distinct points, non-finite coordinates, or all points on one
+        line; the message is one line naming the file and the problem.
     """
     path = Path(path)
     if units is not None and units not in SCAN_UNITS:
@@ -90,6 +203,7 @@ def load_scan(path: str | Path, units: str | None = None) -> np.ndarray:
         )
     units = FORMAT_UNITS.get(suffix, "mm") if units is None else units
     try:
+        _check_format(path)
         with warnings.catch_warnings():  # reader noise; problems are reported below, once
             warnings.simplefilter("ignore")
             if suffix == ".npy":
@@ -106,14 +220,25 @@ def load_scan(path: str | Path, units: str | None = None) -> np.ndarray:
                     geom = geom.to_geometry() if geom.geometry else None
                 P = np.asarray(getattr(geom, "vertices", np.empty((0, 3))))
                 check_declared_counts(path, len(P))
-            P = validate_scan(P, path.name)
+            P = _finite_points(P, path.name)
             if units != "mm":
-                P = validate_scan(P * SCAN_UNITS[units], path.name)  # may overflow to inf
+                P = _finite_points(P * SCAN_UNITS[units], path.name)  # may overflow to inf
+            n_read = len(P)
+            if deduplicate:
+                P, n_dup = unique_points(P)
+                if n_dup and len(P) < MIN_POINTS:
+                    raise InputError(
+                        f"{path.name}: only {len(P)} distinct point{'s' if len(P) > 1 else ''}"
+                        f" ({n_read} read, {n_dup} duplicates; at least {MIN_POINTS} needed)"
+                    )
+                if n_dup:
+                    log.debug("%s: %d duplicate points removed", path.name, n_dup)
+            P = validate_scan(P, path.name)
     except InputError:
         raise
     except Exception as exc:  # third-party readers raise many types on corrupt input
         raise InputError(f"cannot read scan {path.name}: {one_line(exc)}") from None
-    return P
+    return P, n_read
 
 
 def one_line(exc: BaseException, limit: int = 200) -> str:
@@ -299,10 +424,18 @@ def _read_obj_vertices(path: Path) -> np.ndarray:
 
 
 def _read_text_points(path: Path, delimiter: str | None) -> np.ndarray:
-    """First three columns of a text point file (XYZ/TXT/CSV), one point a row; lines after
-    ``#`` are comments, and a first line without a single number (column names such as
-    ``x,y,z``) is skipped."""
-    kw = dict(delimiter=delimiter, usecols=(0, 1, 2), ndmin=2, comments="#", dtype=np.float64)
+    """The points of a text point file (XYZ/TXT/CSV), one a row; (m, 3) float64.
+
+    Lines after ``#`` are comments. A first line without a single number is a header of
+    column names: the columns named x, y and z (:func:`_xyz_columns`) are read. Without a
+    header, the first three columns.
+
+    Raises
+    ------
+    InputError
+        A header that names no x, y and z columns (naming the columns found).
+    """
+    cols = (0, 1, 2)
     skip = 0
     with open(path, "rb") as fh:
         for ln in fh:
@@ -311,9 +444,50 @@ def _read_text_points(path: Path, delimiter: str | None) -> np.ndarray:
             if not text.strip():
                 continue
             if not any(_is_number(t) for t in text.replace(",", " ").split()):
-                return np.loadtxt(path, skiprows=skip, **kw)  # a header of column names
+                names = [t.strip().strip("\"'").strip() for t in text.split(delimiter)]
+                cols = _xyz_columns(names, path.name)
+                break
+            skip = 0  # no header: read from the top
             break
-    return np.loadtxt(path, **kw)
+    return np.loadtxt(
+        path,
+        delimiter=delimiter,
+        usecols=cols,
+        ndmin=2,
+        comments="#",
+        dtype=np.float64,
+        skiprows=skip,
+    )
+
+
+#: a coordinate column name: x, y or z, optionally with a unit (``x_mm``, ``X (mm)``, ``x[mm]``)
+_AXIS_NAME = re.compile(r"([xyz])(?:\s*[_\-\s/\[(]\s*(?:mm|m|cm|in|inch)?\s*[\])]?)?", re.I)
+
+
+def _xyz_columns(names: list[str], name: str) -> tuple[int, int, int]:
+    """The indices of the x, y, z columns in a header's column ``names``.
+
+    Raises
+    ------
+    InputError
+        No column, or more than one, for one of the axes; the message lists the columns.
+    """
+    found: dict[str, list[int]] = {"x": [], "y": [], "z": []}
+    for k, col in enumerate(names):
+        m = _AXIS_NAME.fullmatch(col)
+        if m:
+            found[m.group(1).lower()].append(k)
+    listed = ", ".join(repr(c) for c in names) or "none"
+    missing = [a for a, ks in found.items() if not ks]
+    if missing:
+        raise InputError(
+            f"{name}: the header names no {', '.join(missing)} column "
+            f"(columns: {listed}; name the coordinates x, y, z)"
+        )
+    twice = [a for a, ks in found.items() if len(ks) > 1]
+    if twice:
+        raise InputError(f"{name}: the header names {', '.join(twice)} twice (columns: {listed})")
+    return found["x"][0], found["y"][0], found["z"][0]
 
 
 def _is_number(token: str) -> bool:
@@ -361,20 +535,9 @@ def _read_e57(path: Path) -> np.ndarray:
     return np.concatenate(parts) if parts else np.empty((0, 3))
 
 
-def validate_scan(P: np.ndarray, name: str = "scan") -> np.ndarray:
-    """Check an (m, 3) point array; return it as contiguous float64 or raise :class:`InputError`.
-
-    Parameters
-    ----------
-    P : (m, 3) array of real numbers (integer or float), mm.
-    name : what to call the points in the message (the file name).
-
-    Raises
-    ------
-    InputError
-        Wrong shape or non-numeric type, no points, non-finite coordinates, or fewer than
-        ``MIN_POINTS`` points; one line naming ``name``.
-    """
+def _finite_points(P: np.ndarray, name: str) -> np.ndarray:
+    """``P`` as contiguous float64 (m, 3) finite points, or :class:`InputError` (shape, type,
+    empty, NaN/inf)."""
     P = np.asarray(P)
     if P.ndim != 2 or P.shape[1] != 3:
         raise InputError(f"{name}: expected (m, 3) points, got shape {P.shape}")
@@ -386,11 +549,118 @@ def validate_scan(P: np.ndarray, name: str = "scan") -> np.ndarray:
     bad = ~np.isfinite(P).all(axis=1)
     if bad.any():
         raise InputError(f"{name}: {int(bad.sum())} of {len(P)} points have NaN/inf coordinates")
+    return P
+
+
+def validate_scan(P: np.ndarray, name: str = "scan") -> np.ndarray:
+    """Check an (m, 3) point array; return it as contiguous float64 or raise :class:`InputError`.
+
+    A scan must span a surface: points on one line (the second principal standard deviation
+    below :data:`COLLINEAR_RATIO` of the first) fix no pose and measure no surface. A flat
+    panel is planar and valid.
+
+    Parameters
+    ----------
+    P : (m, 3) array of real numbers (integer or float), mm.
+    name : what to call the points in the message (the file name).
+
+    Raises
+    ------
+    InputError
+        Wrong shape or non-numeric type, no points, non-finite coordinates, fewer than
+        ``MIN_POINTS`` points, or all points on one line (or one point); one line naming
+        ``name``.
+    """
+    P = _finite_points(P, name)
     if len(P) < MIN_POINTS:
         raise InputError(
             f"{name}: only {len(P)} point{'s' if len(P) > 1 else ''} (at least {MIN_POINTS} needed)"
         )
+    s = principal_spreads(P)
+    if s[0] == 0.0:
+        raise InputError(f"{name}: all {len(P)} points coincide (a degenerate scan)")
+    if s[1] <= COLLINEAR_RATIO * s[0]:
+        raise InputError(
+            f"{name}: the {len(P)} points lie on a line ({s[0]:.3g} mm along it, "
+            f"{s[1]:.3g} mm across: a degenerate scan, no surface to inspect)"
+        )
     return P
+
+
+def principal_spreads(P: np.ndarray, chunk: int = 1 << 20) -> np.ndarray:
+    """Standard deviations (3,) of the points along their principal axes, largest first, mm.
+
+    The covariance is summed over chunks of ``chunk`` rows (no (m, 3) temporary).
+    """
+    c = P[:: max(1, len(P) // 4096)].mean(axis=0)  # a shift near the centroid, for accuracy
+    C = np.zeros((3, 3))
+    s = np.zeros(3)
+    for i in range(0, len(P), chunk):
+        X = P[i : i + chunk] - c
+        C += X.T @ X
+        s += X.sum(axis=0)
+    mu = s / len(P)
+    C = C / len(P) - np.outer(mu, mu)
+    ev = np.linalg.eigvalsh(C)[::-1]
+    return np.sqrt(np.clip(ev, 0.0, None))
+
+
+def unique_points(P: np.ndarray) -> tuple[np.ndarray, int]:
+    """The distinct points of ``P``, the first of each in the original order, and the
+    number of duplicates removed.
+
+    Two points are duplicates when their coordinates are equal (``-0.0 == 0.0``). Each row is
+    hashed to 64 bits; a sort of the hashes finds the candidates (no duplicate: done, one
+    ``np.sort``); equal hashes are confirmed on the coordinates, and a hash collision between
+    distinct points (odds ~ m^2 / 2^65) falls back to an exact row sort. O(m log m); about
+    2 s for 10 M points.
+
+    Parameters
+    ----------
+    P : (m, 3) float64 points, mm (finite).
+
+    Returns
+    -------
+    Q : (k, 3) the distinct points (``P`` itself when there is no duplicate).
+    removed : ``m - k``.
+    """
+    P = np.ascontiguousarray(P, dtype=np.float64)
+    m = len(P)
+    if m < 2:
+        return P, 0
+    h = _row_hash(P)
+    hs = np.sort(h)  # much faster than argsort: enough to tell that there is no duplicate
+    if not (hs[1:] == hs[:-1]).any():
+        return P, 0
+    order = np.argsort(h)
+    hs = h[order]
+    del h
+    dup = hs[1:] == hs[:-1]  # dup[i]: order[i + 1] has the hash of order[i]
+    del hs
+    i = np.flatnonzero(dup)
+    if not (P[order[i]] == P[order[i + 1]]).all():  # a collision: exact row sort
+        _, first = np.unique(P + 0.0, axis=0, return_index=True)
+        keep = np.sort(first)
+        return P[keep], m - len(keep)
+    # every run of equal hashes is one point, repeated
+    starts = np.flatnonzero(np.r_[True, ~dup])
+    keep = np.minimum.reduceat(order, starts)  # the first occurrence of each point
+    keep.sort()
+    return P[keep], m - len(keep)
+
+
+def _row_hash(P: np.ndarray) -> np.ndarray:
+    """A 64-bit hash (m,) of each point's coordinates (``-0.0`` hashed as ``0.0``)."""
+    bits = P.view(np.uint64)
+    h = np.zeros(len(P), dtype=np.uint64)
+    neg0 = np.uint64(1 << 63)
+    for j, mult in enumerate((0x9E3779B97F4A7C15, 0xC2B2AE3D27D4EB4F, 0x165667B19E3779F9)):
+        c = bits[:, j].copy()
+        c[c == neg0] = 0
+        h ^= c
+        h *= np.uint64(mult)
+        h ^= h >> np.uint64(29)
+    return h
 
 
 def pca_normals(P: np.ndarray, k: int = 12, tree: cKDTree | None = None) -> np.ndarray:

@@ -199,11 +199,16 @@ def encode(fmt: str, V: np.ndarray, F: np.ndarray) -> bytes:
 
 
 def expected_points(fmt: str, V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, float]:
-    """The points ``load_scan`` must return for :func:`encode` ``(fmt, V, F)``, in order, and
-    the absolute tolerance (mm): float32 rounding where the format stores float32, the
-    printed digits for text formats."""
+    """The points ``load_scan`` must return for :func:`encode` ``(fmt, V, F)``, in order
+    (duplicates removed: the first occurrence of each point), and the absolute tolerance
+    (mm): float32 rounding where the format stores float32, the printed digits for text
+    formats."""
     suffix, _, f32 = FORMATS[fmt]
-    P = V[F].reshape(-1, 3) if suffix == ".stl" else V  # STL: three corners per triangle
+    P = V
+    if suffix == ".stl":  # STL: three corners per triangle, each point read once
+        corners = V[F].reshape(-1, 3)
+        _, first = np.unique(corners, axis=0, return_index=True)
+        P = corners[np.sort(first)]
     scale = float(np.abs(P).max())
     if fmt == "e57":  # float32 metres in the scanner frame, then posed and scaled to mm
         return P, 4 * np.finfo(np.float32).eps * (scale + 200.0)

@@ -18,11 +18,11 @@ from pathlib import Path
 
 from qifreport.errors import InputError
 from qifreport.qif.writer import characteristic_status, profile_value
-from qifreport.registration.pointcloud import load_scan
+from qifreport.registration.pointcloud import read_scan
 
 from ..cache import PartState
 from ..options import InspectJob
-from ..pipeline import inspect_state, output_writers
+from ..pipeline import inspect_state, output_writers, scan_input
 from ..profile import peak_rss_bytes
 from .plan import ScanItem
 
@@ -107,7 +107,8 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
         with tempfile.TemporaryDirectory(prefix="qifreport-") as td:
             scan_file = Path(td) / item.scan.name
             scan_file.write_bytes(task.scan_bytes)
-            P = load_scan(scan_file, units=job.options.scan_units)
+            P, n_read = read_scan(scan_file, units=job.options.scan_units)
+            P, scan_report = scan_input(P, n_read, state.nominal, item.scan.name)
             this = replace(
                 job,
                 nominal=item.nominal,
@@ -121,7 +122,14 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
             finished = datetime.now(timezone.utc)
             digests = {"nominal": state.nominal_sha256, "scan": task.scan_sha256}
             writers, _ = output_writers(
-                res, state.nominal, this, this.output_paths(), digests, started, finished
+                res,
+                state.nominal,
+                this,
+                this.output_paths(),
+                digests,
+                started,
+                finished,
+                scan_report=scan_report,
             )
             files = {}
             for path, write in writers:  # in order: the JSON reports the QIF's validation
