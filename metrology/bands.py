@@ -82,6 +82,8 @@ class ToleranceZone:
     modifiers : lowercase modifier names from the PMI.
     step_id : STEP entity id of the tolerance, None for general zones.
     free_state : evaluate without the virtual fixture (ASME free-state modifier).
+    min_coverage : this surface's own least scored share (None: the inspection's
+        ``min_coverage``), :mod:`qifreport.metrology.coverage`.
     """
 
     key: str
@@ -96,6 +98,7 @@ class ToleranceZone:
     modifiers: list[str] = field(default_factory=list)
     step_id: int | None = None
     free_state: bool = False
+    min_coverage: float | None = None
 
     @property
     def center(self) -> float:
@@ -127,6 +130,7 @@ class ToleranceZone:
             "modifiers": list(self.modifiers),
             "step_id": self.step_id,
             "free_state": self.free_state,
+            "min_coverage": self.min_coverage,
             "n_faces": None if self.faces is None else int(len(self.faces)),
             "faces": None if self.faces is None else [int(f) for f in self.faces],
         }

@@ -32,6 +32,7 @@ from qifreport.registration.pointcloud import orient_normals_consistent, pca_nor
 from qifreport.registration.prealign import PrealignResult, seat_scan
 
 from .acceptance import (
+    DEFAULT_MAX_REGION_AREA,
     Acceptance,
     coverage_ceiling_ok,
     evaluate,
@@ -47,6 +48,7 @@ from .bands import (
     symmetric_zone,
     zone_vertex_areas,
 )
+from .coverage import DEFAULT_MIN_COVERAGE, GAP_AREA_FACTOR, Coverage, zone_coverage
 from .deviation import beyond_rim, closest_points, nominal_referenced
 from .hygiene import MeshHygiene
 from .params import METHOD_LABELS, InspectionParams, method_label
@@ -60,12 +62,16 @@ __all__ = [
     "InspectionParams",
     "InspectionResult",
     "ZoneResult",
+    "check_same_part",
     "check_units",
     "inspect",
     "method_label",
 ]
 
 log = logging.getLogger(__name__)
+
+#: the area criterion's default share (InspectionParams.min_fraction)
+DEFAULT_MIN_FRACTION = 0.95
 
 #: scan-to-nominal extent ratios that betray a unit mix-up, and the unit behind each
 _UNIT_FACTORS = {1 / 25.4: "in", 0.001: "m", 0.1: "cm", 25.4: "in", 1000.0: "m", 10.0: "cm"}
@@ -86,6 +92,8 @@ class ZoneResult:
     deviation : (n,) the deviation the zone was judged on, mm (the fixtured or free-state
         field on the zone's vertices, NaN elsewhere); None from older callers. Used by
         :mod:`qifreport.metrology.repeatability` to match regions between runs.
+    coverage : whether the surface was measured (:mod:`qifreport.metrology.coverage`); None
+        from older callers (taken as measured).
     """
 
     zone: ToleranceZone
@@ -93,15 +101,30 @@ class ZoneResult:
     acceptance: Acceptance
     fixtured: bool = True
     deviation: np.ndarray | None = None
+    coverage: Coverage | None = None
+
+    @property
+    def measured(self) -> bool:
+        """The coverage and gap rules hold on the surface."""
+        return self.coverage is None or self.coverage.measured
+
+    @property
+    def status(self) -> str:
+        """``FAIL`` (a criterion fails on what was scored: rejected whatever was not seen),
+        ``NOT MEASURED`` (too little of the surface scored to judge it), or ``PASS``."""
+        if not self.acceptance.passed:
+            return "FAIL"
+        return "PASS" if self.measured else "NOT MEASURED"
 
     def to_dict(self) -> dict:
         return {
             **self.zone.to_dict(),
             "description": self.zone.describe(),
-            "verdict": "PASS" if self.acceptance.passed else "FAIL",
+            "verdict": self.status,
             "fixtured": self.fixtured,
             "deviation": self.stats.to_dict(),
             "acceptance": self.acceptance.to_dict(),
+            "measured": None if self.coverage is None else self.coverage.to_dict(),
         }
 
 
@@ -166,11 +189,14 @@ class InspectionResult:
     repeatability: Repeatability | None = None
     basis: BendingBasis | None = None
     resolution: Resolution | None = None
+    excluded: np.ndarray | None = None
+    coverage: Coverage | None = None
 
     @property
     def passed(self) -> bool:
-        """The part passes when the whole surface and every toleranced surface pass (and, with
-        ``fail_on_added_material``, no proud scan region exceeds the limit)."""
+        """No criterion fails on what was scored: the whole surface and every toleranced
+        surface pass their area and region criteria (and, with ``fail_on_added_material``, no
+        proud scan region exceeds the limit). Whether enough was scored is :attr:`measured`."""
         return bool(
             self.acceptance.passed
             and all(z.acceptance.passed for z in self.zones)
@@ -220,18 +246,79 @@ class InspectionResult:
         return out
 
     @property
+    def measured(self) -> bool:
+        """The whole part and every toleranced surface were measured (coverage and gap rules,
+        :mod:`qifreport.metrology.coverage`)."""
+        return (self.coverage is None or self.coverage.measured) and all(
+            z.measured for z in self.zones
+        )
+
+    def not_measured(self) -> list[str]:
+        """Why a surface is not measured, one line each (empty when all are)."""
+        out = []
+        if self.coverage is not None and not self.coverage.measured:
+            out += [f"whole part: {r}" for r in self.coverage.reasons]
+        for z in self.zones:
+            if not z.measured:
+                out += [f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.coverage.reasons]
+        return out
+
+    def coverage_notes(self) -> list[str]:
+        """Notes on what was left out by design (a surface more than 30 % in the unscored
+        bands near creases and rims), one line each, whether or not it was measured."""
+        out = []
+        if self.coverage is not None:
+            out += [f"whole part: {w}" for w in self.coverage.warnings]
+        for z in self.zones:
+            if z.coverage is not None:
+                out += [f"{z.zone.key}: {w}" for w in z.coverage.warnings]
+        return out
+
+    def relaxed_guards(self) -> list[str]:
+        """The settings that make a guard weaker than its default, one line each: they are
+        named in every output (the verdict stands, on the user's responsibility)."""
+        p = self.params
+        out = []
+        if p.min_coverage < DEFAULT_MIN_COVERAGE:
+            out.append(
+                f"min coverage {100 * p.min_coverage:g} % (default "
+                f"{100 * DEFAULT_MIN_COVERAGE:g} %): a surface counts as measured with less scored"
+            )
+        low = [z.zone for z in self.zones if (z.zone.min_coverage or 1.0) < DEFAULT_MIN_COVERAGE]
+        for zone in low:
+            out.append(f"{zone.key}: min coverage {100 * zone.min_coverage:g} %")
+        if p.max_gap_area is not None and p.max_gap_area > GAP_AREA_FACTOR * p.max_region_area:
+            out.append(
+                f"max gap area {p.max_gap_area:g} mm^2 (default "
+                f"{GAP_AREA_FACTOR * p.max_region_area:g}): larger unmeasured patches accepted"
+            )
+        if p.min_fraction < DEFAULT_MIN_FRACTION:
+            out.append(f"area criterion {100 * p.min_fraction:g} % (default 95 %)")
+        if p.max_region_area > DEFAULT_MAX_REGION_AREA:
+            out.append(
+                f"region criterion {p.max_region_area:g} mm^2 (default "
+                f"{DEFAULT_MAX_REGION_AREA:g} mm^2)"
+            )
+        return out
+
+    @property
     def established(self) -> bool:
         """The registration can be trusted (no :meth:`trust_warnings`)."""
         return not self.trust_warnings()
 
     @property
     def verdict(self) -> str:
-        """``PASS``, ``FAIL``, or ``NOT ESTABLISHED``: the part would pass but the registration
-        cannot be trusted (:meth:`trust_warnings`), so a pass is not claimed. A failing part
-        stays ``FAIL`` (rejected either way; the warnings are reported)."""
+        """``PASS``, ``FAIL``, ``NOT ESTABLISHED`` or ``NOT MEASURED``.
+
+        ``FAIL`` when a criterion fails on what was scored (rejected either way; warnings
+        and unmeasured surfaces are reported); otherwise ``NOT ESTABLISHED`` when the
+        registration cannot be trusted (:meth:`trust_warnings`), ``NOT MEASURED`` when a
+        surface was not measured (:meth:`not_measured`); ``PASS`` only when none of these."""
         if not self.passed:
             return "FAIL"
-        return "PASS" if self.established else "NOT ESTABLISHED"
+        if not self.established:
+            return "NOT ESTABLISHED"
+        return "PASS" if self.measured else "NOT MEASURED"
 
     def decided_by(self) -> list[str]:
         """What failed the part (empty when it passed), one line each."""
@@ -245,6 +332,7 @@ class InspectionResult:
             out.append(f"added material: {self.added.describe()}")
         if self.passed:
             out += [f"not established: {w}" for w in self.trust_warnings()]
+            out += [f"not measured: {w}" for w in self.not_measured()]
         return out
 
     def to_dict(self) -> dict:
@@ -257,6 +345,7 @@ class InspectionResult:
             "verdict": self.verdict,
             "warnings": self.trust_warnings(),
             "decided_by": self.decided_by(),
+            "relaxed_guards": self.relaxed_guards(),
             "acceptance": self.acceptance.to_dict(),
             "tolerances": [z.to_dict() for z in self.zones],
             "not_evaluated": [n.to_dict() for n in self.not_evaluated],
@@ -270,6 +359,7 @@ class InspectionResult:
                 "scan_area_mm2": self.scan_area,
                 "ceiling_ok": self.coverage_ceiling_ok,
                 "edge_excluded_area_mm2": self.edge_excluded_area,
+                "measured": None if self.coverage is None else self.coverage.to_dict(),
             },
             "registration": {
                 "energy": self.energy,
@@ -376,6 +466,46 @@ def check_units(V: np.ndarray, P: np.ndarray, scan_units: str | None = None) -> 
         raise InputError(
             f"scan extent {dp:.4g} mm vs nominal extent {dv:.4g} mm (ratio {ratio:.3g}): "
             f"wrong units or wrong part{hint}"
+        )
+
+
+#: a scan point this far from the fixtured nominal (in general half-widths, at least
+#: :data:`FAR_DIAGONAL` of the diagonal) is explained by no defect or compliance
+FAR_HALF_WIDTHS = 10.0
+FAR_DIAGONAL = 0.01
+#: share of such points above which, with a poor rigid fit or a fixture guard that fired,
+#: the scan is not of this part
+MAX_FAR_SHARE = 0.10
+
+
+def check_same_part(
+    point_dev: np.ndarray, half_width: float, diagonal: float, rigid: RigidResult, fit
+) -> None:
+    """Refuse a scan that is not of this part (:class:`InputError`: "scan does not match
+    the nominal").
+
+    After the virtual fixture a scan of the part lies within defects' reach of the nominal
+    everywhere. The scan is refused when more than :data:`MAX_FAR_SHARE` of its points lie
+    farther than ``max(FAR_HALF_WIDTHS * half_width, FAR_DIAGONAL * diagonal)`` from the
+    fixtured nominal *and* the registration itself says so: fewer than 90 % rigid inliers, or
+    the two-pass guard fired. Stray points (a fixture or the table in view) trip it too: the
+    message says so, crop them.
+
+    Parameters
+    ----------
+    point_dev : (m,) data-referenced deviation of each scan point, mm.
+    half_width : the general zone's half-width, mm.  diagonal : the nominal's, mm.
+    rigid : the rigid alignment.  fit : the virtual fixture's result, or None.
+    """
+    far_mm = max(FAR_HALF_WIDTHS * half_width, FAR_DIAGONAL * diagonal)
+    d = np.abs(np.asarray(point_dev, dtype=np.float64))
+    share = float(np.mean(~(d <= far_mm)))  # NaN (no correspondence) counts as far
+    suspect = rigid.inlier_fraction < 0.9 or (fit is not None and fit.fallback)
+    if share > MAX_FAR_SHARE and suspect:
+        raise InputError(
+            f"scan does not match the nominal: {100 * share:.1f} % of its points lie more than "
+            f"{far_mm:.3g} mm from the fixtured part (rigid inliers "
+            f"{100 * rigid.inlier_fraction:.0f} %): another part, or foreign objects in the scan"
         )
 
 
@@ -530,6 +660,7 @@ def inspect(
         dev[near_crease] = np.nan
         if dev_free is not None:
             dev_free[near_crease] = np.nan
+    excluded = near_rim if near_crease is None else near_rim | near_crease
     C, cface, pdev = closest_points(V_reg, F, Pm)
     rim = beyond_rim(V_reg, F, C, cface)
     timings["deviation"] = time.perf_counter() - t0
@@ -544,6 +675,7 @@ def inspect(
     # own band)
     general = [z for z in bands.zones if z.faces is None]
     general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
+    check_same_part(pdev, general_half, diag, rigid, fit)
     vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
     pstats = deviation_statistics(pdev, threshold=general_half)
     acc = evaluate(
@@ -572,6 +704,18 @@ def inspect(
             center=z.center,
         )
         zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
+        zcov = zone_coverage(
+            V,
+            F[mask],
+            dz,
+            az,
+            excluded,
+            center=z.center,
+            half_width=z.half_width,
+            min_coverage=params.min_coverage if z.min_coverage is None else z.min_coverage,
+            max_region_area=params.max_region_area,
+            max_gap_area=params.max_gap_area,
+        )
         zone_results.append(
             ZoneResult(
                 zone=z,
@@ -579,8 +723,21 @@ def inspect(
                 acceptance=zacc,
                 fixtured=fit is not None and not use_free,
                 deviation=dz,
+                coverage=zcov,
             )
         )
+    whole = zone_coverage(
+        V,
+        F,
+        dev_all,
+        area,
+        excluded,
+        center=bands.center,
+        half_width=bands.half_width,
+        min_coverage=params.min_coverage,
+        max_region_area=params.max_region_area,
+        max_gap_area=params.max_gap_area,
+    )
     s_area = scan_area(Pm)
     ceiling = coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
     # added material: scan points beyond the rim of the nominal are not proud of it
@@ -627,4 +784,6 @@ def inspect(
         hygiene=hygiene,
         basis=basis,
         resolution=scatter,
+        excluded=excluded,
+        coverage=whole,
     )

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from qifreport.registration.gbcicp import GBCICPParams
 
 from .acceptance import DEFAULT_MAX_REGION_AREA
+from .coverage import DEFAULT_MIN_COVERAGE
 
 __all__ = ["METHOD_LABELS", "InspectionParams", "method_label"]
 
@@ -66,6 +67,10 @@ class InspectionParams:
         default parameters).
     gbcicp : parameters of the GB-CICP stage (used only with ``method="gbcicp"``; its
         ``scan_normal_k`` sets the PCA scan normals for every method).
+    min_coverage : least scored share of a toleranced surface's own area for its tolerance to
+        be measured (:mod:`qifreport.metrology.coverage`); a zone may set its own.
+    max_gap_area : largest unmeasured patch on a toleranced surface, mm^2; None:
+        ``GAP_AREA_FACTOR * max_region_area``.
     """
 
     tolerance: float | None = None
@@ -80,3 +85,5 @@ class InspectionParams:
     fail_on_added_material: bool = False
     method: str = "gbcicp"
     gbcicp: GBCICPParams = field(default_factory=GBCICPParams)
+    min_coverage: float = DEFAULT_MIN_COVERAGE
+    max_gap_area: float | None = None

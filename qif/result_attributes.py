@@ -20,7 +20,13 @@ from qifreport.metrology.statistics import DeviationStats
 
 from .xmlkit import Attrs, xml_double
 
-__all__ = ["MAX_REGIONS_LISTED", "acceptance_attrs", "measurement_results_attrs", "stats_attrs"]
+__all__ = [
+    "MAX_REGIONS_LISTED",
+    "acceptance_attrs",
+    "coverage_attrs",
+    "measurement_results_attrs",
+    "stats_attrs",
+]
 
 #: at most this many out-of-tolerance regions are listed per surface (largest first); the
 #: count of all regions is always given (``region_count``).
@@ -89,6 +95,25 @@ def acceptance_attrs(a: Attrs, acc, V: np.ndarray, prefix: str = "") -> None:
         a.s(f"{prefix}reason_{k}", reason)
 
 
+def coverage_attrs(a: Attrs, cov, prefix: str = "") -> None:
+    """Add whether a surface was measured (``cov``:
+    :class:`qifreport.metrology.coverage.Coverage`, or None: nothing is added): ``measured``,
+    its coverage of the surface's own area, the largest unmeasured patch, the rules' limits
+    and the reasons it was not measured (``not_measured_reason_k``)."""
+    if cov is None:
+        return
+    a.b(f"{prefix}measured", cov.measured)
+    a.d(f"{prefix}surface_area_mm2", cov.area)
+    a.d(f"{prefix}surface_coverage", cov.coverage)
+    a.d(f"{prefix}min_surface_coverage", cov.min_coverage)
+    a.d(f"{prefix}excluded_area_mm2", cov.excluded_area)
+    a.d(f"{prefix}unmeasured_area_mm2", cov.unmeasured_area)
+    a.d(f"{prefix}largest_unmeasured_patch_mm2", cov.largest_gap_area)
+    a.d(f"{prefix}max_unmeasured_patch_mm2", cov.max_gap_area)
+    for k, reason in enumerate(cov.reasons, start=1):
+        a.s(f"{prefix}not_measured_reason_{k}", reason)
+
+
 def measurement_results_attrs(
     res: InspectionResult, nominal_sha256: str, scan_sha256: str
 ) -> Attrs:
@@ -115,8 +140,11 @@ def measurement_results_attrs(
         ra.s(f"warning_{k}", line)
     for k, line in enumerate(res.decided_by(), start=1):
         ra.s(f"decided_by_{k}", line)
+    for k, line in enumerate(res.relaxed_guards(), start=1):
+        ra.s(f"relaxed_guard_{k}", line)
     stats_attrs(ra, res.vertex_stats)
     acceptance_attrs(ra, res.acceptance, res.V)
+    coverage_attrs(ra, res.coverage)
     stats_attrs(ra, res.point_stats, prefix="scan_points_")
     if res.added is not None:
         _added_attrs(ra, res.added)

@@ -79,6 +79,7 @@ from qifreport.metrology.inspection import InspectionResult, ZoneResult
 from .result_attributes import (
     MAX_REGIONS_LISTED,
     acceptance_attrs,
+    coverage_attrs,
     measurement_results_attrs,
     stats_attrs,
 )
@@ -182,13 +183,16 @@ def characteristic_status(z: ZoneResult, established: bool = True) -> str:
     Returns
     -------
     str
-        ``NOT_ANALYZED`` (nothing scored), ``FAIL``, ``PASS``, or ``INDETERMINATE`` (would
-        pass, the registration is not trusted).
+        ``NOT_ANALYZED`` (nothing scored, or too little of the surface to measure it:
+        :attr:`ZoneResult.measured`; QIF's characteristic status has no "not measured"),
+        ``FAIL``, ``PASS``, or ``INDETERMINATE`` (would pass, the registration is not trusted).
     """
     if z.acceptance.scored_area <= 0 or z.stats.n == 0:
         return "NOT_ANALYZED"
     if not z.acceptance.passed:
         return "FAIL"
+    if not z.measured:
+        return "NOT_ANALYZED"
     return "PASS" if established else "INDETERMINATE"
 
 
@@ -583,6 +587,7 @@ def _characteristic_measurement(
     ma = Attrs().b("fixtured", z.fixtured).d("profile_value_mm", profile_value(z))
     stats_attrs(ma, z.stats)
     acceptance_attrs(ma, z.acceptance, res.V)
+    coverage_attrs(ma, z.coverage)
     if res.repeatability is not None:
         sp = next((x for x in res.repeatability.surfaces[1:] if x.key == z.zone.key), None)
         if sp is not None:
@@ -642,7 +647,9 @@ def _results(
     the measured features and characteristics, the status) and the actual component."""
     # NOT ESTABLISHED (would pass, registration not trusted): QIF's UNKNOWN; the reasons are
     # the decided_by_* and warning_* attributes
-    verdict = {"PASS": "PASS", "FAIL": "FAIL"}.get(res.verdict, "UNKNOWN")
+    verdict = {"PASS": "PASS", "FAIL": "FAIL", "NOT MEASURED": "NOT_MEASURED"}.get(
+        res.verdict, "UNKNOWN"
+    )
     ra = measurement_results_attrs(res, prov.nominal_sha256, prov.scan_sha256)
     refs = _input_file_references(prov)
     mr = E.MeasurementResults(

@@ -148,6 +148,23 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         help="region criterion: largest out-of-tolerance region (default 25 mm^2)",
     )
     ap.add_argument(
+        "--min-coverage",
+        action="append",
+        default=None,
+        metavar="[TOL=]FRACTION",
+        help="a toleranced surface is measured when at least FRACTION of its area was "
+        "scored (default 0.7; below it: NOT MEASURED, never PASS); TOL=FRACTION sets one "
+        "tolerance's own, TOL its key (T2), name or STEP id (#1452); repeatable",
+    )
+    ap.add_argument(
+        "--max-gap-area",
+        type=float,
+        default=None,
+        metavar="MM2",
+        help="largest unmeasured patch on a toleranced surface (default 4 x "
+        "--max-region-area = 100 mm^2); larger: NOT MEASURED",
+    )
+    ap.add_argument(
         "--energy",
         choices=["auto", "hessian", "laplacian"],
         default="auto",
@@ -256,11 +273,35 @@ def add_cache_options(ap: argparse.ArgumentParser) -> None:
     )
 
 
+def parse_min_coverage(items: list[str] | None) -> dict:
+    """``--min-coverage`` values (``FRACTION`` or ``TOL=FRACTION``) as the options'
+    ``min_coverage`` and ``zone_min_coverage``; InputError for a value that is not a number."""
+    out: dict = {}
+    zones = []
+    for item in items or []:
+        sel, eq, val = item.rpartition("=")
+        try:
+            x = float(val)
+        except ValueError:
+            raise InputError(
+                f"--min-coverage takes FRACTION or TOL=FRACTION (e.g. 0.7 or T2=0.9), got {item!r}"
+            ) from None
+        if eq:
+            zones.append((sel.strip(), x))
+        else:
+            out["min_coverage"] = x
+    if zones:
+        out["zone_min_coverage"] = tuple(zones)
+    return out
+
+
 def inspect_options(args: argparse.Namespace) -> InspectOptions:
     """The typed options of parsed ``inspect`` / ``batch`` / ``prepare`` arguments (an
     option the sub-command does not have takes its default)."""
-    names = [f for f in InspectOptions.__dataclass_fields__ if f != "cache_dir"]
+    special = ("cache_dir", "min_coverage", "zone_min_coverage")
+    names = [f for f in InspectOptions.__dataclass_fields__ if f not in special]
     values = {k: getattr(args, k) for k in names if hasattr(args, k)}
+    values.update(parse_min_coverage(getattr(args, "min_coverage", None)))
     if getattr(args, "no_cache", False):
         cache = None
     else:

@@ -8,16 +8,19 @@ general zone of the given tolerance.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from qifreport.metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
-from qifreport.registration.mesh import bounding_diagonal, load_mesh
+from qifreport.registration.mesh import bounding_diagonal, consistent_winding, load_mesh
 from qifreport.step.reader import STEP_SUFFIXES
 
 from .errors import InputError
+
+log = logging.getLogger(__name__)
 
 __all__ = [
     "Nominal",
@@ -106,5 +109,18 @@ def load_nominal(
             "--tolerance MM (or use the STEP file with PMI)"
         )
     V, F = load_mesh(path)
-    info = {"format": "mesh", "diagonal_mm": bounding_diagonal(V)}
+    F, flipped, unorientable = consistent_winding(V, F)
+    if flipped:
+        log.warning(
+            "%s: %d triangle(s) wound against their neighbours were turned over", path.name, flipped
+        )
+    if unorientable:
+        log.warning(
+            "%s: %d triangle(s) lie on a piece no winding can orient", path.name, unorientable
+        )
+    info = {
+        "format": "mesh",
+        "diagonal_mm": bounding_diagonal(V),
+        "winding": {"flipped_triangles": flipped, "unorientable_triangles": unorientable},
+    }
     return Nominal(V, F, None, [symmetric_zone(tolerance, "general")], [], info)

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from qifreport.errors import InputError
+from qifreport.metrology.coverage import DEFAULT_MIN_COVERAGE
 from qifreport.metrology.params import InspectionParams
 from qifreport.registration.gbcicp import GBCICPParams
 
@@ -53,6 +54,9 @@ RESULT_OPTIONS = (
     "seeds",
     "rigid_only",
     "accept_tolerance_as_read",
+    "min_coverage",
+    "zone_min_coverage",
+    "max_gap_area",
 )
 
 
@@ -108,6 +112,10 @@ class InspectOptions:
     cache_dir : per-part cache directory (None: no cache).
     accept_tolerance_as_read : inspect with tolerances the plausibility check of
         :mod:`qifreport.step.plausibility` flags (default: refuse the part).
+    min_coverage : least scored share of a toleranced surface (:mod:`qifreport.metrology.coverage`).
+    zone_min_coverage : ``((selector, fraction), ...)``: a tolerance's own least share; the
+        selector is its key (``T2``), name, or STEP id (``#1452``).
+    max_gap_area : largest unmeasured patch, mm^2 (None: 4 x the region criterion's area).
     """
 
     tolerance: float | None = None
@@ -134,9 +142,25 @@ class InspectOptions:
     rigid_only: bool = False
     cache_dir: Path | None = None
     accept_tolerance_as_read: bool = False
+    min_coverage: float = DEFAULT_MIN_COVERAGE
+    zone_min_coverage: tuple[tuple[str, float], ...] = ()
+    max_gap_area: float | None = None
 
     def check(self) -> None:
         """Refuse values no inspection can use (:class:`~qifreport.errors.InputError`)."""
+        for what, v in (
+            ("", self.min_coverage),
+            *((f"{k}=", v) for k, v in self.zone_min_coverage),
+        ):
+            if not (math.isfinite(v) and 0.0 <= v <= 1.0):
+                raise InputError(
+                    f"--min-coverage {what}{v}: the least scored share must be a fraction in "
+                    "[0, 1] (0.7 means 70 %)"
+                )
+        if self.max_gap_area is not None and not (
+            math.isfinite(self.max_gap_area) and self.max_gap_area >= 0
+        ):
+            raise InputError(f"--max-gap-area must be an area >= 0 mm^2, got {self.max_gap_area}")
         if not (math.isfinite(self.min_fraction) and 0.0 < self.min_fraction <= 1.0):
             raise InputError(
                 f"--min-fraction must be a fraction in (0, 1], got "
@@ -188,6 +212,8 @@ class InspectOptions:
             fail_on_added_material=self.fail_on_added_material,
             method=self.method,
             gbcicp=g,
+            min_coverage=self.min_coverage,
+            max_gap_area=self.max_gap_area,
         )
         if self.max_region_area is not None:
             params.max_region_area = self.max_region_area

@@ -29,6 +29,7 @@ import numpy as np
 from qifreport import __version__
 from qifreport.atomic_io import atomic_write_many, output_lock, remove_stale_temps
 from qifreport.errors import InputError
+from qifreport.metrology.bands import ToleranceZone
 from qifreport.metrology.inspection import InspectionParams, InspectionResult, inspect
 from qifreport.metrology.params import method_label
 from qifreport.metrology.repeatability import KEEP_FRACTION, resample_mask
@@ -127,10 +128,11 @@ def summary(res: InspectionResult) -> str:
     lines.append("tolerances (each toleranced surface on its own faces):")
     for z in res.zones:
         za, zs = z.acceptance, z.stats
+        cov = "" if z.coverage is None else f", {100 * z.coverage.coverage:.0f} % scored"
         lines.append(
-            f"  {z.zone.key:8s} {'PASS' if za.passed else 'FAIL'}  {z.zone.describe()}: "
+            f"  {z.zone.key:8s} {z.status:12s}  {z.zone.describe()}: "
             f"{100 * za.in_tolerance_fraction:.1f} % in band, largest region "
-            f"{za.largest_region_area:.1f} mm^2, max |dev| {zs.max_abs:.3f} mm"
+            f"{za.largest_region_area:.1f} mm^2, max |dev| {zs.max_abs:.3f} mm{cov}"
             + ("" if z.fixtured else " (free state)")
         )
     if res.not_evaluated:
@@ -155,6 +157,9 @@ def summary(res: InspectionResult) -> str:
     if res.repeatability is not None:
         lines.append(res.repeatability.describe())
     lines += [f"warning: {w}" for w in res.trust_warnings()]
+    lines += [f"not measured: {w}" for w in res.not_measured()]
+    lines += [f"note: {w}" for w in res.coverage_notes()]
+    lines += [f"relaxed guard: {w}" for w in res.relaxed_guards()]
     return "\n".join(lines)
 
 
@@ -170,10 +175,13 @@ def fixture_text(res: InspectionResult) -> str:
 
 
 def exit_code(res: InspectionResult) -> int:
-    """0 pass, 1 fail, 3 not established."""
-    return {"PASS": EXIT_PASS, "FAIL": EXIT_FAIL, "NOT ESTABLISHED": EXIT_NOT_ESTABLISHED}[
-        res.verdict
-    ]
+    """0 pass, 1 fail, 3 not established or not measured (no pass can be claimed)."""
+    return {
+        "PASS": EXIT_PASS,
+        "FAIL": EXIT_FAIL,
+        "NOT ESTABLISHED": EXIT_NOT_ESTABLISHED,
+        "NOT MEASURED": EXIT_NOT_ESTABLISHED,
+    }[res.verdict]
 
 
 def qif_writer(tree, state: dict) -> Writer:
@@ -279,6 +287,31 @@ def resampled_runs(
     res.timings["repeatability"] = seconds
 
 
+def zones_with_coverage(
+    zones: list[ToleranceZone] | None, rules: tuple[tuple[str, float], ...]
+) -> list[ToleranceZone] | None:
+    """The zones with the ``--min-coverage TOL=FRACTION`` rules applied: ``TOL`` is a zone's
+    key (``T2``), its name, or its STEP id (``#1452``). InputError for a rule that selects no
+    zone (naming the zones there are)."""
+    if not rules:
+        return zones
+    zones = list(zones or [])
+    for sel, frac in rules:
+        hits = [
+            i
+            for i, z in enumerate(zones)
+            if sel in (z.key, z.name) or (z.step_id is not None and sel == f"#{z.step_id}")
+        ]
+        if not hits:
+            names = ", ".join(f"{z.key} ({z.name})" for z in zones) or "none"
+            raise InputError(
+                f"--min-coverage {sel}={frac:g}: no tolerance {sel!r}; there are {names}"
+            )
+        for i in hits:
+            zones[i] = replace(zones[i], min_coverage=frac)
+    return zones
+
+
 def inspect_state(
     P: np.ndarray, state: PartState, job: InspectJob, *, bar=None, prof: Profiler | None = None
 ) -> InspectionResult:
@@ -295,7 +328,7 @@ def inspect_state(
         progress=None if bar is None else bar.update,
         scan_units=o.scan_units,
         face_id=nom.face_id,
-        zones=nom.zones,
+        zones=zones_with_coverage(nom.zones, o.zone_min_coverage),
         not_evaluated=nom.not_evaluated,
         prepared=state.prepared,
     )

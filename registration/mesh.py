@@ -18,6 +18,7 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 import trimesh
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from qifreport.errors import InputError
@@ -28,6 +29,7 @@ __all__ = [
     "bending_operator",
     "boundary_vertices",
     "bounding_diagonal",
+    "consistent_winding",
     "crease_band",
     "edge_uses",
     "edges",
@@ -240,6 +242,71 @@ def edge_uses(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     half = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     E, inv, count = np.unique(half, axis=0, return_inverse=True, return_counts=True)
     return E, count, inv.ravel().reshape(3, len(F)).T
+
+
+def consistent_winding(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """Make the triangles' winding consistent across every manifold edge.
+
+    Two triangles sharing an edge are consistent when they traverse it in opposite
+    directions. Each connected piece is oriented by the choice that flips the least area,
+    then a *closed* piece (no open or non-manifold edge) is turned outward (positive signed
+    volume). A piece that cannot be oriented (a Moebius-like strip) is left as it is.
+
+    Parameters
+    ----------
+    V : (n, 3) vertices, mm.  F : (f, 3) triangles.
+
+    Returns
+    -------
+    F : (f, 3) the triangles, some with two indices swapped.  flipped : how many were.
+    unorientable : triangles in pieces that cannot be oriented (left unchanged).
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    nf = len(F)
+    if nf == 0:
+        return F.copy(), 0, 0
+    _, count, of = edge_uses(F)
+    # each manifold edge's two uses: which triangles, and the direction each traverses it
+    directed = np.stack([F, np.roll(F, -1, axis=1)], axis=2)  # (f, 3, 2): 0->1, 1->2, 2->0
+    forward = directed[..., 0] < directed[..., 1]  # (f, 3)
+    e = of.ravel()
+    face = np.repeat(np.arange(nf), 3)
+    fwd = forward.ravel()
+    manifold = count[e] == 2
+    order = np.argsort(e[manifold], kind="stable")
+    ff, fd = face[manifold][order], fwd[manifold][order]
+    a, b = ff[0::2], ff[1::2]
+    same = fd[0::2] != fd[1::2]  # opposite directions: consistent, same orientation
+    # the double cover: node f (kept) and f + nf (flipped)
+    rows = np.concatenate([a, a + nf])
+    cols = np.concatenate([np.where(same, b, b + nf), np.where(same, b + nf, b)])
+    G = sp.coo_matrix((np.ones(len(rows), dtype=bool), (rows, cols)), shape=(2 * nf, 2 * nf))
+    _, label = connected_components(G, directed=False)
+    keep_l, flip_l = label[:nf], label[nf:]
+    bad = keep_l == flip_l
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    # per component pair {L, L'}: orient as the label with more kept area says
+    n_lab = label.max() + 1
+    kept_area = np.bincount(keep_l, weights=area, minlength=n_lab)
+    flip = (kept_area[flip_l] > kept_area[keep_l]) & ~bad
+    tie = (kept_area[flip_l] == kept_area[keep_l]) & ~bad
+    flip[tie] = keep_l[tie] > flip_l[tie]  # a fixed choice
+    out = F.copy()
+    out[flip] = out[flip][:, [0, 2, 1]]
+    # closed pieces outward: signed volume of each piece (pieces = components of the
+    # undirected face graph, i.e. min of the two labels)
+    piece = np.minimum(keep_l, flip_l)
+    open_edge = np.zeros(nf, dtype=bool)
+    np.logical_or.at(open_edge, face, count[e] != 2)
+    has_open = np.bincount(piece, weights=open_edge, minlength=n_lab) > 0
+    X0, X1, X2 = V[out[:, 0]], V[out[:, 1]], V[out[:, 2]]
+    vol = np.einsum("ij,ij->i", X0, np.cross(X1, X2)) / 6.0
+    piece_vol = np.bincount(piece, weights=vol, minlength=n_lab)
+    inward = ~has_open[piece] & (piece_vol[piece] < 0) & ~bad
+    out[inward] = out[inward][:, [0, 2, 1]]
+    changed = np.any(out != F, axis=1)
+    return out, int(changed.sum()), int(bad.sum())
 
 
 def boundary_vertices(F: np.ndarray, n: int) -> np.ndarray:

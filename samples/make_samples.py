@@ -15,7 +15,8 @@ STEP nominal with semantic PMI (the product's main input):
   on the flanges).
 * ``panel_scan.ply``: its free state: the analytic field at 1.5 % of the diagonal (about
   2.8 mm) applied along the mid-plane normal (the wall bends, its thickness is kept), seen
-  by 3 views from above, 0.02 mm noise. Conforming.
+  by 3 views from above and 3 from below (the part turned over: the 1.0 mm profile applies
+  to every face, so both skins must be measured), 0.02 mm noise. Conforming.
 * ``panel_scan_defect.ply``: the same with a 0.45 mm / sigma 6 mm bump on the crown: out of
   the 0.5 mm skin profile (T2, +/-0.25) over about 100 mm^2, inside the 1.0 mm one (T1).
 
@@ -44,11 +45,14 @@ PANEL_EDGE = 2.5
 PANEL_DEFECT_AT = (25.0, 10.0, 9.3)
 
 
-def _views(k: int = 3, tilt_deg: float = 25.0) -> np.ndarray:
-    """Camera -> part directions: looking down -z, tilted ``tilt_deg`` at ``k`` azimuths."""
+def _views(k: int = 3, tilt_deg: float = 25.0, both_sides: bool = False) -> np.ndarray:
+    """Camera -> part directions: looking down -z, tilted ``tilt_deg`` at ``k`` azimuths;
+    ``both_sides`` adds the same views from below (the part scanned, turned over, scanned)."""
     t = np.deg2rad(tilt_deg)
     phi = 2 * np.pi * np.arange(k) / k
     d = np.c_[np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), -np.cos(t) * np.ones(k)]
+    if both_sides:
+        d = np.vstack([d, d * np.array([1.0, 1.0, -1.0])])
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
@@ -58,8 +62,10 @@ def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
     Each case is a dict with ``amplitude`` (fraction of the diagonal, default 0.015),
     ``field_seed`` (None: the default analytic field), ``scan_seed`` (noise and dropout,
     default :data:`SEED`), ``defect`` (None or ``(a, sigma)`` mm, on the crown at
-    :data:`PANEL_DEFECT_AT` shifted by ``defect_shift`` mm in x) and ``pose`` (None or a
-    ``(R, t)`` applied to the points: a scan delivered in the scanner's frame).
+    :data:`PANEL_DEFECT_AT` shifted by ``defect_shift`` mm in x), ``pose`` (None or a
+    ``(R, t)`` applied to the points: a scan delivered in the scanner's frame) and
+    ``both_sides`` (default True: views from above and below; False: from above only, the
+    underside unmeasured).
     """
     from qifreport.step.reader import read_step
     from qifreport.step.tessellate import tessellate
@@ -84,7 +90,8 @@ def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
             dv = int(skin[np.argmin(np.linalg.norm(V[skin] - at, axis=1))])
             N = vertex_normals(Vs, F)
             Vs = Vs + gaussian_bump(Vs, N, Vs[dv], *c["defect"])
-        spec = ScanSpec(directions=_views(), noise=0.02, seed=c.get("scan_seed", SEED))
+        views = _views(both_sides=c.get("both_sides", True))
+        spec = ScanSpec(directions=views, noise=0.02, seed=c.get("scan_seed", SEED))
         P = virtual_scan(Vs, F, spec).P
         if c.get("pose") is not None:
             R, t = c["pose"]

@@ -42,7 +42,7 @@ STATUS_WORDS = {
     "PASS": "PASS",
     "FAIL": "FAIL",
     "INDETERMINATE": "NOT ESTABLISHED",
-    "NOT_ANALYZED": "NOT ANALYZED",
+    "NOT_ANALYZED": "NOT MEASURED",
 }
 
 
@@ -222,6 +222,10 @@ def deciding_criteria(res) -> str:
         out.append("added material")
     if res.passed and not res.established:
         out.append("not established")
+    elif res.passed:
+        if res.coverage is not None and not res.coverage.measured:
+            out.append("part:not measured")
+        out += [f"{z.zone.key}:not measured" for z in res.zones if not z.measured]
     return ";".join(out)
 
 

@@ -81,8 +81,16 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
     area, region, empty = criteria(res)
     if res.passed:
         n = len(res.zones)
-        if res.verdict != "PASS":
+        if res.verdict == "NOT ESTABLISHED":
             return ["criteria met, but the registration", "cannot be trusted (warnings below)"]
+        if res.verdict == "NOT MEASURED":
+            names = (["whole part"] if res.coverage and not res.coverage.measured else []) + [
+                z.zone.key for z in res.zones if not z.measured
+            ]
+            return [
+                "criteria met on what was scored,",
+                fit_text(f"too little scanned: {join_names(names, 4)}", width, size),
+            ]
         return [
             f"whole part and {n} tolerance{'s' if n != 1 else ''}:",
             "area and region criteria met",
@@ -114,7 +122,9 @@ def rule_text(res: InspectionResult) -> str:
         f"Acceptance rule (whole part and each tolerance on its own faces): at least "
         f"{100 * p.min_fraction:g} % of the scored area inside the band (area "
         f"criterion) and no connected out-of-tolerance region larger than "
-        f"{p.max_region_area:g} mm\u00b2 (region criterion)."
+        f"{p.max_region_area:g} mm\u00b2 (region criterion); measured only with at least "
+        f"{100 * p.min_coverage:g} % of the surface scored and no unmeasured patch that could "
+        f"hide a failing region (else NOT MEASURED)."
     )
 
 

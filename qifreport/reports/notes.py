@@ -76,6 +76,13 @@ def note_lines(res: InspectionResult, chain_floor: float | None) -> list[tuple[s
     for w in res.trust_warnings():
         tail = " A pass is therefore not claimed (NOT ESTABLISHED)." if res.passed else ""
         out.append((f"Warning: {w}.{tail}", True))
+    for w in res.not_measured():
+        tail = " A pass is therefore not claimed (NOT MEASURED)." if res.passed else ""
+        out.append((f"Not measured: {w}.{tail}".replace("mm^2", "mm\u00b2"), True))
+    for w in res.coverage_notes():
+        out.append((f"Left out by design: {w}.", False))
+    for w in res.relaxed_guards():
+        out.append((f"Relaxed guard: {w}.".replace("mm^2", "mm\u00b2"), True))
     a = res.added
     if a is not None and a.regions:
         judged = (

@@ -58,10 +58,12 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
         if not z.fixtured:
             desc += ", free state"
         status = (
-            "n/a"
+            "n/m"
             if not acc.scored_area > 0
             else "FAIL"
             if not acc.passed
+            else "n/m"
+            if not z.measured
             else "PASS"
             if not untrusted
             else "n/e"
@@ -97,6 +99,12 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
         note = (
             "n/e = criteria met, not established (registration not trusted; see the "
             "warning). " + note
+        ).strip()
+    if any(
+        zones[i].status == "NOT MEASURED" or not zones[i].acceptance.scored_area > 0 for i in shown
+    ):
+        note = (
+            "n/m = not measured: too little of the surface scored (see the notes). " + note
         ).strip()
     return Table(
         columns=cols,
