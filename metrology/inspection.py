@@ -50,11 +50,13 @@ from .bands import (
 )
 from .coverage import DEFAULT_MIN_COVERAGE, GAP_AREA_FACTOR, Coverage, zone_coverage
 from .deviation import beyond_rim, closest_points, nominal_referenced
+from .edges import EdgeDeviation, edge_deviation
 from .hygiene import MeshHygiene
 from .params import METHOD_LABELS, InspectionParams, method_label
 from .prepared import PreparedPart, prepare_part
 from .repeatability import Repeatability
 from .resolution import Resolution, range_noise, resolution
+from .size import SizeEstimate, size_error
 from .statistics import DeviationStats, deviation_statistics
 
 __all__ = [
@@ -191,6 +193,8 @@ class InspectionResult:
     resolution: Resolution | None = None
     excluded: np.ndarray | None = None
     coverage: Coverage | None = None
+    edges: EdgeDeviation | None = None
+    size: SizeEstimate | None = None
 
     @property
     def passed(self) -> bool:
@@ -201,6 +205,7 @@ class InspectionResult:
             self.acceptance.passed
             and all(z.acceptance.passed for z in self.zones)
             and (self.added is None or self.added.passed)
+            and (self.size is None or not self.size.flagged)
         )
 
     def trust_warnings(self) -> list[str]:
@@ -214,6 +219,9 @@ class InspectionResult:
         * the measurement scatter (range noise, fit residual) is too large to resolve a
           tolerance zone (:mod:`qifreport.metrology.resolution`: 2 sigma <= width / 4);
         * ``--passes 1``: the single-pass fit has no two-pass guard;
+        * the part's size cannot be established from its rim or trim edges
+          (:mod:`qifreport.metrology.size`: too little of the rim seen, or a scale too
+          uncertain or too close to the limit to decide);
         * with ``--seeds``: a resampled run whose own registration cannot be trusted (its
           regions decided which findings persist).
         """
@@ -241,6 +249,8 @@ class InspectionResult:
             )
         if self.resolution is not None:
             out += self.resolution.warnings()
+        if self.size is not None and self.size.status == "not established":
+            out += self.size.reasons()
         if self.repeatability is not None:
             out += list(self.repeatability.warnings)
         return out
@@ -330,6 +340,8 @@ class InspectionResult:
                 out += [f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.acceptance.reasons]
         if self.added is not None and not self.added.passed:
             out.append(f"added material: {self.added.describe()}")
+        if self.size is not None and self.size.flagged:
+            out += [f"size: {r}" for r in self.size.reasons()]
         if self.passed:
             out += [f"not established: {w}" for w in self.trust_warnings()]
             out += [f"not measured: {w}" for w in self.not_measured()]
@@ -384,6 +396,8 @@ class InspectionResult:
             "parameters": p,
             "repeatability": (None if self.repeatability is None else self.repeatability.to_dict()),
             "measurement": None if self.resolution is None else self.resolution.to_dict(),
+            "edges": None if self.edges is None else self.edges.to_dict(),
+            "size": None if self.size is None else self.size.to_dict(),
             "mesh": {
                 "vertices": len(self.V),
                 "triangles": len(self.F),
@@ -676,6 +690,10 @@ def inspect(
     general = [z for z in bands.zones if z.faces is None]
     general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
     check_same_part(pdev, general_half, diag, rigid, fit)
+    t_edges = time.perf_counter()
+    edges = edge_deviation(V_reg, F, Pm, general_half, normals=N_reg)
+    size = size_error(edges)
+    timings["edges"] = time.perf_counter() - t_edges
     vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
     pstats = deviation_statistics(pdev, threshold=general_half)
     acc = evaluate(
@@ -786,4 +804,6 @@ def inspect(
         resolution=scatter,
         excluded=excluded,
         coverage=whole,
+        edges=edges,
+        size=size,
     )

@@ -149,6 +149,7 @@ def measurement_results_attrs(
     if res.added is not None:
         _added_attrs(ra, res.added)
     _hygiene_attrs(ra, res)
+    _size_attrs(ra, res)
     _registration_attrs(ra, res)
     if res.repeatability is not None:
         _repeatability_attrs(ra, res.repeatability)
@@ -161,6 +162,23 @@ def measurement_results_attrs(
         ra.d(f"time_{stage}_s", sec)
     ra.s("nominal_sha256", nominal_sha256).s("scan_sha256", scan_sha256)
     return ra
+
+
+def _size_attrs(ra: Attrs, res: InspectionResult) -> None:
+    """The trim edges and the size check (``edge_*``, ``size_*``)."""
+    e, s = res.edges, res.size
+    if e is not None:
+        ra.s("edge_status", e.status).s("edge_mode", e.rim.mode)
+        ra.d("edge_seen_fraction", e.seen_fraction).d("edge_tolerance_mm", e.tolerance)
+        for k, v in e.statistics().items():
+            ra.d(f"edge_{k}_mm", v)
+        ra.i("edge_segments_beyond_tolerance", len(e.segments))
+    if s is not None:
+        ra.s("size_status", s.status).d("size_scale", s.scale).d("size_scale_sd", s.scale_sd)
+        ra.d("size_deviation_mm", s.size_deviation).d("size_uncertainty_mm", s.uncertainty)
+        ra.d("size_limit_mm", s.limit)
+        for k, line in enumerate(s.reasons(), start=1):
+            ra.s(f"size_reason_{k}", line)
 
 
 def _hygiene_attrs(ra: Attrs, res: InspectionResult) -> None:

@@ -156,6 +156,10 @@ def summary(res: InspectionResult) -> str:
         )
     if res.repeatability is not None:
         lines.append(res.repeatability.describe())
+    if res.edges is not None and res.edges.status == "measured":
+        lines.append(res.edges.reasons()[0])
+    if res.size is not None:
+        lines += res.size.reasons()[:1]
     lines += [f"warning: {w}" for w in res.trust_warnings()]
     lines += [f"not measured: {w}" for w in res.not_measured()]
     lines += [f"note: {w}" for w in res.coverage_notes()]

@@ -243,3 +243,42 @@ def test_step_panel_size_from_its_trim_creases():
         found[s] = size_error(ed)
     assert found[1.0].status == "conforming" and abs(found[1.0].scale - 1.0) < 0.003
     assert found[1.02].flagged and found[1.02].scale == pytest.approx(1.02, abs=0.005)
+
+
+@pytest.mark.parametrize("scale, seed", [(1.021, 3), (0.978, 4)])
+def test_a_wrong_size_scan_fails_in_every_output(tmp_path, scale, seed):
+    """The demo shell's scan scaled about a point near its middle (the issue's case, with a
+    scale and centre of our own): exit 1, decided by the size check in JSON, QIF and PDF."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    P = np.asarray(trimesh.load(root / "samples" / "shell_scan.ply").vertices)
+    c = P.mean(axis=0) + np.random.default_rng(seed).normal(0, 3.0, 3)
+    scan = tmp_path / "scaled.ply"
+    trimesh.PointCloud(c + scale * (P - c)).export(scan)
+    out = tmp_path / "o"
+    exe = Path(sys.executable).parent / "qifreport"
+    r = subprocess.run(
+        [str(exe), str(root / "samples" / "shell_nominal.ply"), str(scan), "--tolerance", "0.5"]
+        + ["--out", str(out), "--json", "--quiet"],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 1, r.stdout + r.stderr
+    doc = json.loads((out / "shell_nominal.json").read_text())
+    assert doc["size"]["status"] == "size error"
+    # within the free state's own shrink (the simulator's bending is not length-preserving)
+    assert doc["size"]["scale"] == pytest.approx(scale, abs=0.012)
+    assert any(s.startswith("size: size error") for s in doc["decided_by"]), doc["decided_by"]
+    # the surface criteria alone would pass: the size is what fails it
+    assert all(t["acceptance"]["passed"] for t in doc["tolerances"])
+    assert b'"size_status"' in (out / "shell_nominal.qif").read_bytes()
+    text = subprocess.run(
+        ["pdftotext", str(out / "shell_nominal.pdf"), "-"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert "FAIL" in text and "size error" in text

@@ -79,6 +79,10 @@ def note_lines(res: InspectionResult, chain_floor: float | None) -> list[tuple[s
     for w in res.not_measured():
         tail = " A pass is therefore not claimed (NOT MEASURED)." if res.passed else ""
         out.append((f"Not measured: {w}.{tail}".replace("mm^2", "mm\u00b2"), True))
+    if res.size is not None and res.size.status != "no rim":
+        edge = res.edges.reasons()[0] if res.edges is not None else ""
+        s = res.size.reasons()[0]
+        out.append((f"Size from the trim edges: {s}; {edge}.", res.size.status != "conforming"))
     for w in res.coverage_notes():
         out.append((f"Left out by design: {w}.", False))
     for w in res.relaxed_guards():
