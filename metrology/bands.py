@@ -25,10 +25,21 @@ nominal, and the datum reference frame is reported with the zone. A tolerance ca
 **free-state** modifier (ASME "F") is, by definition, checked *unrestrained*: it is evaluated
 on the rigidly aligned deviation, without the virtual fixture.
 
+Whole-part profile. A surface-profile tolerance on "all surfaces" (the STEP reader's
+``whole_part``: its toleranced shape aspect is the product shape itself, or a shape aspect with
+no face link, as NIST FTC 07 #16292 and FTC 10 #18552 encode the general profile) *is* the
+general zone: faces ``None``, its width and disposition, datums and modifiers, source ``"pmi"``
+and the STEP id and name of the item. Several whole-part profiles: the tightest one (ties: the
+first in file order) governs every face and the others are listed as not evaluated. The
+drawing wins over the command line: a ``--tolerance`` that does not give the same band is
+refused (:class:`~qifreport.errors.InputError` naming both); one that agrees is accepted and
+the zone keeps its PMI source.
+
 Overlaps and gaps. A vertex where several zones meet (a face boundary, or a face under two
 profile tolerances) takes the **tightest** zone (smallest width; ties: the first in file
 order) in the combined map. Faces under no profile tolerance belong to the **general** zone:
-the ``--tolerance`` of the command line (source ``"general"``), else
+a whole-part profile of the PMI (source ``"pmi"``), else the ``--tolerance`` of the command
+line (source ``"general"``), else
 :data:`DEFAULT_GENERAL_TOLERANCE` (source ``"default"``); the report says which.
 Each zone is *also* evaluated on its own faces with its own band (area and region criteria
 per toleranced surface).
@@ -40,6 +51,8 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from qifreport.errors import InputError
 
 __all__ = [
     "DEFAULT_GENERAL_TOLERANCE",
@@ -206,11 +219,18 @@ def zones_from_pmi(
     Returns
     -------
     zones : one zone per surface-profile tolerance with a value and faces, in file order,
-        then the general zone (always present; it applies to the faces no profile covers).
+        then the general zone (always present; it applies to the faces no profile covers):
+        the tightest whole-part profile of the PMI if there is one (module docstring).
     skipped : PMI items that are not scored, with the reason.
+
+    Raises
+    ------
+    InputError
+        ``general`` is given and does not give the band of the PMI's whole-part profile.
     """
     zones: list[ToleranceZone] = []
     skipped: list[NotEvaluated] = []
+    whole: list[ToleranceZone] = []
     if pmi is not None:
         for tol in pmi.tolerances:
             if tol.type not in PROFILE_TYPES:
@@ -233,8 +253,9 @@ def zones_from_pmi(
                     )
                 )
                 continue
+            is_whole = bool(getattr(tol, "whole_part", False))
             faces = sorted({face_index[s] for s in tol.face_step_ids if s in face_index})
-            if not faces:
+            if not faces and not is_whole:
                 skipped.append(
                     NotEvaluated(
                         tol.type, tol.name, tol.step_id, "no B-rep face could be associated"
@@ -247,22 +268,21 @@ def zones_from_pmi(
                 skipped.append(NotEvaluated(tol.type, tol.name, tol.step_id, str(exc)))
                 continue
             mods = list(tol.modifiers)
-            zones.append(
-                ToleranceZone(
-                    key=f"T{len(zones) + 1}",
-                    name=tol.name or f"#{tol.step_id}",
-                    kind=tol.type,
-                    width=float(tol.value),
-                    lower=lo,
-                    upper=hi,
-                    faces=np.asarray(faces, dtype=np.int64),
-                    source="pmi",
-                    datums=[d.label for d in sorted(tol.datums, key=lambda d: d.precedence)],
-                    modifiers=mods,
-                    step_id=tol.step_id,
-                    free_state="free_state" in mods,
-                )
+            zone = ToleranceZone(
+                key="general" if is_whole else f"T{len(zones) + 1}",
+                name=tol.name or f"#{tol.step_id}",
+                kind=tol.type,
+                width=float(tol.value),
+                lower=lo,
+                upper=hi,
+                faces=None if is_whole else np.asarray(faces, dtype=np.int64),
+                source="pmi",
+                datums=[d.label for d in sorted(tol.datums, key=lambda d: d.precedence)],
+                modifiers=mods,
+                step_id=tol.step_id,
+                free_state="free_state" in mods,
             )
+            (whole if is_whole else zones).append(zone)
         for dim in pmi.dimensions:
             skipped.append(
                 NotEvaluated(
@@ -272,11 +292,46 @@ def zones_from_pmi(
                     "dimension: needs a feature fit, not a surface band",
                 )
             )
-    if general is None:
+    if whole:
+        zones.append(_whole_part_zone(whole, general, skipped))
+    elif general is None:
         zones.append(symmetric_zone(DEFAULT_GENERAL_TOLERANCE, "default"))
     else:
         zones.append(symmetric_zone(general, "general"))
     return zones, skipped
+
+
+def _whole_part_zone(
+    whole: list[ToleranceZone], general: float | None, skipped: list[NotEvaluated]
+) -> ToleranceZone:
+    """The governing whole-part profile (the tightest; ties: the first in file order).
+
+    The others are appended to ``skipped``; a command-line half-width that does not give the
+    governing band raises :class:`InputError`.
+    """
+    zone = min(whole, key=lambda z: z.width)  # min keeps the first of equal widths
+    for z in whole:
+        if z is not zone:
+            skipped.append(
+                NotEvaluated(
+                    z.kind,
+                    z.name,
+                    z.step_id,
+                    f"whole-part profile {z.width:g} mm: the tighter whole-part profile "
+                    f"{zone.name} #{zone.step_id} ({zone.width:g} mm) governs every face",
+                )
+            )
+    if general is not None and not (
+        np.isclose(zone.lower, -general, rtol=0, atol=1e-9)
+        and np.isclose(zone.upper, general, rtol=0, atol=1e-9)
+    ):
+        raise InputError(
+            f"--tolerance {general:g} (band [-{general:g}, +{general:g}] mm) conflicts with the "
+            f"drawing's whole-part profile {zone.name!r} #{zone.step_id} ({zone.width:g} mm, "
+            f"band [{zone.lower:+g}, {zone.upper:+g}] mm): the drawing's general profile "
+            "governs; drop --tolerance or give the same band"
+        )
+    return zone
 
 
 def triangle_zone_mask(

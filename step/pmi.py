@@ -119,6 +119,10 @@ class GeometricTolerance:
         How faces were derived when the file links the feature to non-face geometry (edges,
         datum target points and curves, axes, thread cylinders), e.g. ``'faces carrying the
         geometry: 3 CARTESIAN_POINT'``; ``[]`` when the file names the faces directly.
+    whole_part : bool
+        The tolerance applies to the whole part ("all surfaces"): its toleranced shape aspect
+        is the product shape itself, or a shape aspect with no face link. ``face_step_ids``
+        are then every face of the part and ``face_notes`` say why.
     """
 
     step_id: int
@@ -137,6 +141,7 @@ class GeometricTolerance:
     shape_aspect_step_id: int | None = None
     composite_with: list[int] = field(default_factory=list)
     face_notes: list[str] = field(default_factory=list)
+    whole_part: bool = False
 
 
 @dataclass

@@ -76,6 +76,9 @@ _GT_ANY = (
     "GEOMETRIC_TOLERANCE_WITH_DEFINED_UNIT",
     "UNEQUALLY_DISPOSED_GEOMETRIC_TOLERANCE",
 )
+#: representation relationships followed from a product shape to its B-rep representations
+#: (not CONSTRUCTIVE_GEOMETRY_REPRESENTATION_RELATIONSHIP: supplemental geometry)
+_SHAPE_REP_RELATIONSHIPS = ("SHAPE_REPRESENTATION_RELATIONSHIP", "REPRESENTATION_RELATIONSHIP")
 #: dimensional notes (DESCRIPTIVE_REPRESENTATION_ITEM('dimensional note', ...)) -> qualifier
 _NOTES = {"theoretical": "basic", "auxiliary": "reference"}
 
@@ -309,11 +312,20 @@ class _Reader(FaceLinker):
 
         faces: list[int] = []
         face_notes: list[str] = []
+        whole = False
         if tsa_ent is None:
             problems.append(f"#{ent.id}: no toleranced shape aspect")
         else:
             faces, notes, face_notes = self.faces(tsa)
-            problems.extend(notes)
+            why = self._whole_part_reason(tsa_ent, faces, notes, modifiers)
+            if why:
+                whole = True
+                faces, how = self.part_faces(tsa_ent)
+                face_notes = [f"whole part ({why}): {how}"]
+                if not faces:
+                    problems.append(f"#{ent.id}: whole-part tolerance, but {how}")
+            else:
+                problems.extend(notes)
         if value is None and not any("magnitude" in s or "unit" in s for s in problems):
             problems.append(f"#{ent.id}: magnitude not established")
         return GeometricTolerance(
@@ -332,7 +344,69 @@ class _Reader(FaceLinker):
             problems=problems,
             shape_aspect_step_id=tsa.id if isinstance(tsa, Ref) else None,
             face_notes=face_notes,
+            whole_part=whole,
         )
+
+    def _whole_part_reason(
+        self, tsa: Entity, faces: list[int], notes: list[str], modifiers: list[str]
+    ) -> str:
+        """Why a tolerance applies to the whole part ('' when it does not).
+
+        The toleranced shape aspect is the PRODUCT_DEFINITION_SHAPE itself (NIST FTC 07 #16292,
+        FTC 10 #18552), or a shape aspect linked to no geometry at all (all-over, all-around
+        or plain): both mean every surface of the part. A shape aspect linked to geometry that
+        carries no face is not a whole-part tolerance (its problems say so).
+        """
+        if tsa.has("PRODUCT_DEFINITION_SHAPE"):
+            return f"toleranced shape aspect #{tsa.id} is the PRODUCT_DEFINITION_SHAPE"
+        if faces or not all("no associated geometry found" in n for n in notes):
+            return ""
+        mods = [m for m in modifiers if m in ("all_over", "all_around")]
+        what = f"{mods[0].replace('_', '-')} " if mods else ""
+        return f"{what}shape aspect #{tsa.id} has no face link"
+
+    def part_faces(self, aspect: Entity) -> tuple[list[int], str]:
+        """Every face of the product shape a shape aspect (or the shape itself) belongs to.
+
+        Follows SHAPE_DEFINITION_REPRESENTATION from the PRODUCT_DEFINITION_SHAPE to its
+        representations, then (SHAPE_)REPRESENTATION_RELATIONSHIPs to the B-rep
+        representations, whose solids and shells give the faces.
+
+        Returns
+        -------
+        faces : list of int
+            Sorted face ids (empty when none is found).
+        how : str
+            Human-readable derivation, e.g. ``'all 15 faces of PRODUCT_DEFINITION_SHAPE #4'``.
+        """
+        pds = aspect
+        if not aspect.has("PRODUCT_DEFINITION_SHAPE"):
+            p = aspect.part("SHAPE_ASPECT")
+            pds = self.get(p[2]) if p and len(p) >= 3 else None
+        if pds is None:
+            return [], f"shape aspect #{aspect.id} names no product shape"
+        reps: list[int] = []
+        for sdr in self.referrers_with(pds.id, ("SHAPE_DEFINITION_REPRESENTATION",)):
+            if len(sdr.params) >= 2 and sdr.params[0] == Ref(pds.id):
+                reps.extend(r.id for r in refs_of(sdr.params[1]))
+        seen: set[int] = set()
+        found: set[int] = set()
+        others: list[Ref] = []
+        while reps:
+            rid = reps.pop()
+            if rid in seen:
+                continue
+            seen.add(rid)
+            rep = self.get(Ref(rid))
+            rp = self.params_of(rep, ("REPRESENTATION", *rep.types)) if rep else None
+            if rp and len(rp) >= 2:
+                self._items(rp[1], found, others)
+            for rel in self.referrers_with(rid, _SHAPE_REP_RELATIONSHIPS):
+                relp = self.params_of(rel, _SHAPE_REP_RELATIONSHIPS) or ()
+                reps.extend(r.id for r in refs_of(relp[2:4]) if r.id not in seen)
+        if not found:
+            return [], f"no face found under PRODUCT_DEFINITION_SHAPE #{pds.id}"
+        return sorted(found), f"all {len(found)} faces of PRODUCT_DEFINITION_SHAPE #{pds.id}"
 
     def _optional_length(self, ent: Entity, part: str, problems: list[str]) -> float | None:
         p = ent.part(part)

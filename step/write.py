@@ -9,6 +9,13 @@ Datums and tolerances are linked to faces of the part, named by their index in
 naming the ``ADVANCED_FACE``; a tolerance with datums carries a ``DATUM_SYSTEM`` whose
 ``DATUM_REFERENCE_COMPARTMENT`` list is in precedence order (primary first).
 
+A **whole-part** surface profile (``faces=[]``: "all surfaces", a general profile tolerance)
+is written the way real CAD exports encode it (NIST FTC 07 #16292, FTC 10 #18552): the
+tolerance's ``toleranced_shape_aspect`` is the part's ``PRODUCT_DEFINITION_SHAPE`` itself, so
+no shape aspect links it to a face. XDE writes no tolerance without a face, so the tolerance is
+transferred on a placeholder face and re-targeted in the STEP model before it is serialised
+(the placeholder's ``SHAPE_ASPECT`` and usage stay in the file, referenced by nothing).
+
 OCCT 7.9 unit defect and its correction
 ---------------------------------------
 ``STEPCAFControl_Writer::writeDGTsAP242`` passes a representation context to
@@ -61,6 +68,7 @@ from OCP.STEPCAFControl import STEPCAFControl_Controller, STEPCAFControl_Writer
 from OCP.STEPControl import STEPControl_AsIs
 from OCP.StepDimTol import (
     StepDimTol_GeometricTolerance,
+    StepDimTol_GeometricToleranceTarget,
     StepDimTol_GeoTolAndGeoTolWthDatRefAndGeoTolWthMaxTol,
     StepDimTol_GeoTolAndGeoTolWthMaxTol,
 )
@@ -93,6 +101,7 @@ __all__ = [
     "DATUM_REQUIRED_TYPES",
     "FORM_TYPES",
     "TOLERANCE_TYPES",
+    "WHOLE_PART_TYPES",
     "PMISpecDatum",
     "PMISpecTolerance",
     "write_step_with_pmi",
@@ -135,6 +144,9 @@ DATUM_REQUIRED_TYPES = frozenset(
     }
 )
 
+#: Tolerance types that may be given with ``faces=[]``: a whole-part tolerance.
+WHOLE_PART_TYPES = frozenset({"surface_profile"})
+
 #: AP242 schema selector of ``write.step.schema`` ("AP242DIS" is OCCT's name; value 5).
 _AP242_SCHEMA = ("AP242DIS", 5)
 
@@ -170,6 +182,7 @@ class PMISpecTolerance:
         Tolerance zone magnitude, mm (> 0).
     faces : list of int
         Toleranced faces (0-based indices into ``TopExp.MapShapes(shape, TopAbs_FACE)``).
+        ``[]`` for a whole-part surface profile (every face; see the module docstring).
     datums : list of str
         Datum labels in precedence order (primary first), e.g. ``["A", "B", "C"]``.
     name : str
@@ -305,7 +318,8 @@ def _validate(
             raise ValueError(f"{what}: unknown type {t.type!r}; one of {sorted(TOLERANCE_TYPES)}")
         if not (isinstance(t.value, int | float) and math.isfinite(t.value) and t.value > 0):
             raise ValueError(f"{what}: value must be a finite number > 0 mm, got {t.value!r}")
-        check_faces(what, t.faces)
+        if t.faces or t.type not in WHOLE_PART_TYPES:
+            check_faces(what, t.faces)
         if len(set(t.datums)) != len(t.datums):
             raise ValueError(f"{what}: repeated datum in {t.datums}")
         for lab in t.datums:
@@ -380,7 +394,8 @@ def _fill_document(
         attr.SetObject(obj)
         # The writer names the tolerance's SHAPE_ASPECT with the words after the first.
         TDataStd_Name.Set_s(lab, TCollection_ExtendedString(f"{t.type} {name}"))
-        dimtol.SetGeomTolerance(labels_of(t.faces), lab)
+        # a whole-part tolerance goes on a placeholder face, re-targeted after the transfer
+        dimtol.SetGeomTolerance(labels_of(t.faces or [0]), lab)
         # Precedence is the datum object's position, so a tolerance gets its own datum
         # references (same name and faces, position = 1-based precedence).
         for position, dlabel in enumerate(t.datums, start=1):
@@ -422,6 +437,8 @@ def _write_atomic(
             raise RuntimeError("STEPCAFControl_Writer: transfer failed")
         model = writer.ChangeWriter().Model()
         _name_tolerances(model)
+        whole = [n for t, n in zip(tolerances, names, strict=True) if not t.faces]
+        _target_whole_part(model, whole)
         _correct_tolerance_units(model)
         _check_magnitudes(model, tolerances, names)
 
@@ -494,6 +511,27 @@ def _name_tolerances(model) -> None:
             aspect = tol.TolerancedShapeAspect().ShapeAspect()
             if aspect is not None and aspect.Name() is not None:
                 tol.SetName(TCollection_HAsciiString(aspect.Name().ToCString()))
+
+
+def _target_whole_part(model, whole: list[str]) -> None:
+    """Point each named whole-part tolerance at the part's ``PRODUCT_DEFINITION_SHAPE``."""
+    if not whole:
+        return
+    done = set()
+    for i in range(1, model.NbEntities() + 1):
+        tol = model.Value(i)
+        if not isinstance(tol, StepDimTol_GeometricTolerance) or tol.Name() is None:
+            continue
+        name = tol.Name().ToCString()
+        aspect = tol.TolerancedShapeAspect().ShapeAspect()
+        if name not in whole or aspect is None:
+            continue
+        target = StepDimTol_GeometricToleranceTarget()
+        target.SetValue(aspect.OfShape())
+        tol.SetTolerancedShapeAspect(target)
+        done.add(name)
+    if done != set(whole):
+        raise RuntimeError(f"whole-part tolerances not re-targeted: {sorted(set(whole) - done)}")
 
 
 def _correct_tolerance_units(model) -> int:
