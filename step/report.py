@@ -4,7 +4,10 @@ One row per geometric tolerance, dimension and datum, in the spirit of the NIST 
 Analyzer's semantic PMI report: type, value (mm or deg, as read from the file's own entities),
 modifiers, datum reference frame, number of B-rep faces it applies to, and -- for comparison
 -- the value OpenCASCADE's XDE returned for the same item (matched by name), so a reader can
-see where XDE is wrong.
+see where XDE is wrong. A tolerance's unit basis (flatness per unit area, straightness per unit
+length) and maximum, and whether it applies to the whole part, are kept; file-level problems
+(records that could not be read or items that refer to nothing read, with the entity id and
+why) are rows of their own (``item: 'problem'``), never dropped.
 """
 
 from __future__ import annotations
@@ -57,6 +60,10 @@ def pmi_rows(part: StepPart) -> list[dict]:
                 "zone_form": t.zone_form,
                 "modifiers": list(t.modifiers),
                 "unequal_displacement": t.unequal_displacement,
+                "unit_basis": t.unit_basis,
+                "max_value": t.max_value,
+                "whole_part": t.whole_part,
+                "face_notes": list(t.face_notes),
                 "datums": "|".join(d.label for d in sorted(t.datums, key=lambda d: d.precedence)),
                 "n_faces": len(faces),
                 "faces": faces,
@@ -103,7 +110,29 @@ def pmi_rows(part: StepPart) -> list[dict]:
                 "problems": list(d.problems),
             }
         )
+    for text in pmi.problems:
+        rows.append(
+            {
+                "item": "problem",
+                "step_id": _entity_id(text),
+                "name": "",
+                "type": "unreadable",
+                "value": None,
+                "unit": "",
+                "modifiers": [],
+                "datums": "",
+                "n_faces": 0,
+                "faces": [],
+                "problems": [text],
+            }
+        )
     return rows
+
+
+def _entity_id(text: str) -> int | None:
+    """The entity id a problem text starts with (``'#12: ...'``), else ``None``."""
+    head = text.split(":", 1)[0].strip()
+    return int(head[1:]) if head.startswith("#") and head[1:].isdigit() else None
 
 
 def pmi_table(part: StepPart) -> str:
@@ -119,6 +148,9 @@ def pmi_table(part: StepPart) -> str:
         f"{sum(r['item'] == 'dimension' for r in rows)} dimensions, "
         f"{sum(r['item'] == 'datum' for r in rows)} datums (values in mm / deg)"
     )
+    n_problems = sum(r["item"] == "problem" for r in rows)
+    if n_problems:
+        head += f"; {n_problems} file-level problem(s)"
     if not rows:
         return head + "\nno semantic PMI in this file"
     table = []
@@ -134,6 +166,12 @@ def pmi_table(part: StepPart) -> str:
             value = _fmt(r["value"], "mm")
             if r.get("unequal_displacement") is not None:
                 value += f" UZ {_fmt(r['unequal_displacement'])}"
+            if r.get("unit_basis"):
+                value += f" / {r['unit_basis']}"
+            if r.get("max_value") is not None:
+                value += f" max {_fmt(r['max_value'])}"
+            if r.get("whole_part"):
+                value += " (whole part)"
         else:
             value = ""
         table.append(

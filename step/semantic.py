@@ -79,6 +79,13 @@ _GT_ANY = (
 #: representation relationships followed from a product shape to its B-rep representations
 #: (not CONSTRUCTIVE_GEOMETRY_REPRESENTATION_RELATIONSHIP: supplemental geometry)
 _SHAPE_REP_RELATIONSHIPS = ("SHAPE_REPRESENTATION_RELATIONSHIP", "REPRESENTATION_RELATIONSHIP")
+#: profiles: a profile whose shape aspect has no face link at all is a whole-part profile
+_PROFILE_TYPES = ("surface_profile", "line_profile")
+#: representation items of a PROPERTY_DEFINITION -> SHAPE_DEFINITION_REPRESENTATION face link
+#: that only place the aspect (not geometry it consists of)
+_PLACEMENT_TYPES = frozenset({"AXIS2_PLACEMENT_3D", "AXIS2_PLACEMENT_2D", "AXIS1_PLACEMENT"})
+#: measure names of a dimension's representation items that are understood
+_LIMIT_NAMES = ("lower limit", "upper limit")
 #: dimensional notes (DESCRIPTIVE_REPRESENTATION_ITEM('dimensional note', ...)) -> qualifier
 _NOTES = {"theoretical": "basic", "auxiliary": "reference"}
 
@@ -99,6 +106,40 @@ class _Reader(FaceLinker):
     :class:`~qifreport.step.face_links.FaceLinker`; this layer reads datums, geometric
     tolerances and dimensions.
     """
+
+    # ---- faces: the older PROPERTY_DEFINITION -> SHAPE_DEFINITION_REPRESENTATION link -----
+    def _collect(self, eid: int, seen: set[int], found: set[int], others: list[Ref]) -> None:
+        """Faces of an aspect, also through PROPERTY_DEFINITION -> SHAPE_DEFINITION_REPRESENTATION.
+
+        Extends :class:`~qifreport.step.face_links.FaceLinker`'s walk (called for the aspect
+        and each component it recurses into) with the AP214 link of older exports (an I-DEAS
+        AP214 file): ``PROPERTY_DEFINITION(name, description, #aspect)`` and a
+        ``SHAPE_DEFINITION_REPRESENTATION(#property, #rep)`` whose representation lists the
+        faces (or shells, solids, other geometry). Placements in that representation and datum
+        targets (whose representation is their placement) are left to the base walk.
+        """
+        fresh = eid not in seen
+        super()._collect(eid, seen, found, others)
+        if not fresh or TARGET_TYPES.intersection(self.types(eid)):
+            return
+        for items in self._property_shape_items(eid):
+            kept = [r for r in items if not _PLACEMENT_TYPES.intersection(self.types(r))]
+            self._items(tuple(kept), found, others)
+
+    def _property_shape_items(self, eid: int) -> list[list[Ref]]:
+        """Items of the shape representations given to an aspect through a property."""
+        out = []
+        for pd in self.referrers_with(eid, ("PROPERTY_DEFINITION",)):
+            pp = pd.part("PROPERTY_DEFINITION") or ()
+            if len(pp) < 3 or pp[2] != Ref(eid):
+                continue
+            for sdr in self.referrers_with(pd.id, ("SHAPE_DEFINITION_REPRESENTATION",)):
+                sp = sdr.params
+                rep = self.get(sp[1]) if len(sp) >= 2 and sp[0] == Ref(pd.id) else None
+                rp = self.params_of(rep, ("REPRESENTATION", *rep.types)) if rep else None
+                if rp and len(rp) >= 2:
+                    out.append(refs_of(rp[1]))
+        return out
 
     # ---- datums -------------------------------------------------------------------------
     def datum_label(self, ref: object) -> tuple[str, list[int], list[str]]:
@@ -317,7 +358,7 @@ class _Reader(FaceLinker):
             problems.append(f"#{ent.id}: no toleranced shape aspect")
         else:
             faces, notes, face_notes = self.faces(tsa)
-            why = self._whole_part_reason(tsa_ent, faces, notes, modifiers)
+            why = self._whole_part_reason(tsa_ent, gtype, faces, notes, modifiers)
             if why:
                 whole = True
                 faces, how = self.part_faces(tsa_ent)
@@ -348,18 +389,20 @@ class _Reader(FaceLinker):
         )
 
     def _whole_part_reason(
-        self, tsa: Entity, faces: list[int], notes: list[str], modifiers: list[str]
+        self, tsa: Entity, gtype: str, faces: list[int], notes: list[str], modifiers: list[str]
     ) -> str:
         """Why a tolerance applies to the whole part ('' when it does not).
 
         The toleranced shape aspect is the PRODUCT_DEFINITION_SHAPE itself (NIST FTC 07 #16292,
-        FTC 10 #18552), or a shape aspect linked to no geometry at all (all-over, all-around
-        or plain): both mean every surface of the part. A shape aspect linked to geometry that
-        carries no face is not a whole-part tolerance (its problems say so).
+        FTC 10 #18552), or, for a profile, a shape aspect linked to no geometry at all (all-over,
+        all-around or plain): both mean every surface of the part. A shape aspect linked to
+        geometry that carries no face is not a whole-part tolerance (its problems say so).
         """
         if tsa.has("PRODUCT_DEFINITION_SHAPE"):
             return f"toleranced shape aspect #{tsa.id} is the PRODUCT_DEFINITION_SHAPE"
-        if faces or not all("no associated geometry found" in n for n in notes):
+        if gtype not in _PROFILE_TYPES or faces:
+            return ""
+        if not all("no associated geometry found" in n for n in notes):
             return ""
         mods = [m for m in modifiers if m in ("all_over", "all_around")]
         what = f"{mods[0].replace('_', '-')} " if mods else ""
@@ -381,8 +424,10 @@ class _Reader(FaceLinker):
         """
         pds = aspect
         if not aspect.has("PRODUCT_DEFINITION_SHAPE"):
-            p = aspect.part("SHAPE_ASPECT")
-            pds = self.get(p[2]) if p and len(p) >= 3 else None
+            # SHAPE_ASPECT or a simple subtype instance (ALL_AROUND_SHAPE_ASPECT(...)): the
+            # shape aspect attributes come first
+            p = aspect.part("SHAPE_ASPECT") or (aspect.params if aspect.parts is None else ())
+            pds = self.get(p[2]) if len(p) >= 3 else None
         if pds is None:
             return [], f"shape aspect #{aspect.id} names no product shape"
         reps: list[int] = []
@@ -460,6 +505,11 @@ class _Reader(FaceLinker):
         else:
             kind = "location"
             loc = self.params_of(ent, LOCATION_TYPES) or ()
+            if len(loc) < 4 and ent.parts is not None:
+                # a complex instance (AP214 exports): the attributes sit in its supertype part
+                loc = ent.part("SHAPE_ASPECT_RELATIONSHIP") or loc
+                if len(loc) < 4:
+                    problems.append(f"#{ent.id}: location without relating/related aspects")
             name = text_of(loc[0]) if loc else ""
             origin, n1, f1 = self.faces(loc[2] if len(loc) >= 3 else None)
             target, n2, f2 = self.faces(loc[3] if len(loc) >= 4 else None)
@@ -486,7 +536,8 @@ class _Reader(FaceLinker):
             dim.qualifiers.append("radius")
 
         # values
-        texts = []
+        texts: list[str] = []
+        others: list[tuple[Entity, Measure, str]] = []
         reps = self.referrers_with(ent.id, ("DIMENSIONAL_CHARACTERISTIC_REPRESENTATION",))
         for dcr in reps:
             dp = dcr.params
@@ -498,9 +549,14 @@ class _Reader(FaceLinker):
                 problems.append(f"#{dcr.id}: no dimension representation")
                 continue
             for item_ref in self._flat_items(rp[1]):
-                self._dimension_item(item_ref, dim, expect, texts)
+                item = self.get(item_ref)
+                if item is not None and item.has("VALUE_RANGE"):
+                    self._value_range(item, dim, expect, texts)
+                else:
+                    self._dimension_item(item_ref, dim, expect, texts, others)
         if not reps:
             problems.append(f"#{ent.id}: no DIMENSIONAL_CHARACTERISTIC_REPRESENTATION")
+        self._other_measures(others, dim, texts)
         dim.value_text = "; ".join(texts)
 
         # tolerance
@@ -546,17 +602,86 @@ class _Reader(FaceLinker):
                 out.append(r)
         return out
 
-    def _dimension_item(self, ref: Ref, dim: Dimension, expect: str, texts: list[str]) -> None:
+    def _value_range(self, ent: Entity, dim: Dimension, expect: str, texts: list[str]) -> None:
+        """VALUE_RANGE(name, (lower, upper)): the limits of a dimension (AP214 exports).
+
+        Members named 'lower limit' / 'upper limit' are taken by name, unnamed ones by value
+        (the smaller is the lower limit).
+        """
+        p = ent.part("VALUE_RANGE") or ()
+        members = self._flat_items(p[1:] if p else ())
+        measured = []
+        for r in members:
+            m_ent = self.get(r)
+            if m_ent is None:
+                continue
+            meas = self.measure(r, expect=expect)
+            dim.problems.extend(meas.problems)
+            measured.append((self.item_name(m_ent).strip().lower(), meas))
+        values = [m for _, m in measured if m.value is not None]
+        named = {n: m for n, m in measured if n in _LIMIT_NAMES and m.value is not None}
+        if len(named) == 2:
+            lo, hi = named["lower limit"], named["upper limit"]
+        elif len(values) == 2:
+            lo, hi = sorted(values, key=lambda m: m.value)
+        else:
+            dim.problems.append(
+                f"#{ent.id}: VALUE_RANGE with {len(values)} readable limit(s) of {len(members)}"
+            )
+            return
+        dim.lower_limit, dim.upper_limit = lo.value, hi.value
+        texts.append(f"lower limit {lo.text}")
+        texts.append(f"upper limit {hi.text}")
+        if lo.value > hi.value:
+            dim.problems.append(f"#{ent.id}: lower limit above upper limit")
+
+    def _other_measures(
+        self, others: list[tuple[Entity, Measure, str]], dim: Dimension, texts: list[str]
+    ) -> None:
+        """Measures with a name other than the AP242 ones (older exports: a plain
+        MEASURE_REPRESENTATION_ITEM('distance', LENGTH_MEASURE(40.), #4)).
+
+        The only one of a dimension that has no nominal and no limits is its nominal value
+        (noted); otherwise each is listed as not understood.
+        """
+        if not others:
+            return
+        if len(others) == 1 and dim.nominal is None and dim.lower_limit is None:
+            ent, meas, name = others[0]
+            if meas.value is not None:
+                dim.nominal = meas.value
+                texts.append(meas.text)
+                dim.problems.append(f"#{ent.id}: measure {name!r} taken as the nominal value")
+                return
+        for ent, meas, name in others:
+            dim.problems.append(f"#{ent.id}: measure {name!r} not understood ({meas.text})")
+
+    def _dimension_item(
+        self,
+        ref: Ref,
+        dim: Dimension,
+        expect: str,
+        texts: list[str],
+        others: list[tuple[Entity, Measure, str]],
+    ) -> None:
         ent = self.get(ref)
         if ent is None:
+            dim.problems.append(f"#{ref.id}: dimension value item not found")
             return
         if ent.has("DESCRIPTIVE_REPRESENTATION_ITEM"):
             p = ent.part("DESCRIPTIVE_REPRESENTATION_ITEM")
             if p and len(p) >= 2 and text_of(p[0]).lower() == "dimensional note":
                 note = text_of(p[1]).strip().lower()
                 dim.qualifiers.append(_NOTES.get(note, note))
+            else:
+                name, text = (text_of(p[0]), text_of(p[1])) if p and len(p) >= 2 else ("", "")
+                dim.problems.append(
+                    f"#{ent.id}: descriptive item {name!r} not understood ({text!r})"
+                )
             return
         if not (ent.has("MEASURE_REPRESENTATION_ITEM") or ent.has("MEASURE_WITH_UNIT")):
+            if not (ent.has("QUALIFIED_REPRESENTATION_ITEM") or _PLACEMENT_TYPES & set(ent.types)):
+                dim.problems.append(f"#{ent.id}: value item {'+'.join(ent.types)} not understood")
             return
         name = self.item_name(ent).strip().lower()
         meas = self.measure(ref, expect=expect)
@@ -583,7 +708,35 @@ class _Reader(FaceLinker):
             dim.upper_limit = meas.value
             texts.append(f"upper limit {meas.text}")
         else:
-            dim.problems.append(f"#{ent.id}: measure {name!r} not understood ({meas.text})")
+            others.append((ent, meas, name))
+
+    # ---- items that refer to nothing read ----------------------------------------------
+    def unread_references(
+        self, tolerances: list[GeometricTolerance], dimensions: list[Dimension]
+    ) -> list[str]:
+        """Values and tolerances of dimensions, and tolerance relationships, whose target
+        was not read as a dimension or tolerance: listed with the entity id and why."""
+        dims = {d.step_id for d in dimensions}
+        tols = {t.step_id for t in tolerances}
+        out = []
+        for etype, index, known, what in (
+            ("DIMENSIONAL_CHARACTERISTIC_REPRESENTATION", 0, dims, "dimension"),
+            ("PLUS_MINUS_TOLERANCE", 1, dims, "dimension"),
+            ("GEOMETRIC_TOLERANCE_RELATIONSHIP", 2, tols, "geometric tolerance"),
+            ("GEOMETRIC_TOLERANCE_RELATIONSHIP", 3, tols, "geometric tolerance"),
+        ):
+            for ent in self.m.by_type(etype):
+                p = ent.part(etype) or ()
+                target = p[index] if len(p) > index else None
+                if not isinstance(target, Ref):
+                    out.append(f"#{ent.id}: {etype} without a {what}")
+                elif target.id not in known:
+                    types = "+".join(self.types(target)) or "missing entity"
+                    out.append(
+                        f"#{ent.id}: {etype} refers to #{target.id} ({types}), "
+                        f"not a {what} that could be read"
+                    )
+        return list(dict.fromkeys(out))
 
 
 def _natural(label: str) -> tuple:
@@ -613,6 +766,7 @@ def pmi_from_model(model: P21Model) -> PMI:
     t1 = time.perf_counter()
     dimensions = r.dimensions()
     datums = r.datums()
+    unread = r.unread_references(tolerances, dimensions)
     t2 = time.perf_counter()
     pmi = PMI(
         schema=model.schema,
@@ -621,7 +775,7 @@ def pmi_from_model(model: P21Model) -> PMI:
         tolerances=tolerances,
         dimensions=dimensions,
         datums=datums,
-        problems=list(dict.fromkeys(r.problems)),
+        problems=list(dict.fromkeys(r.problems + unread)),
     )
     log.debug(
         "semantic PMI: %d tolerances (%.3f s), %d dimensions and %d datums (%.3f s)",

@@ -540,7 +540,7 @@ def test_located_shape_keeps_face_indices(tmp_path):
     [
         ([PMISpecTolerance("wobble", 0.5, [0])], [], "unknown type"),
         ([PMISpecTolerance("surface_profile", 0.5, [99])], [], "face index"),
-        ([PMISpecTolerance("surface_profile", 0.5, [])], [], "no faces"),
+        ([PMISpecTolerance("flatness", 0.5, [])], [], "no faces"),
         ([PMISpecTolerance("surface_profile", 0.0, [0])], [], "value"),
         ([PMISpecTolerance("surface_profile", math.nan, [0])], [], "value"),
         ([PMISpecTolerance("surface_profile", 0.5, [0], ["Z"])], [], "not defined"),
