@@ -243,6 +243,12 @@ _AP214 = """#30=SHAPE_ASPECT('flat face','',#1,.T.);
 #61=MEASURE_REPRESENTATION_ITEM('nominal value',LENGTH_MEASURE(25.),#4);
 #62=SHAPE_DIMENSION_REPRESENTATION('',(#61),#5);
 #63=DIMENSIONAL_CHARACTERISTIC_REPRESENTATION(#60,#62);
+#90=DATUM_FEATURE('datum A','',#1,.T.);
+#91=PROPERTY_DEFINITION('','',#90);
+#92=SHAPE_REPRESENTATION('',(#14,#12),#5);
+#93=SHAPE_DEFINITION_REPRESENTATION(#91,#92);
+#94=DATUM('','',#1,.F.,'A');
+#95=SHAPE_ASPECT_RELATIONSHIP('','',#90,#94);
 """
 
 
@@ -252,6 +258,9 @@ def test_ap214_face_links_through_property_definition():
     assert flat.face_step_ids == [14, 15] and not flat.whole_part and flat.problems == []
     dims = {d.step_id: d for d in pmi.dimensions}
     assert dims[44].face_step_ids == [16]
+    # a datum through its datum feature (the placement in the representation is not geometry)
+    (datum,) = pmi.datums
+    assert (datum.label, datum.face_step_ids, datum.problems) == ("A", [14], [])
 
 
 def test_ap214_plain_measure_representation_item_values():
