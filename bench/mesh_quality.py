@@ -16,7 +16,8 @@ is cleaned first so it really meshes again). Per row:
   units of the deflection;
 * ``fit rms / max``: distance of 20,000 points on the exact B-rep surfaces (area-uniform on
   a fine BRepMesh of a copy of the shape, each projected onto its face's exact surface) to the
-  mesh (libigl point-mesh distance), mm;
+  mesh (libigl point-mesh distance), mm, and the max in units of the deflection (``defl``,
+  mm: 1e-3 of the diagonal, the chord height both meshers are asked to stay within);
 * ``read``, ``tess``, ``warm``, ``prep``: seconds (STEP read; tessellation cold and warm;
   :func:`qifreport.metrology.prepared.prepare_part` with default parameters, with
   ``--prepare``); ``MiB``: the child's peak resident memory (``VmHWM``) after the cold
@@ -26,6 +27,7 @@ is cleaned first so it really meshes again). Per row:
 A file that fails is a row saying why.
 
     python bench/mesh_quality.py [--prepare] [--timeout 900] [--json out.json] [files...]
+    python bench/mesh_quality.py --table out.json
 """
 
 from __future__ import annotations
@@ -225,18 +227,21 @@ def _fmt(r: dict) -> str:
         f"{r['file']:<26} {r['mesher']:<8} {r['triangles']:>8} {r['min_angle_p1']:6.2f} "
         f"{r['min_angle_p50']:6.2f} {100 * r['share_under_5deg']:6.2f} "
         f"{r['duplicate_triangles']:>6} {r['non_manifold_edges']:>6} {r['boundary_edges']:>5} "
-        f"{r['pieces']:>3}/{r['brep_pieces']:<2} {r['chord_mm'] / r['deflection']:5.2f} "
-        f"{r['fit_rms']:7.4f} {r['fit_max']:7.4f} {r['read_s']:5.2f} {r['tess_s']:6.2f} "
+        f"{r['pieces']:>3}/{r['brep_pieces']:<2} {r['deflection']:6.3f} "
+        f"{r['chord_mm'] / r['deflection']:5.2f} {r['fit_rms']:7.4f} {r['fit_max']:7.4f} "
+        f"{r['fit_max'] / r['deflection']:5.2f} {r['read_s']:5.2f} {r['tess_s']:6.2f} "
         f"{r['warm_s']:6.2f} {prep} {r['mib_cold']:6.0f} {r['mib_warm']:6.0f}"
     )
 
 
 HEADER = (
     f"{'file':<26} {'mesher':<8} {'tri':>8} {'amin':>6} {'amin':>6} {'<5deg':>6} "
-    f"{'dup':>6} {'nm':>6} {'open':>5} {'pcs':>6} {'chord':>5} {'fit':>7} {'fit':>7} "
+    f"{'dup':>6} {'nm':>6} {'open':>5} {'pcs':>6} {'defl':>6} {'chord':>5} {'fit':>7} "
+    f"{'fit':>7} {'fit':>5} "
     f"{'read':>5} {'tess':>6} {'warm':>6} {'prep':>6} {'MiB':>6} {'MiB':>6}\n"
     f"{'':<26} {'':<8} {'':>8} {'p1':>6} {'p50':>6} {'%':>6} {'':>6} {'':>6} {'':>5} "
-    f"{'mesh/B':>6} {'/defl':>5} {'rms mm':>7} {'max mm':>7} {'s':>5} {'cold s':>6} "
+    f"{'mesh/B':>6} {'mm':>6} {'/defl':>5} {'rms mm':>7} {'max mm':>7} {'/defl':>5} "
+    f"{'s':>5} {'cold s':>6} "
     f"{'s':>6} {'s':>6} {'cold':>6} {'warm':>6}"
 )
 
@@ -248,11 +253,17 @@ def main() -> int:
     ap.add_argument("--timeout", type=float, default=900.0, help="per child, seconds")
     ap.add_argument("--json", type=Path, help="write the rows here")
     ap.add_argument("--meshers", default=",".join(MESHERS))
+    ap.add_argument("--table", type=Path, help="print the table of an earlier --json and stop")
     ap.add_argument("--child", nargs=3, metavar=("FILE", "MESHER", "OUT"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         path, mesher, out = args.child
         Path(out).write_text(json.dumps(child(path, mesher, args.prepare)))
+        return 0
+    if args.table:
+        print(HEADER)
+        for r in json.loads(args.table.read_text()):
+            print(_fmt(r))
         return 0
     print(f"# mesh_quality {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC", flush=True)
     print(HEADER, flush=True)
