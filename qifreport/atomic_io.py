@@ -9,6 +9,8 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from .errors import raise_if_interrupted
+
 __all__ = [
     "atomic_write",
     "atomic_write_many",
@@ -47,6 +49,7 @@ def atomic_write_many(items: list[tuple[str | Path, Callable[[Path], object]]]) 
     """
     staged: list[tuple[Path, Path]] = []
     try:
+        raise_if_interrupted()
         for path, write in items:
             path = Path(path)
             path.parent.mkdir(parents=True, exist_ok=True)
@@ -58,6 +61,7 @@ def atomic_write_many(items: list[tuple[str | Path, Callable[[Path], object]]]) 
         os.umask(umask)
         for _path, tmp in staged:
             os.chmod(tmp, 0o666 & ~umask)
+        raise_if_interrupted()
     except BaseException:
         for _path, tmp in staged:
             tmp.unlink(missing_ok=True)

@@ -34,7 +34,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from qifreport import __version__
-from qifreport.errors import InputError
+from qifreport.errors import InputError, Interrupted, raise_if_interrupted
 from qifreport.metrology.repeatability import KEEP_FRACTION
 from qifreport.registration.methods import METHODS
 
@@ -527,22 +527,17 @@ def _guard(fn: Callable[[], int], verbose: bool) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; exits with 0 pass, 1 fail, 2 error, 3 not established."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    _catch_signals()
     args = build_parser().parse_args(_with_default_command(argv))
     verbose = bool(getattr(args, "verbose", False))
     level = logging.INFO if verbose and args.command != "validate" else logging.WARNING
     logging.basicConfig(level=level, format="qifreport: %(levelname)s: %(message)s")
-    _catch_signals()
-    sys.exit(_guard(lambda: args.run(args), verbose))
 
+    def run() -> int:
+        raise_if_interrupted()  # a signal during the imports that a library swallowed
+        return args.run(args)
 
-class Interrupted(KeyboardInterrupt):
-    """SIGINT, SIGTERM or SIGHUP during a run: the atomic writers remove their temporary files
-    on the way out, and the command ends with one line and exit ``128 + signal``."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signum)
-        self.signum = signum
-        self.name = signal.Signals(signum).name
+    sys.exit(_guard(run, verbose))
 
 
 def _raise_interrupted(signum: int, frame) -> None:

@@ -5,10 +5,40 @@ Defined here, in the most upstream package, so that every stage (``step`` ->
 downstream one.
 """
 
+import signal
+
 __all__ = [
     "InputError",
+    "Interrupted",
+    "raise_if_interrupted",
 ]
 
 
 class InputError(ValueError):
     """An input file or array that cannot be inspected (missing, corrupt, empty, NaN, ...)."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT, SIGTERM or SIGHUP during a run: the atomic writers remove their temporary files
+    on the way out, and the command ends with one line and exit ``128 + signal``.
+
+    Every one raised is remembered (:func:`raise_if_interrupted`): a library that swallows it
+    (an optional import guarded by a bare ``except``) cannot make the run carry on to write
+    its outputs.
+    """
+
+    #: the signals raised so far in this process (the command line's own state: a signal
+    #: is process-wide)
+    received: list[int] = []
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+        self.name = signal.Signals(signum).name
+        Interrupted.received.append(signum)
+
+
+def raise_if_interrupted() -> None:
+    """Raise :class:`Interrupted` again if a signal arrived earlier and was swallowed."""
+    if Interrupted.received:
+        raise Interrupted(Interrupted.received[0])
