@@ -101,7 +101,9 @@ log = logging.getLogger(__name__)
 #: changes shape
 #: 2: module paths under the one import root qifreport.* (pickles name them)
 #: 3: the header carries an HMAC-SHA256 under the per-user secret ``<cache>/.key``
-CACHE_FORMAT = 3
+#: 4: zones carry ``min_coverage``; mesh nominals are stored with consistent winding; a
+#:    whole-part PMI profile is the general zone (entries of 3 hold the old zones)
+CACHE_FORMAT = 4
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"

@@ -33,7 +33,7 @@ from qifreport.step.p21 import P21Model
 from qifreport.step.reader import read_step
 from qifreport.step.semantic import pmi_from_model, read_pmi_text
 from qifreport.step.write import write_step_with_pmi
-from qifreport.summary import validate_summary
+from tests.conftest import assert_valid_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"
@@ -112,7 +112,7 @@ def test_whole_part_profile_inspected_end_to_end(whole_part_step, tmp_path):
     assert r.returncode == 0, r.stdout + r.stderr
     assert "(pmi #" in r.stdout and "(default)" not in r.stdout
     doc = json.loads((out / "panel_wp.json").read_text())
-    _assert_valid_but_whole_part(doc)
+    assert_valid_summary(doc)
     tol = {t["key"]: t for t in doc["tolerances"]}
     g = tol["general"]
     assert (g["source"], g["name"], g["width_mm"]) == ("pmi", "profile_all", 1.0)
@@ -141,24 +141,6 @@ def test_whole_part_profile_inspected_end_to_end(whole_part_step, tmp_path):
     r = run(whole_part_step, scan, "--out", tmp_path / "o2", "--tolerance", "0.3", "--quiet")
     assert r.returncode == 2, r.stdout + r.stderr
     assert "--tolerance 0.3" in r.stderr and "profile_all" in r.stderr
-
-
-def _assert_valid_but_whole_part(doc: dict) -> None:
-    """The summary is valid, but for the general zone's PMI source.
-
-    ``schemas/summary-1.schema.json`` (toleranceResult) still ties ``source: 'pmi'`` to a
-    ``T<n>`` key and a face list, which predates whole-part zones (key ``general``, source
-    ``pmi``, faces ``null``); widening that condition is pending (outside this change). Exactly
-    those three messages on the general zone are tolerated; anything else fails.
-    """
-    i = [t["key"] for t in doc["tolerances"]].index("general")
-    pending = {
-        f"/tolerances/{i}/faces: None is not of type 'array'",
-        f"/tolerances/{i}/key: 'general' does not match '^T'",
-        f"/tolerances/{i}/n_faces: None is not of type 'integer'",
-    }
-    errors = [e for e in validate_summary(doc) if e not in pending]
-    assert not errors, "summary violates schemas/summary-1.schema.json:\n" + "\n".join(errors)
 
 
 # ------------------------------------------------------------------ the NIST exports
