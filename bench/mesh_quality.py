@@ -201,8 +201,11 @@ def child(path: str, mesher: str, do_prepare: bool) -> dict:
         from qifreport.metrology.prepared import prepare_part
 
         t0 = time.perf_counter()
-        prepare_part(mesh.V, mesh.F, InspectionParams())
-        row["prep_s"] = time.perf_counter() - t0
+        try:
+            prepare_part(mesh.V, mesh.F, InspectionParams())
+            row["prep_s"] = time.perf_counter() - t0
+        except Exception as exc:  # a row of figures even when the preparation fails
+            row["prep_error"] = f"{type(exc).__name__}: {exc}"[:120]
     # warm: the same process meshes again (BRepMesh's stored triangulation removed first)
     BRepTools.Clean_s(part.shape)
     row["hwm_reset"] = _reset_hwm()
@@ -222,7 +225,7 @@ def _files(args) -> list[Path]:
 def _fmt(r: dict) -> str:
     if "error" in r:
         return f"{r['file']:<26} {r['mesher']:<8} FAILED: {r['error']}"
-    prep = f"{r['prep_s']:6.1f}" if "prep_s" in r else "     -"
+    prep = f"{r['prep_s']:6.1f}" if "prep_s" in r else "  FAIL" if "prep_error" in r else "     -"
     return (
         f"{r['file']:<26} {r['mesher']:<8} {r['triangles']:>8} {r['min_angle_p1']:6.2f} "
         f"{r['min_angle_p50']:6.2f} {100 * r['share_under_5deg']:6.2f} "
@@ -231,7 +234,7 @@ def _fmt(r: dict) -> str:
         f"{r['chord_mm'] / r['deflection']:5.2f} {r['fit_rms']:7.4f} {r['fit_max']:7.4f} "
         f"{r['fit_max'] / r['deflection']:5.2f} {r['read_s']:5.2f} {r['tess_s']:6.2f} "
         f"{r['warm_s']:6.2f} {prep} {r['mib_cold']:6.0f} {r['mib_warm']:6.0f}"
-    )
+    ) + (f"  prepare: {r['prep_error']}" if "prep_error" in r else "")
 
 
 HEADER = (
