@@ -249,18 +249,30 @@ class InspectionResult:
             )
         if self.resolution is not None:
             out += self.resolution.warnings()
-        if self.size is not None and self.size.status == "not established":
+        if self.size is not None and self.size.status == "not established" and self.size_seen:
             out += self.size.reasons()
         if self.repeatability is not None:
             out += list(self.repeatability.warnings)
         return out
 
     @property
+    def size_seen(self) -> bool:
+        """The rim (or trim edges) was seen enough to judge the size (no size check: True)."""
+        s = self.size
+        return (
+            s is None
+            or s.status in ("no rim", "conforming", "size error")
+            or (s.seen_fraction >= s.min_seen)
+        )
+
+    @property
     def measured(self) -> bool:
         """The whole part and every toleranced surface were measured (coverage and gap rules,
-        :mod:`qifreport.metrology.coverage`)."""
-        return (self.coverage is None or self.coverage.measured) and all(
-            z.measured for z in self.zones
+        :mod:`qifreport.metrology.coverage`), and the rim seen enough for the size check."""
+        return (
+            (self.coverage is None or self.coverage.measured)
+            and all(z.measured for z in self.zones)
+            and self.size_seen
         )
 
     def not_measured(self) -> list[str]:
@@ -271,6 +283,8 @@ class InspectionResult:
         for z in self.zones:
             if not z.measured:
                 out += [f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.coverage.reasons]
+        if not self.size_seen:
+            out += [f"size: {r}" for r in self.size.reasons()]
         return out
 
     def coverage_notes(self) -> list[str]:
@@ -690,10 +704,15 @@ def inspect(
     general = [z for z in bands.zones if z.faces is None]
     general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
     check_same_part(pdev, general_half, diag, rigid, fit)
-    t_edges = time.perf_counter()
-    edges = edge_deviation(V_reg, F, Pm, general_half, normals=N_reg)
-    size = size_error(edges)
-    timings["edges"] = time.perf_counter() - t_edges
+    # the size from the trim edges, on a fixture that moves the nominal along its normals only
+    # (GB-CICP) or not at all; the baselines move it along the surface too, and so absorb or
+    # make up a size error at the rim
+    edges = size = None
+    if fit is None or fit.method == "gbcicp":
+        t_edges = time.perf_counter()
+        edges = edge_deviation(V_reg, F, Pm, general_half, normals=N_reg)
+        size = size_error(edges)
+        timings["edges"] = time.perf_counter() - t_edges
     vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
     pstats = deviation_statistics(pdev, threshold=general_half)
     acc = evaluate(

@@ -194,7 +194,9 @@ def inspect_scaled(shell, scale: float, seed: int):
 @pytest.mark.parametrize("scale", [1.02, 0.98])
 def test_shell_scale_error_is_flagged(shell, scale):
     r, ed, sz = inspect_scaled(shell, scale, seed=1)
-    assert r.verdict == "PASS"  # what normal deviations alone say
+    # the surface criteria alone pass (normal deviations cannot see the size): the size fails it
+    assert all(z.acceptance.passed for z in r.zones) and r.acceptance.passed
+    assert r.verdict == "FAIL" and any(s.startswith("size: size error") for s in r.decided_by())
     assert sz.flagged and sz.status == "size error"
     assert np.sign(sz.scale - 1.0) == np.sign(scale - 1.0)
     assert abs(sz.size_deviation) > 2 * sz.limit
