@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import signal
 import sys
 import threading
@@ -528,7 +529,12 @@ def main(argv: list[str] | None = None) -> int:
     """Console entry point; exits with 0 pass, 1 fail, 2 error, 3 not established."""
     argv = sys.argv[1:] if argv is None else list(argv)
     _catch_signals()
-    args = build_parser().parse_args(_with_default_command(argv))
+    try:
+        args = build_parser().parse_args(_with_default_command(argv))
+    except Interrupted as exc:  # while the parser's modules load
+        print(f"qifreport: interrupted by {exc.name}: nothing written", file=sys.stderr)
+        sys.stderr.flush()
+        os._exit(128 + exc.signum)
     verbose = bool(getattr(args, "verbose", False))
     level = logging.INFO if verbose and args.command != "validate" else logging.WARNING
     logging.basicConfig(level=level, format="qifreport: %(levelname)s: %(message)s")
@@ -537,10 +543,50 @@ def main(argv: list[str] | None = None) -> int:
         raise_if_interrupted()  # a signal during the imports that a library swallowed
         return args.run(args)
 
-    sys.exit(_guard(run, verbose))
+    rc = _guard(run, verbose)
+    if Interrupted.received:
+        # interrupted: the outputs are already cleaned up; leave without the interpreter's
+        # finalisation, which can crash in an extension caught mid-computation (SIGSEGV seen
+        # after the one-line message under load)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(rc)
+    sys.exit(rc)
+
+
+#: a signal waiting for worker threads to finish (see :func:`_raise_interrupted`)
+_DEFERRED: list[int] = []
+
+
+#: long-lived threads that never touch the main thread's arrays (tqdm's monitor, our RSS
+#: sampler and DMSC runner)
+_BYSTANDERS = ("tqdm_monitor", "rss-sampler", "qifreport-dmsc")
+
+
+def _workers_alive() -> bool:
+    """Whether a worker thread runs besides the main one: scipy's ``cKDTree.query`` with
+    ``workers=-1`` runs its chunks in (daemon) threads on the caller's arrays."""
+    main = threading.main_thread()
+    return any(
+        t is not main and t.is_alive() and not t.name.startswith(_BYSTANDERS)
+        for t in threading.enumerate()
+    )
 
 
 def _raise_interrupted(signum: int, frame) -> None:
+    """Raise :class:`Interrupted`, but not while worker threads still use the arrays the
+    main thread's frames own: unwinding then frees them under the workers (SIGSEGV). The
+    signal is kept and re-checked every 20 ms (SIGALRM) until the workers are done."""
+    if signum == getattr(signal, "SIGALRM", None):
+        if not _DEFERRED:
+            return
+        signum = _DEFERRED[0]
+    if _workers_alive() and hasattr(signal, "setitimer"):
+        if not _DEFERRED:
+            _DEFERRED.append(signum)
+        signal.setitimer(signal.ITIMER_REAL, 0.02)
+        return
+    _DEFERRED.clear()
     raise Interrupted(signum)
 
 
@@ -548,6 +594,6 @@ def _catch_signals() -> None:
     """Turn SIGINT, SIGTERM and SIGHUP into :class:`Interrupted` (main thread only)."""
     if threading.current_thread() is not threading.main_thread():
         return
-    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
+    for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGALRM"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), _raise_interrupted)

@@ -123,12 +123,11 @@ def rule_text(res: InspectionResult) -> str:
     """The acceptance rule in one sentence, with this inspection's limits."""
     p = res.params
     return (
-        f"Acceptance rule (whole part and each tolerance on its own faces): at least "
-        f"{100 * p.min_fraction:g} % of the scored area inside the band (area "
-        f"criterion) and no connected out-of-tolerance region larger than "
-        f"{p.max_region_area:g} mm\u00b2 (region criterion); measured only with at least "
-        f"{100 * p.min_coverage:g} % of the surface scored and no unmeasured patch that could "
-        f"hide a failing region (else NOT MEASURED)."
+        f"Acceptance (whole part and each tolerance on its own faces): at least "
+        f"{100 * p.min_fraction:g} % of the scored area inside the band and no connected "
+        f"out-of-tolerance region over {p.max_region_area:g} mm\u00b2; NOT MEASURED when less "
+        f"than {100 * p.min_coverage:g} % of a surface is scored or a hole in the scan could "
+        "hide such a region."
     )
 
 
