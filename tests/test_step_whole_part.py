@@ -31,7 +31,7 @@ from qifreport.errors import InputError
 from qifreport.metrology.bands import zones_from_pmi
 from qifreport.step.p21 import P21Model
 from qifreport.step.reader import read_step
-from qifreport.step.semantic import pmi_from_model, read_pmi_text
+from qifreport.step.semantic import pmi_from_model
 from qifreport.step.write import write_step_with_pmi
 from tests.conftest import assert_valid_summary
 
@@ -141,31 +141,6 @@ def test_whole_part_profile_inspected_end_to_end(whole_part_step, tmp_path):
     r = run(whole_part_step, scan, "--out", tmp_path / "o2", "--tolerance", "0.3", "--quiet")
     assert r.returncode == 2, r.stdout + r.stderr
     assert "--tolerance 0.3" in r.stderr and "profile_all" in r.stderr
-
-
-# ------------------------------------------------------------------ the NIST exports
-
-
-@pytest.mark.parametrize(
-    ("name", "step_id", "width", "n_faces"),
-    [
-        ("nist_ftc_07_asme1_ap242-e2.stp", 16292, 1.524, 338),  # 0.06 inch
-        ("nist_ftc_10_asme1_ap242-e2.stp", 18552, 1.5, 264),
-    ],
-)
-def test_nist_general_profile_applies_to_all_faces(name, step_id, width, n_faces):
-    path = NIST / name
-    if not path.is_file():
-        pytest.skip(f"{path} is not in the shared reference material")
-    pmi = read_pmi_text(path)
-    (t,) = [t for t in pmi.tolerances if t.step_id == step_id]
-    assert t.type == "surface_profile" and t.whole_part
-    assert t.value == pytest.approx(width) and len(t.face_step_ids) == n_faces
-    assert t.problems == []
-    face_index = {s: i for i, s in enumerate(sorted(t.face_step_ids))}
-    zones, skipped = zones_from_pmi(pmi, face_index, None)
-    assert (zones[-1].source, zones[-1].step_id, zones[-1].width) == ("pmi", step_id, width)
-    assert all(s.step_id != step_id for s in skipped)
 
 
 # ------------------------------------------------------------------ minimal Part 21 texts
