@@ -40,6 +40,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from qifreport.registration.mesh import adjacency
@@ -121,7 +122,11 @@ class Coverage:
 
 
 def unmeasured_patches(
-    V: np.ndarray, F: np.ndarray, gap: np.ndarray, area: np.ndarray
+    V: np.ndarray,
+    F: np.ndarray,
+    gap: np.ndarray,
+    area: np.ndarray,
+    adj: sp.csr_matrix | None = None,
 ) -> list[tuple[float, np.ndarray]]:
     """Connected patches of the vertices flagged ``gap`` over the edges of ``F``.
 
@@ -129,6 +134,8 @@ def unmeasured_patches(
     ----------
     V : (n, 3) vertices, mm.  F : (f, 3) triangles (the zone's).  gap : (n,) bool.
     area : (n,) vertex areas, mm^2.
+    adj : the vertex adjacency of ``F`` (:func:`qifreport.registration.mesh.adjacency`), if
+        the caller has it.
 
     Returns
     -------
@@ -137,7 +144,8 @@ def unmeasured_patches(
     idx = np.flatnonzero(gap)
     if len(idx) == 0:
         return []
-    sub = adjacency(F, len(V))[idx][:, idx]
+    adj = adjacency(F, len(V)) if adj is None else adj
+    sub = adj[idx][:, idx]
     _, label = connected_components(sub, directed=False)
     a = area[idx]
     tot = np.bincount(label, weights=a)
@@ -196,7 +204,8 @@ def zone_coverage(
     e_area = float(area[excl].sum())
     u_area = float(area[gap].sum())
     cov = s_area / total if total > 0 else math.nan
-    patches = unmeasured_patches(V, F, gap, area)
+    adj = adjacency(F, n)
+    patches = unmeasured_patches(V, F, gap, area, adj)
     g_area, g_cen = patches[0] if patches else (0.0, None)
     reasons = []
     if not (total > 0 and cov >= min_coverage * (1 - 1e-12)):
@@ -212,7 +221,7 @@ def zone_coverage(
             f"than the {max_gap_area:g} mm^2 allowed"
         )
     else:
-        hidden = _hiding_patch(V, F, gap, out, excess, area, max_region_area)
+        hidden = _hiding_patch(adj, V, gap, out, excess, area, max_region_area)
         if hidden is not None:
             a, cen, peak = hidden
             x, y, z = cen
@@ -244,11 +253,11 @@ def zone_coverage(
     )
 
 
-def _hiding_patch(V, F, gap, out, excess, area, max_region_area):
+def _hiding_patch(A, V, gap, out, excess, area, max_region_area):
     """The largest patch that could hide a failing region (second gap rule), as
     ``(area_mm2, centroid, peak_excess)``, or None.
 
-    Components of ``gap | out`` over the edges of ``F`` that hold a gap vertex; each one's
+    Components of ``gap | out`` over the vertex adjacency ``A`` that hold a gap vertex; each one's
     area (the patch and the out-of-tolerance vertices joined to it) and the largest
     ``excess`` (``|dev - centre| / half-width``) on it and on the scored vertices bordering it.
     """
@@ -256,7 +265,6 @@ def _hiding_patch(V, F, gap, out, excess, area, max_region_area):
     idx = np.flatnonzero(sel)
     if not gap.any():
         return None
-    A = adjacency(F, len(V))
     _, label = connected_components(A[idx][:, idx], directed=False)
     k = label.max() + 1
     tot = np.bincount(label, weights=area[idx], minlength=k)

@@ -308,7 +308,11 @@ class InspectionResult:
                 f"min coverage {100 * p.min_coverage:g} % (default "
                 f"{100 * DEFAULT_MIN_COVERAGE:g} %): a surface counts as measured with less scored"
             )
-        low = [z.zone for z in self.zones if (z.zone.min_coverage or 1.0) < DEFAULT_MIN_COVERAGE]
+        low = [
+            z.zone
+            for z in self.zones
+            if z.zone.min_coverage is not None and z.zone.min_coverage < DEFAULT_MIN_COVERAGE
+        ]
         for zone in low:
             out.append(f"{zone.key}: min coverage {100 * zone.min_coverage:g} %")
         if p.max_gap_area is not None and p.max_gap_area > GAP_AREA_FACTOR * p.max_region_area:
