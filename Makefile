@@ -71,8 +71,9 @@ demo: install system-deps
 	  $(OUT)/batch/panel_statistics.qif
 	@echo "demo outputs in $(OUT)/ (a two-scan batch of the panel in $(OUT)/batch/)"
 
+# both cores of the CI machine, a test file per worker (module fixtures stay in one process)
 test: install system-deps
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2 --dist loadfile
 
 lint: install
 	$(VENV)/bin/ruff check .

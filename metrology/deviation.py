@@ -33,8 +33,11 @@ from qifreport.registration.mesh import edge_uses, face_normals, median_edge_len
 __all__ = [
     "beyond_rim",
     "closest_points",
+    "corner_normals",
+    "curved_offset",
     "data_referenced",
     "nominal_referenced",
+    "residual_referenced",
     "vertex_face_csr",
 ]
 
@@ -508,3 +511,250 @@ def nominal_referenced(
         enough &= offset <= float(max_centroid_offset) * radius
     dev[vid[enough]] = t[enough]
     return dev
+
+
+def corner_normals(V: np.ndarray, F: np.ndarray, labels: np.ndarray | None = None) -> np.ndarray:
+    """Unit normal of the surface at every triangle corner, (f, 3, 3).
+
+    The area-weighted normal of the triangles around the corner's vertex that carry the
+    same ``labels`` value (the B-rep face of a STEP nominal): on a crease each side keeps its
+    own normal. Without labels, the vertex normal; a corner whose normal turns more than 30
+    degrees from its triangle's (a crease in a mesh nominal) takes the triangle's normal.
+    """
+    V, F = _as_mesh(V, F)
+    cross = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # 2 x area x normal
+    f = len(F)
+    nt = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-300)
+    if labels is None:
+        Nv = vertex_normals(V, F)
+        out = Nv[F]
+    else:
+        lab = np.asarray(labels, dtype=np.int64)
+        # key (vertex, label): sum of the area-weighted normals of its triangles
+        key = F.astype(np.int64) * (int(lab.max()) + 1) + lab[:, None]
+        uk, inv = np.unique(key.ravel(), return_inverse=True)
+        S = np.zeros((len(uk), 3))
+        np.add.at(S, inv, np.repeat(cross, 3, axis=0))
+        S /= np.maximum(np.linalg.norm(S, axis=1, keepdims=True), 1e-300)
+        out = S[inv].reshape(f, 3, 3)
+    cos = np.einsum("fij,fj->fi", out, nt)
+    return np.where((cos >= np.cos(np.radians(30.0)))[..., None], out, nt[:, None, :])
+
+
+def curved_offset(
+    V: np.ndarray, F: np.ndarray, C: np.ndarray, face: np.ndarray, normals: np.ndarray
+) -> np.ndarray:
+    """Height (m,) mm of the curved surface above the flat triangle at closest points ``C``.
+
+    A tessellation's triangles are chords of the surface: a scan point exactly on a
+    cylinder of radius ``R`` lies up to ``h^2 / 8R`` off the triangle of edge ``h``. The
+    surface over a triangle is taken as the quadratic patch that passes through its corners
+    with the corners' normals (Phong tessellation with shape factor 1/2, Boubekeur & Alexa
+    2008; exact to second order on spheres and cylinders):
+    ``delta = 1/2 sum_i b_i ((V_i - C) . n_i)``, ``b`` the barycentrics of ``C``. Subtract
+    it from a signed distance to the triangle to get the distance to the surface.
+
+    Parameters
+    ----------
+    V : (n, 3) mm.  F : (f, 3).  C : (m, 3) closest points on the mesh, mm.
+    face : (m,) their triangles (-1: none; offset 0).  normals : (f, 3, 3)
+        :func:`corner_normals`.
+    """
+    face = np.asarray(face, dtype=np.int64)
+    out = np.zeros(len(face))
+    ok = (face >= 0) & np.isfinite(C).all(axis=1)
+    if not ok.any():
+        return out
+    t = face[ok]
+    T = V[F[t]]  # (k, 3, 3)
+    X = C[ok]
+    e1, e2, d = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0], X - T[:, 0]
+    a11 = np.einsum("ij,ij->i", e1, e1)
+    a12 = np.einsum("ij,ij->i", e1, e2)
+    a22 = np.einsum("ij,ij->i", e2, e2)
+    b1 = np.einsum("ij,ij->i", d, e1)
+    b2 = np.einsum("ij,ij->i", d, e2)
+    det = a11 * a22 - a12 * a12
+    det = np.where(np.abs(det) > 0, det, 1.0)
+    s = (a22 * b1 - a12 * b2) / det
+    w = (a11 * b2 - a12 * b1) / det
+    B = np.clip(np.column_stack([1.0 - s - w, s, w]), 0.0, 1.0)
+    B /= np.maximum(B.sum(axis=1, keepdims=True), 1e-300)
+    h = np.einsum("kij,kij->ki", T - X[:, None, :], normals[t])  # (k, 3)
+    out[ok] = 0.5 * np.einsum("ki,ki->k", B, h)
+    return out
+
+
+def residual_referenced(
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    residual: np.ndarray,
+    normals: np.ndarray,
+    *,
+    point_label: np.ndarray | None = None,
+    labels: np.ndarray | None = None,
+    radius: float | None = None,
+    min_points: int = 4,
+    max_centroid_offset: float | None = 0.5,
+    scan_normals: np.ndarray | None = None,
+) -> np.ndarray:
+    """Signed deviation (n,) mm of every nominal vertex from the scan points' own residuals.
+
+    The nominal-referenced measure of :func:`nominal_referenced` without its curvature
+    bias: instead of fitting a plane to the scan points near a vertex (a plane through the
+    points of a 5 mm hole, or across a fillet, is off the surface by tenths of a mm), it fits
+    the points' signed distances to the nominal surface (``residual``, from
+    :func:`closest_points` minus :func:`curved_offset`) with a linear function of their
+    tangent-plane position about the vertex and reads it at the vertex. A point counts for a
+    vertex when it is within ``radius`` and, with ``labels`` (the B-rep face of each
+    triangle, STEP nominals), when its closest triangle lies on one of the vertex's own
+    faces, so the far side of a crease never enters, and a vertex on several faces only
+    when points of each of them are near; without labels, ``scan_normals`` (if
+    given) keep points whose normal is within 60 degrees of the vertex's, as in
+    :func:`nominal_referenced`. Unscored (NaN) as there: fewer than ``min_points`` points, or
+    their centroid off the normal line by more than ``max_centroid_offset x radius``. A
+    vertex left unscored with the first ball gets a second, twice as wide (surfaces seen at
+    a grazing angle carry sparser points than the median spacing). A
+    point whose residual lies more than 5 robust sigmas (1.4826 x MAD) from the median of
+    the vertex's neighbourhood is left out (material the nominal does not model, a burr).
+
+    Parameters
+    ----------
+    V : (n, 3) mm.  F : (f, 3).  P : (m, 3) scan points, mm.
+    residual : (m,) signed distance of each point to the nominal surface, mm (NaN: unused).
+    normals : (n, 3) unit outward vertex normals.
+    point_label : (m,) the B-rep face of each point's closest triangle (``labels[face]``).
+    labels : (f,) B-rep face of each triangle.  radius : mm; default 1.5 x the median edge,
+        at least 2.5 x the scan's median point spacing.
+    scan_normals : (m, 3) outward-oriented scan normals (used without labels).
+    """
+    V, F = _as_mesh(V, F)
+    P = _as_points(P)
+    r = np.asarray(residual, dtype=np.float64)
+    N = np.asarray(normals, dtype=np.float64)
+    use = np.isfinite(P).all(axis=1) & np.isfinite(r)
+    n = len(V)
+    dev = np.full(n, np.nan)
+    if not use.any():
+        return dev
+    sel = np.flatnonzero(use)
+    tree = cKDTree(P[sel])
+    if radius is None:
+        # 1.5 edges, and never under 2.5 point spacings (about 20 points in the ball): a
+        # curvature-refined CAD mesh can be finer than the scan
+        probe = P[sel][:: max(len(sel) // 2000, 1)]
+        spacing = float(np.median(tree.query(probe, k=2)[0][:, 1])) if len(sel) > 1 else 0.0
+        radius = max(1.5 * median_edge_length(V, F), 2.5 * spacing)
+    radius = float(radius)
+    if not radius > 0:
+        raise ValueError(f"radius must be positive, got {radius}")
+    min_points = max(int(min_points), 1)
+    args = (V, F, P, r, N, sel, tree, min_points, labels, point_label, scan_normals)
+    # a second, twice as wide ball for the vertices the first left unscored (surfaces seen
+    # at a grazing angle, where the points are sparser than the median spacing)
+    for ball in (radius, 2.0 * radius):
+        todo = np.flatnonzero(np.isnan(dev))
+        if len(todo) == 0:
+            break
+        vid, t = _residual_fit(*args, todo, ball, max_centroid_offset)
+        dev[vid] = t
+    return dev
+
+
+def _residual_fit(
+    V,
+    F,
+    P,
+    r,
+    N,
+    sel,
+    tree,
+    min_points,
+    labels,
+    point_label,
+    scan_normals,
+    verts,
+    radius,
+    max_centroid_offset,
+):
+    """:func:`residual_referenced` on the vertices ``verts`` with one ball ``radius``:
+    (scored vertex ids, their deviations)."""
+    n = len(V)
+    none = (np.empty(0, dtype=np.int64), np.empty(0))
+    hits = tree.query_ball_point(V[verts], r=radius, workers=-1)
+    cnt = np.zeros(n, dtype=np.int64)
+    cnt[verts] = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(verts))
+    local = np.flatnonzero(cnt[verts] >= min_points)
+    cand = verts[local]
+    if len(cand) == 0:
+        return none
+    idx = sel[np.concatenate([np.asarray(hits[i], dtype=np.int64) for i in local])]
+    vrt = np.repeat(cand, cnt[cand])
+    if labels is not None and point_label is not None:
+        lab = np.asarray(labels, dtype=np.int64)
+        m = int(lab.max()) + 1
+        own = np.unique(F.astype(np.int64) * m + lab[:, None])  # (vertex, face) pairs
+        pl = np.asarray(point_label, dtype=np.int64)[idx]
+        key = vrt * m + pl
+        pos = np.clip(np.searchsorted(own, key), 0, len(own) - 1)
+        keep = (pl >= 0) & (own[pos] == key)
+        idx, vrt = idx[keep], vrt[keep]
+        # a vertex on several faces (a crease) is measured only where every one of its faces
+        # was: the back skin of a sheet is not scored from its edge face's points
+        faces_of = np.bincount(own // m, minlength=n)
+        seen = np.unique(vrt * m + pl[keep])
+        seen_of = np.bincount(seen // m, minlength=n)
+        whole = (seen_of == faces_of)[vrt]
+        idx, vrt = idx[whole], vrt[whole]
+    elif scan_normals is not None:
+        Ns = np.asarray(scan_normals, dtype=np.float64)
+        keep = np.einsum("ij,ij->i", Ns[idx], N[vrt]) > _MIN_FACING_COS
+        idx, vrt = idx[keep], vrt[keep]
+    if len(idx) == 0:
+        return none
+    # robust: a point whose residual is more than 5 robust sigmas from its neighbourhood's
+    # median (material the nominal does not have: a rib standing on the surface, a burr)
+    # does not count for the vertex
+    rr = r[idx]
+    order = np.lexsort((rr, vrt))
+    vs, rs = vrt[order], rr[order]
+    first = np.flatnonzero(np.r_[True, vs[1:] != vs[:-1]])
+    size = np.diff(np.r_[first, len(vs)])
+    med = np.repeat(rs[first + size // 2], size)
+    dev_abs = np.abs(rs - med)
+    o2 = np.lexsort((dev_abs, vs))
+    mad = np.repeat(dev_abs[o2][first + size // 2], size)
+    keep = np.empty(len(order), dtype=bool)
+    keep[order] = dev_abs <= np.maximum(5.0 * 1.4826 * mad, 1e-9)
+    idx, vrt, rr = idx[keep], vrt[keep], rr[keep]
+    Q = P[idx] - V[vrt]
+    nv = N[vrt]
+    Q = Q - np.einsum("ij,ij->i", Q, nv)[:, None] * nv  # tangent-plane offsets
+    vid, row, counts = np.unique(vrt, return_inverse=True, return_counts=True)
+    enough = counts >= min_points
+
+    def _sum(w: np.ndarray) -> np.ndarray:
+        return np.bincount(row, weights=w, minlength=len(vid))
+
+    c = np.stack([_sum(Q[:, a]) for a in range(3)], axis=1) / counts[:, None]
+    rbar = _sum(rr) / counts
+    R = Q - c[row]
+    dr = rr - rbar[row]
+    # weighted least squares r = rbar + g . (q - c) in the tangent plane: 3x3 normal
+    # equations on the centred offsets (rank 2; regularised along the normal)
+    A = np.empty((len(vid), 3, 3))
+    for a in range(3):
+        for b in range(a, 3):
+            A[:, a, b] = A[:, b, a] = _sum(R[:, a] * R[:, b]) / counts
+    # ridge (0.2 radius)^2: a gradient the points' spread cannot carry (a sliver, a line of
+    # points at a scan edge) shrinks towards 0 instead of extrapolating noise; and the
+    # normal direction (no spread at all) is held at 0
+    ridge = (0.2 * radius) ** 2
+    A = A + ridge * np.eye(3)[None] + np.einsum("ij,ik->ijk", N[vid], N[vid]) * radius**2
+    rhs = np.stack([_sum(R[:, a] * dr) for a in range(3)], axis=1) / counts[:, None]
+    g = np.linalg.solve(A, rhs[..., None])[..., 0]
+    t = rbar - np.einsum("ij,ij->i", g, c)  # the linear fit at the vertex (q = 0)
+    if max_centroid_offset is not None:
+        enough &= np.linalg.norm(c, axis=1) <= float(max_centroid_offset) * radius
+    return vid[enough], t[enough]

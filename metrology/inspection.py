@@ -49,7 +49,14 @@ from .bands import (
     zone_vertex_areas,
 )
 from .coverage import DEFAULT_MIN_COVERAGE, GAP_AREA_FACTOR, Coverage, zone_coverage
-from .deviation import beyond_rim, closest_points, nominal_referenced
+from .deviation import (
+    beyond_rim,
+    closest_points,
+    corner_normals,
+    curved_offset,
+    nominal_referenced,
+    residual_referenced,
+)
 from .edges import EdgeDeviation, edge_deviation
 from .hygiene import MeshHygiene
 from .params import METHOD_LABELS, InspectionParams, method_label
@@ -107,14 +114,20 @@ class ZoneResult:
 
     @property
     def measured(self) -> bool:
-        """The coverage and gap rules hold on the surface."""
-        return self.coverage is None or self.coverage.measured
+        """Something of the surface was scored and the coverage and gap rules hold on it."""
+        return self.acceptance.scored_area > 0 and (self.coverage is None or self.coverage.measured)
+
+    @property
+    def failed(self) -> bool:
+        """A criterion fails on what was scored (a surface the scan never saw fails none)."""
+        return self.acceptance.scored_area > 0 and not self.acceptance.passed
 
     @property
     def status(self) -> str:
         """``FAIL`` (a criterion fails on what was scored: rejected whatever was not seen),
-        ``NOT MEASURED`` (too little of the surface scored to judge it), or ``PASS``."""
-        if not self.acceptance.passed:
+        ``NOT MEASURED`` (too little of the surface scored to judge it, or none), or
+        ``PASS``."""
+        if self.failed:
             return "FAIL"
         return "PASS" if self.measured else "NOT MEASURED"
 
@@ -203,7 +216,7 @@ class InspectionResult:
         proud scan region exceeds the limit). Whether enough was scored is :attr:`measured`."""
         return bool(
             self.acceptance.passed
-            and all(z.acceptance.passed for z in self.zones)
+            and not any(z.failed for z in self.zones)
             and (self.added is None or self.added.passed)
             and (self.size is None or not self.size.flagged)
         )
@@ -354,7 +367,7 @@ class InspectionResult:
         if not self.acceptance.passed:
             out += [f"whole part: {r}" for r in self.acceptance.reasons]
         for z in self.zones:
-            if not z.acceptance.passed:
+            if z.failed:
                 out += [f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.acceptance.reasons]
         if self.added is not None and not self.added.passed:
             out.append(f"added material: {self.added.describe()}")
@@ -541,6 +554,44 @@ def check_same_part(
         )
 
 
+def vertex_deviation(
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    closest: tuple[np.ndarray, np.ndarray, np.ndarray],
+    normals: np.ndarray,
+    face_id: np.ndarray | None,
+    *,
+    scan_normals: np.ndarray | None = None,
+) -> np.ndarray:
+    """Nominal-referenced deviation (n,) mm of every vertex of ``(V, F)`` from scan ``P``.
+
+    Each point's signed distance to the nominal *surface* (its distance to the closest
+    triangle, ``closest`` from :func:`~qifreport.metrology.deviation.closest_points`, less the
+    triangle's chord height there, :func:`~qifreport.metrology.deviation.curved_offset`) is
+    fitted about each vertex by :func:`~qifreport.metrology.deviation.residual_referenced`,
+    a vertex using only the points on its own B-rep faces (``face_id``, a STEP nominal);
+    without ``face_id`` (a mesh nominal), the plane fit of
+    :func:`~qifreport.metrology.deviation.nominal_referenced`.
+    """
+    C, cface, pdev = closest
+    if face_id is None:  # a mesh nominal: the local plane fit (no faces to keep apart)
+        return nominal_referenced(V, F, P, normals=normals, scan_normals=scan_normals)
+    corner = corner_normals(V, F, face_id)
+    residual = pdev - curved_offset(V, F, C, cface, corner)
+    label = None if face_id is None else np.where(cface >= 0, face_id[np.maximum(cface, 0)], -1)
+    return residual_referenced(
+        V,
+        F,
+        P,
+        residual,
+        normals,
+        point_label=label,
+        labels=face_id,
+        scan_normals=scan_normals,
+    )
+
+
 def inspect(
     V: np.ndarray,
     F: np.ndarray,
@@ -554,6 +605,7 @@ def inspect(
     scan_units: str | None = None,
     basis: BendingBasis | None = None,
     prepared: PreparedPart | None = None,
+    solid: bool = False,
 ) -> InspectionResult:
     """Inspect the scan ``P`` against the nominal ``(V, F)``.
 
@@ -578,6 +630,8 @@ def inspect(
         scans of one part: operators, unscored bands, hygiene, bending basis (unless ``basis`` is
         given) and the pose search's model. ``ValueError`` if it was prepared for another mesh or
         other settings.
+    solid : the nominal is a B-rep solid (a STEP part): its trim edges, for the size check, are
+        its sharp creases, and open edges of its mesh (a B-rep's sewing gaps) are not a rim.
 
     Raises
     ------
@@ -627,13 +681,20 @@ def inspect(
     near_crease, near_rim, rim_band = prepared.near_crease, prepared.near_rim, prepared.rim_band
     if not params.rigid_only:
         flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
+        # the two-pass guard counts no residual under a quarter of the tightest half-width
+        tightest = (
+            min(z.half_width for z in zones)
+            if zones
+            else (params.tolerance or DEFAULT_GENERAL_TOLERANCE)
+        )
+        gb = replace(params.gbcicp, guard_floor=max(params.gbcicp.guard_floor, 0.25 * tightest))
         fit = deform(
             params.method,
             V,
             F,
             ops,
             Pm,
-            params.gbcicp if params.method == "gbcicp" else None,
+            gb if params.method == "gbcicp" else None,
             scan_normals=Ns,
             scan_sheets=sheets,
             progress=progress,
@@ -660,20 +721,25 @@ def inspect(
         bands = lay_bands(F, len(V), face_id, [zones[i] for i in keep])
 
     N_reg = vertex_normals(V_reg, F)
-    dev = nominal_referenced(
+    C, cface, pdev = closest_points(V_reg, F, Pm)
+    dev = vertex_deviation(
         V_reg,
         F,
         Pm,
-        normals=N_reg,
+        (C, cface, pdev),
+        N_reg,
+        face_id,
         scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg, sheets=sheets),
     )
     dev_free = None
     if fit is not None and any(z.free_state for z in bands.zones):
-        dev_free = nominal_referenced(
+        dev_free = vertex_deviation(
             V,
             F,
             Pm,
-            normals=ops.normals,
+            closest_points(V, F, Pm),
+            ops.normals,
+            face_id,
             scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets),
         )
     hygiene = replace(prepared.hygiene)  # a copy: the rim band is this inspection's
@@ -693,7 +759,6 @@ def inspect(
         if dev_free is not None:
             dev_free[near_crease] = np.nan
     excluded = near_rim if near_crease is None else near_rim | near_crease
-    C, cface, pdev = closest_points(V_reg, F, Pm)
     rim = beyond_rim(V_reg, F, C, cface)
     timings["deviation"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -714,7 +779,9 @@ def inspect(
     edges = size = None
     if fit is None or fit.method == "gbcicp":
         t_edges = time.perf_counter()
-        edges = edge_deviation(V_reg, F, Pm, general_half, normals=N_reg)
+        edges = edge_deviation(
+            V_reg, F, Pm, general_half, normals=N_reg, trim_edges="crease" if solid else "auto"
+        )
         size = size_error(edges)
         timings["edges"] = time.perf_counter() - t_edges
     vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)

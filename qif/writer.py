@@ -601,7 +601,7 @@ def _characteristic_measurement(
         id_array("FeatureMeasurementIds", [fm]),
         E.ActualComponentId(actual_id),
     ]
-    if not z.acceptance.passed:
+    if z.failed:
         meas.append(
             E.NonConformanceDesignator(token("; ".join(z.acceptance.reasons) or "not conforming"))
         )

@@ -103,7 +103,9 @@ log = logging.getLogger(__name__)
 #: 3: the header carries an HMAC-SHA256 under the per-user secret ``<cache>/.key``
 #: 4: zones carry ``min_coverage``; mesh nominals are stored with consistent winding; a
 #:    whole-part PMI profile is the general zone (entries of 3 hold the old zones)
-CACHE_FORMAT = 4
+#: 5: STEP nominals meshed by gmsh by default (the key names the mesher)
+#: 6: vertex deviations from the scan points' own residuals (the prepared bands are kept)
+CACHE_FORMAT = 6
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"
@@ -368,6 +370,7 @@ def key_material(nominal_sha256: str, options: NominalOptions, params: Inspectio
             "max_edge": options.max_edge,
             "deflection": options.deflection,
             "accept_tolerance_as_read": options.accept_tolerance_as_read,
+            "mesher": options.mesher,
         },
         "part": part_settings(params),
     }
@@ -406,6 +409,7 @@ def build_state(
         options.max_edge,
         options.deflection,
         accept_tolerance_as_read=options.accept_tolerance_as_read,
+        mesher=options.mesher,
     )
     if complete:
         prepared = prepare_part(nom.V, nom.F, params)

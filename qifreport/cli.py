@@ -80,6 +80,13 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         help="STEP: chord deflection of the tessellation (default 0.001 x diagonal)",
     )
     ap.add_argument(
+        "--mesher",
+        choices=("gmsh", "brepmesh"),
+        default="gmsh",
+        help="STEP: surface mesher (default gmsh: isotropic, welded, manifold; brepmesh: "
+        "OpenCASCADE's BRepMesh with long-edge bisection)",
+    )
+    ap.add_argument(
         "--out",
         type=Path,
         default=Path("."),

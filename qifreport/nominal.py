@@ -48,6 +48,7 @@ def load_nominal(
     deflection: float | None = None,
     *,
     accept_tolerance_as_read: bool = False,
+    mesher: str = "gmsh",
 ) -> Nominal:
     """Read a STEP part (mesh + PMI zones) or a mesh nominal (one general zone).
 
@@ -56,6 +57,10 @@ def load_nominal(
     the part's diagonal, or unreadable as a length) is refused (:class:`InputError`, naming
     the first value) unless ``accept_tolerance_as_read``; then the reasons are kept in
     ``info["implausible_tolerances"]``.
+
+    ``mesher``: ``"gmsh"`` (:func:`qifreport.step.gmsh_mesh.gmsh_tessellate`, isotropic,
+    welded and manifold; the default) or ``"brepmesh"``
+    (:func:`qifreport.step.tessellate.tessellate`).
     """
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
@@ -75,7 +80,12 @@ def load_nominal(
             )
         if max_edge is None:
             max_edge = diagonal / 60.0
-        mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
+        if mesher == "gmsh":
+            from qifreport.step.gmsh_mesh import gmsh_tessellate
+
+            mesh = gmsh_tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
+        else:
+            mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
         zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
         pmi = part.pmi
         info = {
@@ -85,6 +95,7 @@ def load_nominal(
             "b_rep_faces": len(part.faces),
             "solids": part.n_solids,
             "tessellation": {
+                "mesher": mesher,
                 "deflection_mm": mesh.deflection,
                 "max_edge_mm": max_edge,
                 "vertices": len(mesh.V),

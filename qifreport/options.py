@@ -34,6 +34,7 @@ RESULT_OPTIONS = (
     "tolerance",
     "max_edge",
     "deflection",
+    "mesher",
     "scan_units",
     "no_qif",
     "no_pdf",
@@ -78,12 +79,14 @@ def check_text(flag: str, value: str | None) -> None:
 
 @dataclass(frozen=True)
 class NominalOptions:
-    """How the nominal file is read (mm): ``--tolerance``, ``--max-edge``, ``--deflection``."""
+    """How the nominal file is read (mm): ``--tolerance``, ``--max-edge``, ``--deflection``,
+    ``--mesher``."""
 
     tolerance: float | None = None
     max_edge: float | None = None
     deflection: float | None = None
     accept_tolerance_as_read: bool = False
+    mesher: str = "gmsh"
 
 
 @dataclass(frozen=True)
@@ -94,6 +97,9 @@ class InspectOptions:
     ----------
     tolerance : general profile half-width, mm (None: the STEP part's PMI, else 0.5).
     max_edge, deflection : STEP tessellation, mm (None: from the part's size).
+    mesher : STEP surface mesher, ``"gmsh"`` (default,
+        :func:`qifreport.step.gmsh_mesh.gmsh_tessellate`) or ``"brepmesh"``
+        (:func:`qifreport.step.tessellate.tessellate`).
     scan_units : ``"mm"``, ``"in"``, ``"m"`` or None (mm; E57 m).
     no_qif, no_pdf : leave out the QIF document / the PDF report.
     page : PDF paper size, ``"A4"`` or ``"Letter"``.
@@ -121,6 +127,7 @@ class InspectOptions:
     tolerance: float | None = None
     max_edge: float | None = None
     deflection: float | None = None
+    mesher: str = "gmsh"
     scan_units: str | None = None
     no_qif: bool = False
     no_pdf: bool = False
@@ -172,6 +179,8 @@ class InspectOptions:
             raise InputError(
                 f"--max-region-area must be an area >= 0 mm^2, got {self.max_region_area}"
             )
+        if self.mesher not in ("gmsh", "brepmesh"):
+            raise InputError(f"--mesher must be gmsh or brepmesh, got {self.mesher!r}")
         if self.seeds < 1:
             raise InputError(f"--seeds must be a number of runs >= 1, got {self.seeds}")
         lengths = (
@@ -223,7 +232,11 @@ class InspectOptions:
         """How the nominal is read."""
         self.check()
         return NominalOptions(
-            self.tolerance, self.max_edge, self.deflection, self.accept_tolerance_as_read
+            self.tolerance,
+            self.max_edge,
+            self.deflection,
+            self.accept_tolerance_as_read,
+            self.mesher,
         )
 
     def result_options(self) -> dict:

@@ -172,9 +172,10 @@ def fixture_text(res: InspectionResult) -> str:
     if res.fit is None:
         return "rigid ICP only (no virtual fixture)"
     fit = res.fit
+    moved = float(np.linalg.norm(fit.e, axis=1).max()) if len(fit.e) else 0.0
     return (
         f"rigid ICP + virtual fixture {method_label(fit.method)} ({fit.iterations} "
-        f"iterations, robust residual {fit.scale:.3f} mm)"
+        f"iterations, robust residual {fit.scale:.3f} mm, largest displacement {moved:.3f} mm)"
     )
 
 
@@ -284,6 +285,7 @@ def resampled_runs(
                 not_evaluated=nom.not_evaluated,
                 basis=res.basis,
                 prepared=prepared,
+                solid=bool(nom.info.get("solids")),
             )
         )
     seconds = time.perf_counter() - t0
@@ -335,6 +337,7 @@ def inspect_state(
         zones=zones_with_coverage(nom.zones, o.zone_min_coverage),
         not_evaluated=nom.not_evaluated,
         prepared=state.prepared,
+        solid=bool(nom.info.get("solids")),
     )
     if o.seeds > 1:
         with _stage(prof, f"repeatability ({o.seeds} resamplings)"):

@@ -83,6 +83,13 @@ class GBCICPParams:
         tangential distance (mm). Default 1.5 x max(median edge, scan spacing).
     passes : total passes (1 = single pass, the paper's default; 2-3 = band-limited scheme).
     flag_k : flag vertices with ``|residual| > flag_k`` robust scales (paper: 3).
+    guard_floor : the guard (``max_flagged_fraction``) counts only the flagged vertices
+        whose residual exceeds this, mm (0: all). A residual under a fraction of the tightest
+        tolerance is no defect the verdict could turn on; on a stiff part measured almost
+        perfectly the robust scale is the scanner's noise (microns), and ``flag_k`` scales of
+        it flag the chord and normal-estimation error of every small radius, which is no
+        sign of a fit gone wrong (issue 20). The flags themselves, and so the hold-outs
+        around a defect's shoulders, do not depend on it.
     holdout_factor : withhold measurement within this many coverage radii of a flagged vertex.
     max_flagged_fraction : fall back to the single-pass result above this fraction (0.2).
     scan_normal_k : neighbours for the PCA scan normals.
@@ -120,6 +127,7 @@ class GBCICPParams:
     coverage_radius: float | None = None
     passes: int = 3
     flag_k: float = 3.0
+    guard_floor: float = 0.0
     holdout_factor: float = 1.5
     max_flagged_fraction: float = 0.2
     scan_normal_k: int = 12
@@ -504,7 +512,12 @@ def gbcicp(
     e, m, w, scale = first_pass()
     flagged = _flag(m, p, scale, flaggable)
     n_cov = max(int(m.covered.sum()), 1)
-    flagged_fraction = float(flagged.sum()) / n_cov
+
+    def counted(flags: np.ndarray, m: Match) -> int:  # the flags the guard counts
+        return int((flags & (np.abs(m.r) > p.guard_floor)).sum())
+
+    n_flagged = counted(flagged, m)
+    flagged_fraction = n_flagged / n_cov
     single = (e, m, w, scale)
     if p.passes > 1 and flagged.any():
         if flagged_fraction > p.max_flagged_fraction:
@@ -517,7 +530,8 @@ def gbcicp(
                 # re-evaluate every flag against the refit: a defect the fit never saw keeps
                 # its residual; compliance the first pass could not follow has been fit
                 new = _flag(m, p, scale, flaggable)
-                frac = max(flagged.sum(), new.sum()) / n_cov
+                n_new = counted(new, m)
+                frac = max(n_flagged, n_new) / n_cov
                 if frac > p.max_flagged_fraction:
                     fallback, guard = True, (frac, pass_no)
                     e, m, w, scale = single
@@ -525,7 +539,7 @@ def gbcicp(
                     break
                 if np.array_equal(new, flagged):
                     break
-                flagged = new
+                flagged, n_flagged = new, n_new
     if fallback:
         log.warning(
             "GB-CICP: %.1f %% of covered vertices flagged in pass %d (> %.0f %%): fit "

@@ -81,6 +81,8 @@ __all__ = [
 MAP_DPI = 200
 #: largest height of the map block (pictures and their captions), points
 MAP_MAX_PT = 330.0
+#: the smallest map block: a 100 pt picture under its 11 pt caption
+MAP_MIN_PT = 111.0
 
 
 @dataclass
@@ -176,7 +178,7 @@ class _Report(ReportContext):
             ("reg", 2, 1),
             ("tol", 2, 1),
             ("dec", 1, 1),
-            ("map", 110.0, 5.0),
+            ("map", MAP_MIN_PT, 5.0),
         ]
         history = []
         for key, floor, step in steps:
@@ -210,7 +212,7 @@ class _Report(ReportContext):
             return layout_score(self, map_boxes(self, Box(0.0, 0.0, self.CW, mh)))
 
         best = score(st["map"])
-        while st["map"] - 5.0 >= 110.0 and score(st["map"] - 5.0) >= best - 0.01:
+        while st["map"] - 5.0 >= MAP_MIN_PT and score(st["map"] - 5.0) >= best - 0.01:
             st["map"] -= 5.0
         history = [(k, full[k], 1) for k in ("dec", "tol", "reg")]
         grow_back()

@@ -84,11 +84,11 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
                 fmt_smm(s.min_neg),
             ]
         )
-        emph.append(not acc.passed)
+        emph.append(z.failed)
     note = ""
     rest = [i for i in range(len(zones)) if i not in set(shown)]
     if rest:
-        nf = sum(1 for i in rest if not zones[i].acceptance.passed)
+        nf = sum(1 for i in rest if zones[i].failed)
         keys = join_names([zones[i].zone.key for i in rest], 8)
         note = (
             f"+ {len(rest)} more tolerance{'s' if len(rest) != 1 else ''} not listed "
@@ -122,8 +122,8 @@ def pick_tolerances(res: InspectionResult, limit: int) -> list[int]:
     zones = res.zones
     if len(zones) <= limit:
         return list(range(len(zones)))
-    fail = [i for i, z in enumerate(zones) if not z.acceptance.passed]
-    ok = [i for i, z in enumerate(zones) if z.acceptance.passed]
+    fail = [i for i, z in enumerate(zones) if z.failed]
+    ok = [i for i, z in enumerate(zones) if not z.failed]
     return sorted((fail + ok)[: max(limit, 0)])
 
 

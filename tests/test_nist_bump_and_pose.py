@@ -1,0 +1,67 @@
+"""A bump on a NIST part's toleranced face, the part posed anywhere, and no virtual fixture
+(issue 20, item 6; the perfect scans themselves are ``test_nist_perfect_scan.py``).
+
+* A 0.5 mm x sigma 3 mm bump on the tightest measured toleranced face FAILs that tolerance,
+  with a failing region's centroid within 3 mm of the bump.
+* From an arbitrary pose the perfect scan conforms with the same zone verdicts, and
+  ``--rigid-only`` (no virtual fixture) gives them too: on this stiff part the fixture
+  removes nothing that matters (its largest displacement stays under 0.25 mm).
+
+FTC 06: its tightest zones (0.254 mm) are narrower than the bump, and it conforms today.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tests.nist_scans import assert_conforms, pmi_zones, scans_fixture
+
+scans = pytest.fixture(scope="module")(scans_fixture)
+PART = "nist_ftc_06_asme1_ap242-e1.stp"
+
+
+def test_bump_on_a_toleranced_face_fails_there(scans):
+    from qifreport.simulate.brep_scan import bump, bump_site
+
+    s = scans(PART)
+    base = s.run()
+    seen = np.bincount(s.scan.face, minlength=len(s.part.faces))
+    # the tightest PMI zone that a 0.5 mm bump leaves, measured on the perfect scan, with a
+    # well-seen face
+    zones = sorted(
+        (z for z in pmi_zones(base) if z["verdict"] == "PASS" and z["upper_mm"] < 0.4),
+        key=lambda z: z["width_mm"],
+    )
+    zone = face = None
+    for z in zones:
+        f = max(z["faces"], key=lambda k: seen[k])
+        if seen[f] > 200:
+            zone, face = z, f
+            break
+    assert zone is not None, "no measured toleranced face to bump"
+    centre = bump_site(s.mesh, face)
+    Q = bump(s.scan.P, s.scan.normal, s.scan.face, centre, face, 0.5, 3.0)
+    doc = s.run(Q, "bump")
+    hit = next(z for z in doc["tolerances"] if z["key"] == zone["key"])
+    assert hit["verdict"] == "FAIL", hit["description"]
+    at = [np.array(r["centroid"]) for r in hit["acceptance"]["regions"]]
+    assert at and min(np.linalg.norm(c - centre) for c in at) <= 3.0
+    assert doc["_rc"] == 1
+
+
+def test_arbitrary_pose_and_rigid_only_agree(scans):
+    from qifreport.simulate.brep_scan import random_pose
+
+    s = scans(PART)
+    base = s.run()
+    assert_conforms(base)
+    T = random_pose(np.random.default_rng(3), s.scan.P.mean(axis=0), 0.3 * s.diag)
+    posed = s.run(s.scan.P @ T[:3, :3].T + T[:3, 3], "posed")
+    assert_conforms(posed)
+    rigid = s.run(None, "rigid", "--rigid-only")
+    # the virtual fixture removed nothing that matters on a stiff part
+    assert base["registration"]["fit"]["max_displacement_mm"] < 0.25
+    verdicts = {z["key"]: z["verdict"] for z in base["tolerances"]}
+    assert {z["key"]: z["verdict"] for z in posed["tolerances"]} == verdicts
+    assert {z["key"]: z["verdict"] for z in rigid["tolerances"]} == verdicts
