@@ -568,17 +568,7 @@ def curved_offset(
     t = face[ok]
     T = V[F[t]]  # (k, 3, 3)
     X = C[ok]
-    e1, e2, d = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0], X - T[:, 0]
-    a11 = np.einsum("ij,ij->i", e1, e1)
-    a12 = np.einsum("ij,ij->i", e1, e2)
-    a22 = np.einsum("ij,ij->i", e2, e2)
-    b1 = np.einsum("ij,ij->i", d, e1)
-    b2 = np.einsum("ij,ij->i", d, e2)
-    det = a11 * a22 - a12 * a12
-    det = np.where(np.abs(det) > 0, det, 1.0)
-    s = (a22 * b1 - a12 * b2) / det
-    w = (a11 * b2 - a12 * b1) / det
-    B = np.clip(np.column_stack([1.0 - s - w, s, w]), 0.0, 1.0)
+    B = np.clip(_barycentric(V, F, t, X), 0.0, 1.0)
     B /= np.maximum(B.sum(axis=1, keepdims=True), 1e-300)
     h = np.einsum("kij,kij->ki", T - X[:, None, :], normals[t])  # (k, 3)
     out[ok] = 0.5 * np.einsum("ki,ki->k", B, h)
