@@ -513,30 +513,25 @@ def nominal_referenced(
     return dev
 
 
-def corner_normals(V: np.ndarray, F: np.ndarray, labels: np.ndarray | None = None) -> np.ndarray:
+def corner_normals(V: np.ndarray, F: np.ndarray, labels: np.ndarray) -> np.ndarray:
     """Unit normal of the surface at every triangle corner, (f, 3, 3).
 
     The area-weighted normal of the triangles around the corner's vertex that carry the
-    same ``labels`` value (the B-rep face of a STEP nominal): on a crease each side keeps its
-    own normal. Without labels, the vertex normal; a corner whose normal turns more than 30
-    degrees from its triangle's (a crease in a mesh nominal) takes the triangle's normal.
+    same ``labels`` value (``(f,)``, the B-rep face of a STEP nominal): on a crease each side
+    keeps its own normal. A corner whose normal turns more than 30 degrees from its
+    triangle's takes the triangle's normal.
     """
     V, F = _as_mesh(V, F)
     cross = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # 2 x area x normal
-    f = len(F)
     nt = cross / np.maximum(np.linalg.norm(cross, axis=1, keepdims=True), 1e-300)
-    if labels is None:
-        Nv = vertex_normals(V, F)
-        out = Nv[F]
-    else:
-        lab = np.asarray(labels, dtype=np.int64)
-        # key (vertex, label): sum of the area-weighted normals of its triangles
-        key = F.astype(np.int64) * (int(lab.max()) + 1) + lab[:, None]
-        uk, inv = np.unique(key.ravel(), return_inverse=True)
-        S = np.zeros((len(uk), 3))
-        np.add.at(S, inv, np.repeat(cross, 3, axis=0))
-        S /= np.maximum(np.linalg.norm(S, axis=1, keepdims=True), 1e-300)
-        out = S[inv].reshape(f, 3, 3)
+    lab = np.asarray(labels, dtype=np.int64)
+    # key (vertex, label): sum of the area-weighted normals of its triangles
+    key = F.astype(np.int64) * (int(lab.max()) + 1) + lab[:, None]
+    uk, inv = np.unique(key.ravel(), return_inverse=True)
+    S = np.zeros((len(uk), 3))
+    np.add.at(S, inv, np.repeat(cross, 3, axis=0))
+    S /= np.maximum(np.linalg.norm(S, axis=1, keepdims=True), 1e-300)
+    out = S[inv].reshape(len(F), 3, 3)
     cos = np.einsum("fij,fj->fi", out, nt)
     return np.where((cos >= np.cos(np.radians(30.0)))[..., None], out, nt[:, None, :])
 
@@ -581,13 +576,12 @@ def residual_referenced(
     P: np.ndarray,
     residual: np.ndarray,
     normals: np.ndarray,
+    point_label: np.ndarray,
+    labels: np.ndarray,
     *,
-    point_label: np.ndarray | None = None,
-    labels: np.ndarray | None = None,
     radius: float | None = None,
     min_points: int = 4,
     max_centroid_offset: float | None = 0.5,
-    scan_normals: np.ndarray | None = None,
 ) -> np.ndarray:
     """Signed deviation (n,) mm of every nominal vertex from the scan points' own residuals.
 
@@ -597,27 +591,25 @@ def residual_referenced(
     the points' signed distances to the nominal surface (``residual``, from
     :func:`closest_points` minus :func:`curved_offset`) with a linear function of their
     tangent-plane position about the vertex and reads it at the vertex. A point counts for a
-    vertex when it is within ``radius`` and, with ``labels`` (the B-rep face of each
-    triangle, STEP nominals), when its closest triangle lies on one of the vertex's own
-    faces, so the far side of a crease never enters, and a vertex on several faces only
-    when points of each of them are near; without labels, ``scan_normals`` (if
-    given) keep points whose normal is within 60 degrees of the vertex's, as in
-    :func:`nominal_referenced`. Unscored (NaN) as there: fewer than ``min_points`` points, or
-    their centroid off the normal line by more than ``max_centroid_offset x radius``. A
-    vertex left unscored with the first ball gets a second, twice as wide (surfaces seen at
-    a grazing angle carry sparser points than the median spacing). A
-    point whose residual lies more than 5 robust sigmas (1.4826 x MAD) from the median of
-    the vertex's neighbourhood is left out (material the nominal does not model, a burr).
+    vertex when it is within ``radius`` and its closest triangle lies on one of the vertex's
+    own B-rep faces (``labels``), so the far side of a crease never enters; a vertex on
+    several faces is scored only when points of each of them are near. Unscored (NaN) as in
+    :func:`nominal_referenced`: fewer than ``min_points`` points, or their centroid off the
+    normal line by more than ``max_centroid_offset x radius``. A vertex left unscored with
+    the first ball gets a second, twice as wide (surfaces seen at a grazing angle carry
+    sparser points than the median spacing). A point whose residual lies more than 5 robust
+    sigmas (1.4826 x MAD) from the median of the vertex's neighbourhood is left out
+    (material the nominal does not model, a burr).
 
     Parameters
     ----------
     V : (n, 3) mm.  F : (f, 3).  P : (m, 3) scan points, mm.
     residual : (m,) signed distance of each point to the nominal surface, mm (NaN: unused).
     normals : (n, 3) unit outward vertex normals.
-    point_label : (m,) the B-rep face of each point's closest triangle (``labels[face]``).
-    labels : (f,) B-rep face of each triangle.  radius : mm; default 1.5 x the median edge,
-        at least 2.5 x the scan's median point spacing.
-    scan_normals : (m, 3) outward-oriented scan normals (used without labels).
+    point_label : (m,) the B-rep face of each point's closest triangle (``labels[face]``;
+        -1: none).  labels : (f,) B-rep face of each triangle.
+    radius : mm; default 1.5 x the median edge, at least 2.5 x the scan's median point
+        spacing.
     """
     V, F = _as_mesh(V, F)
     P = _as_points(P)
@@ -640,7 +632,11 @@ def residual_referenced(
     if not radius > 0:
         raise ValueError(f"radius must be positive, got {radius}")
     min_points = max(int(min_points), 1)
-    args = (V, F, P, r, N, sel, tree, min_points, labels, point_label, scan_normals)
+    # the (vertex, B-rep face) pairs of the mesh, as sorted keys vertex * m + face
+    m = int(np.max(labels)) + 1
+    own = np.unique(F.astype(np.int64) * m + np.asarray(labels, dtype=np.int64)[:, None])
+    pl = np.asarray(point_label, dtype=np.int64)
+    args = (V, P, r, N, sel, tree, min_points, own, m, pl)
     # a second, twice as wide ball for the vertices the first left unscored (surfaces seen
     # at a grazing angle, where the points are sparser than the median spacing)
     for ball in (radius, 2.0 * radius):
@@ -653,20 +649,7 @@ def residual_referenced(
 
 
 def _residual_fit(
-    V,
-    F,
-    P,
-    r,
-    N,
-    sel,
-    tree,
-    min_points,
-    labels,
-    point_label,
-    scan_normals,
-    verts,
-    radius,
-    max_centroid_offset,
+    V, P, r, N, sel, tree, min_points, own, m, point_label, verts, radius, max_centroid_offset
 ):
     """:func:`residual_referenced` on the vertices ``verts`` with one ball ``radius``:
     (scored vertex ids, their deviations)."""
@@ -681,26 +664,17 @@ def _residual_fit(
         return none
     idx = sel[np.concatenate([np.asarray(hits[i], dtype=np.int64) for i in local])]
     vrt = np.repeat(cand, cnt[cand])
-    if labels is not None and point_label is not None:
-        lab = np.asarray(labels, dtype=np.int64)
-        m = int(lab.max()) + 1
-        own = np.unique(F.astype(np.int64) * m + lab[:, None])  # (vertex, face) pairs
-        pl = np.asarray(point_label, dtype=np.int64)[idx]
-        key = vrt * m + pl
-        pos = np.clip(np.searchsorted(own, key), 0, len(own) - 1)
-        keep = (pl >= 0) & (own[pos] == key)
-        idx, vrt = idx[keep], vrt[keep]
-        # a vertex on several faces (a crease) is measured only where every one of its faces
-        # was: the back skin of a sheet is not scored from its edge face's points
-        faces_of = np.bincount(own // m, minlength=n)
-        seen = np.unique(vrt * m + pl[keep])
-        seen_of = np.bincount(seen // m, minlength=n)
-        whole = (seen_of == faces_of)[vrt]
-        idx, vrt = idx[whole], vrt[whole]
-    elif scan_normals is not None:
-        Ns = np.asarray(scan_normals, dtype=np.float64)
-        keep = np.einsum("ij,ij->i", Ns[idx], N[vrt]) > _MIN_FACING_COS
-        idx, vrt = idx[keep], vrt[keep]
+    pl = point_label[idx]
+    key = vrt * m + pl
+    pos = np.clip(np.searchsorted(own, key), 0, len(own) - 1)
+    keep = (pl >= 0) & (own[pos] == key)
+    idx, vrt = idx[keep], vrt[keep]
+    # a vertex on several faces (a crease) is measured only where every one of its faces
+    # was: the back skin of a sheet is not scored from its edge face's points
+    faces_of = np.bincount(own // m, minlength=n)
+    seen_of = np.bincount(np.unique(key[keep]) // m, minlength=n)
+    whole = (seen_of == faces_of)[vrt]
+    idx, vrt = idx[whole], vrt[whole]
     if len(idx) == 0:
         return none
     # robust: a point whose residual is more than 5 robust sigmas from its neighbourhood's

@@ -447,7 +447,7 @@ def _fit_dict(fit: DeformResult) -> dict:
         "fallback": fit.fallback,
         "flagged_fraction": fit.flagged_fraction,
         "residual_scale_mm": fit.scale,
-        "max_displacement_mm": float(np.linalg.norm(fit.e, axis=1).max()) if len(fit.e) else 0.0,
+        "max_displacement_mm": fit.max_displacement,
     }
 
 
@@ -558,38 +558,29 @@ def vertex_deviation(
     V: np.ndarray,
     F: np.ndarray,
     P: np.ndarray,
-    closest: tuple[np.ndarray, np.ndarray, np.ndarray],
     normals: np.ndarray,
     face_id: np.ndarray | None,
     *,
+    closest: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     scan_normals: np.ndarray | None = None,
 ) -> np.ndarray:
     """Nominal-referenced deviation (n,) mm of every vertex of ``(V, F)`` from scan ``P``.
 
     Each point's signed distance to the nominal *surface* (its distance to the closest
-    triangle, ``closest`` from :func:`~qifreport.metrology.deviation.closest_points`, less the
+    triangle, ``closest`` from :func:`~qifreport.metrology.deviation.closest_points`, computed
+    when not given, less the
     triangle's chord height there, :func:`~qifreport.metrology.deviation.curved_offset`) is
     fitted about each vertex by :func:`~qifreport.metrology.deviation.residual_referenced`,
     a vertex using only the points on its own B-rep faces (``face_id``, a STEP nominal);
     without ``face_id`` (a mesh nominal), the plane fit of
     :func:`~qifreport.metrology.deviation.nominal_referenced`.
     """
-    C, cface, pdev = closest
     if face_id is None:  # a mesh nominal: the local plane fit (no faces to keep apart)
         return nominal_referenced(V, F, P, normals=normals, scan_normals=scan_normals)
-    corner = corner_normals(V, F, face_id)
-    residual = pdev - curved_offset(V, F, C, cface, corner)
-    label = None if face_id is None else np.where(cface >= 0, face_id[np.maximum(cface, 0)], -1)
-    return residual_referenced(
-        V,
-        F,
-        P,
-        residual,
-        normals,
-        point_label=label,
-        labels=face_id,
-        scan_normals=scan_normals,
-    )
+    C, cface, pdev = closest_points(V, F, P) if closest is None else closest
+    residual = pdev - curved_offset(V, F, C, cface, corner_normals(V, F, face_id))
+    label = np.where(cface >= 0, face_id[np.maximum(cface, 0)], -1)
+    return residual_referenced(V, F, P, residual, normals, label, face_id)
 
 
 def inspect(
@@ -726,9 +717,9 @@ def inspect(
         V_reg,
         F,
         Pm,
-        (C, cface, pdev),
         N_reg,
         face_id,
+        closest=(C, cface, pdev),
         scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg, sheets=sheets),
     )
     dev_free = None
@@ -737,7 +728,6 @@ def inspect(
             V,
             F,
             Pm,
-            closest_points(V, F, Pm),
             ops.normals,
             face_id,
             scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets),

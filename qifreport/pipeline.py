@@ -172,10 +172,10 @@ def fixture_text(res: InspectionResult) -> str:
     if res.fit is None:
         return "rigid ICP only (no virtual fixture)"
     fit = res.fit
-    moved = float(np.linalg.norm(fit.e, axis=1).max()) if len(fit.e) else 0.0
     return (
         f"rigid ICP + virtual fixture {method_label(fit.method)} ({fit.iterations} "
-        f"iterations, robust residual {fit.scale:.3f} mm, largest displacement {moved:.3f} mm)"
+        f"iterations, robust residual {fit.scale:.3f} mm, "
+        f"largest displacement {fit.max_displacement:.3f} mm)"
     )
 
 

@@ -48,7 +48,8 @@ class DeformResult:
     weights : (n,) final data weights.
     scale : final robust residual scale, mm.
     passes : passes run.  fallback : the flagged-fraction guard fired.
-    flagged_fraction : flagged / covered vertices after the first pass.
+    flagged_fraction : flagged / covered vertices after the first pass (GB-CICP: the flags its
+        guard counts, those above ``guard_floor``).
     guard_fraction, guard_pass : the flagged fraction that fired the guard and the pass that
         flagged it (NaN, 0 when it did not fire): a refit can flag more than the first pass.
     iterations : total iterations.  seconds : wall time.
@@ -78,6 +79,11 @@ class DeformResult:
     guard_pass: int = 0
     method: str = "gbcicp"
     basis: Any = None
+
+    @property
+    def max_displacement(self) -> float:
+        """The largest displacement the fit applied to a vertex, mm (0 for an empty mesh)."""
+        return float(np.linalg.norm(self.e, axis=1).max()) if len(self.e) else 0.0
 
 
 @dataclass

@@ -53,7 +53,7 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
         rows.append(
             [
                 "Max fixture displacement, mm",
-                fmt_mm(float(np.linalg.norm(fit.e, axis=1).max())) if len(fit.e) else DASH,
+                fmt_mm(fit.max_displacement) if len(fit.e) else DASH,
             ]
         )
         if fit.method == "gbcicp":

@@ -18,6 +18,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from trimesh.triangles import points_to_barycentric
 
 from .scanner import aim_views, rasterize
 
@@ -133,24 +134,6 @@ class BrepScan:
     directions: np.ndarray
 
 
-def _barycentric(X: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """(m, 3) barycentric coordinates of points ``X`` (m, 3) in triangles ``T`` (m, 3, 3)."""
-    e1 = T[:, 1] - T[:, 0]
-    e2 = T[:, 2] - T[:, 0]
-    d = X - T[:, 0]
-    a11 = np.einsum("ij,ij->i", e1, e1)
-    a12 = np.einsum("ij,ij->i", e1, e2)
-    a22 = np.einsum("ij,ij->i", e2, e2)
-    b1 = np.einsum("ij,ij->i", d, e1)
-    b2 = np.einsum("ij,ij->i", d, e2)
-    det = np.where(np.abs(a11 * a22 - a12 * a12) > 0, a11 * a22 - a12 * a12, 1.0)
-    s = (a22 * b1 - a12 * b2) / det
-    t = (a11 * b2 - a12 * b1) / det
-    B = np.column_stack([1.0 - s - t, s, t])
-    B = np.clip(B, 0.0, 1.0)
-    return B / B.sum(axis=1, keepdims=True)
-
-
 def _on_surface(faces: list, fid: np.ndarray, uv: np.ndarray, X: np.ndarray) -> np.ndarray:
     """Evaluate each point's face surface at ``uv``; points without UV keep ``X``."""
     from OCP.BRep import BRep_Tool
@@ -219,7 +202,8 @@ def brep_scan(
         n = mesh.normal[hits.face]
         ok = -(n @ v) >= grazing  # facing the camera (v points from camera into the part)
         X, tri, n = hits.X[ok], hits.face[ok], n[ok]
-        B = _barycentric(X, V[F[tri]])
+        B = np.clip(points_to_barycentric(V[F[tri]], X), 0.0, 1.0)
+        B /= B.sum(axis=1, keepdims=True)
         uv = np.einsum("ij,ijk->ik", B, mesh.UV[tri])
         X = _on_surface(faces, mesh.face[tri], uv, X)
         P = X + (noise * rng.standard_normal(len(X)))[:, None] * v[None, :]
