@@ -125,7 +125,7 @@ def parse_cells(text: str | None) -> list[tuple[float, float]]:
 
 def run_one(V, F, P, cfg: Config, x0, a: float | None) -> dict:
     t0 = time.perf_counter()
-    res = inspect(V, F, P, InspectionParams(gbcicp=cfg.params))
+    res = inspect(V, F, P, InspectionParams(gbcicp=cfg.params, always_fixture=True))
     secs = time.perf_counter() - t0
     fit = res.fit
     d = detectability(res.deviation, V, x0, None, a if a else 1.0, R_d=R_D, R_b=R_B)

@@ -2,10 +2,14 @@
 
 For every file in ``../shared/step/nist``: a perfect scan sampled from the exact B-rep
 (:func:`qifreport.simulate.brep_scan.perfect_scan`: four planned views, 10 um noise), inspected
-by the CLI cold (an empty per-part cache) and warm, then warm with ``--rigid-only``. Prints one
-row per part: verdict with the virtual fixture and without, GB-CICP's robust residual and
-largest displacement, the largest |deviation| scored, the scored share of the part, the PMI
-zones that PASS / are NOT MEASURED / FAIL, wall seconds and peak memory (cold, warm).
+by the CLI cold (an empty per-part cache) and warm, then warm with ``--rigid-only`` and with
+``--always-fixture``. Prints one row per part: the verdict (free state first, the default),
+the ``--rigid-only`` verdict, whether the free state conformed (``free``) or the fixture was
+applied (``fix``), the rigid fit's robust residual, the largest displacement of a fixture
+forced on the part (``--always-fixture``) and its verdict, the largest |deviation| scored,
+the scored share of the part, the PMI zones that PASS / are NOT MEASURED / FAIL, wall
+seconds and peak memory (cold, warm). The views are aimed at the toleranced faces first
+(:func:`qifreport.simulate.brep_scan.toleranced_weight`), as in the tests.
 
     python bench/nist_perfect_scan.py [--points 150000] [--noise 0.01] [FILE ...]
 """
@@ -41,20 +45,27 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=150_000)
     ap.add_argument("--noise", type=float, default=0.01, help="range noise sigma, mm")
     a = ap.parse_args()
-    from qifreport.simulate.brep_scan import perfect_scan
+    from qifreport.simulate.brep_scan import perfect_scan, toleranced_weight
     from qifreport.step.reader import read_step
 
     files = a.files or sorted(NIST.glob("*.stp"))
     head = (
-        f"{'part':<12} {'pts':>7} {'verdict':<15} {'rigid-only':<15} {'resid':>6} "
-        f"{'moved':>6} {'|dev|':>6} {'scored':>6} {'P/NM/F':>8} {'cold s':>6} {'MiB':>5} "
-        f"{'warm s':>6} {'MiB':>5}"
+        f"{'part':<12} {'pts':>7} {'verdict':<13} {'rigid-only':<13} {'how':<4} {'resid':>6} "
+        f"{'forced':<13} {'moved':>6} {'|dev|':>6} {'scored':>6} {'P/NM/F':>8} {'cold s':>6} "
+        f"{'MiB':>5} {'warm s':>6} {'MiB':>5}"
     )
     print(head)
     print("-" * len(head))
     for f in files:
         part = read_step(f)
-        scan, _ = perfect_scan(part.shape, part.faces, noise=a.noise, points=a.points, seed=7)
+        scan, _ = perfect_scan(
+            part.shape,
+            part.faces,
+            noise=a.noise,
+            points=a.points,
+            seed=7,
+            face_weight=toleranced_weight(part),
+        )
         with tempfile.TemporaryDirectory() as tmp:
             t = Path(tmp)
             np.save(t / "scan.npy", scan.P)
@@ -63,16 +74,20 @@ def main() -> None:
             _, cold_s, cold_m = timed(base + ["--out", str(t / "cold")])
             _, warm_s, warm_m = timed(base + ["--out", str(t / "free")])
             timed(base + ["--out", str(t / "rigid"), "--rigid-only"])
+            timed(base + ["--out", str(t / "forced"), "--always-fixture"])
             doc = json.loads((t / "free" / f"{f.stem}.json").read_text())
             rig = json.loads((t / "rigid" / f"{f.stem}.json").read_text())
-        fit = doc["registration"]["fit"]
+            forced = json.loads((t / "forced" / f"{f.stem}.json").read_text())
+        reg = doc["registration"]
+        how = "free" if reg["fixture"]["decision"] == "free state conforms" else "fix"
+        moved = forced["registration"]["fit"]["max_displacement_mm"]
         pmi = [z["verdict"] for z in doc["tolerances"] if z["source"] == "pmi"]
         counts = f"{pmi.count('PASS')}/{pmi.count('NOT MEASURED')}/{pmi.count('FAIL')}"
         cov = doc["coverage"]["measured"]["coverage"]
         print(
-            f"{f.stem.split('_asme')[0]:<12} {len(scan.P):>7} {doc['verdict']:<15} "
-            f"{rig['verdict']:<15} {fit['residual_scale_mm']:>6.3f} "
-            f"{fit['max_displacement_mm']:>6.3f} {doc['vertex_deviation']['max_abs']:>6.3f} "
+            f"{f.stem.split('_asme')[0]:<12} {len(scan.P):>7} {doc['verdict']:<13} "
+            f"{rig['verdict']:<13} {how:<4} {reg['rigid']['residual_scale_mm']:>6.3f} "
+            f"{forced['verdict']:<13} {moved:>6.3f} {doc['vertex_deviation']['max_abs']:>6.3f} "
             f"{cov:>6.2f} {counts:>8} {cold_s:>6.1f} {cold_m:>5.0f} {warm_s:>6.1f} "
             f"{warm_m:>5.0f}",
             flush=True,

@@ -97,6 +97,9 @@ class ToleranceZone:
     free_state : evaluate without the virtual fixture (ASME free-state modifier).
     min_coverage : this surface's own least scored share (None: the inspection's
         ``min_coverage``), :mod:`qifreport.metrology.coverage`.
+    triangles : (k,) int64 triangles of the mesh that belong to the zone besides its faces'
+        own: the footprint on the solid of a supplemental face the tolerance names
+        (:mod:`qifreport.step.supplemental`); None: none.
     """
 
     key: str
@@ -112,6 +115,7 @@ class ToleranceZone:
     step_id: int | None = None
     free_state: bool = False
     min_coverage: float | None = None
+    triangles: np.ndarray | None = None
 
     @property
     def center(self) -> float:
@@ -339,7 +343,10 @@ def triangle_zone_mask(
 ) -> np.ndarray:
     """(f,) bool: triangles of the zone (a general zone takes the uncovered triangles)."""
     if zone.faces is not None:
-        return np.isin(face_id, zone.faces)
+        mask = np.isin(face_id, zone.faces)
+        if zone.triangles is not None:
+            mask[zone.triangles] = True
+        return mask
     if covered is None:
         return np.ones(len(face_id), dtype=bool)
     return ~covered
@@ -391,7 +398,7 @@ def lay_bands(
     covered = np.zeros(len(F), dtype=bool)
     for z in zones:
         if z.faces is not None:
-            covered |= np.isin(face_id, z.faces)
+            covered |= triangle_zone_mask(face_id, z)
     masks = [triangle_zone_mask(face_id, z, covered) for z in zones]
     width = np.full(n, np.inf)
     gov = np.full(n, -1, dtype=np.int64)

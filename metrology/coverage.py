@@ -22,6 +22,10 @@ criteria count:
     out-of-tolerance vertex in it): a defect is smooth, and a dent cut out of the scan
     leaves its shoulders around the hole. A dent cut out of the scan is not a conforming
     dent; a clamp hole on conforming material is.
+  Beside a drawing's own tolerances, qifreport's *default* band (no requirement of the
+  drawing, a screen for gross errors on the faces it does not tolerance) takes the first gap
+  rule as a warning only (``advisory_gaps``): it is judged where it was measured, and the
+  drawing's tolerances keep every rule on their own surfaces.
 * **Excluded share** -- the bands left out by design are reported per zone; when they exceed
   :data:`MAX_EXCLUDED_SHARE` of a zone's area the zone's result says so in a warning (the
   coverage rule then decides: 70 % cannot be reached with more than 30 % excluded).
@@ -53,6 +57,7 @@ __all__ = [
     "MAX_EXCLUDED_SHARE",
     "Coverage",
     "unmeasured_patches",
+    "unseen_neighbour_edges",
     "zone_coverage",
 ]
 
@@ -169,6 +174,7 @@ def zone_coverage(
     min_coverage: float = DEFAULT_MIN_COVERAGE,
     max_region_area: float = 25.0,
     max_gap_area: float | None = None,
+    advisory_gaps: bool = False,
 ) -> Coverage:
     """The coverage and gap rules on one toleranced surface (module docstring).
 
@@ -182,6 +188,10 @@ def zone_coverage(
         ``|dev - center| <= half_width``.
     min_coverage : fraction in [0, 1].  max_region_area : the region criterion's limit, mm^2.
     max_gap_area : mm^2 (default ``GAP_AREA_FACTOR * max_region_area``).
+    advisory_gaps : a patch larger than ``max_gap_area`` is a warning, not a reason: for a
+        band that is no drawing requirement (qifreport's default band beside a drawing's
+        tolerances), judged where it was measured. The coverage rule and the second gap
+        rule (a patch that could hide a failing region) still decide.
 
     Returns
     -------
@@ -207,7 +217,8 @@ def zone_coverage(
     adj = adjacency(F, n)
     patches = unmeasured_patches(V, F, gap, area, adj)
     g_area, g_cen = patches[0] if patches else (0.0, None)
-    reasons = []
+    reasons: list[str] = []
+    warnings: list[str] = []
     if not (total > 0 and cov >= min_coverage * (1 - 1e-12)):
         reasons.append(
             f"scored {100 * (cov if total > 0 else 0.0):.1f} % of the surface, below the "
@@ -216,11 +227,15 @@ def zone_coverage(
         )
     if g_area > max_gap_area:
         x, y, z = g_cen
-        reasons.append(
+        text = (
             f"an unmeasured patch of {g_area:.1f} mm^2 at ({x:.1f}, {y:.1f}, {z:.1f}) is larger "
             f"than the {max_gap_area:g} mm^2 allowed"
         )
-    else:
+        if advisory_gaps:
+            warnings.append(f"{text} (a default band, no drawing requirement: reported only)")
+        else:
+            reasons.append(text)
+    if g_area <= max_gap_area or advisory_gaps:
         hidden = _hiding_patch(adj, V, gap, out, excess, area, max_region_area)
         if hidden is not None:
             a, cen, peak = hidden
@@ -231,7 +246,6 @@ def zone_coverage(
                 f"of a failing region, and the deviation around it reaches {100 * peak:.0f} % "
                 "of the half-band: it could hide one"
             )
-    warnings = []
     if total > 0 and e_area / total > MAX_EXCLUDED_SHARE:
         warnings.append(
             f"{100 * e_area / total:.1f} % of the surface lies in the bands left unscored near "
@@ -283,3 +297,29 @@ def _hiding_patch(A, V, gap, out, excess, area, max_region_area):
     w = area[idx][m]
     cen = (w[:, None] * V[idx][m]).sum(axis=0) / max(float(w.sum()), 1e-300)
     return float(tot[j]), cen, float(peak[j])
+
+
+def unseen_neighbour_edges(F: np.ndarray, face_id: np.ndarray, dev: np.ndarray) -> np.ndarray:
+    """(n,) bool: the vertices on a B-rep face boundary left unscored beside scored ones.
+
+    The face-aware measure scores a vertex shared by several B-rep faces only when every one
+    of them was seen (:func:`~qifreport.metrology.deviation.residual_referenced`): along the
+    edge of a seen face with an unseen one its boundary vertices stay unscored, by design, not
+    for want of data on the seen face. They count as excluded (as the crease band of a mesh
+    nominal does), not as an unmeasured patch of the seen face; boundary vertices with no
+    scored neighbour stay part of whatever unseen patch they lie in.
+
+    Parameters
+    ----------
+    F : (f, 3) triangles.  face_id : (f,) B-rep face of each triangle.
+    dev : (n,) deviation, mm, NaN where unscored.
+    """
+    n = len(dev)
+    lo = np.full(n, np.iinfo(np.int64).max)
+    hi = np.full(n, -1)
+    fid = np.repeat(np.asarray(face_id, dtype=np.int64), 3)
+    np.minimum.at(lo, F.ravel(), fid)
+    np.maximum.at(hi, F.ravel(), fid)
+    scored = np.isfinite(dev)
+    beside = (adjacency(F, n) @ scored.astype(np.int64)) > 0
+    return (lo < hi) & ~scored & beside

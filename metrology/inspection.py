@@ -48,7 +48,13 @@ from .bands import (
     symmetric_zone,
     zone_vertex_areas,
 )
-from .coverage import DEFAULT_MIN_COVERAGE, GAP_AREA_FACTOR, Coverage, zone_coverage
+from .coverage import (
+    DEFAULT_MIN_COVERAGE,
+    GAP_AREA_FACTOR,
+    Coverage,
+    unseen_neighbour_edges,
+    zone_coverage,
+)
 from .deviation import (
     beyond_rim,
     closest_points,
@@ -176,6 +182,14 @@ class InspectionResult:
         (:func:`qifreport.metrology.repeatability.apply`).
     basis : the nominal's GB-CICP bending basis when one was used (per-part state: pass it
         to :func:`inspect` for further scans of the part).
+    fixture_decision : why the part was judged as it was: ``"free state conforms"`` (the
+        free state was judged first and conforms: no virtual fixture, ``fit`` is None),
+        ``"free state does not conform"`` (it was judged first, then fixtured), ``"always"``
+        (``always_fixture``: fixtured without judging the free state) or ``"rigid only"``.
+    free_state : the free state's verdict when it was judged first and did not conform
+        (the fixtured verdict is :attr:`verdict`); None otherwise.
+    free_state_decided_by : what the free state failed on (:meth:`decided_by` of its
+        judgement), when it was judged first and did not conform.
     """
 
     V: np.ndarray
@@ -208,6 +222,9 @@ class InspectionResult:
     coverage: Coverage | None = None
     edges: EdgeDeviation | None = None
     size: SizeEstimate | None = None
+    fixture_decision: str = "always"
+    free_state: str | None = None
+    free_state_decided_by: list[str] = field(default_factory=list)
 
     @property
     def passed(self) -> bool:
@@ -406,11 +423,17 @@ class InspectionResult:
             },
             "registration": {
                 "energy": self.energy,
+                "fixture": {
+                    "decision": self.fixture_decision,
+                    "free_state_verdict": self.free_state,
+                    "free_state_decided_by": list(self.free_state_decided_by),
+                },
                 "prealign": None if self.prealign is None else _prealign_dict(self.prealign),
                 "rigid": {
                     "R": self.rigid.R.tolist(),
                     "t_mm": self.rigid.t.tolist(),
                     "rms_mm": self.rigid.rms,
+                    "residual_scale_mm": self.rigid.scale,
                     "inlier_fraction": self.rigid.inlier_fraction,
                     "iterations": self.rigid.iterations,
                 },
@@ -661,42 +684,11 @@ def inspect(
             f"of the points lie within {0.02 * diag:.3g} mm of it"
         )
 
-    fit = None
-    V_reg = V
     t0 = time.perf_counter()
     # scan normals, oriented consistently per connected sheet once; each use below only
     # chooses the sheets' sides against its own nominal
     Ns, sheets = orient_normals_consistent(Pm, pca_normals(Pm, params.gbcicp.scan_normal_k))
-    # the scored set depends on the nominal only: vertices near a sharp crease or an open
-    # rim are neither scored nor flagged by the virtual fixture as defect candidates
-    near_crease, near_rim, rim_band = prepared.near_crease, prepared.near_rim, prepared.rim_band
-    if not params.rigid_only:
-        flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
-        # the two-pass guard counts no residual under a quarter of the tightest half-width
-        tightest = (
-            min(z.half_width for z in zones)
-            if zones
-            else (params.tolerance or DEFAULT_GENERAL_TOLERANCE)
-        )
-        gb = replace(params.gbcicp, guard_floor=max(params.gbcicp.guard_floor, 0.25 * tightest))
-        fit = deform(
-            params.method,
-            V,
-            F,
-            ops,
-            Pm,
-            gb if params.method == "gbcicp" else None,
-            scan_normals=Ns,
-            scan_sheets=sheets,
-            progress=progress,
-            basis=basis,
-            flaggable=flaggable,
-        )
-        V_reg = fit.V
-        basis = fit.basis
-    timings[params.method] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
+    timings["scan normals"] = time.perf_counter() - t0
     if zones is None:
         tol = params.tolerance
         zones = [
@@ -704,6 +696,108 @@ def inspect(
             if tol is None
             else symmetric_zone(tol, "general")
         ]
+    reg = _Registered(
+        V=V, F=F, P=Pm, rigid=rigid, seat=seat, scan_normals=Ns, sheets=sheets, diag=diag
+    )
+    judge = dict(
+        face_id=face_id,
+        zones=zones,
+        not_evaluated=not_evaluated,
+        prepared=prepared,
+        solid=solid,
+        energy=energy,
+        basis=basis,
+    )
+    if params.rigid_only:
+        res = _judge(reg, None, params, timings, **judge)
+        res.fixture_decision = "rigid only"
+        return res
+    free = None
+    if not params.always_fixture:
+        # ISO 10579 / Y14.5: restraint is there to bring a compliant part to its drawing
+        # shape; the free state (no force) is one of the states a fixture may hold it in.
+        # When it conforms on its own, no restraint is needed and none is simulated: a
+        # virtual fixture can then only add its own error (a stiff part moved by it).
+        t0 = time.perf_counter()
+        free = _judge(reg, None, params, dict(timings), check_part=False, **judge)
+        timings["free state"] = time.perf_counter() - t0
+        if free.passed and free.established:
+            free.timings = {**timings, **free.timings}
+            free.fixture_decision = "free state conforms"
+            return free
+    near_crease, near_rim = prepared.near_crease, prepared.near_rim
+    t0 = time.perf_counter()
+    flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
+    # the two-pass guard counts no residual under a quarter of the tightest half-width
+    tightest = min(z.half_width for z in zones)
+    gb = replace(params.gbcicp, guard_floor=max(params.gbcicp.guard_floor, 0.25 * tightest))
+    fit = deform(
+        params.method,
+        V,
+        F,
+        ops,
+        Pm,
+        gb if params.method == "gbcicp" else None,
+        scan_normals=Ns,
+        scan_sheets=sheets,
+        progress=progress,
+        basis=basis,
+        flaggable=flaggable,
+    )
+    timings[params.method] = time.perf_counter() - t0
+    res = _judge(reg, fit, params, timings, **judge)
+    res.fixture_decision = "always" if free is None else "free state does not conform"
+    if free is not None:
+        res.free_state = free.verdict
+        res.free_state_decided_by = free.decided_by()
+    return res
+
+
+@dataclass
+class _Registered:
+    """The scan seated rigidly on the nominal: what every judgement of one inspection shares."""
+
+    V: np.ndarray
+    F: np.ndarray
+    P: np.ndarray
+    rigid: RigidResult
+    seat: PrealignResult
+    scan_normals: np.ndarray
+    sheets: np.ndarray
+    diag: float
+
+
+def _judge(
+    reg: _Registered,
+    fit: DeformResult | None,
+    params: InspectionParams,
+    timings: dict[str, float],
+    *,
+    face_id: np.ndarray | None,
+    zones: list[ToleranceZone],
+    not_evaluated: list[NotEvaluated] | None,
+    prepared: PreparedPart,
+    solid: bool,
+    energy: str,
+    basis: BendingBasis | None,
+    check_part: bool = True,
+) -> InspectionResult:
+    """Judge the rigidly seated scan against the nominal as the fixture ``fit`` holds it
+    (``None``: the free state, the nominal where the rigid alignment put it)."""
+    V, F, Pm, rigid, diag = reg.V, reg.F, reg.P, reg.rigid, reg.diag
+    Ns, sheets = reg.scan_normals, reg.sheets
+    ops = prepared.ops
+    V_reg = V if fit is None else fit.V
+    if fit is not None:
+        basis = fit.basis
+    near_crease, near_rim, rim_band = prepared.near_crease, prepared.near_rim, prepared.rim_band
+    if fit is None and face_id is not None and params.edge_band is None:
+        # the free state of a B-rep nominal is scored up to its creases: the face-aware
+        # measure (:func:`vertex_deviation`) fits each vertex to the points of its own faces
+        # and leaves a crease vertex unscored unless all its faces were seen. A fixtured
+        # nominal keeps the band: there the displacement field is least determined
+        near_crease = None
+    t0 = time.perf_counter()
     bands = lay_bands(F, len(V), face_id, zones)
     keep = [i for i, m in enumerate(bands.tri_masks) if m.any()]
     if len(keep) < len(zones):
@@ -748,6 +842,8 @@ def inspect(
         dev[near_crease] = np.nan
         if dev_free is not None:
             dev_free[near_crease] = np.nan
+    if fit is None and face_id is not None and params.edge_band is None:
+        near_crease = unseen_neighbour_edges(F, face_id, dev)
     excluded = near_rim if near_crease is None else near_rim | near_crease
     rim = beyond_rim(V_reg, F, C, cface)
     timings["deviation"] = time.perf_counter() - t0
@@ -762,7 +858,8 @@ def inspect(
     # own band)
     general = [z for z in bands.zones if z.faces is None]
     general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
-    check_same_part(pdev, general_half, diag, rigid, fit)
+    if check_part:
+        check_same_part(pdev, general_half, diag, rigid, fit)
     # the size from the trim edges, on a fixture that moves the nominal along its normals only
     # (GB-CICP) or not at all; the baselines move it along the surface too, and so absorb or
     # make up a size error at the rim
@@ -785,6 +882,11 @@ def inspect(
         min_fraction=params.min_fraction,
         max_region_area=params.max_region_area,
         center=bands.center,
+    )
+    # beside a drawing's own tolerances, qifreport's default band is no requirement: judged
+    # where it was measured, its unmeasured patches reported (each PMI zone keeps its rules)
+    advisory = any(z.source == "default" for z in bands.zones) and any(
+        z.faces is not None for z in bands.zones
     )
     zone_results = []
     for z, mask in zip(bands.zones, bands.tri_masks, strict=True):
@@ -813,6 +915,7 @@ def inspect(
             min_coverage=params.min_coverage if z.min_coverage is None else z.min_coverage,
             max_region_area=params.max_region_area,
             max_gap_area=params.max_gap_area,
+            advisory_gaps=advisory and z.source == "default",
         )
         zone_results.append(
             ZoneResult(
@@ -835,6 +938,7 @@ def inspect(
         min_coverage=params.min_coverage,
         max_region_area=params.max_region_area,
         max_gap_area=params.max_gap_area,
+        advisory_gaps=advisory,
     )
     s_area = scan_area(Pm)
     ceiling = coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
@@ -877,7 +981,7 @@ def inspect(
         bands=bands,
         energy=energy,
         edge_excluded_area=float(area[near_crease].sum()) if near_crease is not None else 0.0,
-        prealign=seat,
+        prealign=reg.seat,
         added=added,
         hygiene=hygiene,
         basis=basis,

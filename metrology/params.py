@@ -55,6 +55,11 @@ class InspectionParams:
         same width as ``edge_band``'s default (1.5 median edges); 0 scores the rim. The excluded
         area is reported with the mesh's defects.
     rigid_only : skip the virtual fixture (the fixtureless rigid baseline).
+    always_fixture : apply the virtual fixture even when the free state conforms. By default
+        the free state (the rigid alignment, no force) is judged first and the fixture is
+        applied only when it does not conform (ISO 10579: restraint is there to bring a
+        compliant part to its drawing shape; a part that conforms without it needs none).
+        For comparing registration methods.
     prealign : pose search before the rigid ICP (:func:`qifreport.registration.prealign.seat_scan`):
         ``"auto"`` (default) searches only when the scan is not already in the part frame,
         ``"always"`` always searches, ``"never"`` trusts that scan and nominal share a frame.
@@ -81,6 +86,7 @@ class InspectionParams:
     boundary_band: float | None = None
     crease_angle: float = 45.0
     rigid_only: bool = False
+    always_fixture: bool = False
     prealign: str = "auto"
     fail_on_added_material: bool = False
     method: str = "gbcicp"

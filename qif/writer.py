@@ -360,17 +360,27 @@ def _algorithm_definitions(
                         "method": method,
                         "energy": res.energy,
                         "rigid_only": params.rigid_only,
+                        "fixture_decision": res.fixture_decision,
                         method: fit_params,
                     },
                     default=json_default,
                 )
             ),
-            E.Name("virtual fixture" if not params.rigid_only else "none (rigid only)"),
+            E.Name(_fixture_name(res)),
             E.Description(METHOD_DESCRIPTIONS.get(method, method)),
             id=fit_alg_id,
         ),
         n="2",
     )
+
+
+def _fixture_name(res) -> str:
+    """The virtual fixture's algorithm name: what was applied."""
+    if res.fit is not None:
+        return "virtual fixture"
+    if res.fixture_decision == "free state conforms":
+        return "none (the free state conforms: no restraint needed)"
+    return "none (rigid only)"
 
 
 def _file_units() -> etree._Element:

@@ -113,17 +113,27 @@ def remove_stale_temps(paths: list[Path]) -> list[Path]:
 @contextlib.contextmanager
 def output_lock(folder: str | Path):
     """An exclusive lock on an output folder for the duration of a run: ``flock`` on the
-    folder itself (the nearest existing ancestor while it does not exist yet), so no lock
-    file is left behind. A second run into the same folder gets ``BlockingIOError`` instead
-    of overwriting the first one's files."""
+    folder itself, so no lock file is left behind. A folder that does not exist yet is made
+    first (and removed again, with the parents made for it, if the run leaves it empty), so
+    two runs into two new folders of one parent do not contend. A second run into the same
+    folder gets ``BlockingIOError`` instead of overwriting the first one's files."""
     import fcntl
 
     target = Path(folder).absolute()
-    while not target.is_dir() and target != target.parent:
-        target = target.parent
+    made = []
+    p = target
+    while not p.exists() and p != p.parent:
+        made.append(p)
+        p = p.parent
+    target.mkdir(parents=True, exist_ok=True)
     fd = os.open(target, os.O_RDONLY)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         yield
     finally:
         os.close(fd)
+        for d in made:  # deepest first; a folder the run wrote into is not empty
+            try:
+                d.rmdir()
+            except OSError:
+                break

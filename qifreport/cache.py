@@ -105,7 +105,8 @@ log = logging.getLogger(__name__)
 #:    whole-part PMI profile is the general zone (entries of 3 hold the old zones)
 #: 5: STEP nominals meshed by gmsh by default (the key names the mesher)
 #: 6: vertex deviations from the scan points' own residuals (the prepared bands are kept)
-CACHE_FORMAT = 6
+#: 7: supplemental faces (in no solid) left out of the mesh; zones carry their footprints
+CACHE_FORMAT = 7
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"

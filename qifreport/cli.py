@@ -243,7 +243,15 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         "found in every run; the figures reported are the full scan's. Default 1: "
         "no resampling",
     )
-    ap.add_argument("--rigid-only", action="store_true", help="no virtual fixture (baseline)")
+    fixture = ap.add_mutually_exclusive_group()
+    fixture.add_argument("--rigid-only", action="store_true", help="no virtual fixture (baseline)")
+    fixture.add_argument(
+        "--always-fixture",
+        action="store_true",
+        help="apply the virtual fixture even when the free state conforms (default: the "
+        "free state is judged first and a part that conforms without restraint is not "
+        "fixtured, ISO 10579); for comparing registration methods",
+    )
     add_accept_option(ap)
     add_cache_options(ap)
     if not batch:

@@ -9,7 +9,7 @@ general zone of the given tolerance.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "Nominal",
     "load_nominal",
+    "seat_supplemental",
 ]
 
 
@@ -87,6 +88,16 @@ def load_nominal(
         else:
             mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
         zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
+        V, F, face_id = mesh.V, mesh.F, mesh.face_id
+        supplemental: list[dict] = []
+        if part.n_solids:
+            from qifreport.step.supplemental import face_solids
+
+            free = face_solids(part.shape, part.faces) < 0
+            if free.any():
+                V, F, face_id, zones, skipped, supplemental = seat_supplemental(
+                    V, F, face_id, free, zones, skipped, part.face_step_ids, 2.0 * mesh.deflection
+                )
         pmi = part.pmi
         info = {
             "format": "step",
@@ -98,8 +109,8 @@ def load_nominal(
                 "mesher": mesher,
                 "deflection_mm": mesh.deflection,
                 "max_edge_mm": max_edge,
-                "vertices": len(mesh.V),
-                "triangles": len(mesh.F),
+                "vertices": len(V),
+                "triangles": len(F),
             },
             "pmi_counts": {
                 "tolerances": len(pmi.tolerances) if pmi else 0,
@@ -110,10 +121,10 @@ def load_nominal(
         }
         if implausible:
             info["implausible_tolerances"] = implausible
+        if supplemental:
+            info["supplemental_faces"] = supplemental
         datums = [d.label for d in pmi.datums] if pmi is not None else []
-        return Nominal(
-            mesh.V, mesh.F, mesh.face_id, zones, skipped, info, list(dict.fromkeys(datums))
-        )
+        return Nominal(V, F, face_id, zones, skipped, info, list(dict.fromkeys(datums)))
     if tolerance is None:
         raise InputError(
             f"{path.name} is a mesh nominal: it carries no tolerance, give "
@@ -135,3 +146,89 @@ def load_nominal(
         "winding": {"flipped_triangles": flipped, "unorientable_triangles": unorientable},
     }
     return Nominal(V, F, None, [symmetric_zone(tolerance, "general")], [], info)
+
+
+def seat_supplemental(
+    V: np.ndarray,
+    F: np.ndarray,
+    face_id: np.ndarray,
+    free: np.ndarray,
+    zones: list[ToleranceZone],
+    skipped: list[NotEvaluated],
+    face_step_ids: np.ndarray,
+    tol: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[ToleranceZone], list[NotEvaluated], list]:
+    """Leave a STEP part's supplemental faces (in no solid) out of its mesh, and judge the
+    tolerances that name them on the solid beneath (:mod:`qifreport.step.supplemental`).
+
+    Parameters
+    ----------
+    V : (n, 3) mm.  F : (f, 3).  face_id : (f,) face of each triangle.
+    free : (n_faces,) bool, faces in no solid.  zones, skipped : from ``zones_from_pmi``.
+    face_step_ids : (n_faces,) STEP id of each face (-1 unknown).
+    tol : mm, how far from a free face the solid's triangles beneath it may lie.
+
+    Returns
+    -------
+    V, F, face_id : the mesh without the free faces (unused vertices dropped).
+    zones : a zone naming a free face on the solid takes its footprint's triangles
+        (``ToleranceZone.triangles``); one left with no surface at all is moved to
+    skipped : with the reason.
+    supplemental : one dict per free face (the JSON's ``nominal.supplemental_faces``).
+    """
+    from qifreport.step.supplemental import footprints
+
+    prints = {fp.face: fp for fp in footprints(V, F, face_id, free, tol)}
+    keep = ~free[face_id]
+    new_tri = np.cumsum(keep) - 1
+    F2, fid2 = F[keep], face_id[keep]
+    used = np.unique(F2)
+    new_v = np.full(len(V), -1, dtype=np.int64)
+    new_v[used] = np.arange(len(used))
+    V2, F2 = V[used], new_v[F2]
+    out_zones, out_skipped = [], list(skipped)
+    for z in zones:
+        mine = [] if z.faces is None else [int(f) for f in z.faces if free[f]]
+        if not mine:
+            out_zones.append(z)
+            continue
+        tris = [new_tri[prints[f].triangles] for f in mine if f in prints]
+        tris = np.unique(np.concatenate(tris)) if tris else np.zeros(0, dtype=np.int64)
+        solid_faces = [f for f in z.faces if not free[f]]
+        if len(tris) == 0 and not solid_faces:
+            ids = ", ".join(f"#{face_step_ids[f]}" for f in mine)
+            out_skipped.append(
+                NotEvaluated(
+                    kind=z.kind,
+                    name=z.name,
+                    step_id=z.step_id,
+                    reason=f"its face {ids} is supplemental geometry off the part's solid: "
+                    "no scan of the part can measure it",
+                )
+            )
+            continue
+        out_zones.append(replace(z, triangles=tris if len(tris) else None))
+    supplemental = [
+        {
+            "face": f,
+            "step_id": int(face_step_ids[f]) if face_step_ids[f] >= 0 else None,
+            "area_mm2": fp.free_area,
+            "footprint_area_mm2": fp.area,
+            "on_faces": [int(x) for x in fp.on_faces],
+        }
+        for f, fp in sorted(prints.items())
+    ]
+    for f, fp in sorted(prints.items()):
+        where = (
+            f"on face(s) {', '.join(str(int(x)) for x in fp.on_faces)}"
+            if len(fp.triangles)
+            else "off the solid"
+        )
+        log.info(
+            "supplemental face %d (#%d, %.1f mm^2) %s: left out of the mesh",
+            f,
+            face_step_ids[f],
+            fp.free_area,
+            where,
+        )
+    return V2, F2, fid2, out_zones, out_skipped, supplemental

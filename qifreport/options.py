@@ -54,6 +54,7 @@ RESULT_OPTIONS = (
     "method",
     "seeds",
     "rigid_only",
+    "always_fixture",
     "accept_tolerance_as_read",
     "min_coverage",
     "zone_min_coverage",
@@ -115,6 +116,7 @@ class InspectOptions:
     method : deformable method (:data:`qifreport.registration.methods.METHODS`).
     seeds : runs of the repeatability check (1: none).
     rigid_only : no virtual fixture.
+    always_fixture : apply the virtual fixture even when the free state conforms.
     cache_dir : per-part cache directory (None: no cache).
     accept_tolerance_as_read : inspect with tolerances the plausibility check of
         :mod:`qifreport.step.plausibility` flags (default: refuse the part).
@@ -147,6 +149,7 @@ class InspectOptions:
     method: str = "gbcicp"
     seeds: int = 1
     rigid_only: bool = False
+    always_fixture: bool = False
     cache_dir: Path | None = None
     accept_tolerance_as_read: bool = False
     min_coverage: float = DEFAULT_MIN_COVERAGE
@@ -217,6 +220,7 @@ class InspectOptions:
             edge_band=self.edge_band,
             boundary_band=self.boundary_band,
             rigid_only=self.rigid_only,
+            always_fixture=self.always_fixture,
             prealign=self.prealign,
             fail_on_added_material=self.fail_on_added_material,
             method=self.method,

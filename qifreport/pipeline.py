@@ -170,13 +170,22 @@ def summary(res: InspectionResult) -> str:
 def fixture_text(res: InspectionResult) -> str:
     """How the virtual fixture was made, for the summary."""
     if res.fit is None:
+        if res.fixture_decision == "free state conforms":
+            return (
+                f"rigid ICP (robust residual {res.rigid.scale:.3f} mm); the free state "
+                "conforms, so no virtual fixture was needed (ISO 10579 restraint brings a "
+                "part to its drawing shape; this one is there without it)"
+            )
         return "rigid ICP only (no virtual fixture)"
     fit = res.fit
-    return (
+    text = (
         f"rigid ICP + virtual fixture {method_label(fit.method)} ({fit.iterations} "
         f"iterations, robust residual {fit.scale:.3f} mm, "
         f"largest displacement {fit.max_displacement:.3f} mm)"
     )
+    if res.free_state is not None:
+        text += f"; free state judged first: {res.free_state}"
+    return text
 
 
 def exit_code(res: InspectionResult) -> int:

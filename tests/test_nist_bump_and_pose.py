@@ -4,8 +4,9 @@
 * A 0.5 mm x sigma 3 mm bump on the tightest measured toleranced face FAILs that tolerance,
   with a failing region's centroid within 3 mm of the bump.
 * From an arbitrary pose the perfect scan conforms with the same zone verdicts, and
-  ``--rigid-only`` (no virtual fixture) gives them too: on this stiff part the fixture
-  removes nothing that matters (its largest displacement stays under 0.25 mm).
+  ``--rigid-only`` (no virtual fixture) gives them too: the free state of this stiff part
+  conforms, so no fixture is applied, and one forced on it (``--always-fixture``) moves
+  the nominal by less than 0.25 mm.
 
 FTC 06: its tightest zones (0.254 mm) are narrower than the bump, and it conforms today.
 """
@@ -60,8 +61,11 @@ def test_arbitrary_pose_and_rigid_only_agree(scans):
     posed = s.run(s.scan.P @ T[:3, :3].T + T[:3, 3], "posed")
     assert_conforms(posed)
     rigid = s.run(None, "rigid", "--rigid-only")
-    # the virtual fixture removed nothing that matters on a stiff part
-    assert base["registration"]["fit"]["max_displacement_mm"] < 0.25
+    # the free state of a stiff part conforms: no virtual fixture is applied, and forcing
+    # one moves the nominal by little
+    assert base["registration"]["fixture"]["decision"] == "free state conforms"
+    forced = s.run(None, "forced", "--always-fixture")
+    assert forced["registration"]["fit"]["max_displacement_mm"] < 0.25
     verdicts = {z["key"]: z["verdict"] for z in base["tolerances"]}
     assert {z["key"]: z["verdict"] for z in posed["tolerances"]} == verdicts
     assert {z["key"]: z["verdict"] for z in rigid["tolerances"]} == verdicts

@@ -16,7 +16,11 @@ from __future__ import annotations
 import pytest
 
 from tests.conftest import NIST
-from tests.nist_scans import assert_conforms, scans_fixture
+from tests.nist_scans import (
+    assert_conforms,
+    assert_not_measured_only_where_unseen,
+    scans_fixture,
+)
 
 scans = pytest.fixture(scope="module")(scans_fixture)
 
@@ -25,30 +29,42 @@ scans = pytest.fixture(scope="module")(scans_fixture)
 #: until its mark is removed
 STILL_WRONG = {
     "nist_ctc_02_asme1_ap242-e2.stp": "unilateral zones [-2.5, 0] and [0, +2.5] put the "
-    "nominal on a zone limit, and GB-CICP moves the nominal by up to 1.8 mm and falls back",
-    "nist_ctc_03_asme1_ap242-e2.stp": "its 1.9 mm walls at ~0.9 mm point spacing: the "
-    "two-pass guard fires and coverage exceeds the scanned share (conforms at 400k points)",
-    "nist_ctc_04_asme1_ap242-e1.stp": "GB-CICP moves the nominal by up to 1.4 mm and falls "
-    "back; the 0.2 mm zone of pmi #18793 fails on a 57 mm^2 region",
-    "nist_ctc_05_asme1_ap242-e1.stp": "GB-CICP moves the nominal by up to 0.6 mm: a "
-    "760 mm^2 region beyond the default band",
-    "nist_ftc_08_asme1_ap242-e1.stp": "GB-CICP moves the nominal by 0.5 mm and falls back; "
-    "the 0.127 mm zone of pmi #11547 fails (--rigid-only: no FAIL, max |dev| 0.025 mm)",
+    "nominal on a zone limit: the free state fails them, then GB-CICP moves the nominal by "
+    "up to 2 mm and falls back",
+    "nist_ctc_03_asme1_ap242-e2.stp": "its 1.9 mm walls at ~0.9 mm point spacing: the PCA "
+    "normals mix the two skins (range noise read as 0.9 mm), the free state is not "
+    "established, GB-CICP then fails it (conforms at 400k points)",
 }
 
+#: parts whose perfect scan conforms but is not judged measured where it was seen (CTC 04's
+#: free disk on the solid, pmi #18835, was until supplemental faces left the mesh)
+NOT_MEASURED_WRONGLY: dict[str, str] = {}
 
-def _cases():
+
+def _cases(wrong: dict):
     for name in NIST:
         marks = []
-        if name in STILL_WRONG:
-            marks.append(pytest.mark.xfail(reason=STILL_WRONG[name], strict=True))
+        if name in STILL_WRONG or name in wrong:
+            reason = STILL_WRONG.get(name) or wrong[name]
+            marks.append(pytest.mark.xfail(reason=reason, strict=True))
         yield pytest.param(name, marks=marks, id=name.split("_asme")[0])
 
 
-@pytest.mark.parametrize("name", list(_cases()))
+@pytest.mark.parametrize("name", list(_cases({})))
 def test_perfect_scan_conforms(scans, name):
     doc = scans(name).run()
     assert_conforms(doc)
     # the measure itself: the whole scored surface well inside the default +/-0.5 mm band
     # (10 um noise; before the residual-based measure: up to 1.1 mm on CTC 01)
-    assert doc["vertex_deviation"]["max_abs"] < 0.4, doc["vertex_deviation"]
+    assert doc["vertex_deviation"]["max_abs"] < 0.2, doc["vertex_deviation"]
+
+
+@pytest.mark.parametrize("name", list(_cases(NOT_MEASURED_WRONGLY)))
+def test_perfect_scan_passes_where_it_was_seen(scans, name):
+    """Exit 0, or NOT MEASURED (exit 3) only on toleranced surfaces with a real hole in the
+    scan (the four views' occlusions): never on a surface the scan did see."""
+    s = scans(name)
+    doc = s.run()
+    assert doc["_rc"] in (0, 3), doc["decided_by"]
+    assert (doc["_rc"] == 0) == (doc["verdict"] == "PASS")
+    assert_not_measured_only_where_unseen(doc, s.scan.P)

@@ -128,6 +128,16 @@ def test_a_second_run_into_a_locked_folder_is_refused(tmp_path):
     assert files(out) == []
 
 
+def test_runs_into_new_sibling_folders_do_not_contend(tmp_path):
+    """Two runs into two folders that do not exist yet, under one parent, each get their own
+    lock (not the parent's); a folder made for a run that wrote nothing is removed again."""
+    with output_lock(tmp_path / "a" / "deep"), output_lock(tmp_path / "b"):
+        assert (tmp_path / "a" / "deep").is_dir() and (tmp_path / "b").is_dir()
+        (tmp_path / "b" / "part.qif").write_text("written")
+    assert not (tmp_path / "a").exists()  # made for the run, left empty: removed
+    assert (tmp_path / "b" / "part.qif").is_file()
+
+
 @pytest.mark.slow
 def test_stale_temporary_files_of_a_killed_run_are_removed(tmp_path):
     out = tmp_path / "o"

@@ -37,11 +37,20 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
         ["Rigid rotation, deg / shift, mm", f"{angle:.3f} / {np.linalg.norm(t):.3f}"],
     ]
     if fit is None:
-        rows.append(["Non-rigid (virtual fixture)", "none: rigid only"])
+        none = (
+            "none: free state conforms"
+            if res.fixture_decision == "free state conforms"
+            else "none: rigid only"
+        )
+        rows.append(["Non-rigid (virtual fixture)", none])
     else:
         fp = fit.params
         rows += [
-            ["Virtual fixture method", method_label(fit.method)],
+            [
+                "Virtual fixture method",
+                method_label(fit.method)
+                + ("" if res.free_state is None else f" (free state: {res.free_state})"),
+            ],
             ["Non-rigid residual (robust), mm", fmt_mm(fit.scale)],
             [
                 "Iterations / passes / fallback",
@@ -88,6 +97,8 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
         f"Registration: rigid ICP + virtual fixture ({method_label(fit.method)})"
         if fit is not None
         else "Registration: rigid ICP only (free state)"
+        if res.fixture_decision != "free state conforms"
+        else "Registration: rigid ICP, free state conforms"
     )
     return Table(
         columns=[("", width - w2, "l"), ("", w2, "r")],

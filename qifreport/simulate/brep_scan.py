@@ -32,6 +32,7 @@ __all__ = [
     "bump",
     "bump_site",
     "random_pose",
+    "toleranced_weight",
 ]
 
 log = logging.getLogger(__name__)
@@ -272,16 +273,36 @@ def perfect_scan(
     noise: float = 0.01,
     points: int = 150_000,
     seed: int = 0,
+    face_weight: np.ndarray | None = None,
 ) -> tuple[BrepScan, BrepSurfaceMesh]:
-    """A part's perfect scan: ``views`` planned views (:func:`plan_views`) of its exact B-rep
+    """A part's perfect scan: ``views`` planned views (:func:`plan_views`, weighted per face
+    by ``face_weight``, e.g. :func:`toleranced_weight`) of its exact B-rep
     (:func:`brep_scan`), ``noise`` mm range noise, about ``points`` points; and the fine
     surface mesh it was made with (for :func:`bump_site`)."""
     mesh = brep_surface_mesh(shape, faces, deflection=2e-4 * _diagonal(shape))
-    dirs = plan_views(mesh, views)
+    dirs = plan_views(mesh, views, face_weight=face_weight)
     scan = brep_scan(
         shape, faces, directions=dirs, noise=noise, points=points, mesh=mesh, seed=seed
     )
     return scan, mesh
+
+
+def toleranced_weight(part, boost: float = 10.0) -> np.ndarray:
+    """Per-face view-planning weights (n_faces,) of a STEP part: ``boost`` on the faces of
+    its surface-profile tolerances (not the whole-part ones), 1 elsewhere: the technician
+    aims the views at the surfaces the drawing tolerances.
+
+    ``part`` is a :class:`qifreport.step.reader.StepPart`.
+    """
+    w = np.ones(len(part.faces))
+    index = part.face_index()
+    for t in part.pmi.tolerances:
+        if t.whole_part or "profile" not in t.type:
+            continue
+        for sid in t.face_step_ids:
+            if sid in index:
+                w[index[sid]] = boost
+    return w
 
 
 def _diagonal(shape) -> float:
