@@ -372,6 +372,7 @@ def key_material(nominal_sha256: str, options: NominalOptions, params: Inspectio
             "deflection": options.deflection,
             "accept_tolerance_as_read": options.accept_tolerance_as_read,
             "mesher": options.mesher,
+            "solid": options.solid,
         },
         "part": part_settings(params),
     }
@@ -411,6 +412,7 @@ def build_state(
         options.deflection,
         accept_tolerance_as_read=options.accept_tolerance_as_read,
         mesher=options.mesher,
+        solid=options.solid,
     )
     if complete:
         prepared = prepare_part(nom.V, nom.F, params)

@@ -80,6 +80,13 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         help="STEP: chord deflection of the tessellation (default 0.001 x diagonal)",
     )
     ap.add_argument(
+        "--solid",
+        default=None,
+        metavar="NAME|INDEX",
+        help="STEP: the solid to inspect, by index (0, 1, ...) or name, in a file with several "
+        "(qifreport pmi lists them); without it such a file is refused",
+    )
+    ap.add_argument(
         "--mesher",
         choices=("gmsh", "brepmesh"),
         default="gmsh",
@@ -362,8 +369,11 @@ def _run_inspect(args: argparse.Namespace) -> int:
 def _run_pmi(args: argparse.Namespace) -> int:
     from qifreport.step.reader import read_step
     from qifreport.step.report import pmi_rows, pmi_table
+    from qifreport.step.solids import overlapping_pairs, solid_infos
 
     part = read_step(args.step)
+    solids = solid_infos(part.shape, part.solid_names)
+    overlaps = overlapping_pairs(part.shape, solids) if len(solids) > 1 else []
     if args.json:
         print(
             json.dumps(
@@ -372,6 +382,10 @@ def _run_pmi(args: argparse.Namespace) -> int:
                     "sha256": sha256(args.step),
                     "length_unit": part.pmi.length_unit,
                     "faces": len(part.faces),
+                    "solids": [x.to_dict() for x in solids],
+                    "overlapping_solids": [
+                        {"solids": [a, b], "common_volume_mm3": v} for a, b, v in overlaps
+                    ],
                     "items": pmi_rows(part),
                 },
                 indent=2,
@@ -380,6 +394,15 @@ def _run_pmi(args: argparse.Namespace) -> int:
         )
     else:
         print(pmi_table(part))
+        if len(solids) > 1:
+            print(f"{len(solids)} solids (inspect one with --solid NAME|INDEX):")
+            for x in solids:
+                print(f"  {x.describe()}")
+            for a, b, v in overlaps:
+                print(
+                    f"  solids {a} and {b} overlap ({v:,.0f} mm^3 in common): nested or "
+                    "overlapping, never one part"
+                )
     return 0
 
 
@@ -480,6 +503,13 @@ def build_parser() -> argparse.ArgumentParser:
             help="as for the inspection (the cache key includes it)",
         )
     p.add_argument("--energy", choices=["auto", "hessian", "laplacian"], default="auto")
+    p.add_argument(
+        "--solid",
+        default=None,
+        metavar="NAME|INDEX",
+        help="STEP: the solid to inspect, by index (0, 1, ...) or name, in a file with several "
+        "(qifreport pmi lists them); without it such a file is refused",
+    )
     p.add_argument(
         "--cache",
         type=Path,

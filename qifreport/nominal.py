@@ -17,6 +17,7 @@ import numpy as np
 from qifreport.metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
 from qifreport.registration.mesh import bounding_diagonal, consistent_winding, load_mesh
 from qifreport.step.reader import STEP_SUFFIXES
+from qifreport.step.solids import SolidInfo, overlapping_pairs, pick_solid, solid_infos
 
 from .errors import InputError
 
@@ -25,7 +26,8 @@ log = logging.getLogger(__name__)
 __all__ = [
     "Nominal",
     "load_nominal",
-    "seat_supplemental",
+    "pick_part_solid",
+    "seat_faces",
 ]
 
 
@@ -50,6 +52,7 @@ def load_nominal(
     *,
     accept_tolerance_as_read: bool = False,
     mesher: str = "gmsh",
+    solid: str | None = None,
 ) -> Nominal:
     """Read a STEP part (mesh + PMI zones) or a mesh nominal (one general zone).
 
@@ -62,12 +65,16 @@ def load_nominal(
     ``mesher``: ``"gmsh"`` (:func:`qifreport.step.gmsh_mesh.gmsh_tessellate`, isotropic,
     welded and manifold; the default) or ``"brepmesh"``
     (:func:`qifreport.step.tessellate.tessellate`).
+
+    ``solid``: the solid of a multi-solid STEP file to inspect, by index or name
+    (:func:`pick_part_solid`; a file with several solids is refused without it).
     """
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
     if path.suffix.lower() in STEP_SUFFIXES:
         from qifreport.step.plausibility import implausible_tolerances
         from qifreport.step.reader import read_step
+        from qifreport.step.supplemental import face_solids
         from qifreport.step.tessellate import shape_diagonal, tessellate
 
         part = read_step(path)
@@ -79,6 +86,9 @@ def load_nominal(
                 f"{path.name}: implausible tolerance read from the file: {implausible[0]}{more}; "
                 "if the drawing really means it, run with --accept-tolerance-as-read"
             )
+        chosen, picked = pick_part_solid(part, solid)
+        if picked is not None:  # the part is that solid: its size sets the mesh
+            diagonal = float(np.linalg.norm(picked.hi - picked.lo))
         if max_edge is None:
             max_edge = diagonal / 60.0
         if mesher == "gmsh":
@@ -90,14 +100,19 @@ def load_nominal(
         zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
         V, F, face_id = mesh.V, mesh.F, mesh.face_id
         supplemental: list[dict] = []
-        if part.n_solids:
-            from qifreport.step.supplemental import face_solids
-
-            free = face_solids(part.shape, part.faces) < 0
-            if free.any():
-                V, F, face_id, zones, skipped, supplemental = seat_supplemental(
-                    V, F, face_id, free, zones, skipped, part.face_step_ids, 2.0 * mesh.deflection
-                )
+        face_solid = face_solids(part.shape, part.faces)
+        if chosen is not None or (face_solid < 0).any():
+            V, F, face_id, zones, skipped, supplemental = seat_faces(
+                V,
+                F,
+                face_id,
+                face_solid,
+                chosen,
+                zones,
+                skipped,
+                part.face_step_ids,
+                2.0 * mesh.deflection,
+            )
         pmi = part.pmi
         info = {
             "format": "step",
@@ -123,6 +138,8 @@ def load_nominal(
             info["implausible_tolerances"] = implausible
         if supplemental:
             info["supplemental_faces"] = supplemental
+        if picked is not None:
+            info["solid"] = {"index": chosen, "name": picked.name, "of": part.n_solids}
         datums = [d.label for d in pmi.datums] if pmi is not None else []
         return Nominal(V, F, face_id, zones, skipped, info, list(dict.fromkeys(datums)))
     if tolerance is None:
@@ -148,66 +165,86 @@ def load_nominal(
     return Nominal(V, F, None, [symmetric_zone(tolerance, "general")], [], info)
 
 
-def seat_supplemental(
+def seat_faces(
     V: np.ndarray,
     F: np.ndarray,
     face_id: np.ndarray,
-    free: np.ndarray,
+    face_solid: np.ndarray,
+    solid: int | None,
     zones: list[ToleranceZone],
     skipped: list[NotEvaluated],
     face_step_ids: np.ndarray,
     tol: float,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[ToleranceZone], list[NotEvaluated], list]:
-    """Leave a STEP part's supplemental faces (in no solid) out of its mesh, and judge the
-    tolerances that name them on the solid beneath (:mod:`qifreport.step.supplemental`).
+    """Keep the mesh of the part inspected: the faces of solid ``solid`` (every solid's when
+    None) without the supplemental faces (in no solid), and judge the tolerances that name a
+    supplemental face on the solid beneath it (:mod:`qifreport.step.supplemental`).
 
     Parameters
     ----------
     V : (n, 3) mm.  F : (f, 3).  face_id : (f,) face of each triangle.
-    free : (n_faces,) bool, faces in no solid.  zones, skipped : from ``zones_from_pmi``.
+    face_solid : (n_faces,) solid of each face, -1 for none
+        (:func:`qifreport.step.supplemental.face_solids`).
+    solid : the solid inspected (``--solid``), or None.
+    zones, skipped : from ``zones_from_pmi``.
     face_step_ids : (n_faces,) STEP id of each face (-1 unknown).
-    tol : mm, how far from a free face the solid's triangles beneath it may lie.
+    tol : mm, how far from a supplemental face the solid's triangles beneath it may lie.
 
     Returns
     -------
-    V, F, face_id : the mesh without the free faces (unused vertices dropped).
-    zones : a zone naming a free face on the solid takes its footprint's triangles
-        (``ToleranceZone.triangles``); one left with no surface at all is moved to
+    V, F, face_id : the mesh kept (unused vertices dropped).
+    zones : each zone on the faces kept; a zone naming a supplemental face on the solid takes
+        its footprint's triangles (``ToleranceZone.triangles``); a zone left with no surface
+        is moved to
     skipped : with the reason.
-    supplemental : one dict per free face (the JSON's ``nominal.supplemental_faces``).
+    supplemental : one dict per supplemental face (the JSON's ``nominal.supplemental_faces``).
     """
     from qifreport.step.supplemental import footprints
 
-    prints = {fp.face: fp for fp in footprints(V, F, face_id, free, tol)}
-    keep = ~free[face_id]
-    new_tri = np.cumsum(keep) - 1
-    F2, fid2 = F[keep], face_id[keep]
+    free = face_solid < 0
+    other = (
+        np.zeros(len(face_solid), dtype=bool)
+        if solid is None
+        else (face_solid >= 0) & (face_solid != solid)
+    )
+    keep = ~other[face_id]
+    F1, fid1 = F[keep], face_id[keep]
+    prints = {fp.face: fp for fp in footprints(V, F1, fid1, free, tol)}
+    keep2 = ~free[fid1]
+    new_tri = np.cumsum(keep2) - 1
+    F2, fid2 = F1[keep2], fid1[keep2]
     used = np.unique(F2)
     new_v = np.full(len(V), -1, dtype=np.int64)
     new_v[used] = np.arange(len(used))
     V2, F2 = V[used], new_v[F2]
     out_zones, out_skipped = [], list(skipped)
     for z in zones:
-        mine = [] if z.faces is None else [int(f) for f in z.faces if free[f]]
-        if not mine:
+        if z.faces is None or not (free[z.faces].any() or other[z.faces].any()):
             out_zones.append(z)
             continue
+        mine = [int(f) for f in z.faces if free[f]]
         tris = [new_tri[prints[f].triangles] for f in mine if f in prints]
         tris = np.unique(np.concatenate(tris)) if tris else np.zeros(0, dtype=np.int64)
-        solid_faces = [f for f in z.faces if not free[f]]
-        if len(tris) == 0 and not solid_faces:
-            ids = ", ".join(f"#{face_step_ids[f]}" for f in mine)
-            out_skipped.append(
-                NotEvaluated(
-                    kind=z.kind,
-                    name=z.name,
-                    step_id=z.step_id,
-                    reason=f"its face {ids} is supplemental geometry off the part's solid: "
-                    "no scan of the part can measure it",
+        kept = np.array([f for f in z.faces if not free[f] and not other[f]], dtype=np.int64)
+        if len(tris) == 0 and len(kept) == 0:
+            if other[z.faces].any():
+                where = sorted({int(face_solid[f]) for f in z.faces if other[f]})
+                reason = (
+                    f"its faces are on solid {', '.join(map(str, where))}, not on the solid "
+                    f"inspected ({solid})"
                 )
+            else:
+                ids = ", ".join(f"#{face_step_ids[f]}" for f in mine)
+                reason = (
+                    f"its face {ids} is supplemental geometry off the part's solid: no scan "
+                    "of the part can measure it"
+                )
+            out_skipped.append(
+                NotEvaluated(kind=z.kind, name=z.name, step_id=z.step_id, reason=reason)
             )
             continue
-        out_zones.append(replace(z, triangles=tris if len(tris) else None))
+        faces = np.array([f for f in z.faces if not other[f]], dtype=np.int64)
+        out_zones.append(replace(z, faces=faces, triangles=tris if len(tris) else None))
     supplemental = [
         {
             "face": f,
@@ -232,3 +269,35 @@ def seat_supplemental(
             where,
         )
     return V2, F2, fid2, out_zones, out_skipped, supplemental
+
+
+def pick_part_solid(part, solid: str | None) -> tuple[int | None, SolidInfo | None]:
+    """The solid of a STEP part to inspect: ``(index, its SolidInfo)``, ``(None, None)`` for
+    a part with one solid. Several solids without ``solid`` are refused (:class:`InputError`):
+    overlapping or nested ones as never one part, separate ones with a request to pick one
+    with ``--solid NAME|INDEX``, listing them."""
+    if part.n_solids < 2:
+        if solid is not None and solid.strip() not in ("0", *part.solid_names):
+            raise InputError(f"--solid {solid}: {part.path.name} has one solid (0)")
+        return None, None
+    infos = solid_infos(part.shape, part.solid_names)
+    listing = "; ".join(x.describe() for x in infos)
+    if solid is None:
+        pairs = overlapping_pairs(part.shape, infos)
+        if pairs:
+            a, b, v = pairs[0]
+            raise InputError(
+                f"{part.path.name}: solids {infos[a].describe()} and {infos[b].describe()} "
+                f"overlap ({v:,.0f} mm^3 in common; {len(pairs)} overlapping pair(s)): "
+                "nested or overlapping solids are not one part; pick one with --solid "
+                "NAME|INDEX"
+            )
+        raise InputError(
+            f"{part.path.name} holds {len(infos)} separate solids ({listing}): one part per "
+            "inspection, pick one with --solid NAME|INDEX"
+        )
+    try:
+        k = pick_solid(infos, solid)
+    except KeyError as exc:
+        raise InputError(f"--solid {solid}: {exc.args[0]}; the solids are {listing}") from None
+    return k, infos[k]

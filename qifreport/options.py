@@ -35,6 +35,7 @@ RESULT_OPTIONS = (
     "max_edge",
     "deflection",
     "mesher",
+    "solid",
     "scan_units",
     "no_qif",
     "no_pdf",
@@ -81,13 +82,14 @@ def check_text(flag: str, value: str | None) -> None:
 @dataclass(frozen=True)
 class NominalOptions:
     """How the nominal file is read (mm): ``--tolerance``, ``--max-edge``, ``--deflection``,
-    ``--mesher``."""
+    ``--mesher``, ``--solid``."""
 
     tolerance: float | None = None
     max_edge: float | None = None
     deflection: float | None = None
     accept_tolerance_as_read: bool = False
     mesher: str = "gmsh"
+    solid: str | None = None
 
 
 @dataclass(frozen=True)
@@ -101,6 +103,7 @@ class InspectOptions:
     mesher : STEP surface mesher, ``"gmsh"`` (default,
         :func:`qifreport.step.gmsh_mesh.gmsh_tessellate`) or ``"brepmesh"``
         (:func:`qifreport.step.tessellate.tessellate`).
+    solid : STEP: the solid to inspect in a file with several, index or name.
     scan_units : ``"mm"``, ``"in"``, ``"m"`` or None (mm; E57 m).
     no_qif, no_pdf : leave out the QIF document / the PDF report.
     page : PDF paper size, ``"A4"`` or ``"Letter"``.
@@ -130,6 +133,7 @@ class InspectOptions:
     max_edge: float | None = None
     deflection: float | None = None
     mesher: str = "gmsh"
+    solid: str | None = None
     scan_units: str | None = None
     no_qif: bool = False
     no_pdf: bool = False
@@ -241,6 +245,7 @@ class InspectOptions:
             self.deflection,
             self.accept_tolerance_as_read,
             self.mesher,
+            self.solid,
         )
 
     def result_options(self) -> dict:

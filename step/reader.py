@@ -102,6 +102,8 @@ class StepPart:
     faces : list of ``TopoDS_Face``; the list index is the face id.
     face_step_ids : (n_faces,) int64, STEP entity id of each face, -1 if unknown.
     n_solids : number of solids in the shape.
+    solid_names : the name of each solid (its XDE label's, '' when none), in the order of
+        ``TopExp.MapShapes(shape, TopAbs_SOLID)`` (:mod:`qifreport.step.solids`).
     pmi : :class:`qifreport.step.pmi.PMI`, semantic PMI read from the text (values in mm / deg).
     xde : :class:`XdeSummary`, the same PMI as OCCT's XDE reads it.
     timings : seconds per stage.
@@ -116,6 +118,7 @@ class StepPart:
     pmi: object
     xde: XdeSummary
     timings: dict[str, float] = field(default_factory=dict)
+    solid_names: list[str] = field(default_factory=list)
 
     def face_index(self) -> dict[int, int]:
         """Map STEP entity id -> face id."""
@@ -346,6 +349,8 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
             f"file's {n} solid records gave none ({occt.first() or 'no message'})"
         )
 
+    solid_names = _solid_names(st, [smap.FindKey(i) for i in range(1, smap.Size() + 1)])
+
     # face -> STEP entity id, through the transfer process and the model's record order
     t0 = time.perf_counter()
     face_ids = np.full(len(faces), -1, dtype=np.int64)
@@ -413,7 +418,31 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
         faces=faces,
         face_step_ids=face_ids,
         n_solids=smap.Size(),
+        solid_names=solid_names,
         pmi=pmi_data,
         xde=xde,
         timings=timings,
     )
+
+
+def _solid_names(st, solids: list) -> list[str]:
+    """The XDE label name of each solid ('' when it has none or only a generic one).
+    Only when there are several: a single solid needs no name to be picked."""
+    if len(solids) < 2:
+        return [""] * len(solids)
+    from OCP.TDataStd import TDataStd_Name
+    from OCP.TDF import TDF_Label
+
+    out = []
+    for s in solids:
+        lab = TDF_Label()
+        name = ""
+        try:
+            if st.Search(s, lab, True, True, True):
+                attr = TDataStd_Name()
+                if lab.FindAttribute(TDataStd_Name.GetID_s(), attr):
+                    name = attr.Get().ToExtString().strip()
+        except Exception as exc:  # names are a convenience: index selection always works
+            log.debug("solid name not read: %s", exc)
+        out.append(name)
+    return out

@@ -104,6 +104,7 @@ __all__ = [
     "WHOLE_PART_TYPES",
     "PMISpecDatum",
     "PMISpecTolerance",
+    "write_step_solids",
     "write_step_with_pmi",
 ]
 
@@ -590,3 +591,48 @@ def _check_magnitudes(model, tolerances: Sequence[PMISpecTolerance], names: list
             )
     if len(stated) != len(tolerances):
         raise RuntimeError(f"{len(stated)} tolerances in the model, {len(tolerances)} requested")
+
+
+def write_step_solids(path: str | Path, solids: Sequence[tuple[str, TopoDS_Shape]]) -> Path:
+    """Write named solids (no PMI) as one AP242 file in mm, each a free shape with its name,
+    as a CAD export of several bodies does (for the multi-solid tests and samples).
+
+    Parameters
+    ----------
+    path : the file to write (atomically).  solids : ``(name, shape)`` pairs, mm.
+    """
+    path = Path(path)
+    app = XCAFApp_Application.GetApplication_s()
+    doc = TDocStd_Document(TCollection_ExtendedString("MDTV-XCAF"))
+    app.InitDocument(doc)
+    XCAFDoc_DocumentTool.SetLengthUnit_s(doc, 0.001)
+    st = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    for name, shape in solids:
+        lab = st.AddShape(shape, False)
+        TDataStd_Name.Set_s(lab, TCollection_ExtendedString(name))
+    STEPCAFControl_Controller.Init_s()
+    saved = {
+        "write.step.schema": Interface_Static.IVal_s("write.step.schema"),
+        "write.step.unit": Interface_Static.CVal_s("write.step.unit"),
+    }
+    try:
+        if not (
+            Interface_Static.SetCVal_s("write.step.schema", _AP242_SCHEMA[0])
+            and Interface_Static.SetCVal_s("write.step.unit", "MM")
+        ):
+            raise RuntimeError("could not select STEP AP242 in mm (Interface_Static)")
+        writer = STEPCAFControl_Writer()
+        writer.SetNameMode(True)
+        if not writer.Transfer(doc, STEPControl_AsIs):
+            raise RuntimeError("STEPCAFControl_Writer: transfer failed")
+
+        def _write(tmp: Path) -> None:
+            status = writer.Write(str(tmp))
+            if status != IFSelect_ReturnStatus.IFSelect_RetDone:
+                raise RuntimeError(f"STEPCAFControl_Writer: write failed ({status})")
+
+        atomic_write(path, _write)
+    finally:
+        Interface_Static.SetIVal_s("write.step.schema", saved["write.step.schema"])
+        Interface_Static.SetCVal_s("write.step.unit", saved["write.step.unit"])
+    return path

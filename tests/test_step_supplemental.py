@@ -14,7 +14,7 @@ import pytest
 
 from qifreport.metrology.bands import lay_bands, zone_vertex_areas
 from qifreport.metrology.hygiene import mesh_hygiene
-from qifreport.nominal import load_nominal, seat_supplemental
+from qifreport.nominal import load_nominal, seat_faces
 from qifreport.step.reader import read_step
 from qifreport.step.supplemental import face_solids
 from tests.conftest import shared_file
@@ -92,8 +92,16 @@ def test_a_tolerance_on_a_face_off_the_solid_is_listed_not_dropped():
             key, key, "surface_profile", 0.2, -0.1, 0.1, np.array([face]), "pmi", step_id=100 + face
         )
 
-    V2, F2, fid2, zones, skipped, sup = seat_supplemental(
-        V, F, face_id, free, [zone(1, "T1"), zone(2, "T2")], [], np.array([10, 11, 12]), 1e-6
+    V2, F2, fid2, zones, skipped, sup = seat_faces(
+        V,
+        F,
+        face_id,
+        np.where(free, -1, 0),
+        None,
+        [zone(1, "T1"), zone(2, "T2")],
+        [],
+        np.array([10, 11, 12]),
+        1e-6,
     )
     assert len(F2) == len(Fs) and set(fid2) == {0} and len(V2) == len(grid)
     (t1,) = zones
@@ -101,3 +109,20 @@ def test_a_tolerance_on_a_face_off_the_solid_is_listed_not_dropped():
     (t2,) = skipped
     assert t2.step_id == 102 and "#12" in t2.reason and "off the part's solid" in t2.reason
     assert [s["footprint_area_mm2"] > 0 for s in sup] == [True, False]
+    # the same faces, the square above now a face of a second solid, and solid 0 picked:
+    # its tolerance is on the other solid, listed as such; its triangles leave the mesh
+    V2, F2, fid2, zones, skipped, sup = seat_faces(
+        V,
+        F,
+        face_id,
+        np.array([0, -1, 1]),
+        0,
+        [zone(1, "T1"), zone(2, "T2")],
+        [],
+        np.array([10, 11, 12]),
+        1e-6,
+    )
+    assert len(F2) == len(Fs) and [z.key for z in zones] == ["T1"]
+    (t2,) = skipped
+    assert "on solid 1, not on the solid inspected (0)" in t2.reason
+    assert len(sup) == 1 and sup[0]["footprint_area_mm2"] > 0

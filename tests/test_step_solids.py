@@ -1,0 +1,112 @@
+"""Files with several solids (issue 20, item 2): listed, refused when they overlap, one
+picked with ``--solid NAME|INDEX``.
+
+The files are written here with OCP's XCAF writer (named solids, as CAD exports name their
+bodies): two disjoint boxes "bracket" and "plate"; a box "inner" inside a box "outer".
+Real OCP reading and Boolean common, the real CLI.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from qifreport.step.reader import read_step
+from qifreport.step.solids import overlapping_pairs, pick_solid, solid_infos
+from qifreport.step.write import write_step_solids
+
+EXE = Path(sys.executable).with_name("qifreport")
+PLATE = ((150.0, 0.0, 0.0), (60.0, 60.0, 3.0))  # corner, size, mm
+
+
+def _box(corner, size):
+    from OCP.BRepPrimAPI import BRepPrimAPI_MakeBox
+    from OCP.gp import gp_Pnt
+
+    return BRepPrimAPI_MakeBox(gp_Pnt(*corner), *size).Shape()
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    d = tmp_path_factory.mktemp("solids")
+    two, nested = d / "two.stp", d / "nested.stp"
+    write_step_solids(two, [("bracket", _box((0, 0, 0), (100, 40, 5))), ("plate", _box(*PLATE))])
+    write_step_solids(
+        nested,
+        [("outer", _box((0, 0, 0), (100, 100, 20))), ("inner", _box((20, 20, 5), (30, 30, 5)))],
+    )
+    # a scan of the plate: its six faces sampled at 0.5 mm, 5 um noise along the normal
+    rng = np.random.default_rng(0)
+    (x0, y0, z0), (dx, dy, dz) = PLATE
+    pts = []
+    for axis, size in ((2, (dx, dy)), (1, (dx, dz)), (0, (dy, dz))):
+        u, v = np.meshgrid(np.arange(0.25, size[0], 0.5), np.arange(0.25, size[1], 0.5))
+        for side in (0.0, 1.0):
+            P = np.zeros((u.size, 3))
+            others = [a for a in range(3) if a != axis]
+            P[:, others[0]], P[:, others[1]] = u.ravel(), v.ravel()
+            P[:, axis] = side * (dx, dy, dz)[axis] + rng.normal(0, 0.005, u.size)
+            pts.append(P + (x0, y0, z0))
+    scan = d / "plate_scan.npy"
+    np.save(scan, np.vstack(pts))
+    return {"two": two, "nested": nested, "scan": scan, "dir": d}
+
+
+def run(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([str(EXE), *map(str, args)], capture_output=True, text=True)
+
+
+def test_solids_are_listed_with_names_volumes_and_overlaps(files):
+    part = read_step(files["two"])
+    infos = solid_infos(part.shape, part.solid_names)
+    assert [(s.name, s.faces, round(s.volume)) for s in infos] == [
+        ("bracket", 6, 20000),
+        ("plate", 6, 10800),
+    ]
+    assert overlapping_pairs(part.shape, infos) == []
+    nested = read_step(files["nested"])
+    ninfo = solid_infos(nested.shape, nested.solid_names)
+    ((a, b, v),) = overlapping_pairs(nested.shape, ninfo)
+    assert (a, b) == (0, 1) and abs(v - 4500.0) < 1.0  # the inner box's volume
+    assert pick_solid(infos, "PLATE") == 1 and pick_solid(infos, "0") == 0
+    with pytest.raises(KeyError, match="no solid 2"):
+        pick_solid(infos, "2")
+    r = run("pmi", files["two"], "--json")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert [s["name"] for s in doc["solids"]] == ["bracket", "plate"]
+    assert doc["overlapping_solids"] == []
+    r = run("pmi", files["nested"])
+    assert r.returncode == 0 and "inner" in r.stdout and "overlap" in r.stdout
+
+
+def test_several_solids_are_refused_with_a_request_to_pick_one(files):
+    out = files["dir"] / "refused"
+    r = run(files["two"], files["scan"], "--out", out, "--quiet")
+    assert r.returncode == 2
+    (line,) = r.stderr.strip().splitlines()
+    assert "2 separate solids" in line and '"bracket"' in line and "--solid" in line
+    assert not out.exists()
+    r = run(files["nested"], files["scan"], "--out", out, "--quiet")
+    assert r.returncode == 2
+    (line,) = r.stderr.strip().splitlines()
+    assert "overlap" in line and '"outer"' in line and '"inner"' in line
+    assert not out.exists()
+    r = run(files["two"], files["scan"], "--out", out, "--quiet", "--solid", "lid")
+    assert r.returncode == 2 and "no solid named 'lid'" in r.stderr
+
+
+def test_the_picked_solid_alone_is_inspected(files):
+    out = files["dir"] / "plate"
+    r = run(files["two"], files["scan"], "--out", out, "--json", "--no-pdf", "--solid", "plate")
+    assert r.returncode in (0, 3), r.stdout + r.stderr
+    doc = json.loads((out / "two.json").read_text())
+    assert doc["nominal"]["solid"] == {"index": 1, "name": "plate", "of": 2}
+    assert doc["verdict"] != "FAIL", doc["decided_by"]
+    # the nominal is the plate's 6 faces only: the bracket's area is not in it
+    assert abs(doc["coverage"]["nominal_area_mm2"] - 2 * (3600 + 180 + 180)) < 1.0
