@@ -397,12 +397,16 @@ def build_state(
     nominal_sha256: str,
     key: str = "",
     complete: bool = True,
+    lazy_basis: bool = False,
 ) -> PartState:
     """Read the nominal and prepare it.
 
     ``complete``: everything any inspection of the part may need (a cache entry serves
     them all); otherwise only what an inspection with ``params`` needs up front (the bending
     basis for GB-CICP; the pose search builds its model itself if the scan needs it).
+    ``lazy_basis``: leave out the bending basis, the costliest part (an inspection that
+    judges the free state first needs it only when the free state does not conform; it is
+    then built by the fixture and stored by :func:`store_basis`).
     """
     t0 = time.perf_counter()
     nom = load_nominal(
@@ -415,7 +419,7 @@ def build_state(
         solid=options.solid,
     )
     if complete:
-        prepared = prepare_part(nom.V, nom.F, params)
+        prepared = prepare_part(nom.V, nom.F, params, basis=not lazy_basis)
     else:
         basis = (
             params.method == "gbcicp" and not params.rigid_only and params.gbcicp.solver == "modal"
@@ -544,6 +548,7 @@ def part_state(
     cache_dir: Path | None,
     *,
     rebuild: bool = False,
+    lazy_basis: bool = False,
 ) -> tuple[PartState, CacheOutcome]:
     """The prepared state of ``nominal``: loaded from ``cache_dir`` when a trusted entry
     exists, else built (and stored there).
@@ -555,6 +560,8 @@ def part_state(
     cache_dir : cache directory, None to neither read nor write one. A directory that fails
         :func:`cache_secret` is not used either (one warning; status ``"refused"``).
     rebuild : ignore an existing entry and build a fresh one.
+    lazy_basis : a built entry leaves out the bending basis (:func:`build_state`); the
+        caller stores it once a fixture has built it (:func:`store_basis`).
 
     Raises
     ------
@@ -600,7 +607,7 @@ def part_state(
             log.warning("cache entry %s refused (%s): rebuilding it", path, reason)
     elif rebuild and exists:
         reason = "rebuild asked for"
-    state = build_state(nominal, options, params, digest, key)
+    state = build_state(nominal, options, params, digest, key, lazy_basis=lazy_basis)
     try:
         save_entry(path, state, material, secret)
     except OSError as exc:  # a read-only cache must not stop an inspection
@@ -614,3 +621,39 @@ def part_state(
         reason=reason,
         timings=dict(state.prepared.timings),
     )
+
+
+def store_basis(
+    state: PartState,
+    outcome: CacheOutcome,
+    basis,
+    options: NominalOptions,
+    params: InspectionParams,
+    cache_dir: Path | None,
+) -> bool:
+    """Complete a cache entry built without its bending basis with the ``basis`` an
+    inspection's virtual fixture built (:class:`qifreport.registration.gbcicp.BendingBasis`
+    of this part's mesh and settings). True when the entry was rewritten; a cache that
+    cannot be written is left as it is (logged)."""
+    if (
+        basis is None
+        or outcome.path is None
+        or cache_dir is None
+        or state.prepared.basis is not None
+        or len(basis.Phi) != len(state.nominal.V)
+        or basis.energy != state.prepared.energy
+    ):
+        return False
+    state.prepared.basis = basis
+    try:
+        save_entry(
+            outcome.path,
+            state,
+            key_material(state.nominal_sha256, options, params),
+            cache_secret(cache_dir),
+        )
+    except (OSError, UntrustedCache) as exc:
+        log.warning("could not complete the cache entry %s: %s", outcome.path, exc)
+        return False
+    log.info("bending basis stored in %s", outcome.path)
+    return True

@@ -37,7 +37,7 @@ from qifreport.metrology.repeatability import apply as apply_repeatability
 from qifreport.registration.pointcloud import read_scan
 from qifreport.registration.thinning import ThinningReport, nominal_spacing, thin_scan
 
-from .cache import CacheOutcome, PartState, part_state, sha256
+from .cache import CacheOutcome, PartState, part_state, sha256, store_basis
 from .jsonio import finite, json_default
 from .nominal import Nominal
 from .options import InspectJob
@@ -499,8 +499,14 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
         P, n_read = read_scan(job.scan, units=o.scan_units)
     with _stage(prof, "prepare part (cache)"):
+        # the free state is judged first: a part that conforms needs no bending basis, so a
+        # new entry leaves it out and the first fixtured inspection stores it
         state, cache = part_state(
-            job.nominal, o.nominal_options(), o.inspection_params(), o.cache_dir
+            job.nominal,
+            o.nominal_options(),
+            o.inspection_params(),
+            o.cache_dir,
+            lazy_basis=not o.always_fixture,
         )
     log.info("%s", cache.describe())
     with _stage(prof, "thin scan"):
@@ -518,6 +524,9 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
             bar.close()
     if prof is not None:
         prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
+    if res.fit is not None:
+        params = o.inspection_params()
+        store_basis(state, cache, res.basis, o.nominal_options(), params, o.cache_dir)
     finished = datetime.now(timezone.utc)
     digests = {"nominal": state.nominal_sha256, "scan": sha256(job.scan)}
     paths = job.output_paths()

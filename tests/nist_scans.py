@@ -13,8 +13,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
-from tests.conftest import shared_file
+from tests.conftest import NIST, shared_file
 
 EXE = Path(sys.executable).with_name("qifreport")
 NOISE = 0.01  # mm
@@ -125,3 +126,52 @@ def assert_not_measured_only_where_unseen(doc: dict, P: np.ndarray) -> None:
             f"{z['description']}: NOT MEASURED on a patch whose centre has a scan point "
             f"{far:.2f} mm away (spacing {spacing:.2f} mm): {m['reasons']}"
         )
+
+
+#: parts whose perfect scan is not yet judged right (issue 20 stays open on them), each
+#: with what was measured (bench/nist_perfect_scan.py); strict: a fix makes the test fail
+#: until its mark is removed
+STILL_WRONG = {
+    "nist_ctc_02_asme1_ap242-e2.stp": "unilateral zones [-2.5, 0] and [0, +2.5] put the "
+    "nominal on a zone limit: the free state fails them, then GB-CICP moves the nominal by "
+    "up to 2 mm and falls back",
+    "nist_ctc_03_asme1_ap242-e2.stp": "its 1.9 mm walls at ~0.9 mm point spacing: the PCA "
+    "normals mix the two skins (range noise read as 0.9 mm), the free state is not "
+    "established, GB-CICP then fails it (conforms at 400k points)",
+}
+
+#: the parts of each test module (two modules: they run on both workers, about 5 min each);
+#: FTC 06 is with its bump and pose tests (one scan, one prepared part)
+GROUPS = {
+    "a": [
+        n
+        for n in NIST
+        if n.startswith(("nist_ctc_01", "nist_ctc_02", "nist_ctc_03", "nist_ctc_04"))
+    ],
+    "b": [n for n in NIST if n.startswith(("nist_ctc_05", "nist_ftc_06", "nist_ftc_08"))],
+}
+
+
+def cases(group: str) -> list:
+    """The group's parts as pytest params, the :data:`STILL_WRONG` ones strict xfail."""
+    out = []
+    for name in GROUPS[group]:
+        marks = []
+        if name in STILL_WRONG:
+            marks.append(pytest.mark.xfail(reason=STILL_WRONG[name], strict=True))
+        out.append(pytest.param(name, marks=marks, id=name.split("_asme")[0]))
+    return out
+
+
+def check_perfect_scan(scans, name: str) -> None:
+    """Its perfect scan conforms (:func:`assert_conforms`), the measure well inside the
+    default +/-0.5 mm band (10 um noise; before the residual-based measure: up to 1.1 mm
+    on CTC 01), and it PASSes (exit 0) or is NOT MEASURED (exit 3) only on toleranced
+    surfaces with a real hole in the scan (:func:`assert_not_measured_only_where_unseen`)."""
+    s = scans(name)
+    doc = s.run()
+    assert_conforms(doc)
+    assert doc["vertex_deviation"]["max_abs"] < 0.2, doc["vertex_deviation"]
+    assert doc["_rc"] in (0, 3), doc["decided_by"]
+    assert (doc["_rc"] == 0) == (doc["verdict"] == "PASS")
+    assert_not_measured_only_where_unseen(doc, s.scan.P)

@@ -1,5 +1,6 @@
 """A bump on a NIST part's toleranced face, the part posed anywhere, and no virtual fixture
-(issue 20, item 6; the perfect scans themselves are ``test_nist_perfect_scan.py``).
+(issue 20, item 6); and the perfect scans of CTC 05, FTC 06 and FTC 08 (the other parts' are
+in ``test_nist_perfect_scan.py``, :func:`tests.nist_scans.check_perfect_scan`).
 
 * A 0.5 mm x sigma 3 mm bump on the tightest measured toleranced face FAILs that tolerance,
   with a failing region's centroid within 3 mm of the bump.
@@ -16,10 +17,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.nist_scans import assert_conforms, pmi_zones, scans_fixture
+from tests.nist_scans import assert_conforms, cases, check_perfect_scan, pmi_zones, scans_fixture
 
 scans = pytest.fixture(scope="module")(scans_fixture)
 PART = "nist_ftc_06_asme1_ap242-e1.stp"
+
+
+@pytest.mark.parametrize("name", cases("b"))
+def test_perfect_scan_conforms(scans, name):
+    check_perfect_scan(scans, name)
 
 
 def test_bump_on_a_toleranced_face_fails_there(scans):
