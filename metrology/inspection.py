@@ -158,7 +158,8 @@ class InspectionResult:
     V, F : the nominal mesh.  V_registered : (n, 3) nominal after virtual fixturing.
     P : (m, 3) scan points moved into the nominal frame.
     deviation : (n,) signed nominal-referenced deviation per vertex, NaN where unscored.
-    point_deviation : (m,) signed data-referenced deviation of every scan point.
+    point_deviation : (m,) signed data-referenced deviation of every scan point (to the
+        curved B-rep surface for a STEP nominal, :func:`surface_distance`; to the mesh else).
     vertex_stats : area-weighted statistics of ``deviation``.
     point_stats : statistics of ``point_deviation``.
     acceptance : area and region criteria on the whole part, each vertex under the tightest
@@ -586,6 +587,7 @@ def vertex_deviation(
     *,
     closest: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     scan_normals: np.ndarray | None = None,
+    residual: np.ndarray | None = None,
 ) -> np.ndarray:
     """Nominal-referenced deviation (n,) mm of every vertex of ``(V, F)`` from scan ``P``.
 
@@ -596,14 +598,32 @@ def vertex_deviation(
     fitted about each vertex by :func:`~qifreport.metrology.deviation.residual_referenced`,
     a vertex using only the points on its own B-rep faces (``face_id``, a STEP nominal);
     without ``face_id`` (a mesh nominal), the plane fit of
-    :func:`~qifreport.metrology.deviation.nominal_referenced`.
+    :func:`~qifreport.metrology.deviation.nominal_referenced`. ``residual`` (m,): those
+    signed distances to the surface, when the caller has them (:func:`surface_distance`).
     """
     if face_id is None:  # a mesh nominal: the local plane fit (no faces to keep apart)
         return nominal_referenced(V, F, P, normals=normals, scan_normals=scan_normals)
     C, cface, pdev = closest_points(V, F, P) if closest is None else closest
-    residual = pdev - curved_offset(V, F, C, cface, corner_normals(V, F, face_id))
+    if residual is None:
+        residual = surface_distance(V, F, C, cface, pdev, face_id)
     label = np.where(cface >= 0, face_id[np.maximum(cface, 0)], -1)
     return residual_referenced(V, F, P, residual, normals, label, face_id)
+
+
+def surface_distance(
+    V: np.ndarray,
+    F: np.ndarray,
+    C: np.ndarray,
+    cface: np.ndarray,
+    pdev: np.ndarray,
+    face_id: np.ndarray,
+) -> np.ndarray:
+    """(m,) signed distance, mm, of each scan point to the curved B-rep surface: its signed
+    distance ``pdev`` to the closest triangle (at ``C`` on triangle ``cface``) less the
+    triangle's chord height there (:func:`~qifreport.metrology.deviation.curved_offset`,
+    per-face corner normals): a perfect scan of a cylinder meshed with coarse chords reads
+    0, not the chord sag."""
+    return pdev - curved_offset(V, F, C, cface, corner_normals(V, F, face_id))
 
 
 def inspect(
@@ -720,11 +740,10 @@ def inspect(
         # virtual fixture can then only add its own error (a stiff part moved by it).
         t0 = time.perf_counter()
         free = _judge(reg, None, params, dict(timings), check_part=False, **judge)
-        timings["free state"] = time.perf_counter() - t0
-        if free.passed and free.established:
-            free.timings = {**timings, **free.timings}
+        if free.passed and free.established:  # its stages are the inspection's
             free.fixture_decision = "free state conforms"
             return free
+        timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
     near_crease, near_rim = prepared.near_crease, prepared.near_rim
     t0 = time.perf_counter()
     flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
@@ -807,6 +826,8 @@ def _judge(
 
     N_reg = vertex_normals(V_reg, F)
     C, cface, pdev = closest_points(V_reg, F, Pm)
+    if face_id is not None:  # a B-rep nominal: the points' distances to its curved surface
+        pdev = surface_distance(V_reg, F, C, cface, pdev, face_id)
     dev = vertex_deviation(
         V_reg,
         F,
@@ -815,6 +836,7 @@ def _judge(
         face_id,
         closest=(C, cface, pdev),
         scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg, sheets=sheets),
+        residual=pdev if face_id is not None else None,
     )
     dev_free = None
     if fit is not None and any(z.free_state for z in bands.zones):
