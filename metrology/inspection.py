@@ -962,6 +962,9 @@ def _judge(
         max_gap_area=params.max_gap_area,
         advisory_gaps=advisory,
     )
+    # a STEP nominal's scan points grouped by their B-rep face: a thin wall's two skins are
+    # kept apart in the noise estimate
+    plabel = None if face_id is None else np.where(cface >= 0, face_id[np.maximum(cface, 0)], -1)
     s_area = scan_area(Pm)
     ceiling = coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
     # added material: scan points beyond the rim of the nominal are not proud of it
@@ -977,7 +980,7 @@ def _judge(
     timings["metrology"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     scatter = resolution(
-        range_noise(Pm),
+        range_noise(Pm, labels=plabel),
         fit.scale if fit is not None else rigid.scale,
         [(z.zone.key, float(z.zone.upper - z.zone.lower)) for z in zone_results],
     )

@@ -29,7 +29,12 @@ RESOLUTION_RATIO = 0.25
 
 
 def range_noise(
-    P: np.ndarray, k: int = 20, n_sample: int = 3000, seed: int = 0, tree: cKDTree | None = None
+    P: np.ndarray,
+    k: int = 20,
+    n_sample: int = 3000,
+    seed: int = 0,
+    tree: cKDTree | None = None,
+    labels: np.ndarray | None = None,
 ) -> float:
     """Robust estimate of a scan's range noise, mm.
 
@@ -39,11 +44,17 @@ def range_noise(
     the normal. The median over the samples is returned (edges and small features, where the
     quadric does not hold, are outvoted).
 
+    With ``labels`` (the B-rep face of each point's closest triangle, a STEP nominal) the
+    neighbours are taken among the points of the same face: on a wall thinner than the
+    neighbourhood (NIST CTC 03: 1.9 mm walls at 0.9 mm spacing) the other skin is another
+    face, and mixing it read the noise as 0.9 mm on a 10 um scan.
+
     Parameters
     ----------
     P : (m, 3) scan points, mm.  k : neighbours per fit (>= 10).
     n_sample : fits made (all points when fewer).  seed : of the subset.
-    tree : a k-d tree of ``P`` to reuse.
+    tree : a k-d tree of ``P`` to reuse (without ``labels``).
+    labels : (m,) int, or None.
 
     Returns
     -------
@@ -51,10 +62,29 @@ def range_noise(
         Noise sigma, mm (0.0 for fewer than ``k`` points).
     """
     P = np.asarray(P, dtype=np.float64)
+    if labels is None:
+        s = _noise_samples(P, k, n_sample, np.random.default_rng(seed), tree)
+        return float(np.median(s)) if len(s) else 0.0
+    labels = np.asarray(labels)
+    rng = np.random.default_rng(seed)
+    found = []
+    for lab in np.unique(labels):
+        Q = P[labels == lab]
+        if len(Q) < max(k, 10):
+            continue
+        share = max(1, int(round(n_sample * len(Q) / len(P))))
+        found.append(_noise_samples(Q, k, share, rng, None))
+    s = np.concatenate(found) if found else np.zeros(0)
+    return float(np.median(s)) if len(s) else 0.0
+
+
+def _noise_samples(
+    P: np.ndarray, k: int, n_sample: int, rng: np.random.Generator, tree: cKDTree | None
+) -> np.ndarray:
+    """The per-sample noise sigmas of :func:`range_noise` (empty for fewer than ``k``)."""
     m = len(P)
     if m < max(k, 10):
-        return 0.0
-    rng = np.random.default_rng(seed)
+        return np.zeros(0)
     idx = rng.choice(m, size=min(n_sample, m), replace=False) if m > n_sample else np.arange(m)
     tree = cKDTree(P) if tree is None else tree
     _, nb = tree.query(P[idx], k=k)
@@ -69,8 +99,7 @@ def range_noise(
     AtA += 1e-12 * np.trace(AtA, axis1=1, axis2=2)[:, None, None] * np.eye(6)
     coef = np.linalg.solve(AtA, Atw[..., None])[..., 0]
     r = w - np.einsum("ski,si->sk", A, coef)
-    sigma = np.sqrt((r * r).sum(axis=1) / (k - 6))
-    return float(np.median(sigma))
+    return np.sqrt((r * r).sum(axis=1) / (k - 6))
 
 
 @dataclass
