@@ -430,7 +430,6 @@ def _solid_names(st, solids: list) -> list[str]:
     Only when there are several: a single solid needs no name to be picked."""
     if len(solids) < 2:
         return [""] * len(solids)
-    from OCP.TDataStd import TDataStd_Name
     from OCP.TDF import TDF_Label
 
     out = []
@@ -439,10 +438,25 @@ def _solid_names(st, solids: list) -> list[str]:
         name = ""
         try:
             if st.Search(s, lab, True, True, True):
-                attr = TDataStd_Name()
-                if lab.FindAttribute(TDataStd_Name.GetID_s(), attr):
-                    name = attr.Get().ToExtString().strip()
+                name = _label_name(lab)
+                ref = TDF_Label()
+                # an assembly instance's own name is XDE's reference ("=>[0:1:1:2]"): the
+                # part it places is named on the referred label
+                if (not name or name.startswith("=>")) and st.GetReferredShape_s(lab, ref):
+                    name = _label_name(ref)
+                if name.startswith("=>"):
+                    name = ""
         except Exception as exc:  # names are a convenience: index selection always works
             log.debug("solid name not read: %s", exc)
         out.append(name)
     return out
+
+
+def _label_name(lab) -> str:
+    """An XDE label's ``TDataStd_Name`` ('' when it has none)."""
+    from OCP.TDataStd import TDataStd_Name
+
+    attr = TDataStd_Name()
+    if lab.FindAttribute(TDataStd_Name.GetID_s(), attr):
+        return attr.Get().ToExtString().strip()
+    return ""

@@ -110,3 +110,58 @@ def test_the_picked_solid_alone_is_inspected(files):
     assert doc["verdict"] != "FAIL", doc["decided_by"]
     # the nominal is the plate's 6 faces only: the bracket's area is not in it
     assert abs(doc["coverage"]["nominal_area_mm2"] - 2 * (3600 + 180 + 180)) < 1.0
+
+
+def _assembly(path: Path) -> None:
+    """An XDE assembly "fixture" placing the part "plate" (60 x 60 x 3 mm) twice, at
+    (0, 10, 0) and (200, 10, 0): what a CAD assembly export holds."""
+    from OCP.gp import gp_Trsf, gp_Vec
+    from OCP.STEPCAFControl import STEPCAFControl_Writer
+    from OCP.STEPControl import STEPControl_AsIs
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDataStd import TDataStd_Name
+    from OCP.TDocStd import TDocStd_Document
+    from OCP.TopLoc import TopLoc_Location
+    from OCP.XCAFApp import XCAFApp_Application
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool
+
+    doc = TDocStd_Document(TCollection_ExtendedString("MDTV-XCAF"))
+    XCAFApp_Application.GetApplication_s().InitDocument(doc)
+    XCAFDoc_DocumentTool.SetLengthUnit_s(doc, 0.001)
+    st = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    plate = st.AddShape(_box((0, 0, 0), PLATE[1]), False)
+    TDataStd_Name.Set_s(plate, TCollection_ExtendedString("plate"))
+    asm = st.NewShape()
+    TDataStd_Name.Set_s(asm, TCollection_ExtendedString("fixture"))
+    for dx in (0.0, 200.0):
+        t = gp_Trsf()
+        t.SetTranslation(gp_Vec(dx, 10.0, 0.0))
+        st.AddComponent(asm, plate, TopLoc_Location(t))
+    st.UpdateAssemblies()
+    w = STEPCAFControl_Writer()
+    w.SetNameMode(True)
+    assert w.Transfer(doc, STEPControl_AsIs) and int(w.Write(str(path))) == 1
+
+
+def test_an_assembly_places_its_instances(files):
+    """Both instances are where the assembly puts them (not one on the other, which would
+    be refused as overlapping), named by the part they place; a name they share is
+    ambiguous, so one is picked by index."""
+    path = files["dir"] / "assembly.stp"
+    _assembly(path)
+    part = read_step(path)
+    infos = solid_infos(part.shape, part.solid_names)
+    assert [x.name for x in infos] == ["plate", "plate"]
+    assert [x.lo.round(6).tolist() for x in infos] == [[0, 10, 0], [200, 10, 0]]
+    assert overlapping_pairs(part.shape, infos) == []
+    with pytest.raises(KeyError, match="2 solids are named 'plate'"):
+        pick_solid(infos, "plate")
+    # the second instance, inspected against the plate scan moved to its place
+    scan = files["dir"] / "placed_scan.npy"
+    np.save(scan, np.load(files["scan"]) + (200.0 - PLATE[0][0], 10.0, 0.0))
+    out = files["dir"] / "placed"
+    r = run(path, scan, "--out", out, "--json", "--no-pdf", "--solid", "1", "--prealign", "never")
+    assert r.returncode in (0, 3), r.stdout + r.stderr
+    doc = json.loads((out / "assembly.json").read_text())
+    assert doc["nominal"]["solid"] == {"index": 1, "name": "plate", "of": 2}
+    assert doc["verdict"] != "FAIL" and doc["vertex_deviation"]["max_abs"] < 0.1
