@@ -606,8 +606,13 @@ def vertex_deviation(
     C, cface, pdev = closest_points(V, F, P) if closest is None else closest
     if residual is None:
         residual = surface_distance(V, F, C, cface, pdev, face_id)
-    label = np.where(cface >= 0, face_id[np.maximum(cface, 0)], -1)
-    return residual_referenced(V, F, P, residual, normals, label, face_id)
+    return residual_referenced(V, F, P, residual, normals, point_faces(cface, face_id), face_id)
+
+
+def point_faces(cface: np.ndarray, face_id: np.ndarray) -> np.ndarray:
+    """(m,) int: the B-rep face of each scan point's closest triangle ``cface`` (-1 where
+    it has none)."""
+    return np.where(cface >= 0, face_id[np.maximum(cface, 0)], -1)
 
 
 def surface_distance(
@@ -716,12 +721,18 @@ def inspect(
             if tol is None
             else symmetric_zone(tol, "general")
         ]
+    bands = lay_bands(F, len(V), face_id, zones)
+    keep = [i for i, m in enumerate(bands.tri_masks) if m.any()]
+    if len(keep) < len(zones):
+        dropped = [zones[i].key for i in range(len(zones)) if i not in keep]
+        log.info("zones covering no triangle dropped: %s", ", ".join(dropped))
+        bands = lay_bands(F, len(V), face_id, [zones[i] for i in keep])
     reg = _Registered(
         V=V, F=F, P=Pm, rigid=rigid, seat=seat, scan_normals=Ns, sheets=sheets, diag=diag
     )
     judge = dict(
         face_id=face_id,
-        zones=zones,
+        bands=bands,
         not_evaluated=not_evaluated,
         prepared=prepared,
         solid=solid,
@@ -764,7 +775,8 @@ def inspect(
         flaggable=flaggable,
     )
     timings[params.method] = time.perf_counter() - t0
-    res = _judge(reg, fit, params, timings, **judge)
+    free_dev = None if free is None else free.deviation  # the free state, measured once
+    res = _judge(reg, fit, params, timings, free_deviation=free_dev, **judge)
     res.fixture_decision = "always" if free is None else "free state does not conform"
     if free is not None:
         res.free_state = free.verdict
@@ -793,16 +805,20 @@ def _judge(
     timings: dict[str, float],
     *,
     face_id: np.ndarray | None,
-    zones: list[ToleranceZone],
+    bands: BandField,
     not_evaluated: list[NotEvaluated] | None,
     prepared: PreparedPart,
     solid: bool,
     energy: str,
     basis: BendingBasis | None,
     check_part: bool = True,
+    free_deviation: np.ndarray | None = None,
 ) -> InspectionResult:
     """Judge the rigidly seated scan against the nominal as the fixture ``fit`` holds it
-    (``None``: the free state, the nominal where the rigid alignment put it)."""
+    (``None``: the free state, the nominal where the rigid alignment put it).
+
+    ``free_deviation``: the free state's vertex deviation when it was judged already (the
+    zones with the free-state modifier take it instead of measuring it again)."""
     V, F, Pm, rigid, diag = reg.V, reg.F, reg.P, reg.rigid, reg.diag
     Ns, sheets = reg.scan_normals, reg.sheets
     ops = prepared.ops
@@ -810,21 +826,15 @@ def _judge(
     if fit is not None:
         basis = fit.basis
     near_crease, near_rim, rim_band = prepared.near_crease, prepared.near_rim, prepared.rim_band
-    if fit is None and face_id is not None and params.edge_band is None:
-        # the free state of a B-rep nominal is scored up to its creases: the face-aware
-        # measure (:func:`vertex_deviation`) fits each vertex to the points of its own faces
-        # and leaves a crease vertex unscored unless all its faces were seen. A fixtured
-        # nominal keeps the band: there the displacement field is least determined
+    # the free state of a B-rep nominal is scored up to its creases: the face-aware measure
+    # (:func:`vertex_deviation`) fits each vertex to the points of its own faces and leaves
+    # a crease vertex unscored unless all its faces were seen. A fixtured nominal keeps the
+    # band: there the displacement field is least determined
+    free_brep = fit is None and face_id is not None and params.edge_band is None
+    if free_brep:
         near_crease = None
     t0 = time.perf_counter()
-    bands = lay_bands(F, len(V), face_id, zones)
-    keep = [i for i, m in enumerate(bands.tri_masks) if m.any()]
-    if len(keep) < len(zones):
-        dropped = [zones[i].key for i in range(len(zones)) if i not in keep]
-        log.info("zones covering no triangle dropped: %s", ", ".join(dropped))
-        bands = lay_bands(F, len(V), face_id, [zones[i] for i in keep])
-
-    N_reg = vertex_normals(V_reg, F)
+    N_reg = ops.normals if fit is None else vertex_normals(V_reg, F)
     C, cface, pdev = closest_points(V_reg, F, Pm)
     if face_id is not None:  # a B-rep nominal: the points' distances to its curved surface
         pdev = surface_distance(V_reg, F, C, cface, pdev, face_id)
@@ -840,13 +850,17 @@ def _judge(
     )
     dev_free = None
     if fit is not None and any(z.free_state for z in bands.zones):
-        dev_free = vertex_deviation(
-            V,
-            F,
-            Pm,
-            ops.normals,
-            face_id,
-            scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets),
+        dev_free = (
+            free_deviation.copy()
+            if free_deviation is not None
+            else vertex_deviation(
+                V,
+                F,
+                Pm,
+                ops.normals,
+                face_id,
+                scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets),
+            )
         )
     hygiene = replace(prepared.hygiene)  # a copy: the rim band is this inspection's
     hygiene.boundary_band = rim_band
@@ -864,7 +878,7 @@ def _judge(
         dev[near_crease] = np.nan
         if dev_free is not None:
             dev_free[near_crease] = np.nan
-    if fit is None and face_id is not None and params.edge_band is None:
+    if free_brep:
         near_crease = unseen_neighbour_edges(F, face_id, dev)
     excluded = near_rim if near_crease is None else near_rim | near_crease
     rim = beyond_rim(V_reg, F, C, cface)
@@ -964,7 +978,7 @@ def _judge(
     )
     # a STEP nominal's scan points grouped by their B-rep face: a thin wall's two skins are
     # kept apart in the noise estimate
-    plabel = None if face_id is None else np.where(cface >= 0, face_id[np.maximum(cface, 0)], -1)
+    plabel = None if face_id is None else point_faces(cface, face_id)
     s_area = scan_area(Pm)
     ceiling = coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
     # added material: scan points beyond the rim of the nominal are not proud of it

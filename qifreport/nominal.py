@@ -15,7 +15,12 @@ from pathlib import Path
 import numpy as np
 
 from qifreport.metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
-from qifreport.registration.mesh import bounding_diagonal, consistent_winding, load_mesh
+from qifreport.registration.mesh import (
+    bounding_diagonal,
+    consistent_winding,
+    load_mesh,
+    remove_unreferenced,
+)
 from qifreport.step.reader import STEP_SUFFIXES
 from qifreport.step.solids import SolidInfo, overlapping_pairs, pick_solid, solid_infos
 
@@ -213,10 +218,7 @@ def seat_faces(
     keep2 = ~free[fid1]
     new_tri = np.cumsum(keep2) - 1
     F2, fid2 = F1[keep2], fid1[keep2]
-    used = np.unique(F2)
-    new_v = np.full(len(V), -1, dtype=np.int64)
-    new_v[used] = np.arange(len(used))
-    V2, F2 = V[used], new_v[F2]
+    V2, F2 = remove_unreferenced(V, F2)
     out_zones, out_skipped = [], list(skipped)
     for z in zones:
         if z.faces is None or not (free[z.faces].any() or other[z.faces].any()):

@@ -498,13 +498,14 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     started = datetime.now(timezone.utc)
     with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
         P, n_read = read_scan(job.scan, units=o.scan_units)
+    nominal_options, params = o.nominal_options(), o.inspection_params()
     with _stage(prof, "prepare part (cache)"):
         # the free state is judged first: a part that conforms needs no bending basis, so a
         # new entry leaves it out and the first fixtured inspection stores it
         state, cache = part_state(
             job.nominal,
-            o.nominal_options(),
-            o.inspection_params(),
+            nominal_options,
+            params,
             o.cache_dir,
             lazy_basis=not o.always_fixture,
         )
@@ -525,8 +526,7 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     if prof is not None:
         prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
     if res.fit is not None:
-        params = o.inspection_params()
-        store_basis(state, cache, res.basis, o.nominal_options(), params, o.cache_dir)
+        store_basis(state, cache, res.basis, nominal_options, params, o.cache_dir)
     finished = datetime.now(timezone.utc)
     digests = {"nominal": state.nominal_sha256, "scan": sha256(job.scan)}
     paths = job.output_paths()

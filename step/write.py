@@ -47,6 +47,7 @@ restored afterwards, and the function is not thread-safe.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -403,14 +404,10 @@ def _fill_document(
             dimtol.SetDatumToGeomTol(add_datum(by_label[dlabel], position), lab)
 
 
-def _write_atomic(
-    doc: TDocStd_Document,
-    path: Path,
-    tolerances: Sequence[PMISpecTolerance],
-    names: list[str],
-    timestamp: str | None,
-) -> None:
-    """Transfer ``doc`` to an AP242 model, correct and check it, write it atomically."""
+@contextlib.contextmanager
+def _ap242_in_mm():
+    """Select the AP242 schema and mm for the writes inside; the process-global
+    ``Interface_Static`` parameters are restored after them."""
     # Declares the write.step.* parameters. Without it the settings below are refused, the
     # writer falls back to AP214, and its AP214 GD&T path crashed (segfault) in tests.
     STEPCAFControl_Controller.Init_s()
@@ -427,7 +424,32 @@ def _write_atomic(
             or Interface_Static.IVal_s("write.step.schema") != _AP242_SCHEMA[1]
         ):
             raise RuntimeError("could not select STEP AP242 in mm (Interface_Static)")
+        yield
+    finally:
+        Interface_Static.SetIVal_s("write.step.schema", saved["write.step.schema"])
+        Interface_Static.SetCVal_s("write.step.unit", saved["write.step.unit"])
 
+
+def _write_file(writer: STEPCAFControl_Writer, path: Path) -> None:
+    """Write the transferred model of ``writer`` to ``path`` atomically."""
+
+    def _write(tmp: Path) -> None:
+        status = writer.Write(str(tmp))
+        if status != IFSelect_ReturnStatus.IFSelect_RetDone:
+            raise RuntimeError(f"STEPCAFControl_Writer: write failed ({status})")
+
+    atomic_write(path, _write)
+
+
+def _write_atomic(
+    doc: TDocStd_Document,
+    path: Path,
+    tolerances: Sequence[PMISpecTolerance],
+    names: list[str],
+    timestamp: str | None,
+) -> None:
+    """Transfer ``doc`` to an AP242 model, correct and check it, write it atomically."""
+    with _ap242_in_mm():
         writer = STEPCAFControl_Writer()
         writer.SetNameMode(True)
         writer.SetDimTolMode(True)
@@ -448,15 +470,7 @@ def _write_atomic(
         if timestamp is not None:
             header.SetTimeStamp(TCollection_HAsciiString(timestamp))
 
-        def _write(tmp: Path) -> None:
-            status = writer.Write(str(tmp))
-            if status != IFSelect_ReturnStatus.IFSelect_RetDone:
-                raise RuntimeError(f"STEPCAFControl_Writer: write failed ({status})")
-
-        atomic_write(path, _write)
-    finally:
-        Interface_Static.SetIVal_s("write.step.schema", saved["write.step.schema"])
-        Interface_Static.SetCVal_s("write.step.unit", saved["write.step.unit"])
+        _write_file(writer, path)
 
 
 def _context_length_unit(model) -> StepBasic_SiUnitAndLengthUnit:
@@ -610,29 +624,10 @@ def write_step_solids(path: str | Path, solids: Sequence[tuple[str, TopoDS_Shape
     for name, shape in solids:
         lab = st.AddShape(shape, False)
         TDataStd_Name.Set_s(lab, TCollection_ExtendedString(name))
-    STEPCAFControl_Controller.Init_s()
-    saved = {
-        "write.step.schema": Interface_Static.IVal_s("write.step.schema"),
-        "write.step.unit": Interface_Static.CVal_s("write.step.unit"),
-    }
-    try:
-        if not (
-            Interface_Static.SetCVal_s("write.step.schema", _AP242_SCHEMA[0])
-            and Interface_Static.SetCVal_s("write.step.unit", "MM")
-        ):
-            raise RuntimeError("could not select STEP AP242 in mm (Interface_Static)")
+    with _ap242_in_mm():
         writer = STEPCAFControl_Writer()
         writer.SetNameMode(True)
         if not writer.Transfer(doc, STEPControl_AsIs):
             raise RuntimeError("STEPCAFControl_Writer: transfer failed")
-
-        def _write(tmp: Path) -> None:
-            status = writer.Write(str(tmp))
-            if status != IFSelect_ReturnStatus.IFSelect_RetDone:
-                raise RuntimeError(f"STEPCAFControl_Writer: write failed ({status})")
-
-        atomic_write(path, _write)
-    finally:
-        Interface_Static.SetIVal_s("write.step.schema", saved["write.step.schema"])
-        Interface_Static.SetCVal_s("write.step.unit", saved["write.step.unit"])
+        _write_file(writer, path)
     return path
