@@ -39,6 +39,7 @@ from scipy.spatial import cKDTree
 
 from qifreport.registration.mesh import adjacency, vertex_areas
 
+from .decision import decide
 from .statistics import json_float
 
 __all__ = [
@@ -231,8 +232,17 @@ class Acceptance:
     regions : out-of-tolerance regions, largest first.
     largest_region_area : mm^2, 0 if there is no region.
     region_ok : ``largest_region_area <= max_region_area``.
-    passed : ``area_ok and region_ok and scored_area > 0``.
+    passed : ``area_ok and region_ok and scored_area > 0``: the measured values themselves
+        meet the criteria (the simple reading).
     reasons : human-readable reasons for a failure (empty when passed).
+    decision_rule : how :attr:`decision` weighs the measurement uncertainty
+        (:mod:`qifreport.metrology.decision`); ``"simple"`` without one.
+    proven_in : the criteria hold with every band reduced by its vertex's expanded
+        uncertainty (conformance proven, ISO 14253-1); ``passed`` without an uncertainty.
+    proven_out : they fail with every band enlarged by it (non-conformance proven).
+    uncertainty_mm : the median and the largest expanded uncertainty of the scored
+        vertices, mm (NaN without one).
+    uncertain_reasons : why neither is proven (empty when one is).
     """
 
     tolerance: float | np.ndarray
@@ -248,6 +258,21 @@ class Acceptance:
     region_ok: bool = True
     passed: bool = False
     reasons: list[str] = field(default_factory=list)
+    decision_rule: str = "simple"
+    proven_in: bool | None = None
+    proven_out: bool | None = None
+    uncertainty_mm: tuple[float, float] = (math.nan, math.nan)
+    uncertain_reasons: list[str] = field(default_factory=list)
+
+    @property
+    def decision(self) -> str:
+        """``"PASS"``, ``"FAIL"`` or ``"UNCERTAIN"`` under :attr:`decision_rule`
+        (:func:`qifreport.metrology.decision.decide`); a surface with nothing scored fails."""
+        if not self.scored_area > 0:
+            return "FAIL"
+        proven_in = self.passed if self.proven_in is None else self.proven_in
+        proven_out = (not self.passed) if self.proven_out is None else self.proven_out
+        return decide(self.decision_rule, self.passed, proven_in, proven_out)
 
     def to_dict(self) -> dict:
         """JSON-ready dict; NaN becomes ``None``.
@@ -274,6 +299,13 @@ class Acceptance:
             "region_ok": bool(self.region_ok),
             "passed": bool(self.passed),
             "reasons": list(self.reasons),
+            "decision_rule": self.decision_rule,
+            "decision": self.decision,
+            "proven_in": None if self.proven_in is None else bool(self.proven_in),
+            "proven_out": None if self.proven_out is None else bool(self.proven_out),
+            "uncertainty_median_mm": json_float(self.uncertainty_mm[0]),
+            "uncertainty_max_mm": json_float(self.uncertainty_mm[1]),
+            "uncertain_reasons": list(self.uncertain_reasons),
         }
 
 
@@ -303,6 +335,8 @@ def evaluate(
     min_fraction: float = 0.95,
     max_region_area: float = DEFAULT_MAX_REGION_AREA,
     center=0.0,
+    uncertainty=None,
+    decision_rule: str = "simple",
 ) -> Acceptance:
     """Decide conformance by the area criterion AND the region criterion.
 
@@ -315,6 +349,10 @@ def evaluate(
         ``>=`` (exactly 95 % passes), with a 1e-12 relative slack for summation round-off.
     max_region_area : mm^2; a region passes if its area is ``<=`` this.
     center : scalar or (n,) band centre, mm: in tolerance is ``|dev - center| <= tolerance``.
+    uncertainty : scalar or (n,) expanded uncertainty ``U`` (k = 2) of each vertex's
+        deviation, mm (:func:`qifreport.metrology.decision.vertex_uncertainty`); None: not
+        known (the decision is the simple one whatever ``decision_rule``).
+    decision_rule : one of :data:`qifreport.metrology.decision.DECISION_RULES`.
 
     Returns
     -------
@@ -349,6 +387,26 @@ def evaluate(
     tol_out: float | np.ndarray = (
         float(tolerance) if np.ndim(tolerance) == 0 else np.asarray(tolerance, dtype=float)
     )
+    proven_in = proven_out = None
+    u_stats = (math.nan, math.nan)
+    uncertain: list[str] = []
+    if uncertainty is not None and scored_area > 0:
+        U = np.nan_to_num(_per_vertex(uncertainty, len(V), "uncertainty"), nan=0.0)
+        Us = U[scored]
+        u_stats = (float(np.median(Us)), float(Us.max()))
+        proven_in, why_in = _criteria(
+            V, F, dev, tol - U, A, c, scored_area, min_fraction, max_region_area
+        )
+        fails_out, _ = _criteria(
+            V, F, dev, tol + U, A, c, scored_area, min_fraction, max_region_area
+        )
+        proven_out = not fails_out
+        if not proven_in and not proven_out:
+            uncertain = [
+                f"within the measurement uncertainty of the zone limit (U median "
+                f"{u_stats[0]:.4f} mm, max {u_stats[1]:.4f} mm): {r}"
+                for r in why_in
+            ]
     return Acceptance(
         tolerance=tol_out,
         min_fraction=float(min_fraction),
@@ -363,7 +421,29 @@ def evaluate(
         region_ok=region_ok,
         passed=passed,
         reasons=reasons,
+        decision_rule=decision_rule if uncertainty is not None else "simple",
+        proven_in=proven_in,
+        proven_out=proven_out,
+        uncertainty_mm=u_stats,
+        uncertain_reasons=uncertain,
     )
+
+
+def _criteria(V, F, dev, tol, A, c, scored_area, min_fraction, max_region_area):
+    """(both criteria hold, the reasons they do not) with the per-vertex band ``tol``
+    (a band reduced below 0 holds no vertex)."""
+    with np.errstate(invalid="ignore"):
+        inside = ~np.isnan(dev) & (np.abs(dev - c) <= tol)
+    frac = float(A[inside].sum()) / scored_area
+    area_ok = frac >= min_fraction * (1.0 - _AREA_RTOL)
+    regions = find_regions(V, F, dev, np.maximum(tol, 0.0), area=A, center=c)
+    largest = regions[0].area if regions else 0.0
+    why = []
+    if not area_ok:
+        why.append(f"{100 * frac:.1f} % of the scored area in tolerance")
+    if largest > max_region_area:
+        why.append(f"a region of {largest:.1f} mm^2")
+    return bool(area_ok and largest <= max_region_area), why
 
 
 def _vogel_disk(M: int) -> np.ndarray:

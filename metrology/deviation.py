@@ -57,6 +57,22 @@ _MIN_SPREAD_RATIO = 10.0
 _MIN_FACING_COS = 0.5
 
 
+#: pseudo degrees of freedom of the part-wide scatter in each vertex's variance (a vertex's
+#: own few points estimate their scatter poorly; the part's median scatter steadies it)
+_PRIOR_DOF = 10.0
+
+
+def _pooled_variance(h: np.ndarray, sse: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """Variance (n,) mm^2 of each vertex's deviation: its variance factor ``h`` times the
+    scatter of its points about their fit, ``sse / dof``, pooled with the part's median
+    scatter (weight :data:`_PRIOR_DOF`); NaN where ``h`` is."""
+    ok = np.isfinite(h) & (dof > 0)
+    prior = float(np.median(sse[ok] / dof[ok])) if ok.any() else 0.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s2 = (np.where(ok, sse, 0.0) + _PRIOR_DOF * prior) / (np.where(ok, dof, 0.0) + _PRIOR_DOF)
+    return np.where(np.isfinite(h), h * s2, np.nan)
+
+
 def _as_mesh(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
@@ -398,7 +414,8 @@ def nominal_referenced(
     max_centroid_offset: float | None = 0.5,
     max_distance: float | None = None,
     scan_normals: np.ndarray | None = None,
-) -> np.ndarray:
+    variance: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Signed deviation (n,) mm of every nominal vertex along its normal to the local scan.
 
     For vertex ``v`` with unit normal ``n``, the scan points within ``radius`` of ``v`` are
@@ -440,11 +457,19 @@ def nominal_referenced(
         points whose normal is within 60 degrees of its own (``n_point . n_vertex > 0.5``).
         This keeps the back skin and the edge faces of a thin wall, closer to the front's
         measurements than ``radius``, from being scored against them.
+    variance : also return each deviation's variance (see Returns).
 
     Returns
     -------
     dev : (n,) float, mm. Positive = the scan lies on the +normal side (proud of nominal);
         NaN where the vertex is unscored (not observed by the scan).
+    var : (n,) float, mm^2, only with ``variance``: the variance of ``dev`` from the scatter
+        of the points about their plane, ``s^2 (1 + sum_k (c . e_k)^2 / lambda_k) / (N
+        cos^2)`` (``N`` points, centroid ``c``, in-plane principal directions ``e_k`` and
+        spreads ``lambda_k``, the plane's tilt ``cos`` to the vertex normal; ``s^2 / N`` for
+        the centroid fallback), ``s^2`` the points' scatter about the plane pooled with the
+        part's median (:func:`qifreport.metrology.decision.vertex_uncertainty`); NaN where
+        unscored.
     """
     V, F = _as_mesh(V, F)
     P = _as_points(P)
@@ -455,8 +480,9 @@ def nominal_referenced(
         Ns = np.asarray(scan_normals, dtype=np.float64)[finite]
     n = len(V)
     dev = np.full(n, np.nan)
+    h = np.full(n, np.nan)
     if len(P) == 0:
-        return dev
+        return (dev, h) if variance else dev
     N = vertex_normals(V, F) if normals is None else np.asarray(normals, dtype=np.float64)
     if radius is None:
         radius = 1.5 * median_edge_length(V, F)
@@ -470,7 +496,7 @@ def nominal_referenced(
     cnt = np.fromiter((len(h) for h in hits), dtype=np.int64, count=n)
     cand = np.flatnonzero(cnt >= min_points)
     if len(cand) == 0:
-        return dev
+        return (dev, h) if variance else dev
     idx = np.concatenate([np.asarray(hits[i], dtype=np.int64) for i in cand])
     vrt = np.repeat(cand, cnt[cand])
     if Ns is not None:  # only points of a surface facing the vertex's side
@@ -510,7 +536,22 @@ def nominal_referenced(
         offset = np.linalg.norm(c - c_n[:, None] * nv, axis=1)  # centroid to normal line
         enough &= offset <= float(max_centroid_offset) * radius
     dev[vid[enough]] = t[enough]
-    return dev
+    if not variance:
+        return dev
+    # the plane's height at the vertex: its offset (variance 1/N) and its two slopes
+    # (variance 1 / (N lambda_k)) times the centroid's in-plane distance, then along n
+    lev = np.ones(len(vid))
+    for k in (1, 2):
+        ck = np.einsum("ij,ij->i", c, evecs[:, :, k])
+        lev += ck**2 / np.maximum(evals[:, k], 1e-300)
+    hv = 1.0 / counts
+    hv[ok] = lev[ok] / (counts[ok] * cos[ok] ** 2)
+    h[vid[enough]] = hv[enough]
+    sse = np.zeros(n)
+    dof = np.zeros(n)
+    sse[vid] = evals[:, 0] * counts  # the points' squared distances to their plane
+    dof[vid] = counts - 3.0
+    return dev, _pooled_variance(h, sse, dof)
 
 
 def corner_normals(V: np.ndarray, F: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -582,7 +623,8 @@ def residual_referenced(
     radius: float | None = None,
     min_points: int = 4,
     max_centroid_offset: float | None = 0.5,
-) -> np.ndarray:
+    variance: bool = False,
+) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Signed deviation (n,) mm of every nominal vertex from the scan points' own residuals.
 
     The nominal-referenced measure of :func:`nominal_referenced` without its curvature
@@ -610,6 +652,12 @@ def residual_referenced(
         -1: none).  labels : (f,) B-rep face of each triangle.
     radius : mm; default 1.5 x the median edge, at least 2.5 x the scan's median point
         spacing.
+    variance : also return each deviation's variance (n,) mm^2: the fitted value's,
+        ``s^2 (1 + y . A0 y) / N`` with ``y = A^-1 c`` (``N`` points, centroid offset ``c``,
+        ``A0`` their tangent covariance, ``A`` it regularised as in the fit; ``s^2 / N`` for
+        points centred on the vertex), ``s^2`` the points' scatter about the fit pooled with
+        the part's median; NaN where unscored
+        (:func:`qifreport.metrology.decision.vertex_uncertainty`).
     """
     V, F = _as_mesh(V, F)
     P = _as_points(P)
@@ -618,8 +666,11 @@ def residual_referenced(
     use = np.isfinite(P).all(axis=1) & np.isfinite(r)
     n = len(V)
     dev = np.full(n, np.nan)
+    h = np.full(n, np.nan)
+    sse = np.zeros(n)
+    dof = np.zeros(n)
     if not use.any():
-        return dev
+        return (dev, h) if variance else dev
     sel = np.flatnonzero(use)
     tree = cKDTree(P[sel])
     if radius is None:
@@ -643,18 +694,22 @@ def residual_referenced(
         todo = np.flatnonzero(np.isnan(dev))
         if len(todo) == 0:
             break
-        vid, t = _residual_fit(*args, todo, ball, max_centroid_offset)
+        vid, t, hv, ev, dv = _residual_fit(*args, todo, ball, max_centroid_offset)
         dev[vid] = t
-    return dev
+        h[vid] = hv
+        sse[vid] = ev
+        dof[vid] = dv
+    return (dev, _pooled_variance(h, sse, dof)) if variance else dev
 
 
 def _residual_fit(
     V, P, r, N, sel, tree, min_points, own, m, point_label, verts, radius, max_centroid_offset
 ):
     """:func:`residual_referenced` on the vertices ``verts`` with one ball ``radius``:
-    (scored vertex ids, their deviations)."""
+    (scored vertex ids, their deviations, their variance factors, the sums of squared
+    residuals of their fits and those residuals' degrees of freedom)."""
     n = len(V)
-    none = (np.empty(0, dtype=np.int64), np.empty(0))
+    none = (np.empty(0, dtype=np.int64),) + (np.empty(0),) * 4
     hits = tree.query_ball_point(V[verts], r=radius, workers=-1)
     cnt = np.zeros(n, dtype=np.int64)
     cnt[verts] = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(verts))
@@ -707,18 +762,25 @@ def _residual_fit(
     dr = rr - rbar[row]
     # weighted least squares r = rbar + g . (q - c) in the tangent plane: 3x3 normal
     # equations on the centred offsets (rank 2; regularised along the normal)
-    A = np.empty((len(vid), 3, 3))
+    A0 = np.empty((len(vid), 3, 3))
     for a in range(3):
         for b in range(a, 3):
-            A[:, a, b] = A[:, b, a] = _sum(R[:, a] * R[:, b]) / counts
+            A0[:, a, b] = A0[:, b, a] = _sum(R[:, a] * R[:, b]) / counts
     # ridge (0.2 radius)^2: a gradient the points' spread cannot carry (a sliver, a line of
     # points at a scan edge) shrinks towards 0 instead of extrapolating noise; and the
     # normal direction (no spread at all) is held at 0
     ridge = (0.2 * radius) ** 2
-    A = A + ridge * np.eye(3)[None] + np.einsum("ij,ik->ijk", N[vid], N[vid]) * radius**2
+    A = A0 + ridge * np.eye(3)[None] + np.einsum("ij,ik->ijk", N[vid], N[vid]) * radius**2
     rhs = np.stack([_sum(R[:, a] * dr) for a in range(3)], axis=1) / counts[:, None]
     g = np.linalg.solve(A, rhs[..., None])[..., 0]
     t = rbar - np.einsum("ij,ij->i", g, c)  # the linear fit at the vertex (q = 0)
+    # var(t) / var(r) = (1 + c . A^-1 A0 A^-1 c) / N: the mean and the slope are uncorrelated
+    # (centred offsets), the slope's covariance is A^-1 A0 A^-1 / N
+    y = np.linalg.solve(A, c[..., None])[..., 0]
+    hv = (1.0 + np.einsum("ij,ijk,ik->i", y, A0, y)) / counts
+    e = dr - np.einsum("ij,ij->i", R, g[row])  # the points' residuals about the fit
+    sse = _sum(e * e)
+    dof = counts - 3.0
     if max_centroid_offset is not None:
         enough &= np.linalg.norm(c, axis=1) <= float(max_centroid_offset) * radius
-    return vid[enough], t[enough]
+    return vid[enough], t[enough], hv[enough], sse[enough], dof[enough]

@@ -55,6 +55,7 @@ from .coverage import (
     unseen_neighbour_edges,
     zone_coverage,
 )
+from .decision import vertex_uncertainty
 from .deviation import (
     beyond_rim,
     closest_points,
@@ -72,7 +73,13 @@ from .resolution import Resolution, range_noise, resolution
 from .size import SizeEstimate, size_error
 from .statistics import DeviationStats, deviation_statistics
 
+#: :attr:`InspectionResult.fixture_decision` when the free state stands
+FREE_STATE_CONFORMS = "free state conforms"
+FREE_STATE_UNCERTAIN = "free state within the uncertainty"
+
 __all__ = [
+    "FREE_STATE_CONFORMS",
+    "FREE_STATE_UNCERTAIN",
     "METHOD_LABELS",
     "InspectionParams",
     "InspectionResult",
@@ -125,17 +132,26 @@ class ZoneResult:
 
     @property
     def failed(self) -> bool:
-        """A criterion fails on what was scored (a surface the scan never saw fails none)."""
-        return self.acceptance.scored_area > 0 and not self.acceptance.passed
+        """A criterion fails on what was scored, under the decision rule (a surface the scan
+        never saw fails none; :mod:`qifreport.metrology.decision`)."""
+        return self.acceptance.scored_area > 0 and self.acceptance.decision == "FAIL"
+
+    @property
+    def uncertain(self) -> bool:
+        """Neither conformance nor non-conformance is proven within the measurement
+        uncertainty (the ``iso14253`` rule's third outcome)."""
+        return self.acceptance.scored_area > 0 and self.acceptance.decision == "UNCERTAIN"
 
     @property
     def status(self) -> str:
         """``FAIL`` (a criterion fails on what was scored: rejected whatever was not seen),
-        ``NOT MEASURED`` (too little of the surface scored to judge it, or none), or
-        ``PASS``."""
+        ``NOT MEASURED`` (too little of the surface scored to judge it, or none), ``NOT
+        ESTABLISHED`` (on a zone limit within the measurement uncertainty), or ``PASS``."""
         if self.failed:
             return "FAIL"
-        return "PASS" if self.measured else "NOT MEASURED"
+        if not self.measured:
+            return "NOT MEASURED"
+        return "NOT ESTABLISHED" if self.uncertain else "PASS"
 
     def to_dict(self) -> dict:
         return {
@@ -185,12 +201,18 @@ class InspectionResult:
         to :func:`inspect` for further scans of the part).
     fixture_decision : why the part was judged as it was: ``"free state conforms"`` (the
         free state was judged first and conforms: no virtual fixture, ``fit`` is None),
+        ``"free state within the uncertainty"`` (nothing of it is proven out of tolerance,
+        something is on a zone limit within the measurement uncertainty: no fixture either),
         ``"free state does not conform"`` (it was judged first, then fixtured), ``"always"``
         (``always_fixture``: fixtured without judging the free state) or ``"rigid only"``.
     free_state : the free state's verdict when it was judged first and did not conform
         (the fixtured verdict is :attr:`verdict`); None otherwise.
     free_state_decided_by : what the free state failed on (:meth:`decided_by` of its
         judgement), when it was judged first and did not conform.
+    deviation_variance : (n,) the variance of each vertex's deviation, mm^2
+        (:func:`vertex_deviation`), for the decision rule.
+    solid : the nominal is a B-rep solid (its size check is reported, not a trust gate:
+        every face's own deviation measures the size).
     """
 
     V: np.ndarray
@@ -226,6 +248,13 @@ class InspectionResult:
     fixture_decision: str = "always"
     free_state: str | None = None
     free_state_decided_by: list[str] = field(default_factory=list)
+    deviation_variance: np.ndarray | None = None
+    solid: bool = False
+
+    @property
+    def free_state_stands(self) -> bool:
+        """The free state was judged first and is the verdict: no virtual fixture applied."""
+        return self.fixture_decision in (FREE_STATE_CONFORMS, FREE_STATE_UNCERTAIN)
 
     @property
     def passed(self) -> bool:
@@ -233,10 +262,10 @@ class InspectionResult:
         surface pass their area and region criteria (and, with ``fail_on_added_material``, no
         proud scan region exceeds the limit). Whether enough was scored is :attr:`measured`."""
         return bool(
-            self.acceptance.passed
+            self.acceptance.decision != "FAIL"
             and not any(z.failed for z in self.zones)
             and (self.added is None or self.added.passed)
-            and (self.size is None or not self.size.flagged)
+            and (self.size is None or self.solid or not self.size.flagged)
         )
 
     def trust_warnings(self) -> list[str]:
@@ -280,7 +309,12 @@ class InspectionResult:
             )
         if self.resolution is not None:
             out += self.resolution.warnings()
-        if self.size is not None and self.size.status == "not established" and self.size_seen:
+        if (
+            self.size is not None
+            and not self.solid
+            and self.size.status == "not established"
+            and self.size_seen
+        ):
             out += self.size.reasons()
         if self.repeatability is not None:
             out += list(self.repeatability.warnings)
@@ -292,6 +326,7 @@ class InspectionResult:
         s = self.size
         return (
             s is None
+            or self.solid
             or s.status in ("no rim", "conforming", "size error")
             or (s.seen_fraction >= s.min_seen)
         )
@@ -320,13 +355,17 @@ class InspectionResult:
 
     def coverage_notes(self) -> list[str]:
         """Notes on what was left out by design (a surface more than 30 % in the unscored
-        bands near creases and rims), one line each, whether or not it was measured."""
+        bands near creases and rims; a solid's size check, reported only), one line each,
+        whether or not it was measured."""
         out = []
         if self.coverage is not None:
             out += [f"whole part: {w}" for w in self.coverage.warnings]
         for z in self.zones:
             if z.coverage is not None:
                 out += [f"{z.zone.key}: {w}" for w in z.coverage.warnings]
+        if self.solid and self.size is not None and self.size.status != "conforming":
+            # a solid's faces measure its size themselves: the trim-edge check is reported
+            out += [f"size (a solid: reported, not judged): {r}" for r in self.size.reasons()]
         return out
 
     def relaxed_guards(self) -> list[str]:
@@ -365,6 +404,19 @@ class InspectionResult:
         """The registration can be trusted (no :meth:`trust_warnings`)."""
         return not self.trust_warnings()
 
+    def uncertain(self) -> list[str]:
+        """The surfaces whose conformance is neither proven nor disproven within the
+        measurement uncertainty (:mod:`qifreport.metrology.decision`), one line each."""
+        out = []
+        if self.acceptance.decision == "UNCERTAIN":
+            out += [f"whole part: {r}" for r in self.acceptance.uncertain_reasons]
+        for z in self.zones:
+            if z.uncertain:
+                out += [
+                    f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.acceptance.uncertain_reasons
+                ]
+        return out
+
     @property
     def verdict(self) -> str:
         """``PASS``, ``FAIL``, ``NOT ESTABLISHED`` or ``NOT MEASURED``.
@@ -375,14 +427,14 @@ class InspectionResult:
         surface was not measured (:meth:`not_measured`); ``PASS`` only when none of these."""
         if not self.passed:
             return "FAIL"
-        if not self.established:
+        if not self.established or self.uncertain():
             return "NOT ESTABLISHED"
         return "PASS" if self.measured else "NOT MEASURED"
 
     def decided_by(self) -> list[str]:
         """What failed the part (empty when it passed), one line each."""
         out = []
-        if not self.acceptance.passed:
+        if self.acceptance.decision == "FAIL":
             out += [f"whole part: {r}" for r in self.acceptance.reasons]
         for z in self.zones:
             if z.failed:
@@ -393,6 +445,7 @@ class InspectionResult:
             out += [f"size: {r}" for r in self.size.reasons()]
         if self.passed:
             out += [f"not established: {w}" for w in self.trust_warnings()]
+            out += [f"not established: {w}" for w in self.uncertain()]
             out += [f"not measured: {w}" for w in self.not_measured()]
         return out
 
@@ -588,8 +641,10 @@ def vertex_deviation(
     closest: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     scan_normals: np.ndarray | None = None,
     residual: np.ndarray | None = None,
-) -> np.ndarray:
-    """Nominal-referenced deviation (n,) mm of every vertex of ``(V, F)`` from scan ``P``.
+) -> tuple[np.ndarray, np.ndarray]:
+    """Nominal-referenced deviation (n,) mm of every vertex of ``(V, F)`` from scan ``P``,
+    and its variance (n,) mm^2 from the scan points' scatter about the local fit (for
+    :func:`qifreport.metrology.decision.vertex_uncertainty`).
 
     Each point's signed distance to the nominal *surface* (its distance to the closest
     triangle, ``closest`` from :func:`~qifreport.metrology.deviation.closest_points`, computed
@@ -602,11 +657,15 @@ def vertex_deviation(
     signed distances to the surface, when the caller has them (:func:`surface_distance`).
     """
     if face_id is None:  # a mesh nominal: the local plane fit (no faces to keep apart)
-        return nominal_referenced(V, F, P, normals=normals, scan_normals=scan_normals)
+        return nominal_referenced(
+            V, F, P, normals=normals, scan_normals=scan_normals, variance=True
+        )
     C, cface, pdev = closest_points(V, F, P) if closest is None else closest
     if residual is None:
         residual = surface_distance(V, F, C, cface, pdev, face_id)
-    return residual_referenced(V, F, P, residual, normals, point_faces(cface, face_id), face_id)
+    return residual_referenced(
+        V, F, P, residual, normals, point_faces(cface, face_id), face_id, variance=True
+    )
 
 
 def point_faces(cface: np.ndarray, face_id: np.ndarray) -> np.ndarray:
@@ -751,8 +810,13 @@ def inspect(
         # virtual fixture can then only add its own error (a stiff part moved by it).
         t0 = time.perf_counter()
         free = _judge(reg, None, params, dict(timings), check_part=False, **judge)
+        # nothing of it proven out of tolerance, registration trusted: the free state stands
+        # (PASS; NOT MEASURED where the scan has holes; or NOT ESTABLISHED on a zone limit
+        # within the uncertainty: a fixture cannot decide what the measurement cannot)
         if free.passed and free.established:  # its stages are the inspection's
-            free.fixture_decision = "free state conforms"
+            free.fixture_decision = (
+                FREE_STATE_UNCERTAIN if free.uncertain() else FREE_STATE_CONFORMS
+            )
             return free
         timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
     near_crease, near_rim = prepared.near_crease, prepared.near_rim
@@ -775,7 +839,8 @@ def inspect(
         flaggable=flaggable,
     )
     timings[params.method] = time.perf_counter() - t0
-    free_dev = None if free is None else free.deviation  # the free state, measured once
+    # the free state, measured once
+    free_dev = None if free is None else (free.deviation, free.deviation_variance)
     res = _judge(reg, fit, params, timings, free_deviation=free_dev, **judge)
     res.fixture_decision = "always" if free is None else "free state does not conform"
     if free is not None:
@@ -812,13 +877,14 @@ def _judge(
     energy: str,
     basis: BendingBasis | None,
     check_part: bool = True,
-    free_deviation: np.ndarray | None = None,
+    free_deviation: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> InspectionResult:
     """Judge the rigidly seated scan against the nominal as the fixture ``fit`` holds it
     (``None``: the free state, the nominal where the rigid alignment put it).
 
-    ``free_deviation``: the free state's vertex deviation when it was judged already (the
-    zones with the free-state modifier take it instead of measuring it again)."""
+    ``free_deviation``: the free state's vertex deviation and its variance when it was
+    judged already (the zones with the free-state modifier take them instead of measuring
+    again)."""
     V, F, Pm, rigid, diag = reg.V, reg.F, reg.P, reg.rigid, reg.diag
     Ns, sheets = reg.scan_normals, reg.sheets
     ops = prepared.ops
@@ -838,7 +904,7 @@ def _judge(
     C, cface, pdev = closest_points(V_reg, F, Pm)
     if face_id is not None:  # a B-rep nominal: the points' distances to its curved surface
         pdev = surface_distance(V_reg, F, C, cface, pdev, face_id)
-    dev = vertex_deviation(
+    dev, var = vertex_deviation(
         V_reg,
         F,
         Pm,
@@ -848,10 +914,10 @@ def _judge(
         scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg, sheets=sheets),
         residual=pdev if face_id is not None else None,
     )
-    dev_free = None
+    dev_free = var_free = None
     if fit is not None and any(z.free_state for z in bands.zones):
-        dev_free = (
-            free_deviation.copy()
+        dev_free, var_free = (
+            (free_deviation[0].copy(), free_deviation[1])
             if free_deviation is not None
             else vertex_deviation(
                 V,
@@ -886,9 +952,21 @@ def _judge(
     t0 = time.perf_counter()
     area = ops.area  # barycentric vertex areas of the nominal, mm^2
     dev_all = dev.copy()
+    var_all = var.copy()
     if dev_free is not None:
         free_v = np.isin(bands.governing, [i for i, z in enumerate(bands.zones) if z.free_state])
         dev_all[free_v] = dev_free[free_v]
+        var_all[free_v] = var_free[free_v]
+    # a STEP nominal's scan points grouped by their B-rep face: a thin wall's two skins are
+    # kept apart in the noise estimate
+    plabel = None if face_id is None else point_faces(cface, face_id)
+    t_noise = time.perf_counter()
+    noise = range_noise(Pm, labels=plabel)
+    timings["resolution"] = time.perf_counter() - t_noise
+    # the expanded uncertainty of each vertex's deviation, for the decision rule
+    U = vertex_uncertainty(var_all, params.scanner_uncertainty)
+    U_free = None if var_free is None else vertex_uncertainty(var_free, params.scanner_uncertainty)
+    rule = params.decision_rule
     # threshold of the whole-part tail fractions: the general zone's half-width, or (all faces
     # under PMI profiles) the widest zone's: "beyond every band" (per-zone fractions use their
     # own band)
@@ -918,6 +996,8 @@ def _judge(
         min_fraction=params.min_fraction,
         max_region_area=params.max_region_area,
         center=bands.center,
+        uncertainty=U,
+        decision_rule=rule,
     )
     # beside a drawing's own tolerances, qifreport's default band is no requirement: judged
     # where it was measured, its unmeasured patches reported (each PMI zone keeps its rules)
@@ -938,6 +1018,8 @@ def _judge(
             min_fraction=params.min_fraction,
             max_region_area=params.max_region_area,
             center=z.center,
+            uncertainty=U_free if use_free else U,
+            decision_rule=rule,
         )
         zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
         zcov = zone_coverage(
@@ -976,11 +1058,12 @@ def _judge(
         max_gap_area=params.max_gap_area,
         advisory_gaps=advisory,
     )
-    # a STEP nominal's scan points grouped by their B-rep face: a thin wall's two skins are
-    # kept apart in the noise estimate
-    plabel = None if face_id is None else point_faces(cface, face_id)
     s_area = scan_area(Pm)
-    ceiling = coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
+    # the ceiling catches a deformable fit that met points of other features; a B-rep's free
+    # state is rigid and scores each vertex from its own faces' points only, while the
+    # scan-area estimate merges the two skins of a wall thinner than a point neighbourhood
+    # (NIST CTC 03, 1.9 mm walls: 65 % "scanned" against 94 % scored)
+    ceiling = free_brep or coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
     # added material: scan points beyond the rim of the nominal are not proud of it
     pdev_in = np.where(rim, np.nan, pdev)
     added = added_material(
@@ -992,19 +1075,19 @@ def _judge(
         fail_on=params.fail_on_added_material,
     )
     timings["metrology"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
     scatter = resolution(
-        range_noise(Pm, labels=plabel),
+        noise,
         fit.scale if fit is not None else rigid.scale,
         [(z.zone.key, float(z.zone.upper - z.zone.lower)) for z in zone_results],
     )
-    timings["resolution"] = time.perf_counter() - t0
     return InspectionResult(
         V=V,
         F=F,
         V_registered=V_reg,
         P=Pm,
         deviation=dev_all,
+        deviation_variance=var_all,
+        solid=solid,
         point_deviation=pdev,
         vertex_stats=vstats,
         point_stats=pstats,

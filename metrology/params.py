@@ -14,6 +14,7 @@ from qifreport.registration.gbcicp import GBCICPParams
 
 from .acceptance import DEFAULT_MAX_REGION_AREA
 from .coverage import DEFAULT_MIN_COVERAGE
+from .decision import DEFAULT_DECISION_RULE
 
 __all__ = ["METHOD_LABELS", "InspectionParams", "method_label"]
 
@@ -76,6 +77,11 @@ class InspectionParams:
         be measured (:mod:`qifreport.metrology.coverage`); a zone may set its own.
     max_gap_area : largest unmeasured patch on a toleranced surface, mm^2; None:
         ``GAP_AREA_FACTOR * max_region_area``.
+    decision_rule : how the measurement uncertainty enters each decision, one of
+        :data:`qifreport.metrology.decision.DECISION_RULES` (default ``"iso14253"``: PASS
+        proven, FAIL proven, otherwise not established).
+    scanner_uncertainty : the scanner's own expanded uncertainty (k = 2), mm, combined in
+        quadrature with each vertex's uncertainty from the range noise (0: none stated).
     """
 
     tolerance: float | None = None
@@ -93,3 +99,5 @@ class InspectionParams:
     gbcicp: GBCICPParams = field(default_factory=GBCICPParams)
     min_coverage: float = DEFAULT_MIN_COVERAGE
     max_gap_area: float | None = None
+    decision_rule: str = DEFAULT_DECISION_RULE
+    scanner_uncertainty: float = 0.0

@@ -175,7 +175,9 @@ def restrict_acceptance(acc: Acceptance, keep: np.ndarray) -> Acceptance:
 
     The region criterion (largest region, ``region_ok``) and ``passed`` are recomputed and the
     region reasons rewritten; the area criterion, coverage and every other field are kept, so
-    a part failing the area criterion still fails.
+    a part failing the area criterion still fails. Under a decision rule the persistent
+    regions decide too: passing on them proves conformance, and non-conformance stays proven
+    only when they fail.
 
     Parameters
     ----------
@@ -199,6 +201,11 @@ def restrict_acceptance(acc: Acceptance, keep: np.ndarray) -> Acceptance:
         region_ok=region_ok,
         passed=passed,
         reasons=reasons,
+        # the persistence of the regions stands in for the guard band on them: a region
+        # that does not persist proves nothing, and the persistent ones decide
+        proven_in=None if acc.proven_in is None else bool(acc.proven_in or passed),
+        proven_out=None if acc.proven_out is None else bool(acc.proven_out and not passed),
+        uncertain_reasons=[] if passed else list(acc.uncertain_reasons),
     )
 
 

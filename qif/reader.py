@@ -194,6 +194,13 @@ def acceptance_from_attributes(
     while f"{prefix}reason_{k}" in a:
         reasons.append(a[f"{prefix}reason_{k}"])
         k += 1
+    uncertain = []
+    k = 1
+    while f"{prefix}uncertain_reason_{k}" in a:
+        uncertain.append(a[f"{prefix}uncertain_reason_{k}"])
+        k += 1
+    proven_in = a.get(f"{prefix}conformance_proven")
+    proven_out = a.get(f"{prefix}nonconformance_proven")
     area_ok = bool(a.get(f"{prefix}area_criterion_ok", False))
     region_ok = bool(a.get(f"{prefix}region_criterion_ok", False))
     scored = a.get(f"{prefix}scored_area_mm2", math.nan)
@@ -211,6 +218,14 @@ def acceptance_from_attributes(
         region_ok=region_ok,
         passed=bool(area_ok and region_ok and scored > 0),
         reasons=reasons,
+        decision_rule=a.get(f"{prefix}decision_rule", "simple"),
+        proven_in=None if proven_in is None else bool(proven_in),
+        proven_out=None if proven_out is None else bool(proven_out),
+        uncertainty_mm=(
+            a.get(f"{prefix}expanded_uncertainty_median_mm", math.nan),
+            a.get(f"{prefix}expanded_uncertainty_max_mm", math.nan),
+        ),
+        uncertain_reasons=uncertain,
     )
 
 

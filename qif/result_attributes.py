@@ -93,6 +93,15 @@ def acceptance_attrs(a: Attrs, acc, V: np.ndarray, prefix: str = "") -> None:
         a.d3(f"{prefix}region_{k}_peak_location_mm", V[r.peak_vertex])
     for k, reason in enumerate(acc.reasons, start=1):
         a.s(f"{prefix}reason_{k}", reason)
+    a.s(f"{prefix}decision_rule", acc.decision_rule)
+    a.s(f"{prefix}decision", acc.decision)
+    if acc.proven_in is not None:
+        a.b(f"{prefix}conformance_proven", acc.proven_in)
+        a.b(f"{prefix}nonconformance_proven", acc.proven_out)
+        a.d(f"{prefix}expanded_uncertainty_median_mm", acc.uncertainty_mm[0])
+        a.d(f"{prefix}expanded_uncertainty_max_mm", acc.uncertainty_mm[1])
+    for k, reason in enumerate(acc.uncertain_reasons, start=1):
+        a.s(f"{prefix}uncertain_reason_{k}", reason)
 
 
 def coverage_attrs(a: Attrs, cov, prefix: str = "") -> None:

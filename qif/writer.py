@@ -74,7 +74,12 @@ from lxml import etree
 from qifreport import __version__
 from qifreport.jsonio import json_default
 from qifreport.metrology.bands import ToleranceZone
-from qifreport.metrology.inspection import InspectionResult, ZoneResult
+from qifreport.metrology.inspection import (
+    FREE_STATE_CONFORMS,
+    FREE_STATE_UNCERTAIN,
+    InspectionResult,
+    ZoneResult,
+)
 
 from .result_attributes import (
     MAX_REGIONS_LISTED,
@@ -185,15 +190,17 @@ def characteristic_status(z: ZoneResult, established: bool = True) -> str:
     str
         ``NOT_ANALYZED`` (nothing scored, or too little of the surface to measure it:
         :attr:`ZoneResult.measured`; QIF's characteristic status has no "not measured"),
-        ``FAIL``, ``PASS``, or ``INDETERMINATE`` (would pass, the registration is not trusted).
+        ``FAIL``, ``PASS``, or ``INDETERMINATE`` (would pass, the registration is not trusted;
+        or neither conformance nor non-conformance is proven within the measurement
+        uncertainty, :mod:`qifreport.metrology.decision`).
     """
     if z.acceptance.scored_area <= 0 or z.stats.n == 0:
         return "NOT_ANALYZED"
-    if not z.acceptance.passed:
+    if z.failed:
         return "FAIL"
     if not z.measured:
         return "NOT_ANALYZED"
-    return "PASS" if established else "INDETERMINATE"
+    return "PASS" if established and not z.uncertain else "INDETERMINATE"
 
 
 def acceptance_rule(min_fraction: float, max_region_area: float) -> str:
@@ -378,8 +385,10 @@ def _fixture_name(res) -> str:
     """The virtual fixture's algorithm name: what was applied."""
     if res.fit is not None:
         return "virtual fixture"
-    if res.fixture_decision == "free state conforms":
+    if res.fixture_decision == FREE_STATE_CONFORMS:
         return "none (the free state conforms: no restraint needed)"
+    if res.fixture_decision == FREE_STATE_UNCERTAIN:
+        return "none (the free state is not proven out of tolerance: no restraint simulated)"
     return "none (rigid only)"
 
 

@@ -36,6 +36,7 @@ from pathlib import Path
 
 from qifreport import __version__
 from qifreport.errors import InputError, Interrupted, raise_if_interrupted
+from qifreport.metrology.decision import DECISION_RULES, DEFAULT_DECISION_RULE
 from qifreport.metrology.repeatability import KEEP_FRACTION
 from qifreport.registration.methods import METHODS
 
@@ -178,6 +179,23 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         metavar="MM2",
         help="largest unmeasured patch on a toleranced surface (default 4 x "
         "--max-region-area = 100 mm^2); larger: NOT MEASURED",
+    )
+    ap.add_argument(
+        "--decision-rule",
+        choices=DECISION_RULES,
+        default=DEFAULT_DECISION_RULE,
+        help="how the measurement uncertainty U (k = 2) of each deviation enters the decision: "
+        "iso14253 (default, ISO 14253-1: PASS when conformance is proven, FAIL when "
+        "non-conformance is, otherwise NOT ESTABLISHED), guarded-acceptance (PASS only when "
+        "proven), guarded-rejection (FAIL only when proven), simple (U not used)",
+    )
+    ap.add_argument(
+        "--scanner-uncertainty",
+        type=float,
+        default=0.0,
+        metavar="MM",
+        help="the scanner's stated expanded uncertainty (k = 2), combined with each "
+        "deviation's own from the scan's range noise (default 0: none stated)",
     )
     ap.add_argument(
         "--energy",

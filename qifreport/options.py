@@ -18,6 +18,7 @@ from pathlib import Path
 
 from qifreport.errors import InputError
 from qifreport.metrology.coverage import DEFAULT_MIN_COVERAGE
+from qifreport.metrology.decision import DECISION_RULES, DEFAULT_DECISION_RULE
 from qifreport.metrology.params import InspectionParams
 from qifreport.registration.gbcicp import GBCICPParams
 
@@ -60,6 +61,8 @@ RESULT_OPTIONS = (
     "min_coverage",
     "zone_min_coverage",
     "max_gap_area",
+    "decision_rule",
+    "scanner_uncertainty",
 )
 
 
@@ -127,6 +130,9 @@ class InspectOptions:
     zone_min_coverage : ``((selector, fraction), ...)``: a tolerance's own least share; the
         selector is its key (``T2``), name, or STEP id (``#1452``).
     max_gap_area : largest unmeasured patch, mm^2 (None: 4 x the region criterion's area).
+    decision_rule : how the measurement uncertainty enters each decision
+        (:mod:`qifreport.metrology.decision`).
+    scanner_uncertainty : the scanner's stated expanded uncertainty, mm (0: none).
     """
 
     tolerance: float | None = None
@@ -159,6 +165,8 @@ class InspectOptions:
     min_coverage: float = DEFAULT_MIN_COVERAGE
     zone_min_coverage: tuple[tuple[str, float], ...] = ()
     max_gap_area: float | None = None
+    decision_rule: str = DEFAULT_DECISION_RULE
+    scanner_uncertainty: float = 0.0
 
     def check(self) -> None:
         """Refuse values no inspection can use (:class:`~qifreport.errors.InputError`)."""
@@ -185,6 +193,15 @@ class InspectOptions:
         ):
             raise InputError(
                 f"--max-region-area must be an area >= 0 mm^2, got {self.max_region_area}"
+            )
+        if self.decision_rule not in DECISION_RULES:
+            raise InputError(
+                f"--decision-rule must be one of {', '.join(DECISION_RULES)}, got "
+                f"{self.decision_rule!r}"
+            )
+        if not (math.isfinite(self.scanner_uncertainty) and self.scanner_uncertainty >= 0):
+            raise InputError(
+                f"--scanner-uncertainty must be a length >= 0 mm, got {self.scanner_uncertainty}"
             )
         if self.mesher not in ("gmsh", "brepmesh"):
             raise InputError(f"--mesher must be gmsh or brepmesh, got {self.mesher!r}")
@@ -231,6 +248,8 @@ class InspectOptions:
             gbcicp=g,
             min_coverage=self.min_coverage,
             max_gap_area=self.max_gap_area,
+            decision_rule=self.decision_rule,
+            scanner_uncertainty=self.scanner_uncertainty,
         )
         if self.max_region_area is not None:
             params.max_region_area = self.max_region_area

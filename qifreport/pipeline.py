@@ -30,7 +30,13 @@ from qifreport import __version__
 from qifreport.atomic_io import atomic_write_many, output_lock, remove_stale_temps
 from qifreport.errors import InputError
 from qifreport.metrology.bands import ToleranceZone
-from qifreport.metrology.inspection import InspectionParams, InspectionResult, inspect
+from qifreport.metrology.inspection import (
+    FREE_STATE_CONFORMS,
+    FREE_STATE_UNCERTAIN,
+    InspectionParams,
+    InspectionResult,
+    inspect,
+)
 from qifreport.metrology.params import method_label
 from qifreport.metrology.repeatability import KEEP_FRACTION, resample_mask
 from qifreport.metrology.repeatability import apply as apply_repeatability
@@ -97,6 +103,17 @@ def write_ply_with_scalar(
         fh.write(face.tobytes())
 
 
+def decision_text(a) -> str:
+    """The decision rule of an :class:`~qifreport.metrology.acceptance.Acceptance` and the
+    expanded uncertainty it weighed, for the reports."""
+    if a.proven_in is None:
+        return f"{a.decision_rule} (no uncertainty weighed)"
+    med, top = a.uncertainty_mm
+    return (
+        f"{a.decision_rule}, expanded uncertainty U (k = 2) median {med:.4f} mm, max {top:.4f} mm"
+    )
+
+
 def summary(res: InspectionResult) -> str:
     """A short human-readable summary of the inspection."""
     a, s = res.acceptance, res.vertex_stats
@@ -110,6 +127,7 @@ def summary(res: InspectionResult) -> str:
         f"region criterion: largest out-of-tolerance region {a.largest_region_area:.1f} mm^2 "
         f"(<= {a.max_region_area:g} mm^2) {'ok' if a.region_ok else 'FAILED'}; "
         f"{len(a.regions)} region(s)",
+        f"decision rule: {decision_text(a)}",
         f"coverage: {100 * a.coverage:.1f} % of the nominal area scored"
         + (
             f" ({res.edge_excluded_area:.0f} mm^2 along sharp creases not scored)"
@@ -170,7 +188,13 @@ def summary(res: InspectionResult) -> str:
 def fixture_text(res: InspectionResult) -> str:
     """How the virtual fixture was made, for the summary."""
     if res.fit is None:
-        if res.fixture_decision == "free state conforms":
+        if res.fixture_decision == FREE_STATE_UNCERTAIN:
+            return (
+                f"rigid ICP (robust residual {res.rigid.scale:.3f} mm); nothing of the free "
+                "state is proven out of tolerance (it lies on a zone limit within the "
+                "measurement uncertainty), so no virtual fixture was applied"
+            )
+        if res.fixture_decision == FREE_STATE_CONFORMS:
             return (
                 f"rigid ICP (robust residual {res.rigid.scale:.3f} mm); the free state "
                 "conforms, so no virtual fixture was needed (ISO 10579 restraint brings a "

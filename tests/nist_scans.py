@@ -106,22 +106,23 @@ def assert_conforms(doc: dict) -> None:
         assert measured, "no PMI-toleranced surface was measured"
 
 
-def assert_not_measured_only_where_unseen(doc: dict, P: np.ndarray) -> None:
+def assert_not_measured_only_where_unseen(doc: dict, P: np.ndarray, face: np.ndarray) -> None:
     """A perfect scan's surface is NOT MEASURED only where the scan has a hole: each toleranced
     surface not measured has an unmeasured patch larger than allowed whose centroid lies
-    more than three point spacings from every scan point (an occlusion of the planned
-    views), and is not measured for no other reason."""
+    more than three point spacings from every scan point of the surface's own faces (``face``:
+    the true B-rep face of each point; the other skin of a thin wall may be nearer: an
+    occlusion of the planned views), and is not measured for no other reason."""
     from scipy.spatial import cKDTree
 
-    tree = cKDTree(P)
-    spacing = float(np.median(tree.query(P, k=2)[0][:, 1]))
+    spacing = float(np.median(cKDTree(P).query(P, k=2)[0][:, 1]))
     for z in pmi_zones(doc):
         if z["verdict"] != "NOT MEASURED":
             continue
         m = z["measured"]
         assert m["coverage"] >= m["min_coverage"], (z["description"], m["reasons"])
         assert m["largest_gap_area_mm2"] > m["max_gap_area_mm2"], (z["description"], m)
-        far = float(tree.query(m["largest_gap_centroid_mm"])[0])
+        own = P if z["faces"] is None else P[np.isin(face, z["faces"])]
+        far = float(cKDTree(own).query(m["largest_gap_centroid_mm"])[0])
         assert far > 3.0 * spacing, (
             f"{z['description']}: NOT MEASURED on a patch whose centre has a scan point "
             f"{far:.2f} mm away (spacing {spacing:.2f} mm): {m['reasons']}"
@@ -133,12 +134,11 @@ def assert_not_measured_only_where_unseen(doc: dict, P: np.ndarray) -> None:
 #: until its mark is removed
 STILL_WRONG = {
     "nist_ctc_02_asme1_ap242-e2.stp": "unilateral zones [-2.5, 0] and [0, +2.5] put the "
-    "nominal on a zone limit: the free state fails them, then GB-CICP moves the nominal by "
-    "up to 2 mm and falls back",
-    "nist_ctc_03_asme1_ap242-e2.stp": "its 1.9 mm walls at ~0.9 mm point spacing: the "
-    "free state is not established (the size check's uncertainty from the trim creases, "
-    "+/-0.51 mm, exceeds the 0.5 mm limit), then GB-CICP moves it by 1.4 mm and fails it "
-    "(the range noise, 0.91 mm when both skins were mixed, now reads 0.007 mm)",
+    "perfect faces on a zone limit; under ISO 14253-1 they should be NOT ESTABLISHED, but "
+    "9 % of T2's and 2 % of T4's vertices read beyond the limit by more than their "
+    "expanded uncertainty (2-4 um from the local fits; peaks +0.03/-0.05 mm, T4's all on "
+    "the face boundary: points of the neighbouring face read as this one's), so the free "
+    "state FAILs and GB-CICP then moves the nominal by up to 2 mm",
 }
 
 #: the parts of each test module (two modules: they run on both workers, about 5 min each);
@@ -164,6 +164,50 @@ def cases(group: str) -> list:
     return out
 
 
+def bump_target(s: Scan, doc: dict) -> tuple[dict, int, np.ndarray]:
+    """(zone, B-rep face, centre) of the bump: the tightest PMI zone passing on the perfect
+    scan whose faces carry a well-scanned spot, at the scan point of its face with the most
+    points of that face within 1.5 sigma (4.5 mm, where the bump stands 0.16 mm and more),
+    at least 40 % of a full disk at the scan's spacing: where the scan saw the face squarely,
+    away from its edges (a bump cut by the face's edge, or on a grazing strip of sparse
+    points, is not the 0.5 x sigma 3 mm bump the test means; CTC 01's first pick had 2
+    points within 3 mm of it and read 0.22 mm)."""
+    from scipy.spatial import cKDTree
+
+    zones = sorted(
+        (z for z in pmi_zones(doc) if z["verdict"] == "PASS" and z["upper_mm"] < 0.4),
+        key=lambda z: z["width_mm"],
+    )
+    spacing = float(np.median(cKDTree(s.scan.P).query(s.scan.P[::50], k=2)[0][:, 1]))
+    full = np.pi * 4.5**2 / spacing**2  # points in a 4.5 mm disk at the scan's spacing
+    for z in zones:
+        for f in z["faces"]:
+            pts = s.scan.P[s.scan.face == f]
+            if len(pts) < 10:
+                continue
+            n = cKDTree(pts).query_ball_point(pts, 4.5, return_length=True)
+            if n.max() >= 0.4 * full:
+                return z, f, pts[int(np.argmax(n))]
+    raise AssertionError("no well-scanned toleranced face to bump")
+
+
+def check_bump(scans, name: str) -> None:
+    """A 0.5 mm x sigma 3 mm bump on the part's tightest measured toleranced face
+    (:func:`bump_target`) FAILs that tolerance, a failing region's centroid within 3 mm of
+    the bump, exit 1."""
+    from qifreport.simulate.brep_scan import bump
+
+    s = scans(name)
+    zone, face, centre = bump_target(s, s.run())
+    Q = bump(s.scan.P, s.scan.normal, s.scan.face, centre, face, 0.5, 3.0)
+    doc = s.run(Q, "bump")
+    hit = next(z for z in doc["tolerances"] if z["key"] == zone["key"])
+    assert hit["verdict"] == "FAIL", hit["description"]
+    at = [np.array(r["centroid"]) for r in hit["acceptance"]["regions"]]
+    assert at and min(np.linalg.norm(c - centre) for c in at) <= 3.0
+    assert doc["_rc"] == 1
+
+
 def check_perfect_scan(scans, name: str) -> None:
     """Its perfect scan conforms (:func:`assert_conforms`), the measure well inside the
     default +/-0.5 mm band (10 um noise; before the residual-based measure: up to 1.1 mm
@@ -179,4 +223,4 @@ def check_perfect_scan(scans, name: str) -> None:
     assert added["n_regions"] == 0 and added["max_signed_mm"] < 0.4, added
     assert doc["_rc"] in (0, 3), doc["decided_by"]
     assert (doc["_rc"] == 0) == (doc["verdict"] == "PASS")
-    assert_not_measured_only_where_unseen(doc, s.scan.P)
+    assert_not_measured_only_where_unseen(doc, s.scan.P, s.scan.face)

@@ -3,7 +3,13 @@
 in ``test_nist_perfect_scan.py``, :func:`tests.nist_scans.check_perfect_scan`).
 
 * A 0.5 mm x sigma 3 mm bump on the tightest measured toleranced face FAILs that tolerance,
-  with a failing region's centroid within 3 mm of the bump.
+  with a failing region's centroid within 3 mm of the bump (:func:`tests.nist_scans.check_bump`).
+  On FTC 06 only, measured on the others (issue 20 stays open on them): CTC 01's tightest
+  zone (+/-0.25 mm) reads the bump as 0.19 mm (the deviation's fit ball on its 4 mm mesh
+  smooths a sigma 3 mm bump: PASS); on CTC 04 the free state FAILs, the virtual fixture then
+  absorbs half the bump (peak 0.22 mm) and its regions lie more than 3 mm from it (the
+  verdict is FAIL); FTC 08's zones under +/-0.2 mm lie on faces of 13-190 scan points; CTC 05
+  has no measured profile zone; CTC 02's perfect scan does not conform yet.
 * From an arbitrary pose the perfect scan conforms with the same zone verdicts, and
   ``--rigid-only`` (no virtual fixture) gives them too: the free state of this stiff part
   conforms, so no fixture is applied, and one forced on it (``--always-fixture``) moves
@@ -17,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.nist_scans import assert_conforms, cases, check_perfect_scan, pmi_zones, scans_fixture
+from tests.nist_scans import assert_conforms, cases, check_bump, check_perfect_scan, scans_fixture
 
 scans = pytest.fixture(scope="module")(scans_fixture)
 PART = "nist_ftc_06_asme1_ap242-e1.stp"
@@ -29,32 +35,7 @@ def test_perfect_scan_conforms(scans, name):
 
 
 def test_bump_on_a_toleranced_face_fails_there(scans):
-    from qifreport.simulate.brep_scan import bump, bump_site
-
-    s = scans(PART)
-    base = s.run()
-    seen = np.bincount(s.scan.face, minlength=len(s.part.faces))
-    # the tightest PMI zone that a 0.5 mm bump leaves, measured on the perfect scan, with a
-    # well-seen face
-    zones = sorted(
-        (z for z in pmi_zones(base) if z["verdict"] == "PASS" and z["upper_mm"] < 0.4),
-        key=lambda z: z["width_mm"],
-    )
-    zone = face = None
-    for z in zones:
-        f = max(z["faces"], key=lambda k: seen[k])
-        if seen[f] > 200:
-            zone, face = z, f
-            break
-    assert zone is not None, "no measured toleranced face to bump"
-    centre = bump_site(s.mesh, face)
-    Q = bump(s.scan.P, s.scan.normal, s.scan.face, centre, face, 0.5, 3.0)
-    doc = s.run(Q, "bump")
-    hit = next(z for z in doc["tolerances"] if z["key"] == zone["key"])
-    assert hit["verdict"] == "FAIL", hit["description"]
-    at = [np.array(r["centroid"]) for r in hit["acceptance"]["regions"]]
-    assert at and min(np.linalg.norm(c - centre) for c in at) <= 3.0
-    assert doc["_rc"] == 1
+    check_bump(scans, PART)
 
 
 def test_arbitrary_pose_and_rigid_only_agree(scans):

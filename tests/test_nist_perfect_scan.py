@@ -8,7 +8,8 @@ the toleranced faces first, with 10 um range noise (:mod:`tests.nist_scans`). On
 a machined part conforms by construction: nothing FAILs, the free state conforms (no virtual
 fixture), the rigid fit's robust residual is within 2x the noise, every PMI-toleranced
 surface measured PASSes, and a surface is NOT MEASURED only where the scan has a hole
-(:func:`tests.nist_scans.check_perfect_scan`). CTC 01 and CTC 04 PASS (exit 0).
+(:func:`tests.nist_scans.check_perfect_scan`). CTC 01 and CTC 04 PASS (exit 0); CTC 03 is
+NOT MEASURED only on a 2,400 mm^2 occlusion of its T3 surface.
 
 Real OCP reading, real gmsh meshing, the real CLI.
 """

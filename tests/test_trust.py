@@ -102,7 +102,10 @@ def test_a_failing_part_stays_failed_and_a_ceiling_breach_is_a_warning():
     assert "over-fit" in over.trust_warnings()[0]
     # a part that fails stays FAIL (rejected either way), the warning is still reported
     tight = dataclasses.replace(
-        over, acceptance=dataclasses.replace(res.acceptance, passed=False, reasons=["forced"])
+        over,
+        acceptance=dataclasses.replace(
+            res.acceptance, passed=False, proven_in=False, proven_out=True, reasons=["forced"]
+        ),
     )
     assert tight.verdict == "FAIL" and tight.trust_warnings()
     assert np.isfinite(res.added.p999_signed)

@@ -81,6 +81,14 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
     area, region, empty = criteria(res)
     if res.passed:
         n = len(res.zones)
+        if res.verdict == "NOT ESTABLISHED" and res.established:
+            names = (["whole part"] if res.acceptance.decision == "UNCERTAIN" else []) + [
+                z.zone.key for z in res.zones if z.uncertain
+            ]
+            return [
+                "neither in nor out within the",
+                fit_text(f"measurement uncertainty: {join_names(names, 4)}", width, size),
+            ]
         if res.verdict == "NOT ESTABLISHED":
             return ["criteria met, but the registration", "cannot be trusted (warnings below)"]
         if res.verdict == "NOT MEASURED":

@@ -37,11 +37,7 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
         ["Rigid rotation, deg / shift, mm", f"{angle:.3f} / {np.linalg.norm(t):.3f}"],
     ]
     if fit is None:
-        none = (
-            "none: free state conforms"
-            if res.fixture_decision == "free state conforms"
-            else "none: rigid only"
-        )
+        none = f"none: {res.fixture_decision}" if res.free_state_stands else "none: rigid only"
         rows.append(["Non-rigid (virtual fixture)", none])
     else:
         fp = fit.params
@@ -97,8 +93,8 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
         f"Registration: rigid ICP + virtual fixture ({method_label(fit.method)})"
         if fit is not None
         else "Registration: rigid ICP only (free state)"
-        if res.fixture_decision != "free state conforms"
-        else "Registration: rigid ICP, free state conforms"
+        if not res.free_state_stands
+        else f"Registration: rigid ICP, {res.fixture_decision}"
     )
     return Table(
         columns=[("", width - w2, "l"), ("", w2, "r")],
