@@ -135,8 +135,23 @@ def rule_text(res: InspectionResult) -> str:
         f"{100 * p.min_fraction:g} % of the scored area inside the band and no connected "
         f"out-of-tolerance region over {p.max_region_area:g} mm\u00b2; NOT MEASURED when less "
         f"than {100 * p.min_coverage:g} % of a surface is scored or a hole in the scan could "
-        "hide such a region."
+        f"hide such a region. {_RULE_TEXT.get(p.decision_rule, p.decision_rule)}"
+        + (
+            f" (U median {res.acceptance.uncertainty_mm[0]:.4f} mm)."
+            if res.acceptance.proven_in is not None
+            else "."
+        )
     )
+
+
+#: the decision rules of :mod:`qifreport.metrology.decision`, as the report states them
+_RULE_TEXT = {
+    "iso14253": "Decision ISO 14253-1: conformance or non-conformance proven with each "
+    "deviation's expanded uncertainty U, otherwise not established",
+    "guarded-acceptance": "Decision: guarded acceptance (accepted only when proven with U)",
+    "guarded-rejection": "Decision: guarded rejection (rejected only when proven with U)",
+    "simple": "Decision: simple acceptance (U not used)",
+}
 
 
 def _display(s: str) -> str:
