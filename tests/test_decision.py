@@ -128,3 +128,62 @@ def test_options_refuse_an_unknown_rule_and_a_negative_scanner_uncertainty():
         InspectOptions(scanner_uncertainty=-0.01).check()
     p = InspectOptions(decision_rule="simple", scanner_uncertainty=0.02).inspection_params()
     assert p.decision_rule == "simple" and p.scanner_uncertainty == 0.02
+
+
+def test_cli_on_a_zone_limit_is_not_established_and_says_why(tmp_path):
+    """End to end, free state (``--rigid-only``): a 120 mm plate whose middle (a 40 mm disk,
+    ramped to nothing at 60 mm) stands exactly 0.5 mm proud, judged with +/-0.5 mm: the
+    disk is on the limit. ISO 14253-1: NOT ESTABLISHED (exit 3) and every output says so
+    and validates; ``simple`` FAILs it (exit 1), ``guarded-rejection`` accepts it (exit 0)."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import trimesh
+    from lxml import etree
+
+    from tests.conftest import assert_valid_summary
+
+    V, F = grid_mesh(121, 121, 1.0)
+    trimesh.Trimesh(V, F, process=False).export(tmp_path / "plate.ply")
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0.0, 120.0, (60_000, 2))
+    r = np.linalg.norm(xy - 60.0, axis=1)
+    z = 0.5 * np.clip((30.0 - r) / 10.0, 0.0, 1.0) + rng.normal(0.0, 0.005, len(xy))
+    np.save(tmp_path / "scan.npy", np.column_stack([xy, z]))
+    exe = Path(sys.executable).parent / "qifreport"
+
+    def run(rule: str) -> tuple[int, dict, Path]:
+        out = tmp_path / rule
+        r = subprocess.run(
+            [str(exe), tmp_path / "plate.ply", tmp_path / "scan.npy", "--tolerance", "0.5"]
+            + ["--decision-rule", rule, "--rigid-only", "--json", "--force", "--out", out]
+            + (["--no-pdf"] if rule != "iso14253" else []),
+            capture_output=True,
+            text=True,
+        )
+        assert r.returncode in (0, 1, 3), r.stderr[-2000:]
+        return r.returncode, json.loads((out / "plate.json").read_text()), out
+
+    rc, doc, out = run("iso14253")
+    assert_valid_summary(doc)
+    assert rc == 3 and doc["verdict"] == "NOT ESTABLISHED", doc["decided_by"]
+    acc = doc["acceptance"]
+    assert acc["decision"] == "UNCERTAIN" and not acc["proven_in"] and not acc["proven_out"]
+    assert 0.0 < acc["uncertainty_median_mm"] < 0.01
+    assert any("uncertainty of the zone limit" in s for s in doc["decided_by"])
+    qif = etree.parse(str(out / "plate.qif"))
+    ns = {"q": "http://qifstandards.org/xsd/qif3"}
+    status = qif.xpath("//q:CharacteristicStatusEnum/text()", namespaces=ns)
+    assert status and set(status) == {"INDETERMINATE"}
+    assert set(qif.xpath("//q:InspectionStatusEnum/text()", namespaces=ns)) == {"UNKNOWN"}
+    text = subprocess.run(
+        ["pdftotext", "-layout", str(out / "plate.pdf"), "-"], capture_output=True, text=True
+    ).stdout
+    assert "NOT ESTABLISHED" in text and "Decision ISO 14253-1" in text
+    assert "on the zone limit within the measurement uncertainty" in text
+    rc, doc, _ = run("simple")
+    assert rc == 1 and doc["verdict"] == "FAIL" and doc["acceptance"]["decision"] == "FAIL"
+    rc, doc, _ = run("guarded-rejection")
+    assert rc == 0 and doc["verdict"] == "PASS", doc["decided_by"]

@@ -61,11 +61,11 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
             "n/m"
             if not acc.scored_area > 0
             else "FAIL"
-            if not acc.passed
+            if z.failed
             else "n/m"
             if not z.measured
             else "PASS"
-            if not untrusted
+            if not (untrusted or z.uncertain)
             else "n/e"
         )
         nreg = len(acc.regions)
@@ -89,16 +89,22 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
     rest = [i for i in range(len(zones)) if i not in set(shown)]
     if rest:
         nf = sum(1 for i in rest if zones[i].failed)
+        nu = sum(1 for i in rest if zones[i].uncertain and not zones[i].failed)
         keys = join_names([zones[i].zone.key for i in rest], 8)
         note = (
             f"+ {len(rest)} more tolerance{'s' if len(rest) != 1 else ''} not listed "
-            f"({nf} FAIL, {len(rest) - nf} PASS): {keys} \u2014 every tolerance is in "
+            f"({nf} FAIL, {f'{nu} n/e, ' if nu else ''}{len(rest) - nf - nu} PASS): {keys} "
+            "\u2014 every tolerance is in "
             "the QIF file"
         )
     if untrusted:
         note = (
             "n/e = criteria met, not established (registration not trusted; see the "
             "warning). " + note
+        ).strip()
+    elif any(zones[i].uncertain for i in shown):
+        note = (
+            "n/e = not established: on the zone limit within the measurement uncertainty. " + note
         ).strip()
     if any(
         zones[i].status == "NOT MEASURED" or not zones[i].acceptance.scored_area > 0 for i in shown
