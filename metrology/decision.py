@@ -29,8 +29,9 @@ is *proven in* when both criteria hold with every vertex's band reduced by its `
     :mod:`qifreport.metrology.resolution` checks).
 
 ``U`` of a vertex's deviation is twice its standard deviation from the local fit that
-measured it: the scatter of its ``N`` scan points about that fit (pooled with the part's
-median scatter, so a vertex of few points is not trusted on their word alone) over ``N``,
+measured it: the scatter of its ``N`` scan points about that fit (pooled with the median
+scatter of its B-rep face, or of the part for a mesh nominal, so a vertex of few points is
+not trusted on their word alone) over ``N``,
 more at a scan edge where the fit extrapolates
 (:func:`qifreport.metrology.deviation.residual_referenced`). It is the random (type A)
 part of the uncertainty; a scanner's own systematic error is not in it

@@ -62,12 +62,31 @@ _MIN_FACING_COS = 0.5
 _PRIOR_DOF = 10.0
 
 
-def _pooled_variance(h: np.ndarray, sse: np.ndarray, dof: np.ndarray) -> np.ndarray:
+#: a B-rep face's own median scatter is its vertices' prior when it has this many scored
+_MIN_GROUP = 20
+
+
+def _pooled_variance(
+    h: np.ndarray, sse: np.ndarray, dof: np.ndarray, group: np.ndarray | None = None
+) -> np.ndarray:
     """Variance (n,) mm^2 of each vertex's deviation: its variance factor ``h`` times the
-    scatter of its points about their fit, ``sse / dof``, pooled with the part's median
-    scatter (weight :data:`_PRIOR_DOF`); NaN where ``h`` is."""
+    scatter of its points about their fit, ``sse / dof``, pooled (weight :data:`_PRIOR_DOF`)
+    with the median scatter of its ``group`` (the vertex's B-rep face: a face seen at a
+    steeper angle carries more range noise along its normal) when that has at least
+    :data:`_MIN_GROUP` scored vertices, else of the whole part; NaN where ``h`` is."""
     ok = np.isfinite(h) & (dof > 0)
-    prior = float(np.median(sse[ok] / dof[ok])) if ok.any() else 0.0
+    prior: float | np.ndarray = float(np.median(sse[ok] / dof[ok])) if ok.any() else 0.0
+    if group is not None and ok.any():
+        g = np.asarray(group, dtype=np.int64)
+        per_group = np.full(int(g.max()) + 2, prior)  # the last slot: no group (-1)
+        idx = np.flatnonzero(ok & (g >= 0))
+        order = idx[np.argsort(g[idx], kind="stable")]
+        keys, starts, counts = np.unique(g[order], return_index=True, return_counts=True)
+        for k, s0, c in zip(keys, starts, counts, strict=True):
+            if c >= _MIN_GROUP:
+                members = order[s0 : s0 + c]
+                per_group[k] = float(np.median(sse[members] / dof[members]))
+        prior = per_group[g]
     with np.errstate(invalid="ignore", divide="ignore"):
         s2 = (np.where(ok, sse, 0.0) + _PRIOR_DOF * prior) / (np.where(ok, dof, 0.0) + _PRIOR_DOF)
     return np.where(np.isfinite(h), h * s2, np.nan)
@@ -656,7 +675,7 @@ def residual_referenced(
         ``s^2 (1 + y . A0 y) / N`` with ``y = A^-1 c`` (``N`` points, centroid offset ``c``,
         ``A0`` their tangent covariance, ``A`` it regularised as in the fit; ``s^2 / N`` for
         points centred on the vertex), ``s^2`` the points' scatter about the fit pooled with
-        the part's median; NaN where unscored
+        the median of the vertex's B-rep face (its lowest-numbered one); NaN where unscored
         (:func:`qifreport.metrology.decision.vertex_uncertainty`).
     """
     V, F = _as_mesh(V, F)
@@ -699,7 +718,13 @@ def residual_referenced(
         h[vid] = hv
         sse[vid] = ev
         dof[vid] = dv
-    return (dev, _pooled_variance(h, sse, dof)) if variance else dev
+    if not variance:
+        return dev
+    first_face = np.full(n, -1, dtype=np.int64)  # each vertex's lowest B-rep face
+    vo, fo = own // m, own % m
+    first = np.r_[True, vo[1:] != vo[:-1]]  # ``own`` is sorted: vertex-major
+    first_face[vo[first]] = fo[first]
+    return dev, _pooled_variance(h, sse, dof, first_face)
 
 
 def _residual_fit(
