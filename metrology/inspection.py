@@ -435,13 +435,15 @@ class InspectionResult:
         """What failed the part (empty when it passed), one line each."""
         out = []
         if self.acceptance.decision == "FAIL":
-            out += [f"whole part: {r}" for r in self.acceptance.reasons]
+            out += [f"whole part: {r}" for r in _fail_reasons(self.acceptance)]
         for z in self.zones:
             if z.failed:
-                out += [f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.acceptance.reasons]
+                out += [
+                    f"{z.zone.key} {z.zone.describe()}: {r}" for r in _fail_reasons(z.acceptance)
+                ]
         if self.added is not None and not self.added.passed:
             out.append(f"added material: {self.added.describe()}")
-        if self.size is not None and self.size.flagged:
+        if self.size is not None and self.size.flagged and not self.solid:
             out += [f"size: {r}" for r in self.size.reasons()]
         if self.passed:
             out += [f"not established: {w}" for w in self.trust_warnings()]
@@ -847,6 +849,14 @@ def inspect(
         res.free_state = free.verdict
         res.free_state_decided_by = free.decided_by()
     return res
+
+
+def _fail_reasons(acc: Acceptance) -> list[str]:
+    """Why a surface failed: its criteria's reasons, or (``guarded-acceptance``: the measured
+    values pass, conformance is not proven) why it is not proven within the uncertainty."""
+    if acc.reasons:
+        return list(acc.reasons)
+    return [f"not proven ({acc.decision_rule}): {r}" for r in acc.uncertain_reasons]
 
 
 @dataclass

@@ -134,7 +134,8 @@ def test_cli_on_a_zone_limit_is_not_established_and_says_why(tmp_path):
     """End to end, free state (``--rigid-only``): a 120 mm plate whose middle (a 40 mm disk,
     ramped to nothing at 60 mm) stands exactly 0.5 mm proud, judged with +/-0.5 mm: the
     disk is on the limit. ISO 14253-1: NOT ESTABLISHED (exit 3) and every output says so
-    and validates; ``simple`` FAILs it (exit 1), ``guarded-rejection`` accepts it (exit 0)."""
+    and validates; ``simple`` FAILs it (exit 1), ``guarded-rejection`` accepts it (exit 0),
+    ``guarded-acceptance`` rejects it (exit 1)."""
     import json
     import subprocess
     import sys
@@ -187,3 +188,6 @@ def test_cli_on_a_zone_limit_is_not_established_and_says_why(tmp_path):
     assert rc == 1 and doc["verdict"] == "FAIL" and doc["acceptance"]["decision"] == "FAIL"
     rc, doc, _ = run("guarded-rejection")
     assert rc == 0 and doc["verdict"] == "PASS", doc["decided_by"]
+    rc, doc, _ = run("guarded-acceptance")
+    assert_valid_summary(doc)
+    assert rc == 1 and doc["verdict"] == "FAIL" and doc["decided_by"]
