@@ -32,7 +32,7 @@ def main() -> None:
     from qifreport.metrology.inspection import inspect
     from qifreport.metrology.params import InspectionParams
     from qifreport.nominal import load_nominal
-    from qifreport.simulate.brep_scan import perfect_scan, toleranced_weight
+    from qifreport.simulate.brep_scan import technician_scan
     from qifreport.step.reader import read_step
 
     head = (
@@ -43,14 +43,7 @@ def main() -> None:
     print("-" * len(head))
     for f in a.files or sorted(NIST.glob("*.stp")):
         part = read_step(f)
-        scan, _ = perfect_scan(
-            part.shape,
-            part.faces,
-            noise=a.noise,
-            points=a.points,
-            seed=7,
-            face_weight=toleranced_weight(part),
-        )
+        scan, _ = technician_scan(part, noise=a.noise, points=a.points)
         nom = load_nominal(f, None)
         res = inspect(
             nom.V,

@@ -45,7 +45,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=150_000)
     ap.add_argument("--noise", type=float, default=0.01, help="range noise sigma, mm")
     a = ap.parse_args()
-    from qifreport.simulate.brep_scan import perfect_scan, toleranced_weight
+    from qifreport.simulate.brep_scan import technician_scan
     from qifreport.step.reader import read_step
 
     files = a.files or sorted(NIST.glob("*.stp"))
@@ -58,14 +58,7 @@ def main() -> None:
     print("-" * len(head))
     for f in files:
         part = read_step(f)
-        scan, _ = perfect_scan(
-            part.shape,
-            part.faces,
-            noise=a.noise,
-            points=a.points,
-            seed=7,
-            face_weight=toleranced_weight(part),
-        )
+        scan, _ = technician_scan(part, noise=a.noise, points=a.points)
         with tempfile.TemporaryDirectory() as tmp:
             t = Path(tmp)
             np.save(t / "scan.npy", scan.P)

@@ -28,7 +28,7 @@ class Scan:
     """A part's perfect scan, its truth (face, normal per point) and its fine B-rep mesh."""
 
     def __init__(self, step: Path, tmp: Path):
-        from qifreport.simulate.brep_scan import perfect_scan, toleranced_weight
+        from qifreport.simulate.brep_scan import technician_scan
         from qifreport.step.reader import read_step
         from qifreport.step.tessellate import shape_diagonal
 
@@ -36,14 +36,7 @@ class Scan:
         self.part = read_step(step)
         self.diag = float(shape_diagonal(self.part.shape))
         # the views aimed at the toleranced surfaces first, as a technician would
-        self.scan, self.mesh = perfect_scan(
-            self.part.shape,
-            self.part.faces,
-            noise=NOISE,
-            points=POINTS,
-            seed=7,
-            face_weight=toleranced_weight(self.part),
-        )
+        self.scan, self.mesh = technician_scan(self.part, noise=NOISE, points=POINTS)
         self.tmp = tmp
         self.path = tmp / f"{step.stem}.npy"
         np.save(self.path, self.scan.P)

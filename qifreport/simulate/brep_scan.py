@@ -33,6 +33,7 @@ __all__ = [
     "bump_site",
     "random_pose",
     "toleranced_weight",
+    "technician_scan",
 ]
 
 log = logging.getLogger(__name__)
@@ -303,6 +304,22 @@ def toleranced_weight(part, boost: float = 10.0) -> np.ndarray:
             if sid in index:
                 w[index[sid]] = boost
     return w
+
+
+def technician_scan(
+    part, *, noise: float = 0.01, points: int = 150_000, seed: int = 7
+) -> tuple[BrepScan, BrepSurfaceMesh]:
+    """:func:`perfect_scan` of a STEP part (:class:`qifreport.step.reader.StepPart`) with its
+    four views aimed at the surfaces its drawing tolerances first
+    (:func:`toleranced_weight`), as a technician would: the NIST tests' and benches' scan."""
+    return perfect_scan(
+        part.shape,
+        part.faces,
+        noise=noise,
+        points=points,
+        seed=seed,
+        face_weight=toleranced_weight(part),
+    )
 
 
 def _diagonal(shape) -> float:
