@@ -179,13 +179,18 @@ def find_regions(
     list of :class:`Region`, largest area first (ties: larger ``|peak|`` first).
     """
     V, F, dev, tol, A, c = _prepare(V, F, dev, tolerance, area, center)
-    n = len(V)
+    return _regions(V, adjacency(F, len(V)), dev, tol, A, c)
+
+
+def _regions(V, adj, dev, tol, A, c) -> list[Region]:
+    """:func:`find_regions` on checked per-vertex arrays and the mesh's vertex adjacency
+    ``adj`` (n, n)."""
     with np.errstate(invalid="ignore"):
         out = np.abs(dev - c) > tol  # NaN compares False: unscored is never out
     idx = np.flatnonzero(out)
     if len(idx) == 0:
         return []
-    sub = adjacency(F, n)[idx][:, idx]
+    sub = adj[idx][:, idx]
     n_comp, label = connected_components(sub, directed=False)
     order = np.argsort(label, kind="stable")
     starts = np.flatnonzero(np.r_[True, label[order][1:] != label[order][:-1]])
@@ -363,14 +368,8 @@ def evaluate(
     scored_area = float(A[scored].sum())
     nominal_area = float(A.sum())
     coverage = scored_area / nominal_area if nominal_area > 0 else math.nan
-    with np.errstate(invalid="ignore"):
-        inside = scored & (np.abs(dev - c) <= tol)
-    in_area = float(A[inside].sum())
-    frac = in_area / scored_area if scored_area > 0 else math.nan
-    area_ok = bool(scored_area > 0 and frac >= min_fraction * (1.0 - _AREA_RTOL))
-
-    regions = find_regions(V, F, dev, tol, area=A, center=c)
-    largest = regions[0].area if regions else 0.0
+    adj = adjacency(F, len(V))  # one adjacency for the measured values and both guard bands
+    frac, area_ok, regions, largest = _criteria(V, adj, dev, tol, A, c, scored_area, min_fraction)
     region_ok = bool(largest <= max_region_area)
     passed = bool(area_ok and region_ok and scored_area > 0)
 
@@ -394,14 +393,20 @@ def evaluate(
         U = np.nan_to_num(_per_vertex(uncertainty, len(V), "uncertainty"), nan=0.0)
         Us = U[scored]
         u_stats = (float(np.median(Us)), float(Us.max()))
-        proven_in, why_in = _criteria(
-            V, F, dev, tol - U, A, c, scored_area, min_fraction, max_region_area
+        frac_in, area_in, _, largest_in = _criteria(
+            V, adj, dev, tol - U, A, c, scored_area, min_fraction
         )
-        fails_out, _ = _criteria(
-            V, F, dev, tol + U, A, c, scored_area, min_fraction, max_region_area
+        proven_in = bool(area_in and largest_in <= max_region_area)
+        _, area_out, _, largest_out = _criteria(
+            V, adj, dev, tol + U, A, c, scored_area, min_fraction
         )
-        proven_out = not fails_out
+        proven_out = not (area_out and largest_out <= max_region_area)
         if not proven_in and not proven_out:
+            why_in = []
+            if not area_in:
+                why_in.append(f"{100 * frac_in:.1f} % of the scored area in tolerance")
+            if largest_in > max_region_area:
+                why_in.append(f"a region of {largest_in:.1f} mm^2")
             uncertain = [
                 f"within the measurement uncertainty of the zone limit (U median "
                 f"{u_stats[0]:.4f} mm, max {u_stats[1]:.4f} mm): {r}"
@@ -429,21 +434,17 @@ def evaluate(
     )
 
 
-def _criteria(V, F, dev, tol, A, c, scored_area, min_fraction, max_region_area):
-    """(both criteria hold, the reasons they do not) with the per-vertex band ``tol``
-    (a band reduced below 0 holds no vertex)."""
+def _criteria(V, adj, dev, tol, A, c, scored_area, min_fraction):
+    """The area criterion and the regions with the per-vertex band ``tol`` (the measured
+    band, or one reduced or enlarged by the uncertainty; a band reduced below 0 holds no
+    vertex): (in-tolerance share of the scored area, area criterion met, regions largest
+    first, the largest one's area in mm^2 or 0)."""
     with np.errstate(invalid="ignore"):
         inside = ~np.isnan(dev) & (np.abs(dev - c) <= tol)
-    frac = float(A[inside].sum()) / scored_area
-    area_ok = frac >= min_fraction * (1.0 - _AREA_RTOL)
-    regions = find_regions(V, F, dev, np.maximum(tol, 0.0), area=A, center=c)
-    largest = regions[0].area if regions else 0.0
-    why = []
-    if not area_ok:
-        why.append(f"{100 * frac:.1f} % of the scored area in tolerance")
-    if largest > max_region_area:
-        why.append(f"a region of {largest:.1f} mm^2")
-    return bool(area_ok and largest <= max_region_area), why
+    frac = float(A[inside].sum()) / scored_area if scored_area > 0 else math.nan
+    area_ok = bool(scored_area > 0 and frac >= min_fraction * (1.0 - _AREA_RTOL))
+    regions = _regions(V, adj, dev, np.maximum(tol, 0.0), A, c)
+    return frac, area_ok, regions, regions[0].area if regions else 0.0
 
 
 def _vogel_disk(M: int) -> np.ndarray:

@@ -257,6 +257,12 @@ class InspectionResult:
         return self.fixture_decision in (FREE_STATE_CONFORMS, FREE_STATE_UNCERTAIN)
 
     @property
+    def judged_size(self) -> SizeEstimate | None:
+        """The size check when it takes part in the verdict: not for a solid, whose faces
+        measure its size themselves (its check is a note, :meth:`coverage_notes`)."""
+        return None if self.solid else self.size
+
+    @property
     def passed(self) -> bool:
         """No criterion fails on what was scored: the whole surface and every toleranced
         surface pass their area and region criteria (and, with ``fail_on_added_material``, no
@@ -265,7 +271,7 @@ class InspectionResult:
             self.acceptance.decision != "FAIL"
             and not any(z.failed for z in self.zones)
             and (self.added is None or self.added.passed)
-            and (self.size is None or self.solid or not self.size.flagged)
+            and (self.judged_size is None or not self.judged_size.flagged)
         )
 
     def trust_warnings(self) -> list[str]:
@@ -309,13 +315,9 @@ class InspectionResult:
             )
         if self.resolution is not None:
             out += self.resolution.warnings()
-        if (
-            self.size is not None
-            and not self.solid
-            and self.size.status == "not established"
-            and self.size_seen
-        ):
-            out += self.size.reasons()
+        size = self.judged_size
+        if size is not None and size.status == "not established" and self.size_seen:
+            out += size.reasons()
         if self.repeatability is not None:
             out += list(self.repeatability.warnings)
         return out
@@ -323,10 +325,9 @@ class InspectionResult:
     @property
     def size_seen(self) -> bool:
         """The rim (or trim edges) was seen enough to judge the size (no size check: True)."""
-        s = self.size
+        s = self.judged_size
         return (
             s is None
-            or self.solid
             or s.status in ("no rim", "conforming", "size error")
             or (s.seen_fraction >= s.min_seen)
         )
@@ -443,8 +444,8 @@ class InspectionResult:
                 ]
         if self.added is not None and not self.added.passed:
             out.append(f"added material: {self.added.describe()}")
-        if self.size is not None and self.size.flagged and not self.solid:
-            out += [f"size: {r}" for r in self.size.reasons()]
+        if self.judged_size is not None and self.judged_size.flagged:
+            out += [f"size: {r}" for r in self.judged_size.reasons()]
         if self.passed:
             out += [f"not established: {w}" for w in self.trust_warnings()]
             out += [f"not established: {w}" for w in self.uncertain()]

@@ -29,6 +29,7 @@ import numpy as np
 from qifreport import __version__
 from qifreport.atomic_io import atomic_write_many, output_lock, remove_stale_temps
 from qifreport.errors import InputError
+from qifreport.metrology.acceptance import Acceptance
 from qifreport.metrology.bands import ToleranceZone
 from qifreport.metrology.inspection import (
     FREE_STATE_CONFORMS,
@@ -103,7 +104,7 @@ def write_ply_with_scalar(
         fh.write(face.tobytes())
 
 
-def decision_text(a) -> str:
+def decision_text(a: Acceptance) -> str:
     """The decision rule of an :class:`~qifreport.metrology.acceptance.Acceptance` and the
     expanded uncertainty it weighed, for the reports."""
     if a.proven_in is None:

@@ -120,10 +120,9 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
         out.append(line("nothing scored", empty))
     if res.added is not None and not res.added.passed:
         out.append(f"added material: {res.added.largest_area:.0f} mm\u00b2 proud")
-    if res.size is not None and res.size.flagged:
-        out.append(
-            f"size: scale {res.size.scale:.4f} ({res.size.size_deviation:+.2f} mm at the edge)"
-        )
+    size = res.judged_size  # a solid's size check is a note, never what failed it
+    if size is not None and size.flagged:
+        out.append(f"size: scale {size.scale:.4f} ({size.size_deviation:+.2f} mm at the edge)")
     return out
 
 
