@@ -40,6 +40,7 @@ from scipy.spatial import cKDTree
 from qifreport.registration.mesh import adjacency, vertex_areas
 
 from .decision import decide
+from .point_regions import SurfacePoints
 from .statistics import json_float
 
 __all__ = [
@@ -75,6 +76,10 @@ class Region:
     peak_vertex : int, the vertex where ``peak`` occurs.
     centroid : (3,) float, mm, vertex-area-weighted centroid.
     sign : int, ``+1`` if the peak is proud (material above nominal), ``-1`` if sunk.
+    peak_location : (3,) mm where ``peak`` occurs; None: at ``peak_vertex``.
+    sampling : ``"nominal"`` (found on the vertices' deviation) or ``"scan points"`` (on the
+        points, :mod:`qifreport.metrology.point_regions`: ``vertices`` are then the nominal
+        vertices nearest to its points, the area, peak and centroid the points' own).
     """
 
     vertices: np.ndarray
@@ -83,6 +88,12 @@ class Region:
     peak_vertex: int
     centroid: np.ndarray
     sign: int
+    peak_location: np.ndarray | None = None
+    sampling: str = "nominal"
+
+    def peak_at(self, V: np.ndarray) -> np.ndarray:
+        """(3,) mm: where the peak is, on the nominal ``V`` when it was found there."""
+        return V[self.peak_vertex] if self.peak_location is None else self.peak_location
 
     def to_dict(self) -> dict:
         """JSON-ready dict (the vertex list is summarised as ``n_vertices``)."""
@@ -93,7 +104,12 @@ class Region:
             "peak_vertex": int(self.peak_vertex),
             "centroid": [float(c) for c in self.centroid],
             "sign": int(self.sign),
-        }
+            "sampling": self.sampling,
+        } | ({} if self.peak_location is None else {"peak_location": _vec(self.peak_location)})
+
+
+def _vec(x) -> list[float]:
+    return [float(c) for c in x]
 
 
 def _per_vertex(x, n: int, name: str) -> np.ndarray:
@@ -248,6 +264,9 @@ class Acceptance:
     uncertainty_mm : the median and the largest expanded uncertainty of the scored
         vertices, mm (NaN without one).
     uncertain_reasons : why neither is proven (empty when one is).
+    nominal_decision : the decision on the nominal's vertices alone, without the scan
+        points' regions (None: judged without points); ``"PASS"`` where :attr:`decision`
+        is not means only defects narrower than the mesh decide it.
     """
 
     tolerance: float | np.ndarray
@@ -268,6 +287,7 @@ class Acceptance:
     proven_out: bool | None = None
     uncertainty_mm: tuple[float, float] = (math.nan, math.nan)
     uncertain_reasons: list[str] = field(default_factory=list)
+    nominal_decision: str | None = None
 
     @property
     def decision(self) -> str:
@@ -322,9 +342,10 @@ def region_reasons(regions: list[Region], max_region_area: float) -> list[str]:
     for r in big[:_MAX_REASONS]:
         x, y, z = r.centroid
         kind = "proud" if r.sign > 0 else "sunk"
+        on = ", on the scan points" if r.sampling == "scan points" else ""
         out.append(
             f"region of {r.area:.1f} mm^2 at ({x:.1f}, {y:.1f}, {z:.1f}) exceeds "
-            f"{max_region_area:.1f} mm^2 (peak {r.peak:+.3f} mm, {kind})"
+            f"{max_region_area:.1f} mm^2 (peak {r.peak:+.3f} mm, {kind}{on})"
         )
     if len(big) > _MAX_REASONS:
         out.append(f"... and {len(big) - _MAX_REASONS} more regions above the limit")
@@ -342,6 +363,7 @@ def evaluate(
     center=0.0,
     uncertainty=None,
     decision_rule: str = "simple",
+    points: SurfacePoints | None = None,
 ) -> Acceptance:
     """Decide conformance by the area criterion AND the region criterion.
 
@@ -358,6 +380,10 @@ def evaluate(
         deviation, mm (:func:`qifreport.metrology.decision.vertex_uncertainty`); None: not
         known (the decision is the simple one whatever ``decision_rule``).
     decision_rule : one of :data:`qifreport.metrology.decision.DECISION_RULES`.
+    points : the scan points of the surface (:mod:`qifreport.metrology.point_regions`): the
+        region criterion is also judged on them, with their own uncertainties, so a defect
+        narrower than the mesh is not averaged away; a region found on both samplings is
+        reported once, as the larger.
 
     Returns
     -------
@@ -369,9 +395,13 @@ def evaluate(
     nominal_area = float(A.sum())
     coverage = scored_area / nominal_area if nominal_area > 0 else math.nan
     adj = adjacency(F, len(V))  # one adjacency for the measured values and both guard bands
-    frac, area_ok, regions, largest = _criteria(V, adj, dev, tol, A, c, scored_area, min_fraction)
+    frac, area_ok, regions, largest, largest_v = _criteria(
+        V, adj, dev, tol, A, c, scored_area, min_fraction, points, 0.0
+    )
     region_ok = bool(largest <= max_region_area)
     passed = bool(area_ok and region_ok and scored_area > 0)
+    passed_v = bool(area_ok and largest_v <= max_region_area and scored_area > 0)
+    proven_in_v, proven_out_v = passed_v, not passed_v
 
     reasons: list[str] = []
     if scored_area <= 0:
@@ -393,14 +423,16 @@ def evaluate(
         U = np.nan_to_num(_per_vertex(uncertainty, len(V), "uncertainty"), nan=0.0)
         Us = U[scored]
         u_stats = (float(np.median(Us)), float(Us.max()))
-        frac_in, area_in, _, largest_in = _criteria(
-            V, adj, dev, tol - U, A, c, scored_area, min_fraction
+        frac_in, area_in, _, largest_in, largest_in_v = _criteria(
+            V, adj, dev, tol - U, A, c, scored_area, min_fraction, points, -1.0
         )
         proven_in = bool(area_in and largest_in <= max_region_area)
-        _, area_out, _, largest_out = _criteria(
-            V, adj, dev, tol + U, A, c, scored_area, min_fraction
+        proven_in_v = bool(area_in and largest_in_v <= max_region_area)
+        _, area_out, _, largest_out, largest_out_v = _criteria(
+            V, adj, dev, tol + U, A, c, scored_area, min_fraction, points, 1.0
         )
         proven_out = not (area_out and largest_out <= max_region_area)
+        proven_out_v = not (area_out and largest_out_v <= max_region_area)
         if not proven_in and not proven_out:
             why_in = []
             if not area_in:
@@ -431,20 +463,56 @@ def evaluate(
         proven_out=proven_out,
         uncertainty_mm=u_stats,
         uncertain_reasons=uncertain,
+        nominal_decision=None
+        if points is None
+        else decide(
+            decision_rule if uncertainty is not None else "simple",
+            passed_v,
+            proven_in_v,
+            proven_out_v,
+        ),
     )
 
 
-def _criteria(V, adj, dev, tol, A, c, scored_area, min_fraction):
+def _criteria(V, adj, dev, tol, A, c, scored_area, min_fraction, points=None, widen=0.0):
     """The area criterion and the regions with the per-vertex band ``tol`` (the measured
     band, or one reduced or enlarged by the uncertainty; a band reduced below 0 holds no
-    vertex): (in-tolerance share of the scored area, area criterion met, regions largest
-    first, the largest one's area in mm^2 or 0)."""
+    vertex), and with ``points`` the regions of the scan points with their band widened
+    by ``widen`` x their uncertainty: (in-tolerance share of the scored area, area
+    criterion met, regions largest first, the largest one's area in mm^2 or 0, the largest
+    one's of the vertices alone)."""
     with np.errstate(invalid="ignore"):
         inside = ~np.isnan(dev) & (np.abs(dev - c) <= tol)
     frac = float(A[inside].sum()) / scored_area if scored_area > 0 else math.nan
     area_ok = bool(scored_area > 0 and frac >= min_fraction * (1.0 - _AREA_RTOL))
     regions = _regions(V, adj, dev, np.maximum(tol, 0.0), A, c)
-    return frac, area_ok, regions, regions[0].area if regions else 0.0
+    largest_v = regions[0].area if regions else 0.0
+    if points is not None:
+        regions = _merge(regions, points.regions(widen, Region))
+    return frac, area_ok, regions, regions[0].area if regions else 0.0, largest_v
+
+
+def _merge(on_vertices: list[Region], on_points: list[Region]) -> list[Region]:
+    """One list of the regions of both samplings, largest first: a region of the points
+    that shares nominal vertices with regions of the vertices replaces them when it is
+    larger than each, and is dropped otherwise (one finding, reported once)."""
+    if not on_points:
+        return on_vertices
+    owner: dict[int, int] = {}
+    for i, r in enumerate(on_vertices):
+        for v in r.vertices.tolist():
+            owner[v] = i
+    dropped: set[int] = set()
+    kept = []
+    for r in on_points:
+        hit = {owner[v] for v in r.vertices.tolist() if v in owner}
+        if hit and max(on_vertices[i].area for i in hit) >= r.area:
+            continue
+        dropped |= hit
+        kept.append(r)
+    out = [r for i, r in enumerate(on_vertices) if i not in dropped] + kept
+    out.sort(key=lambda r: (-r.area, -abs(r.peak)))
+    return out
 
 
 def _vogel_disk(M: int) -> np.ndarray:

@@ -67,6 +67,7 @@ from .deviation import (
 from .edges import EdgeDeviation, edge_deviation
 from .hygiene import MeshHygiene
 from .params import METHOD_LABELS, InspectionParams, method_label
+from .point_regions import ScanSamples, SurfacePoints, scan_samples
 from .prepared import PreparedPart, prepare_part
 from .repeatability import Repeatability
 from .resolution import Resolution, range_noise, resolution
@@ -76,9 +77,11 @@ from .statistics import DeviationStats, deviation_statistics
 #: :attr:`InspectionResult.fixture_decision` when the free state stands
 FREE_STATE_CONFORMS = "free state conforms"
 FREE_STATE_UNCERTAIN = "free state within the uncertainty"
+FREE_STATE_LOCAL_DEFECTS = "free state fails on defects narrower than the mesh"
 
 __all__ = [
     "FREE_STATE_CONFORMS",
+    "FREE_STATE_LOCAL_DEFECTS",
     "FREE_STATE_UNCERTAIN",
     "METHOD_LABELS",
     "InspectionParams",
@@ -254,7 +257,26 @@ class InspectionResult:
     @property
     def free_state_stands(self) -> bool:
         """The free state was judged first and is the verdict: no virtual fixture applied."""
-        return self.fixture_decision in (FREE_STATE_CONFORMS, FREE_STATE_UNCERTAIN)
+        return self.fixture_decision in (
+            FREE_STATE_CONFORMS,
+            FREE_STATE_UNCERTAIN,
+            FREE_STATE_LOCAL_DEFECTS,
+        )
+
+    def fails_only_narrower_than_mesh(self) -> bool:
+        """Every surface conforms on the nominal's vertices, and what fails is regions of
+        the scan points only (:mod:`qifreport.metrology.point_regions`): defects narrower
+        than the mesh, which no fixture bends out of a part (its compliance is smooth at
+        the mesh's scale; a virtual one would only distort the rest of a stiff part)."""
+        accs = [self.acceptance] + [z.acceptance for z in self.zones if z.measured]
+        failing = [a for a in accs if a.decision != "PASS"]
+        return bool(
+            failing
+            and all(a.decision == "FAIL" for a in failing)
+            and all(a.nominal_decision == "PASS" for a in accs)
+            and (self.added is None or self.added.passed)
+            and (self.judged_size is None or not self.judged_size.flagged)
+        )
 
     @property
     def judged_size(self) -> SizeEstimate | None:
@@ -821,6 +843,9 @@ def inspect(
                 FREE_STATE_UNCERTAIN if free.uncertain() else FREE_STATE_CONFORMS
             )
             return free
+        if free.established and free.fails_only_narrower_than_mesh():
+            free.fixture_decision = FREE_STATE_LOCAL_DEFECTS
+            return free
         timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
     near_crease, near_rim = prepared.near_crease, prepared.near_rim
     t0 = time.perf_counter()
@@ -858,6 +883,21 @@ def _fail_reasons(acc: Acceptance) -> list[str]:
     if acc.reasons:
         return list(acc.reasons)
     return [f"not proven ({acc.decision_rule}): {r}" for r in acc.uncertain_reasons]
+
+
+def _surface_points(samples: ScanSamples, sel: np.ndarray, half_width, center) -> SurfacePoints:
+    """The points ``sel`` (m,) bool of ``samples`` with the band of their nearest vertex
+    (``half_width``, ``center``: scalars or (n,) per vertex, mm)."""
+    idx = np.flatnonzero(sel)
+    v = samples.vertex[idx]
+
+    def per_point(x) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        return np.full(len(idx), float(x)) if x.ndim == 0 else x[v]
+
+    return SurfacePoints(
+        samples=samples, index=idx, tolerance=per_point(half_width), center=per_point(center)
+    )
 
 
 @dataclass
@@ -968,9 +1008,31 @@ def _judge(
         free_v = np.isin(bands.governing, [i for i, z in enumerate(bands.zones) if z.free_state])
         dev_all[free_v] = dev_free[free_v]
         var_all[free_v] = var_free[free_v]
+    # threshold of the whole-part tail fractions: the general zone's half-width, or (all faces
+    # under PMI profiles) the widest zone's: "beyond every band" (per-zone fractions use their
+    # own band)
+    general = [z for z in bands.zones if z.faces is None]
+    general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
     # a STEP nominal's scan points grouped by their B-rep face: a thin wall's two skins are
-    # kept apart in the noise estimate
+    # kept apart in the noise estimate and in the points' own values
     plabel = None if face_id is None else point_faces(cface, face_id)
+    t_pts = time.perf_counter()
+    samples = scan_samples(
+        V_reg, F, Pm, pdev, C, cface, plabel, systematic=params.scanner_uncertainty
+    )
+    pvert = samples.vertex
+    # a point judges a surface where its nearest vertex is scored there (the same crease
+    # and rim bands); the free-state zones of a fixtured judgement are the free state's
+    dev_pts = np.where(pvert >= 0, dev_all[np.maximum(pvert, 0)], np.nan)
+    if dev_free is not None:
+        dev_pts[free_v[np.maximum(pvert, 0)]] = np.nan
+    pts_ok = (pvert >= 0) & np.isfinite(dev_pts)
+    # a point standing proud beyond the whole part's band is added material (a rib, a
+    # boss, flash, a clamp in the scan): judged by its own policy (:mod:`.added`, reported
+    # unless --fail-on-added-material), as the vertex measure's robust fit drops it too
+    with np.errstate(invalid="ignore"):
+        pts_ok &= ~(samples.value > general_half)
+    timings["scan points"] = time.perf_counter() - t_pts
     t_noise = time.perf_counter()
     noise = range_noise(Pm, labels=plabel)
     timings["resolution"] = time.perf_counter() - t_noise
@@ -978,11 +1040,6 @@ def _judge(
     U = vertex_uncertainty(var_all, params.scanner_uncertainty)
     U_free = None if var_free is None else vertex_uncertainty(var_free, params.scanner_uncertainty)
     rule = params.decision_rule
-    # threshold of the whole-part tail fractions: the general zone's half-width, or (all faces
-    # under PMI profiles) the widest zone's: "beyond every band" (per-zone fractions use their
-    # own band)
-    general = [z for z in bands.zones if z.faces is None]
-    general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
     if check_part:
         check_same_part(pdev, general_half, diag, rigid, fit)
     # the size from the trim edges, on a fixture that moves the nominal along its normals only
@@ -1009,6 +1066,7 @@ def _judge(
         center=bands.center,
         uncertainty=U,
         decision_rule=rule,
+        points=_surface_points(samples, pts_ok, bands.half_width, bands.center),
     )
     # beside a drawing's own tolerances, qifreport's default band is no requirement: judged
     # where it was measured, its unmeasured patches reported (each PMI zone keeps its rules)
@@ -1031,6 +1089,11 @@ def _judge(
             center=z.center,
             uncertainty=U_free if use_free else U,
             decision_rule=rule,
+            points=None
+            if use_free
+            else _surface_points(
+                samples, pts_ok & mask[np.maximum(cface, 0)], z.half_width, z.center
+            ),
         )
         zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
         zcov = zone_coverage(

@@ -186,6 +186,10 @@ def acceptance_from_attributes(
                 peak_vertex=-1,
                 centroid=np.asarray(a.get(f"{prefix}region_{k}_centroid_mm", np.full(3, np.nan))),
                 sign=int(a[f"{prefix}region_{k}_sign"]),
+                peak_location=np.asarray(a[f"{prefix}region_{k}_peak_location_mm"])
+                if f"{prefix}region_{k}_peak_location_mm" in a
+                else None,
+                sampling=a.get(f"{prefix}region_{k}_sampling", "nominal"),
             )
         )
         k += 1

@@ -90,7 +90,8 @@ def acceptance_attrs(a: Attrs, acc, V: np.ndarray, prefix: str = "") -> None:
         a.d(f"{prefix}region_{k}_peak_mm", r.peak)
         a.i(f"{prefix}region_{k}_sign", r.sign)
         a.d3(f"{prefix}region_{k}_centroid_mm", r.centroid)
-        a.d3(f"{prefix}region_{k}_peak_location_mm", V[r.peak_vertex])
+        a.d3(f"{prefix}region_{k}_peak_location_mm", r.peak_at(V))
+        a.s(f"{prefix}region_{k}_sampling", r.sampling)
     for k, reason in enumerate(acc.reasons, start=1):
         a.s(f"{prefix}reason_{k}", reason)
     a.s(f"{prefix}decision_rule", acc.decision_rule)

@@ -76,6 +76,7 @@ from qifreport.jsonio import json_default
 from qifreport.metrology.bands import ToleranceZone
 from qifreport.metrology.inspection import (
     FREE_STATE_CONFORMS,
+    FREE_STATE_LOCAL_DEFECTS,
     FREE_STATE_UNCERTAIN,
     InspectionResult,
     ZoneResult,
@@ -389,6 +390,8 @@ def _fixture_name(res) -> str:
         return "none (the free state conforms: no restraint needed)"
     if res.fixture_decision == FREE_STATE_UNCERTAIN:
         return "none (the free state is not proven out of tolerance: no restraint simulated)"
+    if res.fixture_decision == FREE_STATE_LOCAL_DEFECTS:
+        return "none (the free state fails only on defects narrower than the mesh)"
     return "none (rigid only)"
 
 

@@ -33,6 +33,7 @@ from qifreport.metrology.acceptance import Acceptance
 from qifreport.metrology.bands import ToleranceZone
 from qifreport.metrology.inspection import (
     FREE_STATE_CONFORMS,
+    FREE_STATE_LOCAL_DEFECTS,
     FREE_STATE_UNCERTAIN,
     InspectionParams,
     InspectionResult,
@@ -200,6 +201,13 @@ def fixture_text(res: InspectionResult) -> str:
                 f"rigid ICP (robust residual {res.rigid.scale:.3f} mm); the free state "
                 "conforms, so no virtual fixture was needed (ISO 10579 restraint brings a "
                 "part to its drawing shape; this one is there without it)"
+            )
+        if res.fixture_decision == FREE_STATE_LOCAL_DEFECTS:
+            return (
+                f"rigid ICP (robust residual {res.rigid.scale:.3f} mm); the free state "
+                "conforms on the nominal's vertices and fails only on regions of the scan "
+                "points narrower than the mesh: no fixture bends such a defect out of a "
+                "part, so none was applied"
             )
         return "rigid ICP only (no virtual fixture)"
     fit = res.fit

@@ -128,10 +128,19 @@ def assert_not_measured_only_where_unseen(doc: dict, P: np.ndarray, face: np.nda
 STILL_WRONG = {
     "nist_ctc_02_asme1_ap242-e2.stp": "unilateral zones [-2.5, 0] and [0, +2.5] put the "
     "perfect faces on a zone limit; under ISO 14253-1 they should be NOT ESTABLISHED, but "
-    "7 % of T2's and 5 % of T4's vertices read beyond the limit by more than their "
-    "expanded uncertainty (3-5 um from the local fits; peaks +0.03/-0.05 mm, T4's at the "
-    "face boundary: points of the neighbouring face read as this one's), so the free "
-    "state FAILs and GB-CICP then moves the nominal by up to 2 mm",
+    "T2 and T4 are proven out on their vertices (free state): vertices near the faces' "
+    "boundaries read up to +0.03/-0.05 mm, beyond their 3-5 um expanded uncertainty (a "
+    "bias of the local fit at a face boundary, not noise: T4 stays proven out with U "
+    "doubled); the scan points, judged at k = 4, prove no region; GB-CICP then moves the "
+    "nominal by up to 2 mm",
+}
+
+#: parts whose bump test does not pass yet, with what was measured (strict)
+BUMP_STILL_WRONG = {
+    "nist_ctc_04_asme1_ap242-e1.stp": "the bump FAILs T2 (+/-0.1 mm) on the vertices too, "
+    "so the free state does not stand and GB-CICP is applied to this stiff solid: it "
+    "absorbs part of the bump and distorts the rest, its nearest region 4.2 mm from the "
+    "bump (the restrained, physical fixture of issue 21 is the answer)",
 }
 
 #: the parts of each test module (two modules: they run on both workers, about 5 min each);
@@ -153,6 +162,25 @@ def cases(group: str) -> list:
         marks = []
         if name in STILL_WRONG:
             marks.append(pytest.mark.xfail(reason=STILL_WRONG[name], strict=True))
+        out.append(pytest.param(name, marks=marks, id=name.split("_asme")[0]))
+    return out
+
+
+#: the parts of each module whose bump test runs (the others have no well-scanned toleranced
+#: face under +/-0.4 mm passing on their perfect scan: CTC 02, CTC 05, FTC 08)
+BUMP_GROUPS = {
+    "a": [n for n in NIST if n.startswith(("nist_ctc_01", "nist_ctc_03", "nist_ctc_04"))],
+}
+
+
+def bump_cases(group: str) -> list:
+    """The group's bump parts as pytest params, the :data:`BUMP_STILL_WRONG` ones strict
+    xfail."""
+    out = []
+    for name in BUMP_GROUPS[group]:
+        marks = []
+        if name in BUMP_STILL_WRONG:
+            marks.append(pytest.mark.xfail(reason=BUMP_STILL_WRONG[name], strict=True))
         out.append(pytest.param(name, marks=marks, id=name.split("_asme")[0]))
     return out
 
@@ -184,10 +212,10 @@ def bump_target(s: Scan, doc: dict) -> tuple[dict, int, np.ndarray]:
     raise AssertionError("no well-scanned toleranced face to bump")
 
 
-def check_bump(scans, name: str) -> None:
+def check_bump(scans, name: str) -> dict:
     """A 0.5 mm x sigma 3 mm bump on the part's tightest measured toleranced face
     (:func:`bump_target`) FAILs that tolerance, a failing region's centroid within 3 mm of
-    the bump, exit 1."""
+    the bump, exit 1; returns the run's summary."""
     from qifreport.simulate.brep_scan import bump
 
     s = scans(name)
@@ -199,6 +227,7 @@ def check_bump(scans, name: str) -> None:
     at = [np.array(r["centroid"]) for r in hit["acceptance"]["regions"]]
     assert at and min(np.linalg.norm(c - centre) for c in at) <= 3.0
     assert doc["_rc"] == 1
+    return doc
 
 
 def check_perfect_scan(scans, name: str) -> None:

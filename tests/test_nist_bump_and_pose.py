@@ -3,13 +3,9 @@
 in ``test_nist_perfect_scan.py``, :func:`tests.nist_scans.check_perfect_scan`).
 
 * A 0.5 mm x sigma 3 mm bump on the tightest measured toleranced face FAILs that tolerance,
-  with a failing region's centroid within 3 mm of the bump (:func:`tests.nist_scans.check_bump`).
-  On FTC 06 only, measured on the others (issue 20 stays open on them): CTC 01's tightest
-  zone (+/-0.25 mm) reads the bump as 0.19 mm (the deviation's fit ball on its 4 mm mesh
-  smooths a sigma 3 mm bump: PASS); on CTC 04 the free state FAILs, the virtual fixture then
-  absorbs half the bump (peak 0.22 mm) and its regions lie more than 3 mm from it (the
-  verdict is FAIL); FTC 08's zones under +/-0.2 mm lie on faces of 13-190 scan points; CTC 05
-  has no measured profile zone; CTC 02's perfect scan does not conform yet.
+  with a failing region's centroid within 3 mm of the bump (:func:`tests.nist_scans.check_bump`;
+  CTC 01, CTC 03 and CTC 04 in ``test_nist_perfect_scan.py``; CTC 02, CTC 05 and FTC 08 have
+  no well-scanned toleranced face under +/-0.4 mm that passes on their perfect scan).
 * From an arbitrary pose the perfect scan conforms with the same zone verdicts, and
   ``--rigid-only`` (no virtual fixture) gives them too: the free state of this stiff part
   conforms, so no fixture is applied, and one forced on it (``--always-fixture``) moves
