@@ -50,6 +50,7 @@ import os
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -58,7 +59,9 @@ from qifreport.errors import InputError
 from .tessellate import DEFAULT_ANGLE, DEFAULT_REL_DEFLECTION, FaceMesh, shape_diagonal
 
 __all__ = [
+    "SolidMesh",
     "brep_pieces",
+    "gmsh_solid_mesh",
     "curvature_elements",
     "gmsh_tessellate",
     "match_surfaces",
@@ -365,6 +368,88 @@ def gmsh_tessellate(
     return FaceMesh(
         V=V, F=F, face_id=fid, n_faces=len(faces), deflection=float(deflection), seconds=dt
     )
+
+
+@dataclass
+class SolidMesh:
+    """A tetrahedral mesh of a part's solid (:func:`gmsh_solid_mesh`).
+
+    Attributes
+    ----------
+    X : (n, 3) vertices, mm.  T : (k, 4) linear tetrahedra.  seconds : meshing time.
+    """
+
+    X: np.ndarray
+    T: np.ndarray
+    seconds: float
+
+
+def gmsh_solid_mesh(shape, max_edge: float, *, min_edge: float | None = None) -> SolidMesh:
+    """Tetrahedra filling the solids of ``shape`` (gmsh's Delaunay 3-D mesher), for the
+    part's elastic model (:mod:`qifreport.registration.elastic`).
+
+    Parameters
+    ----------
+    shape : ``TopoDS_Shape`` holding at least one solid, mm.
+    max_edge : target edge length, mm (a thin wall gets at least one element through its
+        thickness; quadratic elements carry its bending).
+    min_edge : size floor, mm; default ``max_edge / 20``.
+
+    Raises
+    ------
+    InputError
+        No solid in the shape, or gmsh produced no tetrahedra.
+    """
+    from OCP.BRepTools import BRepTools
+    from OCP.TopTools import TopTools_FormatVersion
+
+    t0 = time.perf_counter()
+    if not max_edge > 0:
+        raise ValueError(f"max_edge must be positive, got {max_edge}")
+    min_edge = max_edge / 20.0 if min_edge is None else min(float(min_edge), float(max_edge))
+    fd, brep = tempfile.mkstemp(prefix="qifreport-gmsh-", suffix=".brep")
+    os.close(fd)
+    try:
+        if not BRepTools.Write_s(
+            shape, brep, False, False, TopTools_FormatVersion.TopTools_FormatVersion_VERSION_1
+        ):
+            raise InputError("could not write the B-rep for gmsh")
+        with _GmshSession() as gmsh:
+            gmsh.model.occ.importShapes(brep, highestDimOnly=True)
+            gmsh.model.occ.synchronize()
+            if not gmsh.model.getEntities(3):
+                raise InputError("the part has no solid to fill with tetrahedra")
+            gmsh.option.setNumber("Mesh.MeshSizeMax", float(max_edge))
+            gmsh.option.setNumber("Mesh.MeshSizeMin", float(min_edge))
+            gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+            gmsh.option.setNumber("Mesh.ElementOrder", 1)
+            gmsh.option.setNumber("Mesh.Algorithm3D", 1)
+            gmsh.model.mesh.generate(3)
+            tags, coords, _ = gmsh.model.mesh.getNodes()
+            types, _, nodes = gmsh.model.mesh.getElements(3)
+    finally:
+        try:
+            os.unlink(brep)
+        except OSError:  # pragma: no cover
+            pass
+    tets = [
+        np.asarray(n, dtype=np.int64).reshape(-1, 4)
+        for t, n in zip(types, nodes, strict=True)
+        if t == 4
+    ]
+    if not tets:
+        raise InputError("gmsh produced no tetrahedra for the part's solid")
+    T = np.concatenate(tets)
+    X = np.asarray(coords, dtype=np.float64).reshape(-1, 3)
+    index = np.full(int(np.max(tags)) + 1, -1, dtype=np.int64)
+    index[np.asarray(tags, dtype=np.int64)] = np.arange(len(tags))
+    T = index[T]
+    used = np.unique(T)  # gmsh keeps the surface-only nodes of other entities
+    remap = np.full(len(X), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    dt = time.perf_counter() - t0
+    log.info("gmsh tetrahedra: %d vertices, %d tetrahedra in %.2f s", len(used), len(T), dt)
+    return SolidMesh(X=X[used], T=remap[T], seconds=dt)
 
 
 def _collect(gmsh, tag_of_face: list[int]) -> tuple[np.ndarray, list[np.ndarray]]:

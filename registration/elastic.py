@@ -1,0 +1,349 @@
+"""Linear elasticity of a part: the physical model behind a restrained virtual fixture.
+
+A compliant part has no single shape until it is clamped (ISO 10579; ASME Y14.5 restraint
+notes): what it does between its clamps is decided by its elasticity. This module holds
+that elasticity for the fixture (issue 21): a tetrahedral mesh of the part's solid,
+quadratic tetrahedra (a thin wall in bending does not lock: the displacement is quadratic
+through each element), assembled and solved with scikit-fem.
+
+Units are consistent throughout: mm, N, MPa (N/mm^2), t/mm^3 (tonne per cubic millimetre),
+mm/s^2 for gravity (9810), so that a density times gravity is a force per volume in N/mm^3.
+
+Public API
+----------
+:class:`Material` and :data:`MATERIALS` (presets) -- :func:`material` to pick one or
+build one from explicit values; :func:`elastic_model` assembles the stiffness of a
+tetrahedral mesh once; :meth:`ElasticModel.solve` applies prescribed displacements and
+body forces and returns the displacement of every mesh vertex.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = [
+    "GRAVITY",
+    "rigid_rank",
+    "MATERIALS",
+    "ElasticModel",
+    "ElasticSolution",
+    "Material",
+    "elastic_model",
+    "material",
+]
+
+log = logging.getLogger(__name__)
+
+#: standard gravity, mm/s^2
+GRAVITY = 9810.0
+
+
+@dataclass(frozen=True)
+class Material:
+    """An isotropic linear elastic material.
+
+    Attributes
+    ----------
+    name : a label for the reports.
+    E : Young's modulus, MPa (N/mm^2).  nu : Poisson's ratio.
+    density : t/mm^3 (1 g/cm^3 = 1e-9 t/mm^3).
+    """
+
+    name: str
+    E: float
+    nu: float
+    density: float
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.E) and self.E > 0):
+            raise ValueError(f"Young's modulus must be positive (MPa), got {self.E}")
+        if not (-1.0 < self.nu < 0.5):
+            raise ValueError(f"Poisson's ratio must lie in (-1, 0.5), got {self.nu}")
+        if not (np.isfinite(self.density) and self.density >= 0):
+            raise ValueError(f"density must be >= 0 (t/mm^3), got {self.density}")
+
+    @property
+    def lame(self) -> tuple[float, float]:
+        """Lame's parameters (lambda, mu), MPa."""
+        E, nu = self.E, self.nu
+        return E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
+
+    def to_dict(self) -> dict:
+        return {
+            "name": self.name,
+            "E_MPa": float(self.E),
+            "nu": float(self.nu),
+            "density_t_per_mm3": float(self.density),
+        }
+
+
+#: presets (handbook values at room temperature; a drawing's material overrides them)
+MATERIALS = {
+    "steel": Material("steel", 210_000.0, 0.30, 7.85e-9),
+    "aluminium": Material("aluminium", 70_000.0, 0.33, 2.70e-9),
+    "pp": Material("PP", 1_500.0, 0.42, 0.905e-9),
+    "abs": Material("ABS", 2_300.0, 0.35, 1.05e-9),
+    "pa6-gf30": Material("PA6-GF30", 9_500.0, 0.35, 1.36e-9),
+}
+
+
+def material(spec: str) -> Material:
+    """A preset by name (``steel``, ``aluminium``, ``pp``, ``abs``, ``pa6-gf30``; case
+    insensitive, ``aluminum`` accepted) or explicit values ``E=70000,nu=0.33,density=2.7e-9``
+    (MPa, -, t/mm^3; ``density`` optional, 0 without gravity).
+
+    Raises
+    ------
+    ValueError
+        An unknown name or a malformed or out-of-range value, naming it.
+    """
+    key = spec.strip().lower().replace("aluminum", "aluminium")
+    if key in MATERIALS:
+        return MATERIALS[key]
+    if "=" not in key:
+        raise ValueError(
+            f"unknown material {spec!r}: one of {', '.join(MATERIALS)} or "
+            "E=...,nu=...[,density=...]"
+        )
+    values: dict[str, float] = {}
+    for item in key.split(","):
+        name, _, value = item.partition("=")
+        name = name.strip()
+        if name not in ("e", "nu", "density"):
+            raise ValueError(f"material {spec!r}: unknown property {name!r} (E, nu, density)")
+        try:
+            values[name] = float(value)
+        except ValueError:
+            raise ValueError(f"material {spec!r}: {name} is not a number: {value!r}") from None
+    if "e" not in values or "nu" not in values:
+        raise ValueError(f"material {spec!r}: E and nu are required")
+    return Material("custom", values["e"], values["nu"], values.get("density", 0.0))
+
+
+@dataclass
+class ElasticSolution:
+    """A solved load case.
+
+    Attributes
+    ----------
+    u : (n, 3) displacement of each mesh vertex, mm.
+    reaction : (n, 3) reaction force at each vertex where a displacement was prescribed,
+        N (0 elsewhere; a prescribed mid-edge node's shared between the edge's ends): what
+        the supports and clamps push with.
+    energy : strain energy, N mm (mJ).
+    """
+
+    u: np.ndarray
+    reaction: np.ndarray
+    energy: float
+
+
+@dataclass
+class ElasticModel:
+    """The assembled stiffness of a tetrahedral mesh (:func:`elastic_model`).
+
+    Attributes
+    ----------
+    X : (n, 3) mesh vertices, mm.  T : (k, 4) tetrahedra.
+    material : the :class:`Material`.  order : element order (1 or 2).
+    K : (N, N) stiffness, N/mm, over all degrees of freedom (vertices' first).
+    vertex_dofs : (n, 3) the degrees of freedom of each vertex's x, y, z.
+    edges : (e, 2) the mesh edges and ``edge_dofs`` (e, 3) their mid-edge degrees of
+        freedom (quadratic elements; None for linear ones).
+    """
+
+    X: np.ndarray
+    T: np.ndarray
+    material: Material
+    order: int
+    K: sp.csr_matrix
+    vertex_dofs: np.ndarray
+    edges: np.ndarray | None = None
+    edge_dofs: np.ndarray | None = None
+    _basis: object = field(default=None, repr=False)
+
+    @property
+    def n_dofs(self) -> int:
+        return self.K.shape[0]
+
+    def body_force(self, f: np.ndarray) -> np.ndarray:
+        """(N,) load vector of a uniform body force ``f`` (3,) N/mm^3."""
+        from skfem import LinearForm
+
+        fx, fy, fz = (float(c) for c in f)
+
+        @LinearForm
+        def load(v, w):
+            return fx * v[0] + fy * v[1] + fz * v[2]
+
+        return load.assemble(self._basis)
+
+    def gravity(self, direction=(0.0, 0.0, -1.0), g: float = GRAVITY) -> np.ndarray:
+        """(N,) load vector of the part's own weight along ``direction`` (a unit vector
+        in the part frame), ``g`` mm/s^2."""
+        d = np.asarray(direction, dtype=np.float64)
+        d = d / np.linalg.norm(d)
+        return self.body_force(self.material.density * g * d)
+
+    def _prescribed(self, fixed: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """All prescribed degrees of freedom and their values: the vertices' and, for
+        quadratic elements, the mid-edge ones between two prescribed vertices."""
+        dofs = self.vertex_dofs[fixed[:, 0], fixed[:, 1]]
+        if self.edge_dofs is None:
+            return dofs, values
+        ed, ev = _edge_prescribed(self.edges, self.edge_dofs, fixed, values, len(self.X))
+        return np.r_[dofs, ed], np.r_[values, ev]
+
+    def solve(
+        self,
+        fixed: np.ndarray,
+        values: np.ndarray | None = None,
+        load: np.ndarray | None = None,
+    ) -> ElasticSolution:
+        """Displacements under prescribed vertex displacements and a load.
+
+        Parameters
+        ----------
+        fixed : (m, 2) int pairs ``(vertex, axis)`` whose displacement is prescribed
+            (``axis`` 0, 1, 2 for x, y, z); enough of them to remove the six rigid motions.
+        values : (m,) the prescribed displacements, mm (default 0).
+        load : (N,) load vector, N (:meth:`gravity`, :meth:`body_force`); default none.
+
+        Raises
+        ------
+        ValueError
+            A singular system: the prescribed displacements leave a rigid motion free.
+        """
+        fixed = np.asarray(fixed, dtype=np.int64).reshape(-1, 2)
+        free_motions = 6 - rigid_rank(self.X, fixed)
+        if free_motions:
+            raise ValueError(
+                f"the elastic problem is singular: the prescribed displacements leave "
+                f"{free_motions} rigid motion(s) of the part free"
+            )
+        vals = np.zeros(len(fixed)) if values is None else np.asarray(values, dtype=np.float64)
+        dofs, vals = self._prescribed(fixed, vals)
+        x = np.zeros(self.n_dofs)
+        x[dofs] = vals
+        f = np.zeros(self.n_dofs) if load is None else np.asarray(load, dtype=np.float64)
+        free = np.ones(self.n_dofs, dtype=bool)
+        free[dofs] = False
+        Kff = self.K[free][:, free].tocsc()
+        rhs = f[free] - self.K[free][:, ~free] @ x[~free]
+        try:
+            lu = spla.splu(Kff)
+        except RuntimeError as e:  # "Factor is exactly singular"
+            raise ValueError(
+                "the elastic problem is singular: the prescribed displacements leave a "
+                f"rigid motion of the part free ({e})"
+            ) from None
+        x[free] = lu.solve(rhs)
+        r = self.K @ x - f
+        reaction = np.zeros(self.n_dofs)
+        reaction[~free] = r[~free]
+        at_vertex = reaction[self.vertex_dofs]
+        if self.edge_dofs is not None:  # a mid-edge node's share goes to the edge's ends
+            half = 0.5 * reaction[self.edge_dofs]
+            np.add.at(at_vertex, self.edges[:, 0], half)
+            np.add.at(at_vertex, self.edges[:, 1], half)
+        energy = 0.5 * float(x @ (self.K @ x))
+        return ElasticSolution(u=x[self.vertex_dofs], reaction=at_vertex, energy=energy)
+
+
+def _edge_prescribed(
+    edges: np.ndarray, edge_dofs: np.ndarray, fixed: np.ndarray, values: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The mid-edge degrees of freedom of quadratic elements on the edges whose two
+    vertices are both prescribed along the same axis, and their values (the mean of the
+    ends': the boundary moves as the vertices say, not just at them). ``edges`` (e, 2),
+    ``edge_dofs`` (e, 3), ``fixed`` (m, 2) (vertex, axis), ``values`` (m,), ``n`` vertices."""
+    out_d, out_v = [], []
+    for axis in range(3):
+        sel = fixed[:, 1] == axis
+        if not sel.any():
+            continue
+        val = np.full(n, np.nan)
+        val[fixed[sel, 0]] = values[sel]
+        both = np.isfinite(val[edges[:, 0]]) & np.isfinite(val[edges[:, 1]])
+        out_d.append(edge_dofs[both, axis])
+        out_v.append(0.5 * (val[edges[both, 0]] + val[edges[both, 1]]))
+    if not out_d:
+        return np.empty(0, dtype=np.int64), np.empty(0)
+    return np.concatenate(out_d), np.concatenate(out_v)
+
+
+def rigid_rank(X: np.ndarray, fixed: np.ndarray) -> int:
+    """How many of the six rigid motions of the vertices ``X`` (n, 3) mm the prescribed
+    ``(vertex, axis)`` pairs ``fixed`` (m, 2) hold (6: all; the problem is then regular)."""
+    fixed = np.asarray(fixed, dtype=np.int64).reshape(-1, 2)
+    if len(fixed) == 0:
+        return 0
+    c = X[fixed[:, 0]] - X.mean(axis=0)
+    scale = max(float(np.abs(c).max()), 1e-12)
+    e = np.eye(3)[fixed[:, 1]]  # (m, 3) the restrained axis
+    # translation t and rotation w move a point by t + w x c; its axis component is
+    # e . t + (c x e) . w
+    A = np.hstack([e, np.cross(c / scale, e)])
+    return int(np.linalg.matrix_rank(A, tol=1e-9))
+
+
+def elastic_model(X: np.ndarray, T: np.ndarray, mat: Material, *, order: int = 2) -> ElasticModel:
+    """Assemble the linear elastic stiffness of a tetrahedral mesh.
+
+    Parameters
+    ----------
+    X : (n, 3) vertices, mm.  T : (k, 4) tetrahedra (any orientation).
+    mat : the material.  order : 2 (quadratic tetrahedra, default: a thin wall in bending
+        does not lock) or 1 (linear, for comparison only: it locks).
+
+    Returns
+    -------
+    ElasticModel
+    """
+    from skfem import Basis, ElementTetP1, ElementTetP2, ElementVector, MeshTet, asm
+    from skfem.models.elasticity import linear_elasticity
+
+    X = np.asarray(X, dtype=np.float64)
+    T = np.asarray(T, dtype=np.int64)
+    if X.ndim != 2 or X.shape[1] != 3 or T.ndim != 2 or T.shape[1] != 4:
+        raise ValueError(f"need X (n, 3) and T (k, 4), got {X.shape} and {T.shape}")
+    if order not in (1, 2):
+        raise ValueError(f"order must be 1 or 2, got {order}")
+    # positive orientation (scikit-fem's reference mappings want it)
+    a, b, c, d = (X[T[:, i]] for i in range(4))
+    neg = np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) < 0
+    T = T.copy()
+    T[neg, 2], T[neg, 3] = T[neg, 3], T[neg, 2].copy()
+    mesh = MeshTet(X.T.copy(), T.T.copy())
+    elem = ElementVector(ElementTetP2() if order == 2 else ElementTetP1())
+    basis = Basis(mesh, elem)
+    lam, mu = mat.lame
+    K = asm(linear_elasticity(lam, mu), basis).tocsr()
+    vertex_dofs = np.asarray(basis.nodal_dofs).T.copy()  # (n, 3)
+    log.info(
+        "elastic model: %d vertices, %d tetrahedra (P%d), %d dofs",
+        len(X),
+        len(T),
+        order,
+        K.shape[0],
+    )
+    edges = edge_dofs = None
+    if order == 2:
+        edges = np.asarray(mesh.edges).T.copy()
+        edge_dofs = np.asarray(basis.edge_dofs).T.copy()
+    return ElasticModel(
+        X=X,
+        T=T,
+        material=mat,
+        order=order,
+        K=K,
+        vertex_dofs=vertex_dofs,
+        edges=edges,
+        edge_dofs=edge_dofs,
+        _basis=basis,
+    )
