@@ -51,6 +51,7 @@ def main() -> None:
             scan.P,
             InspectionParams(rigid_only=True, prealign="never"),
             face_id=nom.face_id,
+            brep_normals=nom.brep_normals,
             zones=nom.zones,
             not_evaluated=nom.not_evaluated,
             solid=True,

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.sparse.csgraph import connected_components
@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from qifreport.registration.mesh import adjacency, vertex_areas
 
-from .decision import decide
+from .decision import PROOF_COVERAGE, decide
 from .point_regions import SurfacePoints
 from .statistics import json_float
 
@@ -259,7 +259,9 @@ class Acceptance:
     decision_rule : how :attr:`decision` weighs the measurement uncertainty
         (:mod:`qifreport.metrology.decision`); ``"simple"`` without one.
     proven_in : the criteria hold with every band reduced by its vertex's expanded
-        uncertainty (conformance proven, ISO 14253-1); ``passed`` without an uncertainty.
+        uncertainty at the proofs' coverage factor
+        (:data:`qifreport.metrology.decision.PROOF_COVERAGE`; conformance proven, ISO
+        14253-1); ``passed`` without an uncertainty.
     proven_out : they fail with every band enlarged by it (non-conformance proven).
     uncertainty_mm : the median and the largest expanded uncertainty of the scored
         vertices, mm (NaN without one).
@@ -377,8 +379,9 @@ def evaluate(
     max_region_area : mm^2; a region passes if its area is ``<=`` this.
     center : scalar or (n,) band centre, mm: in tolerance is ``|dev - center| <= tolerance``.
     uncertainty : scalar or (n,) expanded uncertainty ``U`` (k = 2) of each vertex's
-        deviation, mm (:func:`qifreport.metrology.decision.vertex_uncertainty`); None: not
-        known (the decision is the simple one whatever ``decision_rule``).
+        deviation, mm (:func:`qifreport.metrology.decision.vertex_uncertainty`); the proofs
+        scale it to :data:`qifreport.metrology.decision.PROOF_COVERAGE`; None: not known
+        (the decision is the simple one whatever ``decision_rule``).
     decision_rule : one of :data:`qifreport.metrology.decision.DECISION_RULES`.
     points : the scan points of the surface (:mod:`qifreport.metrology.point_regions`): the
         region criterion is also judged on them, with their own uncertainties, so a defect
@@ -423,6 +426,7 @@ def evaluate(
         U = np.nan_to_num(_per_vertex(uncertainty, len(V), "uncertainty"), nan=0.0)
         Us = U[scored]
         u_stats = (float(np.median(Us)), float(Us.max()))
+        U = U * (0.5 * PROOF_COVERAGE)  # the proofs' band (decision.py)
         frac_in, area_in, _, largest_in, largest_in_v = _criteria(
             V, adj, dev, tol - U, A, c, scored_area, min_fraction, points, -1.0
         )
@@ -441,7 +445,8 @@ def evaluate(
                 why_in.append(f"a region of {largest_in:.1f} mm^2")
             uncertain = [
                 f"within the measurement uncertainty of the zone limit (U median "
-                f"{u_stats[0]:.4f} mm, max {u_stats[1]:.4f} mm): {r}"
+                f"{u_stats[0]:.4f} mm, max {u_stats[1]:.4f} mm; proofs at k = "
+                f"{PROOF_COVERAGE:g}): {r}"
                 for r in why_in
             ]
     return Acceptance(
@@ -495,7 +500,8 @@ def _criteria(V, adj, dev, tol, A, c, scored_area, min_fraction, points=None, wi
 def _merge(on_vertices: list[Region], on_points: list[Region]) -> list[Region]:
     """One list of the regions of both samplings, largest first: a region of the points
     that shares nominal vertices with regions of the vertices replaces them when it is
-    larger than each, and is dropped otherwise (one finding, reported once)."""
+    larger than each, and is dropped otherwise (one finding, reported once, with the
+    larger peak of the two)."""
     if not on_points:
         return on_vertices
     owner: dict[int, int] = {}
@@ -504,9 +510,21 @@ def _merge(on_vertices: list[Region], on_points: list[Region]) -> list[Region]:
             owner[v] = i
     dropped: set[int] = set()
     kept = []
+    on_vertices = list(on_vertices)
     for r in on_points:
         hit = {owner[v] for v in r.vertices.tolist() if v in owner}
         if hit and max(on_vertices[i].area for i in hit) >= r.area:
+            # the vertices' region stands for the finding, with the points' peak when it
+            # is the larger (the vertices' fit averages a narrow peak away)
+            i = max(hit, key=lambda i: on_vertices[i].area)
+            if abs(r.peak) > abs(on_vertices[i].peak):
+                on_vertices[i] = replace(
+                    on_vertices[i],
+                    peak=r.peak,
+                    peak_vertex=r.peak_vertex,
+                    peak_location=r.peak_location,
+                    sign=r.sign,
+                )
             continue
         dropped |= hit
         kept.append(r)

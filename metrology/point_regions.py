@@ -23,9 +23,9 @@ A surface's points are thousands of simultaneous measurements, and neighbouring 
 share their points: with the k = 2 band of one measurement (2.3 % one-sided), a face on its
 zone limit showed clusters of 10 chance exceedances (150 mm^2 on NIST CTC 02's T2 at 3.6 mm
 spacing). A region is therefore *proven* out of (or into) the zone on the points with the
-coverage factor :data:`PROOF_COVERAGE` = 4 (3e-5 one-sided per point): none then on CTC 02's
-on-limit faces, while a 0.5 mm defect against a 0.25 mm zone is proven with a margin of
-twenty such ``U`` at 10 um noise.
+coverage factor :data:`qifreport.metrology.decision.PROOF_COVERAGE` = 4 (3e-5 one-sided per
+point), as on the vertices: none then on CTC 02's on-limit faces, while a 0.5 mm defect
+against a 0.25 mm zone is proven with a margin of twenty such ``U`` at 10 um noise.
 
 Each region is returned as a :class:`qifreport.metrology.acceptance.Region` on the nominal
 vertices nearest to its points (for the views and the repeatability map), with the
@@ -41,14 +41,14 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from .decision import PROOF_COVERAGE
+
 __all__ = ["ScanSamples", "SurfacePoints", "scan_samples"]
 
 #: neighbours in each point's median
 DEFAULT_K = 9
 #: two out-of-tolerance points belong to one region when closer than this many spacings
 LINK = 3.0
-#: coverage factor of a proof on the points (their ``U`` is stated at k = 2; module docstring)
-PROOF_COVERAGE = 4.0
 
 
 @dataclass

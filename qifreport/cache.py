@@ -106,7 +106,8 @@ log = logging.getLogger(__name__)
 #: 5: STEP nominals meshed by gmsh by default (the key names the mesher)
 #: 6: vertex deviations from the scan points' own residuals (the prepared bands are kept)
 #: 7: supplemental faces (in no solid) left out of the mesh; zones carry their footprints
-CACHE_FORMAT = 7
+#: 8: STEP nominals carry the B-rep's corner normals (Nominal.brep_normals)
+CACHE_FORMAT = 8
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"

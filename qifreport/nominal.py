@@ -9,6 +9,7 @@ general zone of the given tolerance.
 from __future__ import annotations
 
 import logging
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -47,6 +48,9 @@ class Nominal:
     not_evaluated: list[NotEvaluated]
     info: dict
     datums: list[str] = field(default_factory=list)
+    #: (f, 3, 3) the B-rep's outward normals at each triangle's corners (a STEP nominal;
+    #: :func:`qifreport.step.normals.corner_normals_exact`), None for a mesh nominal
+    brep_normals: np.ndarray | None = None
 
 
 def load_nominal(
@@ -77,6 +81,7 @@ def load_nominal(
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
     if path.suffix.lower() in STEP_SUFFIXES:
+        from qifreport.step.normals import corner_normals_exact
         from qifreport.step.plausibility import implausible_tolerances
         from qifreport.step.reader import read_step
         from qifreport.step.supplemental import face_solids
@@ -146,7 +151,19 @@ def load_nominal(
         if picked is not None:
             info["solid"] = {"index": chosen, "name": picked.name, "of": part.n_solids}
         datums = [d.label for d in pmi.datums] if pmi is not None else []
-        return Nominal(V, F, face_id, zones, skipped, info, list(dict.fromkeys(datums)))
+        t0 = time.perf_counter()
+        normals = corner_normals_exact(part.faces, V, F, face_id)
+        info["timings_s"]["corner normals"] = time.perf_counter() - t0
+        return Nominal(
+            V,
+            F,
+            face_id,
+            zones,
+            skipped,
+            info,
+            list(dict.fromkeys(datums)),
+            brep_normals=normals,
+        )
     if tolerance is None:
         raise InputError(
             f"{path.name} is a mesh nominal: it carries no tolerance, give "

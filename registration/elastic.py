@@ -2,9 +2,11 @@
 
 A compliant part has no single shape until it is clamped (ISO 10579; ASME Y14.5 restraint
 notes): what it does between its clamps is decided by its elasticity. This module holds
-that elasticity for the fixture (issue 21): a tetrahedral mesh of the part's solid,
-quadratic tetrahedra (a thin wall in bending does not lock: the displacement is quadratic
-through each element), assembled and solved with scikit-fem.
+that elasticity for the fixture (issue 21): a tetrahedral mesh of the part's solid (a STEP
+part's from gmsh, :func:`qifreport.step.gmsh_mesh.gmsh_solid_mesh`; a sheet's mid-surface
+thickened, :mod:`qifreport.registration.sheet_solid`), quadratic tetrahedra (a thin wall in
+bending does not lock: the displacement is quadratic through each element), assembled and
+solved with scikit-fem.
 
 Units are consistent throughout: mm, N, MPa (N/mm^2), t/mm^3 (tonne per cubic millimetre),
 mm/s^2 for gravity (9810), so that a density times gravity is a force per volume in N/mm^3.
@@ -29,10 +31,12 @@ import scipy.sparse.linalg as spla
 __all__ = [
     "GRAVITY",
     "rigid_rank",
+    "rigid_rank_directions",
     "MATERIALS",
     "ElasticModel",
     "ElasticSolution",
     "Material",
+    "Pad",
     "elastic_model",
     "material",
 ]
@@ -126,6 +130,25 @@ def material(spec: str) -> Material:
 
 
 @dataclass
+class Pad:
+    """A clamp's or support's contact: vertices that move together along one direction.
+
+    Attributes
+    ----------
+    vertices : (k,) mesh vertices in the contact (a pad of real size, not a point: a point
+        constraint in a solid has a mesh-dependent, singular local response).
+    direction : (3,) the restrained direction (normalised on use).
+    value : the prescribed displacement along it, mm.
+    name : a label for the reports.
+    """
+
+    vertices: np.ndarray
+    direction: np.ndarray
+    value: float = 0.0
+    name: str = ""
+
+
+@dataclass
 class ElasticSolution:
     """A solved load case.
 
@@ -136,11 +159,15 @@ class ElasticSolution:
         N (0 elsewhere; a prescribed mid-edge node's shared between the edge's ends): what
         the supports and clamps push with.
     energy : strain energy, N mm (mJ).
+    pad_forces : (p,) the force each :class:`Pad` exerts on the part along its direction, N.
+    dofs : (N,) every degree of freedom (the mid-edge ones too), mm.
     """
 
     u: np.ndarray
     reaction: np.ndarray
     energy: float
+    pad_forces: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    dofs: np.ndarray | None = field(default=None, repr=False)
 
 
 @dataclass
@@ -166,6 +193,7 @@ class ElasticModel:
     edges: np.ndarray | None = None
     edge_dofs: np.ndarray | None = None
     _basis: object = field(default=None, repr=False)
+    _centroids: object = field(default=None, repr=False)
 
     @property
     def n_dofs(self) -> int:
@@ -201,26 +229,38 @@ class ElasticModel:
 
     def solve(
         self,
-        fixed: np.ndarray,
+        fixed: np.ndarray | None = None,
         values: np.ndarray | None = None,
         load: np.ndarray | None = None,
+        pads: list[Pad] | None = None,
     ) -> ElasticSolution:
-        """Displacements under prescribed vertex displacements and a load.
+        """Displacements under prescribed vertex displacements, pads and a load.
 
         Parameters
         ----------
         fixed : (m, 2) int pairs ``(vertex, axis)`` whose displacement is prescribed
-            (``axis`` 0, 1, 2 for x, y, z); enough of them to remove the six rigid motions.
+            (``axis`` 0, 1, 2 for x, y, z).
         values : (m,) the prescribed displacements, mm (default 0).
         load : (N,) load vector, N (:meth:`gravity`, :meth:`body_force`); default none.
+        pads : contacts moved along a direction (:class:`Pad`; Lagrange multipliers, so a
+            direction need not be an axis: a clamp restrains along the surface normal).
+            Together with ``fixed`` they must hold the six rigid motions.
 
         Raises
         ------
         ValueError
-            A singular system: the prescribed displacements leave a rigid motion free.
+            A singular system: the constraints leave a rigid motion free.
         """
-        fixed = np.asarray(fixed, dtype=np.int64).reshape(-1, 2)
-        free_motions = 6 - rigid_rank(self.X, fixed)
+        fixed = np.asarray([] if fixed is None else fixed, dtype=np.int64).reshape(-1, 2)
+        pads = list(pads or [])
+        rows = [(self.X[fixed[:, 0]], np.eye(3)[fixed[:, 1]])]
+        for pad in pads:
+            d = np.asarray(pad.direction, dtype=np.float64)
+            v = np.asarray(pad.vertices, dtype=np.int64)
+            rows.append((self.X[v], np.tile(d / np.linalg.norm(d), (len(v), 1))))
+        free_motions = 6 - rigid_rank_directions(
+            np.concatenate([r[0] for r in rows]), np.concatenate([r[1] for r in rows]), self.X
+        )
         if free_motions:
             raise ValueError(
                 f"the elastic problem is singular: the prescribed displacements leave "
@@ -233,16 +273,27 @@ class ElasticModel:
         f = np.zeros(self.n_dofs) if load is None else np.asarray(load, dtype=np.float64)
         free = np.ones(self.n_dofs, dtype=bool)
         free[dofs] = False
-        Kff = self.K[free][:, free].tocsc()
+        Kff = self.K[free][:, free]
         rhs = f[free] - self.K[free][:, ~free] @ x[~free]
+        C, c, owner = self._pad_rows(pads)
+        nf = Kff.shape[0]
+        if len(c):  # saddle point [[K, C'], [C, 0]] [u; lambda] = [f; c]
+            Cf = C[:, free]
+            A = sp.bmat([[Kff, Cf.T], [Cf, None]], format="csc")
+            rhs = np.r_[rhs, c - C[:, ~free] @ x[~free]]
+        else:
+            A = Kff.tocsc()
         try:
-            lu = spla.splu(Kff)
+            lu = spla.splu(A)
         except RuntimeError as e:  # "Factor is exactly singular"
             raise ValueError(
-                "the elastic problem is singular: the prescribed displacements leave a "
-                f"rigid motion of the part free ({e})"
+                "the elastic problem is singular: the constraints leave a rigid motion of "
+                f"the part free ({e})"
             ) from None
-        x[free] = lu.solve(rhs)
+        sol = lu.solve(rhs)
+        x[free] = sol[:nf]
+        lam = sol[nf:]
+        pad_forces = -np.bincount(owner, weights=lam, minlength=len(pads)) if len(c) else None
         r = self.K @ x - f
         reaction = np.zeros(self.n_dofs)
         reaction[~free] = r[~free]
@@ -252,7 +303,77 @@ class ElasticModel:
             np.add.at(at_vertex, self.edges[:, 0], half)
             np.add.at(at_vertex, self.edges[:, 1], half)
         energy = 0.5 * float(x @ (self.K @ x))
-        return ElasticSolution(u=x[self.vertex_dofs], reaction=at_vertex, energy=energy)
+        return ElasticSolution(
+            u=x[self.vertex_dofs],
+            reaction=at_vertex,
+            energy=energy,
+            pad_forces=np.zeros(len(pads)) if pad_forces is None else pad_forces,
+            dofs=x,
+        )
+
+    def displacement_at(self, solution: ElasticSolution, points: np.ndarray) -> np.ndarray:
+        """(m, 3) the displacement field of ``solution`` at ``points`` (m, 3) mm, with the
+        elements' own (quadratic) interpolation. A point outside the tetrahedra (a surface
+        point just beyond a chord) takes the value at the closest point of the nearest of
+        the 8 tetrahedra with the nearest centroids."""
+        from scipy.spatial import cKDTree
+
+        P = np.asarray(points, dtype=np.float64)
+        X, T = self.X, self.T
+        if self._centroids is None:
+            self._centroids = cKDTree(X[T].mean(axis=1))
+        _, cand = self._centroids.query(P, k=min(8, len(T)), workers=-1)
+        cand = cand.reshape(len(P), -1)
+        best = np.full((len(P), 3), np.nan)
+        best_d = np.full(len(P), np.inf)
+        for j in range(cand.shape[1]):
+            tet = X[T[cand[:, j]]]  # (m, 4, 3)
+            lam = _barycentric_tet(tet, P)
+            lam = np.clip(lam, 1e-9, None)  # a hair inside, so the element finder agrees
+            lam /= lam.sum(axis=1, keepdims=True)
+            y = np.einsum("qk,qkd->qd", lam, tet)
+            d = np.linalg.norm(y - P, axis=1)
+            better = d < best_d
+            best[better], best_d[better] = y[better], d[better]
+        M = self._basis.probes(best.T)
+        return np.asarray(M @ solution.dofs).reshape(3, -1).T
+
+    def _pad_rows(self, pads: list[Pad]) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
+        """The pads' constraint rows ``C u = c`` (one per pad vertex, and per mid-edge node
+        between two of a pad's vertices) and the pad owning each row."""
+        rows_d, rows_v, owner = [], [], []
+        for k, pad in enumerate(pads):
+            d = np.asarray(pad.direction, dtype=np.float64)
+            d = d / np.linalg.norm(d)
+            v = np.unique(np.asarray(pad.vertices, dtype=np.int64))
+            nodes = [self.vertex_dofs[v]]
+            if self.edge_dofs is not None:
+                inside = np.zeros(len(self.X), dtype=bool)
+                inside[v] = True
+                both = inside[self.edges[:, 0]] & inside[self.edges[:, 1]]
+                nodes.append(self.edge_dofs[both])
+            dofs = np.concatenate(nodes)  # (r, 3)
+            rows_d.append(dofs)
+            rows_v.append(np.tile(d, (len(dofs), 1)))
+            owner.append(np.full(len(dofs), k, dtype=np.int64))
+        if not rows_d:
+            return sp.csr_matrix((0, self.n_dofs)), np.zeros(0), np.zeros(0, dtype=np.int64)
+        dofs = np.concatenate(rows_d)
+        w = np.concatenate(rows_v)
+        owner = np.concatenate(owner)
+        m = len(dofs)
+        C = sp.csr_matrix(
+            (w.ravel(), (np.repeat(np.arange(m), 3), dofs.ravel())), shape=(m, self.n_dofs)
+        )
+        c = np.array([pads[k].value for k in owner], dtype=np.float64)
+        return C, c, owner
+
+
+def _barycentric_tet(tet: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """(q, 4) barycentric coordinates of points ``P`` (q, 3) in tetrahedra ``tet`` (q, 4, 3)."""
+    A = np.transpose(tet[:, 1:] - tet[:, :1], (0, 2, 1))  # (q, 3, 3) columns: edges from 0
+    lam = np.linalg.solve(A, (P - tet[:, 0])[..., None])[..., 0]
+    return np.c_[1.0 - lam.sum(axis=1), lam]
 
 
 def _edge_prescribed(
@@ -281,14 +402,19 @@ def rigid_rank(X: np.ndarray, fixed: np.ndarray) -> int:
     """How many of the six rigid motions of the vertices ``X`` (n, 3) mm the prescribed
     ``(vertex, axis)`` pairs ``fixed`` (m, 2) hold (6: all; the problem is then regular)."""
     fixed = np.asarray(fixed, dtype=np.int64).reshape(-1, 2)
-    if len(fixed) == 0:
+    return rigid_rank_directions(X[fixed[:, 0]], np.eye(3)[fixed[:, 1]], X)
+
+
+def rigid_rank_directions(points: np.ndarray, directions: np.ndarray, X: np.ndarray) -> int:
+    """How many of the six rigid motions of a part (vertices ``X`` (n, 3) mm) are held by
+    restraining ``points`` (m, 3) mm along ``directions`` (m, 3) unit."""
+    if len(points) == 0:
         return 0
-    c = X[fixed[:, 0]] - X.mean(axis=0)
+    c = points - X.mean(axis=0)
     scale = max(float(np.abs(c).max()), 1e-12)
-    e = np.eye(3)[fixed[:, 1]]  # (m, 3) the restrained axis
-    # translation t and rotation w move a point by t + w x c; its axis component is
+    # translation t and rotation w move a point by t + w x c; its component along e is
     # e . t + (c x e) . w
-    A = np.hstack([e, np.cross(c / scale, e)])
+    A = np.hstack([directions, np.cross(c / scale, directions)])
     return int(np.linalg.matrix_rank(A, tol=1e-9))
 
 

@@ -50,6 +50,7 @@ import os
 import tempfile
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -127,6 +128,28 @@ class _GmshSession:
 
         self._close(gmsh)
         return False
+
+
+@contextmanager
+def _brep_file(shape):
+    """The shape written to a temporary OCCT B-rep file (gmsh's own kernel reads it), removed
+    on exit."""
+    from OCP.BRepTools import BRepTools
+    from OCP.TopTools import TopTools_FormatVersion
+
+    fd, brep = tempfile.mkstemp(prefix="qifreport-gmsh-", suffix=".brep")
+    os.close(fd)
+    try:
+        if not BRepTools.Write_s(
+            shape, brep, False, False, TopTools_FormatVersion.TopTools_FormatVersion_VERSION_1
+        ):
+            raise InputError("could not write the B-rep for gmsh")
+        yield brep
+    finally:
+        try:
+            os.unlink(brep)
+        except OSError:  # pragma: no cover
+            pass
 
 
 def curvature_elements(max_edge: float, deflection: float, angle: float = DEFAULT_ANGLE) -> int:
@@ -296,9 +319,6 @@ def gmsh_tessellate(
         Zero extent, gmsh's surfaces not matching the faces one to one, or a face that no
         algorithm could mesh.
     """
-    from OCP.BRepTools import BRepTools
-    from OCP.TopTools import TopTools_FormatVersion
-
     t0 = time.perf_counter()
     diag = shape_diagonal(shape)
     if deflection is None:
@@ -313,40 +333,28 @@ def gmsh_tessellate(
     n_curv = curvature_elements(float(max_edge), float(deflection), angle)
     face_props = np.array([_face_props(f) for f in faces])
 
-    fd, brep = tempfile.mkstemp(prefix="qifreport-gmsh-", suffix=".brep")
-    os.close(fd)
-    try:
-        if not BRepTools.Write_s(
-            shape, brep, False, False, TopTools_FormatVersion.TopTools_FormatVersion_VERSION_1
-        ):
-            raise InputError("could not write the B-rep for gmsh")
-        with _GmshSession(threads) as gmsh:
-            for opt in ("OCCFixDegenerated", "OCCFixSmallEdges", "OCCFixSmallFaces"):
-                gmsh.option.setNumber(f"Geometry.{opt}", 0)
-            gmsh.option.setNumber("Geometry.OCCSewFaces", 0)
-            gmsh.option.setNumber("Geometry.OCCMakeSolids", 0)
-            gmsh.model.occ.importShapes(brep, highestDimOnly=False)
-            gmsh.model.occ.synchronize()
-            tags = [t for _, t in gmsh.model.getEntities(2)]
-            surf_props = np.array([_gmsh_props(gmsh, t) for t in tags])
-            row = match_surfaces(face_props, surf_props, diag)
-            tag_of_face = [tags[r] for r in row]
-            t_read = time.perf_counter() - t0
+    with _brep_file(shape) as brep, _GmshSession(threads) as gmsh:
+        for opt in ("OCCFixDegenerated", "OCCFixSmallEdges", "OCCFixSmallFaces"):
+            gmsh.option.setNumber(f"Geometry.{opt}", 0)
+        gmsh.option.setNumber("Geometry.OCCSewFaces", 0)
+        gmsh.option.setNumber("Geometry.OCCMakeSolids", 0)
+        gmsh.model.occ.importShapes(brep, highestDimOnly=False)
+        gmsh.model.occ.synchronize()
+        tags = [t for _, t in gmsh.model.getEntities(2)]
+        surf_props = np.array([_gmsh_props(gmsh, t) for t in tags])
+        row = match_surfaces(face_props, surf_props, diag)
+        tag_of_face = [tags[r] for r in row]
+        t_read = time.perf_counter() - t0
 
-            gmsh.option.setNumber("Mesh.MeshSizeMax", float(max_edge))
-            gmsh.option.setNumber("Mesh.MeshSizeMin", float(min_edge))
-            gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", n_curv)
-            gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
-            gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
-            gmsh.option.setNumber("Mesh.Algorithm", int(algorithm))
-            gmsh.option.setNumber("Mesh.ElementOrder", 1)
-            gmsh.option.setNumber("Mesh.RecombineAll", 0)
-            V, F, fid = _mesh_and_collect(gmsh, tag_of_face, algorithm)
-    finally:
-        try:
-            os.unlink(brep)
-        except OSError:  # pragma: no cover
-            pass
+        gmsh.option.setNumber("Mesh.MeshSizeMax", float(max_edge))
+        gmsh.option.setNumber("Mesh.MeshSizeMin", float(min_edge))
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", n_curv)
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+        gmsh.option.setNumber("Mesh.Algorithm", int(algorithm))
+        gmsh.option.setNumber("Mesh.ElementOrder", 1)
+        gmsh.option.setNumber("Mesh.RecombineAll", 0)
+        V, F, fid = _mesh_and_collect(gmsh, tag_of_face, algorithm)
 
     F, flipped = _orient_faces(V, F, fid, faces)
     dt = time.perf_counter() - t0
@@ -400,38 +408,23 @@ def gmsh_solid_mesh(shape, max_edge: float, *, min_edge: float | None = None) ->
     InputError
         No solid in the shape, or gmsh produced no tetrahedra.
     """
-    from OCP.BRepTools import BRepTools
-    from OCP.TopTools import TopTools_FormatVersion
-
     t0 = time.perf_counter()
     if not max_edge > 0:
         raise ValueError(f"max_edge must be positive, got {max_edge}")
     min_edge = max_edge / 20.0 if min_edge is None else min(float(min_edge), float(max_edge))
-    fd, brep = tempfile.mkstemp(prefix="qifreport-gmsh-", suffix=".brep")
-    os.close(fd)
-    try:
-        if not BRepTools.Write_s(
-            shape, brep, False, False, TopTools_FormatVersion.TopTools_FormatVersion_VERSION_1
-        ):
-            raise InputError("could not write the B-rep for gmsh")
-        with _GmshSession() as gmsh:
-            gmsh.model.occ.importShapes(brep, highestDimOnly=True)
-            gmsh.model.occ.synchronize()
-            if not gmsh.model.getEntities(3):
-                raise InputError("the part has no solid to fill with tetrahedra")
-            gmsh.option.setNumber("Mesh.MeshSizeMax", float(max_edge))
-            gmsh.option.setNumber("Mesh.MeshSizeMin", float(min_edge))
-            gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
-            gmsh.option.setNumber("Mesh.ElementOrder", 1)
-            gmsh.option.setNumber("Mesh.Algorithm3D", 1)
-            gmsh.model.mesh.generate(3)
-            tags, coords, _ = gmsh.model.mesh.getNodes()
-            types, _, nodes = gmsh.model.mesh.getElements(3)
-    finally:
-        try:
-            os.unlink(brep)
-        except OSError:  # pragma: no cover
-            pass
+    with _brep_file(shape) as brep, _GmshSession() as gmsh:
+        gmsh.model.occ.importShapes(brep, highestDimOnly=True)
+        gmsh.model.occ.synchronize()
+        if not gmsh.model.getEntities(3):
+            raise InputError("the part has no solid to fill with tetrahedra")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", float(max_edge))
+        gmsh.option.setNumber("Mesh.MeshSizeMin", float(min_edge))
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+        gmsh.option.setNumber("Mesh.ElementOrder", 1)
+        gmsh.option.setNumber("Mesh.Algorithm3D", 1)
+        gmsh.model.mesh.generate(3)
+        tags, coords, _ = gmsh.model.mesh.getNodes()
+        types, _, nodes = gmsh.model.mesh.getElements(3)
     tets = [
         np.asarray(n, dtype=np.int64).reshape(-1, 4)
         for t, n in zip(types, nodes, strict=True)

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from qifreport.metrology.inspection import FREE_STATE_CONFORMS, FREE_STATE_UNCERTAIN
 from tests.conftest import NIST, shared_file
 
 EXE = Path(sys.executable).with_name("qifreport")
@@ -83,18 +84,22 @@ def pmi_zones(doc: dict) -> list[dict]:
 
 
 def assert_conforms(doc: dict) -> None:
-    """The judgement of a perfect scan: nothing fails, the free state conforms (so no virtual
-    fixture was applied: these are stiff, machined parts), the rigid fit is tight, and every
-    PMI-toleranced surface measured PASSes."""
+    """The judgement of a perfect scan: nothing fails, the free state conforms or lies on a
+    zone limit within the uncertainty (so no virtual fixture was applied: these are stiff,
+    machined parts), the rigid fit is tight, and every PMI-toleranced surface measured
+    PASSes or, on its zone limit, is not established."""
     fails = [z["description"] for z in doc["tolerances"] if z["verdict"] == "FAIL"]
     assert not fails, f"perfect scan fails {fails}"
     assert doc["verdict"] != "FAIL" and doc["_rc"] != 1, doc["decided_by"]
     reg = doc["registration"]
-    assert reg["fixture"]["decision"] == "free state conforms", reg["fixture"]
+    # a face on its zone limit (CTC 02's unilateral zones) stands within the uncertainty
+    assert reg["fixture"]["decision"] in (FREE_STATE_CONFORMS, FREE_STATE_UNCERTAIN), reg
+    on_limit = any(z["acceptance"]["decision"] == "UNCERTAIN" for z in doc["tolerances"])
+    assert (reg["fixture"]["decision"] == FREE_STATE_UNCERTAIN) == on_limit
     assert reg["fit"] is None
     assert reg["rigid"]["residual_scale_mm"] <= 2.0 * NOISE, reg["rigid"]
     measured = [z for z in pmi_zones(doc) if z["verdict"] != "NOT MEASURED"]
-    assert all(z["verdict"] == "PASS" for z in measured)
+    assert all(z["verdict"] in ("PASS", "NOT ESTABLISHED") for z in measured)
     if pmi_zones(doc):
         assert measured, "no PMI-toleranced surface was measured"
 
@@ -104,7 +109,9 @@ def assert_not_measured_only_where_unseen(doc: dict, P: np.ndarray, face: np.nda
     surface not measured has an unmeasured patch larger than allowed whose centroid lies
     more than three point spacings from every scan point of the surface's own faces (``face``:
     the true B-rep face of each point; the other skin of a thin wall may be nearer: an
-    occlusion of the planned views), and is not measured for no other reason."""
+    occlusion of the planned views) or where they are too sparse to measure (a grazing
+    view: FTC 06's T4 has 3-8 points within 3 mm of its patch's vertices, not the ~70 of
+    the scan's spacing), and is not measured for no other reason."""
     from scipy.spatial import cKDTree
 
     spacing = float(np.median(cKDTree(P).query(P, k=2)[0][:, 1]))
@@ -115,33 +122,32 @@ def assert_not_measured_only_where_unseen(doc: dict, P: np.ndarray, face: np.nda
         assert m["coverage"] >= m["min_coverage"], (z["description"], m["reasons"])
         assert m["largest_gap_area_mm2"] > m["max_gap_area_mm2"], (z["description"], m)
         own = P if z["faces"] is None else P[np.isin(face, z["faces"])]
-        far = float(cKDTree(own).query(m["largest_gap_centroid_mm"])[0])
-        assert far > 3.0 * spacing, (
+        tree = cKDTree(own)
+        centre = m["largest_gap_centroid_mm"]
+        far = float(tree.query(centre)[0])
+        # or seen too sparsely to measure (a grazing view): under a quarter of the points a
+        # 3 mm disk holds at the scan's median spacing
+        near = len(tree.query_ball_point(centre, 3.0))
+        sparse = near < 0.25 * np.pi * 9.0 / spacing**2
+        assert far > 3.0 * spacing or sparse, (
             f"{z['description']}: NOT MEASURED on a patch whose centre has a scan point "
-            f"{far:.2f} mm away (spacing {spacing:.2f} mm): {m['reasons']}"
+            f"{far:.2f} mm away and {near} within 3 mm (spacing {spacing:.2f} mm): "
+            f"{m['reasons']}"
         )
 
 
 #: parts whose perfect scan is not yet judged right (issue 20 stays open on them), each
 #: with what was measured (bench/nist_perfect_scan.py); strict: a fix makes the test fail
 #: until its mark is removed
-STILL_WRONG = {
-    "nist_ctc_02_asme1_ap242-e2.stp": "unilateral zones [-2.5, 0] and [0, +2.5] put the "
-    "perfect faces on a zone limit; under ISO 14253-1 they should be NOT ESTABLISHED, but "
-    "T2 and T4 are proven out on their vertices (free state): vertices near the faces' "
-    "boundaries read up to +0.03/-0.05 mm, beyond their 3-5 um expanded uncertainty (a "
-    "bias of the local fit at a face boundary, not noise: T4 stays proven out with U "
-    "doubled); the scan points, judged at k = 4, prove no region; GB-CICP then moves the "
-    "nominal by up to 2 mm",
-}
+STILL_WRONG: dict[str, str] = {}
 
-#: parts whose bump test does not pass yet, with what was measured (strict)
-BUMP_STILL_WRONG = {
-    "nist_ctc_04_asme1_ap242-e1.stp": "the bump FAILs T2 (+/-0.1 mm) on the vertices too, "
-    "so the free state does not stand and GB-CICP is applied to this stiff solid: it "
-    "absorbs part of the bump and distorts the rest, its nearest region 4.2 mm from the "
-    "bump (the restrained, physical fixture of issue 21 is the answer)",
-}
+#: parts whose bump test does not pass yet, with what was measured (strict xfail). CTC 04
+#: is not run in the suite (73 s of GB-CICP for an expected failure): its bump FAILs T2
+#: (+/-0.1 mm) on the vertices too, so the free state does not stand and GB-CICP, applied
+#: to this stiff solid, absorbs part of the bump and distorts the rest, its nearest region
+#: 4.2 mm from the bump; the restrained, physical fixture of issue 21 is the answer (add it
+#: to ``BUMP_GROUPS`` to re-measure)
+BUMP_STILL_WRONG: dict[str, str] = {}
 
 #: the parts of each test module (two modules: they run on both workers, about 5 min each);
 #: FTC 06 is with its bump and pose tests (one scan, one prepared part)
@@ -155,34 +161,31 @@ GROUPS = {
 }
 
 
-def cases(group: str) -> list:
-    """The group's parts as pytest params, the :data:`STILL_WRONG` ones strict xfail."""
+def _params(names: list[str], still_wrong: dict[str, str]) -> list:
+    """``names`` as pytest params, the ``still_wrong`` ones strict xfail with their reason."""
     out = []
-    for name in GROUPS[group]:
+    for name in names:
         marks = []
-        if name in STILL_WRONG:
-            marks.append(pytest.mark.xfail(reason=STILL_WRONG[name], strict=True))
+        if name in still_wrong:
+            marks.append(pytest.mark.xfail(reason=still_wrong[name], strict=True))
         out.append(pytest.param(name, marks=marks, id=name.split("_asme")[0]))
     return out
 
 
-#: the parts of each module whose bump test runs (the others have no well-scanned toleranced
-#: face under +/-0.4 mm passing on their perfect scan: CTC 02, CTC 05, FTC 08)
-BUMP_GROUPS = {
-    "a": [n for n in NIST if n.startswith(("nist_ctc_01", "nist_ctc_03", "nist_ctc_04"))],
-}
+def cases(group: str) -> list:
+    """The group's parts as pytest params, the :data:`STILL_WRONG` ones strict xfail."""
+    return _params(GROUPS[group], STILL_WRONG)
+
+
+#: the parts of each module whose bump test runs (CTC 05 and FTC 08 have no well-scanned
+#: toleranced face under +/-0.4 mm passing on their perfect scan; CTC 04: above)
+BUMP_GROUPS = {"a": [n for n in GROUPS["a"] if not n.startswith("nist_ctc_04")]}
 
 
 def bump_cases(group: str) -> list:
     """The group's bump parts as pytest params, the :data:`BUMP_STILL_WRONG` ones strict
     xfail."""
-    out = []
-    for name in BUMP_GROUPS[group]:
-        marks = []
-        if name in BUMP_STILL_WRONG:
-            marks.append(pytest.mark.xfail(reason=BUMP_STILL_WRONG[name], strict=True))
-        out.append(pytest.param(name, marks=marks, id=name.split("_asme")[0]))
-    return out
+    return _params(BUMP_GROUPS[group], BUMP_STILL_WRONG)
 
 
 def bump_target(s: Scan, doc: dict) -> tuple[dict, int, np.ndarray]:

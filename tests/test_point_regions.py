@@ -108,5 +108,7 @@ def test_a_wide_defect_is_reported_once():
     near = [r for r in acc.regions if np.linalg.norm(r.centroid[:2] - CENTRE) < 10.0]
     assert len(near) == 1
     assert near[0].area >= both.regions[0].area
+    assert abs(near[0].peak) >= abs(both.regions[0].peak)  # the larger peak of the two
+    assert near[0].peak == pytest.approx(0.6, rel=0.03)
     # the analytic area beyond 0.25 mm: 2 pi sigma^2 ln(0.6 / 0.25) = 792 mm^2
     assert near[0].area == pytest.approx(2 * np.pi * 144.0 * np.log(0.6 / 0.25), rel=0.2)
