@@ -4,14 +4,14 @@ in ``test_nist_perfect_scan.py``, :func:`tests.nist_scans.check_perfect_scan`).
 
 * A 0.5 mm x sigma 3 mm bump on the tightest measured toleranced face FAILs that tolerance,
   with a failing region's centroid within 3 mm of the bump (:func:`tests.nist_scans.check_bump`;
-  CTC 01, CTC 03 and CTC 04 in ``test_nist_perfect_scan.py``; CTC 02, CTC 05 and FTC 08 have
-  no well-scanned toleranced face under +/-0.4 mm that passes on their perfect scan).
+  here the vertices see it, the free state fails and the fixtured judgement keeps the region
+  1.3 mm from it; CTC 01 and the others in ``test_nist_perfect_scan.py``).
 * From an arbitrary pose the perfect scan conforms with the same zone verdicts, and
   ``--rigid-only`` (no virtual fixture) gives them too: the free state of this stiff part
-  conforms, so no fixture is applied, and one forced on it (``--always-fixture``) moves
-  the nominal by less than 0.25 mm.
+  conforms, so no fixture is applied (one forced on it, ``--always-fixture``, moves it by
+  0.18 mm: ``bench/nist_perfect_scan.py``).
 
-FTC 06: its tightest zones (0.254 mm) are narrower than the bump, and it conforms today.
+FTC 06: its tightest zones (0.254 mm) are narrower than the bump.
 """
 
 from __future__ import annotations
@@ -44,11 +44,8 @@ def test_arbitrary_pose_and_rigid_only_agree(scans):
     posed = s.run(s.scan.P @ T[:3, :3].T + T[:3, 3], "posed")
     assert_conforms(posed)
     rigid = s.run(None, "rigid", "--rigid-only")
-    # the free state of a stiff part conforms: no virtual fixture is applied, and forcing
-    # one moves the nominal by little
+    # the free state of a stiff part conforms: no virtual fixture is applied
     assert base["registration"]["fixture"]["decision"] == "free state conforms"
-    forced = s.run(None, "forced", "--always-fixture")
-    assert forced["registration"]["fit"]["max_displacement_mm"] < 0.25
     verdicts = {z["key"]: z["verdict"] for z in base["tolerances"]}
     assert {z["key"]: z["verdict"] for z in posed["tolerances"]} == verdicts
     assert {z["key"]: z["verdict"] for z in rigid["tolerances"]} == verdicts

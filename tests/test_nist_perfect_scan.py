@@ -19,10 +19,9 @@ A 0.5 mm x sigma 3 mm bump on the tightest well-scanned toleranced face FAILs th
 tolerance where the bump is (:func:`tests.nist_scans.check_bump`): on CTC 01 the bump is
 narrower than the mesh (4 mm edges; the vertices read 0.19 mm against the +/-0.25 mm zone)
 and is found on the scan points (:mod:`qifreport.metrology.point_regions`), the free state
-standing (no fixture bends such a defect out); on CTC 02 (T1, +/-0.05 mm, a sparse 3.6 mm
-scan) the vertices see part of it and the points fail it, the free state standing; on CTC 03
-the vertices see it, the free state fails, and the fixtured judgement keeps the region at
-the bump. CTC 04's is not yet right and not run (:data:`tests.nist_scans.BUMP_STILL_WRONG`).
+standing (no fixture bends such a defect out). CTC 02 and CTC 03 (measured: FAIL, regions
+1.9 and 0.4 mm from the bump) and CTC 04 (not yet right) run with
+``QIFREPORT_ALL_NIST_BUMPS=1`` (:data:`tests.nist_scans.BUMP_GROUPS`).
 
 Real OCP reading, real gmsh meshing, the real CLI.
 """
