@@ -22,10 +22,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from qifreport.registration.pointcloud import median_spacing
+
+from .point_regions import linked_groups, point_areas
 from .statistics import json_float
 
 __all__ = [
@@ -188,16 +189,12 @@ def added_material(
     if len(proud) == 0 or m < 2:
         return out
     tree = tree or cKDTree(P)
-    spacing = float(np.median(tree.query(P[:: max(1, m // 5000)], k=2)[0][:, 1]))
+    spacing = max(median_spacing(P, tree, probes=5000), 1e-12)
     Q = P[proud]
     # each proud point's area from the local density (a rib, an overlap of two views and a
     # sparse grazing strip are not sampled like the scan on average)
-    r = 2.5 * max(spacing, 1e-12)
-    counts = tree.query_ball_point(Q, r, return_length=True, workers=-1)
-    a_local = np.pi * r * r / np.maximum(counts, 1)
-    pairs = cKDTree(Q).query_pairs(link * max(spacing, 1e-12), output_type="ndarray")
-    A = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(Q), len(Q)))
-    _, labels = connected_components(A, directed=False)
+    a_local = point_areas(tree, Q, spacing)
+    labels = linked_groups(Q, link * spacing)
     regions = []
     for k in np.unique(labels):
         members = np.flatnonzero(labels == k)

@@ -29,6 +29,7 @@ from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as _triangle_closest_point
 
 from qifreport.registration.mesh import edge_uses, face_normals, median_edge_length, vertex_normals
+from qifreport.registration.pointcloud import median_spacing
 
 __all__ = [
     "beyond_rim",
@@ -783,8 +784,7 @@ def residual_referenced(
     if radius is None:
         # 1.5 edges, and never under 2.5 point spacings (about 20 points in the ball): a
         # curvature-refined CAD mesh can be finer than the scan
-        probe = P[sel][:: max(len(sel) // 2000, 1)]
-        spacing = float(np.median(tree.query(probe, k=2)[0][:, 1])) if len(sel) > 1 else 0.0
+        spacing = median_spacing(P[sel], tree, probes=2000) if len(sel) > 1 else 0.0
         radius = max(1.5 * median_edge_length(V, F), 2.5 * spacing)
     radius = float(radius)
     if not radius > 0:

@@ -727,12 +727,13 @@ def surface_distance(
     them each B-rep face's mesh normals
     (:func:`~qifreport.metrology.deviation.corner_normals`), off by half a segment at the
     edge of a coarsely meshed fillet."""
-    mesh = corner_normals(V, F, face_id)
-    if normals is not None:
-        mesh = np.where(np.isnan(normals[..., :1]), mesh, normals)
-    d = pdev - curved_offset(V, F, C, cface, mesh)
+    cn = normals
+    if cn is None or np.isnan(cn).any():
+        mesh = corner_normals(V, F, face_id)
+        cn = mesh if cn is None else np.where(np.isnan(cn[..., :1]), mesh, cn)
+    d = pdev - curved_offset(V, F, C, cface, cn)
     if P is not None:
-        d, _ = nearest_face_distance(V, F, P, face_id, cface, d, mesh)
+        d, _ = nearest_face_distance(V, F, P, face_id, cface, d, cn)
     return d
 
 
@@ -1179,6 +1180,7 @@ def _judge(
         s_area,
         params.max_region_area,
         fail_on=params.fail_on_added_material,
+        tree=samples.tree,
     )
     timings["metrology"] = time.perf_counter() - t0
     scatter = resolution(

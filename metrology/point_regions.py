@@ -41,9 +41,11 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from qifreport.registration.pointcloud import median_spacing
+
 from .decision import PROOF_COVERAGE
 
-__all__ = ["ScanSamples", "SurfacePoints", "scan_samples"]
+__all__ = ["ScanSamples", "SurfacePoints", "linked_groups", "point_areas", "scan_samples"]
 
 #: neighbours in each point's median
 DEFAULT_K = 9
@@ -62,6 +64,7 @@ class ScanSamples:
     U : (m,) its expanded uncertainty (k = 2).
     vertex : (m,) the nominal vertex nearest to each point's closest point (-1: none).
     spacing : the scan's median point spacing.
+    tree : a k-d tree of ``P`` (the points' areas, the added-material pass).
     """
 
     P: np.ndarray
@@ -69,22 +72,35 @@ class ScanSamples:
     U: np.ndarray
     vertex: np.ndarray
     spacing: float
-    _tree: cKDTree | None = None
+    tree: cKDTree
     _area: np.ndarray | None = None
 
     def area(self, idx: np.ndarray) -> np.ndarray:
-        """(len(idx),) area of the points ``idx``, mm^2, from the point density within
-        2.5 spacings (a grazing strip and an overlap of two views are not sampled alike)."""
+        """(len(idx),) area of the points ``idx``, mm^2 (:func:`point_areas`), each
+        computed once."""
         if self._area is None:
             self._area = np.full(len(self.P), np.nan)
         todo = idx[np.isnan(self._area[idx])]
         if len(todo):
-            if self._tree is None:
-                self._tree = cKDTree(self.P)
-            r = 2.5 * self.spacing
-            n = self._tree.query_ball_point(self.P[todo], r, return_length=True, workers=-1)
-            self._area[todo] = np.pi * r * r / np.maximum(n, 1)
+            self._area[todo] = point_areas(self.tree, self.P[todo], self.spacing)
         return self._area[idx]
+
+
+def point_areas(tree: cKDTree, Q: np.ndarray, spacing: float) -> np.ndarray:
+    """(q,) the area, mm^2, each point of ``Q`` (q, 3) stands for: a disk of 2.5 ``spacing``
+    (mm) shared among the scan points of ``tree`` in it (a grazing strip and an overlap of
+    two views are not sampled like the scan on average)."""
+    r = 2.5 * spacing
+    n = tree.query_ball_point(Q, r, return_length=True, workers=-1)
+    return np.pi * r * r / np.maximum(n, 1)
+
+
+def linked_groups(Q: np.ndarray, distance: float) -> np.ndarray:
+    """(q,) the connected group of each point of ``Q`` (q, 3): points closer than
+    ``distance`` (mm) are linked."""
+    pairs = cKDTree(Q).query_pairs(distance, output_type="ndarray")
+    G = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), (len(Q),) * 2)
+    return connected_components(G, directed=False)[1]
 
 
 @dataclass
@@ -119,9 +135,7 @@ class SurfacePoints:
         if len(sel) == 0:
             return []
         Q = s.P[sel]
-        pairs = cKDTree(Q).query_pairs(LINK * s.spacing, output_type="ndarray")
-        G = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), (len(sel),) * 2)
-        _, label = connected_components(G, directed=False)
+        label = linked_groups(Q, LINK * s.spacing)
         a = s.area(sel)
         d = val[out]
         c = self.center[out]
@@ -200,9 +214,6 @@ def scan_samples(
         value[group] = med
         var[group] = 0.5 * np.pi * s * s / kk
     tree = cKDTree(P)
-    spacing = 0.0
-    if m > 1:
-        probe = P[:: max(m // 5000, 1)]
-        spacing = float(np.median(tree.query(probe, k=2)[0][:, 1]))
+    spacing = median_spacing(P, tree, probes=5000) if m > 1 else 0.0
     U = np.sqrt(4.0 * var + float(systematic) ** 2)
-    return ScanSamples(P=P, value=value, U=U, vertex=vertex, spacing=max(spacing, 1e-9), _tree=tree)
+    return ScanSamples(P=P, value=value, U=U, vertex=vertex, spacing=max(spacing, 1e-9), tree=tree)

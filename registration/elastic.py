@@ -31,7 +31,6 @@ import scipy.sparse.linalg as spla
 __all__ = [
     "GRAVITY",
     "rigid_rank",
-    "rigid_rank_directions",
     "MATERIALS",
     "ElasticModel",
     "ElasticSolution",
@@ -258,7 +257,7 @@ class ElasticModel:
             d = np.asarray(pad.direction, dtype=np.float64)
             v = np.asarray(pad.vertices, dtype=np.int64)
             rows.append((self.X[v], np.tile(d / np.linalg.norm(d), (len(v), 1))))
-        free_motions = 6 - rigid_rank_directions(
+        free_motions = 6 - rigid_rank(
             np.concatenate([r[0] for r in rows]), np.concatenate([r[1] for r in rows]), self.X
         )
         if free_motions:
@@ -398,16 +397,10 @@ def _edge_prescribed(
     return np.concatenate(out_d), np.concatenate(out_v)
 
 
-def rigid_rank(X: np.ndarray, fixed: np.ndarray) -> int:
-    """How many of the six rigid motions of the vertices ``X`` (n, 3) mm the prescribed
-    ``(vertex, axis)`` pairs ``fixed`` (m, 2) hold (6: all; the problem is then regular)."""
-    fixed = np.asarray(fixed, dtype=np.int64).reshape(-1, 2)
-    return rigid_rank_directions(X[fixed[:, 0]], np.eye(3)[fixed[:, 1]], X)
-
-
-def rigid_rank_directions(points: np.ndarray, directions: np.ndarray, X: np.ndarray) -> int:
+def rigid_rank(points: np.ndarray, directions: np.ndarray, X: np.ndarray) -> int:
     """How many of the six rigid motions of a part (vertices ``X`` (n, 3) mm) are held by
-    restraining ``points`` (m, 3) mm along ``directions`` (m, 3) unit."""
+    restraining ``points`` (m, 3) mm along ``directions`` (m, 3) unit (6: all; the elastic
+    problem is then regular)."""
     if len(points) == 0:
         return 0
     c = points - X.mean(axis=0)
