@@ -566,8 +566,14 @@ def _guard(fn: Callable[[], int], verbose: bool) -> int:
     try:
         return fn()
     except Interrupted as exc:
+        # the outputs were cleaned up on the way here; leave now, while the traceback still
+        # holds the interrupted frames: freeing their arrays (or the interpreter's
+        # finalisation) can crash in an extension caught mid-computation (SIGSEGV seen after
+        # the one-line message under load)
         print(f"qifreport: interrupted by {exc.name}: nothing written", file=sys.stderr)
-        return 128 + exc.signum
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(128 + exc.signum)
     except InputError as exc:
         print(f"qifreport: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
@@ -608,9 +614,7 @@ def main(argv: list[str] | None = None) -> int:
 
     rc = _guard(run, verbose)
     if Interrupted.received:
-        # interrupted: the outputs are already cleaned up; leave without the interpreter's
-        # finalisation, which can crash in an extension caught mid-computation (SIGSEGV seen
-        # after the one-line message under load)
+        # a signal that arrived after the work was done: leave without the finalisation
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(rc)
