@@ -315,6 +315,12 @@ class ElasticModel:
         elements' own (quadratic) interpolation. A point outside the tetrahedra (a surface
         point just beyond a chord) takes the value at the closest point of the nearest of
         the 8 tetrahedra with the nearest centroids."""
+        return np.asarray(self.probes(points) @ solution.dofs).reshape(3, -1).T
+
+    def probes(self, points: np.ndarray) -> sp.csr_matrix:
+        """(3m, N) the matrix taking all degrees of freedom to the displacement at ``points``
+        (m, 3) mm: rows ``[x of every point, y of every point, z of every point]`` (see
+        :meth:`displacement_at`)."""
         from scipy.spatial import cKDTree
 
         P = np.asarray(points, dtype=np.float64)
@@ -334,8 +340,70 @@ class ElasticModel:
             d = np.linalg.norm(y - P, axis=1)
             better = d < best_d
             best[better], best_d[better] = y[better], d[better]
-        M = self._basis.probes(best.T)
-        return np.asarray(M @ solution.dofs).reshape(3, -1).T
+        return self._basis.probes(best.T).tocsr()
+
+    def pad_responses(
+        self, pads: list[Pad], load: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The responses to each pad's unit drive, the others held (one factorisation).
+
+        A restrained state is linear in the clamps' drives: with these, any drives ``d``
+        (p,) give the degrees of freedom ``D @ d`` and the pad forces ``G @ d``.
+
+        Parameters
+        ----------
+        pads : the pads (their ``value`` ignored); together they must hold the six rigid
+            motions.  load : (N,) an optional load vector, N, solved as one more column
+            with every pad held at 0.
+
+        Returns
+        -------
+        D : (N, p) degrees of freedom, mm per mm of drive (a last column for ``load``).
+        G : (p, p) pad forces along their directions, N per mm (column j: pad j driven
+            by 1 mm; a last column for ``load``, N).
+
+        Raises
+        ------
+        ValueError
+            The pads leave a rigid motion free.
+        """
+        pads = list(pads)
+        rows = [
+            (
+                self.X[np.asarray(p.vertices, dtype=np.int64)],
+                np.tile(_unit(p.direction), (len(p.vertices), 1)),
+            )
+            for p in pads
+        ]
+        free_motions = (
+            6
+            - rigid_rank(
+                np.concatenate([r[0] for r in rows]), np.concatenate([r[1] for r in rows]), self.X
+            )
+            if rows
+            else 6
+        )
+        if free_motions:
+            raise ValueError(
+                f"the elastic problem is singular: the clamps leave {free_motions} rigid "
+                "motion(s) of the part free"
+            )
+        C, _, owner = self._pad_rows(pads)
+        n, m, p = self.n_dofs, C.shape[0], len(pads)
+        A = sp.bmat([[self.K, C.T], [C, None]], format="csc")
+        cols = p + (load is not None)
+        rhs = np.zeros((n + m, cols))
+        rhs[n + np.arange(m), owner] = 1.0
+        if load is not None:
+            rhs[:n, p] = np.asarray(load, dtype=np.float64)
+        try:
+            sol = spla.splu(A).solve(rhs)
+        except RuntimeError as e:
+            raise ValueError(f"the elastic problem is singular ({e})") from None
+        G = np.zeros((p, cols))
+        for j in range(cols):
+            G[:, j] = -np.bincount(owner, weights=sol[n:, j], minlength=p)
+        return sol[:n], G
 
     def _pad_rows(self, pads: list[Pad]) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
         """The pads' constraint rows ``C u = c`` (one per pad vertex, and per mid-edge node
@@ -366,6 +434,11 @@ class ElasticModel:
         )
         c = np.array([pads[k].value for k in owner], dtype=np.float64)
         return C, c, owner
+
+
+def _unit(d) -> np.ndarray:
+    d = np.asarray(d, dtype=np.float64)
+    return d / np.linalg.norm(d)
 
 
 def _barycentric_tet(tet: np.ndarray, P: np.ndarray) -> np.ndarray:

@@ -14,6 +14,12 @@ turns a free-state measurement into that restrained state:
 3. the scan points are carried by ``u`` (:meth:`Restraint.displacement_at`): the restrained
    scan, judged as any other.
 
+The restrained state is linear in the clamps' offsets. :func:`restraint_basis` solves the
+model once per part for each clamp direction's unit drive (and the part's weight) and keeps
+only the responses at the nominal's vertices and the clamp forces: a per-part cache entry
+of a few arrays. :meth:`RestraintBasis.apply` then restrains any scan in microseconds, with
+the same result as :func:`restrain`'s direct solve.
+
 A free-state offset is observed along the surface normal only (a scan of a smooth surface
 does not see it slide along itself): a clamp restraining an axis takes the normal offset's
 component along that axis, and an axis in the surface's plane (a pin) holds its position.
@@ -30,7 +36,15 @@ from scipy.spatial import cKDTree
 from .clamps import Clamp
 from .elastic import ElasticModel, ElasticSolution, Pad
 
-__all__ = ["Restraint", "clamp_offsets", "restrain"]
+__all__ = [
+    "Restraint",
+    "RestraintBasis",
+    "clamp_offsets",
+    "interpolate_on_triangles",
+    "restrain",
+    "restraint_basis",
+    "triangle_edges",
+]
 
 log = logging.getLogger(__name__)
 
@@ -46,17 +60,26 @@ class Restraint:
     normals : (c, 3) the nominal surface normal at each clamp.
     forces : (c, 3) the force each clamp applies to the part, N, in the part frame (the
         sum over its restrained directions); ``force`` (c,) its magnitude.
-    solution : the elastic solution.  model : the elastic model.
+    energy : the strain energy the clamps put in, N mm (mJ).
+    u, u_mid : (n, 3) and (e, 3) the displacement at the nominal's vertices and its edges'
+        midpoints, mm (:meth:`RestraintBasis.apply`; None from :func:`restrain`): with
+        ``F`` and ``tri_edges`` they interpolate it quadratically (:meth:`on_triangles`).
     over_limit : names of the clamps whose force exceeds their limit.
+    solution, model : the elastic solution and model (:func:`restrain` only).
     """
 
     clamps: list[Clamp]
     offsets: np.ndarray
     normals: np.ndarray
     forces: np.ndarray
-    solution: ElasticSolution
-    model: ElasticModel = field(repr=False)
+    energy: float
+    u: np.ndarray | None = field(default=None, repr=False)
+    u_mid: np.ndarray | None = field(default=None, repr=False)
+    F: np.ndarray | None = field(default=None, repr=False)
+    tri_edges: np.ndarray | None = field(default=None, repr=False)
     over_limit: list[str] = field(default_factory=list)
+    solution: ElasticSolution | None = field(default=None, repr=False)
+    model: ElasticModel | None = field(default=None, repr=False)
 
     @property
     def force(self) -> np.ndarray:
@@ -70,8 +93,19 @@ class Restraint:
     def displacement_at(self, points: np.ndarray) -> np.ndarray:
         """(m, 3) the displacement, mm, at ``points`` (m, 3) mm on or near the part (a
         point just outside the tetrahedra, by a chord's height, takes the value at the
-        nearest point inside its nearest tetrahedron)."""
+        nearest point inside its nearest tetrahedron). Needs the model (:func:`restrain`);
+        with a basis use :meth:`on_triangles`."""
+        if self.model is None or self.solution is None:
+            raise ValueError("a restraint from a basis carries its displacement on its mesh only")
         return self.model.displacement_at(self.solution, points)
+
+    def on_triangles(self, V: np.ndarray, tri: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """(m, 3) the displacement, mm, at ``points`` (m, 3) lying on the nominal's
+        triangles ``tri`` (m,) (closest points), ``V`` (n, 3) its vertices: quadratic in
+        each triangle through its corners' and edge midpoints' values."""
+        if self.u is None:
+            raise ValueError("a restraint from a direct solve: use displacement_at")
+        return interpolate_on_triangles(self.u, V, self.F, tri, points, self.u_mid, self.tri_edges)
 
     def to_dict(self) -> dict:
         return {
@@ -80,14 +114,193 @@ class Restraint:
                 | {
                     "free_state_offset_mm": None if not np.isfinite(o) else float(o),
                     "force_N": float(f),
+                    "force_vector_N": [float(x) for x in fv],
                     "over_limit": c.name in self.over_limit,
                 }
-                for c, o, f in zip(self.clamps, self.offsets, self.force, strict=True)
+                for c, o, f, fv in zip(
+                    self.clamps, self.offsets, self.force, self.forces, strict=True
+                )
             ],
             "total_force_N": self.total_force,
-            "energy_mJ": float(self.solution.energy),
+            "energy_mJ": float(self.energy),
             "not_restrainable": list(self.over_limit),
         }
+
+
+@dataclass
+class RestraintBasis:
+    """A part's responses to its clamps (:func:`restraint_basis`): all a restrained
+    inspection needs of the elastic model, as plain arrays (a per-part cache entry).
+
+    Attributes
+    ----------
+    clamps : the clamps.  normals : (c, 3) unit nominal normals at them.
+    owner : (p,) the clamp of each restrained direction.  directions : (p, 3) unit.
+    coupling : (p,) ``normal . direction``: a free-state offset ``o`` along the normal
+        drives direction j by ``-o * coupling[j]``.
+    U : (n, 3, p) displacement at ``points`` (n, 3), the nominal's vertices, per mm of each
+        drive; ``U_mid`` (e, 3, p) at the midpoints of its edges, ``F`` (f, 3) its
+        triangles and ``tri_edges`` (f, 3) their edges (0-1, 1-2, 2-0).
+    G : (p, p) force along each direction per mm of each drive, N/mm.
+    U_load, U_mid_load, G_load : (n, 3), (e, 3) mm and (p,) N: the response to ``load``
+        with the clamps at rest (None without a load).
+    pad_radius : mm.  model : a summary of the elastic model (material, mesh, seconds).
+    """
+
+    clamps: list[Clamp]
+    normals: np.ndarray
+    owner: np.ndarray
+    directions: np.ndarray
+    coupling: np.ndarray
+    points: np.ndarray
+    F: np.ndarray
+    tri_edges: np.ndarray
+    U: np.ndarray
+    U_mid: np.ndarray
+    G: np.ndarray
+    pad_radius: float
+    U_load: np.ndarray | None = None
+    U_mid_load: np.ndarray | None = None
+    G_load: np.ndarray | None = None
+    model: dict = field(default_factory=dict)
+
+    def apply(self, offsets: np.ndarray) -> Restraint:
+        """Restrain a free state whose clamps sit ``offsets`` (c,) mm along their normals
+        (NaN: unseen, taken as 0 -- the caller says so)."""
+        off = np.nan_to_num(np.asarray(offsets, dtype=np.float64), nan=0.0)
+        d = -off[self.owner] * self.coupling  # (p,) drives
+        u, u_mid = self.U @ d, self.U_mid @ d
+        f = self.G @ d
+        energy = 0.5 * float(d @ f)  # the drives' (the weight's own is not the clamps')
+        if self.U_load is not None:
+            u, u_mid = u + self.U_load, u_mid + self.U_mid_load
+            f = f + self.G_load
+        forces = np.zeros((len(self.clamps), 3))
+        np.add.at(forces, self.owner, f[:, None] * self.directions)
+        res = Restraint(
+            clamps=list(self.clamps),
+            offsets=np.asarray(offsets, dtype=np.float64),
+            normals=self.normals,
+            forces=forces,
+            energy=energy,
+            u=u,
+            u_mid=u_mid,
+            F=self.F,
+            tri_edges=self.tri_edges,
+        )
+        res.over_limit = _over_limit(self.clamps, res.force)
+        return res
+
+
+def _over_limit(clamps: list[Clamp], force: np.ndarray) -> list[str]:
+    return [
+        c.name
+        for c, f in zip(clamps, force, strict=True)
+        if c.max_force is not None and f > c.max_force
+    ]
+
+
+def _pads(
+    X: np.ndarray,
+    clamps: list[Clamp],
+    normals: np.ndarray,
+    pad_radius: float,
+    surface: np.ndarray | None,
+) -> tuple[list[Pad], list[tuple[int, np.ndarray]]]:
+    """One :class:`Pad` per clamp direction (value 0): the model's surface vertices within
+    ``pad_radius`` of the clamp (its nearest when none), and (clamp, direction) of each."""
+    cand = np.flatnonzero(surface) if surface is not None else np.arange(len(X))
+    tree = cKDTree(X[cand])
+    pads: list[Pad] = []
+    owner: list[tuple[int, np.ndarray]] = []
+    for k, c in enumerate(clamps):
+        verts = cand[np.asarray(tree.query_ball_point(np.asarray(c.position), pad_radius), int)]
+        if len(verts) == 0:
+            verts = cand[[int(tree.query(np.asarray(c.position))[1])]]
+            log.info(
+                "clamp %s: no model vertex within %.3g mm, the nearest taken", c.name, pad_radius
+            )
+        n = np.asarray(normals[k], dtype=np.float64)
+        n = n / np.linalg.norm(n)
+        for e in c.axes(n):
+            pads.append(Pad(verts, e, 0.0, name=c.name))
+            owner.append((k, e))
+    return pads, owner
+
+
+def restraint_basis(
+    model: ElasticModel,
+    clamps: list[Clamp],
+    normals: np.ndarray,
+    V: np.ndarray,
+    F: np.ndarray,
+    *,
+    pad_radius: float,
+    surface: np.ndarray | None = None,
+    load: np.ndarray | None = None,
+) -> RestraintBasis:
+    """Solve the part's elastic model once for each clamp direction's unit drive.
+
+    Parameters
+    ----------
+    model : the part's elastic model.  clamps : the clamps (together holding the six rigid
+        motions).  normals : (c, 3) unit outward surface normals at the clamps.
+    V : (n, 3) mm, F : (f, 3) the nominal's mesh: the responses are kept at its vertices
+        and edge midpoints.
+    pad_radius : mm, the contact's radius: the model's vertices within it move together.
+    surface : (N,) bool, the model's vertices on the part's surface (default all).
+    load : (N_dofs,) a load vector (the part's weight, :meth:`ElasticModel.gravity`), N.
+
+    Raises
+    ------
+    ValueError
+        Clamps that leave a rigid motion free.
+    """
+    pads, owner = _pads(model.X, clamps, normals, pad_radius, surface)
+    D, G = model.pad_responses(pads, load)
+    V = np.asarray(V, dtype=np.float64)
+    edges, tri_edges = triangle_edges(F)
+    Q = np.vstack([V, 0.5 * (V[edges[:, 0]] + V[edges[:, 1]])])
+    M = model.probes(Q)
+    n, p = len(V), len(pads)
+    U = np.asarray(M @ D).reshape(3, len(Q), -1).transpose(1, 0, 2)  # (n + e, 3, p[+1])
+    nrm = np.asarray(normals, dtype=np.float64)
+    nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+    k = np.array([o[0] for o in owner], dtype=np.int64)
+    E = np.array([o[1] for o in owner], dtype=np.float64).reshape(-1, 3)
+    return RestraintBasis(
+        clamps=list(clamps),
+        normals=nrm,
+        owner=k,
+        directions=E,
+        coupling=np.einsum("pd,pd->p", nrm[k], E),
+        points=V,
+        F=np.asarray(F, dtype=np.int64),
+        tri_edges=tri_edges,
+        U=np.ascontiguousarray(U[:n, :, :p]),
+        U_mid=np.ascontiguousarray(U[n:, :, :p]),
+        G=G[:, :p],
+        pad_radius=float(pad_radius),
+        U_load=None if load is None else U[:n, :, p].copy(),
+        U_mid_load=None if load is None else U[n:, :, p].copy(),
+        G_load=None if load is None else G[:, p].copy(),
+        model={
+            "material": model.material.to_dict(),
+            "vertices": len(model.X),
+            "tetrahedra": len(model.T),
+            "order": model.order,
+            "dofs": model.n_dofs,
+        },
+    )
+
+
+def triangle_edges(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The unique edges ``(e, 2)`` of triangles ``F`` (f, 3) and each triangle's edges
+    ``(f, 3)``: 0-1, 1-2, 2-0."""
+    F = np.asarray(F, dtype=np.int64)
+    half = np.stack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]], axis=1).reshape(-1, 2)
+    edges, inv = np.unique(np.sort(half, axis=1), axis=0, return_inverse=True)
+    return edges, inv.reshape(-1, 3)
 
 
 def clamp_offsets(
@@ -135,40 +348,62 @@ def restrain(
     ValueError
         A pad with no vertex of the model, or clamps that leave a rigid motion free.
     """
-    X = model.X
-    cand = np.flatnonzero(surface) if surface is not None else np.arange(len(X))
-    tree = cKDTree(X[cand])
-    pads: list[Pad] = []
-    owner: list[tuple[int, np.ndarray]] = []  # (clamp, direction) of each pad
-    offsets = np.nan_to_num(np.asarray(offsets, dtype=np.float64), nan=0.0)
-    for k, c in enumerate(clamps):
-        verts = cand[np.asarray(tree.query_ball_point(np.asarray(c.position), pad_radius), int)]
-        if len(verts) == 0:
-            verts = cand[[int(tree.query(np.asarray(c.position))[1])]]
-            log.info(
-                "clamp %s: no model vertex within %.3g mm, the nearest taken", c.name, pad_radius
-            )
+    pads, owner = _pads(model.X, clamps, normals, pad_radius, surface)
+    offsets = np.asarray(offsets, dtype=np.float64)
+    off = np.nan_to_num(offsets, nan=0.0)
+    for pad, (k, e) in zip(pads, owner, strict=True):
         n = np.asarray(normals[k], dtype=np.float64)
-        n = n / np.linalg.norm(n)
-        for e in c.axes(n):
-            # the free-state surface sits offsets[k] along n: bring it back along e
-            pads.append(Pad(verts, e, -offsets[k] * float(n @ e), name=c.name))
-            owner.append((k, e))
+        # the free-state surface sits off[k] along n: bring it back along e
+        pad.value = -off[k] * float(n @ e) / float(np.linalg.norm(n))
     sol = model.solve(pads=pads, load=load)
     forces = np.zeros((len(clamps), 3))
     for (k, e), f in zip(owner, sol.pad_forces, strict=True):
         forces[k] += f * e
     res = Restraint(
         clamps=list(clamps),
-        offsets=np.asarray(offsets, dtype=np.float64),
+        offsets=offsets,
         normals=np.asarray(normals, dtype=np.float64),
         forces=forces,
+        energy=float(sol.energy),
         solution=sol,
         model=model,
     )
-    res.over_limit = [
-        c.name
-        for c, f in zip(clamps, res.force, strict=True)
-        if c.max_force is not None and f > c.max_force
-    ]
+    res.over_limit = _over_limit(clamps, res.force)
     return res
+
+
+def interpolate_on_triangles(
+    values: np.ndarray,
+    V: np.ndarray,
+    F: np.ndarray,
+    tri: np.ndarray,
+    points: np.ndarray,
+    mid: np.ndarray | None = None,
+    tri_edges: np.ndarray | None = None,
+) -> np.ndarray:
+    """(m, k) a field at ``points`` (m, 3) on the triangles ``tri`` (m,) of the mesh
+    ``(V, F)`` (closest points): from its vertex ``values`` (n, k), linear in each triangle;
+    with its values ``mid`` (e, k) at the edges' midpoints (``tri_edges`` (f, 3), see
+    :func:`triangle_edges`), quadratic."""
+    A, B, C = (V[F[tri, i]] for i in range(3))
+    v0, v1, v2 = B - A, C - A, points - A
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    d20 = np.einsum("ij,ij->i", v2, v0)
+    d21 = np.einsum("ij,ij->i", v2, v1)
+    den = d00 * d11 - d01 * d01
+    den = np.where(np.abs(den) > 0, den, 1.0)
+    b = (d11 * d20 - d01 * d21) / den
+    c = (d00 * d21 - d01 * d20) / den
+    w = np.clip(np.c_[1.0 - b - c, b, c], 0.0, None)
+    w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+    vals = np.asarray(values)
+    if mid is None:
+        return np.einsum("ij,ij...->i...", w, vals[F[tri]])
+    # quadratic (P2) shape functions: corners l(2l - 1), edge midpoints 4 l_a l_b
+    wc = w * (2.0 * w - 1.0)
+    we = 4.0 * np.c_[w[:, 0] * w[:, 1], w[:, 1] * w[:, 2], w[:, 2] * w[:, 0]]
+    return np.einsum("ij,ij...->i...", wc, vals[F[tri]]) + np.einsum(
+        "ij,ij...->i...", we, np.asarray(mid)[tri_edges[tri]]
+    )
