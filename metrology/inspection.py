@@ -22,7 +22,13 @@ from scipy.spatial import cKDTree
 from qifreport.errors import InputError
 from qifreport.registration.deformable import DeformResult, orient_scan_normals
 from qifreport.registration.gbcicp import BendingBasis
-from qifreport.registration.icp import RigidResult, rigid_icp
+from qifreport.registration.icp import (
+    RigidResult,
+    rigid_icp,
+    robust_scale,
+    tukey_rho,
+    tukey_weights,
+)
 from qifreport.registration.mesh import (
     bounding_diagonal,
     vertex_normals,
@@ -30,6 +36,12 @@ from qifreport.registration.mesh import (
 from qifreport.registration.methods import METHODS, deform
 from qifreport.registration.pointcloud import orient_normals_consistent, pca_normals
 from qifreport.registration.prealign import PrealignResult, seat_scan
+from qifreport.registration.restrained import (
+    Restraint,
+    RestraintBasis,
+    clamp_offsets,
+    rigid_motion,
+)
 
 from .acceptance import (
     DEFAULT_MAX_REGION_AREA,
@@ -80,12 +92,15 @@ from .statistics import DeviationStats, deviation_statistics
 FREE_STATE_CONFORMS = "free state conforms"
 FREE_STATE_UNCERTAIN = "free state within the uncertainty"
 FREE_STATE_LOCAL_DEFECTS = "free state fails on defects narrower than the mesh"
+#: :attr:`InspectionResult.fixture_decision` of a restrained inspection
+RESTRAINED = "restrained"
 
 __all__ = [
     "FREE_STATE_CONFORMS",
     "FREE_STATE_LOCAL_DEFECTS",
     "FREE_STATE_UNCERTAIN",
     "METHOD_LABELS",
+    "RESTRAINED",
     "InspectionParams",
     "InspectionResult",
     "ZoneResult",
@@ -209,7 +224,8 @@ class InspectionResult:
         ``"free state within the uncertainty"`` (nothing of it is proven out of tolerance,
         something is on a zone limit within the measurement uncertainty: no fixture either),
         ``"free state does not conform"`` (it was judged first, then fixtured), ``"always"``
-        (``always_fixture``: fixtured without judging the free state) or ``"rigid only"``.
+        (``always_fixture``: fixtured without judging the free state), ``"rigid only"`` or
+        ``"restrained"`` (held at its clamps by its elastic model: :attr:`restraint`).
     free_state : the free state's verdict when it was judged first and did not conform
         (the fixtured verdict is :attr:`verdict`); None otherwise.
     free_state_decided_by : what the free state failed on (:meth:`decided_by` of its
@@ -218,6 +234,10 @@ class InspectionResult:
         (:func:`vertex_deviation`), for the decision rule.
     solid : the nominal is a B-rep solid (its size check is reported, not a trust gate:
         every face's own deviation measures the size).
+    restraint : the restrained condition (``params.fixture == "restrained"``): the clamps'
+        free-state offsets and forces (:class:`qifreport.registration.restrained.Restraint`);
+        ``P`` then holds the restrained scan. A clamp above its force limit fails the part
+        (not restrainable).
     """
 
     V: np.ndarray
@@ -255,6 +275,7 @@ class InspectionResult:
     free_state_decided_by: list[str] = field(default_factory=list)
     deviation_variance: np.ndarray | None = None
     solid: bool = False
+    restraint: Restraint | None = None
 
     @property
     def free_state_stands(self) -> bool:
@@ -296,7 +317,20 @@ class InspectionResult:
             and not any(z.failed for z in self.zones)
             and (self.added is None or self.added.passed)
             and (self.judged_size is None or not self.judged_size.flagged)
+            and not self.not_restrainable()
         )
+
+    def not_restrainable(self) -> list[str]:
+        """The clamps whose force exceeds their limit, one line each (the part cannot be
+        held in its restrained condition within the forces its drawing allows)."""
+        r = self.restraint
+        if r is None:
+            return []
+        return [
+            f"not restrainable within {c.max_force:g} N: clamp {c.name} needs {f:.3g} N"
+            for c, f in zip(r.clamps, r.force, strict=True)
+            if c.name in r.over_limit
+        ]
 
     def trust_warnings(self) -> list[str]:
         """Why the registration cannot be trusted (empty when it can), one line each.
@@ -470,6 +504,7 @@ class InspectionResult:
             out.append(f"added material: {self.added.describe()}")
         if self.judged_size is not None and self.judged_size.flagged:
             out += [f"size: {r}" for r in self.judged_size.reasons()]
+        out += self.not_restrainable()
         if self.passed:
             out += [f"not established: {w}" for w in self.trust_warnings()]
             out += [f"not established: {w}" for w in self.uncertain()]
@@ -509,6 +544,7 @@ class InspectionResult:
                     "free_state_verdict": self.free_state,
                     "free_state_decided_by": list(self.free_state_decided_by),
                 },
+                "restraint": None if self.restraint is None else self.restraint.to_dict(),
                 "prealign": None if self.prealign is None else _prealign_dict(self.prealign),
                 "rigid": {
                     "R": self.rigid.R.tolist(),
@@ -752,6 +788,7 @@ def inspect(
     prepared: PreparedPart | None = None,
     solid: bool = False,
     brep_normals: np.ndarray | None = None,
+    restraint: RestraintBasis | None = None,
 ) -> InspectionResult:
     """Inspect the scan ``P`` against the nominal ``(V, F)``.
 
@@ -781,6 +818,11 @@ def inspect(
     brep_normals : (f, 3, 3) the B-rep's normals at the triangle corners (a STEP nominal,
         :func:`qifreport.step.normals.corner_normals_exact`): the scan points' distances to
         the curved surface are read with them (NaN rows: the mesh's).
+    restraint : the part's clamps and their elastic responses
+        (:func:`qifreport.registration.restrained.restraint_basis` on this mesh), for
+        ``params.fixture == "restrained"``: the rigidly seated scan is held at its clamps
+        and judged as held (no virtual fixture, no free-state shortcut: the drawing says
+        how the part is inspected).
 
     Raises
     ------
@@ -854,6 +896,12 @@ def inspect(
         res = _judge(reg, None, params, timings, **judge)
         res.fixture_decision = "rigid only"
         return res
+    if params.fixture == "restrained":
+        if restraint is None:
+            raise ValueError("a restrained inspection needs the part's restraint basis")
+        if len(restraint.points) != len(V):
+            raise ValueError("the restraint basis was built for another mesh of the part")
+        return _restrained(reg, restraint, params, timings, progress, zones, **judge)
     free = None
     if not params.always_fixture:
         # ISO 10579 / Y14.5: restraint is there to bring a compliant part to its drawing
@@ -874,25 +922,8 @@ def inspect(
             free.fixture_decision = FREE_STATE_LOCAL_DEFECTS
             return free
         timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
-    near_crease, near_rim = prepared.near_crease, prepared.near_rim
     t0 = time.perf_counter()
-    flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
-    # the two-pass guard counts no residual under a quarter of the tightest half-width
-    tightest = min(z.half_width for z in zones)
-    gb = replace(params.gbcicp, guard_floor=max(params.gbcicp.guard_floor, 0.25 * tightest))
-    fit = deform(
-        params.method,
-        V,
-        F,
-        ops,
-        Pm,
-        gb if params.method == "gbcicp" else None,
-        scan_normals=Ns,
-        scan_sheets=sheets,
-        progress=progress,
-        basis=basis,
-        flaggable=flaggable,
-    )
+    fit = _virtual_fixture(reg, params, prepared, zones, basis, progress)
     timings[params.method] = time.perf_counter() - t0
     # the free state, measured once
     free_dev = None if free is None else (free.deviation, free.deviation_variance)
@@ -902,6 +933,197 @@ def inspect(
         res.free_state = free.verdict
         res.free_state_decided_by = free.decided_by()
     return res
+
+
+def _virtual_fixture(
+    reg: _Registered,
+    params: InspectionParams,
+    prepared: PreparedPart,
+    zones: list[ToleranceZone],
+    basis: BendingBasis | None,
+    progress,
+) -> DeformResult:
+    """The free virtual fixture (``params.method``) on the rigidly seated scan."""
+    near_crease, near_rim = prepared.near_crease, prepared.near_rim
+    flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
+    # the two-pass guard counts no residual under a quarter of the tightest half-width
+    tightest = min(z.half_width for z in zones)
+    gb = replace(params.gbcicp, guard_floor=max(params.gbcicp.guard_floor, 0.25 * tightest))
+    return deform(
+        params.method,
+        reg.V,
+        reg.F,
+        prepared.ops,
+        reg.P,
+        gb if params.method == "gbcicp" else None,
+        scan_normals=reg.scan_normals,
+        scan_sheets=reg.sheets,
+        progress=progress,
+        basis=basis,
+        flaggable=flaggable,
+    )
+
+
+def _restrained(
+    reg: _Registered,
+    restraint: RestraintBasis,
+    params: InspectionParams,
+    timings: dict[str, float],
+    progress,
+    zones: list[ToleranceZone],
+    **judge,
+) -> InspectionResult:
+    """Hold the rigidly seated scan at its clamps and judge it as held (ISO 10579).
+
+    Each clamp's free-state offset is read from the scan under its pad
+    (:func:`qifreport.registration.restrained.clamp_offsets`); a clamp the scan does not
+    see takes the free virtual fixture's displacement there (its smoothness prior is then
+    the only witness: said in the outputs). The clamps driven back to nominal move every
+    scan point by the part's elastic response; the free-state zones are judged on the
+    free state.
+
+    A scan of a smooth surface shows each clamp's offset along the normal only: where a
+    clamp restrains a direction in the surface's plane (a pin), the held part keeps the
+    free state's placement there. That placement is the one whose held state fits the
+    nominal best (:func:`_seat_held`), not the free state's own best fit (the warp pulls
+    that one along the surface)."""
+    t0 = time.perf_counter()
+    V, F = reg.V, reg.F
+    face_id = judge["face_id"]
+    prepared = judge["prepared"]
+    tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
+
+    def offsets_of(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        C, cface, pdev = closest_points(V, F, P)
+        if face_id is not None:
+            pdev = surface_distance(V, F, C, cface, pdev, face_id, judge["brep_normals"], P)
+        return clamp_offsets(restraint.clamps, P, pdev, restraint.pad_radius), C, cface
+
+    offsets, C, cface = offsets_of(reg.P)
+    sources = ["scan"] * len(offsets)
+    unseen = np.flatnonzero(~np.isfinite(offsets))
+    if len(unseen):
+        t1 = time.perf_counter()
+        fit = _virtual_fixture(reg, params, prepared, zones, judge["basis"], progress)
+        timings[params.method] = time.perf_counter() - t1
+        _, near = tree.query([restraint.clamps[k].position for k in unseen])
+        for k, v in zip(unseen, np.atleast_1d(near), strict=True):
+            offsets[k] = float((fit.V[v] - V[v]) @ restraint.normals[k])
+            sources[k] = "free-state fit"
+        log.info(
+            "clamp(s) %s not seen by the scan: offsets from the free virtual fixture",
+            ", ".join(restraint.clamps[k].name for k in unseen),
+        )
+    origin = V.mean(axis=0)
+    at = np.array([c.position for c in restraint.clamps], dtype=np.float64) - origin
+
+    def moved_offsets(P: np.ndarray, xi: np.ndarray):
+        off, C, cface = offsets_of(P)
+        # an unseen clamp's offset moves with the part
+        shift = np.einsum("kd,kd->k", np.cross(xi[:3], at) + xi[3:], restraint.normals)
+        off[unseen] = offsets[unseen] + shift[unseen]
+        return off, C, cface
+
+    t1 = time.perf_counter()
+    xi = _seat_held(reg.P, restraint, V, F, moved_offsets, origin)
+    timings["restraint seat"] = time.perf_counter() - t1
+    R, t = rigid_motion(xi, origin)
+    P = reg.P @ R.T + t
+    offsets, C, cface = moved_offsets(P, xi)
+    held = restraint.apply(offsets)
+    held.offset_sources = sources
+    held.seat = xi
+    Pr = P + held.on_triangles(V, cface, C)
+    Ns, sheets = orient_normals_consistent(Pr, pca_normals(Pr, params.gbcicp.scan_normal_k))
+    timings["restraint"] = time.perf_counter() - t0
+    res = _judge(
+        replace(reg, P=Pr, scan_normals=Ns, sheets=sheets),
+        None,
+        params,
+        timings,
+        free=replace(reg, P=P),
+        **judge,
+    )
+    res.restraint = held
+    res.fixture_decision = RESTRAINED
+    return res
+
+
+#: scan points (besides those under the clamps) the held seat is fitted on, its
+#: Gauss-Newton rounds, and the largest move (mm) of a round below which it has settled
+_SEAT_SAMPLE = 6000
+_SEAT_ROUNDS = 5
+_SEAT_SETTLED = 1e-3
+
+
+def _seat_held(
+    P: np.ndarray,
+    restraint: RestraintBasis,
+    V: np.ndarray,
+    F: np.ndarray,
+    offsets_of,
+    origin: np.ndarray,
+) -> np.ndarray:
+    """(6,) the small rigid motion ``(omega, t)`` (rad, mm, about ``origin``) of the free
+    state ``P`` (m, 3) whose held state fits the nominal best.
+
+    The held residual depends on the motion through each clamp's offset (the normal
+    component the clamps take back, and the free state's own slope under the pad) and
+    through what the pins cannot see: robust Gauss-Newton with a finite-difference
+    Jacobian, on the points under the clamps and a fixed sample of the others (Tukey
+    weights: a defect does not seat the part), each step accepted only if it lowers the
+    robust cost. ``offsets_of(Q, xi)`` gives the clamps' offsets, the closest points and
+    their triangles of points ``Q``."""
+    reach = float(np.linalg.norm(V - origin, axis=1).max())
+    pos = np.array([c.position for c in restraint.clamps], dtype=np.float64)
+    near = np.zeros(len(P), dtype=bool)
+    for i in cKDTree(P).query_ball_point(pos, 1.5 * restraint.pad_radius):
+        near[np.asarray(i, dtype=np.int64)] = True
+    rng = np.random.default_rng(0)
+    others = np.flatnonzero(~near)
+    pick = rng.choice(others, min(_SEAT_SAMPLE, len(others)), replace=False)
+    S = P[np.sort(np.r_[np.flatnonzero(near), pick])]
+
+    def residual(xi: np.ndarray) -> np.ndarray:
+        R, t = rigid_motion(xi, origin)
+        Q = S @ R.T + t
+        off, C, cface = offsets_of(Q, xi)
+        H = Q + restraint.apply(off).on_triangles(V, cface, C)
+        return closest_points(V, F, H)[2]
+
+    xi = np.zeros(6)
+    r = residual(xi)
+    scale = max(robust_scale(r), 1e-3)
+    cost = float(tukey_rho(r, scale).sum())
+    h = np.r_[np.full(3, 0.05 / reach), np.full(3, 0.05)]  # 50 um at the part's reach
+    for _ in range(_SEAT_ROUNDS):
+        J = np.stack([(residual(xi + h[k] * np.eye(6)[k]) - r) / h[k] for k in range(6)], 1)
+        w = np.sqrt(tukey_weights(r, scale))
+        J_s = J * (h / h.max())  # both kinds in mm of motion
+        dx = np.linalg.lstsq(J_s * w[:, None], -r * w, rcond=1e-6)[0] * (h / h.max())
+        for step in (1.0, 0.5, 0.25):
+            r_new = residual(xi + step * dx)
+            c_new = float(tukey_rho(r_new, scale).sum())
+            if c_new < cost:
+                break
+        else:
+            break
+        xi, r, cost = xi + step * dx, r_new, c_new
+        if step * (np.linalg.norm(dx[:3]) * reach + np.linalg.norm(dx[3:])) < _SEAT_SETTLED:
+            break
+    log.info(
+        "restrained seat: %.3g deg, %.3g mm (%d points)",
+        np.degrees(np.linalg.norm(xi[:3])),
+        np.linalg.norm(xi[3:]),
+        len(S),
+    )
+    return xi
+
+
+def _triangle_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(f, 3) unit normals of the triangles."""
+    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
 def _fail_reasons(acc: Acceptance) -> list[str]:
@@ -957,13 +1179,15 @@ def _judge(
     check_part: bool = True,
     free_deviation: tuple[np.ndarray, np.ndarray] | None = None,
     brep_normals: np.ndarray | None = None,
+    free: _Registered | None = None,
 ) -> InspectionResult:
     """Judge the rigidly seated scan against the nominal as the fixture ``fit`` holds it
     (``None``: the free state, the nominal where the rigid alignment put it).
 
     ``free_deviation``: the free state's vertex deviation and its variance when it was
     judged already (the zones with the free-state modifier take them instead of measuring
-    again)."""
+    again). ``free``: the free state's registration when ``reg`` holds the scan otherwise
+    (restrained): the free-state zones are judged on it."""
     V, F, Pm, rigid, diag = reg.V, reg.F, reg.P, reg.rigid, reg.diag
     Ns, sheets = reg.scan_normals, reg.sheets
     ops = prepared.ops
@@ -998,17 +1222,21 @@ def _judge(
         residual=pdev if face_id is not None else None,
     )
     dev_free = var_free = None
-    if fit is not None and any(z.free_state for z in bands.zones):
+    held = fit is not None or free is not None
+    if held and any(z.free_state for z in bands.zones):
+        fr = reg if free is None else free
         dev_free, var_free = (
             (free_deviation[0].copy(), free_deviation[1])
             if free_deviation is not None
             else vertex_deviation(
                 V,
                 F,
-                Pm,
+                fr.P,
                 ops.normals,
                 face_id,
-                scan_normals=orient_scan_normals(Pm, Ns, V, ops.normals, sheets=sheets),
+                scan_normals=orient_scan_normals(
+                    fr.P, fr.scan_normals, V, ops.normals, sheets=fr.sheets
+                ),
                 brep_normals=brep_normals,
             )
         )
@@ -1147,7 +1375,7 @@ def _judge(
                 zone=z,
                 stats=zstats,
                 acceptance=zacc,
-                fixtured=fit is not None and not use_free,
+                fixtured=held and not use_free,
                 deviation=dz,
                 coverage=zcov,
             )
@@ -1183,9 +1411,15 @@ def _judge(
         tree=samples.tree,
     )
     timings["metrology"] = time.perf_counter() - t0
+    if fit is not None:
+        residual_scale = fit.scale
+    elif free is not None:  # held otherwise (restrained): the held scan's own residual
+        residual_scale = robust_scale(pdev[np.isfinite(pdev)])
+    else:
+        residual_scale = rigid.scale
     scatter = resolution(
         noise,
-        fit.scale if fit is not None else rigid.scale,
+        residual_scale,
         [(z.zone.key, float(z.zone.upper - z.zone.lower)) for z in zone_results],
     )
     return InspectionResult(

@@ -82,6 +82,10 @@ class InspectionParams:
         proven, FAIL proven, otherwise not established).
     scanner_uncertainty : the scanner's own expanded uncertainty (k = 2), mm, combined in
         quadrature with each vertex's uncertainty from the range noise (0: none stated).
+    fixture : ``"free"`` (default: the free state judged first, then the virtual fixture
+        ``method`` when it does not conform) or ``"restrained"`` (ISO 10579: the part held
+        at its clamps by its elastic model, :mod:`qifreport.registration.restrained`; the
+        inspection then needs the part's restraint basis).
     """
 
     tolerance: float | None = None
@@ -101,3 +105,4 @@ class InspectionParams:
     max_gap_area: float | None = None
     decision_rule: str = DEFAULT_DECISION_RULE
     scanner_uncertainty: float = 0.0
+    fixture: str = "free"

@@ -43,6 +43,7 @@ __all__ = [
     "interpolate_on_triangles",
     "restrain",
     "restraint_basis",
+    "rigid_motion",
     "triangle_edges",
 ]
 
@@ -65,6 +66,10 @@ class Restraint:
         midpoints, mm (:meth:`RestraintBasis.apply`; None from :func:`restrain`): with
         ``F`` and ``tri_edges`` they interpolate it quadratically (:meth:`on_triangles`).
     over_limit : names of the clamps whose force exceeds their limit.
+    offset_sources : where each offset was read (``"scan"``, ``"free-state fit"``: a clamp
+        the scan does not see), when the caller says.
+    seat : (6,) the rigid motion ``(omega, t)`` (rad, mm) the free state was given before
+        it was held, when the caller seated it (:func:`rigid_motion`).
     solution, model : the elastic solution and model (:func:`restrain` only).
     """
 
@@ -78,6 +83,8 @@ class Restraint:
     F: np.ndarray | None = field(default=None, repr=False)
     tri_edges: np.ndarray | None = field(default=None, repr=False)
     over_limit: list[str] = field(default_factory=list)
+    offset_sources: list[str] = field(default_factory=list)
+    seat: np.ndarray | None = None
     solution: ElasticSolution | None = field(default=None, repr=False)
     model: ElasticModel | None = field(default=None, repr=False)
 
@@ -108,20 +115,28 @@ class Restraint:
         return interpolate_on_triangles(self.u, V, self.F, tri, points, self.u_mid, self.tri_edges)
 
     def to_dict(self) -> dict:
+        src = self.offset_sources or [None] * len(self.clamps)
         return {
             "clamps": [
                 c.to_dict()
                 | {
                     "free_state_offset_mm": None if not np.isfinite(o) else float(o),
+                    "offset_source": s,
                     "force_N": float(f),
                     "force_vector_N": [float(x) for x in fv],
                     "over_limit": c.name in self.over_limit,
                 }
-                for c, o, f, fv in zip(
-                    self.clamps, self.offsets, self.force, self.forces, strict=True
+                for c, o, f, fv, s in zip(
+                    self.clamps, self.offsets, self.force, self.forces, src, strict=True
                 )
             ],
             "total_force_N": self.total_force,
+            "seat": None
+            if self.seat is None
+            else {
+                "rotation_deg": float(np.degrees(np.linalg.norm(self.seat[:3]))),
+                "translation_mm": [float(x) for x in self.seat[3:]],
+            },
             "energy_mJ": float(self.energy),
             "not_restrainable": list(self.over_limit),
         }
@@ -166,7 +181,10 @@ class RestraintBasis:
 
     def apply(self, offsets: np.ndarray) -> Restraint:
         """Restrain a free state whose clamps sit ``offsets`` (c,) mm along their normals
-        (NaN: unseen, taken as 0 -- the caller says so)."""
+        (NaN: unseen, taken as 0 -- the caller says so). Each clamp direction is driven by
+        the normal offset's component along it: a scan of a smooth surface shows no
+        offset in its plane, so a pin there holds the placement the free state was given
+        (the caller seats it, :func:`rigid_motion`)."""
         off = np.nan_to_num(np.asarray(offsets, dtype=np.float64), nan=0.0)
         d = -off[self.owner] * self.coupling  # (p,) drives
         u, u_mid = self.U @ d, self.U_mid @ d
@@ -190,6 +208,21 @@ class RestraintBasis:
         )
         res.over_limit = _over_limit(self.clamps, res.force)
         return res
+
+
+def rigid_motion(xi: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(R, t)`` of the rigid motion ``xi = (omega, t)`` (rad, mm) about ``origin``: a
+    point ``p`` goes to ``R p + t`` (Rodrigues' rotation by ``|omega|`` about ``omega``)."""
+    w, tr = np.asarray(xi[:3], dtype=np.float64), np.asarray(xi[3:], dtype=np.float64)
+    a = float(np.linalg.norm(w))
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if a < 1e-15:
+        R = np.eye(3) + K
+    else:
+        K = K / a
+        R = np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
+    o = np.asarray(origin, dtype=np.float64)
+    return R, o + tr - R @ o
 
 
 def _over_limit(clamps: list[Clamp], force: np.ndarray) -> list[str]:
