@@ -220,6 +220,9 @@ def _registration_attrs(ra: Attrs, res: InspectionResult) -> None:
     ra.i("rigid_iterations", rigid.iterations)
     ra.s("rigid_rotation", " ".join(xml_double(v) for v in np.asarray(rigid.R).ravel()))
     ra.d3("rigid_translation_mm", rigid.t)
+    ra.s("fixture_decision", res.fixture_decision)
+    if res.restraint is not None:
+        _restraint_attrs(ra, res.restraint)
     if res.fit is not None:
         fit = res.fit
         ra.s("fit_method", fit.method).s("fit_method_name", method_label(fit.method))
@@ -227,6 +230,38 @@ def _registration_attrs(ra: Attrs, res: InspectionResult) -> None:
         ra.b("fit_fallback", fit.fallback).d("fit_flagged_fraction", fit.flagged_fraction)
         ra.d("fit_residual_scale_mm", fit.scale)
         ra.d("fit_max_displacement_mm", float(np.linalg.norm(fit.e, axis=1).max()))
+
+
+def _restraint_attrs(ra: Attrs, r) -> None:
+    """The restrained condition (``restraint_*``): the model, each clamp (position,
+    directions, free-state offset and where it was read, force and limit), the total."""
+    model = r.model_info
+    ra.s("restraint_model", str(model.get("model", "")))
+    mat = model.get("material")
+    ra.s("restraint_material", "not stated" if mat is None else str(mat["name"]))
+    if mat is not None:
+        ra.d("restraint_material_E_MPa", mat["E_MPa"]).d("restraint_material_nu", mat["nu"])
+    if "pad_radius_mm" in model:
+        ra.d("restraint_pad_radius_mm", model["pad_radius_mm"])
+    ra.s("restraint_clamps_source", str(model.get("clamps_source", "")))
+    ra.i("restraint_clamps", len(r.clamps))
+    src = r.offset_sources or [""] * len(r.clamps)
+    for k, (c, off, f, s) in enumerate(
+        zip(r.clamps, r.offsets, r.force, src, strict=True), start=1
+    ):
+        ra.s(f"clamp_{k}_name", c.name).s(f"clamp_{k}_directions", c.directions)
+        ra.d3(f"clamp_{k}_position_mm", c.position)
+        ra.d(f"clamp_{k}_free_state_offset_mm", float(off))
+        if s:
+            ra.s(f"clamp_{k}_offset_source", s)
+        if r.forces_known:
+            ra.d(f"clamp_{k}_force_N", float(f))
+        if c.max_force is not None:
+            ra.d(f"clamp_{k}_force_limit_N", c.max_force)
+            ra.b(f"clamp_{k}_over_limit", c.name in r.over_limit)
+    if r.forces_known:
+        ra.d("restraint_total_force_N", r.total_force)
+    ra.b("restraint_not_restrainable", bool(r.over_limit))
 
 
 def _added_attrs(ra: Attrs, a: AddedMaterial) -> None:

@@ -370,20 +370,42 @@ def _algorithm_definitions(
                         "rigid_only": params.rigid_only,
                         "fixture_decision": res.fixture_decision,
                         method: fit_params,
+                        "restraint": None
+                        if res.restraint is None
+                        else {k: v for k, v in res.restraint.to_dict().items() if k != "clamps"},
                     },
                     default=json_default,
                 )
             ),
             E.Name(_fixture_name(res)),
-            E.Description(METHOD_DESCRIPTIONS.get(method, method)),
+            E.Description(
+                "linear elasticity of the part (quadratic tetrahedra): each clamp driven "
+                "back to nominal along its directions, the held scan judged without a fit"
+                if res.restraint is not None
+                else METHOD_DESCRIPTIONS.get(method, method)
+            ),
             id=fit_alg_id,
         ),
         n="2",
     )
 
 
+def measured_condition(z: ZoneResult, res: InspectionResult) -> str:
+    """The state a characteristic was measured in: ``"restrained"`` (held at its clamps
+    by the part's elasticity, ISO 10579), ``"virtual fixture"`` (the free method's fit) or
+    ``"free state"`` (the part as it lay: no restraint, or a free-state (F) tolerance)."""
+    if not z.fixtured:
+        return "free state"
+    return "restrained" if res.restraint is not None else "virtual fixture"
+
+
 def _fixture_name(res) -> str:
     """The virtual fixture's algorithm name: what was applied."""
+    if res.restraint is not None:
+        return (
+            f"restrained at {len(res.restraint.clamps)} clamps by the part's elastic model "
+            "(ISO 10579)"
+        )
     if res.fit is not None:
         return "virtual fixture"
     if res.fixture_decision == FREE_STATE_CONFORMS:
@@ -606,7 +628,8 @@ def _characteristic_measurement(
 ) -> etree._Element:
     """A ``SurfaceProfileCharacteristicMeasurement``: the zone's statistics and acceptance
     (Attributes), status, profile value and worst deviations."""
-    ma = Attrs().b("fixtured", z.fixtured).d("profile_value_mm", profile_value(z))
+    ma = Attrs().b("fixtured", z.fixtured).s("measured_condition", measured_condition(z, res))
+    ma.d("profile_value_mm", profile_value(z))
     stats_attrs(ma, z.stats)
     acceptance_attrs(ma, z.acceptance, res.V)
     coverage_attrs(ma, z.coverage)

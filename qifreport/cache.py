@@ -69,9 +69,11 @@ import scipy
 from qifreport import __version__
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.prepared import PreparedPart, part_settings, prepare_part
+from qifreport.registration.restrained import RestraintBasis
 
 from .nominal import Nominal, load_nominal
 from .options import NominalOptions
+from .restraint import build_restraint
 
 __all__ = [
     "CACHE_FORMAT",
@@ -107,7 +109,7 @@ log = logging.getLogger(__name__)
 #: 6: vertex deviations from the scan points' own residuals (the prepared bands are kept)
 #: 7: supplemental faces (in no solid) left out of the mesh; zones carry their footprints
 #: 8: STEP nominals carry the B-rep's corner normals (Nominal.brep_normals)
-CACHE_FORMAT = 8
+CACHE_FORMAT = 9
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"
@@ -144,6 +146,8 @@ class PartState:
     prepared : the scan-independent state (:class:`qifreport.metrology.prepared.PreparedPart`).
     nominal_sha256 : digest of the nominal file.  key : the cache key.
     build_seconds : what reading and preparing took when the entry was built.
+    restraint : the part's restraint basis (:func:`qifreport.restraint.build_restraint`)
+        when the options hold it at clamps; None otherwise.
     """
 
     nominal: Nominal
@@ -151,6 +155,7 @@ class PartState:
     nominal_sha256: str
     key: str
     build_seconds: float = 0.0
+    restraint: RestraintBasis | None = None
 
 
 @dataclass
@@ -376,6 +381,7 @@ def key_material(nominal_sha256: str, options: NominalOptions, params: Inspectio
             "solid": options.solid,
         },
         "part": part_settings(params),
+        "restraint": None if options.restraint is None else options.restraint.key(),
     }
 
 
@@ -418,7 +424,13 @@ def build_state(
         accept_tolerance_as_read=options.accept_tolerance_as_read,
         mesher=options.mesher,
         solid=options.solid,
+        solid_mesh=options.restraint is not None,
     )
+    restraint = None
+    if options.restraint is not None:
+        solid = None if nom.solid_mesh is None else (nom.solid_mesh.X, nom.solid_mesh.T)
+        restraint, _ = build_restraint(nom.V, nom.F, options.restraint, solid=solid)
+        nom.solid_mesh = None  # in the basis now: not kept in the cache entry
     if complete:
         prepared = prepare_part(nom.V, nom.F, params, basis=not lazy_basis)
     else:
@@ -432,6 +444,7 @@ def build_state(
         nominal_sha256=nominal_sha256,
         key=key,
         build_seconds=time.perf_counter() - t0,
+        restraint=restraint,
     )
 
 

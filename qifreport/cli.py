@@ -39,6 +39,7 @@ from qifreport.errors import InputError, Interrupted, raise_if_interrupted
 from qifreport.metrology.decision import DECISION_RULES, DEFAULT_DECISION_RULE
 from qifreport.metrology.repeatability import KEEP_FRACTION
 from qifreport.registration.methods import METHODS
+from qifreport.restraint import DEFAULT_PAD_RADIUS
 
 from .cache import default_cache_dir, part_state, sha256
 from .jsonio import json_default
@@ -276,6 +277,56 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         help="apply the virtual fixture even when the free state conforms (default: the "
         "free state is judged first and a part that conforms without restraint is not "
         "fixtured, ISO 10579); for comparing registration methods",
+    )
+    held = ap.add_argument_group(
+        "restrained condition (ISO 10579, ASME Y14.5 restraint notes)",
+        "hold the part at its clamps by its elastic model instead of the free virtual fixture",
+    )
+    held.add_argument(
+        "--fixture",
+        choices=("auto", "restrained", "free"),
+        default="auto",
+        help="restrained: the part held at its clamps (--clamps) by its elastic model, "
+        "judged as held; free: the free state, then the virtual fixture (--method) when it "
+        "does not conform; auto (default): restrained when clamps are given, else free",
+    )
+    held.add_argument(
+        "--clamps",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the clamps and supports (CSV rows: name, x, y, z, directions, optional "
+        "max_force_N; directions n (the surface normal) or axes from xyz; mm, part frame)",
+    )
+    held.add_argument(
+        "--material",
+        default=None,
+        metavar="NAME|E=..,nu=..",
+        help="the part's material: steel, aluminium, pp, abs, pa6-gf30, or "
+        "E=MPa,nu=..[,density=t/mm^3]; without it the held shape is solved (it does not "
+        "depend on the modulus) but no clamp force is stated or checked",
+    )
+    held.add_argument(
+        "--thickness",
+        type=float,
+        default=None,
+        metavar="MM",
+        help="wall thickness of a mesh nominal (an open sheet) for its elastic model",
+    )
+    held.add_argument(
+        "--max-clamp-force",
+        type=float,
+        default=None,
+        metavar="N",
+        help="force limit of the clamps whose file states none: a part that needs more "
+        "FAILs as not restrainable",
+    )
+    held.add_argument(
+        "--pad-radius",
+        type=float,
+        default=DEFAULT_PAD_RADIUS,
+        metavar="MM",
+        help=f"contact radius of each clamp (default {DEFAULT_PAD_RADIUS:g})",
     )
     add_accept_option(ap)
     add_cache_options(ap)

@@ -12,6 +12,7 @@ import logging
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,6 +27,9 @@ from qifreport.step.reader import STEP_SUFFIXES
 from qifreport.step.solids import SolidInfo, overlapping_pairs, pick_solid, solid_infos
 
 from .errors import InputError
+
+if TYPE_CHECKING:
+    from qifreport.step.gmsh_mesh import SolidMesh
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +55,9 @@ class Nominal:
     #: (f, 3, 3) the B-rep's outward normals at each triangle's corners (a STEP nominal;
     #: :func:`qifreport.step.normals.corner_normals_exact`), None for a mesh nominal
     brep_normals: np.ndarray | None = None
+    #: the tetrahedra filling the STEP part's solid, for its elastic model (when asked for:
+    #: :func:`load_nominal` ``solid_mesh``)
+    solid_mesh: SolidMesh | None = None
 
 
 def load_nominal(
@@ -62,6 +69,7 @@ def load_nominal(
     accept_tolerance_as_read: bool = False,
     mesher: str = "gmsh",
     solid: str | None = None,
+    solid_mesh: bool = False,
 ) -> Nominal:
     """Read a STEP part (mesh + PMI zones) or a mesh nominal (one general zone).
 
@@ -77,6 +85,10 @@ def load_nominal(
 
     ``solid``: the solid of a multi-solid STEP file to inspect, by index or name
     (:func:`pick_part_solid`; a file with several solids is refused without it).
+
+    ``solid_mesh``: also fill a STEP part's solid with tetrahedra (``Nominal.solid_mesh``,
+    edge :data:`qifreport.restraint.SOLID_EDGE_SHARE` of its diagonal), for the elastic
+    model of a restrained inspection.
     """
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
@@ -154,6 +166,16 @@ def load_nominal(
         t0 = time.perf_counter()
         normals = corner_normals_exact(part.faces, V, F, face_id)
         info["timings_s"]["corner normals"] = time.perf_counter() - t0
+        tets = None
+        if solid_mesh:
+            from qifreport.step.gmsh_mesh import gmsh_solid_mesh
+            from qifreport.step.solids import solid_shape
+
+            from .restraint import SOLID_EDGE_SHARE
+
+            shape = part.shape if chosen is None else solid_shape(part.shape, chosen)
+            tets = gmsh_solid_mesh(shape, SOLID_EDGE_SHARE * diagonal)
+            info["timings_s"]["solid tetrahedra"] = tets.seconds
         return Nominal(
             V,
             F,
@@ -163,6 +185,7 @@ def load_nominal(
             info,
             list(dict.fromkeys(datums)),
             brep_normals=normals,
+            solid_mesh=tets,
         )
     if tolerance is None:
         raise InputError(

@@ -22,6 +22,8 @@ from qifreport.metrology.decision import DECISION_RULES, DEFAULT_DECISION_RULE
 from qifreport.metrology.params import InspectionParams
 from qifreport.registration.gbcicp import GBCICPParams
 
+from .restraint import DEFAULT_PAD_RADIUS, RestraintSpec, read_clamps_file
+
 __all__ = [
     "RESULT_OPTIONS",
     "InspectJob",
@@ -63,6 +65,12 @@ RESULT_OPTIONS = (
     "max_gap_area",
     "decision_rule",
     "scanner_uncertainty",
+    "fixture",
+    "clamps",
+    "material",
+    "thickness",
+    "max_clamp_force",
+    "pad_radius",
 )
 
 
@@ -85,7 +93,8 @@ def check_text(flag: str, value: str | None) -> None:
 @dataclass(frozen=True)
 class NominalOptions:
     """How the nominal file is read (mm): ``--tolerance``, ``--max-edge``, ``--deflection``,
-    ``--mesher``, ``--solid``."""
+    ``--mesher``, ``--solid``; and how the part is held (``restraint``: the per-part
+    restraint basis is built with it)."""
 
     tolerance: float | None = None
     max_edge: float | None = None
@@ -93,6 +102,7 @@ class NominalOptions:
     accept_tolerance_as_read: bool = False
     mesher: str = "gmsh"
     solid: str | None = None
+    restraint: RestraintSpec | None = None
 
 
 @dataclass(frozen=True)
@@ -133,6 +143,12 @@ class InspectOptions:
     decision_rule : how the measurement uncertainty enters each decision
         (:mod:`qifreport.metrology.decision`).
     scanner_uncertainty : the scanner's stated expanded uncertainty, mm (0: none).
+    fixture : ``"auto"`` (restrained when clamps are known, else free), ``"restrained"``
+        (ISO 10579: held at its clamps by its elastic model, :mod:`qifreport.restraint`) or
+        ``"free"`` (the free state, then the virtual fixture ``method``).
+    clamps : the ``--clamps`` CSV file.  material : ``--material`` (preset or values).
+    thickness : a mesh nominal's wall thickness, mm.  max_clamp_force : the force limit
+        of clamps that state none, N.  pad_radius : each clamp's contact radius, mm.
     """
 
     tolerance: float | None = None
@@ -167,6 +183,12 @@ class InspectOptions:
     max_gap_area: float | None = None
     decision_rule: str = DEFAULT_DECISION_RULE
     scanner_uncertainty: float = 0.0
+    fixture: str = "auto"
+    clamps: Path | None = None
+    material: str | None = None
+    thickness: float | None = None
+    max_clamp_force: float | None = None
+    pad_radius: float = DEFAULT_PAD_RADIUS
 
     def check(self) -> None:
         """Refuse values no inspection can use (:class:`~qifreport.errors.InputError`)."""
@@ -203,6 +225,22 @@ class InspectOptions:
             raise InputError(
                 f"--scanner-uncertainty must be a length >= 0 mm, got {self.scanner_uncertainty}"
             )
+        if self.fixture not in ("auto", "restrained", "free"):
+            raise InputError(f"--fixture must be auto, restrained or free, got {self.fixture!r}")
+        if self.fixture == "restrained" and (self.rigid_only or self.always_fixture):
+            flag = "--rigid-only" if self.rigid_only else "--always-fixture"
+            raise InputError(f"--fixture restrained and {flag} exclude each other")
+        for flag, v in (("--thickness", self.thickness), ("--pad-radius", self.pad_radius)):
+            if v is not None and not (math.isfinite(v) and v > 0):
+                raise InputError(f"{flag} must be a positive length in mm, got {v}")
+        if self.max_clamp_force is not None and not (
+            math.isfinite(self.max_clamp_force) and self.max_clamp_force > 0
+        ):
+            raise InputError(
+                f"--max-clamp-force must be a positive force in N, got {self.max_clamp_force}"
+            )
+        if self.material is not None:
+            check_text("--material", self.material)
         if self.mesher not in ("gmsh", "brepmesh"):
             raise InputError(f"--mesher must be gmsh or brepmesh, got {self.mesher!r}")
         if self.seeds < 1:
@@ -255,8 +293,29 @@ class InspectOptions:
             params.max_region_area = self.max_region_area
         return params
 
+    def restraint_spec(self) -> RestraintSpec | None:
+        """How the part is held, when a restrained inspection may use it: the ``--clamps``
+        file read (:class:`~qifreport.errors.InputError` for a bad one); None with
+        ``--fixture free``, the rigid baseline, or no clamps."""
+        if self.fixture == "free" or self.rigid_only or self.always_fixture:
+            return None
+        if self.clamps is None:
+            if self.fixture == "restrained":
+                raise InputError(
+                    "--fixture restrained needs the clamps: --clamps FILE (CSV: name, x, y, "
+                    "z, directions[, max_force_N])"
+                )
+            return None
+        return RestraintSpec(
+            clamps=read_clamps_file(self.clamps, self.max_clamp_force),
+            source=f"clamps file {self.clamps.name}",
+            material=self.material,
+            thickness=self.thickness,
+            pad_radius=self.pad_radius,
+        )
+
     def nominal_options(self) -> NominalOptions:
-        """How the nominal is read."""
+        """How the nominal is read (and held, :meth:`restraint_spec`)."""
         self.check()
         return NominalOptions(
             self.tolerance,
@@ -265,12 +324,13 @@ class InspectOptions:
             self.accept_tolerance_as_read,
             self.mesher,
             self.solid,
+            self.restraint_spec(),
         )
 
     def result_options(self) -> dict:
         """The options that change a scan's outputs, by name (JSON-able)."""
         d = asdict(self)
-        return {k: d[k] for k in RESULT_OPTIONS}
+        return {k: str(d[k]) if isinstance(d[k], Path) else d[k] for k in RESULT_OPTIONS}
 
 
 @dataclass(frozen=True)

@@ -43,6 +43,7 @@ from qifreport.metrology.params import method_label
 from qifreport.metrology.repeatability import KEEP_FRACTION, resample_mask
 from qifreport.metrology.repeatability import apply as apply_repeatability
 from qifreport.registration.pointcloud import read_scan
+from qifreport.registration.restrained import Restraint
 from qifreport.registration.thinning import ThinningReport, nominal_spacing, thin_scan
 
 from .cache import CacheOutcome, PartState, part_state, sha256, store_basis
@@ -187,8 +188,39 @@ def summary(res: InspectionResult) -> str:
     return "\n".join(lines)
 
 
+def restraint_text(r: Restraint) -> str:
+    """The restrained condition in one paragraph: the clamps, the model, the forces."""
+    m = r.model_info
+    mat = m.get("material")
+    material = (
+        "material not stated: forces not known"
+        if mat is None
+        else f"{mat['name']}, E {mat['E_MPa']:g} MPa, nu {mat['nu']:g}"
+    )
+    lines = [
+        f"restrained (ISO 10579): held at {len(r.clamps)} clamps ({m.get('clamps_source', '')}) "
+        f"by the part's elastic model ({m.get('model', '')}; {material}), judged as held "
+        "(no virtual fixture)"
+    ]
+    src = r.offset_sources or [""] * len(r.clamps)
+    for c, off, f, s in zip(r.clamps, r.offsets, r.force, src, strict=True):
+        force = f"{f:.3g} N" if r.forces_known else "force not known"
+        limit = "" if c.max_force is None else f" (limit {c.max_force:g} N)"
+        over = " OVER LIMIT" if c.name in r.over_limit else ""
+        seen = "" if s in ("", "scan") else f" [{s}]"
+        lines.append(
+            f"  clamp {c.name:<6} {c.directions:<3} offset {off:+.3f} mm{seen}  "
+            f"{force}{limit}{over}"
+        )
+    if r.forces_known:
+        lines.append(f"  total clamp force {r.total_force:.3g} N")
+    return "\n".join(lines)
+
+
 def fixture_text(res: InspectionResult) -> str:
     """How the virtual fixture was made, for the summary."""
+    if res.restraint is not None:
+        return restraint_text(res.restraint)
     if res.fit is None:
         if res.fixture_decision == FREE_STATE_UNCERTAIN:
             return (
@@ -310,6 +342,8 @@ def resampled_runs(
     """
     t0 = time.perf_counter()
     p = replace(params, prealign="never")
+    if res.restraint is not None:  # the scan is held already: each resampling as it is
+        p = replace(p, fixture="free", rigid_only=True)
     runs = []
     for k in range(seeds):
         if bar is not None:
@@ -368,6 +402,8 @@ def inspect_state(
     (the repeatability runs included)."""
     o = job.options
     params = o.inspection_params()
+    if state.restraint is not None:
+        params = replace(params, fixture="restrained")
     nom = state.nominal
     res = inspect(
         nom.V,
@@ -382,6 +418,7 @@ def inspect_state(
         not_evaluated=nom.not_evaluated,
         prepared=state.prepared,
         solid=bool(nom.info.get("solids")),
+        restraint=state.restraint,
     )
     if o.seeds > 1:
         with _stage(prof, f"repeatability ({o.seeds} resamplings)"):

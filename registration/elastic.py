@@ -139,12 +139,16 @@ class Pad:
     direction : (3,) the restrained direction (normalised on use).
     value : the prescribed displacement along it, mm.
     name : a label for the reports.
+    mean : False (default): every vertex moves by ``value`` (a rigid clamp face, which also
+        holds the surface's tilt there); True: their mean does (a pin or a locator, which
+        holds a position and lets the surface turn about it).
     """
 
     vertices: np.ndarray
     direction: np.ndarray
     value: float = 0.0
     name: str = ""
+    mean: bool = False
 
 
 @dataclass
@@ -283,7 +287,7 @@ class ElasticModel:
         else:
             A = Kff.tocsc()
         try:
-            lu = spla.splu(A)
+            lu = spla.splu(A, permc_spec="MMD_AT_PLUS_A")
         except RuntimeError as e:  # "Factor is exactly singular"
             raise ValueError(
                 "the elastic problem is singular: the constraints leave a rigid motion of "
@@ -320,27 +324,66 @@ class ElasticModel:
     def probes(self, points: np.ndarray) -> sp.csr_matrix:
         """(3m, N) the matrix taking all degrees of freedom to the displacement at ``points``
         (m, 3) mm: rows ``[x of every point, y of every point, z of every point]`` (see
-        :meth:`displacement_at`)."""
+        :meth:`displacement_at`). The elements' Lagrange shape functions at each point's
+        barycentric coordinates in its tetrahedron (quadratic: ``l (2 l - 1)`` at the
+        corners, ``4 l_a l_b`` at the edges' midpoints)."""
         from scipy.spatial import cKDTree
 
         P = np.asarray(points, dtype=np.float64)
         X, T = self.X, self.T
         if self._centroids is None:
             self._centroids = cKDTree(X[T].mean(axis=1))
-        _, cand = self._centroids.query(P, k=min(8, len(T)), workers=-1)
-        cand = cand.reshape(len(P), -1)
-        best = np.full((len(P), 3), np.nan)
+        best_lam = np.zeros((len(P), 4))
+        best_tet = np.zeros(len(P), dtype=np.int64)
         best_d = np.full(len(P), np.inf)
-        for j in range(cand.shape[1]):
-            tet = X[T[cand[:, j]]]  # (m, 4, 3)
-            lam = _barycentric_tet(tet, P)
-            lam = np.clip(lam, 1e-9, None)  # a hair inside, so the element finder agrees
-            lam /= lam.sum(axis=1, keepdims=True)
-            y = np.einsum("qk,qkd->qd", lam, tet)
-            d = np.linalg.norm(y - P, axis=1)
-            better = d < best_d
-            best[better], best_d[better] = y[better], d[better]
-        return self._basis.probes(best.T).tocsr()
+        todo = np.arange(len(P))
+        tiny = 1e-9 * float(np.ptp(X, axis=0).max())
+        for k in (8, 64):  # slender elements: a point's own may not be among the nearest 8
+            if len(todo) == 0:
+                break
+            _, cand = self._centroids.query(P[todo], k=min(k, len(T)), workers=-1)
+            cand = cand.reshape(len(todo), -1)
+            for j in range(cand.shape[1]):
+                tet = X[T[cand[:, j]]]  # (q, 4, 3)
+                lam = _barycentric_tet(tet, P[todo])
+                lam = np.clip(lam, 0.0, None)
+                lam /= lam.sum(axis=1, keepdims=True)
+                y = np.einsum("qk,qkd->qd", lam, tet)
+                d = np.linalg.norm(y - P[todo], axis=1)
+                better = d < best_d[todo]
+                idx = todo[better]
+                best_lam[idx], best_tet[idx], best_d[idx] = lam[better], cand[better, j], d[better]
+            todo = todo[best_d[todo] > tiny]
+        corners = T[best_tet]  # (m, 4)
+        if self.order == 1:
+            w, nodes = best_lam, [self.vertex_dofs[corners[:, k]] for k in range(4)]
+        else:
+            pairs = [(0, 1), (1, 2), (0, 2), (0, 3), (1, 3), (2, 3)]
+            w = np.c_[
+                best_lam * (2.0 * best_lam - 1.0),
+                np.stack([4.0 * best_lam[:, a] * best_lam[:, b] for a, b in pairs], axis=1),
+            ]
+            edge = self._edge_index(np.stack([corners[:, [a, b]] for a, b in pairs], axis=1))
+            nodes = [self.vertex_dofs[corners[:, k]] for k in range(4)]
+            nodes += [self.edge_dofs[edge[:, k]] for k in range(6)]
+        m, K = len(P), len(nodes)
+        dofs = np.stack(nodes, axis=1)  # (m, K, 3)
+        rows = (np.arange(3)[None, None, :] * m + np.arange(m)[:, None, None]).repeat(K, axis=1)
+        vals = np.repeat(w[:, :, None], 3, axis=2)
+        return sp.csr_matrix(
+            (vals.ravel(), (rows.ravel(), dofs.ravel())), shape=(3 * m, self.n_dofs)
+        )
+
+    def _edge_index(self, pairs: np.ndarray) -> np.ndarray:
+        """The index in :attr:`edges` of vertex pairs ``pairs`` (..., 2)."""
+        n = np.int64(len(self.X))
+        e = np.sort(self.edges, axis=1)
+        keys = e[:, 0] * n + e[:, 1]
+        order = np.argsort(keys)
+        q = np.sort(pairs, axis=-1)
+        qk = q[..., 0] * n + q[..., 1]
+        pos = np.searchsorted(keys[order], qk)
+        return order[pos]
 
     def pad_responses(
         self, pads: list[Pad], load: np.ndarray | None = None
@@ -397,7 +440,7 @@ class ElasticModel:
         if load is not None:
             rhs[:n, p] = np.asarray(load, dtype=np.float64)
         try:
-            sol = spla.splu(A).solve(rhs)
+            sol = spla.splu(A, permc_spec="MMD_AT_PLUS_A").solve(rhs)
         except RuntimeError as e:
             raise ValueError(f"the elastic problem is singular ({e})") from None
         G = np.zeros((p, cols))
@@ -406,13 +449,23 @@ class ElasticModel:
         return sol[:n], G
 
     def _pad_rows(self, pads: list[Pad]) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
-        """The pads' constraint rows ``C u = c`` (one per pad vertex, and per mid-edge node
-        between two of a pad's vertices) and the pad owning each row."""
-        rows_d, rows_v, owner = [], [], []
+        """The pads' constraint rows ``C u = c`` (a rigid pad: one per vertex, and per
+        mid-edge node between two of its vertices; a mean pad: one) and the pad owning each
+        row."""
+        rows, cols, vals, owner = [], [], [], []
+        m = 0
         for k, pad in enumerate(pads):
             d = np.asarray(pad.direction, dtype=np.float64)
             d = d / np.linalg.norm(d)
             v = np.unique(np.asarray(pad.vertices, dtype=np.int64))
+            if pad.mean:  # one row: the mean of its vertices' displacement along d
+                dofs = self.vertex_dofs[v]  # (k, 3)
+                rows.append(np.full(dofs.size, m))
+                cols.append(dofs.ravel())
+                vals.append(np.tile(d / len(v), len(v)))
+                owner.append(np.full(1, k, dtype=np.int64))
+                m += 1
+                continue
             nodes = [self.vertex_dofs[v]]
             if self.edge_dofs is not None:
                 inside = np.zeros(len(self.X), dtype=bool)
@@ -420,17 +473,18 @@ class ElasticModel:
                 both = inside[self.edges[:, 0]] & inside[self.edges[:, 1]]
                 nodes.append(self.edge_dofs[both])
             dofs = np.concatenate(nodes)  # (r, 3)
-            rows_d.append(dofs)
-            rows_v.append(np.tile(d, (len(dofs), 1)))
-            owner.append(np.full(len(dofs), k, dtype=np.int64))
-        if not rows_d:
+            r = len(dofs)
+            rows.append(np.repeat(np.arange(m, m + r), 3))
+            cols.append(dofs.ravel())
+            vals.append(np.tile(d, r))
+            owner.append(np.full(r, k, dtype=np.int64))
+            m += r
+        if not rows:
             return sp.csr_matrix((0, self.n_dofs)), np.zeros(0), np.zeros(0, dtype=np.int64)
-        dofs = np.concatenate(rows_d)
-        w = np.concatenate(rows_v)
         owner = np.concatenate(owner)
-        m = len(dofs)
         C = sp.csr_matrix(
-            (w.ravel(), (np.repeat(np.arange(m), 3), dofs.ravel())), shape=(m, self.n_dofs)
+            (np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+            shape=(m, self.n_dofs),
         )
         c = np.array([pads[k].value for k in owner], dtype=np.float64)
         return C, c, owner

@@ -68,6 +68,9 @@ class Restraint:
     over_limit : names of the clamps whose force exceeds their limit.
     offset_sources : where each offset was read (``"scan"``, ``"free-state fit"``: a clamp
         the scan does not see), when the caller says.
+    model_info : the elastic model's provenance (material, mesh), from the basis.
+    forces_known : False when the material was not stated: the held shape does not depend
+        on Young's modulus, the forces do (reported as unknown, no limit checked).
     seat : (6,) the rigid motion ``(omega, t)`` (rad, mm) the free state was given before
         it was held, when the caller seated it (:func:`rigid_motion`).
     solution, model : the elastic solution and model (:func:`restrain` only).
@@ -85,6 +88,8 @@ class Restraint:
     over_limit: list[str] = field(default_factory=list)
     offset_sources: list[str] = field(default_factory=list)
     seat: np.ndarray | None = None
+    forces_known: bool = True
+    model_info: dict = field(default_factory=dict)
     solution: ElasticSolution | None = field(default=None, repr=False)
     model: ElasticModel | None = field(default=None, repr=False)
 
@@ -122,23 +127,24 @@ class Restraint:
                 | {
                     "free_state_offset_mm": None if not np.isfinite(o) else float(o),
                     "offset_source": s,
-                    "force_N": float(f),
-                    "force_vector_N": [float(x) for x in fv],
+                    "force_N": float(f) if self.forces_known else None,
+                    "force_vector_N": [float(x) for x in fv] if self.forces_known else None,
                     "over_limit": c.name in self.over_limit,
                 }
                 for c, o, f, fv, s in zip(
                     self.clamps, self.offsets, self.force, self.forces, src, strict=True
                 )
             ],
-            "total_force_N": self.total_force,
+            "total_force_N": self.total_force if self.forces_known else None,
             "seat": None
             if self.seat is None
             else {
                 "rotation_deg": float(np.degrees(np.linalg.norm(self.seat[:3]))),
                 "translation_mm": [float(x) for x in self.seat[3:]],
             },
-            "energy_mJ": float(self.energy),
+            "energy_mJ": float(self.energy) if self.forces_known else None,
             "not_restrainable": list(self.over_limit),
+            "model": dict(self.model_info),
         }
 
 
@@ -160,6 +166,7 @@ class RestraintBasis:
     U_load, U_mid_load, G_load : (n, 3), (e, 3) mm and (p,) N: the response to ``load``
         with the clamps at rest (None without a load).
     pad_radius : mm.  model : a summary of the elastic model (material, mesh, seconds).
+    forces_known : the material was stated (else the forces are not reported nor checked).
     """
 
     clamps: list[Clamp]
@@ -178,6 +185,7 @@ class RestraintBasis:
     U_mid_load: np.ndarray | None = None
     G_load: np.ndarray | None = None
     model: dict = field(default_factory=dict)
+    forces_known: bool = True
 
     def apply(self, offsets: np.ndarray) -> Restraint:
         """Restrain a free state whose clamps sit ``offsets`` (c,) mm along their normals
@@ -205,8 +213,10 @@ class RestraintBasis:
             u_mid=u_mid,
             F=self.F,
             tri_edges=self.tri_edges,
+            forces_known=self.forces_known,
+            model_info=dict(self.model),
         )
-        res.over_limit = _over_limit(self.clamps, res.force)
+        res.over_limit = _over_limit(self.clamps, res.force) if self.forces_known else []
         return res
 
 
@@ -256,7 +266,9 @@ def _pads(
         n = np.asarray(normals[k], dtype=np.float64)
         n = n / np.linalg.norm(n)
         for e in c.axes(n):
-            pads.append(Pad(verts, e, 0.0, name=c.name))
+            # a clamp along the normal is a clamp face (it holds the surface's tilt too);
+            # an axis restraint is a pin or locator: it holds a position only
+            pads.append(Pad(verts, e, 0.0, name=c.name, mean=c.directions != "n"))
             owner.append((k, e))
     return pads, owner
 

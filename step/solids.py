@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SolidInfo", "overlapping_pairs", "pick_solid", "solid_infos"]
+__all__ = ["SolidInfo", "overlapping_pairs", "pick_solid", "solid_infos", "solid_shape"]
 
 
 @dataclass
@@ -59,6 +59,14 @@ def _solids(shape) -> list:
     smap = TopTools_IndexedMapOfShape()
     TopExp.MapShapes_s(shape, TopAbs_SOLID, smap)
     return [smap.FindKey(i) for i in range(1, smap.Size() + 1)]
+
+
+def solid_shape(shape, index: int):
+    """The ``index``-th solid of ``shape`` (0-based, :class:`SolidInfo`'s order)."""
+    solids = _solids(shape)
+    if not 0 <= index < len(solids):
+        raise IndexError(f"solid {index} of {len(solids)}")
+    return solids[index]
 
 
 def solid_infos(shape, names: list[str] | None = None) -> list[SolidInfo]:

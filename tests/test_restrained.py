@@ -60,7 +60,7 @@ def sheet():
         near = np.flatnonzero(np.linalg.norm(solid.X - np.asarray(c.position), axis=1) <= PAD)
         for e in c.axes(np.array([0.0, 0.0, 1.0])):
             lift = 2.0 if (c.name == "A4") else 0.0
-            pads.append(Pad(near, e, lift))
+            pads.append(Pad(near, e, lift, mean=c.directions != "n"))  # pins: a position
     warp = model.solve(pads=pads)
     return V, F, solid, model, warp
 

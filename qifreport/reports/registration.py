@@ -36,7 +36,27 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
         ["Rigid inliers, % / iterations", f"{fmt_pct(rg.inlier_fraction)} / {rg.iterations}"],
         ["Rigid rotation, deg / shift, mm", f"{angle:.3f} / {np.linalg.norm(t):.3f}"],
     ]
-    if fit is None:
+    r = res.restraint
+    if r is not None:
+        held = f"{len(r.clamps)} clamps"
+        if any(s != "scan" for s in r.offset_sources):
+            held += f" ({sum(s != 'scan' for s in r.offset_sources)} unseen)"
+        mat = r.model_info.get("material")
+        rows += [
+            ["Restrained (ISO 10579) at", held],
+            [
+                "Material / model vertices",
+                f"{'not stated' if mat is None else mat['name']} / "
+                f"{r.model_info.get('vertices', DASH)}",
+            ],
+            [
+                "Clamp force total / largest, N",
+                f"{r.total_force:.3g} / {r.force.max():.3g}" if r.forces_known else "not known",
+            ],
+        ]
+        if r.over_limit:
+            rows.append(["Not restrainable at", ", ".join(r.over_limit)])
+    elif fit is None:
         none = f"none: {res.fixture_decision}" if res.free_state_stands else "none: rigid only"
         rows.append(["Non-rigid (virtual fixture)", none])
     else:
@@ -83,6 +103,7 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
     for k, row in enumerate(rows):
         emph[k] = bool(
             (row[0] == "Iterations / passes / fallback" and fit is not None and fit.fallback)
+            or row[0] == "Not restrainable at"
             or (
                 row[0].startswith("Pose")
                 and res.prealign is not None
@@ -90,7 +111,9 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
             )
         )
     title = (
-        f"Registration: rigid ICP + virtual fixture ({method_label(fit.method)})"
+        "Registration: rigid ICP + restrained at its clamps"
+        if r is not None
+        else f"Registration: rigid ICP + virtual fixture ({method_label(fit.method)})"
         if fit is not None
         else "Registration: rigid ICP only (free state)"
         if not res.free_state_stands

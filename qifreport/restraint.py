@@ -1,0 +1,264 @@
+"""The restrained condition of an inspection, from the options to the per-part basis.
+
+ISO 10579 and ASME Y14.5 restraint notes inspect a non-rigid part held as its drawing says.
+This module gathers what such an inspection needs before the first scan:
+
+* the clamps (:func:`read_clamps_file`: the ``--clamps`` CSV, with ``--max-clamp-force``
+  as the limit of the clamps that state none), checked against the nominal (each on its
+  surface, together holding the part's six rigid motions);
+* the material (``--material``: a preset or ``E=..,nu=..``; without it the held shape is
+  solved all the same, with Poisson's ratio 0.3, but no force can be stated, nor checked);
+* the part's elastic model: a STEP solid filled with tetrahedra by gmsh
+  (:func:`qifreport.step.gmsh_mesh.gmsh_solid_mesh`), a mesh nominal (an open sheet)
+  decimated and thickened by ``--thickness`` (:mod:`qifreport.registration.sheet_solid`);
+* and from them the restraint basis (:func:`build_restraint`), the per-part cache's entry.
+
+:class:`RestraintSpec` carries the choices (all JSON-able, for the cache key).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from qifreport.registration.clamps import Clamp, parse_clamps
+from qifreport.registration.elastic import Material, elastic_model, material, rigid_rank
+from qifreport.registration.restrained import RestraintBasis, restraint_basis
+
+from .errors import InputError
+
+__all__ = [
+    "DEFAULT_PAD_RADIUS",
+    "RestraintSpec",
+    "build_restraint",
+    "read_clamps_file",
+]
+
+log = logging.getLogger(__name__)
+
+#: contact radius of a clamp or support, mm (an RPS pad of 10 mm diameter)
+DEFAULT_PAD_RADIUS = 5.0
+
+#: triangles of a mesh nominal's elastic model (its mesh decimated to this)
+SHEET_MODEL_TRIANGLES = 3000
+
+#: a STEP solid's tetrahedra: target edge as a share of the part's diagonal
+SOLID_EDGE_SHARE = 1.0 / 40.0
+
+#: how far a clamp may sit from the nominal surface: this share of the diagonal, at least
+#: 1 mm (a clamp off the part is a file in another frame or another part's)
+_ON_SURFACE_SHARE = 0.01
+
+#: the material without ``--material``: the held shape does not depend on Young's modulus
+UNSTATED = Material("unstated", 1.0, 0.3, 0.0)
+
+
+@dataclass(frozen=True)
+class RestraintSpec:
+    """How the part is held: clamps, material, wall thickness, contact size.
+
+    Attributes
+    ----------
+    clamps : the clamps (:class:`qifreport.registration.clamps.Clamp`).
+    source : where they came from (``"clamps file NAME"``, ``"PMI datum targets"``).
+    material : the ``--material`` text, None when not stated (no forces then).
+    thickness : a mesh nominal's wall thickness, mm (``--thickness``).
+    pad_radius : each clamp's contact radius, mm.
+    """
+
+    clamps: tuple[Clamp, ...]
+    source: str
+    material: str | None = None
+    thickness: float | None = None
+    pad_radius: float = DEFAULT_PAD_RADIUS
+
+    def key(self) -> dict:
+        """JSON-able: what the restraint basis depends on."""
+        return {
+            "clamps": [c.to_dict() for c in self.clamps],
+            "source": self.source,
+            "material": self.material,
+            "thickness": self.thickness,
+            "pad_radius": self.pad_radius,
+        }
+
+    def elastic_material(self) -> Material:
+        """The stated material (:class:`InputError` for one that is not), or :data:`UNSTATED`."""
+        if self.material is None:
+            return UNSTATED
+        try:
+            return material(self.material)
+        except ValueError as exc:
+            raise InputError(f"--material: {exc}") from None
+
+
+def read_clamps_file(path: Path, max_force: float | None = None) -> tuple[Clamp, ...]:
+    """The clamps of a ``--clamps`` CSV (:func:`qifreport.registration.clamps.parse_clamps`),
+    ``max_force`` (N) the limit of those that state none.
+
+    Raises
+    ------
+    InputError
+        A missing or unreadable file, or a malformed row (naming the line).
+    """
+    if max_force is not None and not (math.isfinite(max_force) and max_force > 0):
+        raise InputError(f"--max-clamp-force must be a positive force in N, got {max_force}")
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"clamps file not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"clamps file {path} cannot be read: {exc}") from None
+    try:
+        clamps = parse_clamps(text, source=f"clamps file {Path(path).name}")
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    if max_force is not None:
+        clamps = [
+            c
+            if c.max_force is not None
+            else Clamp(c.name, c.position, c.directions, max_force, c.source)
+            for c in clamps
+        ]
+    return tuple(clamps)
+
+
+def _closest_normals(
+    V: np.ndarray, F: np.ndarray, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (c,) of ``points`` (c, 3) to the mesh and the unit normals (c, 3) of the
+    triangles closest to them."""
+    from qifreport.metrology.deviation import closest_points
+
+    C, tri, _ = closest_points(V, F, points)
+    n = np.cross(V[F[tri, 1]] - V[F[tri, 0]], V[F[tri, 2]] - V[F[tri, 0]])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return np.linalg.norm(points - C, axis=1), n
+
+
+def _sheet_model_mesh(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh nominal decimated to about :data:`SHEET_MODEL_TRIANGLES` triangles (igl's
+    edge collapses; the nominal itself when it has no more)."""
+    if len(F) <= SHEET_MODEL_TRIANGLES:
+        return V, F
+    import igl
+
+    U, G, _, _ = igl.decimate(
+        np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64), SHEET_MODEL_TRIANGLES
+    )
+    return np.ascontiguousarray(U), np.ascontiguousarray(G, dtype=np.int64)
+
+
+def _boundary_vertices(T: np.ndarray, n: int) -> np.ndarray:
+    """(n,) bool: the vertices on the boundary faces of tetrahedra ``T`` (k, 4)."""
+    faces = np.concatenate([T[:, [1, 2, 3]], T[:, [0, 2, 3]], T[:, [0, 1, 3]], T[:, [0, 1, 2]]])
+    key, count = np.unique(np.sort(faces, axis=1), axis=0, return_counts=True)
+    out = np.zeros(n, dtype=bool)
+    out[key[count == 1].ravel()] = True
+    return out
+
+
+def build_restraint(
+    V: np.ndarray,
+    F: np.ndarray,
+    spec: RestraintSpec,
+    *,
+    solid: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[RestraintBasis, dict]:
+    """The part's restraint basis: its elastic model solved once per clamp direction.
+
+    Parameters
+    ----------
+    V : (n, 3) mm, F : (f, 3) the nominal's inspection mesh.
+    spec : the clamps and material.
+    solid : ``(X, T)`` the tetrahedra of a STEP solid (mm); None for a mesh nominal, whose
+        sheet is thickened by ``spec.thickness``.
+
+    Returns
+    -------
+    basis : :class:`qifreport.registration.restrained.RestraintBasis`.
+    info : the model's provenance for the reports (material, mesh, seconds).
+
+    Raises
+    ------
+    InputError
+        A clamp off the part's surface, clamps that leave a rigid motion free, a mesh
+        nominal without ``--thickness``, a material that is not one.
+    """
+    t0 = time.perf_counter()
+    clamps = list(spec.clamps)
+    mat = spec.elastic_material()
+    pos = np.array([c.position for c in clamps], dtype=np.float64)
+    diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    dist, normals = _closest_normals(V, F, pos)
+    limit = max(1.0, _ON_SURFACE_SHARE * diag)
+    for c, d in zip(clamps, dist, strict=True):
+        if d > limit:
+            raise InputError(
+                f"clamp {c.name} ({', '.join(f'{x:g}' for x in c.position)}) is {d:.3g} mm "
+                f"from the part's surface (at most {limit:.3g} mm): its file is in another "
+                "frame, or names another part's point"
+            )
+    dirs = [(p, e) for c, p, n in zip(clamps, pos, normals, strict=True) for e in c.axes(n)]
+    free = 6 - rigid_rank(np.array([d[0] for d in dirs]), np.array([d[1] for d in dirs]), V)
+    if free:
+        raise InputError(
+            f"the clamps leave {free} rigid motion(s) of the part free: a restrained "
+            "inspection needs them to hold all six (3-2-1: e.g. three along the normal, two "
+            "along one in-plane axis, one along the other)"
+        )
+    if solid is not None:
+        X, T = solid
+        kind = "STEP solid, gmsh tetrahedra"
+    else:
+        if spec.thickness is None:
+            raise InputError(
+                "a mesh nominal's restrained inspection needs its wall thickness: "
+                "--thickness MM (or --fixture free)"
+            )
+        if not (math.isfinite(spec.thickness) and spec.thickness > 0):
+            raise InputError(f"--thickness must be a positive length in mm, got {spec.thickness}")
+        from qifreport.registration.mesh import vertex_normals
+        from qifreport.registration.sheet_solid import sheet_solid
+
+        U, G = _sheet_model_mesh(V, F)
+        sheet = sheet_solid(U, G, vertex_normals(U, G), spec.thickness)
+        X, T = sheet.X, sheet.T
+        kind = f"sheet {spec.thickness:g} mm thick, {len(G)} triangles thickened"
+    model = elastic_model(X, T, mat)
+    try:
+        basis = restraint_basis(
+            model,
+            clamps,
+            normals,
+            V,
+            F,
+            pad_radius=spec.pad_radius,
+            surface=_boundary_vertices(np.asarray(T), len(X)),
+        )
+    except ValueError as exc:
+        raise InputError(f"the clamps cannot hold the part: {exc}") from None
+    basis.forces_known = spec.material is not None
+    info = {
+        "model": kind,
+        **basis.model,
+        "material": None if spec.material is None else mat.to_dict(),
+        "pad_radius_mm": spec.pad_radius,
+        "clamps_source": spec.source,
+        "seconds": time.perf_counter() - t0,
+    }
+    basis.model = info
+    log.info(
+        "elastic model (%s): %d vertices, %d tetrahedra, %d clamp directions in %.1f s",
+        kind,
+        len(X),
+        len(T),
+        len(basis.owner),
+        info["seconds"],
+    )
+    return basis, info
