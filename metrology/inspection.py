@@ -37,9 +37,10 @@ from qifreport.registration.methods import METHODS, deform
 from qifreport.registration.pointcloud import orient_normals_consistent, pca_normals
 from qifreport.registration.prealign import PrealignResult, seat_scan
 from qifreport.registration.restrained import (
+    FACING_ANGLE,
     Restraint,
     RestraintBasis,
-    clamp_offsets,
+    pad_mean,
     rigid_motion,
 )
 
@@ -993,43 +994,55 @@ def _restrained(
     prepared = judge["prepared"]
     tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
 
-    def offsets_of(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        C, cface, pdev = closest_points(V, F, P)
-        if face_id is not None:
-            pdev = surface_distance(V, F, C, cface, pdev, face_id, judge["brep_normals"], P)
-        return clamp_offsets(restraint.clamps, P, pdev, restraint.pad_radius), C, cface
-
-    offsets, C, cface = offsets_of(reg.P)
+    tri_n = _triangle_normals(V, F)
+    P0 = reg.P
+    Ns_out = orient_scan_normals(P0, reg.scan_normals, V, prepared.ops.normals, sheets=reg.sheets)
+    readings = _clamp_readings(P0, Ns_out, restraint, V, F, face_id, judge["brep_normals"])
+    origin = V.mean(axis=0)
+    offsets = readings.offsets()
     sources = ["scan"] * len(offsets)
-    unseen = np.flatnonzero(~np.isfinite(offsets))
+    # a locator's offset is not used (RestraintBasis.apply): only an unseen clamp face
+    # needs the free fixture's witness
+    faces = np.array([c.directions == "n" for c in restraint.clamps], dtype=bool)
+    unseen = np.flatnonzero(~np.isfinite(offsets) & faces)
+    fixed = np.zeros(len(offsets))
     if len(unseen):
         t1 = time.perf_counter()
         fit = _virtual_fixture(reg, params, prepared, zones, judge["basis"], progress)
         timings[params.method] = time.perf_counter() - t1
         _, near = tree.query([restraint.clamps[k].position for k in unseen])
         for k, v in zip(unseen, np.atleast_1d(near), strict=True):
-            offsets[k] = float((fit.V[v] - V[v]) @ restraint.normals[k])
+            fixed[k] = float((fit.V[v] - V[v]) @ restraint.normals[k])
             sources[k] = "free-state fit"
         log.info(
             "clamp(s) %s not seen by the scan: offsets from the free virtual fixture",
             ", ".join(restraint.clamps[k].name for k in unseen),
         )
-    origin = V.mean(axis=0)
     at = np.array([c.position for c in restraint.clamps], dtype=np.float64) - origin
 
-    def moved_offsets(P: np.ndarray, xi: np.ndarray):
-        off, C, cface = offsets_of(P)
-        # an unseen clamp's offset moves with the part
+    def offsets_at(xi: np.ndarray) -> np.ndarray:
+        """The clamps' offsets once the free state is moved by ``xi``."""
+        off = readings.offsets(*rigid_motion(xi, origin))
+        # an unseen clamp face's offset moves with the part
         shift = np.einsum("kd,kd->k", np.cross(xi[:3], at) + xi[3:], restraint.normals)
-        off[unseen] = offsets[unseen] + shift[unseen]
-        return off, C, cface
+        off[unseen] = fixed[unseen] + shift[unseen]
+        return off
+
+    def distances(Q: np.ndarray):
+        """Signed distances (m,) of points ``Q`` to the nominal, closest points, their
+        triangles and the nominal normals there."""
+        C, cface, pdev = closest_points(V, F, Q)
+        if face_id is not None:
+            pdev = surface_distance(V, F, C, cface, pdev, face_id, judge["brep_normals"], Q)
+        return pdev, C, cface, tri_n[cface]
 
     t1 = time.perf_counter()
-    xi = _seat_held(reg.P, restraint, V, F, moved_offsets, origin)
+    xi = _seat_held(P0, restraint, V, distances, origin, offsets_at)
     timings["restraint seat"] = time.perf_counter() - t1
     R, t = rigid_motion(xi, origin)
-    P = reg.P @ R.T + t
-    offsets, C, cface = moved_offsets(P, xi)
+    P = P0 @ R.T + t
+    offsets = offsets_at(xi)
+    C, cface, _ = closest_points(V, F, P)
     held = restraint.apply(offsets)
     held.offset_sources = sources
     held.seat = xi
@@ -1052,44 +1065,41 @@ def _restrained(
 #: scan points (besides those under the clamps) the held seat is fitted on, its
 #: Gauss-Newton rounds, and the largest move (mm) of a round below which it has settled
 _SEAT_SAMPLE = 6000
-_SEAT_ROUNDS = 5
+_SEAT_ROUNDS = 8
 _SEAT_SETTLED = 1e-3
+#: mm^2 of mean square held residual a 1 mm motion of the seat must gain
+_SEAT_PRIOR = 1e-4
 
 
 def _seat_held(
     P: np.ndarray,
     restraint: RestraintBasis,
     V: np.ndarray,
-    F: np.ndarray,
-    offsets_of,
+    distances,
     origin: np.ndarray,
+    offsets_at,
 ) -> np.ndarray:
     """(6,) the small rigid motion ``(omega, t)`` (rad, mm, about ``origin``) of the free
     state ``P`` (m, 3) whose held state fits the nominal best.
 
-    The held residual depends on the motion through each clamp's offset (the normal
-    component the clamps take back, and the free state's own slope under the pad) and
-    through what the pins cannot see: robust Gauss-Newton with a finite-difference
-    Jacobian, on the points under the clamps and a fixed sample of the others (Tukey
-    weights: a defect does not seat the part), each step accepted only if it lowers the
-    robust cost. ``offsets_of(Q, xi)`` gives the clamps' offsets, the closest points and
-    their triangles of points ``Q``."""
+    The held residual depends on the motion through each clamp face's offset
+    (``offsets_at(xi)``) and through what the locators do not take back: robust
+    Levenberg-Marquardt with a finite-difference Jacobian on a fixed sample of the points
+    (Tukey weights: a defect does not seat the part), each step accepted only if it lowers
+    the robust cost. Each sample point keeps the tangent plane of its closest nominal point
+    (``distances(Q)``: signed distances, closest points, triangles, normals), exact for
+    the motions a seat makes (a 1 mm slide over a 220 mm radius: 2 um)."""
     reach = float(np.linalg.norm(V - origin, axis=1).max())
-    pos = np.array([c.position for c in restraint.clamps], dtype=np.float64)
-    near = np.zeros(len(P), dtype=bool)
-    for i in cKDTree(P).query_ball_point(pos, 1.5 * restraint.pad_radius):
-        near[np.asarray(i, dtype=np.int64)] = True
     rng = np.random.default_rng(0)
-    others = np.flatnonzero(~near)
-    pick = rng.choice(others, min(_SEAT_SAMPLE, len(others)), replace=False)
-    S = P[np.sort(np.r_[np.flatnonzero(near), pick])]
+    S = P[np.sort(rng.choice(len(P), min(_SEAT_SAMPLE, len(P)), replace=False))]
+    pd0, C0, tri0, N0 = distances(S)
+    corr = pd0 - np.einsum("ij,ij->i", N0, S - C0)  # the curved surface's own distance
 
     def residual(xi: np.ndarray) -> np.ndarray:
         R, t = rigid_motion(xi, origin)
-        Q = S @ R.T + t
-        off, C, cface = offsets_of(Q, xi)
-        H = Q + restraint.apply(off).on_triangles(V, cface, C)
-        return closest_points(V, F, H)[2]
+        pd = np.einsum("ij,ij->i", N0, S @ R.T + t - C0) + corr
+        u = restraint.apply(offsets_at(xi)).on_triangles(V, tri0, C0)
+        return pd + np.einsum("ij,ij->i", N0, u)
 
     xi = np.zeros(6)
     r = residual(xi)
@@ -1100,7 +1110,12 @@ def _seat_held(
         J = np.stack([(residual(xi + h[k] * np.eye(6)[k]) - r) / h[k] for k in range(6)], 1)
         w = np.sqrt(tukey_weights(r, scale))
         J_s = J * (h / h.max())  # both kinds in mm of motion
-        dx = np.linalg.lstsq(J_s * w[:, None], -r * w, rcond=1e-6)[0] * (h / h.max())
+        # Levenberg-Marquardt with the free state's placement as the prior: a motion must
+        # pay for itself (1 mm of it must lower the mean square held residual by (10 um)^2),
+        # so the motions the clamps take back, which the held residual barely sees, stay
+        A = J_s * w[:, None]
+        mu = _SEAT_PRIOR * float(np.sum(w**2))
+        dx = np.linalg.solve(A.T @ A + mu * np.eye(6), -A.T @ (r * w)) * (h / h.max())
         for step in (1.0, 0.5, 0.25):
             r_new = residual(xi + step * dx)
             c_new = float(tukey_rho(r_new, scale).sum())
@@ -1118,6 +1133,85 @@ def _seat_held(
         len(S),
     )
     return xi
+
+
+@dataclass
+class _ClampReadings:
+    """Where each clamp's offset is read: the scan points under its pad on its own skin,
+    each with its closest point ``C`` and normal ``n`` on the clamp's own face and the
+    curved surface's correction ``corr`` (exact distance minus the tangent plane's)."""
+
+    P: np.ndarray
+    index: list[np.ndarray]
+    C: list[np.ndarray]
+    n: list[np.ndarray]
+    corr: list[np.ndarray]
+
+    def offsets(self, R: np.ndarray | None = None, t: np.ndarray | None = None) -> np.ndarray:
+        """(c,) the clamps' offsets, mm (the median over each pad; NaN: fewer than 3
+        points), the free state moved by ``R p + t`` (tangent planes: exact for a seat's
+        small motions)."""
+        out = np.full(len(self.index), np.nan)
+        for k, idx in enumerate(self.index):
+            if len(idx) < 3:
+                continue
+            Q = self.P[idx] if R is None else self.P[idx] @ R.T + t
+            out[k] = pad_mean(np.einsum("ij,ij->i", self.n[k], Q - self.C[k]) + self.corr[k])
+        return out
+
+
+def _clamp_readings(
+    P: np.ndarray,
+    Ns: np.ndarray,
+    restraint: RestraintBasis,
+    V: np.ndarray,
+    F: np.ndarray,
+    face_id: np.ndarray | None,
+    brep_normals: np.ndarray | None,
+) -> _ClampReadings:
+    """The scan points that read each clamp's offset: within its pad radius, on the skin
+    facing the clamp's way (outward scan normals ``Ns`` within
+    :data:`qifreport.registration.restrained.FACING_ANGLE` of its normal: on a thin wall
+    deflected beyond half its thickness the nearest nominal skin is the other one), each
+    measured against the clamp's own B-rep face (a STEP nominal; the whole mesh else) and
+    inside it (a point beyond the face's edge is not read)."""
+    tree = cKDTree(P)
+    cos = np.cos(np.radians(FACING_ANGLE))
+    pos = np.array([c.position for c in restraint.clamps], dtype=np.float64)
+    _, home, _ = closest_points(V, F, pos)
+    index, Cs, ns, corrs = [], [], [], []
+    for k in range(len(restraint.clamps)):
+        idx = np.asarray(tree.query_ball_point(pos[k], restraint.pad_radius), dtype=np.int64)
+        idx = idx[Ns[idx] @ restraint.normals[k] >= cos] if len(idx) else idx
+        if len(idx) < 3:
+            index.append(np.zeros(0, dtype=np.int64))
+            Cs.append(np.zeros((0, 3)))
+            ns.append(np.zeros((0, 3)))
+            corrs.append(np.zeros(0))
+            continue
+        tris = np.arange(len(F)) if face_id is None else np.flatnonzero(face_id == face_id[home[k]])
+        Fk = F[tris]
+        C, local, pd = closest_points(V, Fk, P[idx])
+        if face_id is not None:
+            pd = surface_distance(
+                V,
+                Fk,
+                C,
+                local,
+                pd,
+                face_id[tris],
+                None if brep_normals is None else brep_normals[tris],
+                P[idx],
+            )
+        n = _triangle_normals(V, Fk)[local]
+        d = P[idx] - C
+        plane = np.einsum("ij,ij->i", d, n)
+        inside = np.linalg.norm(d - plane[:, None] * n, axis=1) < 1e-3  # mm: not beyond an edge
+        index.append(idx[inside])
+        Cs.append(C[inside])
+        ns.append(n[inside])
+        corrs.append((pd - plane)[inside])
+    return _ClampReadings(P=P, index=index, C=Cs, n=ns, corr=corrs)
 
 
 def _triangle_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:

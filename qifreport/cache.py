@@ -73,7 +73,7 @@ from qifreport.registration.restrained import RestraintBasis
 
 from .nominal import Nominal, load_nominal
 from .options import NominalOptions
-from .restraint import build_restraint
+from .restraint import build_restraint, with_limits
 
 __all__ = [
     "CACHE_FORMAT",
@@ -614,6 +614,8 @@ def part_state(
     if exists and not rebuild:
         try:
             state = load_entry(path, key, secret)
+            if state.restraint is not None and options.restraint is not None:
+                with_limits(state.restraint, options.restraint)
             log.info("part state loaded from %s", path)
             return state, CacheOutcome("hit", path, time.perf_counter() - t0, state.build_seconds)
         except CorruptEntry as exc:

@@ -35,8 +35,10 @@ from .errors import InputError
 __all__ = [
     "DEFAULT_PAD_RADIUS",
     "RestraintSpec",
+    "boundary_normals",
     "build_restraint",
     "read_clamps_file",
+    "with_limits",
 ]
 
 log = logging.getLogger(__name__)
@@ -78,9 +80,13 @@ class RestraintSpec:
     pad_radius: float = DEFAULT_PAD_RADIUS
 
     def key(self) -> dict:
-        """JSON-able: what the restraint basis depends on."""
+        """JSON-able: what the restraint basis depends on (not the force limits: they are
+        checked on each inspection, :func:`with_limits`)."""
         return {
-            "clamps": [c.to_dict() for c in self.clamps],
+            "clamps": [
+                {k: v for k, v in c.to_dict().items() if k not in ("max_force_N", "source")}
+                for c in self.clamps
+            ],
             "source": self.source,
             "material": self.material,
             "thickness": self.thickness,
@@ -95,6 +101,19 @@ class RestraintSpec:
             return material(self.material)
         except ValueError as exc:
             raise InputError(f"--material: {exc}") from None
+
+
+def with_limits(basis: RestraintBasis, spec: RestraintSpec) -> RestraintBasis:
+    """The basis with the clamps (force limits, sources) of ``spec``: a cached basis was
+    built for clamps at the same places and directions, perhaps with other limits."""
+    same = len(basis.clamps) == len(spec.clamps) and all(
+        a.name == b.name and a.position == b.position and a.directions == b.directions
+        for a, b in zip(basis.clamps, spec.clamps, strict=False)
+    )
+    if not same:
+        raise ValueError("the restraint basis was built for other clamps")
+    basis.clamps = list(spec.clamps)
+    return basis
 
 
 def read_clamps_file(path: Path, max_force: float | None = None) -> tuple[Clamp, ...]:
@@ -154,13 +173,27 @@ def _sheet_model_mesh(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndar
     return np.ascontiguousarray(U), np.ascontiguousarray(G, dtype=np.int64)
 
 
-def _boundary_vertices(T: np.ndarray, n: int) -> np.ndarray:
-    """(n,) bool: the vertices on the boundary faces of tetrahedra ``T`` (k, 4)."""
-    faces = np.concatenate([T[:, [1, 2, 3]], T[:, [0, 2, 3]], T[:, [0, 1, 3]], T[:, [0, 1, 2]]])
-    key, count = np.unique(np.sort(faces, axis=1), axis=0, return_counts=True)
-    out = np.zeros(n, dtype=bool)
-    out[key[count == 1].ravel()] = True
-    return out
+def boundary_normals(X: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """(n, 3) the outward unit normals at the boundary vertices of tetrahedra ``T`` (k, 4)
+    over ``X`` (n, 3) (area-weighted over their boundary faces; zero rows inside)."""
+    X = np.asarray(X, dtype=np.float64)
+    T = np.asarray(T, dtype=np.int64)
+    local = ((1, 2, 3, 0), (0, 2, 3, 1), (0, 1, 3, 2), (0, 1, 2, 3))
+    faces = np.concatenate([T[:, [a, b, c]] for a, b, c, _ in local])
+    opposite = np.concatenate([T[:, d] for *_, d in local])
+    _, inv, count = np.unique(
+        np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True
+    )
+    once = count[inv.ravel()] == 1
+    f, o = faces[once], opposite[once]
+    n = np.cross(X[f[:, 1]] - X[f[:, 0]], X[f[:, 2]] - X[f[:, 0]])
+    inward = np.einsum("ij,ij->i", n, X[o] - X[f[:, 0]]) > 0
+    n[inward] *= -1.0
+    out = np.zeros_like(X)
+    for k in range(3):
+        np.add.at(out, f[:, k], n)
+    norm = np.linalg.norm(out, axis=1, keepdims=True)
+    return np.divide(out, norm, out=np.zeros_like(out), where=norm > 0)
 
 
 def build_restraint(
@@ -239,7 +272,8 @@ def build_restraint(
             V,
             F,
             pad_radius=spec.pad_radius,
-            surface=_boundary_vertices(np.asarray(T), len(X)),
+            surface=np.linalg.norm(sn := boundary_normals(X, T), axis=1) > 0,
+            surface_normals=sn,
         )
     except ValueError as exc:
         raise InputError(f"the clamps cannot hold the part: {exc}") from None

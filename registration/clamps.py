@@ -93,8 +93,8 @@ def parse_clamps(text: str, source: str = "clamps file") -> list[Clamp]:
         if not cells or not any(cells) or cells[0].startswith("#"):
             continue
         where = f"{source} line {lineno}"
-        if lineno == 1 and cells[0].lower() == "name":
-            continue  # the header
+        if not out and not seen and cells[0].lower() == "name":
+            continue  # the header (the first row that is not a comment)
         if len(cells) not in (5, 6):
             raise ValueError(
                 f"{where}: {len(cells)} fields, expected name, x, y, z, directions[, max_force_N]"

@@ -19,6 +19,13 @@ STEP nominal with semantic PMI (the product's main input):
   to every face, so both skins must be measured), 0.02 mm noise. Conforming.
 * ``panel_scan_defect.ply``: the same with a 0.45 mm / sigma 6 mm bump on the crown: out of
   the 0.5 mm skin profile (T2, +/-0.25) over about 100 mm^2, inside the 1.0 mm one (T1).
+* ``panel_scan_warped.ply``: a free state made by the part's own elasticity
+  (:mod:`qifreport.simulate.physical`): the panel held at the clamps of
+  ``panel_clamps.csv`` (hand-written) with A2 lifted 1.2 mm and A4 pressed 0.8 mm (a
+  twist), on a truth model that is not the product's (tetrahedra at 1/60 of the diagonal
+  against 1/40, Poisson's ratio 0.40 against ABS's 0.35; its pads the 5 mm the clamps
+  have, as ``--pad-radius`` tells the product), scanned as the others. Restrained at
+  those clamps it conforms (held within 6 um rms of nominal).
 
 Usage: ``python samples/make_samples.py [OUTDIR]``
 """
@@ -100,6 +107,54 @@ def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
     return out
 
 
+#: the warped sample's clamp lifts (mm along the normal) and its truth model's settings
+PANEL_LIFTS = {"A2": 1.2, "A4": -0.8}
+TRUTH_EDGE_SHARE = 1.0 / 60.0
+TRUTH_NU = 0.40
+TRUTH_PAD = 5.0
+
+
+def panel_warped_scan(step_path: Path, clamps_path: Path) -> np.ndarray:
+    """The panel's elastic free state (module docstring), scanned (float32, mm)."""
+    from qifreport.registration.clamps import parse_clamps
+    from qifreport.registration.elastic import Material, elastic_model
+    from qifreport.simulate.physical import elastic_free_state
+    from qifreport.step.gmsh_mesh import gmsh_solid_mesh
+    from qifreport.step.reader import read_step
+    from qifreport.step.tessellate import tessellate
+
+    part = read_step(step_path, pmi=False)
+    # a fine chord (10 um): the scan must not carry the tessellation's own error
+    m = tessellate(part.shape, part.faces, max_edge=PANEL_EDGE, deflection=0.01)
+    V, F = m.V, m.F
+    diag = float(np.linalg.norm(np.ptp(V, axis=0)))
+    tets = gmsh_solid_mesh(part.shape, TRUTH_EDGE_SHARE * diag)
+    model = elastic_model(tets.X, tets.T, Material("truth", 2300.0, TRUTH_NU, 1.05e-9))
+    clamps = parse_clamps(clamps_path.read_text(encoding="utf-8"))
+    from qifreport.metrology.deviation import closest_points
+
+    pos = np.array([c.position for c in clamps])
+    _, tri, _ = closest_points(V, F, pos)
+    n = np.cross(V[F[tri, 1]] - V[F[tri, 0]], V[F[tri, 2]] - V[F[tri, 0]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    from qifreport.restraint import boundary_normals
+
+    sn = boundary_normals(tets.X, tets.T)
+    surface = np.linalg.norm(sn, axis=1) > 0
+    Vs = V + elastic_free_state(
+        model,
+        clamps,
+        n,
+        PANEL_LIFTS,
+        V,
+        pad_radius=TRUTH_PAD,
+        surface=surface,
+        surface_normals=sn,
+    )
+    spec = ScanSpec(directions=_views(both_sides=True), noise=0.02, seed=SEED)
+    return virtual_scan(Vs, F, spec).P.astype(np.float32)
+
+
 def panel_scans(step_path: Path, out: Path) -> None:
     names = ("panel_scan.ply", "panel_scan_defect.ply")
     scans = panel_scan_set(step_path, [{}, {"defect": (0.45, 6.0)}])
@@ -134,6 +189,9 @@ def main(out: Path) -> None:
 
     build_sample(out / "panel.step")
     panel_scans(out / "panel.step", out)
+    P = panel_warped_scan(out / "panel.step", Path(__file__).resolve().parent / "panel_clamps.csv")
+    trimesh.PointCloud(P).export(out / "panel_scan_warped.ply")
+    print(f"panel_scan_warped.ply: {len(P)} points")
 
 
 if __name__ == "__main__":

@@ -58,9 +58,7 @@ def shell():
     for c, n in zip(clamps, normals, strict=True):
         verts = np.flatnonzero(np.linalg.norm(solid.X - np.asarray(c.position), axis=1) <= PAD)
         for e in c.axes(n):
-            pads.append(
-                Pad(verts, e, LIFT.get(c.name, 0.0) * float(n @ e), mean=c.directions != "n")
-            )
+            pads.append(Pad(verts, e, LIFT.get(c.name, 0.0) * float(n @ e), mean=True))
     warp = model.solve(pads=pads)
     V_free = V + model.displacement_at(warp, V)
     basis = restraint_basis(model, clamps, normals, V, F, pad_radius=PAD)

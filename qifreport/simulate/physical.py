@@ -1,0 +1,69 @@
+"""Free states made by the part's own elasticity (issue 21's physical simulator).
+
+A compliant part's free state is what its elasticity makes of the loads it saw: it lay on
+supports under gravity, its clamp points were pushed while it cooled or was handled. Such
+a state is, by construction, one a fixture can take back within the forces it needs (a
+plastic defect superimposed on it is not). :func:`elastic_free_state` makes one: the part's
+elastic model (:mod:`qifreport.registration.elastic`) held at its clamps, each displaced by
+a given amount along its first restrained direction, optionally under its own weight.
+
+The truth of a benchmark must not be the product's own model, or it only measures itself
+(the paper's Section 4.3 warning about its generator). The callers here use a finer mesh
+than the product's (its own tetrahedra, :func:`qifreport.step.gmsh_mesh.gmsh_solid_mesh`),
+another Poisson's ratio and clamp pads of another size; the product only ever sees the
+resulting scan.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from qifreport.registration.clamps import Clamp
+from qifreport.registration.elastic import ElasticModel, Pad
+
+__all__ = ["elastic_free_state"]
+
+
+def elastic_free_state(
+    model: ElasticModel,
+    clamps: list[Clamp],
+    normals: np.ndarray,
+    lifts: dict[str, float],
+    points: np.ndarray,
+    *,
+    pad_radius: float,
+    surface: np.ndarray | None = None,
+    surface_normals: np.ndarray | None = None,
+    load: np.ndarray | None = None,
+) -> np.ndarray:
+    """(m, 3) the displacement, mm, at ``points`` (m, 3) of the part held at its clamps
+    with clamp ``name`` displaced by ``lifts[name]`` mm along its first restrained
+    direction (the others held at nominal), under ``load`` (N per degree of freedom).
+
+    Parameters
+    ----------
+    model : the truth's elastic model.  clamps : the clamps (holding six rigid motions).
+    normals : (c, 3) unit outward normals at the clamps.
+    lifts : mm per clamp name (absent: 0).
+    points : where the displacement is wanted (the scanned surface's vertices).
+    pad_radius : mm, each contact's radius.  surface : (N,) bool, the model's surface
+        vertices (default all); ``surface_normals`` (N, 3) their normals: a pad touches
+        only the vertices facing its clamp's surface within 45 degrees.
+    """
+    X = model.X
+    cand = np.flatnonzero(surface) if surface is not None else np.arange(len(X))
+    tree = cKDTree(X[cand])
+    pads = []
+    for c, n in zip(clamps, np.asarray(normals, dtype=np.float64), strict=True):
+        verts = cand[np.asarray(tree.query_ball_point(np.asarray(c.position), pad_radius), int)]
+        if surface_normals is not None and len(verts):  # a pad touches its own face
+            facing = np.abs(surface_normals[verts] @ n) >= np.cos(np.radians(45.0))
+            verts = verts[facing] if facing.any() else verts
+        if len(verts) == 0:
+            verts = cand[[int(tree.query(np.asarray(c.position))[1])]]
+        for j, e in enumerate(c.axes(n)):
+            lift = lifts.get(c.name, 0.0) if j == 0 else 0.0
+            pads.append(Pad(verts, e, lift, name=c.name, mean=True))
+    sol = model.solve(pads=pads, load=load)
+    return model.displacement_at(sol, points)
