@@ -28,7 +28,13 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as _triangle_closest_point
 
-from qifreport.registration.mesh import edge_uses, face_normals, median_edge_length, vertex_normals
+from qifreport.registration.mesh import (
+    barycentric,
+    edge_uses,
+    face_normals,
+    median_edge_length,
+    vertex_normals,
+)
 from qifreport.registration.pointcloud import median_spacing
 
 __all__ = [
@@ -256,22 +262,6 @@ def _exact_fallback(
                 _keep_nearest(pid[sl], fid[sl], C, d2, best_d2, best_face, best_C)
 
 
-def _barycentric(V: np.ndarray, F: np.ndarray, face: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Barycentric coordinates (m, 3) of points ``X`` (m, 3) in triangles ``F[face]``."""
-    a, b, c = V[F[face, 0]], V[F[face, 1]], V[F[face, 2]]
-    v0, v1, v2 = b - a, c - a, X - a
-    d00 = np.einsum("ij,ij->i", v0, v0)
-    d01 = np.einsum("ij,ij->i", v0, v1)
-    d11 = np.einsum("ij,ij->i", v1, v1)
-    d20 = np.einsum("ij,ij->i", v2, v0)
-    d21 = np.einsum("ij,ij->i", v2, v1)
-    den = d00 * d11 - d01 * d01
-    den = np.where(np.abs(den) > 0, den, 1.0)
-    v = (d11 * d20 - d01 * d21) / den
-    w = (d00 * d21 - d01 * d20) / den
-    return np.c_[1.0 - v - w, v, w]
-
-
 def closest_points(
     V: np.ndarray, F: np.ndarray, P: np.ndarray, normals: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -366,7 +356,7 @@ def _signed_distance(
     dist = np.linalg.norm(D, axis=1)
     nf = face_normals(V, F[face])  # normals of the chosen faces only
     s = np.einsum("ij,ij->i", D, nf)
-    bary = _barycentric(V, F, face, C)
+    bary = barycentric(V, F, face, C)
     on_edge = bary.min(axis=1) < _BARY_EDGE_TOL
     if np.any(on_edge):
         N = np.asarray(normals, dtype=np.float64)
@@ -645,7 +635,7 @@ def curved_offset(
     t = face[ok]
     T = V[F[t]]  # (k, 3, 3)
     X = C[ok]
-    B = np.clip(_barycentric(V, F, t, X), 0.0, 1.0)
+    B = np.clip(barycentric(V, F, t, X), 0.0, 1.0)
     B /= np.maximum(B.sum(axis=1, keepdims=True), 1e-300)
     h = np.einsum("kij,kij->ki", T - X[:, None, :], normals[t])  # (k, 3)
     out[ok] = 0.5 * np.einsum("ki,ki->k", B, h)
@@ -706,7 +696,7 @@ def nearest_face_distance(
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     h = np.einsum("ij,ij->i", P[pid] - A, n)
     X = P[pid] - h[:, None] * n
-    lam = _barycentric(V, F, tri, X)
+    lam = barycentric(V, F, tri, X)
     inside = lam.min(axis=1) >= -0.05
     pid, tri, h, X = pid[inside], tri[inside], h[inside], X[inside]
     d = h - curved_offset(V, F, X, tri, normals)

@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 from qifreport.errors import InputError
 
 __all__ = [
+    "barycentric",
     "MESH_SUFFIXES",
     "adjacency",
     "bending_operator",
@@ -433,3 +434,20 @@ def crease_band(V: np.ndarray, F: np.ndarray, width: float, angle_deg: float = 4
     d = csg.dijkstra(G, directed=False, indices=seeds, limit=width, min_only=True)
     out |= np.isfinite(d)
     return out
+
+
+def barycentric(V: np.ndarray, F: np.ndarray, face: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """(m, 3) barycentric coordinates of points ``X`` (m, 3) in the triangles ``F[face]``
+    of vertices ``V`` (n, 3) (a degenerate triangle gives its first corner's weight 1)."""
+    a, b, c = V[F[face, 0]], V[F[face, 1]], V[F[face, 2]]
+    v0, v1, v2 = b - a, c - a, X - a
+    d00 = np.einsum("ij,ij->i", v0, v0)
+    d01 = np.einsum("ij,ij->i", v0, v1)
+    d11 = np.einsum("ij,ij->i", v1, v1)
+    d20 = np.einsum("ij,ij->i", v2, v0)
+    d21 = np.einsum("ij,ij->i", v2, v1)
+    den = d00 * d11 - d01 * d01
+    den = np.where(np.abs(den) > 0, den, 1.0)
+    v = (d11 * d20 - d01 * d21) / den
+    w = (d00 * d21 - d01 * d20) / den
+    return np.c_[1.0 - v - w, v, w]

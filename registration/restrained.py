@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 
 from .clamps import Clamp
 from .elastic import ElasticModel, ElasticSolution, Pad
+from .mesh import barycentric
 
 __all__ = [
     "FACING_ANGLE",
@@ -490,18 +491,7 @@ def interpolate_on_triangles(
     ``(V, F)`` (closest points): from its vertex ``values`` (n, k), linear in each triangle;
     with its values ``mid`` (e, k) at the edges' midpoints (``tri_edges`` (f, 3), see
     :func:`triangle_edges`), quadratic."""
-    A, B, C = (V[F[tri, i]] for i in range(3))
-    v0, v1, v2 = B - A, C - A, points - A
-    d00 = np.einsum("ij,ij->i", v0, v0)
-    d01 = np.einsum("ij,ij->i", v0, v1)
-    d11 = np.einsum("ij,ij->i", v1, v1)
-    d20 = np.einsum("ij,ij->i", v2, v0)
-    d21 = np.einsum("ij,ij->i", v2, v1)
-    den = d00 * d11 - d01 * d01
-    den = np.where(np.abs(den) > 0, den, 1.0)
-    b = (d11 * d20 - d01 * d21) / den
-    c = (d00 * d21 - d01 * d20) / den
-    w = np.clip(np.c_[1.0 - b - c, b, c], 0.0, None)
+    w = np.clip(barycentric(V, F, tri, points), 0.0, None)
     w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
     vals = np.asarray(values)
     if mid is None:
