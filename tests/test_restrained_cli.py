@@ -136,6 +136,11 @@ def test_restrained_the_dent_fails_where_it_is_and_the_part_passes(shell_case):
     assert [c["name"] for c in clamps] == ["A1", "A2", "A3", "A4", "B1", "C1"]
     assert all(c["force_N"] is not None for c in clamps)
     assert b"restrained (ISO 10579)" in r.stdout
+    # the auditor's page says how the part was held
+    pdf = shell_case["tmp"] / "out-dented-0" / "shell_nominal.pdf"
+    text = subprocess.run(["pdftotext", "-layout", pdf, "-"], capture_output=True, check=True)
+    page = text.stdout.decode()
+    assert "RESTRAINED INSPECTION (ISO 10579)" in page and "6 clamps, PP" in page, page[:400]
     r, doc = inspect(shell_case, "conforming")
     assert r.returncode == 0, r.stdout.decode() + r.stderr.decode()
     assert doc["vertex_deviation"]["max_abs"] < 0.15

@@ -123,6 +123,8 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
     size = res.judged_size  # a solid's size check is a note, never what failed it
     if size is not None and size.flagged:
         out.append(f"size: scale {size.scale:.4f} ({size.size_deviation:+.2f} mm at the edge)")
+    if res.not_restrainable():
+        out.append(f"not restrainable at {', '.join(res.restraint.over_limit)}")
     return out
 
 
@@ -215,7 +217,12 @@ def draw_header(c: Canvas, ctx: ReportContext, box: Box) -> None:
         c,
         box.x,
         box.top - 8,
-        "SURFACE DEVIATION REPORT \u2014 VIRTUAL FIXTURE INSPECTION",
+        "SURFACE DEVIATION REPORT \u2014 "
+        + (
+            "RESTRAINED INSPECTION (ISO 10579)"
+            if res.restraint is not None
+            else "VIRTUAL FIXTURE INSPECTION"
+        ),
         7.0,
         True,
         MUTED,

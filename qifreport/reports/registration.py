@@ -43,11 +43,9 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
             held += f" ({sum(s != 'scan' for s in r.offset_sources)} unseen)"
         mat = r.model_info.get("material")
         rows += [
-            ["Restrained (ISO 10579) at", held],
             [
-                "Material / model vertices",
-                f"{'not stated' if mat is None else mat['name']} / "
-                f"{r.model_info.get('vertices', DASH)}",
+                "Restrained (ISO 10579) at",
+                f"{held}, {'material not stated' if mat is None else mat['name']}",
             ],
             [
                 "Clamp force total / largest, N",
