@@ -31,6 +31,7 @@ from qifreport.registration.icp import (
 )
 from qifreport.registration.mesh import (
     bounding_diagonal,
+    face_normals,
     vertex_normals,
 )
 from qifreport.registration.methods import METHODS, deform
@@ -994,7 +995,7 @@ def _restrained(
     prepared = judge["prepared"]
     tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
 
-    tri_n = _triangle_normals(V, F)
+    tri_n = face_normals(V, F)
     P0 = reg.P
     Ns_out = orient_scan_normals(P0, reg.scan_normals, V, prepared.ops.normals, sheets=reg.sheets)
     readings = _clamp_readings(P0, Ns_out, restraint, V, F, face_id, judge["brep_normals"])
@@ -1203,7 +1204,7 @@ def _clamp_readings(
                 None if brep_normals is None else brep_normals[tris],
                 P[idx],
             )
-        n = _triangle_normals(V, Fk)[local]
+        n = face_normals(V, Fk)[local]
         d = P[idx] - C
         plane = np.einsum("ij,ij->i", d, n)
         inside = np.linalg.norm(d - plane[:, None] * n, axis=1) < 1e-3  # mm: not beyond an edge
@@ -1212,12 +1213,6 @@ def _clamp_readings(
         ns.append(n[inside])
         corrs.append((pd - plane)[inside])
     return _ClampReadings(P=P, index=index, C=Cs, n=ns, corr=corrs)
-
-
-def _triangle_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """(f, 3) unit normals of the triangles."""
-    n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
-    return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
 
 
 def _fail_reasons(acc: Acceptance) -> list[str]:

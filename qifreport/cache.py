@@ -429,7 +429,7 @@ def build_state(
     restraint = None
     if options.restraint is not None:
         solid = None if nom.solid_mesh is None else (nom.solid_mesh.X, nom.solid_mesh.T)
-        restraint, _ = build_restraint(nom.V, nom.F, options.restraint, solid=solid)
+        restraint = build_restraint(nom.V, nom.F, options.restraint, solid=solid)
         nom.solid_mesh = None  # in the basis now: not kept in the cache entry
     if complete:
         prepared = prepare_part(nom.V, nom.F, params, basis=not lazy_basis)

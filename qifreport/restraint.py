@@ -28,6 +28,7 @@ import numpy as np
 
 from qifreport.registration.clamps import Clamp, parse_clamps
 from qifreport.registration.elastic import Material, elastic_model, material, rigid_rank
+from qifreport.registration.mesh import face_normals
 from qifreport.registration.restrained import RestraintBasis, restraint_basis
 
 from .errors import InputError
@@ -155,9 +156,7 @@ def _closest_normals(
     from qifreport.metrology.deviation import closest_points
 
     C, tri, _ = closest_points(V, F, points)
-    n = np.cross(V[F[tri, 1]] - V[F[tri, 0]], V[F[tri, 2]] - V[F[tri, 0]])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    return np.linalg.norm(points - C, axis=1), n
+    return np.linalg.norm(points - C, axis=1), face_normals(V, F)[tri]
 
 
 def _sheet_model_mesh(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -202,7 +201,7 @@ def build_restraint(
     spec: RestraintSpec,
     *,
     solid: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[RestraintBasis, dict]:
+) -> RestraintBasis:
     """The part's restraint basis: its elastic model solved once per clamp direction.
 
     Parameters
@@ -214,8 +213,9 @@ def build_restraint(
 
     Returns
     -------
-    basis : :class:`qifreport.registration.restrained.RestraintBasis`.
-    info : the model's provenance for the reports (material, mesh, seconds).
+    RestraintBasis
+        :class:`qifreport.registration.restrained.RestraintBasis`; its ``model`` the
+        model's provenance for the reports (material, mesh, seconds).
 
     Raises
     ------
@@ -295,4 +295,4 @@ def build_restraint(
         len(basis.owner),
         info["seconds"],
     )
-    return basis, info
+    return basis

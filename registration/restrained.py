@@ -190,12 +190,6 @@ class RestraintBasis:
     model: dict = field(default_factory=dict)
     forces_known: bool = True
 
-    @property
-    def clamp_face(self) -> np.ndarray:
-        """(p,) bool: the directions of clamps pressing on a surface (``n``), whose offset
-        the scan measures; the others are locators."""
-        return np.array([self.clamps[k].directions == "n" for k in self.owner], dtype=bool)
-
     def apply(self, offsets: np.ndarray) -> Restraint:
         """Restrain a free state whose clamps sit ``offsets`` (c,) mm along their normals
         (NaN: unseen, taken as 0 -- the caller says so).
@@ -205,8 +199,7 @@ class RestraintBasis:
         scan of the surface does not show how far a hole or an edge is from home, so the
         caller places the free state (:func:`rigid_motion`) where its held state fits
         best; the locators, statically determinate in a 3-2-1 scheme, then bend nothing."""
-        off = np.nan_to_num(np.asarray(offsets, dtype=np.float64), nan=0.0)
-        d = np.where(self.clamp_face, -off[self.owner] * self.coupling, 0.0)  # (p,) drives
+        d = _drives(self.clamps, self.owner, self.coupling, offsets)
         u, u_mid = self.U @ d, self.U_mid @ d
         f = self.G @ d
         energy = 0.5 * float(d @ f)  # the drives' (the weight's own is not the clamps')
@@ -245,6 +238,18 @@ def rigid_motion(xi: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.nda
         R = np.eye(3) + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
     o = np.asarray(origin, dtype=np.float64)
     return R, o + tr - R @ o
+
+
+def _drives(
+    clamps: list[Clamp], owner: np.ndarray, coupling: np.ndarray, offsets: np.ndarray
+) -> np.ndarray:
+    """(p,) each restrained direction's drive, mm: a clamp face (``n``) takes its offset
+    back along the direction (``coupling`` (p,): normal . direction); a locator (axes)
+    holds where the free state was placed (0). ``owner`` (p,): the clamp of each
+    direction; ``offsets`` (c,) NaN taken as 0."""
+    off = np.nan_to_num(np.asarray(offsets, dtype=np.float64), nan=0.0)
+    face = np.array([clamps[k].directions == "n" for k in owner], dtype=bool)
+    return np.where(face, -off[owner] * coupling, 0.0)
 
 
 def _over_limit(clamps: list[Clamp], force: np.ndarray) -> list[str]:
@@ -436,7 +441,8 @@ def restrain(
     surface: np.ndarray | None = None,
     load: np.ndarray | None = None,
 ) -> Restraint:
-    """Clamp the part: drive every clamp's pad back by its free-state offset.
+    """Clamp the part: drive every clamp face back by its free-state offset (locators hold
+    the placement given, as :meth:`RestraintBasis.apply`); one direct solve.
 
     Parameters
     ----------
@@ -456,11 +462,12 @@ def restrain(
     """
     pads, owner = _pads(model.X, clamps, normals, pad_radius, surface)
     offsets = np.asarray(offsets, dtype=np.float64)
-    off = np.nan_to_num(offsets, nan=0.0)
-    for pad, (k, e) in zip(pads, owner, strict=True):
-        n = np.asarray(normals[k], dtype=np.float64)
-        # the free-state surface sits off[k] along n: bring it back along e
-        pad.value = -off[k] * float(n @ e) / float(np.linalg.norm(n))
+    k = np.array([o[0] for o in owner], dtype=np.int64)
+    nrm = np.asarray(normals, dtype=np.float64)
+    nrm = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+    coupling = np.array([float(nrm[j] @ e) for j, e in owner])
+    for pad, d in zip(pads, _drives(clamps, k, coupling, offsets), strict=True):
+        pad.value = float(d)
     sol = model.solve(pads=pads, load=load)
     forces = np.zeros((len(clamps), 3))
     for (k, e), f in zip(owner, sol.pad_forces, strict=True):

@@ -135,8 +135,9 @@ def panel_warped_scan(step_path: Path, clamps_path: Path) -> np.ndarray:
 
     pos = np.array([c.position for c in clamps])
     _, tri, _ = closest_points(V, F, pos)
-    n = np.cross(V[F[tri, 1]] - V[F[tri, 0]], V[F[tri, 2]] - V[F[tri, 0]])
-    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    from qifreport.registration.mesh import face_normals
+
+    n = face_normals(V, F)[tri]
     from qifreport.restraint import boundary_normals
 
     sn = boundary_normals(tets.X, tets.T)
