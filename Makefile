@@ -50,10 +50,11 @@ system-deps:
 # Inspect the bundled samples: the STEP panel with semantic PMI (tolerances from the part
 # itself, no --tolerance), the mesh shell (fallback input, explicit tolerance), a
 # two-scan batch of the panel (summary table, QIF Statistics document, trend PDF), and the
-# panel's elastic free state held at its clamps (samples/panel_clamps.csv, restrained).
+# panel's elastic free state held at its datum targets (the RPS points of its drawing,
+# restrained; samples/panel_clamps.csv states the same clamps as a file).
 demo: install system-deps
 	mkdir -p $(OUT)
-	$(VENV)/bin/qifreport pmi samples/panel.step
+	$(VENV)/bin/qifreport pmi samples/panel.step --clamps pmi
 	$(VENV)/bin/qifreport samples/panel.step samples/panel_scan.ply --out $(OUT) --json --force \
 	  --export-mesh $(OUT)/panel_registered.ply; rc=$$?; if [ $$rc -gt 1 ]; then exit $$rc; fi
 	test -s $(OUT)/panel.json && test -s $(OUT)/panel.qif && test -s $(OUT)/panel.pdf \
@@ -69,14 +70,14 @@ demo: install system-deps
 	test -s $(OUT)/batch/summary.csv && test -s $(OUT)/batch/panel_statistics.qif \
 	  && test -s $(OUT)/batch/panel_trend.pdf
 	$(VENV)/bin/qifreport samples/panel.step samples/panel_scan_warped.ply \
-	  --clamps samples/panel_clamps.csv --material abs --out $(OUT)/restrained --json --force; \
+	  --clamps pmi --max-clamp-force 20 --material abs --out $(OUT)/restrained --json --force; \
 	  rc=$$?; if [ $$rc -gt 1 ]; then exit $$rc; fi
 	test -s $(OUT)/restrained/panel.json && test -s $(OUT)/restrained/panel.qif \
 	  && test -s $(OUT)/restrained/panel.pdf
 	$(VENV)/bin/qifreport validate $(OUT)/panel.qif $(OUT)/shell_nominal.qif \
 	  $(OUT)/batch/panel_statistics.qif $(OUT)/restrained/panel.qif
 	@echo "demo outputs in $(OUT)/ (a two-scan batch of the panel in $(OUT)/batch/, the" \
-	  "panel held at its clamps, ISO 10579, in $(OUT)/restrained/)"
+	  "panel held at its datum targets, ISO 10579, in $(OUT)/restrained/)"
 
 # both cores of the CI machine, a test file per worker (module fixtures stay in one process)
 test: install system-deps

@@ -42,6 +42,7 @@ from qifreport.registration.restrained import (
     Restraint,
     RestraintBasis,
     pad_mean,
+    read_directions,
     rigid_motion,
 )
 
@@ -999,11 +1000,22 @@ def _restrained(
     P0 = reg.P
     Ns_out = orient_scan_normals(P0, reg.scan_normals, V, prepared.ops.normals, sheets=reg.sheets)
     readings = _clamp_readings(P0, Ns_out, restraint, V, F, face_id, judge["brep_normals"])
+    for k, c in enumerate(restraint.clamps):
+        vals = readings.values(k)
+        log.info(
+            "clamp %s: %d readings, median %s mm, spread (IQR) %s mm",
+            c.name,
+            len(vals),
+            f"{np.median(vals):+.3f}" if len(vals) else "-",
+            f"{np.subtract(*np.percentile(vals, [75, 25])):.3f}" if len(vals) else "-",
+        )
     origin = V.mean(axis=0)
     offsets = readings.offsets()
     sources = ["scan"] * len(offsets)
-    # a locator's offset is not used (RestraintBasis.apply): only an unseen clamp face
-    # needs the free fixture's witness
+    # the restrained directions whose drive the scan gives (the faces, the locators it
+    # shows); the seat searches the rigid motions the others hold
+    read = read_directions(restraint.clamps, restraint.owner, restraint.coupling, offsets)
+    # an unseen clamp face takes the free fixture's witness
     faces = np.array([c.directions == "n" for c in restraint.clamps], dtype=bool)
     unseen = np.flatnonzero(~np.isfinite(offsets) & faces)
     fixed = np.zeros(len(offsets))
@@ -1038,7 +1050,7 @@ def _restrained(
         return pdev, C, cface, tri_n[cface]
 
     t1 = time.perf_counter()
-    xi = _seat_held(P0, restraint, V, distances, origin, offsets_at)
+    xi = _seat_held(P0, restraint, V, distances, origin, offsets_at, read)
     timings["restraint seat"] = time.perf_counter() - t1
     R, t = rigid_motion(xi, origin)
     P = P0 @ R.T + t
@@ -1068,7 +1080,8 @@ def _restrained(
 _SEAT_SAMPLE = 6000
 _SEAT_ROUNDS = 8
 _SEAT_SETTLED = 1e-3
-#: mm^2 of mean square held residual a 1 mm motion of the seat must gain
+#: mm^2 of mean square held residual a 1 mm motion of the seat must gain, at least (a
+#: quarter of the held residual's robust variance where the seat stands, when larger)
 _SEAT_PRIOR = 1e-4
 
 
@@ -1079,61 +1092,118 @@ def _seat_held(
     distances,
     origin: np.ndarray,
     offsets_at,
+    read: np.ndarray,
 ) -> np.ndarray:
     """(6,) the small rigid motion ``(omega, t)`` (rad, mm, about ``origin``) of the free
     state ``P`` (m, 3) whose held state fits the nominal best.
 
-    The held residual depends on the motion through each clamp face's offset
-    (``offsets_at(xi)``) and through what the locators do not take back: robust
-    Levenberg-Marquardt with a finite-difference Jacobian on a fixed sample of the points
-    (Tukey weights: a defect does not seat the part), each step accepted only if it lowers
-    the robust cost. Each sample point keeps the tangent plane of its closest nominal point
-    (``distances(Q)``: signed distances, closest points, triangles, normals), exact for
-    the motions a seat makes (a 1 mm slide over a 220 mm radius: 2 um)."""
+    Only the motions the clamps read from the scan do not take back are searched
+    (:func:`_seat_motions`, ``read`` (c,) bool). The held residual depends on the motion
+    through each read clamp's offset (``offsets_at(xi)``) and through what the unread
+    locators do not take back: robust Levenberg-Marquardt with a finite-difference Jacobian
+    on a fixed sample of the points (Tukey weights: a defect does not seat the part) and a
+    prior towards the free state's placement, each step accepted only if it lowers the
+    cost. Each round re-takes the tangent planes of the sample's closest nominal points
+    (``distances(Q)``: signed distances, closest points, triangles, normals)."""
     reach = float(np.linalg.norm(V - origin, axis=1).max())
+    B = _seat_motions(restraint, origin, reach, read)  # (6, q): xi = B z, mm at the reach
+    if B.shape[1] == 0:
+        return np.zeros(6)
     rng = np.random.default_rng(0)
     S = P[np.sort(rng.choice(len(P), min(_SEAT_SAMPLE, len(P)), replace=False))]
-    pd0, C0, tri0, N0 = distances(S)
-    corr = pd0 - np.einsum("ij,ij->i", N0, S - C0)  # the curved surface's own distance
+    q = B.shape[1]
 
-    def residual(xi: np.ndarray) -> np.ndarray:
-        R, t = rigid_motion(xi, origin)
-        pd = np.einsum("ij,ij->i", N0, S @ R.T + t - C0) + corr
-        u = restraint.apply(offsets_at(xi)).on_triangles(V, tri0, C0)
-        return pd + np.einsum("ij,ij->i", N0, u)
+    def linearised(z0: np.ndarray):
+        """The held residual of the sample moved by ``B z`` (q,), on the tangent planes and
+        held displacements of its closest nominal points with the sample moved by ``B z0``
+        (re-taken each round: the held displacement varies along the surface, 16 um over
+        a 0.8 mm slide on a shell lifted 2 mm at a corner)."""
+        R0, t0 = rigid_motion(B @ z0, origin)
+        pd0, C0, tri0, N0 = distances(S @ R0.T + t0)
+        corr = pd0 - np.einsum("ij,ij->i", N0, S @ R0.T + t0 - C0)  # the curved surface's
 
-    xi = np.zeros(6)
-    r = residual(xi)
+        def residual(z: np.ndarray) -> np.ndarray:
+            xi = B @ z
+            R, t = rigid_motion(xi, origin)
+            pd = np.einsum("ij,ij->i", N0, S @ R.T + t - C0) + corr
+            u = restraint.apply(offsets_at(xi)).on_triangles(V, tri0, C0)
+            return pd + np.einsum("ij,ij->i", N0, u)
+
+        return residual
+
+    z = np.zeros(q)
+    residual = linearised(z)
+    r0 = r = residual(z)
     scale = max(robust_scale(r), 1e-3)
-    cost = float(tukey_rho(r, scale).sum())
-    h = np.r_[np.full(3, 0.05 / reach), np.full(3, 0.05)]  # 50 um at the part's reach
-    for _ in range(_SEAT_ROUNDS):
-        J = np.stack([(residual(xi + h[k] * np.eye(6)[k]) - r) / h[k] for k in range(6)], 1)
+    # a prior on the placement (Tikhonov, towards the free state's): a motion must pay for
+    # itself, 1 mm of it lowering the mean square held residual by a quarter of the held
+    # residual's robust variance where it stands (at least (10 um)^2). Where the held state
+    # explains the scan (a restrainable warp) that is little and the seat goes where it
+    # fits; where it does not (a warp the clamps leave, a defect, another stiffness), a
+    # slide over a gently curved surface could absorb it: such a seat, damped but without
+    # a prior, slid 6 mm (bench/fixture.py, a thin shell with a bump)
+    h = 0.05  # mm of motion at the part's reach
+
+    def total(r: np.ndarray, z: np.ndarray, n_eff: float, prior: float) -> float:
+        return float(tukey_rho(r, scale).sum()) + 0.5 * prior * n_eff * float(z @ z)
+
+    for k in range(_SEAT_ROUNDS):
+        if k:
+            residual = linearised(z)
+            r = residual(z)
+        J = np.stack([(residual(z + h * np.eye(q)[i]) - r) / h for i in range(q)], 1)
         w = np.sqrt(tukey_weights(r, scale))
-        J_s = J * (h / h.max())  # both kinds in mm of motion
-        # Levenberg-Marquardt with the free state's placement as the prior: a motion must
-        # pay for itself (1 mm of it must lower the mean square held residual by (10 um)^2),
-        # so the motions the clamps take back, which the held residual barely sees, stay
-        A = J_s * w[:, None]
-        mu = _SEAT_PRIOR * float(np.sum(w**2))
-        dx = np.linalg.solve(A.T @ A + mu * np.eye(6), -A.T @ (r * w)) * (h / h.max())
+        n_eff = float(np.sum(w**2))
+        prior = max(_SEAT_PRIOR, 0.25 * robust_scale(r) ** 2)
+        cost = total(r, z, n_eff, prior)
+        A = J * w[:, None]
+        mu = prior * n_eff
+        dz = np.linalg.solve(A.T @ A + mu * np.eye(q), -A.T @ (r * w) - mu * z)
         for step in (1.0, 0.5, 0.25):
-            r_new = residual(xi + step * dx)
-            c_new = float(tukey_rho(r_new, scale).sum())
-            if c_new < cost:
+            r_new = residual(z + step * dz)
+            if total(r_new, z + step * dz, n_eff, prior) < cost:
                 break
         else:
             break
-        xi, r, cost = xi + step * dx, r_new, c_new
-        if step * (np.linalg.norm(dx[:3]) * reach + np.linalg.norm(dx[3:])) < _SEAT_SETTLED:
+        z, r = z + step * dz, r_new
+        if step * np.linalg.norm(dz) < _SEAT_SETTLED:
             break
+    xi = B @ z
     log.info(
-        "restrained seat: %.3g deg, %.3g mm (%d points)",
+        "restrained seat: %.3g deg, %.3g mm (%d points; residual scale %.3g mm, rms %.3g -> "
+        "%.3g mm)",
         np.degrees(np.linalg.norm(xi[:3])),
         np.linalg.norm(xi[3:]),
         len(S),
+        scale,
+        float(np.sqrt(np.mean(r0**2))),
+        float(np.sqrt(np.mean(r**2))),
     )
     return xi
+
+
+def _seat_motions(
+    restraint: RestraintBasis, origin: np.ndarray, reach: float, read: np.ndarray
+) -> np.ndarray:
+    """(6, q) the rigid motions ``(omega, t)`` per mm of motion at ``reach`` the seat
+    searches: those that move an unread locator along its axis (``read`` (p,) bool per
+    restrained direction). Every other motion is taken back by the drives the scan gives
+    (its component along a read direction) or free at the contacts (along a face clamp's
+    surface): the held state does not depend on it, and searching it let a seat walk along
+    a flat valley (12.7 deg on a warped panel)."""
+    S = np.r_[np.full(3, 1.0 / reach), np.ones(3)]
+    held = np.flatnonzero(~np.asarray(read, dtype=bool))
+    if len(held) == 0:
+        return np.zeros((6, 0))
+    at = (
+        np.array([restraint.clamps[restraint.owner[j]].position for j in held], dtype=np.float64)
+        - origin
+    )
+    e = restraint.directions[held]
+    rows = np.c_[np.cross(at, e), e] * S  # each held axis' motion per mm of each motion
+    _, sv, Vt = np.linalg.svd(rows, full_matrices=False)
+    rank = int(np.sum(sv > 1e-3 * sv.max()))
+    return S[:, None] * Vt[:rank].T
 
 
 @dataclass
@@ -1147,6 +1217,11 @@ class _ClampReadings:
     C: list[np.ndarray]
     n: list[np.ndarray]
     corr: list[np.ndarray]
+
+    def values(self, k: int) -> np.ndarray:
+        """(r,) clamp ``k``'s readings, mm, the free state as it is."""
+        idx = self.index[k]
+        return np.einsum("ij,ij->i", self.n[k], self.P[idx] - self.C[k]) + self.corr[k]
 
     def offsets(self, R: np.ndarray | None = None, t: np.ndarray | None = None) -> np.ndarray:
         """(c,) the clamps' offsets, mm (the median over each pad; NaN: fewer than 3

@@ -294,9 +294,11 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         "--clamps",
         type=Path,
         default=None,
-        metavar="FILE",
+        metavar="FILE|pmi",
         help="the clamps and supports (CSV rows: name, x, y, z, directions, optional "
-        "max_force_N; directions n (the surface normal) or axes from xyz; mm, part frame)",
+        "max_force_N; directions n (the surface normal) or axes from xyz; mm, part frame), "
+        "or pmi: the STEP nominal's datum targets (the primary datum's hold along the "
+        "normal, the others along their axis; force limits from --max-clamp-force)",
     )
     held.add_argument(
         "--material",
@@ -435,6 +437,23 @@ def _run_inspect(args: argparse.Namespace) -> int:
     return outcome.exit_code
 
 
+def clamps_table(rows: list[dict], source: str) -> str:
+    """The clamps of ``qifreport pmi --clamps`` as text lines."""
+    lines = [f"{len(rows)} clamp(s) from {source} (restrained condition, ISO 10579):"]
+    for r in rows:
+        limit = f"{r['max_force_N']:g} N" if r["max_force_N"] is not None else "no limit"
+        datum = f", datum {r['datum']} feature" if r["datum"] else ""
+        far = (
+            f", {r['off_surface_mm']:.2f} mm off the surface" if r["off_surface_mm"] > 0.01 else ""
+        )
+        lines.append(
+            f"  {r['name']:6s} ({r['x']:.2f}, {r['y']:.2f}, {r['z']:.2f}) mm  "
+            f"restrains {r['directions']:3s}  {limit:9s}  on face {r['face']} "
+            f"(#{r['face_step_id']}){datum}{far}"
+        )
+    return "\n".join(lines)
+
+
 def _run_pmi(args: argparse.Namespace) -> int:
     from qifreport.step.reader import read_step
     from qifreport.step.report import pmi_rows, pmi_table
@@ -443,6 +462,15 @@ def _run_pmi(args: argparse.Namespace) -> int:
     part = read_step(args.step)
     solids = solid_infos(part.shape, part.solid_names)
     overlaps = overlapping_pairs(part.shape, solids) if len(solids) > 1 else []
+    clamps = None
+    if args.clamps is not None:
+        from .restraint import PMI_CLAMPS, clamp_rows, clamps_from_pmi, read_clamps_file
+
+        if str(args.clamps) == PMI_CLAMPS:
+            found = clamps_from_pmi(args.step, args.max_clamp_force)
+        else:
+            found = read_clamps_file(args.clamps, args.max_clamp_force)
+        clamps = clamp_rows(part, found)
     if args.json:
         print(
             json.dumps(
@@ -456,6 +484,7 @@ def _run_pmi(args: argparse.Namespace) -> int:
                         {"solids": [a, b], "common_volume_mm3": v} for a, b, v in overlaps
                     ],
                     "items": pmi_rows(part),
+                    **({"clamps": clamps} if clamps is not None else {}),
                 },
                 indent=2,
                 default=json_default,
@@ -463,6 +492,12 @@ def _run_pmi(args: argparse.Namespace) -> int:
         )
     else:
         print(pmi_table(part))
+        if clamps is not None:
+            print(
+                clamps_table(
+                    clamps, "the datum targets" if str(args.clamps) == "pmi" else args.clamps.name
+                )
+            )
         if len(solids) > 1:
             print(f"{len(solids)} solids (inspect one with --solid NAME|INDEX):")
             for x in solids:
@@ -480,7 +515,11 @@ def _run_prepare(args: argparse.Namespace) -> int:
         raise InputError(f"nominal file not found: {args.nominal}")
     o = inspect_options(args)
     state, outcome = part_state(
-        args.nominal, o.nominal_options(), o.inspection_params(), o.cache_dir, rebuild=args.rebuild
+        args.nominal,
+        o.nominal_options(args.nominal),
+        o.inspection_params(),
+        o.cache_dir,
+        rebuild=args.rebuild,
     )
     print(outcome.describe())
     if outcome.timings:
@@ -541,6 +580,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("step", type=Path, help="STEP AP242 file")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument(
+        "--clamps",
+        type=Path,
+        metavar="FILE|pmi",
+        help="also list the clamps of this CSV, or of the datum targets (pmi), as --clamps of "
+        "inspect: the face and datum feature each sits on",
+    )
+    p.add_argument(
+        "--max-clamp-force",
+        type=float,
+        metavar="N",
+        help="force limit of the clamps that state none, N",
+    )
     p.set_defaults(run=_run_pmi)
 
     from .validate_command import add_arguments as add_validate_arguments

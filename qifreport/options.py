@@ -22,7 +22,13 @@ from qifreport.metrology.decision import DECISION_RULES, DEFAULT_DECISION_RULE
 from qifreport.metrology.params import InspectionParams
 from qifreport.registration.gbcicp import GBCICPParams
 
-from .restraint import DEFAULT_PAD_RADIUS, RestraintSpec, read_clamps_file
+from .restraint import (
+    DEFAULT_PAD_RADIUS,
+    PMI_CLAMPS,
+    RestraintSpec,
+    clamps_from_pmi,
+    read_clamps_file,
+)
 
 __all__ = [
     "RESULT_OPTIONS",
@@ -293,10 +299,11 @@ class InspectOptions:
             params.max_region_area = self.max_region_area
         return params
 
-    def restraint_spec(self) -> RestraintSpec | None:
+    def restraint_spec(self, nominal: Path | None = None) -> RestraintSpec | None:
         """How the part is held, when a restrained inspection may use it: the ``--clamps``
-        file read (:class:`~qifreport.errors.InputError` for a bad one); None with
-        ``--fixture free``, the rigid baseline, or no clamps."""
+        file read, or with ``--clamps pmi`` the datum targets of the STEP ``nominal``
+        (:class:`~qifreport.errors.InputError` for a bad one); None with ``--fixture free``,
+        the rigid baseline, or no clamps."""
         if self.fixture == "free" or self.rigid_only or self.always_fixture:
             return None
         if self.clamps is None:
@@ -306,16 +313,24 @@ class InspectOptions:
                     "z, directions[, max_force_N])"
                 )
             return None
+        if str(self.clamps) == PMI_CLAMPS:
+            if nominal is None:
+                raise InputError("--clamps pmi needs the STEP nominal whose datum targets hold it")
+            clamps, source = clamps_from_pmi(nominal, self.max_clamp_force), "PMI datum targets"
+        else:
+            clamps = read_clamps_file(self.clamps, self.max_clamp_force)
+            source = f"clamps file {self.clamps.name}"
         return RestraintSpec(
-            clamps=read_clamps_file(self.clamps, self.max_clamp_force),
-            source=f"clamps file {self.clamps.name}",
+            clamps=clamps,
+            source=source,
             material=self.material,
             thickness=self.thickness,
             pad_radius=self.pad_radius,
         )
 
-    def nominal_options(self) -> NominalOptions:
-        """How the nominal is read (and held, :meth:`restraint_spec`)."""
+    def nominal_options(self, nominal: Path | None = None) -> NominalOptions:
+        """How the nominal is read (and held, :meth:`restraint_spec`: ``nominal`` is the
+        file, for ``--clamps pmi``)."""
         self.check()
         return NominalOptions(
             self.tolerance,
@@ -324,7 +339,7 @@ class InspectOptions:
             self.accept_tolerance_as_read,
             self.mesher,
             self.solid,
-            self.restraint_spec(),
+            self.restraint_spec(nominal),
         )
 
     def result_options(self) -> dict:

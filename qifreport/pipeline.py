@@ -570,7 +570,7 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     started = datetime.now(timezone.utc)
     with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
         P, n_read = read_scan(job.scan, units=o.scan_units)
-    nominal_options, params = o.nominal_options(), o.inspection_params()
+    nominal_options, params = o.nominal_options(job.nominal), o.inspection_params()
     with _stage(prof, "prepare part (cache)"):
         # the free state is judged first: a part that conforms needs no bending basis, so a
         # new entry leaves it out and the first fixtured inspection stores it

@@ -38,11 +38,17 @@ __all__ = [
     "RestraintSpec",
     "boundary_normals",
     "build_restraint",
+    "PMI_CLAMPS",
+    "clamp_rows",
+    "clamps_from_pmi",
     "read_clamps_file",
     "with_limits",
 ]
 
 log = logging.getLogger(__name__)
+
+#: ``--clamps pmi``: the clamps are the STEP nominal's datum targets
+PMI_CLAMPS = "pmi"
 
 #: contact radius of a clamp or support, mm (an RPS pad of 10 mm diameter)
 DEFAULT_PAD_RADIUS = 5.0
@@ -296,3 +302,108 @@ def build_restraint(
         info["seconds"],
     )
     return basis
+
+
+def _primary_datum(pmi) -> str | None:
+    """The datum most tolerances name first (their primary), else the first datum."""
+    firsts = [t.datums[0].label for t in pmi.tolerances if getattr(t, "datums", None)]
+    if firsts:
+        return max(set(firsts), key=firsts.count)
+    return pmi.datums[0].label if pmi.datums else None
+
+
+def clamps_from_pmi(path: Path, max_force: float | None = None) -> tuple[Clamp, ...]:
+    """The clamps of a STEP nominal's datum targets (``--clamps pmi``): each placed target
+    is a contact at its placement. The primary datum's targets are the supports and clamps
+    (restraining along the surface normal, ``n``); the others are locators restraining
+    their axis (``x``, ``y`` or ``z`` when it is one, else ``n``). A drawing gives no force
+    limit: ``max_force`` (N, ``--max-clamp-force``) is each one's.
+
+    Raises
+    ------
+    InputError
+        Not a STEP file, an unreadable one, or no placed datum target (naming the datums
+        there are).
+    """
+    from qifreport.step.p21 import P21Error
+    from qifreport.step.semantic import read_pmi_text
+
+    if Path(path).suffix.lower() not in (".stp", ".step", ".p21"):
+        raise InputError(f"--clamps pmi: {Path(path).name} is a mesh, it has no datum targets")
+    try:
+        pmi = read_pmi_text(path)
+    except (OSError, P21Error) as exc:
+        raise InputError(f"--clamps pmi: {Path(path).name} cannot be read: {exc}") from None
+    if max_force is not None and not (math.isfinite(max_force) and max_force > 0):
+        raise InputError(f"--max-clamp-force must be a positive force in N, got {max_force}")
+    primary = _primary_datum(pmi)
+    clamps = []
+    for d in pmi.datums:
+        for t in d.target_details:
+            if t.position is None or t.direction is None:
+                continue
+            axis = np.abs(np.asarray(t.direction, dtype=float))
+            if d.label == primary or axis.max() < 0.999:
+                directions = "n"
+            else:
+                directions = "xyz"[int(np.argmax(axis))]
+            clamps.append(
+                Clamp(
+                    t.name,
+                    tuple(float(x) for x in t.position),
+                    directions,
+                    max_force,
+                    f"PMI datum target {t.name} (#{t.step_id}, {t.kind or 'target'})",
+                )
+            )
+    if not clamps:
+        labels = ", ".join(d.label for d in pmi.datums) or "none"
+        raise InputError(
+            f"--clamps pmi: {Path(path).name} has no placed datum target (datums: {labels}); "
+            "give the clamps as --clamps FILE"
+        )
+    return tuple(clamps)
+
+
+def clamp_rows(part, clamps: tuple[Clamp, ...]) -> list[dict]:
+    """One row per clamp for ``qifreport pmi --clamps``: where it sits on a STEP part.
+
+    Parameters
+    ----------
+    part : a :class:`qifreport.step.reader.StepPart`.  clamps : from :func:`read_clamps_file`.
+
+    Returns
+    -------
+    rows : name, x, y, z (mm), directions, max_force_N (None: no limit), source, face (its
+    index, the B-rep face it sits on), face_step_id, datum (the datum whose feature holds that
+    face, or ""), off_surface_mm (its distance from the part's surface).
+    """
+    from qifreport.metrology.deviation import closest_points
+    from qifreport.step.tessellate import tessellate
+
+    m = tessellate(part.shape, part.faces)
+    pos = np.array([c.position for c in clamps], dtype=np.float64).reshape(-1, 3)
+    C, tri, _ = closest_points(m.V, m.F, pos)
+    datum_of: dict[int, str] = {}
+    for d in getattr(part.pmi, "datums", None) or []:
+        for f in part.faces_of(d.face_step_ids):
+            datum_of.setdefault(f, d.label)
+    rows = []
+    for c, q, t in zip(clamps, C, tri, strict=True):
+        face = int(m.face_id[t])
+        rows.append(
+            {
+                "name": c.name,
+                "x": c.position[0],
+                "y": c.position[1],
+                "z": c.position[2],
+                "directions": c.directions,
+                "max_force_N": c.max_force,
+                "source": c.source,
+                "face": face,
+                "face_step_id": int(part.face_step_ids[face]),
+                "datum": datum_of.get(face, ""),
+                "off_surface_mm": float(np.linalg.norm(q - np.asarray(c.position))),
+            }
+        )
+    return rows

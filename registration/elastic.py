@@ -37,6 +37,7 @@ __all__ = [
     "Material",
     "Pad",
     "elastic_model",
+    "elastic_modes",
     "material",
 ]
 
@@ -213,6 +214,20 @@ class ElasticModel:
             return fx * v[0] + fy * v[1] + fz * v[2]
 
         return load.assemble(self._basis)
+
+    def mass(self) -> sp.csr_matrix:
+        """(N, N) the consistent mass matrix, t (the material's density; unit density,
+        mm^3, when it has none): the weight of the modes of :func:`elastic_modes`."""
+        from skfem import BilinearForm
+        from skfem.helpers import dot
+
+        rho = self.material.density or 1.0
+
+        @BilinearForm
+        def m(u, v, w):
+            return rho * dot(u, v)
+
+        return m.assemble(self._basis).tocsr()
 
     def gravity(self, direction=(0.0, 0.0, -1.0), g: float = GRAVITY) -> np.ndarray:
         """(N,) load vector of the part's own weight along ``direction`` (a unit vector
@@ -538,7 +553,30 @@ def rigid_rank(points: np.ndarray, directions: np.ndarray, X: np.ndarray) -> int
     return int(np.linalg.matrix_rank(A, tol=1e-9))
 
 
-def elastic_model(X: np.ndarray, T: np.ndarray, mat: Material, *, order: int = 2) -> ElasticModel:
+def elastic_modes(model: ElasticModel, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` lowest elastic (non-rigid) vibration modes of the free part.
+
+    Returns
+    -------
+    omega2 : (k,) squared angular frequencies, 1/s^2 (with the material's density).
+    modes : (N, k) degrees of freedom of each mode, mass-normalised (``phi' M phi = 1``).
+    """
+    M = model.mass()
+    # shift-invert below zero: K - sigma M is positive definite although K is singular
+    w, phi = spla.eigsh(model.K.tocsc(), k=k + 6, M=M.tocsc(), sigma=-1.0, which="LM")
+    order = np.argsort(w)
+    w, phi = w[order], phi[:, order]
+    return w[6:], phi[:, 6:]
+
+
+def elastic_model(
+    X: np.ndarray,
+    T: np.ndarray,
+    mat: Material,
+    *,
+    order: int = 2,
+    stiffness_scale: np.ndarray | None = None,
+) -> ElasticModel:
     """Assemble the linear elastic stiffness of a tetrahedral mesh.
 
     Parameters
@@ -546,6 +584,9 @@ def elastic_model(X: np.ndarray, T: np.ndarray, mat: Material, *, order: int = 2
     X : (n, 3) vertices, mm.  T : (k, 4) tetrahedra (any orientation).
     mat : the material.  order : 2 (quadratic tetrahedra, default: a thin wall in bending
         does not lock) or 1 (linear, for comparison only: it locks).
+    stiffness_scale : (k,) a positive factor on each tetrahedron's Young's modulus (a
+        simulator's uneven wall: ``(t / t0)^3`` makes a wall of thickness ``t`` as stiff in
+        bending as the nominal ``t0``); None: 1 everywhere.
 
     Returns
     -------
@@ -569,7 +610,22 @@ def elastic_model(X: np.ndarray, T: np.ndarray, mat: Material, *, order: int = 2
     elem = ElementVector(ElementTetP2() if order == 2 else ElementTetP1())
     basis = Basis(mesh, elem)
     lam, mu = mat.lame
-    K = asm(linear_elasticity(lam, mu), basis).tocsr()
+    if stiffness_scale is None:
+        K = asm(linear_elasticity(lam, mu), basis).tocsr()
+    else:
+        scale = np.asarray(stiffness_scale, dtype=np.float64)
+        if scale.shape != (len(T),) or not np.all(np.isfinite(scale) & (scale > 0)):
+            raise ValueError(f"stiffness_scale must be ({len(T)},) positive factors")
+        from skfem import BilinearForm
+        from skfem.helpers import ddot, sym_grad, trace
+
+        @BilinearForm
+        def scaled(u, v, w):
+            eu, ev = sym_grad(u), sym_grad(v)
+            return w["s"] * (2.0 * mu * ddot(eu, ev) + lam * trace(eu) * trace(ev))
+
+        nqp = basis.X.shape[1]
+        K = asm(scaled, basis, s=np.repeat(scale[:, None], nqp, axis=1)).tocsr()
     vertex_dofs = np.asarray(basis.nodal_dofs).T.copy()  # (n, 3)
     log.info(
         "elastic model: %d vertices, %d tetrahedra (P%d), %d dofs",

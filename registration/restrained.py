@@ -39,6 +39,7 @@ from .mesh import barycentric
 
 __all__ = [
     "FACING_ANGLE",
+    "read_directions",
     "Restraint",
     "RestraintBasis",
     "clamp_offsets",
@@ -194,11 +195,12 @@ class RestraintBasis:
         """Restrain a free state whose clamps sit ``offsets`` (c,) mm along their normals
         (NaN: unseen, taken as 0 -- the caller says so).
 
-        A clamp face (``n``) is driven back by its offset. A locator restraining axes (a
-        pin in a hole, a stop on an edge) holds the free state where it was placed: a
-        scan of the surface does not show how far a hole or an edge is from home, so the
-        caller places the free state (:func:`rigid_motion`) where its held state fits
-        best; the locators, statically determinate in a 3-2-1 scheme, then bend nothing."""
+        A clamp face (``n``) is driven back by its offset, and so is a locator's axis the
+        scan shows (:func:`read_directions`: a stop on a face seen facing it). A locator
+        axis it does not show (a pin's axis in a smooth surface's plane) holds the free
+        state where it was placed: the caller places it (:func:`rigid_motion`) where its
+        held state fits best; such locators, statically determinate in a 3-2-1 scheme,
+        then bend nothing."""
         d = _drives(self.clamps, self.owner, self.coupling, offsets)
         u, u_mid = self.U @ d, self.U_mid @ d
         f = self.G @ d
@@ -240,16 +242,33 @@ def rigid_motion(xi: np.ndarray, origin: np.ndarray) -> tuple[np.ndarray, np.nda
     return R, o + tr - R @ o
 
 
+def read_directions(
+    clamps: list[Clamp], owner: np.ndarray, coupling: np.ndarray, offsets: np.ndarray
+) -> np.ndarray:
+    """(p,) bool: the restrained directions whose drive is read from the free state's
+    offsets (c,) mm along the clamps' normals (NaN: not seen). A clamp face (``n``) is
+    always driven (an unseen one by the caller's witness); a locator's axis is read where
+    the surface under it faces that axis within :data:`FACING_ANGLE` (``|coupling|``: a
+    stop on an end face, seen by the scan, shows how far the part is from it) and the scan
+    saw it; else it is not (a pin's axis in a smooth surface's plane: a scan of that
+    surface does not show where its material went)."""
+    off = np.asarray(offsets, dtype=np.float64)
+    face = np.array([clamps[k].directions == "n" for k in owner], dtype=bool)
+    facing = np.abs(coupling) >= np.cos(np.radians(FACING_ANGLE))
+    return face | (facing & np.isfinite(off[owner]))
+
+
 def _drives(
     clamps: list[Clamp], owner: np.ndarray, coupling: np.ndarray, offsets: np.ndarray
 ) -> np.ndarray:
-    """(p,) each restrained direction's drive, mm: a clamp face (``n``) takes its offset
-    back along the direction (``coupling`` (p,): normal . direction); a locator (axes)
-    holds where the free state was placed (0). ``owner`` (p,): the clamp of each
-    direction; ``offsets`` (c,) NaN taken as 0."""
+    """(p,) each restrained direction's drive, mm: a direction read from the free state
+    (:func:`read_directions`) takes its offset back along it (``coupling`` (p,): normal .
+    direction); a locator's axis that cannot be read holds where the free state was
+    placed (0). ``owner`` (p,): the clamp of each direction; ``offsets`` (c,) NaN taken as
+    0."""
+    read = read_directions(clamps, owner, coupling, offsets)
     off = np.nan_to_num(np.asarray(offsets, dtype=np.float64), nan=0.0)
-    face = np.array([clamps[k].directions == "n" for k in owner], dtype=bool)
-    return np.where(face, -off[owner] * coupling, 0.0)
+    return np.where(read, -off[owner] * coupling, 0.0)
 
 
 def _over_limit(clamps: list[Clamp], force: np.ndarray) -> list[str]:

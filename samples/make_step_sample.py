@@ -42,7 +42,7 @@ from OCP.TopTools import TopTools_IndexedMapOfShape
 if __package__ in (None, ""):  # run as a script: make the repository importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from qifreport.step.write import PMISpecDatum, PMISpecTolerance, write_step_with_pmi  # noqa: E402
+from qifreport.step.write import PMISpecDatum, PMISpecTarget, PMISpecTolerance, write_step_with_pmi  # noqa: E402
 
 logger = logging.getLogger(__name__)
 
@@ -162,10 +162,36 @@ def sample_spec(shape: TopoDS_Shape) -> tuple[list[PMISpecDatum], list[PMISpecTo
         "outer skin",
         lambda f: f["type"] == GeomAbs_Cylinder and f["area"] > 1000.0 and f["c"][2] > 7.0,
     )
+    # the datum targets: where the inspection fixture (samples/panel_clamps.csv) touches the
+    # part, each with its face's outward normal (ISO 10579 RPS points)
+    y0, fx = WIDTH / 2, x0 - FLANGE / 2  # the flanges' mid-lines, x = +/-71
+    down, mid_wall = (0.0, 0.0, -1.0), WALL / 2
+
+    def target(n: int, p: tuple, d: tuple, face: int) -> PMISpecTarget:
+        return PMISpecTarget(n, p, d, face)
+
     datums = [
-        PMISpecDatum("A", [under_left, under_right]),
-        PMISpecDatum("B", [end_left]),
-        PMISpecDatum("C", [side_front]),
+        PMISpecDatum(
+            "A",
+            [under_left, under_right],
+            [
+                target(1, (-fx, -42.0, 0.0), down, under_left),
+                target(2, (fx, -42.0, 0.0), down, under_right),
+                target(3, (-fx, 42.0, 0.0), down, under_left),
+                target(4, (fx, 42.0, 0.0), down, under_right),
+            ],
+        ),
+        PMISpecDatum(
+            "B", [end_left], [target(1, (-x0, 0.0, mid_wall), (-1.0, 0.0, 0.0), end_left)]
+        ),
+        PMISpecDatum(
+            "C",
+            [side_front],
+            [
+                target(1, (-fx, -y0, mid_wall), (0.0, -1.0, 0.0), side_front),
+                target(2, (fx, -y0, mid_wall), (0.0, -1.0, 0.0), side_front),
+            ],
+        ),
     ]
     tolerances = [
         PMISpecTolerance(

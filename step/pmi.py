@@ -42,6 +42,28 @@ class DatumRef:
 
 
 @dataclass
+class DatumTarget:
+    """A datum target (PLACED_DATUM_TARGET_FEATURE or DATUM_TARGET) and where it is.
+
+    Attributes
+    ----------
+    name : e.g. ``'A1'`` (its datum's label and its number).
+    step_id : the target entity.  kind : ``'point'``, ``'line'``, ``'rectangle'``,
+        ``'circle'``, ``'area'`` (its description), or ``''``.
+    position : [x, y, z] mm of its placement's origin (None: not placed in the file).
+    direction : [x, y, z] unit, its placement's axis (None: not placed).
+    face_step_ids : the faces it lies on (FEATURE_FOR_DATUM_TARGET_RELATIONSHIP).
+    """
+
+    name: str
+    step_id: int
+    kind: str = ""
+    position: list[float] | None = None
+    direction: list[float] | None = None
+    face_step_ids: list[int] = field(default_factory=list)
+
+
+@dataclass
 class Datum:
     """A datum (DATUM entity) and the faces of its datum feature(s) or target features.
 
@@ -63,6 +85,8 @@ class Datum:
         How faces were derived when the file links the feature to non-face geometry (edges,
         datum target points and curves, axes, thread cylinders), e.g. ``'faces carrying the
         geometry: 3 CARTESIAN_POINT'``; ``[]`` when the file names the faces directly.
+    target_details : list of DatumTarget
+        The targets with their kind, placement and faces (same order as ``targets``).
     """
 
     step_id: int
@@ -72,6 +96,7 @@ class Datum:
     problems: list[str] = field(default_factory=list)
     feature_step_ids: list[int] = field(default_factory=list)
     face_notes: list[str] = field(default_factory=list)
+    target_details: list[DatumTarget] = field(default_factory=list)
 
 
 @dataclass
@@ -188,6 +213,8 @@ class Dimension:
         How faces were derived when the file links the feature to non-face geometry (edges,
         datum target points and curves, axes, thread cylinders), e.g. ``'faces carrying the
         geometry: 3 CARTESIAN_POINT'``; ``[]`` when the file names the faces directly.
+    target_details : list of DatumTarget
+        The targets with their kind, placement and faces (same order as ``targets``).
     """
 
     step_id: int

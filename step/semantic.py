@@ -30,6 +30,7 @@ why. Entry points: :func:`read_pmi_text` (a path) and :func:`pmi_from_model` (a 
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Iterable
 from pathlib import Path
@@ -37,7 +38,7 @@ from pathlib import Path
 from .face_links import LOCATION_TYPES, SIZE_TYPES, TARGET_TYPES, FaceLinker
 from .instance_graph import enum_names, refs_of, text_of
 from .p21 import Entity, Enum, P21Model, Ref
-from .pmi import PMI, Datum, DatumRef, Dimension, GeometricTolerance
+from .pmi import PMI, Datum, DatumRef, DatumTarget, Dimension, GeometricTolerance
 from .units import Measure, Unit, length_name, number_text
 
 log = logging.getLogger(__name__)
@@ -142,6 +143,44 @@ class _Reader(FaceLinker):
         return out
 
     # ---- datums -------------------------------------------------------------------------
+    def datum_target(self, name: str, tid: int, tp) -> DatumTarget:
+        """A target's kind, placement (mm: its representation's AXIS2_PLACEMENT_3D, named
+        'orientation' by AP242) and faces (its FEATURE_FOR_DATUM_TARGET_RELATIONSHIP's
+        shape aspect's)."""
+        kind = (text_of(tp[1]) if len(tp) >= 2 else "") or ""
+        position = direction = None
+        scale = self.context_length.scale or 1.0
+        for items in self._property_shape_items(tid):
+            for r in items:
+                pl = self.get(r)
+                pp = pl.part("AXIS2_PLACEMENT_3D") if pl is not None else None
+                if not pp or len(pp) < 3:
+                    continue
+                loc, axis = self.get(pp[1]), self.get(pp[2]) if isinstance(pp[2], Ref) else None
+                if loc is not None and loc.has("CARTESIAN_POINT"):
+                    c = [float(x) for x in loc.part("CARTESIAN_POINT")[1]] + [0.0] * 3
+                    position = [scale * x for x in c[:3]]
+                if axis is not None and axis.has("DIRECTION"):
+                    d = [float(x) for x in axis.part("DIRECTION")[1]] + [0.0] * 3
+                    n = math.sqrt(sum(x * x for x in d[:3]))
+                    direction = [x / n for x in d[:3]] if n > 0 else None
+                break
+            if position is not None:
+                break
+        faces: set[int] = set()
+        for rel in self.referrers_with(tid, ("FEATURE_FOR_DATUM_TARGET_RELATIONSHIP",)):
+            rp = rel.params
+            if len(rp) >= 4 and rp[3] == Ref(tid) and isinstance(rp[2], Ref):
+                faces.update(self.faces(rp[2])[0])
+        return DatumTarget(
+            name=name,
+            step_id=tid,
+            kind=kind,
+            position=position,
+            direction=direction,
+            face_step_ids=sorted(faces),
+        )
+
     def datum_label(self, ref: object) -> tuple[str, list[int], list[str]]:
         """Label, datum ids and per-element modifiers of a datum or a common datum."""
         ent = self.get(ref)
@@ -226,7 +265,7 @@ class _Reader(FaceLinker):
             problems: list[str] = []
             if not label:
                 problems.append(f"#{ent.id}: datum without identification")
-            targets, features = [], []
+            targets, features, details = [], [], {}
             for rel in self.referrers_with(ent.id, ("SHAPE_ASPECT_RELATIONSHIP",)):
                 rp = rel.params
                 if len(rp) >= 4 and rp[3] == Ref(ent.id) and isinstance(rp[2], Ref):
@@ -236,6 +275,9 @@ class _Reader(FaceLinker):
                     if tp is not None:
                         tid = text_of(tp[4]) if len(tp) >= 5 else ""
                         targets.append(f"{label}{tid}")
+                        details.setdefault(
+                            f"{label}{tid}", self.datum_target(f"{label}{tid}", src.id, tp)
+                        )
             faces, notes, face_notes = self.faces(Ref(ent.id))
             problems.extend(notes)
             out.append(
@@ -244,6 +286,7 @@ class _Reader(FaceLinker):
                     label=label,
                     face_step_ids=faces,
                     targets=sorted(set(targets), key=_natural),
+                    target_details=[details[t] for t in sorted(details, key=_natural)],
                     problems=problems,
                     feature_step_ids=_sorted_unique(features),
                     face_notes=face_notes,

@@ -57,6 +57,7 @@ from pathlib import Path
 
 from OCP.APIHeaderSection import APIHeaderSection_MakeHeader
 from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
+from OCP.gp import gp_Ax2, gp_Dir, gp_Pnt
 from OCP.IFSelect import IFSelect_ReturnStatus
 from OCP.Interface import Interface_Static
 from OCP.StepBasic import (
@@ -91,6 +92,7 @@ from OCP.TopoDS import TopoDS_Shape
 from OCP.TopTools import TopTools_IndexedMapOfShape
 from OCP.XCAFApp import XCAFApp_Application
 from OCP.XCAFDimTolObjects import (
+    XCAFDimTolObjects_DatumTargetType,
     XCAFDimTolObjects_GeomToleranceType,
     XCAFDimTolObjects_GeomToleranceTypeValue_None,
 )
@@ -104,6 +106,7 @@ __all__ = [
     "TOLERANCE_TYPES",
     "WHOLE_PART_TYPES",
     "PMISpecDatum",
+    "PMISpecTarget",
     "PMISpecTolerance",
     "write_step_solids",
     "write_step_with_pmi",
@@ -154,6 +157,31 @@ _AP242_SCHEMA = ("AP242DIS", 5)
 
 
 @dataclass
+class PMISpecTarget:
+    """A datum target point (ASME Y14.5 / ISO 5459): where a fixture touches the part.
+
+    Attributes
+    ----------
+    number : int
+        Its number on the datum: target ``A1`` is number 1 of datum ``A`` (>= 1).
+    position : (x, y, z) mm, on the part's surface.
+    direction : (x, y, z), the target's axis: the direction the contact holds (the outward
+        normal of the face it touches, for a support on a face).
+    face : int
+        The face it lies on (0-based index into ``TopExp.MapShapes(shape, TopAbs_FACE)``).
+
+    Written as a ``PLACED_DATUM_TARGET_FEATURE`` ('point') whose
+    ``SHAPE_REPRESENTATION_WITH_PARAMETERS`` holds its placement (an ``AXIS2_PLACEMENT_3D``
+    named 'orientation'), linked to its face and its datum.
+    """
+
+    number: int
+    position: tuple[float, float, float]
+    direction: tuple[float, float, float]
+    face: int
+
+
+@dataclass
 class PMISpecDatum:
     """A datum feature.
 
@@ -165,10 +193,13 @@ class PMISpecDatum:
         Faces of the datum feature: 0-based indices into
         ``TopExp.MapShapes(shape, TopAbs_FACE)``. Several faces make one (composite)
         datum feature, e.g. two coplanar flange faces.
+    targets : list of PMISpecTarget
+        Its datum target points (a restrained inspection's clamps), if any.
     """
 
     label: str
     faces: list[int]
+    targets: list[PMISpecTarget] = field(default_factory=list)
 
 
 @dataclass
@@ -309,6 +340,15 @@ def _validate(
         if not d.label or not d.label.isascii() or not d.label.isprintable():
             raise ValueError(f"datum label {d.label!r}: must be non-empty printable ASCII")
         check_faces(f"datum {d.label}", d.faces)
+        numbers = [tg.number for tg in d.targets]
+        if len(set(numbers)) != len(numbers) or any(n < 1 for n in numbers):
+            raise ValueError(f"datum {d.label}: target numbers must be unique and >= 1")
+        for tg in d.targets:
+            check_faces(f"datum target {d.label}{tg.number}", [tg.face])
+            if not all(math.isfinite(x) for x in (*tg.position, *tg.direction)):
+                raise ValueError(f"datum target {d.label}{tg.number}: non-finite placement")
+            if math.hypot(*tg.direction) < 1e-9:
+                raise ValueError(f"datum target {d.label}{tg.number}: zero direction")
     if len(set(labels)) != len(labels):
         raise ValueError(f"duplicate datum labels in {labels}")
 
@@ -380,11 +420,32 @@ def _fill_document(
         dimtol.SetDatum(labels_of(spec.faces), lab)
         return lab
 
+    def add_target(label: str, tg: PMISpecTarget) -> None:
+        lab = dimtol.AddDatum()
+        attr = XCAFDoc_Datum.Set_s(lab)
+        obj = attr.GetObject()
+        obj.SetName(TCollection_HAsciiString(label))
+        obj.IsDatumTarget(True)
+        obj.SetDatumTargetType(
+            XCAFDimTolObjects_DatumTargetType.XCAFDimTolObjects_DatumTargetType_Point
+        )
+        obj.SetDatumTargetAxis(
+            gp_Ax2(gp_Pnt(*map(float, tg.position)), gp_Dir(*map(float, tg.direction)))
+        )
+        obj.SetDatumTargetNumber(int(tg.number))
+        obj.SetPosition(0)
+        attr.SetObject(obj)
+        TDataStd_Name.Set_s(lab, TCollection_ExtendedString(f"Datum target {label}{tg.number}"))
+        dimtol.SetDatum(labels_of([tg.face]), lab)
+
     # One definition label per datum, in the given order: the writer writes each datum
     # (DATUM_FEATURE + DATUM) once, from the first label carrying its name.
     by_label = {d.label: d for d in datums}
     for d in datums:
         add_datum(d, 0)
+    for d in datums:
+        for tg in d.targets:
+            add_target(d.label, tg)
 
     for t, name in zip(tolerances, names, strict=True):
         lab = dimtol.AddGeomTolerance()

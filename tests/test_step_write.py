@@ -258,14 +258,18 @@ def xde_tolerances(doc) -> list[dict]:
     return out
 
 
-def xde_datums(doc) -> dict[str, list]:
-    """Datum name -> faces of its datum feature (the reader makes one label per use)."""
+def xde_datums(doc, targets: bool = False) -> dict[str, list]:
+    """Datum name -> faces of its datum feature (the reader makes one label per use), or
+    with ``targets`` of its datum targets (one label each)."""
     dimtol = XCAFDoc_DocumentTool.DimTolTool_s(doc.Main())
     labels = TDF_LabelSequence()
     dimtol.GetDatumLabels(labels)
     out: dict[str, list] = {}
     for lab in seq_list(labels):
-        name = XCAFDoc_Datum.Set_s(lab).GetObject().GetName().ToCString()
+        obj = XCAFDoc_Datum.Set_s(lab).GetObject()
+        if obj.IsDatumTarget() != targets:
+            continue
+        name = obj.GetName().ToCString()
         firsts, seconds = TDF_LabelSequence(), TDF_LabelSequence()
         assert XCAFDoc_DimTolTool.GetRefShapeLabel_s(lab, firsts, seconds)
         out.setdefault(name, []).append([XCAFDoc_ShapeTool.GetShape_s(f) for f in seq_list(firsts)])
@@ -360,9 +364,12 @@ def test_datum_features_link_faces_in_text(sample):
     assert sorted(datums) == ["A", "B", "C"]
     for d in spec["datums"]:
         rel = re.compile(rf"SHAPE_ASPECT_RELATIONSHIP\('[^']*',\$,(#\d+),{datums[d['label']]}\)")
-        (feature,) = [m[1] for b in ents.values() if (m := rel.fullmatch(b))]
-        assert "DATUM_FEATURE" in ents[feature]
+        related = [m[1] for b in ents.values() if (m := rel.fullmatch(b))]
+        (feature,) = [r for r in related if "DATUM_FEATURE" in ents[r]]
         assert len(aspect_faces(ents, feature)) == len(d["faces"])
+        # and its datum targets (the RPS points), one placed target feature each
+        targets = [r for r in related if "PLACED_DATUM_TARGET_FEATURE" in ents[r]]
+        assert len(targets) == len(d["targets"]) and len(related) == 1 + len(targets)
 
 
 # ----------------------------------------------------------------- (b) XDE round trip
@@ -393,6 +400,11 @@ def test_roundtrip_datums(sample, roundtrip, originals):
     for d in spec["datums"]:
         for faces in datums[d["label"]]:  # every use of the datum names the same faces
             assert sorted(index_of(f, originals) for f in faces) == sorted(d["faces"])
+    # each datum target on its own face
+    targets = xde_datums(roundtrip, targets=True)
+    for d in spec["datums"]:
+        got = {index_of(f, originals) for faces in targets[d["label"]] for f in faces}
+        assert got == {t["face"] for t in d["targets"]}  # (XDE may repeat a target's label)
 
 
 def test_sample_datums_are_mutually_perpendicular_planes(sample):

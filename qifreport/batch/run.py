@@ -99,7 +99,7 @@ def run_batch(opts: BatchOptions) -> BatchReport:
     o = opts.options
     o.check()
     params = o.inspection_params()
-    nopts = o.nominal_options()
+    o.nominal_options(opts.nominal)  # bad options are refused before any work
     template = InspectJob(nominal=opts.nominal, scan=opts.nominal, out=out, options=o)
 
     # one prepared state per distinct nominal (here, through the cache)
@@ -110,7 +110,9 @@ def run_batch(opts: BatchOptions) -> BatchReport:
             states[nom] = f"nominal file not found: {nom}"
             continue
         try:
-            states[nom], outcomes[str(nom)] = part_state(nom, nopts, params, o.cache_dir)
+            states[nom], outcomes[str(nom)] = part_state(
+                nom, o.nominal_options(nom), params, o.cache_dir
+            )
             log.info("%s: %s", nom, outcomes[str(nom)].describe())
         except InputError as exc:
             states[nom] = str(exc)

@@ -121,6 +121,28 @@ def draw_maps(c: Canvas, boxes: list[Box], views: list[RenderedView], n_listed: 
         if not v.name.startswith("oblique"):
             _draw_scale_bar(c, box, v)
         _draw_labels(c, box, v, n_listed)
+        _draw_markers(c, box, v)
+
+
+def _draw_markers(c: Canvas, box: Box, v: RenderedView) -> None:
+    """The clamps (RPS points): a triangle with the clamp's name (and force); hollow, grey
+    and unnamed where the part hides it (a clamp on the far side: another view names it)."""
+    h_px, w_px = v.image.shape[:2]
+    sx, sy = box.w / w_px, box.h / h_px
+    for m in v.markers:
+        x, y = box.x + m.x * sx, box.top - m.y * sy
+        colour = INK if m.visible else MUTED
+        c.setStrokeColorRGB(*colour)
+        c.setFillColorRGB(*colour)
+        c.setLineWidth(0.7)
+        p = c.beginPath()
+        p.moveTo(x, y)
+        p.lineTo(x - 3.2, y - 5.5)
+        p.lineTo(x + 3.2, y - 5.5)
+        p.close()
+        c.drawPath(p, stroke=1, fill=1 if m.visible else 0)
+        if m.visible:
+            draw_text(c, x, y - 12.0, m.name, 5.5, True, colour, "c")
 
 
 def _draw_axes(c: Canvas, box: Box, v: RenderedView) -> None:

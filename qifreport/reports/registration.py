@@ -52,6 +52,7 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
                 f"{r.total_force:.3g} / {r.force.max():.3g}" if r.forces_known else "not known",
             ],
         ]
+
         if r.over_limit:
             rows.append(["Not restrainable at", ", ".join(r.over_limit)])
     elif fit is None:

@@ -116,6 +116,18 @@ class RegionLabel:
 
 
 @dataclass
+class Marker:
+    """Where a clamp (an RPS point) is in a view: its ``name``, pixel ``x, y`` (origin at
+    the top-left corner) and whether the part hides it (``visible``: False, a clamp on
+    the far side)."""
+
+    name: str
+    x: float
+    y: float
+    visible: bool
+
+
+@dataclass
 class RenderedView:
     """One picture of the deviation map.
 
@@ -130,6 +142,7 @@ class RenderedView:
         shorter when foreshortened; picture y points up).
     mm_per_px : scale of the picture (parallel projection), mm per pixel.
     backend : ``"vtk"`` or ``"matplotlib"``.
+    markers : the clamps in this picture (:class:`Marker`).
     """
 
     image: np.ndarray
@@ -140,6 +153,7 @@ class RenderedView:
     axes: np.ndarray = field(default_factory=lambda: np.zeros((3, 2)))
     mm_per_px: float = math.nan
     backend: str = "vtk"
+    markers: list[Marker] = field(default_factory=list)
 
 
 # ------------------------------------------------------------------------------- colours
@@ -478,6 +492,7 @@ def render_views(
     scale: float | None = None,
     backend: str | None = None,
     margin: float | Sequence[float] | Sequence[Sequence[float]] = 0.04,
+    markers: Sequence[tuple[str, Sequence[float]]] = (),
 ) -> list[RenderedView]:
     """Pictures of the deviation map from two or three directions.
 
@@ -499,6 +514,7 @@ def render_views(
         logged warning when VTK cannot render).
     margin : empty border around the part, fraction of the picture size: one number, or
         ``(left, right, top, bottom)``, or one such tuple per view.
+    markers : ``(name, (x, y, z) mm)`` of the clamps to mark (:attr:`RenderedView.markers`).
 
     Returns
     -------
@@ -567,8 +583,29 @@ def render_views(
                 axes=axes,
                 mm_per_px=1.0 / pj.k,
                 backend=used,
+                markers=_markers(V, markers, pj, zb),
             )
         )
+    return out
+
+
+def _markers(V: np.ndarray, markers, pj: _Projection, zbuf: np.ndarray) -> list[Marker]:
+    """The clamps inside a view, each visible when no surface is nearer the camera at its
+    pixel (beyond a tolerance of two pixels or 1 % of the part)."""
+    if not len(markers):
+        return []
+    h, w = zbuf.shape
+    X = np.array([np.asarray(p, dtype=np.float64) for _, p in markers]).reshape(-1, 3)
+    px = pj.pixels(X)
+    tol = max(2.0 / pj.k, 1e-2 * float(np.ptp(V, axis=0).max()))
+    out = []
+    for (name, _), q, d in zip(markers, px, pj.distance(X), strict=True):
+        if not (0 <= q[0] < w and 0 <= q[1] < h):
+            continue
+        ix, iy = int(round(q[0])), int(round(q[1]))
+        near = zbuf[max(iy - 1, 0) : iy + 2, max(ix - 1, 0) : ix + 2]
+        front = float(np.min(near)) if near.size else math.inf
+        out.append(Marker(str(name), float(q[0]), float(q[1]), bool(d <= front + tol)))
     return out
 
 

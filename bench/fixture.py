@@ -1,0 +1,559 @@
+"""Fixture equivalence (issue 21): does the restrained virtual fixture give the decision a
+physical fixture gives, on free states and defects made by physics, not by our prior?
+
+For each part, randomised cases: a free (stress-free) shape made of the lowest elastic
+modes of the part at bounded amplitude (a warp) and clamp points pushed (handling), and
+one defect kind:
+
+* ``none``        the warp only;
+* ``dent``/``bump`` a plastic dent or bump, width sigma in {3, 5, 10, 15, 20, 30, 40} mm,
+                  depth 0.1-1.2 mm (log-uniform), at least 20 mm from any clamp;
+* ``springback``  (panel) one flange turned about its bend line by 2-20 mrad;
+* ``overwarp``    a warp whose clamping needs 1.3-3 times a clamp's force limit.
+
+The truth is :mod:`qifreport.simulate.fixture_truth`: the free shape clamped at the same
+RPS points by another elastic model (finer or other mesh, Poisson's ratio 0.05 off, the
+wall's stiffness varying as a +/-10 % thickness, pads of the clamps' stated 5 mm), judged
+by the same rule (area and region criteria, same zones, on the vertices the product
+scored); a clamp over its limit is a FAIL. The product sees only a scan of the free shape
+(virtual scanner, 0.02 mm noise, moved by a random pose of up to 10 deg and 20 mm) and is run
+in three ways with a warm per-part state: ``restrained`` (its clamps), ``free`` (the
+GB-CICP virtual fixture) and ``rigid`` (no fixture).
+
+Printed: per method and defect kind the confusion matrix (truth PASS/FAIL against product
+PASS/FAIL/NOT ESTABLISHED), false PASSes by defect width, the deviation field's RMS against
+the held truth on the scored vertices, and the clamp force error.
+
+    python bench/fixture.py [--cases 200] [--parts panel,shell] [--workers 2] [--seed 0]
+                            [--methods restrained,free,rigid] [--csv out.csv]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+
+WIDTHS = (3.0, 5.0, 10.0, 15.0, 20.0, 30.0, 40.0)
+KINDS = ("none", "dent", "bump", "springback", "overwarp")
+TRUTH_NU_OFFSET = 0.05
+WALL_SPREAD = 0.10  # +/- thickness variation of the truth's wall
+NOISE = 0.02  # mm, scanner range noise
+
+
+@dataclass
+class PartSetup:
+    """Everything a case of one part needs (built once, in the parent process)."""
+
+    name: str
+    nominal: Path
+    clamps_csv: Path
+    options: dict  # InspectOptions fields besides fixture / clamps
+    V: np.ndarray  # product nominal vertices (n, 3), triangles (f, 3), normals (n, 3)
+    F: np.ndarray
+    N: np.ndarray
+    Vs: np.ndarray  # the scanned surface (truth tessellation)
+    Fs: np.ndarray
+    fx: object  # SimulatedFixture
+    probe_V: object
+    probe_Vs: object
+    mode_scale: np.ndarray
+    defect_sites: np.ndarray  # candidate centres (k, 3) and their normals (k, 3)
+    defect_normals: np.ndarray
+    views: np.ndarray
+    flanges: list  # (origin, axis, side) of each bend line, or []
+    limit: float  # N, the face clamps' force limit
+
+
+def _views(k: int = 3, tilt_deg: float = 25.0, both_sides: bool = False) -> np.ndarray:
+    t = np.deg2rad(tilt_deg)
+    phi = 2 * np.pi * np.arange(k) / k
+    d = np.c_[np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), -np.cos(t) * np.ones(k)]
+    if both_sides:
+        d = np.vstack([d, d * np.array([1.0, 1.0, -1.0])])
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _clamp_normals(V, F, clamps):
+    from qifreport.metrology.deviation import closest_points
+    from qifreport.registration.mesh import face_normals
+
+    _, tri, _ = closest_points(V, F, np.array([c.position for c in clamps]))
+    return face_normals(V, F)[tri]
+
+
+def _sites(V, N, clamps, keep) -> tuple[np.ndarray, np.ndarray]:
+    """Defect centres: vertices in ``keep`` at least 20 mm from every clamp."""
+    C = np.array([c.position for c in clamps])
+    far = np.min(np.linalg.norm(V[:, None, :] - C[None], axis=2), axis=1) >= 20.0
+    idx = np.flatnonzero(keep & far)
+    return V[idx], N[idx]
+
+
+def _fixture(model_X, model_T, material, clamps, normals, rng, sn=None):
+    from qifreport.registration.elastic import elastic_model
+    from qifreport.simulate.fixture_truth import simulated_fixture, uneven_wall
+
+    scale = uneven_wall(model_X[model_T].mean(axis=1), WALL_SPREAD, 60.0, rng)
+    model = elastic_model(model_X, model_T, material, stiffness_scale=scale)
+    surface = None if sn is None else np.linalg.norm(sn, axis=1) > 0
+    return simulated_fixture(
+        model, clamps, normals, pad_radius=5.0, surface=surface, surface_normals=sn
+    )
+
+
+def _product_nominal(name, nominal, options, csv, cache):
+    """The product's own nominal (its restrained per-part state, which this also warms)."""
+    from qifreport.registration.mesh import vertex_normals
+
+    opts = _options(name, options, csv, "restrained", cache)
+    nom = _state((name, True), nominal, opts).nominal
+    return nom.V, nom.F, vertex_normals(nom.V, nom.F)
+
+
+def panel_setup(rng: np.random.Generator, cache: Path) -> PartSetup:
+    from qifreport.registration.clamps import parse_clamps
+    from qifreport.registration.elastic import MATERIALS, Material
+    from qifreport.registration.mesh import vertex_normals
+    from qifreport.restraint import boundary_normals
+    from qifreport.step.gmsh_mesh import gmsh_solid_mesh
+    from qifreport.step.reader import read_step
+    from qifreport.step.tessellate import tessellate
+
+    nominal = ROOT / "samples" / "panel.step"
+    csv = ROOT / "samples" / "panel_clamps.csv"
+    clamps = parse_clamps(csv.read_text(encoding="utf-8"))
+    V, F, N = _product_nominal("panel", nominal, {"material": "abs"}, csv, cache)
+    part = read_step(nominal, pmi=False)
+    m = tessellate(part.shape, part.faces, max_edge=2.5, deflection=0.01)
+    Vs, Fs = m.V, m.F
+    diag = float(np.linalg.norm(np.ptp(Vs, axis=0)))
+    tets = gmsh_solid_mesh(part.shape, diag / 60.0)
+    abs_ = MATERIALS["abs"]
+    mat = Material("truth", abs_.E, abs_.nu + TRUTH_NU_OFFSET, abs_.density)
+    normals = _clamp_normals(Vs, Fs, clamps)
+    fx = _fixture(tets.X, tets.T, mat, clamps, normals, rng, boundary_normals(tets.X, tets.T))
+    Ns = vertex_normals(Vs, Fs)
+    # dents on the crown's outer skin, away from its edges
+    keep = (Ns[:, 2] > 0.5) & (np.abs(Vs[:, 0]) < 52.0) & (np.abs(Vs[:, 1]) < 40.0)
+    keep &= Vs[:, 2] > 2.0
+    sites, site_n = _sites(Vs, Ns, clamps, keep)
+    xb = 80.0 - 18.0  # the flanges' bend lines, x = +/-62 mm
+    flanges = [
+        (np.array([xb, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])),
+        (np.array([-xb, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([-1.0, 0.0, 0.0])),
+    ]
+    return _setup(
+        "panel",
+        nominal,
+        csv,
+        {"material": "abs"},
+        V,
+        F,
+        N,
+        Vs,
+        Fs,
+        fx,
+        sites,
+        site_n,
+        _views(both_sides=True),
+        flanges,
+        20.0,
+    )
+
+
+def shell_setup(rng: np.random.Generator, out: Path, cache: Path) -> PartSetup:
+    from qifreport.registration.clamps import Clamp
+    from qifreport.registration.elastic import MATERIALS, Material
+    from qifreport.registration.mesh import load_mesh, vertex_normals
+    from qifreport.registration.sheet_solid import sheet_solid
+    from qifreport.simulate.shapes import thin_shell
+
+    nominal = ROOT / "samples" / "shell_nominal.ply"
+    V, _ = load_mesh(nominal)
+    N = vertex_normals(V, _)
+    lo, hi = V[:, :2].min(axis=0) + 6.0, V[:, :2].max(axis=0) - 6.0
+    spots = [
+        ("A1", (lo[0], lo[1]), "n"),
+        ("A2", (hi[0], lo[1]), "n"),
+        ("A3", (lo[0], hi[1]), "n"),
+        ("A4", (hi[0], hi[1]), "n"),
+        ("B1", (lo[0], 0.0), "xy"),
+        ("C1", (hi[0], 0.0), "y"),
+    ]
+    limit = 5.0
+    clamps, normals, rows = [], [], ["name,x,y,z,directions,max_force_N"]
+    for name, xy, d in spots:
+        v = int(np.argmin(np.linalg.norm(V[:, :2] - np.asarray(xy), axis=1)))
+        lim = limit if d == "n" else None
+        clamps.append(Clamp(name, tuple(float(x) for x in V[v]), d, lim))
+        normals.append(N[v])
+        rows.append(f"{name},{V[v, 0]:.4f},{V[v, 1]:.4f},{V[v, 2]:.4f},{d},{lim or ''}")
+    csv = out / "shell_clamps.csv"
+    csv.write_text("\n".join(rows) + "\n")
+    Vt, Ft = thin_shell(spacing=3.0)  # the 5 mm pads need several truth vertices
+    solid = sheet_solid(Vt, Ft, vertex_normals(Vt, Ft), 2.0)
+    pp = MATERIALS["pp"]
+    mat = Material("truth", pp.E, pp.nu - TRUTH_NU_OFFSET, pp.density)
+    fx = _fixture(solid.X, solid.T, mat, clamps, np.array(normals), rng)
+    options = {"material": "pp", "thickness": 2.0, "tolerance": 0.3}
+    V, F, N = _product_nominal("shell", nominal, options, csv, cache)
+    span = np.ptp(V[:, :2], axis=0) / 2
+    keep = np.all(np.abs(V[:, :2]) < span - 15.0, axis=1)
+    sites, site_n = _sites(V, N, clamps, keep)
+    return _setup(
+        "shell",
+        nominal,
+        csv,
+        options,
+        V,
+        F,
+        N,
+        V,
+        F,
+        fx,
+        sites,
+        site_n,
+        _views(),
+        [],
+        limit,
+    )
+
+
+def _setup(name, nominal, csv, options, V, F, N, Vs, Fs, fx, sites, site_n, views, flanges, limit):
+    return PartSetup(
+        name=name,
+        nominal=nominal,
+        clamps_csv=csv,
+        options=options,
+        V=V,
+        F=F,
+        N=N,
+        Vs=Vs,
+        Fs=Fs,
+        fx=fx,
+        probe_V=fx.model.probes(V),
+        probe_Vs=fx.model.probes(Vs),
+        mode_scale=fx.mode_scale(Vs),
+        defect_sites=sites,
+        defect_normals=site_n,
+        views=views,
+        flanges=flanges,
+        limit=limit,
+    )
+
+
+# --------------------------------------------------------------------------- cases
+
+
+def make_case(part: PartSetup, seed: int, kind: str):
+    """(free state, held truth at the nominal's vertices, meta) of one case."""
+    from qifreport.simulate.fixture_truth import FreeState, dent, hold, springback
+
+    rng = np.random.default_rng(seed)
+    fx = part.fx
+    k = len(fx.omega2)
+    # a warp: the lowest modes, weighted 1/omega (bounded energy), scaled to a peak
+    c = rng.normal(size=k) / np.sqrt(fx.omega2 / fx.omega2[0]) / part.mode_scale
+    warp = fx.modes @ c
+    peak = np.linalg.norm(fx.at(warp, part.probe_Vs), axis=1).max()
+    amplitude = rng.uniform(0.05, 0.6)
+    warp *= amplitude / peak
+    face = [j for j, i in enumerate(fx.owner) if fx.clamps[i].directions == "n"]
+    lifts = np.zeros(len(fx.pads))
+    lifts[face] = rng.normal(0.0, 0.7, len(face))
+    dofs = warp + fx.D @ lifts
+    meta = {"seed": seed, "kind": kind, "warp_mm": amplitude, "sigma": math.nan, "depth": math.nan}
+    defects = []
+    if kind in ("dent", "bump"):
+        i = rng.integers(len(part.defect_sites))
+        sigma = float(rng.choice(WIDTHS))
+        depth = float(np.exp(rng.uniform(np.log(0.1), np.log(1.2))))
+        a = -depth if kind == "dent" else depth
+        defects.append(dent(part.defect_sites[i], part.defect_normals[i], a, sigma))
+        meta.update(sigma=sigma, depth=depth, centre=part.defect_sites[i].tolist())
+    elif kind == "springback":
+        o, ax, side = part.flanges[rng.integers(len(part.flanges))]
+        angle = float(rng.choice([-1, 1]) * rng.uniform(0.002, 0.02))
+        defects.append(springback(o, ax, side, angle))
+        meta.update(angle_mrad=1e3 * angle)
+    state = FreeState(dofs, tuple(defects))
+    held = hold(fx, state, part.V, part.probe_V)
+    if kind == "overwarp":  # scale the warp until a face clamp needs 1.3-3 x its limit
+        need = max(
+            float(
+                held.force[[fx.clamps[i].directions == "n" for i in range(len(fx.clamps))]].max()
+            ),
+            1e-9,
+        )
+        s = rng.uniform(1.3, 3.0) * part.limit / need
+        state = FreeState(dofs * s, ())
+        held = hold(fx, state, part.V, part.probe_V)
+        meta["warp_mm"] = amplitude * s
+    free_u = state.displacement(fx, part.Vs, part.probe_Vs)
+    return state, held, free_u, meta
+
+
+def scan_of(part: PartSetup, free_u: np.ndarray, seed: int) -> np.ndarray:
+    """The free state scanned (float32, mm), delivered in the part frame."""
+    from qifreport.simulate.scanner import ScanSpec, virtual_scan
+
+    spec = ScanSpec(directions=part.views, noise=NOISE, seed=seed)
+    return virtual_scan(part.Vs + free_u, part.Fs, spec).P.astype(np.float32)
+
+
+# ------------------------------------------------------------------- product runs (workers)
+
+_STATES: dict = {}  # per worker process: (part, method) -> PartState
+
+
+def _options(part_name, nominal_opts, clamps_csv, method, cache):
+    from qifreport.options import InspectOptions
+
+    if method == "restrained":
+        return InspectOptions(
+            cache_dir=cache, fixture="restrained", clamps=clamps_csv, **nominal_opts
+        )
+    plain = {k: v for k, v in nominal_opts.items() if k not in ("material", "thickness")}
+    return InspectOptions(cache_dir=cache, fixture="free", rigid_only=(method == "rigid"), **plain)
+
+
+def _state(key, nominal, opts):
+    from qifreport.cache import part_state
+
+    if key not in _STATES:
+        _STATES[key], _ = part_state(
+            nominal, opts.nominal_options(), opts.inspection_params(), opts.cache_dir
+        )
+    return _STATES[key]
+
+
+def run_product(task: dict) -> dict:
+    """One product run (in a worker): the verdict, its deviation field and forces."""
+    import logging
+
+    logging.disable(logging.WARNING)
+    from qifreport.options import InspectJob
+    from qifreport.pipeline import inspect_state, scan_input
+
+    opts = _options(task["part"], task["options"], task["clamps"], task["method"], task["cache"])
+    state = _state((task["part"], task["method"] == "restrained"), task["nominal"], opts)
+    job = InspectJob(nominal=task["nominal"], scan=Path("case.ply"), options=opts)
+    t0 = time.perf_counter()
+    P, _ = scan_input(np.asarray(task["P"], dtype=np.float64), len(task["P"]), state.nominal)
+    try:
+        res = inspect_state(P, state, job)
+    except Exception as e:  # noqa: BLE001 -- a refusal is a result of the benchmark
+        return {"verdict": "ERROR", "error": f"{type(e).__name__}: {e}", "seconds": 0.0}
+    out = {
+        "verdict": res.verdict,
+        "decided_by": "; ".join(res.decided_by()),
+        "deviation": res.deviation.astype(np.float32),
+        "seconds": time.perf_counter() - t0,
+        "half_width": res.bands.half_width,
+        "center": res.bands.center,
+        "min_fraction": res.params.min_fraction,
+        "max_region_area": res.params.max_region_area,
+    }
+    if res.restraint is not None:
+        out["force"] = np.asarray(res.restraint.force, dtype=float)
+    return out
+
+
+# --------------------------------------------------------------------------- judging
+
+
+def truth_verdict(part: PartSetup, held, scored: np.ndarray, run: dict) -> tuple[str, float]:
+    """The physical fixture's verdict on the product's scored vertices, and the largest
+    band exceedance (mm; < 0: inside every band by that much)."""
+    from qifreport.metrology.acceptance import evaluate
+
+    e = np.einsum("ij,ij->i", held.u, part.N)
+    e = np.where(scored, e, np.nan)
+    acc = evaluate(
+        part.V,
+        part.F,
+        e,
+        run["half_width"],
+        min_fraction=run["min_fraction"],
+        max_region_area=run["max_region_area"],
+        center=run["center"],
+    )
+    with np.errstate(invalid="ignore"):
+        margin = float(np.nanmax(np.abs(e - run["center"]) - run["half_width"]))
+    limited = [i for i, c in enumerate(part.fx.clamps) if c.max_force is not None]
+    over = any(held.force[i] > part.fx.clamps[i].max_force for i in limited)
+    return ("FAIL" if (over or not acc.passed) else "PASS"), margin, over
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cases", type=int, default=200, help="cases in all (split over parts)")
+    ap.add_argument("--parts", default="panel,shell")
+    ap.add_argument("--methods", default="restrained,free,rigid")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--csv", type=Path, default=None)
+    ap.add_argument("--dump", type=Path, default=None, help="write each case's arrays here")
+    args = ap.parse_args(argv)
+    methods = args.methods.split(",")
+    parts = args.parts.split(",")
+    work = Path(tempfile.mkdtemp(prefix="qifreport-fixture-"))
+    cache = work / "cache"
+    rng = np.random.default_rng(args.seed)
+    setups = {}
+    t0 = time.perf_counter()
+    for p in parts:
+        setups[p] = panel_setup(rng, cache) if p == "panel" else shell_setup(rng, work, cache)
+        print(f"{p}: truth built ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
+    # warm the per-part states (one build per part and fixture, then every worker loads it)
+    for p in parts:
+        s = setups[p]
+        for m in {"restrained", "free"} & set(methods) | (
+            {"free"} if "rigid" in methods else set()
+        ):
+            _state(
+                (p, m == "restrained"), s.nominal, _options(p, s.options, s.clamps_csv, m, cache)
+            )
+    _STATES.clear()
+    rows = []
+    per_part = max(1, args.cases // len(parts))
+    kinds_of = {p: [k for k in KINDS if k != "springback" or setups[p].flanges] for p in parts}
+    weights = {"none": 2, "dent": 3, "bump": 3, "springback": 1, "overwarp": 1}
+    plan = []
+    for ip, p in enumerate(parts):
+        ks = kinds_of[p]
+        w = np.array([weights[k] for k in ks], float)
+        for i in range(per_part):
+            seed = args.seed * 100_000 + ip * 10_000 + i
+            kind = ks[np.random.default_rng(seed).choice(len(ks), p=w / w.sum())]
+            plan.append((p, seed, kind))
+    with ProcessPoolExecutor(max_workers=args.workers) as pool:
+        pending = []
+        for p, seed, kind in plan:
+            s = setups[p]
+            state, held, free_u, meta = make_case(s, seed, kind)
+            P = scan_of(s, free_u, seed)
+            futs = {
+                m: pool.submit(
+                    run_product,
+                    {
+                        "part": p,
+                        "nominal": s.nominal,
+                        "options": s.options,
+                        "clamps": s.clamps_csv,
+                        "method": m,
+                        "cache": cache,
+                        "P": P,
+                    },
+                )
+                for m in methods
+            }
+            pending.append((p, meta, held, futs))
+        for n_done, (p, meta, held, futs) in enumerate(pending, 1):
+            s = setups[p]
+            runs = {m: f.result() for m, f in futs.items()}
+            ref = runs.get("restrained") or next(iter(runs.values()))
+            if ref["verdict"] == "ERROR":
+                print(f"case {meta['seed']}: {ref['error']}", file=sys.stderr)
+                continue
+            scored = np.isfinite(ref["deviation"])
+            truth, margin, over = truth_verdict(s, held, scored, ref)
+            e = np.einsum("ij,ij->i", held.u, s.N)
+            if args.dump:
+                args.dump.mkdir(parents=True, exist_ok=True)
+                np.savez_compressed(
+                    args.dump / f"{p}_{meta['seed']}.npz",
+                    V=s.V,
+                    F=s.F,
+                    N=s.N,
+                    u=held.u,
+                    e=e,
+                    force=held.force,
+                    **{f"dev_{m}": r["deviation"] for m, r in runs.items() if "deviation" in r},
+                    **{f"force_{m}": r["force"] for m, r in runs.items() if "force" in r},
+                )
+            for m, r in runs.items():
+                row = {"part": p, "method": m, "truth": truth, "margin": margin, "over": over}
+                row.update({k: v for k, v in meta.items() if k != "centre"})
+                row["verdict"] = r["verdict"]
+                row["seconds"] = r["seconds"]
+                if r["verdict"] != "ERROR":
+                    d = r["deviation"].astype(float)
+                    ok = scored & np.isfinite(d)
+                    row["dev_rms"] = float(np.sqrt(np.mean((d[ok] - e[ok]) ** 2)))
+                    row["dev_max"] = float(np.max(np.abs(d[ok] - e[ok])))
+                if "force" in r:
+                    ft = held.force
+                    row["force_true_max"] = float(ft.max())
+                    row["force_err_rel"] = float(
+                        np.max(np.abs(r["force"] - ft)) / max(float(ft.max()), 1e-9)
+                    )
+                rows.append(row)
+            print(
+                f"[{n_done}/{len(pending)}] {p} {meta['kind']:10s} truth {truth:4s} "
+                + " ".join(f"{m}={runs[m]['verdict']}" for m in methods),
+                file=sys.stderr,
+            )
+    df = pd.DataFrame(rows)
+    if args.csv:
+        df.to_csv(args.csv, index=False)
+    report(df)
+    return 0
+
+
+def report(df: pd.DataFrame) -> None:
+    pd.set_option("display.width", 160)
+    short = {"PASS": "P", "FAIL": "F", "NOT ESTABLISHED": "NE", "NOT MEASURED": "NM", "ERROR": "E"}
+    df = df.assign(v=df.verdict.map(short).fillna("?"))
+    per_part = df.groupby("part").seed.nunique()
+    print(f"cases: {df.seed.nunique()} ({', '.join(f'{p}: {n}' for p, n in per_part.items())})")
+    for m, g in df.groupby("method", sort=False):
+        agree = (g.verdict == g.truth).mean()
+        false_pass = ((g.truth == "FAIL") & (g.verdict == "PASS")).sum()
+        false_fail = ((g.truth == "PASS") & (g.verdict == "FAIL")).sum()
+        ne = (~g.verdict.isin(["PASS", "FAIL"])).sum()
+        print(
+            f"\n== {m}: agreement {100 * agree:.1f} % of {len(g)}; false PASS {false_pass}, "
+            f"false FAIL {false_fail}, not established/other {ne}; "
+            f"deviation vs held truth rms median {g.dev_rms.median():.4f} mm, "
+            f"p95 {g.dev_rms.quantile(0.95):.4f}, max {g.dev_rms.max():.4f}; "
+            f"median {g.seconds.median():.1f} s/run"
+        )
+        print(pd.crosstab([g.kind, g.truth], g.v).to_string())
+        dents = g[g.kind.isin(["dent", "bump"])]
+        if len(dents):
+            t = dents.groupby("sigma").apply(
+                lambda x: pd.Series(
+                    {
+                        "cases": len(x),
+                        "truth_FAIL": int((x.truth == "FAIL").sum()),
+                        "false_PASS": int(((x.truth == "FAIL") & (x.verdict == "PASS")).sum()),
+                        "false_FAIL": int(((x.truth == "PASS") & (x.verdict == "FAIL")).sum()),
+                        "dev_rms_med": x.dev_rms.median(),
+                    }
+                ),
+                include_groups=False,
+            )
+            print(t.to_string())
+        if "force_err_rel" in g and g.force_err_rel.notna().any():
+            fe = g.force_err_rel.dropna()
+            print(
+                "clamp force error (largest clamp error / largest true force): median "
+                f"{100 * fe.median():.1f} %, p95 {100 * fe.quantile(0.95):.1f} %, "
+                f"max {100 * fe.max():.1f} %"
+            )
+
+
+if __name__ == "__main__":
+    sys.exit(main())
