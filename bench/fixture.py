@@ -487,6 +487,7 @@ def main(argv: list[str] | None = None) -> int:
                 row = {"part": p, "method": m, "truth": truth, "margin": margin, "over": over}
                 row.update({k: v for k, v in meta.items() if k != "centre"})
                 row["verdict"] = r["verdict"]
+                row["decided_by"] = r.get("decided_by", r.get("error", ""))
                 row["seconds"] = r["seconds"]
                 if r["verdict"] != "ERROR":
                     d = r["deviation"].astype(float)

@@ -91,7 +91,7 @@ def decide(rule: str, passed: bool, proven_in: bool, proven_out: bool) -> str:
     raise ValueError(f"unknown decision rule {rule!r} (one of {', '.join(DECISION_RULES)})")
 
 
-def vertex_uncertainty(variance: np.ndarray, systematic: float = 0.0) -> np.ndarray:
+def vertex_uncertainty(variance: np.ndarray, systematic: float | np.ndarray = 0.0) -> np.ndarray:
     """Expanded uncertainty ``U`` (n,) mm (k = 2) of each vertex's measured deviation.
 
     Parameters
@@ -100,11 +100,12 @@ def vertex_uncertainty(variance: np.ndarray, systematic: float = 0.0) -> np.ndar
         scan points it was fitted to (NaN where unscored;
         :func:`qifreport.metrology.deviation.residual_referenced` with ``variance=True``).
     systematic : an expanded uncertainty common to every vertex, mm (a scanner's stated
-        accuracy), combined in quadrature.
+        accuracy), or one per vertex (n,) (with a restrained hold's model uncertainty),
+        combined in quadrature.
 
     Returns
     -------
     (n,) float, mm: ``sqrt(4 variance + systematic^2)``; NaN where ``variance`` is.
     """
     var = np.asarray(variance, dtype=np.float64)
-    return np.sqrt(4.0 * var + float(systematic) ** 2)
+    return np.sqrt(4.0 * var + np.asarray(systematic, dtype=np.float64) ** 2)

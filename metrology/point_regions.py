@@ -173,7 +173,7 @@ def scan_samples(
     point_label: np.ndarray | None,
     *,
     k: int = DEFAULT_K,
-    systematic: float = 0.0,
+    systematic: float | np.ndarray = 0.0,
 ) -> ScanSamples:
     """The scan points' local values and uncertainties (:class:`ScanSamples`).
 
@@ -185,7 +185,8 @@ def scan_samples(
     point_label : (m,) B-rep face of each point (-1: none); None: one surface (a mesh
         nominal).
     k : points in each median.
-    systematic : a scanner's stated expanded uncertainty, mm, added in quadrature.
+    systematic : a scanner's stated expanded uncertainty, mm, added in quadrature (or one
+        per point (m,): a restrained hold's model uncertainty besides).
     """
     P = np.asarray(P, dtype=np.float64)
     r = np.asarray(residual, dtype=np.float64)
@@ -215,5 +216,5 @@ def scan_samples(
         var[group] = 0.5 * np.pi * s * s / kk
     tree = cKDTree(P)
     spacing = median_spacing(P, tree, probes=5000) if m > 1 else 0.0
-    U = np.sqrt(4.0 * var + float(systematic) ** 2)
+    U = np.sqrt(4.0 * var + np.asarray(systematic, dtype=np.float64) ** 2)
     return ScanSamples(P=P, value=value, U=U, vertex=vertex, spacing=max(spacing, 1e-9), tree=tree)

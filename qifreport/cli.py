@@ -330,6 +330,14 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         metavar="MM",
         help=f"contact radius of each clamp (default {DEFAULT_PAD_RADIUS:g})",
     )
+    held.add_argument(
+        "--gravity",
+        default=None,
+        metavar="DIR",
+        help="the direction of gravity in the part frame while it is held (-z, +x, ... or "
+        "x,y,z): the held part sags under its own weight (needs --material); the scan's own "
+        "support is taken as loading it no more than the fixture does",
+    )
     add_accept_option(ap)
     add_cache_options(ap)
     if not batch:

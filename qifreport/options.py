@@ -27,6 +27,7 @@ from .restraint import (
     PMI_CLAMPS,
     RestraintSpec,
     clamps_from_pmi,
+    gravity_direction,
     read_clamps_file,
 )
 
@@ -77,6 +78,7 @@ RESULT_OPTIONS = (
     "thickness",
     "max_clamp_force",
     "pad_radius",
+    "gravity",
 )
 
 
@@ -155,6 +157,8 @@ class InspectOptions:
     clamps : the ``--clamps`` CSV file.  material : ``--material`` (preset or values).
     thickness : a mesh nominal's wall thickness, mm.  max_clamp_force : the force limit
         of clamps that state none, N.  pad_radius : each clamp's contact radius, mm.
+    gravity : the direction of gravity in the part frame while it is held (``-z``, ``+x``
+        or ``x,y,z``; None: no weight): the held part sags under its own weight.
     """
 
     tolerance: float | None = None
@@ -195,6 +199,7 @@ class InspectOptions:
     thickness: float | None = None
     max_clamp_force: float | None = None
     pad_radius: float = DEFAULT_PAD_RADIUS
+    gravity: str | None = None
 
     def check(self) -> None:
         """Refuse values no inspection can use (:class:`~qifreport.errors.InputError`)."""
@@ -247,6 +252,8 @@ class InspectOptions:
             )
         if self.material is not None:
             check_text("--material", self.material)
+        if self.gravity is not None:
+            gravity_direction(self.gravity)  # InputError for one that is not a direction
         if self.mesher not in ("gmsh", "brepmesh"):
             raise InputError(f"--mesher must be gmsh or brepmesh, got {self.mesher!r}")
         if self.seeds < 1:
@@ -326,6 +333,7 @@ class InspectOptions:
             material=self.material,
             thickness=self.thickness,
             pad_radius=self.pad_radius,
+            gravity=self.gravity,
         )
 
     def nominal_options(self, nominal: Path | None = None) -> NominalOptions:

@@ -197,10 +197,12 @@ def restraint_text(r: Restraint) -> str:
         if mat is None
         else f"{mat['name']}, E {mat['E_MPa']:g} MPa, nu {mat['nu']:g}"
     )
+    g = m.get("gravity")
+    weight = "" if g is None else f", under its own weight along ({g[0]:g}, {g[1]:g}, {g[2]:g})"
     lines = [
         f"restrained (ISO 10579): held at {len(r.clamps)} clamps ({m.get('clamps_source', '')}) "
-        f"by the part's elastic model ({m.get('model', '')}; {material}), judged as held "
-        "(no virtual fixture)"
+        f"by the part's elastic model ({m.get('model', '')}; {material}){weight}, judged as "
+        "held (no virtual fixture)"
     ]
     src = r.offset_sources or [""] * len(r.clamps)
     for c, off, f, s in zip(r.clamps, r.offsets, r.force, src, strict=True):

@@ -41,6 +41,7 @@ __all__ = [
     "PMI_CLAMPS",
     "clamp_rows",
     "clamps_from_pmi",
+    "gravity_direction",
     "read_clamps_file",
     "with_limits",
 ]
@@ -78,6 +79,7 @@ class RestraintSpec:
     material : the ``--material`` text, None when not stated (no forces then).
     thickness : a mesh nominal's wall thickness, mm (``--thickness``).
     pad_radius : each clamp's contact radius, mm.
+    gravity : the direction of gravity while held (``--gravity``), None: no weight.
     """
 
     clamps: tuple[Clamp, ...]
@@ -85,6 +87,7 @@ class RestraintSpec:
     material: str | None = None
     thickness: float | None = None
     pad_radius: float = DEFAULT_PAD_RADIUS
+    gravity: str | None = None
 
     def key(self) -> dict:
         """JSON-able: what the restraint basis depends on (not the force limits: they are
@@ -98,6 +101,7 @@ class RestraintSpec:
             "material": self.material,
             "thickness": self.thickness,
             "pad_radius": self.pad_radius,
+            "gravity": None if self.gravity is None else gravity_direction(self.gravity).tolist(),
         }
 
     def elastic_material(self) -> Material:
@@ -270,6 +274,14 @@ def build_restraint(
         X, T = sheet.X, sheet.T
         kind = f"sheet {spec.thickness:g} mm thick, {len(G)} triangles thickened"
     model = elastic_model(X, T, mat)
+    load = None
+    if spec.gravity is not None:
+        if spec.material is None or mat.density <= 0:
+            raise InputError(
+                "--gravity needs the part's weight: --material with a density (a preset, "
+                "or E=..,nu=..,density=..)"
+            )
+        load = model.gravity(gravity_direction(spec.gravity))
     try:
         basis = restraint_basis(
             model,
@@ -280,6 +292,7 @@ def build_restraint(
             pad_radius=spec.pad_radius,
             surface=np.linalg.norm(sn := boundary_normals(X, T), axis=1) > 0,
             surface_normals=sn,
+            load=load,
         )
     except ValueError as exc:
         raise InputError(f"the clamps cannot hold the part: {exc}") from None
@@ -290,6 +303,7 @@ def build_restraint(
         "material": None if spec.material is None else mat.to_dict(),
         "pad_radius_mm": spec.pad_radius,
         "clamps_source": spec.source,
+        "gravity": None if load is None else gravity_direction(spec.gravity).tolist(),
         "seconds": time.perf_counter() - t0,
     }
     basis.model = info
@@ -302,6 +316,26 @@ def build_restraint(
         info["seconds"],
     )
     return basis
+
+
+def gravity_direction(text: str) -> np.ndarray:
+    """(3,) the unit direction of ``--gravity``: an axis (``-z``, ``+x``, ``y``) or
+    ``x,y,z`` components (:class:`InputError` for anything else)."""
+    t = text.strip().lower().replace(" ", "")
+    axes = {"x": 0, "y": 1, "z": 2}
+    if t.lstrip("+-") in axes and len(t) <= 2:
+        d = np.zeros(3)
+        d[axes[t[-1]]] = -1.0 if t.startswith("-") else 1.0
+        return d
+    try:
+        d = np.array([float(x) for x in t.split(",")], dtype=np.float64)
+    except ValueError:
+        d = np.zeros(0)
+    if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+        raise InputError(
+            f"--gravity must be an axis (-z, +x, ...) or a direction x,y,z, got {text!r}"
+        )
+    return d / np.linalg.norm(d)
 
 
 def _primary_datum(pmi) -> str | None:

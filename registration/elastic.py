@@ -563,7 +563,8 @@ def elastic_modes(model: ElasticModel, k: int) -> tuple[np.ndarray, np.ndarray]:
     """
     M = model.mass()
     # shift-invert below zero: K - sigma M is positive definite although K is singular
-    w, phi = spla.eigsh(model.K.tocsc(), k=k + 6, M=M.tocsc(), sigma=-1.0, which="LM")
+    v0 = np.random.default_rng(0).standard_normal(model.n_dofs)  # the same modes every run
+    w, phi = spla.eigsh(model.K.tocsc(), k=k + 6, M=M.tocsc(), sigma=-1.0, which="LM", v0=v0)
     order = np.argsort(w)
     w, phi = w[order], phi[:, order]
     return w[6:], phi[:, 6:]

@@ -143,3 +143,24 @@ def test_the_per_part_basis_restrains_as_the_direct_solve(sheet):
     u_linear = interpolate_on_triangles(res.u, V, F, cface, C)
     assert np.abs(u_basis - u_direct).max() < np.abs(u_linear - u_direct).max()
     assert np.abs(u_direct).max() > 1.0  # the warp is there to remove
+
+
+def test_held_under_its_own_weight_the_clamps_carry_it(sheet):
+    """``--gravity``: the basis' load column (the part's weight with every clamp at rest)
+    is the direct solve's sag, and the clamps' vertical forces carry the part's weight."""
+    V, F, solid, model, _ = sheet
+    cs = clamps()
+    N = np.tile([0.0, 0.0, 1.0], (len(cs), 1))
+    g = model.gravity((0.0, 0.0, -1.0))
+    basis = restraint_basis(model, cs, N, V, F, pad_radius=PAD, load=g)
+    res = basis.apply(np.zeros(len(cs)))
+    weight = PP.density * L * W * T * 9810.0  # N: 0.355 for this 2 mm PP sheet
+    assert res.forces[:, 2].sum() == pytest.approx(weight, rel=1e-3)
+    pads = []
+    for c in cs:
+        near = np.flatnonzero(np.linalg.norm(solid.X - np.asarray(c.position), axis=1) <= PAD)
+        pads += [Pad(near, e, 0.0, mean=True) for e in c.axes(np.array([0.0, 0.0, 1.0]))]
+    direct = model.solve(pads=pads, load=g)
+    u_direct = model.displacement_at(direct, V)
+    np.testing.assert_allclose(res.u, u_direct, atol=1e-6 * np.abs(u_direct).max())
+    assert u_direct[:, 2].min() < -0.1  # it sags (mm) between its corners
