@@ -16,9 +16,17 @@ RPS points by another elastic model (finer or other mesh, Poisson's ratio 0.05 o
 wall's stiffness varying as a +/-10 % thickness, pads of the clamps' stated 5 mm), judged
 by the same rule (area and region criteria, same zones, on the vertices the product
 scored); a clamp over its limit is a FAIL. The product sees only a scan of the free shape
-(virtual scanner, 0.02 mm noise, moved by a random pose of up to 10 deg and 20 mm) and is run
-in three ways with a warm per-part state: ``restrained`` (its clamps), ``free`` (the
-GB-CICP virtual fixture) and ``rigid`` (no fixture).
+(virtual scanner, 0.02 mm noise, views from both sides for the panel, from above for the
+shell), delivered in the part frame (a 1.8 mm wall scanned from both sides defeats the pose
+search from an arbitrary placement: the product refuses it, exit 2), and is run in up to
+three ways with a warm per-part state: ``restrained`` (its clamps), ``free`` (the GB-CICP
+virtual fixture) and ``rigid`` (no fixture).
+
+The parts: the sample panel (STEP solid, flanges; its clamps samples/panel_clamps.csv, 20 N
+limits, ABS; truth: gmsh tetrahedra at 1/60 of the diagonal against the product's 1/40) and
+the thin shell (mesh nominal, 2 mm PP sheet; four corner clamps at 5 N and two pins in the
+surface's plane; truth: the shell at 3 mm thickened, the product's nominal decimated to
+3,000 triangles).
 
 Printed: per method and defect kind the confusion matrix (truth PASS/FAIL against product
 PASS/FAIL/NOT ESTABLISHED), false PASSes by defect width, the deviation field's RMS against

@@ -1070,12 +1070,15 @@ def _restrained(
     k_model = 2.0 * RESTRAINT_MODEL_UNCERTAINTY
     u_v = k_model * np.linalg.norm(held.u, axis=1)
     u_p = k_model * np.linalg.norm(moved, axis=1)
-    if np.any(xi):
-        # the placement along locators the scan cannot read is an estimate: the held best
-        # fit (the seat) and the free state's best fit bound it, and their difference at
-        # each vertex and point is its uncertainty (the seat also slides form away: on the
-        # bench's shell it read 0.10-0.14 mm rms off the physical fixture where the free
-        # state's placement read 0.01, and passed parts the fixture rejects)
+    facing = np.abs(restraint.coupling) >= np.cos(np.radians(FACING_ANGLE))
+    if np.any(xi) and np.any(~read & ~facing):
+        # a pin whose axis lies in its surface's plane cannot be read from any scan: the
+        # placement along it is an estimate, which the held best fit (the seat) and the
+        # free state's best fit bound, and their difference at each vertex and point is
+        # its uncertainty (the seat slides form away: on the bench's shell it read
+        # 0.10-0.14 mm rms off the physical fixture where the free state's placement read
+        # 0.01, and passed parts the fixture rejects). A locator on a face that faces it
+        # but was not seen is placed by that face's other points and its neighbours'.
         stay = restraint.apply(offsets_at(np.zeros(6)))
         nrm = prepared.ops.normals
         shift_v = (V - origin) @ R.T + origin + t - V + held.u - stay.u

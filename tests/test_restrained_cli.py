@@ -170,7 +170,7 @@ def test_a_part_beyond_its_clamp_force_is_not_restrainable(shell_case):
         (("--clamps", "{ok}", "--material", "unobtainium"), "unknown material"),
         (("--clamps", "{ok}", "--material", "pp"), "needs its wall thickness"),
         (("--clamps", "{ok}", "--gravity", "up"), "--gravity must be an axis"),
-        (("--clamps", "{ok}", "--gravity", "-z"), "--gravity needs the part's weight"),
+        (("--clamps", "{ok}", "--gravity=-z"), "--gravity needs the part's weight"),
         (("--clamps", "pmi"), "is a mesh, it has no datum targets"),
     ],
 )
