@@ -83,15 +83,6 @@ class PartSetup:
     limit: float  # N, the face clamps' force limit
 
 
-def _views(k: int = 3, tilt_deg: float = 25.0, both_sides: bool = False) -> np.ndarray:
-    t = np.deg2rad(tilt_deg)
-    phi = 2 * np.pi * np.arange(k) / k
-    d = np.c_[np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), -np.cos(t) * np.ones(k)]
-    if both_sides:
-        d = np.vstack([d, d * np.array([1.0, 1.0, -1.0])])
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
-
-
 def _clamp_normals(V, F, clamps):
     from qifreport.metrology.deviation import closest_points
     from qifreport.registration.mesh import face_normals
@@ -134,6 +125,7 @@ def panel_setup(rng: np.random.Generator, cache: Path) -> PartSetup:
     from qifreport.registration.elastic import MATERIALS, Material
     from qifreport.registration.mesh import vertex_normals
     from qifreport.restraint import boundary_normals
+    from qifreport.simulate.scanner import turntable_views
     from qifreport.step.gmsh_mesh import gmsh_solid_mesh
     from qifreport.step.reader import read_step
     from qifreport.step.tessellate import tessellate
@@ -174,39 +166,28 @@ def panel_setup(rng: np.random.Generator, cache: Path) -> PartSetup:
         fx,
         sites,
         site_n,
-        _views(both_sides=True),
+        turntable_views(both_sides=True),
         flanges,
         20.0,
     )
 
 
 def shell_setup(rng: np.random.Generator, out: Path, cache: Path) -> PartSetup:
-    from qifreport.registration.clamps import Clamp
     from qifreport.registration.elastic import MATERIALS, Material
     from qifreport.registration.mesh import load_mesh, vertex_normals
     from qifreport.registration.sheet_solid import sheet_solid
-    from qifreport.simulate.shapes import thin_shell
+    from qifreport.simulate.scanner import turntable_views
+    from qifreport.simulate.shapes import rim_clamps, thin_shell
 
     nominal = ROOT / "samples" / "shell_nominal.ply"
     V, _ = load_mesh(nominal)
     N = vertex_normals(V, _)
-    lo, hi = V[:, :2].min(axis=0) + 6.0, V[:, :2].max(axis=0) - 6.0
-    spots = [
-        ("A1", (lo[0], lo[1]), "n"),
-        ("A2", (hi[0], lo[1]), "n"),
-        ("A3", (lo[0], hi[1]), "n"),
-        ("A4", (hi[0], hi[1]), "n"),
-        ("B1", (lo[0], 0.0), "xy"),
-        ("C1", (hi[0], 0.0), "y"),
-    ]
     limit = 5.0
-    clamps, normals, rows = [], [], ["name,x,y,z,directions,max_force_N"]
-    for name, xy, d in spots:
-        v = int(np.argmin(np.linalg.norm(V[:, :2] - np.asarray(xy), axis=1)))
-        lim = limit if d == "n" else None
-        clamps.append(Clamp(name, tuple(float(x) for x in V[v]), d, lim))
-        normals.append(N[v])
-        rows.append(f"{name},{V[v, 0]:.4f},{V[v, 1]:.4f},{V[v, 2]:.4f},{d},{lim or ''}")
+    clamps, normals = rim_clamps(V, N, inset=6.0, limit=limit)
+    rows = ["name,x,y,z,directions,max_force_N"]
+    for c in clamps:
+        x, y, z = c.position
+        rows.append(f"{c.name},{x:.4f},{y:.4f},{z:.4f},{c.directions},{c.max_force or ''}")
     csv = out / "shell_clamps.csv"
     csv.write_text("\n".join(rows) + "\n")
     Vt, Ft = thin_shell(spacing=3.0)  # the 5 mm pads need several truth vertices
@@ -232,7 +213,7 @@ def shell_setup(rng: np.random.Generator, out: Path, cache: Path) -> PartSetup:
         fx,
         sites,
         site_n,
-        _views(),
+        turntable_views(),
         [],
         limit,
     )

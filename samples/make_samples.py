@@ -42,7 +42,7 @@ from qifreport.registration.mesh import vertex_normals
 from qifreport.simulate.cases import make_case
 from qifreport.simulate.defects import gaussian_bump
 from qifreport.simulate.deform import analytic_deformation
-from qifreport.simulate.scanner import ScanSpec, virtual_scan
+from qifreport.simulate.scanner import ScanSpec, turntable_views, virtual_scan
 from qifreport.simulate.shapes import thin_shell
 
 SEED = 1
@@ -50,17 +50,6 @@ SEED = 1
 PANEL_EDGE = 2.5
 #: defect centre on the crown (mm, nominal frame)
 PANEL_DEFECT_AT = (25.0, 10.0, 9.3)
-
-
-def _views(k: int = 3, tilt_deg: float = 25.0, both_sides: bool = False) -> np.ndarray:
-    """Camera -> part directions: looking down -z, tilted ``tilt_deg`` at ``k`` azimuths;
-    ``both_sides`` adds the same views from below (the part scanned, turned over, scanned)."""
-    t = np.deg2rad(tilt_deg)
-    phi = 2 * np.pi * np.arange(k) / k
-    d = np.c_[np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), -np.cos(t) * np.ones(k)]
-    if both_sides:
-        d = np.vstack([d, d * np.array([1.0, 1.0, -1.0])])
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
@@ -97,7 +86,7 @@ def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
             dv = int(skin[np.argmin(np.linalg.norm(V[skin] - at, axis=1))])
             N = vertex_normals(Vs, F)
             Vs = Vs + gaussian_bump(Vs, N, Vs[dv], *c["defect"])
-        views = _views(both_sides=c.get("both_sides", True))
+        views = turntable_views(both_sides=c.get("both_sides", True))
         spec = ScanSpec(directions=views, noise=0.02, seed=c.get("scan_seed", SEED))
         P = virtual_scan(Vs, F, spec).P
         if c.get("pose") is not None:
@@ -152,7 +141,7 @@ def panel_warped_scan(step_path: Path, clamps_path: Path) -> np.ndarray:
         surface=surface,
         surface_normals=sn,
     )
-    spec = ScanSpec(directions=_views(both_sides=True), noise=0.02, seed=SEED)
+    spec = ScanSpec(directions=turntable_views(both_sides=True), noise=0.02, seed=SEED)
     return virtual_scan(Vs, F, spec).P.astype(np.float32)
 
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.registration.clamps import Clamp
 from qifreport.registration.elastic import MATERIALS, elastic_model
 from qifreport.registration.mesh import vertex_normals
 from qifreport.registration.sheet_solid import sheet_solid
@@ -25,7 +24,7 @@ from qifreport.simulate.fixture_truth import (
     springback,
     uneven_wall,
 )
-from qifreport.simulate.shapes import thin_shell
+from qifreport.simulate.shapes import rim_clamps, thin_shell
 
 
 @pytest.fixture(scope="module")
@@ -35,20 +34,7 @@ def shell():
     solid = sheet_solid(V, F, N, 2.0)
     scale = uneven_wall(solid.X[solid.T].mean(axis=1), 0.1, 60.0, np.random.default_rng(1))
     model = elastic_model(solid.X, solid.T, MATERIALS["pp"], stiffness_scale=scale)
-    lo, hi = V[:, :2].min(axis=0) + 6.0, V[:, :2].max(axis=0) - 6.0
-    spots = [
-        ("A1", (lo[0], lo[1]), "n"),
-        ("A2", (hi[0], lo[1]), "n"),
-        ("A3", (lo[0], hi[1]), "n"),
-        ("A4", (hi[0], hi[1]), "n"),
-        ("B1", (lo[0], 0.0), "xy"),
-        ("C1", (hi[0], 0.0), "y"),
-    ]
-    clamps, normals = [], []
-    for name, xy, d in spots:
-        v = int(np.argmin(np.linalg.norm(V[:, :2] - np.asarray(xy), axis=1)))
-        clamps.append(Clamp(name, tuple(V[v]), d))
-        normals.append(N[v])
+    clamps, normals = rim_clamps(V, N, inset=6.0)
     fx = simulated_fixture(model, clamps, np.array(normals), pad_radius=9.0, n_modes=4)
     return V, N, fx, scale
 

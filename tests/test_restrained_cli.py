@@ -22,13 +22,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from qifreport.registration.clamps import Clamp
 from qifreport.registration.elastic import Material, elastic_model
 from qifreport.registration.mesh import load_mesh, vertex_normals
 from qifreport.registration.sheet_solid import sheet_solid
 from qifreport.simulate.defects import gaussian_bump
 from qifreport.simulate.physical import elastic_free_state
-from qifreport.simulate.shapes import thin_shell
+from qifreport.simulate.shapes import rim_clamps, thin_shell
 
 ROOT = Path(__file__).resolve().parents[1]
 EXE = Path(sys.executable).parent / "qifreport"
@@ -47,21 +46,12 @@ def shell_case(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("restrained")
     V, F = load_mesh(NOMINAL)
     N = vertex_normals(V, F)
-    lo, hi = V[:, :2].min(axis=0) + 6.0, V[:, :2].max(axis=0) - 6.0
-    spots = [
-        ("A1", (lo[0], lo[1]), "n"),
-        ("A2", (hi[0], lo[1]), "n"),
-        ("A3", (lo[0], hi[1]), "n"),
-        ("A4", (hi[0], hi[1]), "n"),
-        ("B1", (lo[0], 0.0), "xy"),
-        ("C1", (hi[0], 0.0), "y"),
+    clamps, normals = rim_clamps(V, N, inset=6.0)
+    rows = ["name,x,y,z,directions,max_force_N"]
+    rows += [
+        f"{c.name},{c.position[0]:.4f},{c.position[1]:.4f},{c.position[2]:.4f},{c.directions},"
+        for c in clamps
     ]
-    clamps, normals, rows = [], [], ["name,x,y,z,directions,max_force_N"]
-    for name, xy, d in spots:
-        v = int(np.argmin(np.linalg.norm(V[:, :2] - np.asarray(xy), axis=1)))
-        clamps.append(Clamp(name, tuple(float(x) for x in V[v]), d))
-        normals.append(N[v])
-        rows.append(f"{name},{V[v, 0]:.4f},{V[v, 1]:.4f},{V[v, 2]:.4f},{d},")
     (tmp / "clamps.csv").write_text("\n".join(rows) + "\n")
     # the truth: another mesh of the same shell, another Poisson's ratio, larger pads
     Vt, Ft = thin_shell(spacing=6.0)

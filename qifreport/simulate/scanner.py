@@ -21,6 +21,7 @@ from .deform import pca_frame
 
 __all__ = [
     "aim_views",
+    "turntable_views",
     "rasterize",
     "Scan",
     "ScanSpec",
@@ -31,6 +32,18 @@ log = logging.getLogger(__name__)
 
 # Upper bound on (triangle, pixel) candidates rasterised at once (bounds memory to ~100 MB).
 _CHUNK = 1_000_000
+
+
+def turntable_views(k: int = 3, tilt_deg: float = 25.0, both_sides: bool = False) -> np.ndarray:
+    """(k, 3) camera -> part directions: looking down -z, tilted ``tilt_deg`` at ``k``
+    azimuths; ``both_sides`` adds the same views from below (the part scanned, turned over,
+    scanned): (2k, 3)."""
+    t = np.deg2rad(tilt_deg)
+    phi = 2 * np.pi * np.arange(k) / k
+    d = np.c_[np.sin(t) * np.cos(phi), np.sin(t) * np.sin(phi), -np.cos(t) * np.ones(k)]
+    if both_sides:
+        d = np.vstack([d, d * np.array([1.0, 1.0, -1.0])])
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
 @dataclass

@@ -14,6 +14,7 @@ from qifreport.registration.mesh import bounding_diagonal, load_mesh, weld
 
 __all__ = [
     "fandisk",
+    "rim_clamps",
     "grid_triangles",
     "housing",
     "shell_height",
@@ -171,3 +172,35 @@ def housing(
     V[:, 1] *= 1.0 + 0.15 * x
     V[:, 2] *= 1.0 + 0.12 * x
     return V.astype(np.float64), F.astype(np.int64)
+
+
+def rim_clamps(
+    V: np.ndarray, N: np.ndarray, inset: float = 6.0, limit: float | None = None
+) -> tuple[list, np.ndarray]:
+    """A sheet's fixture at its rim: four corner clamps along the normal (``A1``-``A4``,
+    force ``limit`` N each) and two pins in the sheet's plane at the middle of the short
+    sides (``B1`` restraining x and y, ``C1`` y), each at the vertex of ``V`` (n, 3) mm
+    nearest its spot ``inset`` mm inside the xy bounding box.
+
+    Returns
+    -------
+    clamps : list of :class:`qifreport.registration.clamps.Clamp`.
+    normals : (6, 3) the unit normals ``N`` (n, 3) at them.
+    """
+    from qifreport.registration.clamps import Clamp
+
+    lo, hi = V[:, :2].min(axis=0) + inset, V[:, :2].max(axis=0) - inset
+    spots = [
+        ("A1", (lo[0], lo[1]), "n"),
+        ("A2", (hi[0], lo[1]), "n"),
+        ("A3", (lo[0], hi[1]), "n"),
+        ("A4", (hi[0], hi[1]), "n"),
+        ("B1", (lo[0], 0.5 * (lo[1] + hi[1])), "xy"),
+        ("C1", (hi[0], 0.5 * (lo[1] + hi[1])), "y"),
+    ]
+    clamps, normals = [], []
+    for name, xy, d in spots:
+        v = int(np.argmin(np.linalg.norm(V[:, :2] - np.asarray(xy), axis=1)))
+        clamps.append(Clamp(name, tuple(float(x) for x in V[v]), d, limit if d == "n" else None))
+        normals.append(N[v])
+    return clamps, np.array(normals)
