@@ -44,7 +44,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -263,6 +263,7 @@ def make_case(part: PartSetup, seed: int, kind: str):
     lifts[face] = rng.normal(0.0, 0.7, len(face))
     dofs = warp + fx.D @ lifts
     meta = {"seed": seed, "kind": kind, "warp_mm": amplitude, "sigma": math.nan, "depth": math.nan}
+    meta["limit"] = math.nan  # N, the face clamps' limit when the case sets its own
     defects = []
     if kind in ("dent", "bump"):
         i = rng.integers(len(part.defect_sites))
@@ -278,17 +279,16 @@ def make_case(part: PartSetup, seed: int, kind: str):
         meta.update(angle_mrad=1e3 * angle)
     state = FreeState(dofs, tuple(defects))
     held = hold(fx, state, part.V, part.probe_V)
-    if kind == "overwarp":  # scale the warp until a face clamp needs 1.3-3 x its limit
-        need = max(
-            float(
-                held.force[[fx.clamps[i].directions == "n" for i in range(len(fx.clamps))]].max()
-            ),
-            1e-9,
-        )
-        s = rng.uniform(1.3, 3.0) * part.limit / need
-        state = FreeState(dofs * s, ())
+    if kind == "overwarp":
+        # the face clamps' points pushed a few mm (a shape the clamps take out entirely) by
+        # clamps too weak for it: the case's face-clamp limit is the force it needs / 1.3-3
+        # (this soft panel needs ~1 N for mm: no plausible warp reaches its stated 20 N)
+        lifts[face] = rng.normal(0.0, 3.0, len(face))
+        state = FreeState(warp + fx.D @ lifts, ())
         held = hold(fx, state, part.V, part.probe_V)
-        meta["warp_mm"] = amplitude * s
+        face_clamps = [fx.clamps[i].directions == "n" for i in range(len(fx.clamps))]
+        meta["limit"] = float(held.force[face_clamps].max()) / rng.uniform(1.3, 3.0)
+        meta["warp_mm"] = float(np.abs(lifts).max())
     free_u = state.displacement(fx, part.Vs, part.probe_Vs)
     return state, held, free_u, meta
 
@@ -334,9 +334,21 @@ def run_product(task: dict) -> dict:
     logging.disable(logging.WARNING)
     from qifreport.options import InspectJob
     from qifreport.pipeline import inspect_state, scan_input
+    from qifreport.restraint import with_limits
 
     opts = _options(task["part"], task["options"], task["clamps"], task["method"], task["cache"])
     state = _state((task["part"], task["method"] == "restrained"), task["nominal"], opts)
+    if state.restraint is not None:  # the case's own force limit, or the file's
+        spec = opts.restraint_spec(task["nominal"])
+        if math.isfinite(task.get("limit", math.nan)):
+            spec = replace(
+                spec,
+                clamps=tuple(
+                    c if c.max_force is None else replace(c, max_force=task["limit"])
+                    for c in spec.clamps
+                ),
+            )
+        with_limits(state.restraint, spec)
     job = InspectJob(nominal=task["nominal"], scan=Path("case.ply"), options=opts)
     t0 = time.perf_counter()
     P, _ = scan_input(np.asarray(task["P"], dtype=np.float64), len(task["P"]), state.nominal)
@@ -362,9 +374,12 @@ def run_product(task: dict) -> dict:
 # --------------------------------------------------------------------------- judging
 
 
-def truth_verdict(part: PartSetup, held, scored: np.ndarray, run: dict) -> tuple[str, float]:
-    """The physical fixture's verdict on the product's scored vertices, and the largest
-    band exceedance (mm; < 0: inside every band by that much)."""
+def truth_verdict(
+    part: PartSetup, held, scored: np.ndarray, run: dict, limit: float = math.nan
+) -> tuple[str, float, bool]:
+    """The physical fixture's verdict on the product's scored vertices, the largest band
+    exceedance (mm; < 0: inside every band by that much) and whether a clamp is over its
+    limit (``limit``, N, replaces the stated limits when finite)."""
     from qifreport.metrology.acceptance import evaluate
 
     e = np.einsum("ij,ij->i", held.u, part.N)
@@ -381,7 +396,10 @@ def truth_verdict(part: PartSetup, held, scored: np.ndarray, run: dict) -> tuple
     with np.errstate(invalid="ignore"):
         margin = float(np.nanmax(np.abs(e - run["center"]) - run["half_width"]))
     limited = [i for i, c in enumerate(part.fx.clamps) if c.max_force is not None]
-    over = any(held.force[i] > part.fx.clamps[i].max_force for i in limited)
+    over = any(
+        held.force[i] > (limit if math.isfinite(limit) else part.fx.clamps[i].max_force)
+        for i in limited
+    )
     return ("FAIL" if (over or not acc.passed) else "PASS"), margin, over
 
 
@@ -444,6 +462,7 @@ def main(argv: list[str] | None = None) -> int:
                         "method": m,
                         "cache": cache,
                         "P": P,
+                        "limit": meta["limit"],
                     },
                 )
                 for m in methods
@@ -457,7 +476,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"case {meta['seed']}: {ref['error']}", file=sys.stderr)
                 continue
             scored = np.isfinite(ref["deviation"])
-            truth, margin, over = truth_verdict(s, held, scored, ref)
+            truth, margin, over = truth_verdict(s, held, scored, ref, meta["limit"])
             e = np.einsum("ij,ij->i", held.u, s.N)
             if args.dump:
                 args.dump.mkdir(parents=True, exist_ok=True)
