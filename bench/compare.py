@@ -18,7 +18,7 @@ Parts: the fandisk (100 mm diagonal, subdivided once, 2 views, 3 mm clamp dropou
 housing (4 views, dropouts of 3 % of the diagonal); bend 1.0 + twist 0.5 at a = 2 % of the
 diagonal, 0.02 mm noise. Rigid alignment as ``bench/accuracy.py``.
 
-    python bench/compare.py [--parts fandisk,housing] [--generators biharmonic,analytic]
+    python bench/compare.py [--parts fandisk,housing] [--generators biharmonic,analytic,elastic]
         [--methods rigid,rbffem,cpd,nicp,gbcicp] [--repeats 3] [--seed 0] [--no-peers]
         [--peer-steps default|reduced|both]
 

@@ -120,9 +120,11 @@ def _product_nominal(name, nominal, options, csv, cache):
     return nom.V, nom.F, vertex_normals(nom.V, nom.F)
 
 
-def panel_setup(rng: np.random.Generator, cache: Path) -> PartSetup:
+def _step_setup(rng, cache, name, nominal, csv, options, keep_fn, flanges, limit) -> PartSetup:
+    """A STEP solid's setup: the truth's tetrahedra at 1/60 of the diagonal (the product's
+    1/40), Poisson's ratio off, an uneven wall; dents where ``keep_fn(V, N)`` allows."""
     from qifreport.registration.clamps import parse_clamps
-    from qifreport.registration.elastic import MATERIALS, Material
+    from qifreport.registration.elastic import Material, material
     from qifreport.registration.mesh import vertex_normals
     from qifreport.restraint import boundary_normals
     from qifreport.simulate.scanner import turntable_views
@@ -130,46 +132,66 @@ def panel_setup(rng: np.random.Generator, cache: Path) -> PartSetup:
     from qifreport.step.reader import read_step
     from qifreport.step.tessellate import tessellate
 
-    nominal = ROOT / "samples" / "panel.step"
-    csv = ROOT / "samples" / "panel_clamps.csv"
     clamps = parse_clamps(csv.read_text(encoding="utf-8"))
-    V, F, N = _product_nominal("panel", nominal, {"material": "abs"}, csv, cache)
+    V, F, N = _product_nominal(name, nominal, options, csv, cache)
     part = read_step(nominal, pmi=False)
     m = tessellate(part.shape, part.faces, max_edge=2.5, deflection=0.01)
     Vs, Fs = m.V, m.F
     diag = float(np.linalg.norm(np.ptp(Vs, axis=0)))
     tets = gmsh_solid_mesh(part.shape, diag / 60.0)
-    abs_ = MATERIALS["abs"]
-    mat = Material("truth", abs_.E, abs_.nu + TRUTH_NU_OFFSET, abs_.density)
+    base = material(options["material"])
+    mat = Material("truth", base.E, base.nu + TRUTH_NU_OFFSET, base.density)
     normals = _clamp_normals(Vs, Fs, clamps)
     fx = _fixture(tets.X, tets.T, mat, clamps, normals, rng, boundary_normals(tets.X, tets.T))
     Ns = vertex_normals(Vs, Fs)
-    # dents on the crown's outer skin, away from its edges
-    keep = (Ns[:, 2] > 0.5) & (np.abs(Vs[:, 0]) < 52.0) & (np.abs(Vs[:, 1]) < 40.0)
-    keep &= Vs[:, 2] > 2.0
-    sites, site_n = _sites(Vs, Ns, clamps, keep)
-    xb = 80.0 - 18.0  # the flanges' bend lines, x = +/-62 mm
-    flanges = [
-        (np.array([xb, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])),
-        (np.array([-xb, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), np.array([-1.0, 0.0, 0.0])),
-    ]
+    sites, site_n = _sites(Vs, Ns, clamps, keep_fn(Vs, Ns))
+    views = turntable_views(both_sides=True)
     return _setup(
-        "panel",
-        nominal,
-        csv,
-        {"material": "abs"},
-        V,
-        F,
-        N,
-        Vs,
-        Fs,
-        fx,
-        sites,
-        site_n,
-        turntable_views(both_sides=True),
-        flanges,
-        20.0,
+        name, nominal, csv, options, V, F, N, Vs, Fs, fx, sites, site_n, views, flanges, limit
     )
+
+
+def _bend_lines(xb: float) -> list:
+    """(origin, axis, side) of two bend lines along y at x = +/- ``xb`` (mm), flanges outside."""
+    y = np.array([0.0, 1.0, 0.0])
+    return [
+        (np.array([xb, 0.0, 0.0]), y, np.array([1.0, 0.0, 0.0])),
+        (np.array([-xb, 0.0, 0.0]), y, np.array([-1.0, 0.0, 0.0])),
+    ]
+
+
+def panel_setup(rng: np.random.Generator, cache: Path) -> PartSetup:
+    """The sample panel: ABS, its clamps file (20 N), dents on the crown's outer skin."""
+
+    def keep(V, N):  # the crown's outer skin, away from its edges
+        return (N[:, 2] > 0.5) & (np.abs(V[:, 0]) < 52.0) & (np.abs(V[:, 1]) < 40.0) & (V[:, 2] > 2)
+
+    nominal = ROOT / "samples" / "panel.step"
+    csv = ROOT / "samples" / "panel_clamps.csv"
+    return _step_setup(
+        rng, cache, "panel", nominal, csv, {"material": "abs"}, keep, _bend_lines(62.0), 20.0
+    )
+
+
+def bracket_setup(rng: np.random.Generator, out: Path, cache: Path) -> PartSetup:
+    """The formed hat bracket with a bead (:func:`qifreport.simulate.shapes.hat_bracket`):
+    1.2 mm steel, 0.5 mm profile, four flange clamps at 100 N, three locators."""
+    from qifreport.simulate.shapes import HAT_CLAMPS, hat_bracket
+    from qifreport.step.write import write_step_solids
+
+    limit = 100.0
+    nominal = write_step_solids(out / "bracket.step", [("hat_bracket", hat_bracket())])
+    rows = ["name,x,y,z,directions,max_force_N"]
+    for name, (x, y, z), d in HAT_CLAMPS:
+        rows.append(f"{name},{x},{y},{z},{d},{limit if d == 'n' else ''}")
+    csv = out / "bracket_clamps.csv"
+    csv.write_text("\n".join(rows) + "\n")
+
+    def keep(V, N):  # the top and the bead, outside, away from the ends
+        return (N[:, 2] > 0.5) & (V[:, 2] > 28.5) & (np.abs(V[:, 1]) < 75.0)
+
+    options = {"material": "steel", "tolerance": 0.5}
+    return _step_setup(rng, cache, "bracket", nominal, csv, options, keep, _bend_lines(40.0), limit)
 
 
 def shell_setup(rng: np.random.Generator, out: Path, cache: Path) -> PartSetup:
@@ -406,7 +428,7 @@ def truth_verdict(
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", type=int, default=200, help="cases in all (split over parts)")
-    ap.add_argument("--parts", default="panel,shell")
+    ap.add_argument("--parts", default="panel,shell,bracket")
     ap.add_argument("--methods", default="restrained,free,rigid")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
@@ -421,7 +443,12 @@ def main(argv: list[str] | None = None) -> int:
     setups = {}
     t0 = time.perf_counter()
     for p in parts:
-        setups[p] = panel_setup(rng, cache) if p == "panel" else shell_setup(rng, work, cache)
+        if p == "panel":
+            setups[p] = panel_setup(rng, cache)
+        elif p == "bracket":
+            setups[p] = bracket_setup(rng, work, cache)
+        else:
+            setups[p] = shell_setup(rng, work, cache)
         print(f"{p}: truth built ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     # warm the per-part states (one build per part and fixture, then every worker loads it)
     for p in parts:

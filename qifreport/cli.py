@@ -472,12 +472,9 @@ def _run_pmi(args: argparse.Namespace) -> int:
     overlaps = overlapping_pairs(part.shape, solids) if len(solids) > 1 else []
     clamps = None
     if args.clamps is not None:
-        from .restraint import PMI_CLAMPS, clamp_rows, clamps_from_pmi, read_clamps_file
+        from .restraint import clamp_rows, read_clamps
 
-        if str(args.clamps) == PMI_CLAMPS:
-            found = clamps_from_pmi(args.step, args.max_clamp_force)
-        else:
-            found = read_clamps_file(args.clamps, args.max_clamp_force)
+        found, _ = read_clamps(args.clamps, args.step, args.max_clamp_force)
         clamps = clamp_rows(part, found)
     if args.json:
         print(

@@ -22,14 +22,7 @@ from qifreport.metrology.decision import DECISION_RULES, DEFAULT_DECISION_RULE
 from qifreport.metrology.params import InspectionParams
 from qifreport.registration.gbcicp import GBCICPParams
 
-from .restraint import (
-    DEFAULT_PAD_RADIUS,
-    PMI_CLAMPS,
-    RestraintSpec,
-    clamps_from_pmi,
-    gravity_direction,
-    read_clamps_file,
-)
+from .restraint import DEFAULT_PAD_RADIUS, RestraintSpec, gravity_direction, read_clamps
 
 __all__ = [
     "RESULT_OPTIONS",
@@ -320,13 +313,7 @@ class InspectOptions:
                     "z, directions[, max_force_N])"
                 )
             return None
-        if str(self.clamps) == PMI_CLAMPS:
-            if nominal is None:
-                raise InputError("--clamps pmi needs the STEP nominal whose datum targets hold it")
-            clamps, source = clamps_from_pmi(nominal, self.max_clamp_force), "PMI datum targets"
-        else:
-            clamps = read_clamps_file(self.clamps, self.max_clamp_force)
-            source = f"clamps file {self.clamps.name}"
+        clamps, source = read_clamps(self.clamps, nominal, self.max_clamp_force)
         return RestraintSpec(
             clamps=clamps,
             source=source,

@@ -39,6 +39,7 @@ __all__ = [
     "boundary_normals",
     "build_restraint",
     "PMI_CLAMPS",
+    "read_clamps",
     "clamp_rows",
     "clamps_from_pmi",
     "gravity_direction",
@@ -344,6 +345,25 @@ def _primary_datum(pmi) -> str | None:
     if firsts:
         return max(set(firsts), key=firsts.count)
     return pmi.datums[0].label if pmi.datums else None
+
+
+def read_clamps(
+    clamps: Path | str, nominal: Path | None, max_force: float | None = None
+) -> tuple[tuple[Clamp, ...], str]:
+    """The clamps a ``--clamps`` argument names, and their source for the reports: with
+    ``pmi`` the datum targets of the STEP ``nominal`` (:func:`clamps_from_pmi`), else the
+    CSV file (:func:`read_clamps_file`); ``max_force`` (N) the limit of those stating none.
+
+    Raises
+    ------
+    InputError
+        As those two; ``pmi`` without a nominal.
+    """
+    if str(clamps) == PMI_CLAMPS:
+        if nominal is None:
+            raise InputError("--clamps pmi needs the STEP nominal whose datum targets hold it")
+        return clamps_from_pmi(nominal, max_force), "PMI datum targets"
+    return read_clamps_file(Path(clamps), max_force), f"clamps file {Path(clamps).name}"
 
 
 def clamps_from_pmi(path: Path, max_force: float | None = None) -> tuple[Clamp, ...]:

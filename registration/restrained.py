@@ -39,6 +39,7 @@ from .mesh import barycentric
 
 __all__ = [
     "FACING_ANGLE",
+    "clamp_pads",
     "read_directions",
     "Restraint",
     "RestraintBasis",
@@ -279,7 +280,7 @@ def _over_limit(clamps: list[Clamp], force: np.ndarray) -> list[str]:
     ]
 
 
-def _pads(
+def clamp_pads(
     X: np.ndarray,
     clamps: list[Clamp],
     normals: np.ndarray,
@@ -287,10 +288,18 @@ def _pads(
     surface: np.ndarray | None,
     surface_normals: np.ndarray | None = None,
 ) -> tuple[list[Pad], list[tuple[int, np.ndarray]]]:
-    """One :class:`Pad` per clamp direction (value 0): the model's surface vertices within
-    ``pad_radius`` of the clamp (with ``surface_normals`` (N, 3), those whose surface faces
-    the clamp's within :data:`FACING_ANGLE`, either side; its nearest when none), and
-    (clamp, direction) of each."""
+    """The contacts of clamps on an elastic model: one :class:`Pad` per clamp direction
+    (value 0, holding its mean position), and (clamp index, unit direction) of each.
+
+    Parameters
+    ----------
+    X : (N, 3) the model's vertices, mm.  clamps : the clamps.
+    normals : (c, 3) the surface's normal at each clamp.  pad_radius : mm.
+    surface : (N,) bool the model's surface vertices (None: all).
+    surface_normals : (N, 3) their normals: a pad takes the surface vertices within
+        ``pad_radius`` of its clamp whose surface faces the clamp's within
+        :data:`FACING_ANGLE`, either side (its nearest vertex when none is that close).
+    """
     cand = np.flatnonzero(surface) if surface is not None else np.arange(len(X))
     tree = cKDTree(X[cand])
     pads: list[Pad] = []
@@ -350,7 +359,7 @@ def restraint_basis(
     ValueError
         Clamps that leave a rigid motion free.
     """
-    pads, owner = _pads(model.X, clamps, normals, pad_radius, surface, surface_normals)
+    pads, owner = clamp_pads(model.X, clamps, normals, pad_radius, surface, surface_normals)
     D, G = model.pad_responses(pads, load)
     V = np.asarray(V, dtype=np.float64)
     edges, tri_edges = triangle_edges(F)
@@ -479,7 +488,7 @@ def restrain(
     ValueError
         A pad with no vertex of the model, or clamps that leave a rigid motion free.
     """
-    pads, owner = _pads(model.X, clamps, normals, pad_radius, surface)
+    pads, owner = clamp_pads(model.X, clamps, normals, pad_radius, surface)
     offsets = np.asarray(offsets, dtype=np.float64)
     k = np.array([o[0] for o in owner], dtype=np.int64)
     nrm = np.asarray(normals, dtype=np.float64)

@@ -16,7 +16,13 @@ import numpy as np
 from qifreport.registration.mesh import bounding_diagonal, vertex_normals
 
 from .defects import gaussian_bump
-from .deform import analytic_deformation, biharmonic_deformation, clamp_handles, pca_frame
+from .deform import (
+    analytic_deformation,
+    biharmonic_deformation,
+    clamp_handles,
+    elastic_deformation,
+    pca_frame,
+)
 from .scanner import Scan, ScanSpec, virtual_scan
 
 __all__ = [
@@ -85,7 +91,9 @@ def make_case(
     Parameters
     ----------
     V, F : nominal mesh (mm).
-    generator : ``"analytic"`` (closed form, shares no prior) or ``"biharmonic"`` (paper Eq. 2).
+    generator : ``"analytic"`` (closed form, shares no prior), ``"biharmonic"`` (paper Eq. 2)
+        or ``"elastic"`` (the part's lowest elastic modes as a 2 mm ABS wall, the paper's
+        Section 1.2 design; :func:`elastic_deformation`).
     amplitude : deformation amplitude as a fraction of the bounding diagonal (0.02 = 2 %).
     modes : biharmonic sign patterns and their weights (default bend 1.0 + twist 0.5).
     defect : ``(a, sigma)`` of a Gaussian bump along the free-state normal (mm), or None.
@@ -107,6 +115,8 @@ def make_case(
         d = biharmonic_deformation(
             V, F, a, modes=dict(modes or {"bend": 1.0, "twist": 0.5}), clamp_motion=clamp_motion
         ).d
+    elif generator == "elastic":
+        d = elastic_deformation(V, F, a, seed=0 if seed is None else seed)
     else:
         raise ValueError(f"unknown generator {generator!r}")
     V_true = V + d

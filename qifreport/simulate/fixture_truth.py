@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 from qifreport.registration.clamps import Clamp
 from qifreport.registration.elastic import ElasticModel, Pad, elastic_modes
+from qifreport.registration.restrained import clamp_pads
 
 __all__ = [
     "FreeState",
@@ -40,9 +40,6 @@ __all__ = [
     "springback",
     "uneven_wall",
 ]
-
-#: degrees: a contact touches only the surface facing its clamp's within this angle
-FACING_ANGLE = 45.0
 
 Field = Callable[[np.ndarray], np.ndarray]
 
@@ -109,24 +106,11 @@ def simulated_fixture(
     normals : (c, 3) outward unit normals at the clamps.  pad_radius : mm.
     surface : (N,) bool the model's surface vertices; ``surface_normals`` (N, 3) theirs.
     """
-    X = model.X
-    cand = np.flatnonzero(surface) if surface is not None else np.arange(len(X))
-    tree = cKDTree(X[cand])
-    cos = np.cos(np.radians(FACING_ANGLE))
     normals = np.asarray(normals, dtype=np.float64)
     normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
-    pads, owner, dirs = [], [], []
-    for k, (c, n) in enumerate(zip(clamps, normals, strict=True)):
-        verts = cand[np.asarray(tree.query_ball_point(np.asarray(c.position), pad_radius), int)]
-        if surface_normals is not None and len(verts):
-            facing = np.abs(surface_normals[verts] @ n) >= cos
-            verts = verts[facing] if facing.any() else verts
-        if len(verts) == 0:
-            verts = cand[[int(tree.query(np.asarray(c.position))[1])]]
-        for e in c.axes(n):
-            pads.append(Pad(verts, e, 0.0, name=c.name, mean=True))
-            owner.append(k)
-            dirs.append(np.asarray(e, dtype=np.float64))
+    pads, contacts = clamp_pads(model.X, clamps, normals, pad_radius, surface, surface_normals)
+    owner = [k for k, _ in contacts]
+    dirs = [np.asarray(e, dtype=np.float64) for _, e in contacts]
     D, G = model.pad_responses(pads)
     omega2, modes = elastic_modes(model, n_modes) if n_modes else (np.zeros(0), None)
     return SimulatedFixture(

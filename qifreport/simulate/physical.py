@@ -16,11 +16,13 @@ resulting scan.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
-from scipy.spatial import cKDTree
 
 from qifreport.registration.clamps import Clamp
-from qifreport.registration.elastic import ElasticModel, Pad
+from qifreport.registration.elastic import ElasticModel
+from qifreport.registration.restrained import clamp_pads
 
 __all__ = ["elastic_free_state"]
 
@@ -51,19 +53,13 @@ def elastic_free_state(
         vertices (default all); ``surface_normals`` (N, 3) their normals: a pad touches
         only the vertices facing its clamp's surface within 45 degrees.
     """
-    X = model.X
-    cand = np.flatnonzero(surface) if surface is not None else np.arange(len(X))
-    tree = cKDTree(X[cand])
-    pads = []
-    for c, n in zip(clamps, np.asarray(normals, dtype=np.float64), strict=True):
-        verts = cand[np.asarray(tree.query_ball_point(np.asarray(c.position), pad_radius), int)]
-        if surface_normals is not None and len(verts):  # a pad touches its own face
-            facing = np.abs(surface_normals[verts] @ n) >= np.cos(np.radians(45.0))
-            verts = verts[facing] if facing.any() else verts
-        if len(verts) == 0:
-            verts = cand[[int(tree.query(np.asarray(c.position))[1])]]
-        for j, e in enumerate(c.axes(n)):
-            lift = lifts.get(c.name, 0.0) if j == 0 else 0.0
-            pads.append(Pad(verts, e, lift, name=c.name, mean=True))
+    pads, contacts = clamp_pads(model.X, clamps, normals, pad_radius, surface, surface_normals)
+    first = {}
+    for j, (k, _) in enumerate(contacts):  # each clamp's first direction is lifted
+        first.setdefault(k, j)
+    pads = [
+        replace(p, value=lifts.get(clamps[k].name, 0.0)) if first[k] == j else p
+        for j, (p, (k, _)) in enumerate(zip(pads, contacts, strict=True))
+    ]
     sol = model.solve(pads=pads, load=load)
     return model.displacement_at(sol, points)

@@ -1,6 +1,7 @@
-"""Test geometries: the doubly curved thin shell (paper Section 8.3.1) and the fandisk (7.1).
+"""Test geometries: the doubly curved thin shell (paper Section 8.3.1), the fandisk (7.1),
+a housing and a formed hat bracket with a bead (a STEP solid, for the fixture benchmark).
 
-Both return plain arrays ``V`` (n, 3) float64 in mm and ``F`` (f, 3) int64.
+The meshes are plain arrays ``V`` (n, 3) float64 in mm and ``F`` (f, 3) int64.
 """
 
 from __future__ import annotations
@@ -14,6 +15,9 @@ from qifreport.registration.mesh import bounding_diagonal, load_mesh, weld
 
 __all__ = [
     "fandisk",
+    "HAT_CLAMPS",
+    "hat_bracket",
+    "hat_profile",
     "rim_clamps",
     "grid_triangles",
     "housing",
@@ -204,3 +208,68 @@ def rim_clamps(
         clamps.append(Clamp(name, tuple(float(x) for x in V[v]), d, limit if d == "n" else None))
         normals.append(N[v])
     return clamps, np.array(normals)
+
+
+# The hat bracket: a formed sheet-metal channel (mid-line of its section in the xz plane, mm)
+# with a raised bead along its top, flanges at z = 0 (their undersides), extruded along y.
+HAT_WALL = 1.2  # mm, sheet thickness
+HAT_LENGTH = 180.0  # mm, along y
+_HAT_MIDLINE = (
+    (-60.0, 0.0),
+    (-40.0, 0.0),
+    (-30.0, 28.0),
+    (-9.0, 28.0),
+    (-5.0, 31.0),
+    (5.0, 31.0),
+    (9.0, 28.0),
+    (30.0, 28.0),
+    (40.0, 0.0),
+    (60.0, 0.0),
+)
+
+#: The bracket's fixture (CSV rows as in ``samples/panel_clamps.csv``): four clamp faces on
+#: the flange undersides along the normal (force limit in N set by the caller), a locator on
+#: the end face along y and two on the left flange's edge along x.
+HAT_CLAMPS = (
+    ("A1", (-50.0, -80.0, 0.0), "n"),
+    ("A2", (50.0, -80.0, 0.0), "n"),
+    ("A3", (-50.0, 80.0, 0.0), "n"),
+    ("A4", (50.0, 80.0, 0.0), "n"),
+    ("B1", (-19.0, -90.0, 28.0 + HAT_WALL / 2), "y"),
+    ("C1", (-60.0, -60.0, HAT_WALL / 2), "x"),
+    ("C2", (-60.0, 60.0, HAT_WALL / 2), "x"),
+)
+
+
+def hat_profile(wall: float = HAT_WALL) -> np.ndarray:
+    """The closed section of the hat bracket (k, 2) in the xz plane, mm: the mid-line
+    offset by +/- ``wall`` / 2 (mitred corners), lifted so the flange undersides are z = 0."""
+    M = np.array(_HAT_MIDLINE, dtype=np.float64) + [0.0, wall / 2]
+    seg = np.diff(M, axis=0)
+    seg /= np.linalg.norm(seg, axis=1, keepdims=True)
+    nrm = np.c_[-seg[:, 1], seg[:, 0]]  # left normals of the segments
+    off = np.empty_like(M)
+    off[0], off[-1] = nrm[0], nrm[-1]
+    mid = nrm[:-1] + nrm[1:]
+    off[1:-1] = mid / np.einsum("ij,ij->i", mid, nrm[1:])[:, None]  # mitre: 1/cos(half angle)
+    upper, lower = M + off * wall / 2, M - off * wall / 2
+    return np.vstack([upper, lower[::-1]])
+
+
+def hat_bracket(wall: float = HAT_WALL, length: float = HAT_LENGTH):
+    """The hat bracket as one valid OCP solid (mm; flange undersides at z = 0, y along its
+    length, centred): 120 mm wide over the flanges, 31 mm high at the bead.
+
+    Returns
+    -------
+    OCP ``TopoDS_Shape`` (a solid).
+    """
+    import cadquery as cq
+    from OCP.BRepCheck import BRepCheck_Analyzer
+
+    pts = [tuple(map(float, p)) for p in hat_profile(wall)]
+    body = cq.Workplane("XZ").polyline(pts).close().extrude(length / 2, both=True)
+    solids = body.solids().vals()
+    if len(solids) != 1 or not BRepCheck_Analyzer(solids[0].wrapped).IsValid():
+        raise RuntimeError("the hat bracket is not one valid solid")
+    return solids[0].wrapped
