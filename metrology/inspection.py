@@ -350,9 +350,20 @@ class InspectionResult:
           (:mod:`qifreport.metrology.size`: too little of the rim seen, or a scale too
           uncertain or too close to the limit to decide);
         * with ``--seeds``: a resampled run whose own registration cannot be trusted (its
-          regions decided which findings persist).
+          regions decided which findings persist);
+        * clamp force limits stated for a part held without a material: whether it can be
+          held within them is not known.
         """
         out = []
+        r = self.restraint
+        if r is not None and not r.forces_known:
+            limited = [c.name for c in r.clamps if c.max_force is not None]
+            if limited:
+                out.append(
+                    f"clamp force limits are stated ({', '.join(limited)}) but not the "
+                    "material (--material): whether the part can be held within them is not "
+                    "known"
+                )
         if not self.coverage_ceiling_ok:
             ratio = self.scan_area / max(self.acceptance.nominal_area, 1e-300)
             out.append(

@@ -147,6 +147,19 @@ def test_a_part_beyond_its_clamp_force_is_not_restrainable(shell_case):
     assert any(d.startswith("not restrainable within 0.01 N") for d in doc["decided_by"])
     assert doc["registration"]["restraint"]["not_restrainable"]
     assert b"OVER LIMIT" in r.stdout
+    # the same limit without a material: the forces cannot be known, so neither can the
+    # part's restrainability: never a PASS
+    out = shell_case["tmp"] / "no-material"
+    r = run(
+        NOMINAL,
+        shell_case["scans"]["conforming"],
+        *("--tolerance", TOL, "--clamps", shell_case["clamps"], "--thickness", "2"),
+        *("--max-clamp-force", "0.01", "--out", out, "--json", "--quiet", "--force"),
+        *("--cache", shell_case["cache"]),
+    )
+    assert r.returncode == 3, r.stdout.decode() + r.stderr.decode()
+    doc = json.loads((out / "shell_nominal.json").read_text())
+    assert any("not the material" in d for d in doc["decided_by"]), doc["decided_by"]
 
 
 @pytest.mark.parametrize(

@@ -342,3 +342,44 @@ def test_gaussian_bump_width_convention(shell):
     delta = gaussian_bump(V, N, V[i], -0.5, 7.0)
     np.testing.assert_allclose(delta[i], -0.5 * N[i], atol=1e-15)
     assert np.linalg.norm(delta, axis=1).max() == pytest.approx(0.5)
+
+
+def test_the_elastic_free_state_of_a_square_plate_is_its_twist():
+    """The lowest elastic mode of a free square plate is the twist w ~ x y (Leissa, free
+    plate, nu ~ 0.3): with one mode the generator must give that shape at the asked peak."""
+    from qifreport.simulate.deform import elastic_deformation
+    from qifreport.simulate.shapes import grid_triangles
+
+    n = 17
+    x, y = np.meshgrid(np.linspace(-50, 50, n), np.linspace(-50, 50, n), indexing="ij")
+    V = np.c_[x.ravel(), y.ravel(), np.zeros(n * n)]
+    F = grid_triangles(n, n)
+    d = elastic_deformation(V, F, 1.5, n_modes=1, thickness=2.0)
+    assert np.linalg.norm(d, axis=1).max() == pytest.approx(1.5, rel=1e-9)
+    w = d[:, 2]
+    twist = V[:, 0] * V[:, 1]
+    r = np.corrcoef(w, twist)[0, 1]
+    assert abs(r) > 0.98, r  # a bending mode (x^2 - y^2 saddle or a bend) correlates ~0
+    assert np.abs(d[:, :2]).max() < 0.1 * np.abs(w).max()  # a plate mode moves out of plane
+
+
+def test_the_hat_bracket_is_one_solid_of_its_section_and_wall():
+    from OCP.BRepGProp import BRepGProp
+    from OCP.GProp import GProp_GProps
+
+    from qifreport.simulate.shapes import HAT_LENGTH, HAT_WALL, hat_bracket, hat_profile
+
+    S = hat_profile()
+    k = len(S) // 2
+    upper, lower = S[:k], S[k:][::-1]
+    for i in range(k - 1):  # every segment of each skin lies one wall from the other's
+        t = upper[i + 1] - upper[i]
+        nrm = np.array([-t[1], t[0]]) / np.linalg.norm(t)
+        assert abs((upper[i] - lower[i]) @ nrm) == pytest.approx(HAT_WALL, abs=1e-9)
+    x, z = S[:, 0], S[:, 1]
+    area = 0.5 * abs(np.dot(x, np.roll(z, -1)) - np.dot(z, np.roll(x, -1)))
+    props = GProp_GProps()
+    BRepGProp.VolumeProperties_s(hat_bracket(), props)
+    assert props.Mass() == pytest.approx(area * HAT_LENGTH, rel=1e-9)
+    # the mid-line: flanges 2 x 20, walls 2 x |(10, 28)|, top 2 x 21 + 10, bead sides 2 x 5
+    assert area == pytest.approx(HAT_WALL * (40 + 2 * np.hypot(10, 28) + 52 + 10), rel=1e-3)
