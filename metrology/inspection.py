@@ -83,6 +83,7 @@ from .deviation import (
 )
 from .edges import EdgeDeviation, edge_deviation
 from .hygiene import MeshHygiene
+from .locators import patch_offset
 from .params import METHOD_LABELS, InspectionParams, method_label
 from .point_regions import ScanSamples, SurfacePoints, scan_samples
 from .prepared import PreparedPart, prepare_part
@@ -1026,6 +1027,39 @@ def _restrained(
     origin = V.mean(axis=0)
     offsets = readings.offsets()
     sources = ["scan"] * len(offsets)
+    # a locator on a face that faces its axis: its face and the neighbours placed together
+    # (metrology.locators: proximity alone reads the neighbouring faces once the free state
+    # moved a narrow face across its own width)
+    facing_axis = np.zeros(len(offsets), dtype=bool)
+    cos_facing = np.cos(np.radians(FACING_ANGLE))
+    for j, k in enumerate(restraint.owner):
+        if restraint.clamps[k].directions != "n" and abs(restraint.coupling[j]) >= cos_facing:
+            facing_axis[k] = True
+    local = np.full(len(offsets), np.nan)
+    p_tree = cKDTree(P0)
+    for k in np.flatnonzero(facing_axis):
+        local[k] = patch_offset(
+            V,
+            F,
+            tri_n,
+            P0,
+            Ns_out,
+            restraint.clamps[k].position,
+            restraint.normals[k],
+            LOCATOR_PATCH * restraint.pad_radius,
+            LOCATOR_GATE,
+            tree=p_tree,
+        )
+        if np.isfinite(local[k]):
+            log.info(
+                "locator %s: %+.3f mm from its patch (its face's points alone: %+.3f mm)",
+                restraint.clamps[k].name,
+                local[k],
+                offsets[k],
+            )
+            offsets[k] = local[k]
+            sources[k] = "scan (local fit)"
+    by_patch = np.isfinite(local)
     # the restrained directions whose drive the scan gives (the faces, the locators it
     # shows); the seat searches the rigid motions the others hold
     read = read_directions(restraint.clamps, restraint.owner, restraint.coupling, offsets)
@@ -1050,9 +1084,10 @@ def _restrained(
     def offsets_at(xi: np.ndarray) -> np.ndarray:
         """The clamps' offsets once the free state is moved by ``xi``."""
         off = readings.offsets(*rigid_motion(xi, origin))
-        # an unseen clamp face's offset moves with the part
+        # an unseen clamp face's offset, and a locator's from its patch, move with the part
         shift = np.einsum("kd,kd->k", np.cross(xi[:3], at) + xi[3:], restraint.normals)
         off[unseen] = fixed[unseen] + shift[unseen]
+        off[by_patch] = local[by_patch] + shift[by_patch]
         return off
 
     def distances(Q: np.ndarray):
@@ -1110,6 +1145,11 @@ def _restrained(
     res.fixture_decision = RESTRAINED
     return res
 
+
+#: a locator's patch (:func:`qifreport.metrology.locators.patch_offset`): its radius in pad
+#: radii, and the largest free-state motion of a pair there, mm
+LOCATOR_PATCH = 3.0
+LOCATOR_GATE = 3.0
 
 #: relative standard uncertainty of the displacement by which the elastic model holds the
 #: scan (wall thickness, Poisson's ratio, mesh and contact size the model cannot know):

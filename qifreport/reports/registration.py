@@ -39,8 +39,8 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
     r = res.restraint
     if r is not None:
         held = f"{len(r.clamps)} clamps"
-        if any(s != "scan" for s in r.offset_sources):
-            held += f" ({sum(s != 'scan' for s in r.offset_sources)} unseen)"
+        if any(s == "free-state fit" for s in r.offset_sources):
+            held += f" ({sum(s == 'free-state fit' for s in r.offset_sources)} unseen)"
         mat = r.model_info.get("material")
         rows += [
             [
