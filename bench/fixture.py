@@ -8,8 +8,11 @@ one defect kind:
 * ``none``        the warp only;
 * ``dent``/``bump`` a plastic dent or bump, width sigma in {3, 5, 10, 15, 20, 30, 40} mm,
                   depth 0.1-1.2 mm (log-uniform), at least 20 mm from any clamp;
-* ``springback``  (panel) one flange turned about its bend line by 2-20 mrad;
-* ``overwarp``    a warp whose clamping needs 1.3-3 times a clamp's force limit.
+* ``springback``  (panel, bracket) one flange turned about its bend line by 2-20 mrad;
+* ``overwarp``    the face clamps' points pushed ~3 mm (sd), held by clamps whose limit (the
+                  case's own, given to the product) is the force this needs / 1.3-3: the
+                  part is not restrainable (these soft parts need ~1 N per mm of twist, so
+                  no plausible warp reaches the stated limits).
 
 The truth is :mod:`qifreport.simulate.fixture_truth`: the free shape clamped at the same
 RPS points by another elastic model (finer or other mesh, Poisson's ratio 0.05 off, the
@@ -23,17 +26,24 @@ three ways with a warm per-part state: ``restrained`` (its clamps), ``free`` (th
 virtual fixture) and ``rigid`` (no fixture).
 
 The parts: the sample panel (STEP solid, flanges; its clamps samples/panel_clamps.csv, 20 N
-limits, ABS; truth: gmsh tetrahedra at 1/60 of the diagonal against the product's 1/40) and
+limits, ABS; truth: gmsh tetrahedra at 1/60 of the diagonal against the product's 1/40),
 the thin shell (mesh nominal, 2 mm PP sheet; four corner clamps at 5 N and two pins in the
 surface's plane; truth: the shell at 3 mm thickened, the product's nominal decimated to
-3,000 triangles).
+3,000 triangles) and a formed hat bracket with a bead (STEP solid written here,
+:func:`qifreport.simulate.shapes.hat_bracket`: 1.2 mm steel, 120 x 180 x 32 mm, flanges;
+four flange clamps at 100 N, three locators on its end face and a flange edge; 0.5 mm
+profile; truth as the panel's).
 
 Printed: per method and defect kind the confusion matrix (truth PASS/FAIL against product
 PASS/FAIL/NOT ESTABLISHED), false PASSes by defect width, the deviation field's RMS against
 the held truth on the scored vertices, and the clamp force error.
 
-    python bench/fixture.py [--cases 200] [--parts panel,shell] [--workers 2] [--seed 0]
+    python bench/fixture.py [--cases 200] [--parts panel,shell,bracket] [--workers 2] [--seed 0]
                             [--methods restrained,free,rigid] [--csv out.csv]
+                            [--nu-offset 0.05] [--wall-spread 0.10]
+
+``--nu-offset 0 --wall-spread 0`` is the ablation: a truth that differs from the product
+only by its mesh and pads (what the product cannot know taken away).
 """
 
 from __future__ import annotations
@@ -54,8 +64,18 @@ ROOT = Path(__file__).resolve().parents[1]
 
 WIDTHS = (3.0, 5.0, 10.0, 15.0, 20.0, 30.0, 40.0)
 KINDS = ("none", "dent", "bump", "springback", "overwarp")
-TRUTH_NU_OFFSET = 0.05
-WALL_SPREAD = 0.10  # +/- thickness variation of the truth's wall
+
+
+@dataclass(frozen=True)
+class Truth:
+    """How the simulated fixture's model differs from the product's beyond its mesh:
+    Poisson's ratio (``nu_offset``, added on the panel and bracket, subtracted on the
+    shell) and the wall's +/- thickness variation (``wall_spread``; stiffness as its cube)."""
+
+    nu_offset: float = 0.05
+    wall_spread: float = 0.10
+
+
 NOISE = 0.02  # mm, scanner range noise
 
 
@@ -99,11 +119,11 @@ def _sites(V, N, clamps, keep) -> tuple[np.ndarray, np.ndarray]:
     return V[idx], N[idx]
 
 
-def _fixture(model_X, model_T, material, clamps, normals, rng, sn=None):
+def _fixture(model_X, model_T, material, clamps, normals, rng, truth: Truth, sn=None):
     from qifreport.registration.elastic import elastic_model
     from qifreport.simulate.fixture_truth import simulated_fixture, uneven_wall
 
-    scale = uneven_wall(model_X[model_T].mean(axis=1), WALL_SPREAD, 60.0, rng)
+    scale = uneven_wall(model_X[model_T].mean(axis=1), truth.wall_spread, 60.0, rng)
     model = elastic_model(model_X, model_T, material, stiffness_scale=scale)
     surface = None if sn is None else np.linalg.norm(sn, axis=1) > 0
     return simulated_fixture(
@@ -120,7 +140,9 @@ def _product_nominal(name, nominal, options, csv, cache):
     return nom.V, nom.F, vertex_normals(nom.V, nom.F)
 
 
-def _step_setup(rng, cache, name, nominal, csv, options, keep_fn, flanges, limit) -> PartSetup:
+def _step_setup(
+    rng, truth, cache, name, nominal, csv, options, keep_fn, flanges, limit
+) -> PartSetup:
     """A STEP solid's setup: the truth's tetrahedra at 1/60 of the diagonal (the product's
     1/40), Poisson's ratio off, an uneven wall; dents where ``keep_fn(V, N)`` allows."""
     from qifreport.registration.clamps import parse_clamps
@@ -140,9 +162,11 @@ def _step_setup(rng, cache, name, nominal, csv, options, keep_fn, flanges, limit
     diag = float(np.linalg.norm(np.ptp(Vs, axis=0)))
     tets = gmsh_solid_mesh(part.shape, diag / 60.0)
     base = material(options["material"])
-    mat = Material("truth", base.E, base.nu + TRUTH_NU_OFFSET, base.density)
+    mat = Material("truth", base.E, base.nu + truth.nu_offset, base.density)
     normals = _clamp_normals(Vs, Fs, clamps)
-    fx = _fixture(tets.X, tets.T, mat, clamps, normals, rng, boundary_normals(tets.X, tets.T))
+    fx = _fixture(
+        tets.X, tets.T, mat, clamps, normals, rng, truth, boundary_normals(tets.X, tets.T)
+    )
     Ns = vertex_normals(Vs, Fs)
     sites, site_n = _sites(Vs, Ns, clamps, keep_fn(Vs, Ns))
     views = turntable_views(both_sides=True)
@@ -160,7 +184,7 @@ def _bend_lines(xb: float) -> list:
     ]
 
 
-def panel_setup(rng: np.random.Generator, cache: Path) -> PartSetup:
+def panel_setup(rng: np.random.Generator, truth: Truth, cache: Path) -> PartSetup:
     """The sample panel: ABS, its clamps file (20 N), dents on the crown's outer skin."""
 
     def keep(V, N):  # the crown's outer skin, away from its edges
@@ -169,11 +193,11 @@ def panel_setup(rng: np.random.Generator, cache: Path) -> PartSetup:
     nominal = ROOT / "samples" / "panel.step"
     csv = ROOT / "samples" / "panel_clamps.csv"
     return _step_setup(
-        rng, cache, "panel", nominal, csv, {"material": "abs"}, keep, _bend_lines(62.0), 20.0
+        rng, truth, cache, "panel", nominal, csv, {"material": "abs"}, keep, _bend_lines(62.0), 20.0
     )
 
 
-def bracket_setup(rng: np.random.Generator, out: Path, cache: Path) -> PartSetup:
+def bracket_setup(rng: np.random.Generator, truth: Truth, out: Path, cache: Path) -> PartSetup:
     """The formed hat bracket with a bead (:func:`qifreport.simulate.shapes.hat_bracket`):
     1.2 mm steel, 0.5 mm profile, four flange clamps at 100 N, three locators."""
     from qifreport.simulate.shapes import HAT_CLAMPS, hat_bracket
@@ -191,10 +215,12 @@ def bracket_setup(rng: np.random.Generator, out: Path, cache: Path) -> PartSetup
         return (N[:, 2] > 0.5) & (V[:, 2] > 28.5) & (np.abs(V[:, 1]) < 75.0)
 
     options = {"material": "steel", "tolerance": 0.5}
-    return _step_setup(rng, cache, "bracket", nominal, csv, options, keep, _bend_lines(40.0), limit)
+    return _step_setup(
+        rng, truth, cache, "bracket", nominal, csv, options, keep, _bend_lines(40.0), limit
+    )
 
 
-def shell_setup(rng: np.random.Generator, out: Path, cache: Path) -> PartSetup:
+def shell_setup(rng: np.random.Generator, truth: Truth, out: Path, cache: Path) -> PartSetup:
     from qifreport.registration.elastic import MATERIALS, Material
     from qifreport.registration.mesh import load_mesh, vertex_normals
     from qifreport.registration.sheet_solid import sheet_solid
@@ -215,8 +241,8 @@ def shell_setup(rng: np.random.Generator, out: Path, cache: Path) -> PartSetup:
     Vt, Ft = thin_shell(spacing=3.0)  # the 5 mm pads need several truth vertices
     solid = sheet_solid(Vt, Ft, vertex_normals(Vt, Ft), 2.0)
     pp = MATERIALS["pp"]
-    mat = Material("truth", pp.E, pp.nu - TRUTH_NU_OFFSET, pp.density)
-    fx = _fixture(solid.X, solid.T, mat, clamps, np.array(normals), rng)
+    mat = Material("truth", pp.E, pp.nu - truth.nu_offset, pp.density)
+    fx = _fixture(solid.X, solid.T, mat, clamps, np.array(normals), rng, truth)
     options = {"material": "pp", "thickness": 2.0, "tolerance": 0.3}
     V, F, N = _product_nominal("shell", nominal, options, csv, cache)
     span = np.ptp(V[:, :2], axis=0) / 2
@@ -434,7 +460,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--csv", type=Path, default=None)
     ap.add_argument("--dump", type=Path, default=None, help="write each case's arrays here")
+    ap.add_argument(
+        "--nu-offset", type=float, default=Truth.nu_offset, help="truth's Poisson's ratio offset"
+    )
+    ap.add_argument(
+        "--wall-spread",
+        type=float,
+        default=Truth.wall_spread,
+        help="truth's +/- wall thickness variation (0: the product's uniform wall)",
+    )
     args = ap.parse_args(argv)
+    truth = Truth(args.nu_offset, args.wall_spread)
     methods = args.methods.split(",")
     parts = args.parts.split(",")
     work = Path(tempfile.mkdtemp(prefix="qifreport-fixture-"))
@@ -444,11 +480,11 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     for p in parts:
         if p == "panel":
-            setups[p] = panel_setup(rng, cache)
+            setups[p] = panel_setup(rng, truth, cache)
         elif p == "bracket":
-            setups[p] = bracket_setup(rng, work, cache)
+            setups[p] = bracket_setup(rng, truth, work, cache)
         else:
-            setups[p] = shell_setup(rng, work, cache)
+            setups[p] = shell_setup(rng, truth, work, cache)
         print(f"{p}: truth built ({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     # warm the per-part states (one build per part and fixture, then every worker loads it)
     for p in parts:
