@@ -423,14 +423,19 @@ def run_product(task: dict) -> dict:
 
 
 def truth_verdict(
-    part: PartSetup, held, scored: np.ndarray, run: dict, limit: float = math.nan
+    part: PartSetup,
+    held,
+    e: np.ndarray,
+    scored: np.ndarray,
+    run: dict,
+    limit: float = math.nan,
 ) -> tuple[str, float, bool]:
-    """The physical fixture's verdict on the product's scored vertices, the largest band
-    exceedance (mm; < 0: inside every band by that much) and whether a clamp is over its
-    limit (``limit``, N, replaces the stated limits when finite)."""
+    """The physical fixture's verdict on the product's scored vertices (``e`` (n,) mm: the
+    held truth's deviation along the nominal normals), the largest band exceedance (mm;
+    < 0: inside every band by that much) and whether a clamp is over its limit (``limit``,
+    N, replaces the stated limits when finite)."""
     from qifreport.metrology.acceptance import evaluate
 
-    e = np.einsum("ij,ij->i", held.u, part.N)
     e = np.where(scored, e, np.nan)
     acc = evaluate(
         part.V,
@@ -539,8 +544,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"case {meta['seed']}: {ref['error']}", file=sys.stderr)
                 continue
             scored = np.isfinite(ref["deviation"])
-            truth, margin, over = truth_verdict(s, held, scored, ref, meta["limit"])
             e = np.einsum("ij,ij->i", held.u, s.N)
+            truth, margin, over = truth_verdict(s, held, e, scored, ref, meta["limit"])
             if args.dump:
                 args.dump.mkdir(parents=True, exist_ok=True)
                 np.savez_compressed(

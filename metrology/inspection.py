@@ -1014,7 +1014,10 @@ def _restrained(
     tri_n = face_normals(V, F)
     P0 = reg.P
     Ns_out = orient_scan_normals(P0, reg.scan_normals, V, prepared.ops.normals, sheets=reg.sheets)
-    readings = _clamp_readings(P0, Ns_out, restraint, V, F, face_id, judge["brep_normals"])
+    p_tree = cKDTree(P0)
+    readings = _clamp_readings(
+        P0, Ns_out, restraint, V, F, face_id, judge["brep_normals"], tree=p_tree
+    )
     for k, c in enumerate(restraint.clamps):
         vals = readings.values(k)
         log.info(
@@ -1030,14 +1033,10 @@ def _restrained(
     # a locator on a face that faces its axis: its face and the neighbours placed together
     # (metrology.locators: proximity alone reads the neighbouring faces once the free state
     # moved a narrow face across its own width)
-    facing_axis = np.zeros(len(offsets), dtype=bool)
-    cos_facing = np.cos(np.radians(FACING_ANGLE))
-    for j, k in enumerate(restraint.owner):
-        if restraint.clamps[k].directions != "n" and abs(restraint.coupling[j]) >= cos_facing:
-            facing_axis[k] = True
+    facing = np.abs(restraint.coupling) >= np.cos(np.radians(FACING_ANGLE))
+    locator = np.array([restraint.clamps[k].directions != "n" for k in restraint.owner])
     local = np.full(len(offsets), np.nan)
-    p_tree = cKDTree(P0)
-    for k in np.flatnonzero(facing_axis):
+    for k in np.unique(restraint.owner[facing & locator]):
         local[k] = patch_offset(
             V,
             F,
@@ -1116,7 +1115,6 @@ def _restrained(
     k_model = 2.0 * RESTRAINT_MODEL_UNCERTAINTY
     u_v = k_model * np.linalg.norm(held.u, axis=1)
     u_p = k_model * np.linalg.norm(moved, axis=1)
-    facing = np.abs(restraint.coupling) >= np.cos(np.radians(FACING_ANGLE))
     if np.any(xi) and np.any(~read & ~facing):
         # a pin whose axis lies in its surface's plane cannot be read from any scan: the
         # placement along it is an estimate, which the held best fit (the seat) and the
@@ -1327,14 +1325,17 @@ def _clamp_readings(
     F: np.ndarray,
     face_id: np.ndarray | None,
     brep_normals: np.ndarray | None,
+    *,
+    tree: cKDTree | None = None,
 ) -> _ClampReadings:
     """The scan points that read each clamp's offset: within its pad radius, on the skin
     facing the clamp's way (outward scan normals ``Ns`` within
     :data:`qifreport.registration.restrained.FACING_ANGLE` of its normal: on a thin wall
     deflected beyond half its thickness the nearest nominal skin is the other one), each
     measured against the clamp's own B-rep face (a STEP nominal; the whole mesh else) and
-    inside it (a point beyond the face's edge is not read)."""
-    tree = cKDTree(P)
+    inside it (a point beyond the face's edge is not read). ``tree``: ``cKDTree(P)`` when at
+    hand."""
+    tree = cKDTree(P) if tree is None else tree
     cos = np.cos(np.radians(FACING_ANGLE))
     pos = np.array([c.position for c in restraint.clamps], dtype=np.float64)
     _, home, _ = closest_points(V, F, pos)

@@ -27,6 +27,8 @@ import logging
 import numpy as np
 from scipy.spatial import cKDTree
 
+from qifreport.registration.restrained import rigid_motion
+
 from .deviation import closest_points
 
 __all__ = ["patch_offset"]
@@ -89,10 +91,10 @@ def patch_offset(
     Fp, Np = F[tris], tri_normals[tris]
     Q0, Nq0 = P[idx], Ns[idx]
     cos = np.cos(np.radians(NORMAL_ANGLE))
-    R, t = np.eye(3), np.zeros(3)
-    keep = np.zeros(len(idx), dtype=bool)
+    R, T = np.eye(3), np.zeros(3)  # the scan's motion so far: q -> R q + T
+    keep = own = np.zeros(len(idx), dtype=bool)
     for _ in range(ROUNDS):
-        Q = (Q0 - c) @ R.T + c + t
+        Q = Q0 @ R.T + T
         C, local, _ = closest_points(V, Fp, Q)
         n = Np[local]
         r = np.einsum("ij,ij->i", Q - C, n)
@@ -101,30 +103,22 @@ def patch_offset(
         if keep.sum() < min_points or own.sum() < 3:
             return float("nan")
         q, nk, rk = Q[keep] - c, n[keep], r[keep]
-        J = np.c_[np.cross(q, nk), nk]  # d r / d (omega, tau) of the scan's motion
+        J = np.c_[np.cross(q, nk), nk]  # d r / d (omega, tau) of the scan's motion about c
         H = J.T @ J
         H += 1e-6 * np.trace(H) / 6.0 * np.eye(6)  # a direction no face constrains stays 0
         x = -np.linalg.solve(H, J.T @ rk)
-        w, tau = x[:3], x[3:]
-        th = float(np.linalg.norm(w))
-        if th > 0:
-            k = w / th
-            K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-            dR = np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * (K @ K)
-        else:
-            dR = np.eye(3)
-        R, t = dR @ R, dR @ t + tau
-        if np.linalg.norm(tau) + th * radius < SETTLED:
+        dR, dT = rigid_motion(x, c)
+        R, T = dR @ R, dR @ T + dT
+        if np.linalg.norm(x[3:]) + np.linalg.norm(x[:3]) * radius < SETTLED:
             break
-    # the scan moved onto the nominal by q -> R (q - c) + c + t: the free state's point at
-    # the contact is where that motion's inverse takes the contact
-    p_free = R.T @ (-t) + c
+    # the free state's point at the contact is where the scan's motion takes onto it
+    p_free = R.T @ (c - T)
     off = float((p_free - c) @ n0)
     log.debug(
         "patch at (%.1f, %.1f, %.1f): %d pairs (%d on the contact's face), offset %+.3f mm",
         *c,
         int(keep.sum()),
-        int((keep & (Np[local] @ n0 >= cos)).sum()),
+        int(own.sum()),
         off,
     )
     return off

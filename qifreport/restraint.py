@@ -40,6 +40,7 @@ __all__ = [
     "build_restraint",
     "PMI_CLAMPS",
     "read_clamps",
+    "sheet_model_mesh",
     "clamp_rows",
     "clamps_from_pmi",
     "gravity_direction",
@@ -170,15 +171,17 @@ def _closest_normals(
     return np.linalg.norm(points - C, axis=1), face_normals(V, F)[tri]
 
 
-def _sheet_model_mesh(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A mesh nominal decimated to about :data:`SHEET_MODEL_TRIANGLES` triangles (igl's
-    edge collapses; the nominal itself when it has no more)."""
-    if len(F) <= SHEET_MODEL_TRIANGLES:
+def sheet_model_mesh(
+    V: np.ndarray, F: np.ndarray, triangles: int = SHEET_MODEL_TRIANGLES
+) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh nominal decimated to about ``triangles`` triangles for its elastic model
+    (igl's edge collapses; the nominal itself when it has no more)."""
+    if len(F) <= triangles:
         return V, F
     import igl
 
     U, G, _, _ = igl.decimate(
-        np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64), SHEET_MODEL_TRIANGLES
+        np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64), triangles
     )
     return np.ascontiguousarray(U), np.ascontiguousarray(G, dtype=np.int64)
 
@@ -270,7 +273,7 @@ def build_restraint(
         from qifreport.registration.mesh import vertex_normals
         from qifreport.registration.sheet_solid import sheet_solid
 
-        U, G = _sheet_model_mesh(V, F)
+        U, G = sheet_model_mesh(V, F)
         sheet = sheet_solid(U, G, vertex_normals(U, G), spec.thickness)
         X, T = sheet.X, sheet.T
         kind = f"sheet {spec.thickness:g} mm thick, {len(G)} triangles thickened"

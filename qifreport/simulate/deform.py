@@ -291,17 +291,13 @@ def elastic_deformation(
     -------
     (n, 3) displacement, mm.
     """
-    import igl
-
     from qifreport.registration.elastic import MATERIALS, elastic_model, elastic_modes
     from qifreport.registration.sheet_solid import sheet_solid
+    from qifreport.restraint import sheet_model_mesh
 
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
-    U, G = V, F
-    if len(F) > model_triangles:
-        U, G, _, _ = igl.decimate(V, F, model_triangles)
-        U, G = np.ascontiguousarray(U), np.ascontiguousarray(G, dtype=np.int64)
+    U, G = sheet_model_mesh(V, F, model_triangles)
     solid = sheet_solid(U, G, vertex_normals(U, G), thickness)
     model = elastic_model(solid.X, solid.T, MATERIALS["abs"])
     omega2, modes = elastic_modes(model, n_modes)
