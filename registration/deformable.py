@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from .icp import robust_scale
 from .mesh import MeshOperators, median_edge_length
-from .pointcloud import median_spacing, pca_normals
+from .pointcloud import SIDE_KNOWN, median_spacing, orient_normals_consistent, pca_normals
 
 __all__ = [
     "coverage_radius",
@@ -221,7 +221,9 @@ def orient_scan_normals(
     sheets: np.ndarray | None = None,
 ) -> np.ndarray:
     """Outward scan normals: consistent per connected sheet of the scan, each sheet's side
-    chosen by a vote of its points against the nearest vertex normal of the posed nominal.
+    chosen by a vote of its points against the nearest vertex normal of the posed nominal,
+    unless the scan showed it (a wall's two skins, label
+    :data:`qifreport.registration.pointcloud.SIDE_KNOWN`).
 
     A vote rather than a per-point test, because where the free-state deflection exceeds
     half the wall of a thin solid the nearest nominal vertex lies on the other skin.
@@ -235,14 +237,15 @@ def orient_scan_normals(
         sheet (:func:`qifreport.registration.pointcloud.orient_normals_consistent`): only the
         vote is made, so one propagation serves several nominals.
     """
-    from .pointcloud import orient_normals_consistent
 
     if sheets is None:
         Ns, sheets = orient_normals_consistent(P, Ns, k=k)
     _, near = cKDTree(V).query(P, workers=-1)
     agree = np.einsum("ij,ij->i", Ns, N[near])
-    votes = np.bincount(sheets, weights=np.sign(agree))
-    flip = votes[sheets] < 0
+    open_ = sheets != SIDE_KNOWN  # the scan's own evidence stands
+    votes = np.bincount(sheets[open_], weights=np.sign(agree[open_]))
+    flip = np.zeros(len(P), dtype=bool)
+    flip[open_] = votes[sheets[open_]] < 0
     out = Ns.copy()
     out[flip] = -out[flip]
     return out
