@@ -46,7 +46,9 @@ __all__ = [
     "follow_triangles",
     "nearest_face_distance",
     "nominal_referenced",
+    "point_faces",
     "residual_referenced",
+    "surface_distance",
     "vertex_face_csr",
 ]
 
@@ -887,3 +889,42 @@ def _residual_fit(
     if max_centroid_offset is not None:
         enough &= np.linalg.norm(c, axis=1) <= float(max_centroid_offset) * radius
     return vid[enough], t[enough], hv[enough], sse[enough], dof[enough]
+
+
+def point_faces(cface: np.ndarray, face_id: np.ndarray) -> np.ndarray:
+    """(m,) int: the B-rep face of each scan point's closest triangle ``cface`` (-1 where
+    it has none)."""
+    return np.where(cface >= 0, face_id[np.maximum(cface, 0)], -1)
+
+
+def surface_distance(
+    V: np.ndarray,
+    F: np.ndarray,
+    C: np.ndarray,
+    cface: np.ndarray,
+    pdev: np.ndarray,
+    face_id: np.ndarray,
+    normals: np.ndarray | None = None,
+    P: np.ndarray | None = None,
+) -> np.ndarray:
+    """(m,) signed distance, mm, of each scan point to the curved B-rep surface: its signed
+    distance ``pdev`` to the closest triangle (at ``C`` on triangle ``cface``) less the
+    triangle's chord height there (:func:`~qifreport.metrology.deviation.curved_offset`):
+    a perfect scan of a cylinder meshed with coarse chords reads 0, not the chord sag.
+    With the points ``P`` (m, 3), a point whose closest chord borders another B-rep face
+    takes the smallest distance over the faces around it
+    (:func:`~qifreport.metrology.deviation.nearest_face_distance`).
+
+    ``normals`` (f, 3, 3): the surface's normals at the triangle corners (the B-rep's,
+    :func:`qifreport.step.normals.corner_normals_exact`; NaN rows take the mesh's); without
+    them each B-rep face's mesh normals
+    (:func:`~qifreport.metrology.deviation.corner_normals`), off by half a segment at the
+    edge of a coarsely meshed fillet."""
+    cn = normals
+    if cn is None or np.isnan(cn).any():
+        mesh = corner_normals(V, F, face_id)
+        cn = mesh if cn is None else np.where(np.isnan(cn[..., :1]), mesh, cn)
+    d = pdev - curved_offset(V, F, C, cface, cn)
+    if P is not None:
+        d, _ = nearest_face_distance(V, F, P, face_id, cface, d, cn)
+    return d

@@ -26,24 +26,17 @@ from qifreport.registration.icp import (
     RigidResult,
     rigid_icp,
     robust_scale,
-    tukey_rho,
-    tukey_weights,
 )
 from qifreport.registration.mesh import (
     bounding_diagonal,
-    face_normals,
     vertex_normals,
 )
 from qifreport.registration.methods import METHODS, deform
 from qifreport.registration.pointcloud import orient_normals_consistent, pca_normals
 from qifreport.registration.prealign import PrealignResult, seat_scan
 from qifreport.registration.restrained import (
-    FACING_ANGLE,
     Restraint,
     RestraintBasis,
-    pad_mean,
-    read_directions,
-    rigid_motion,
 )
 
 from .acceptance import (
@@ -74,16 +67,15 @@ from .decision import vertex_uncertainty
 from .deviation import (
     beyond_rim,
     closest_points,
-    corner_normals,
-    curved_offset,
     follow_triangles,
-    nearest_face_distance,
     nominal_referenced,
+    point_faces,
     residual_referenced,
+    surface_distance,
 )
 from .edges import EdgeDeviation, edge_deviation
+from .held import hold_scan
 from .hygiene import MeshHygiene
-from .locators import patch_offset
 from .params import METHOD_LABELS, InspectionParams, method_label
 from .point_regions import ScanSamples, SurfacePoints, scan_samples
 from .prepared import PreparedPart, prepare_part
@@ -749,45 +741,6 @@ def vertex_deviation(
     )
 
 
-def point_faces(cface: np.ndarray, face_id: np.ndarray) -> np.ndarray:
-    """(m,) int: the B-rep face of each scan point's closest triangle ``cface`` (-1 where
-    it has none)."""
-    return np.where(cface >= 0, face_id[np.maximum(cface, 0)], -1)
-
-
-def surface_distance(
-    V: np.ndarray,
-    F: np.ndarray,
-    C: np.ndarray,
-    cface: np.ndarray,
-    pdev: np.ndarray,
-    face_id: np.ndarray,
-    normals: np.ndarray | None = None,
-    P: np.ndarray | None = None,
-) -> np.ndarray:
-    """(m,) signed distance, mm, of each scan point to the curved B-rep surface: its signed
-    distance ``pdev`` to the closest triangle (at ``C`` on triangle ``cface``) less the
-    triangle's chord height there (:func:`~qifreport.metrology.deviation.curved_offset`):
-    a perfect scan of a cylinder meshed with coarse chords reads 0, not the chord sag.
-    With the points ``P`` (m, 3), a point whose closest chord borders another B-rep face
-    takes the smallest distance over the faces around it
-    (:func:`~qifreport.metrology.deviation.nearest_face_distance`).
-
-    ``normals`` (f, 3, 3): the surface's normals at the triangle corners (the B-rep's,
-    :func:`qifreport.step.normals.corner_normals_exact`; NaN rows take the mesh's); without
-    them each B-rep face's mesh normals
-    (:func:`~qifreport.metrology.deviation.corner_normals`), off by half a segment at the
-    edge of a coarsely meshed fillet."""
-    cn = normals
-    if cn is None or np.isnan(cn).any():
-        mesh = corner_normals(V, F, face_id)
-        cn = mesh if cn is None else np.where(np.isnan(cn[..., :1]), mesh, cn)
-    d = pdev - curved_offset(V, F, C, cface, cn)
-    if P is not None:
-        d, _ = nearest_face_distance(V, F, P, face_id, cface, d, cn)
-    return d
-
-
 def inspect(
     V: np.ndarray,
     F: np.ndarray,
@@ -988,390 +941,43 @@ def _restrained(
     zones: list[ToleranceZone],
     **judge,
 ) -> InspectionResult:
-    """Hold the rigidly seated scan at its clamps and judge it as held (ISO 10579).
-
-    Each clamp's free-state offset is read from the scan under its pad
-    (:func:`qifreport.registration.restrained.clamp_offsets`); a clamp the scan does not
-    see takes the free virtual fixture's displacement there (its smoothness prior is then
-    the only witness: said in the outputs). The clamps driven back to nominal move every
-    scan point by the part's elastic response; the free-state zones are judged on the
-    free state.
-
-    A scan shows each contact's offset along its surface's normal only: a locator whose
-    axis its surface faces (a stop on an end face the scan sees) is read and driven home
-    like a clamp face (:func:`qifreport.registration.restrained.read_directions`); where a
-    locator restrains a direction in its surface's plane (a pin) or was not seen, the held
-    part keeps the placement whose held state fits the nominal best (:func:`_seat_held`),
-    not the free state's own best fit (the warp pulls that one along the surface). The
-    elastic model's own uncertainty (:data:`RESTRAINT_MODEL_UNCERTAINTY` of the hold's
-    displacement) enters each deviation's expanded uncertainty."""
-    t0 = time.perf_counter()
-    V, F = reg.V, reg.F
-    face_id = judge["face_id"]
+    """Hold the rigidly seated scan at its clamps (:func:`qifreport.metrology.held.hold_scan`)
+    and judge it as held; the free-state zones are judged on the free state in the held
+    seat, and the hold's uncertainty enters each deviation's."""
     prepared = judge["prepared"]
-    tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
 
-    tri_n = face_normals(V, F)
-    P0 = reg.P
-    Ns_out = orient_scan_normals(P0, reg.scan_normals, V, prepared.ops.normals, sheets=reg.sheets)
-    p_tree = cKDTree(P0)
-    readings = _clamp_readings(
-        P0, Ns_out, restraint, V, F, face_id, judge["brep_normals"], tree=p_tree
+    def free_fit() -> np.ndarray:
+        return _virtual_fixture(reg, params, prepared, zones, judge["basis"], progress).V
+
+    held = hold_scan(
+        reg.V,
+        reg.F,
+        reg.P,
+        reg.scan_normals,
+        reg.sheets,
+        restraint,
+        normals=prepared.ops.normals,
+        free_fit=free_fit,
+        face_id=judge["face_id"],
+        brep_normals=judge["brep_normals"],
+        tree=prepared.model.tree if prepared.model is not None else None,
+        normal_k=params.gbcicp.scan_normal_k,
     )
-    for k, c in enumerate(restraint.clamps):
-        vals = readings.values(k)
-        log.info(
-            "clamp %s: %d readings, median %s mm, spread (IQR) %s mm",
-            c.name,
-            len(vals),
-            f"{np.median(vals):+.3f}" if len(vals) else "-",
-            f"{np.subtract(*np.percentile(vals, [75, 25])):.3f}" if len(vals) else "-",
-        )
-    origin = V.mean(axis=0)
-    offsets = readings.offsets()
-    sources = ["scan"] * len(offsets)
-    # a locator on a face that faces its axis: its face and the neighbours placed together
-    # (metrology.locators: proximity alone reads the neighbouring faces once the free state
-    # moved a narrow face across its own width)
-    facing = np.abs(restraint.coupling) >= np.cos(np.radians(FACING_ANGLE))
-    locator = np.array([restraint.clamps[k].directions != "n" for k in restraint.owner])
-    local = np.full(len(offsets), np.nan)
-    for k in np.unique(restraint.owner[facing & locator]):
-        local[k] = patch_offset(
-            V,
-            F,
-            tri_n,
-            P0,
-            Ns_out,
-            restraint.clamps[k].position,
-            restraint.normals[k],
-            LOCATOR_PATCH * restraint.pad_radius,
-            LOCATOR_GATE,
-            tree=p_tree,
-        )
-        if np.isfinite(local[k]):
-            log.info(
-                "locator %s: %+.3f mm from its patch (its face's points alone: %+.3f mm)",
-                restraint.clamps[k].name,
-                local[k],
-                offsets[k],
-            )
-            offsets[k] = local[k]
-            sources[k] = "scan (local fit)"
-    by_patch = np.isfinite(local)
-    # the restrained directions whose drive the scan gives (the faces, the locators it
-    # shows); the seat searches the rigid motions the others hold
-    read = read_directions(restraint.clamps, restraint.owner, restraint.coupling, offsets)
-    # an unseen clamp face takes the free fixture's witness
-    faces = np.array([c.directions == "n" for c in restraint.clamps], dtype=bool)
-    unseen = np.flatnonzero(~np.isfinite(offsets) & faces)
-    fixed = np.zeros(len(offsets))
-    if len(unseen):
-        t1 = time.perf_counter()
-        fit = _virtual_fixture(reg, params, prepared, zones, judge["basis"], progress)
-        timings[params.method] = time.perf_counter() - t1
-        _, near = tree.query([restraint.clamps[k].position for k in unseen])
-        for k, v in zip(unseen, np.atleast_1d(near), strict=True):
-            fixed[k] = float((fit.V[v] - V[v]) @ restraint.normals[k])
-            sources[k] = "free-state fit"
-        log.info(
-            "clamp(s) %s not seen by the scan: offsets from the free virtual fixture",
-            ", ".join(restraint.clamps[k].name for k in unseen),
-        )
-    at = np.array([c.position for c in restraint.clamps], dtype=np.float64) - origin
-
-    def offsets_at(xi: np.ndarray) -> np.ndarray:
-        """The clamps' offsets once the free state is moved by ``xi``."""
-        off = readings.offsets(*rigid_motion(xi, origin))
-        # an unseen clamp face's offset, and a locator's from its patch, move with the part
-        shift = np.einsum("kd,kd->k", np.cross(xi[:3], at) + xi[3:], restraint.normals)
-        off[unseen] = fixed[unseen] + shift[unseen]
-        off[by_patch] = local[by_patch] + shift[by_patch]
-        return off
-
-    def distances(Q: np.ndarray):
-        """Signed distances (m,) of points ``Q`` to the nominal, closest points, their
-        triangles and the nominal normals there."""
-        C, cface, pdev = closest_points(V, F, Q)
-        if face_id is not None:
-            pdev = surface_distance(V, F, C, cface, pdev, face_id, judge["brep_normals"], Q)
-        return pdev, C, cface, tri_n[cface]
-
-    t1 = time.perf_counter()
-    xi = _seat_held(P0, restraint, V, distances, origin, offsets_at, read)
-    timings["restraint seat"] = time.perf_counter() - t1
-    R, t = rigid_motion(xi, origin)
-    P = P0 @ R.T + t
-    offsets = offsets_at(xi)
-    C, cface, _ = closest_points(V, F, P)
-    held = restraint.apply(offsets)
-    held.offset_sources = sources
-    held.seat = xi
-    moved = held.on_triangles(V, cface, C)
-    Pr = P + moved
-    Ns, sheets = orient_normals_consistent(Pr, pca_normals(Pr, params.gbcicp.scan_normal_k))
-    timings["restraint"] = time.perf_counter() - t0
-    # the elastic model's own uncertainty, a share of how far it moved each vertex and point
-    k_model = 2.0 * RESTRAINT_MODEL_UNCERTAINTY
-    u_v = k_model * np.linalg.norm(held.u, axis=1)
-    u_p = k_model * np.linalg.norm(moved, axis=1)
-    if np.any(xi) and np.any(~read & ~facing):
-        # a pin whose axis lies in its surface's plane cannot be read from any scan: the
-        # placement along it is an estimate, which the held best fit (the seat) and the
-        # free state's best fit bound, and their difference at each vertex and point is
-        # its uncertainty (the seat slides form away: on the bench's shell it read
-        # 0.10-0.14 mm rms off the physical fixture where the free state's placement read
-        # 0.01, and passed parts the fixture rejects). A locator on a face that faces it
-        # but was not seen is placed by that face's other points and its neighbours'.
-        stay = restraint.apply(offsets_at(np.zeros(6)))
-        nrm = prepared.ops.normals
-        shift_v = (V - origin) @ R.T + origin + t - V + held.u - stay.u
-        shift_p = (P - P0) + moved - stay.on_triangles(V, cface, C)
-        u_v = np.hypot(u_v, np.abs(np.einsum("ij,ij->i", nrm, shift_v)))
-        u_p = np.hypot(u_p, np.abs(np.einsum("ij,ij->i", tri_n[cface], shift_p)))
-    model = (u_v, u_p)
+    if "free fit" in held.seconds:
+        timings[params.method] = held.seconds.pop("free fit")
+    timings.update(held.seconds)
     res = _judge(
-        replace(reg, P=Pr, scan_normals=Ns, sheets=sheets),
+        replace(reg, P=held.P, scan_normals=held.normals, sheets=held.sheets),
         None,
         params,
         timings,
-        free=replace(reg, P=P),
-        model_uncertainty=model,
+        free=replace(reg, P=held.P_free),
+        model_uncertainty=(held.u_vertex, held.u_point),
         **judge,
     )
-    res.restraint = held
+    res.restraint = held.restraint
     res.fixture_decision = RESTRAINED
     return res
-
-
-#: a locator's patch (:func:`qifreport.metrology.locators.patch_offset`): its radius in pad
-#: radii, and the largest free-state motion of a pair there, mm
-LOCATOR_PATCH = 3.0
-LOCATOR_GATE = 3.0
-
-#: relative standard uncertainty of the displacement by which the elastic model holds the
-#: scan (wall thickness, Poisson's ratio, mesh and contact size the model cannot know):
-#: bench/fixture.py's truth (a +/-10 % wall, Poisson 0.05 off, another mesh) differed from
-#: the product's held field by 1-3 % of the correction on the panel and the shell; it enters
-#: each vertex's and point's expanded uncertainty (k = 2) in quadrature
-RESTRAINT_MODEL_UNCERTAINTY = 0.025
-
-#: scan points (besides those under the clamps) the held seat is fitted on, its
-#: Gauss-Newton rounds, and the largest move (mm) of a round below which it has settled
-_SEAT_SAMPLE = 6000
-_SEAT_ROUNDS = 8
-_SEAT_SETTLED = 1e-3
-#: mm^2 of mean square held residual a 1 mm motion of the seat must gain, at least (a
-#: quarter of the held residual's robust variance where the seat stands, when larger)
-_SEAT_PRIOR = 1e-4
-
-
-def _seat_held(
-    P: np.ndarray,
-    restraint: RestraintBasis,
-    V: np.ndarray,
-    distances,
-    origin: np.ndarray,
-    offsets_at,
-    read: np.ndarray,
-) -> np.ndarray:
-    """(6,) the small rigid motion ``(omega, t)`` (rad, mm, about ``origin``) of the free
-    state ``P`` (m, 3) whose held state fits the nominal best.
-
-    Only the motions the clamps read from the scan do not take back are searched
-    (:func:`_seat_motions`, ``read`` (c,) bool). The held residual depends on the motion
-    through each read clamp's offset (``offsets_at(xi)``) and through what the unread
-    locators do not take back: robust Levenberg-Marquardt with a finite-difference Jacobian
-    on a fixed sample of the points (Tukey weights: a defect does not seat the part) and a
-    prior towards the free state's placement, each step accepted only if it lowers the
-    cost. Each round re-takes the tangent planes of the sample's closest nominal points
-    (``distances(Q)``: signed distances, closest points, triangles, normals)."""
-    reach = float(np.linalg.norm(V - origin, axis=1).max())
-    B = _seat_motions(restraint, origin, reach, read)  # (6, q): xi = B z, mm at the reach
-    if B.shape[1] == 0:
-        return np.zeros(6)
-    rng = np.random.default_rng(0)
-    S = P[np.sort(rng.choice(len(P), min(_SEAT_SAMPLE, len(P)), replace=False))]
-    q = B.shape[1]
-
-    def linearised(z0: np.ndarray):
-        """The held residual of the sample moved by ``B z`` (q,), on the tangent planes and
-        held displacements of its closest nominal points with the sample moved by ``B z0``
-        (re-taken each round: the held displacement varies along the surface, 16 um over
-        a 0.8 mm slide on a shell lifted 2 mm at a corner)."""
-        R0, t0 = rigid_motion(B @ z0, origin)
-        pd0, C0, tri0, N0 = distances(S @ R0.T + t0)
-        corr = pd0 - np.einsum("ij,ij->i", N0, S @ R0.T + t0 - C0)  # the curved surface's
-
-        def residual(z: np.ndarray) -> np.ndarray:
-            xi = B @ z
-            R, t = rigid_motion(xi, origin)
-            pd = np.einsum("ij,ij->i", N0, S @ R.T + t - C0) + corr
-            u = restraint.apply(offsets_at(xi)).on_triangles(V, tri0, C0)
-            return pd + np.einsum("ij,ij->i", N0, u)
-
-        return residual
-
-    z = np.zeros(q)
-    residual = linearised(z)
-    r0 = r = residual(z)
-    scale = max(robust_scale(r), 1e-3)
-    # a prior on the placement (Tikhonov, towards the free state's): a motion must pay for
-    # itself, 1 mm of it lowering the mean square held residual by a quarter of the held
-    # residual's robust variance where it stands (at least (10 um)^2). Where the held state
-    # explains the scan (a restrainable warp) that is little and the seat goes where it
-    # fits; where it does not (a warp the clamps leave, a defect, another stiffness), a
-    # slide over a gently curved surface could absorb it: such a seat, damped but without
-    # a prior, slid 6 mm (bench/fixture.py, a thin shell with a bump)
-    h = 0.05  # mm of motion at the part's reach
-
-    def total(r: np.ndarray, z: np.ndarray, n_eff: float, prior: float) -> float:
-        return float(tukey_rho(r, scale).sum()) + 0.5 * prior * n_eff * float(z @ z)
-
-    for k in range(_SEAT_ROUNDS):
-        if k:
-            residual = linearised(z)
-            r = residual(z)
-        J = np.stack([(residual(z + h * np.eye(q)[i]) - r) / h for i in range(q)], 1)
-        w = np.sqrt(tukey_weights(r, scale))
-        n_eff = float(np.sum(w**2))
-        prior = max(_SEAT_PRIOR, 0.25 * robust_scale(r) ** 2)
-        cost = total(r, z, n_eff, prior)
-        A = J * w[:, None]
-        mu = prior * n_eff
-        dz = np.linalg.solve(A.T @ A + mu * np.eye(q), -A.T @ (r * w) - mu * z)
-        for step in (1.0, 0.5, 0.25):
-            r_new = residual(z + step * dz)
-            if total(r_new, z + step * dz, n_eff, prior) < cost:
-                break
-        else:
-            break
-        z, r = z + step * dz, r_new
-        if step * np.linalg.norm(dz) < _SEAT_SETTLED:
-            break
-    xi = B @ z
-    log.info(
-        "restrained seat: %.3g deg, %.3g mm (%d points; residual scale %.3g mm, rms %.3g -> "
-        "%.3g mm)",
-        np.degrees(np.linalg.norm(xi[:3])),
-        np.linalg.norm(xi[3:]),
-        len(S),
-        scale,
-        float(np.sqrt(np.mean(r0**2))),
-        float(np.sqrt(np.mean(r**2))),
-    )
-    return xi
-
-
-def _seat_motions(
-    restraint: RestraintBasis, origin: np.ndarray, reach: float, read: np.ndarray
-) -> np.ndarray:
-    """(6, q) the rigid motions ``(omega, t)`` per mm of motion at ``reach`` the seat
-    searches: those that move an unread locator along its axis (``read`` (p,) bool per
-    restrained direction). Every other motion is taken back by the drives the scan gives
-    (its component along a read direction) or free at the contacts (along a face clamp's
-    surface): the held state does not depend on it, and searching it let a seat walk along
-    a flat valley (12.7 deg on a warped panel)."""
-    S = np.r_[np.full(3, 1.0 / reach), np.ones(3)]
-    held = np.flatnonzero(~np.asarray(read, dtype=bool))
-    if len(held) == 0:
-        return np.zeros((6, 0))
-    at = (
-        np.array([restraint.clamps[restraint.owner[j]].position for j in held], dtype=np.float64)
-        - origin
-    )
-    e = restraint.directions[held]
-    rows = np.c_[np.cross(at, e), e] * S  # each held axis' motion per mm of each motion
-    _, sv, Vt = np.linalg.svd(rows, full_matrices=False)
-    rank = int(np.sum(sv > 1e-3 * sv.max()))
-    return S[:, None] * Vt[:rank].T
-
-
-@dataclass
-class _ClampReadings:
-    """Where each clamp's offset is read: the scan points under its pad on its own skin,
-    each with its closest point ``C`` and normal ``n`` on the clamp's own face and the
-    curved surface's correction ``corr`` (exact distance minus the tangent plane's)."""
-
-    P: np.ndarray
-    index: list[np.ndarray]
-    C: list[np.ndarray]
-    n: list[np.ndarray]
-    corr: list[np.ndarray]
-
-    def values(self, k: int) -> np.ndarray:
-        """(r,) clamp ``k``'s readings, mm, the free state as it is."""
-        idx = self.index[k]
-        return np.einsum("ij,ij->i", self.n[k], self.P[idx] - self.C[k]) + self.corr[k]
-
-    def offsets(self, R: np.ndarray | None = None, t: np.ndarray | None = None) -> np.ndarray:
-        """(c,) the clamps' offsets, mm (the median over each pad; NaN: fewer than 3
-        points), the free state moved by ``R p + t`` (tangent planes: exact for a seat's
-        small motions)."""
-        out = np.full(len(self.index), np.nan)
-        for k, idx in enumerate(self.index):
-            if len(idx) < 3:
-                continue
-            Q = self.P[idx] if R is None else self.P[idx] @ R.T + t
-            out[k] = pad_mean(np.einsum("ij,ij->i", self.n[k], Q - self.C[k]) + self.corr[k])
-        return out
-
-
-def _clamp_readings(
-    P: np.ndarray,
-    Ns: np.ndarray,
-    restraint: RestraintBasis,
-    V: np.ndarray,
-    F: np.ndarray,
-    face_id: np.ndarray | None,
-    brep_normals: np.ndarray | None,
-    *,
-    tree: cKDTree | None = None,
-) -> _ClampReadings:
-    """The scan points that read each clamp's offset: within its pad radius, on the skin
-    facing the clamp's way (outward scan normals ``Ns`` within
-    :data:`qifreport.registration.restrained.FACING_ANGLE` of its normal: on a thin wall
-    deflected beyond half its thickness the nearest nominal skin is the other one), each
-    measured against the clamp's own B-rep face (a STEP nominal; the whole mesh else) and
-    inside it (a point beyond the face's edge is not read). ``tree``: ``cKDTree(P)`` when at
-    hand."""
-    tree = cKDTree(P) if tree is None else tree
-    cos = np.cos(np.radians(FACING_ANGLE))
-    pos = np.array([c.position for c in restraint.clamps], dtype=np.float64)
-    _, home, _ = closest_points(V, F, pos)
-    index, Cs, ns, corrs = [], [], [], []
-    for k in range(len(restraint.clamps)):
-        idx = np.asarray(tree.query_ball_point(pos[k], restraint.pad_radius), dtype=np.int64)
-        idx = idx[Ns[idx] @ restraint.normals[k] >= cos] if len(idx) else idx
-        if len(idx) < 3:
-            index.append(np.zeros(0, dtype=np.int64))
-            Cs.append(np.zeros((0, 3)))
-            ns.append(np.zeros((0, 3)))
-            corrs.append(np.zeros(0))
-            continue
-        tris = np.arange(len(F)) if face_id is None else np.flatnonzero(face_id == face_id[home[k]])
-        Fk = F[tris]
-        C, local, pd = closest_points(V, Fk, P[idx])
-        if face_id is not None:
-            pd = surface_distance(
-                V,
-                Fk,
-                C,
-                local,
-                pd,
-                face_id[tris],
-                None if brep_normals is None else brep_normals[tris],
-                P[idx],
-            )
-        n = face_normals(V, Fk)[local]
-        d = P[idx] - C
-        plane = np.einsum("ij,ij->i", d, n)
-        inside = np.linalg.norm(d - plane[:, None] * n, axis=1) < 1e-3  # mm: not beyond an edge
-        index.append(idx[inside])
-        Cs.append(C[inside])
-        ns.append(n[inside])
-        corrs.append((pd - plane)[inside])
-    return _ClampReadings(P=P, index=index, C=Cs, n=ns, corr=corrs)
 
 
 def _fail_reasons(acc: Acceptance) -> list[str]:

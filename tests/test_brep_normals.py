@@ -1,6 +1,6 @@
 """The B-rep's exact normals at the triangle corners (:mod:`qifreport.step.normals`) and the
 scan points' distance to the curved surface read with them
-(:func:`qifreport.metrology.inspection.surface_distance`).
+(:func:`qifreport.metrology.deviation.surface_distance`).
 
 A 20 mm cube with its four vertical edges filleted (R 4 mm), meshed coarsely by gmsh (5 mm
 edges, 0.5 mm chord height, 46 degrees a segment: two per quarter turn), and a perfect scan
@@ -17,8 +17,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.deviation import closest_points, corner_normals, follow_triangles
-from qifreport.metrology.inspection import point_faces, surface_distance
+from qifreport.metrology.deviation import (
+    closest_points,
+    corner_normals,
+    follow_triangles,
+    point_faces,
+    surface_distance,
+)
 
 
 @pytest.fixture(scope="module")
