@@ -1,0 +1,313 @@
+"""Form of a feature from its measured points: flatness, straightness, roundness and
+cylindricity, by the minimum zone (ASME Y14.5-2018 and ISO 1101: the narrowest zone of the
+tolerance's shape that contains every point) with the least-squares reading beside it.
+
+Each minimum zone is a linear programme (Chebyshev fit, :func:`scipy.optimize.linprog`)
+in the small parameters of the feature about its least-squares fit (a plane's tilt, a
+circle's centre, an axis' position and direction), re-linearised about the new feature
+until it stops moving; the width reported is then measured exactly (orthogonal distances
+to the final plane or line, radii about the final centre or axis). Least squares is the
+Gaussian fit (orthogonal distances, Gauss-Newton for circles and cylinders); its
+peak-to-valley is never narrower than the minimum zone.
+
+All lengths mm; points are rows of ``P`` (m, 3) or (m, 2).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linprog
+
+__all__ = [
+    "FormFit",
+    "cylindricity",
+    "flatness",
+    "least_squares_circle",
+    "least_squares_cylinder",
+    "least_squares_plane",
+    "roundness",
+    "straightness",
+]
+
+#: re-linearisations of a minimum-zone fit, and the parameter change (mm, or rad x the
+#: feature's extent) under which it has settled
+_ROUNDS = 12
+_SETTLED = 1e-9
+
+
+@dataclass
+class FormFit:
+    """A form measurement.
+
+    Attributes
+    ----------
+    kind : ``'flatness'``, ``'straightness'``, ``'roundness'`` or ``'cylindricity'``.
+    minimum_zone : width of the minimum zone, mm (the tolerance's value).
+    least_squares : peak-to-valley about the least-squares feature, mm (>= minimum_zone).
+    n : points used.
+    origin : (d,) a point of the minimum-zone feature (a plane's or line's point, a
+        circle's centre, a point of the cylinder's axis), mm.
+    direction : (d,) unit: a plane's normal, a line's direction, a circle's or cylinder's
+        axis (None in 2-D for a circle).
+    radius : the zone's mid radius, mm (circles and cylinders; None else).
+    residuals : (m,) signed distance of each point from the zone's middle, mm.
+    """
+
+    kind: str
+    minimum_zone: float
+    least_squares: float
+    n: int
+    origin: np.ndarray
+    direction: np.ndarray | None
+    radius: float | None
+    residuals: np.ndarray
+
+
+# ------------------------------------------------------------------- least squares
+
+
+def least_squares_plane(P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(origin (3,), unit normal (3,)) of the orthogonal least-squares plane of ``P`` (m, 3)."""
+    P = np.asarray(P, dtype=np.float64)
+    c = P.mean(axis=0)
+    _, _, Vt = np.linalg.svd(P - c, full_matrices=False)
+    return c, Vt[-1]
+
+
+def _line_2d(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    c = Q.mean(axis=0)
+    _, _, Vt = np.linalg.svd(Q - c, full_matrices=False)
+    return c, Vt[0]
+
+
+def least_squares_circle(Q: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre (2,), radius) of the geometric least-squares circle of ``Q`` (m, 2), mm:
+    the algebraic (Kasa) fit refined by Gauss-Newton on the orthogonal distances."""
+    Q = np.asarray(Q, dtype=np.float64)
+    A = np.c_[2 * Q, np.ones(len(Q))]
+    sol, *_ = np.linalg.lstsq(A, np.einsum("ij,ij->i", Q, Q), rcond=None)
+    c = sol[:2]
+    r = float(np.sqrt(max(sol[2] + c @ c, 0.0)))
+    for _ in range(50):
+        d = Q - c
+        rho = np.linalg.norm(d, axis=1)
+        u = d / np.maximum(rho, 1e-300)[:, None]
+        J = np.c_[-u, -np.ones(len(Q))]  # d(rho - r)/d(c, r)
+        step, *_ = np.linalg.lstsq(J, -(rho - r), rcond=None)
+        c, r = c + step[:2], r + step[2]
+        if np.abs(step).max() < 1e-12 * max(1.0, abs(r)):
+            break
+    return c, float(r)
+
+
+def _frame(axis: np.ndarray) -> np.ndarray:
+    """(3, 3) rows e1, e2, axis: an orthonormal frame whose third row is ``axis``."""
+    a = axis / np.linalg.norm(axis)
+    t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(a, t)
+    e1 /= np.linalg.norm(e1)
+    return np.vstack([e1, np.cross(a, e1), a])
+
+
+def least_squares_cylinder(
+    P: np.ndarray, origin: np.ndarray, axis: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """(point on the axis (3,), unit axis (3,), radius) of the orthogonal least-squares
+    cylinder of ``P`` (m, 3), by Gauss-Newton from a start (e.g. the nominal cylinder)."""
+    P = np.asarray(P, dtype=np.float64)
+    o, a, r = np.asarray(origin, float), np.asarray(axis, float), float(radius)
+    for _ in range(50):
+        E = _frame(a)
+        X = (P - o) @ E.T  # x, y across the axis, z along it
+        z = X[:, 2]
+        rho = np.hypot(X[:, 0], X[:, 1])
+        cos, sin = X[:, 0] / np.maximum(rho, 1e-300), X[:, 1] / np.maximum(rho, 1e-300)
+        # rho after moving the axis by (p, q) + z (s, t) across it: rho - cos (p + s z) - ...
+        J = np.c_[-cos, -sin, -cos * z, -sin * z, -np.ones(len(P))]
+        step, *_ = np.linalg.lstsq(J, -(rho - r), rcond=None)
+        p, q, s, t, dr = step
+        o = o + p * E[0] + q * E[1]
+        a = a + s * E[0] + t * E[1]
+        a /= np.linalg.norm(a)
+        r += dr
+        if np.abs(step).max() < 1e-12 * max(1.0, abs(r)):
+            break
+    return o, a, r
+
+
+# ------------------------------------------------------------------- minimum zones
+
+
+def _chebyshev(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
+    """The parameters ``x`` minimising ``max |b - A x|``, and that maximum (linprog, HiGHS)."""
+    m, k = A.shape
+    # variables (x, h): minimise h subject to -h <= b - A x <= h
+    c = np.r_[np.zeros(k), 1.0]
+    ones = np.ones((m, 1))
+    A_ub = np.vstack([np.c_[A, -ones], np.c_[-A, -ones]])
+    b_ub = np.r_[b, -b]
+    res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=[(None, None)] * (k + 1), method="highs")
+    if res.status != 0:
+        raise RuntimeError(f"minimum-zone programme failed: {res.message}")
+    return res.x[:k], float(res.x[k])
+
+
+def _band(A: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """The parameters ``x`` and radii ``r_in <= rho - A x <= r_out`` with the narrowest
+    ``r_out - r_in`` (concentric zones: circles, cylinders)."""
+    m, k = A.shape
+    # variables (x, r_in, r_out)
+    c = np.r_[np.zeros(k), -1.0, 1.0]
+    ones = np.ones((m, 1))
+    zeros = np.zeros((m, 1))
+    # rho - A x <= r_out  ->  -A x - r_out <= -rho ; r_in <= rho - A x -> A x + r_in <= rho
+    A_ub = np.vstack([np.c_[-A, zeros, -ones], np.c_[A, ones, zeros]])
+    b_ub = np.r_[-rho, rho]
+    res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=[(None, None)] * (k + 2), method="highs")
+    if res.status != 0:
+        raise RuntimeError(f"minimum-zone programme failed: {res.message}")
+    return res.x[:k], float(res.x[k]), float(res.x[k + 1])
+
+
+def flatness(P: np.ndarray) -> FormFit:
+    """Flatness of the points ``P`` (m, 3), mm: the minimum zone between two parallel
+    planes, and the least-squares plane's peak-to-valley."""
+    P = np.asarray(P, dtype=np.float64)
+    if len(P) < 4:
+        raise ValueError("flatness needs at least 4 points")
+    o, n = least_squares_plane(P)
+    w_ls = (P - o) @ n
+    ls = float(np.ptp(w_ls))
+    extent = float(np.linalg.norm(np.ptp(P, axis=0)))
+    for _ in range(_ROUNDS):
+        E = _frame(n)
+        X = (P - o) @ E.T
+        # w = a u + b v + c: the plane's tilt (a, b) and offset c about the current one
+        x, _ = _chebyshev(np.c_[X[:, 0], X[:, 1], np.ones(len(P))], X[:, 2])
+        a, b, c = x
+        n_new = (E[2] - a * E[0] - b * E[1]) / np.sqrt(1 + a * a + b * b)
+        o = o + c * E[2]
+        moved = np.hypot(a, b) * extent + abs(c)
+        n = n_new
+        if moved < _SETTLED * max(extent, 1.0):
+            break
+    w = (P - o) @ n
+    mid = 0.5 * (w.max() + w.min())
+    return FormFit(
+        kind="flatness",
+        minimum_zone=min(float(np.ptp(w)), ls),
+        least_squares=ls,
+        n=len(P),
+        origin=o + mid * n,
+        direction=n,
+        radius=None,
+        residuals=w - mid,
+    )
+
+
+def straightness(Q: np.ndarray) -> FormFit:
+    """Straightness of a line element ``Q`` (m, 2) (points in the plane of the element,
+    mm): the minimum zone between two parallel lines, and the least-squares line's
+    peak-to-valley."""
+    Q = np.asarray(Q, dtype=np.float64)
+    if len(Q) < 3:
+        raise ValueError("straightness needs at least 3 points")
+    o, d = _line_2d(Q)
+    nrm = np.array([-d[1], d[0]])
+    ls = float(np.ptp((Q - o) @ nrm))
+    extent = float(np.linalg.norm(np.ptp(Q, axis=0)))
+    for _ in range(_ROUNDS):
+        u, v = (Q - o) @ d, (Q - o) @ nrm
+        (a, c), _ = _chebyshev(np.c_[u, np.ones(len(Q))], v)
+        d = (d + a * nrm) / np.hypot(1.0, a)
+        o = o + c * nrm
+        nrm = np.array([-d[1], d[0]])
+        if abs(a) * extent + abs(c) < _SETTLED * max(extent, 1.0):
+            break
+    w = (Q - o) @ nrm
+    mid = 0.5 * (w.max() + w.min())
+    return FormFit(
+        kind="straightness",
+        minimum_zone=min(float(np.ptp(w)), ls),
+        least_squares=ls,
+        n=len(Q),
+        origin=o + mid * nrm,
+        direction=d,
+        radius=None,
+        residuals=w - mid,
+    )
+
+
+def roundness(Q: np.ndarray) -> FormFit:
+    """Roundness (circularity) of a circular element ``Q`` (m, 2) (points in its plane,
+    mm): the minimum radial zone between two concentric circles, and the least-squares
+    circle's peak-to-valley."""
+    Q = np.asarray(Q, dtype=np.float64)
+    if len(Q) < 4:
+        raise ValueError("roundness needs at least 4 points")
+    c, r = least_squares_circle(Q)
+    ls = float(np.ptp(np.linalg.norm(Q - c, axis=1)))
+    for _ in range(_ROUNDS):
+        d = Q - c
+        rho = np.linalg.norm(d, axis=1)
+        u = d / np.maximum(rho, 1e-300)[:, None]
+        # rho after moving the centre by x: rho - u . x (the limacon, exact to first order)
+        x, _, _ = _band(u, rho)
+        c = c + x
+        if np.linalg.norm(x) < _SETTLED * max(r, 1.0):
+            break
+    rho = np.linalg.norm(Q - c, axis=1)
+    mid = 0.5 * (rho.max() + rho.min())
+    return FormFit(
+        kind="roundness",
+        minimum_zone=min(float(np.ptp(rho)), ls),
+        least_squares=ls,
+        n=len(Q),
+        origin=c,
+        direction=None,
+        radius=float(mid),
+        residuals=rho - mid,
+    )
+
+
+def cylindricity(P: np.ndarray, origin: np.ndarray, axis: np.ndarray, radius: float) -> FormFit:
+    """Cylindricity of the points ``P`` (m, 3), mm: the minimum radial zone between two
+    coaxial cylinders, and the least-squares cylinder's peak-to-valley; from a start near
+    the cylinder (``origin`` on its axis, unit ``axis``, ``radius``: e.g. the nominal's)."""
+    P = np.asarray(P, dtype=np.float64)
+    if len(P) < 6:
+        raise ValueError("cylindricity needs at least 6 points")
+    o, a, r = least_squares_cylinder(P, origin, axis, radius)
+
+    def radii(o, a):
+        X = (P - o) @ _frame(a).T
+        return X, np.hypot(X[:, 0], X[:, 1])
+
+    X, rho = radii(o, a)
+    ls = float(np.ptp(rho))
+    length = float(np.ptp(X[:, 2])) or 1.0
+    for _ in range(_ROUNDS):
+        E = _frame(a)
+        X, rho = radii(o, a)
+        z = X[:, 2]
+        cos, sin = X[:, 0] / np.maximum(rho, 1e-300), X[:, 1] / np.maximum(rho, 1e-300)
+        (p, q, s, t), _, _ = _band(np.c_[cos, sin, cos * z, sin * z], rho)
+        o = o + p * E[0] + q * E[1]
+        a = a + s * E[0] + t * E[1]
+        a /= np.linalg.norm(a)
+        if np.hypot(p, q) + np.hypot(s, t) * length < _SETTLED * max(r, 1.0):
+            break
+    X, rho = radii(o, a)
+    mid = 0.5 * (rho.max() + rho.min())
+    return FormFit(
+        kind="cylindricity",
+        minimum_zone=min(float(np.ptp(rho)), ls),
+        least_squares=ls,
+        n=len(P),
+        origin=o,
+        direction=a,
+        radius=float(mid),
+        residuals=rho - mid,
+    )
