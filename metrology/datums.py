@@ -1,0 +1,383 @@
+"""Datum reference frames from measured datum features (ASME Y14.5-2018 section 4 and
+Y14.5.1; ISO 5459): the datum feature simulators fitted to the scan points of each datum
+feature, in the order of precedence, and the rigid motion that brings them onto the
+nominal datums.
+
+* A planar datum feature is simulated by the **constrained L-infinity tangent plane**: the
+  plane outside the material that touches the feature's high points and, among such
+  planes, lies closest to the farthest point (it rocks to the minimum-zone position: the
+  outer plane of the feature's flatness zone). A secondary plane keeps its orientation
+  perpendicular (or at its nominal angle) to the primary, a tertiary to both.
+* A cylindrical datum feature (a hole or a pin, regardless of material boundary, RMB) is
+  simulated by the largest inscribed cylinder (a hole) or the smallest circumscribed
+  cylinder (a pin); as a secondary its axis keeps its nominal orientation to the primary.
+
+The degrees of freedom the frame leaves free (a primary plane alone leaves two
+translations and a rotation) are reported; the caller best-fits them.
+
+All lengths mm, points (m, 3) in the nominal frame (the scan after the virtual fixture).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linprog
+
+from .form import least_squares_cylinder, least_squares_plane
+
+__all__ = [
+    "DatumFeature",
+    "DatumFrame",
+    "DatumSimulator",
+    "datum_frame",
+    "nominal_feature",
+    "simulate_datum",
+]
+
+#: re-linearisations of a simulator's programme and the motion (mm at the feature's
+#: extent) under which it has settled
+_ROUNDS = 12
+_SETTLED = 1e-9
+#: a nominal face set is a plane when its normals lie within this of their mean, a
+#: cylinder when they lie within it of a plane (the one perpendicular to the axis)
+_KIND_TOL = 1e-3
+
+
+@dataclass
+class DatumFeature:
+    """A datum feature's nominal geometry.
+
+    Attributes
+    ----------
+    label : the datum's letter.
+    kind : ``'plane'`` or ``'cylinder'``.
+    origin : (3,) a point of the plane, or of the cylinder's axis, mm.
+    direction : (3,) unit: the plane's outward normal, or the cylinder's axis.
+    radius : the cylinder's radius, mm (None for a plane).
+    internal : a hole (material outside the cylinder), else a pin (None for a plane).
+    """
+
+    label: str
+    kind: str
+    origin: np.ndarray
+    direction: np.ndarray
+    radius: float | None = None
+    internal: bool | None = None
+
+
+@dataclass
+class DatumSimulator:
+    """A datum feature simulator fitted to its measured points.
+
+    Attributes
+    ----------
+    feature : the nominal datum feature.
+    origin, direction : (3,) the simulator's plane (point, outward normal) or axis.
+    radius : the inscribed/circumscribed cylinder's radius, mm (None for a plane).
+    n : points used.  form : the points' farthest distance from the simulator, mm.
+    """
+
+    feature: DatumFeature
+    origin: np.ndarray
+    direction: np.ndarray
+    radius: float | None
+    n: int
+    form: float
+
+
+@dataclass
+class DatumFrame:
+    """A datum reference frame established on measured points.
+
+    Attributes
+    ----------
+    labels : the datums in precedence order.
+    R, t : (3, 3), (3,): the rigid motion ``x -> R x + t`` that brings the measured part
+        onto the frame (its simulators onto the nominal datums).
+    simulators : one per datum.
+    free : the motions the frame does not fix, e.g. ``['translation along x',
+        'rotation about z']``, in the nominal frame.
+    """
+
+    labels: tuple[str, ...]
+    R: np.ndarray
+    t: np.ndarray
+    simulators: list[DatumSimulator]
+    free: list[str] = field(default_factory=list)
+
+    def apply(self, P: np.ndarray) -> np.ndarray:
+        """(m, 3) the points ``P`` in the frame."""
+        return np.asarray(P, dtype=np.float64) @ self.R.T + self.t
+
+
+def nominal_feature(label: str, V: np.ndarray, N: np.ndarray) -> DatumFeature:
+    """The nominal datum feature of a datum's faces: their vertices ``V`` (k, 3) mm and
+    outward unit normals ``N`` (k, 3). A plane when the normals agree, a cylinder when they
+    all lie perpendicular to one axis; :class:`ValueError` else (a datum on another surface
+    is not simulated here)."""
+    V, N = np.asarray(V, float), np.asarray(N, float)
+    n = N.mean(axis=0)
+    if np.linalg.norm(n) > 0 and np.max(np.linalg.norm(N - n / np.linalg.norm(n), axis=1)) < (
+        10 * _KIND_TOL
+    ):
+        o, normal = least_squares_plane(V)
+        if normal @ n < 0:
+            normal = -normal
+        return DatumFeature(label, "plane", o, normal)
+    _, sv, Vt = np.linalg.svd(N, full_matrices=False)
+    axis = Vt[-1]
+    if sv[-1] > _KIND_TOL * np.sqrt(len(N)) * 10:
+        raise ValueError(f"datum {label}: its faces are neither a plane nor a cylinder")
+    # the axis' point: least squares of the lines along the normals (x = V - s N)
+    E = np.eye(3) - np.outer(axis, axis)
+    Nn = N @ E
+    Nn /= np.linalg.norm(Nn, axis=1, keepdims=True)
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for v, m in zip(V, Nn, strict=True):
+        Pm = E - np.outer(m, m)
+        A += Pm
+        b += Pm @ v
+    o = np.linalg.lstsq(A, b, rcond=None)[0]
+    o -= ((o - V.mean(axis=0)) @ axis) * axis
+    radial = (V - o) @ E
+    r = float(np.mean(np.linalg.norm(radial, axis=1)))
+    o, axis, r = least_squares_cylinder(V, o, axis, r)
+    # a hole's outward normals point at its axis
+    internal = bool(np.mean(np.einsum("ij,ij->i", N, (V - o) @ E)) < 0)
+    return DatumFeature(label, "cylinder", o, axis, r, internal)
+
+
+def _frame_of(axis: np.ndarray) -> np.ndarray:
+    a = axis / np.linalg.norm(axis)
+    t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(a, t)
+    e1 /= np.linalg.norm(e1)
+    return np.vstack([e1, np.cross(a, e1), a])
+
+
+def _lp(c, A_ub, b_ub, k):
+    res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=[(None, None)] * k, method="highs")
+    if res.status != 0:
+        raise RuntimeError(f"datum simulator programme failed: {res.message}")
+    return res.x
+
+
+def _tangent_plane(
+    P: np.ndarray, normal: np.ndarray, keep: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The constrained L-infinity tangent plane (point, outward normal) of ``P`` (m, 3):
+    every point on the material side (``(p - o) . n <= 0``), the farthest as near as can
+    be; its normal stays perpendicular to each of ``keep`` (unit vectors)."""
+    n = normal / np.linalg.norm(normal)
+    o = P[np.argmax(P @ n)]
+    extent = float(np.linalg.norm(np.ptp(P, axis=0))) or 1.0
+    for _ in range(_ROUNDS):
+        # tilts of n that keep it perpendicular to every kept direction
+        E = _frame_of(n)
+        T = E[:2].T  # (3, 2) tilt directions
+        if keep:
+            K = np.array([k - (k @ n) * n for k in keep])
+            T = T - K.T @ np.linalg.lstsq(K.T, T, rcond=None)[0]
+            U, sv, _ = np.linalg.svd(T, full_matrices=False)
+            T = U[:, sv > 1e-9]
+        q = T.shape[1]
+        X = P - o
+        w = X @ n
+        uv = X @ T  # (m, q)
+        m = len(P)
+        # plane: w = uv . a + c; points below it: w - uv a - c <= 0; the farthest:
+        # uv a + c - w <= h; minimise h
+        A_ub = np.vstack([np.c_[-uv, -np.ones(m), np.zeros(m)], np.c_[uv, np.ones(m), -np.ones(m)]])
+        b_ub = np.r_[-w, w]
+        x = _lp(np.r_[np.zeros(q + 1), 1.0], A_ub, b_ub, q + 2)
+        a, c = x[:q], x[q]
+        tilt = T @ a
+        n_new = (n - tilt) / np.linalg.norm(n - tilt)
+        o = o + c * n
+        n = n_new
+        if np.linalg.norm(a) * extent + abs(c) < _SETTLED * extent:
+            break
+    o = o + float(np.max((P - o) @ n)) * n  # exactly tangent
+    return o, n
+
+
+def _axis_fit(
+    P: np.ndarray, feature: DatumFeature, fixed_axis: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The largest inscribed (a hole) or smallest circumscribed (a pin) cylinder of
+    ``P`` (m, 3): (axis point, axis, radius); the axis direction held at ``fixed_axis``
+    when given (a secondary datum's orientation to the primary)."""
+    a = feature.direction if fixed_axis is None else fixed_axis
+    o, a_ls, r = least_squares_cylinder(P, feature.origin, a, feature.radius)
+    if fixed_axis is not None:
+        a_ls = fixed_axis
+    o, a = o, a_ls / np.linalg.norm(a_ls)
+    length = float(np.ptp(P @ a)) or 1.0
+    sign = 1.0 if feature.internal else -1.0  # maximise r (hole) / minimise r (pin)
+    for _ in range(_ROUNDS):
+        E = _frame_of(a)
+        X = (P - o) @ E.T
+        z = X[:, 2]
+        rho = np.hypot(X[:, 0], X[:, 1])
+        cos, sin = X[:, 0] / rho, X[:, 1] / rho
+        cols = [cos, sin] if fixed_axis is not None else [cos, sin, cos * z, sin * z]
+        A = np.c_[tuple(cols)]
+        q = A.shape[1]
+        m = len(P)
+        # hole: rho - A x >= r for all, maximise r: A x + r <= rho, minimise -r
+        # pin:  rho - A x <= r for all, minimise r: -A x - r <= -rho
+        if feature.internal:
+            A_ub, b_ub = np.c_[A, np.ones(m)], rho
+        else:
+            A_ub, b_ub = np.c_[-A, -np.ones(m)], -rho
+        x = _lp(np.r_[np.zeros(q), -sign], A_ub, b_ub, q + 1)
+        p, qq = x[0], x[1]
+        o = o + p * E[0] + qq * E[1]
+        moved = np.hypot(p, qq)
+        if fixed_axis is None:
+            s, t = x[2], x[3]
+            a = a + s * E[0] + t * E[1]
+            a /= np.linalg.norm(a)
+            moved += np.hypot(s, t) * length
+        r = x[-1]
+        if moved < _SETTLED * max(abs(r), 1.0):
+            break
+    E = _frame_of(a)
+    X = (P - o) @ E.T
+    rho = np.hypot(X[:, 0], X[:, 1])
+    r = float(rho.min() if feature.internal else rho.max())
+    return o, a, r
+
+
+def simulate_datum(
+    P: np.ndarray, feature: DatumFeature, keep: list[np.ndarray] | None = None
+) -> DatumSimulator:
+    """The datum feature simulator of ``feature`` on its measured points ``P`` (m, 3).
+
+    ``keep``: for a plane, directions its normal stays perpendicular to (a secondary's
+    primary normal, ...); for a cylinder, ``[axis]`` holds its axis' direction.
+    """
+    P = np.asarray(P, dtype=np.float64)
+    keep = list(keep or [])
+    if feature.kind == "plane":
+        if len(P) < 3:
+            raise ValueError(f"datum {feature.label}: fewer than 3 points on its feature")
+        o, n = _tangent_plane(P, feature.direction, keep)
+        form = float(np.max(-(P - o) @ n))
+        return DatumSimulator(feature, o, n, None, len(P), form)
+    if len(P) < 6:
+        raise ValueError(f"datum {feature.label}: fewer than 6 points on its feature")
+    o, a, r = _axis_fit(P, feature, keep[0] if keep else None)
+    E = np.eye(3) - np.outer(a, a)
+    rho = np.linalg.norm((P - o) @ E, axis=1)
+    form = float(np.max(np.abs(rho - r)))
+    return DatumSimulator(feature, o, a, r, len(P), form)
+
+
+def _rotation_between(a: np.ndarray, b: np.ndarray, about: np.ndarray | None = None) -> np.ndarray:
+    """The rotation taking unit ``a`` to unit ``b`` (about ``about`` when given: ``a`` and
+    ``b`` are then taken in the plane perpendicular to it)."""
+    if about is not None:
+        k = about / np.linalg.norm(about)
+        a = a - (a @ k) * k
+        b = b - (b @ k) * k
+        a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+        ang = np.arctan2(np.cross(a, b) @ k, a @ b)
+        return _rodrigues(k, ang)
+    v = np.cross(a, b)
+    s, c = np.linalg.norm(v), float(a @ b)
+    if s < 1e-15:
+        if c > 0:
+            return np.eye(3)
+        k = _frame_of(a)[0]
+        return _rodrigues(k, np.pi)
+    return _rodrigues(v / s, np.arctan2(s, c))
+
+
+def _rodrigues(k: np.ndarray, ang: float) -> np.ndarray:
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(ang) * K + (1 - np.cos(ang)) * K @ K
+
+
+def datum_frame(features: list[DatumFeature], points: list[np.ndarray]) -> DatumFrame:
+    """The datum reference frame of ``features`` (precedence order) on their measured
+    points ``points`` (one (m_i, 3) array each, the nominal frame).
+
+    Orientation: the primary simulator's direction is turned onto its datum's; a later
+    datum whose direction is not parallel to it turns the part about it (a secondary
+    plane); two or more axes parallel to the primary's (a pattern of holes) clock it by
+    the line between the first two. Location: each simulator in turn fixes the
+    translations its predecessors left free (a secondary plane one, a hole two, a tertiary
+    what remains). Returns the frame with the motions it leaves free.
+    """
+    if not features or len(features) != len(points):
+        raise ValueError("a datum reference frame needs its features and their points")
+    sims: list[DatumSimulator] = []
+    R = np.eye(3)
+    fixed: list[np.ndarray] = []  # nominal directions whose orientation is fixed
+    for f, P in zip(features, points, strict=True):
+        P = np.asarray(P, float) @ R.T  # in the orientation fixed so far
+        if f.kind == "plane":
+            keep = list(fixed)
+        else:
+            keep = [f.direction] if fixed else []
+        sim = simulate_datum(P, f, keep)
+        if not fixed:
+            dR = _rotation_between(sim.direction, f.direction)
+            fixed.append(f.direction)
+        elif len(fixed) == 1 and abs(f.direction @ fixed[0]) < 1 - 1e-9:
+            dR = _rotation_between(sim.direction, f.direction, about=fixed[0])
+            fixed.append(f.direction)
+        else:
+            dR = np.eye(3)
+        R = dR @ R
+        for s in sims:
+            s.origin, s.direction = dR @ s.origin, dR @ s.direction
+        sim.origin, sim.direction = dR @ sim.origin, dR @ sim.direction
+        sims.append(sim)
+    if len(fixed) == 1:
+        # clocking by a pattern: two axes parallel to the primary's direction
+        axes = [s for s in sims[1:] if s.feature.kind == "cylinder"]
+        if len(axes) >= 2:
+            k = fixed[0]
+            meas = axes[1].origin - axes[0].origin
+            nom = axes[1].feature.origin - axes[0].feature.origin
+            if np.linalg.norm(nom - (nom @ k) * k) > 1e-9:
+                dR = _rotation_between(meas, nom, about=k)
+                R = dR @ R
+                for s in sims:
+                    s.origin, s.direction = dR @ s.origin, dR @ s.direction
+                fixed.append(np.cross(k, nom / np.linalg.norm(nom)))
+    # location, in precedence: each simulator fixes the translations still free
+    t = np.zeros(3)
+    free_dirs = np.eye(3)  # (r, 3) orthonormal rows: translations not fixed yet
+    for sim in sims:
+        if len(free_dirs) == 0:
+            break
+        f = sim.feature
+        rows = f.direction[None, :] if f.kind == "plane" else _frame_of(f.direction)[:2]
+        # rows (sim.origin + t + U y - f.origin) = 0 for y over the free directions U
+        A = rows @ free_dirs.T
+        b = rows @ (f.origin - sim.origin - t)
+        U_, sv, Vt = np.linalg.svd(A, full_matrices=True)
+        r = int(np.sum(sv > 1e-9))
+        if r == 0:
+            continue
+        y = np.linalg.lstsq(A, b, rcond=None)[0]
+        t = t + free_dirs.T @ y
+        free_dirs = Vt[r:] @ free_dirs
+    free = ["translation along " + _name(v) for v in free_dirs]
+    if len(fixed) == 1:
+        free.append("rotation about " + _name(fixed[0]))
+    return DatumFrame(tuple(f.label for f in features), R, t, sims, free)
+
+
+def _name(v: np.ndarray) -> str:
+    axes = "xyz"
+    i = int(np.argmax(np.abs(v)))
+    if abs(abs(v[i]) - 1) < 1e-6:
+        return axes[i]
+    return "(" + ", ".join(f"{x:.3f}" for x in v) + ")"
