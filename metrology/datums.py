@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linprog
 
-from .form import least_squares_cylinder, least_squares_plane
+from .form import axis_frame, least_squares_cylinder, least_squares_plane
 
 __all__ = [
     "DatumFeature",
@@ -150,14 +150,6 @@ def nominal_feature(label: str, V: np.ndarray, N: np.ndarray) -> DatumFeature:
     return DatumFeature(label, "cylinder", o, axis, r, internal)
 
 
-def _frame_of(axis: np.ndarray) -> np.ndarray:
-    a = axis / np.linalg.norm(axis)
-    t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(a, t)
-    e1 /= np.linalg.norm(e1)
-    return np.vstack([e1, np.cross(a, e1), a])
-
-
 def _lp(c, A_ub, b_ub, k):
     res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=[(None, None)] * k, method="highs")
     if res.status != 0:
@@ -176,7 +168,7 @@ def _tangent_plane(
     extent = float(np.linalg.norm(np.ptp(P, axis=0))) or 1.0
     for _ in range(_ROUNDS):
         # tilts of n that keep it perpendicular to every kept direction
-        E = _frame_of(n)
+        E = axis_frame(n)
         T = E[:2].T  # (3, 2) tilt directions
         if keep:
             K = np.array([k - (k @ n) * n for k in keep])
@@ -218,7 +210,7 @@ def _axis_fit(
     length = float(np.ptp(P @ a)) or 1.0
     sign = 1.0 if feature.internal else -1.0  # maximise r (hole) / minimise r (pin)
     for _ in range(_ROUNDS):
-        E = _frame_of(a)
+        E = axis_frame(a)
         X = (P - o) @ E.T
         z = X[:, 2]
         rho = np.hypot(X[:, 0], X[:, 1])
@@ -245,7 +237,7 @@ def _axis_fit(
         r = x[-1]
         if moved < _SETTLED * max(abs(r), 1.0):
             break
-    E = _frame_of(a)
+    E = axis_frame(a)
     X = (P - o) @ E.T
     rho = np.hypot(X[:, 0], X[:, 1])
     r = float(rho.min() if feature.internal else rho.max())
@@ -292,7 +284,7 @@ def _rotation_between(a: np.ndarray, b: np.ndarray, about: np.ndarray | None = N
     if s < 1e-15:
         if c > 0:
             return np.eye(3)
-        k = _frame_of(a)[0]
+        k = axis_frame(a)[0]
         return _rodrigues(k, np.pi)
     return _rodrigues(v / s, np.arctan2(s, c))
 
@@ -358,7 +350,7 @@ def datum_frame(features: list[DatumFeature], points: list[np.ndarray]) -> Datum
         if len(free_dirs) == 0:
             break
         f = sim.feature
-        rows = f.direction[None, :] if f.kind == "plane" else _frame_of(f.direction)[:2]
+        rows = f.direction[None, :] if f.kind == "plane" else axis_frame(f.direction)[:2]
         # rows (sim.origin + t + U y - f.origin) = 0 for y over the free directions U
         A = rows @ free_dirs.T
         b = rows @ (f.origin - sim.origin - t)

@@ -22,6 +22,7 @@ from scipy.optimize import linprog
 
 __all__ = [
     "FormFit",
+    "axis_frame",
     "cylindricity",
     "flatness",
     "least_squares_circle",
@@ -102,7 +103,7 @@ def least_squares_circle(Q: np.ndarray) -> tuple[np.ndarray, float]:
     return c, float(r)
 
 
-def _frame(axis: np.ndarray) -> np.ndarray:
+def axis_frame(axis: np.ndarray) -> np.ndarray:
     """(3, 3) rows e1, e2, axis: an orthonormal frame whose third row is ``axis``."""
     a = axis / np.linalg.norm(axis)
     t = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
@@ -119,7 +120,7 @@ def least_squares_cylinder(
     P = np.asarray(P, dtype=np.float64)
     o, a, r = np.asarray(origin, float), np.asarray(axis, float), float(radius)
     for _ in range(50):
-        E = _frame(a)
+        E = axis_frame(a)
         X = (P - o) @ E.T  # x, y across the axis, z along it
         z = X[:, 2]
         rho = np.hypot(X[:, 0], X[:, 1])
@@ -171,6 +172,24 @@ def _band(A: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, float, float]:
     return res.x[:k], float(res.x[k]), float(res.x[k + 1])
 
 
+def _slab(
+    kind: str, w: np.ndarray, ls: float, o: np.ndarray, normal: np.ndarray, direction: np.ndarray
+) -> FormFit:
+    """A zone between two parallel planes (lines): ``w`` (m,) the points' distances from
+    the plane (line) through ``o`` with unit ``normal``; ``ls`` the least-squares width."""
+    mid = 0.5 * (w.max() + w.min())
+    return FormFit(
+        kind=kind,
+        minimum_zone=min(float(np.ptp(w)), ls),
+        least_squares=ls,
+        n=len(w),
+        origin=o + mid * normal,
+        direction=direction,
+        radius=None,
+        residuals=w - mid,
+    )
+
+
 def flatness(P: np.ndarray) -> FormFit:
     """Flatness of the points ``P`` (m, 3), mm: the minimum zone between two parallel
     planes, and the least-squares plane's peak-to-valley."""
@@ -182,7 +201,7 @@ def flatness(P: np.ndarray) -> FormFit:
     ls = float(np.ptp(w_ls))
     extent = float(np.linalg.norm(np.ptp(P, axis=0)))
     for _ in range(_ROUNDS):
-        E = _frame(n)
+        E = axis_frame(n)
         X = (P - o) @ E.T
         # w = a u + b v + c: the plane's tilt (a, b) and offset c about the current one
         x, _ = _chebyshev(np.c_[X[:, 0], X[:, 1], np.ones(len(P))], X[:, 2])
@@ -193,18 +212,7 @@ def flatness(P: np.ndarray) -> FormFit:
         n = n_new
         if moved < _SETTLED * max(extent, 1.0):
             break
-    w = (P - o) @ n
-    mid = 0.5 * (w.max() + w.min())
-    return FormFit(
-        kind="flatness",
-        minimum_zone=min(float(np.ptp(w)), ls),
-        least_squares=ls,
-        n=len(P),
-        origin=o + mid * n,
-        direction=n,
-        radius=None,
-        residuals=w - mid,
-    )
+    return _slab("flatness", (P - o) @ n, ls, o, n, n)
 
 
 def straightness(Q: np.ndarray) -> FormFit:
@@ -226,18 +234,7 @@ def straightness(Q: np.ndarray) -> FormFit:
         nrm = np.array([-d[1], d[0]])
         if abs(a) * extent + abs(c) < _SETTLED * max(extent, 1.0):
             break
-    w = (Q - o) @ nrm
-    mid = 0.5 * (w.max() + w.min())
-    return FormFit(
-        kind="straightness",
-        minimum_zone=min(float(np.ptp(w)), ls),
-        least_squares=ls,
-        n=len(Q),
-        origin=o + mid * nrm,
-        direction=d,
-        radius=None,
-        residuals=w - mid,
-    )
+    return _slab("straightness", (Q - o) @ nrm, ls, o, nrm, d)
 
 
 def roundness(Q: np.ndarray) -> FormFit:
@@ -282,14 +279,14 @@ def cylindricity(P: np.ndarray, origin: np.ndarray, axis: np.ndarray, radius: fl
     o, a, r = least_squares_cylinder(P, origin, axis, radius)
 
     def radii(o, a):
-        X = (P - o) @ _frame(a).T
+        X = (P - o) @ axis_frame(a).T
         return X, np.hypot(X[:, 0], X[:, 1])
 
     X, rho = radii(o, a)
     ls = float(np.ptp(rho))
     length = float(np.ptp(X[:, 2])) or 1.0
     for _ in range(_ROUNDS):
-        E = _frame(a)
+        E = axis_frame(a)
         X, rho = radii(o, a)
         z = X[:, 2]
         cos, sin = X[:, 0] / np.maximum(rho, 1e-300), X[:, 1] / np.maximum(rho, 1e-300)
