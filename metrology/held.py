@@ -188,7 +188,19 @@ def hold_scan(
             )
             offsets[k] = local[k]
             sources[k] = "scan (local fit)"
+        else:
+            # too little of its patch seen to place it (on the bench's bracket, 4 points
+            # of a 1.2 mm flange edge): its own face's few points are no better (they read
+            # it 0.4 mm off and held the part turned), so the seat places it, with the
+            # placement's uncertainty
+            log.info(
+                "locator %s: its patch is not seen; placed by the held seat",
+                restraint.clamps[k].name,
+            )
+            offsets[k] = np.nan
+            sources[k] = "seated (patch not seen)"
     by_patch = np.isfinite(local)
+    unplaced = np.array([s.startswith("seated") for s in sources], dtype=bool)
     # the restrained directions whose drive the scan gives (the faces, the locators it
     # shows); the seat searches the rigid motions the others hold
     read = read_directions(restraint.clamps, restraint.owner, restraint.coupling, offsets)
@@ -217,6 +229,7 @@ def hold_scan(
         shift = np.einsum("kd,kd->k", np.cross(xi[:3], at) + xi[3:], restraint.normals)
         off[unseen] = fixed[unseen] + shift[unseen]
         off[by_patch] = local[by_patch] + shift[by_patch]
+        off[unplaced] = np.nan
         return off
 
     def distances(Q: np.ndarray):
@@ -244,14 +257,14 @@ def hold_scan(
     k_model = 2.0 * MODEL_UNCERTAINTY
     u_v = k_model * np.linalg.norm(held.u, axis=1)
     u_p = k_model * np.linalg.norm(moved, axis=1)
-    if np.any(xi) and np.any(~read & ~facing):
-        # a pin whose axis lies in its surface's plane cannot be read from any scan: the
-        # placement along it is an estimate, which the held best fit (the seat) and the
-        # free state's best fit bound, and their difference at each vertex and point is
-        # its uncertainty (the seat slides form away: on the bench's shell it read
-        # 0.10-0.14 mm rms off the physical fixture where the free state's placement read
-        # 0.01, and passed parts the fixture rejects). A locator on a face that faces it
-        # but was not seen is placed by that face's other points and its neighbours'.
+    if np.any(xi) and np.any(~read):
+        # a pin whose axis lies in its surface's plane cannot be read from any scan, nor
+        # a stop the scan did not see: the placement along it is an estimate, which the
+        # held best fit (the seat) and the free state's best fit bound, and their
+        # difference at each vertex and point is its uncertainty (the seat slides form
+        # away: on the bench's shell it read 0.10-0.14 mm rms off the physical fixture
+        # where the free state's placement read 0.01, and passed parts the fixture
+        # rejects).
         stay = restraint.apply(offsets_at(np.zeros(6)))
         shift_v = (V - origin) @ R.T + origin + t - V + held.u - stay.u
         shift_p = (Pseat - P0) + moved - stay.on_triangles(V, cface, C)

@@ -73,7 +73,8 @@ class Restraint:
     over_limit : names of the clamps whose force exceeds their limit.
     offset_sources : where each offset was read (``"scan"``; ``"scan (local fit)"``: a
         locator placed with its face's neighbours; ``"free-state fit"``: a clamp the scan
-        does not see), when the caller says.
+        does not see; ``"seated (patch not seen)"``: a stop too little seen, placed by the
+        held seat), when the caller says.
     model_info : the elastic model's provenance (material, mesh), from the basis.
     forces_known : False when the material was not stated: the held shape does not depend
         on Young's modulus, the forces do (reported as unknown, no limit checked).

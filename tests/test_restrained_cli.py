@@ -28,6 +28,7 @@ from qifreport.registration.sheet_solid import sheet_solid
 from qifreport.simulate.defects import gaussian_bump
 from qifreport.simulate.physical import elastic_free_state
 from qifreport.simulate.shapes import rim_clamps, thin_shell
+from tests.conftest import assert_valid_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 EXE = Path(sys.executable).parent / "qifreport"
@@ -107,7 +108,11 @@ def inspect(case, scan: str, *extra) -> tuple[subprocess.CompletedProcess, dict 
         *extra,
     )
     doc = out / "shell_nominal.json"
-    return r, json.loads(doc.read_text()) if doc.exists() else None
+    if not doc.exists():
+        return r, None
+    data = json.loads(doc.read_text())
+    assert_valid_summary(data)
+    return r, data
 
 
 def test_restrained_the_dent_fails_where_it_is_and_the_part_passes(shell_case):

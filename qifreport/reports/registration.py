@@ -39,8 +39,9 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
     r = res.restraint
     if r is not None:
         held = f"{len(r.clamps)} clamps"
-        if any(s == "free-state fit" for s in r.offset_sources):
-            held += f" ({sum(s == 'free-state fit' for s in r.offset_sources)} unseen)"
+        unseen = sum(s not in ("scan", "scan (local fit)") for s in r.offset_sources)
+        if unseen:
+            held += f" ({unseen} unseen)"
         mat = r.model_info.get("material")
         rows += [
             [
