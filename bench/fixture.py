@@ -64,6 +64,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 WIDTHS = (3.0, 5.0, 10.0, 15.0, 20.0, 30.0, 40.0)
 KINDS = ("none", "dent", "bump", "springback", "overwarp")
+#: the parts, in the order that numbers their truths' streams and cases' seeds
+PARTS = ("panel", "shell", "bracket")
 
 
 @dataclass(frozen=True)
@@ -459,7 +461,7 @@ def truth_verdict(
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cases", type=int, default=200, help="cases in all (split over parts)")
-    ap.add_argument("--parts", default="panel,shell,bracket")
+    ap.add_argument("--parts", default=",".join(PARTS))
     ap.add_argument("--methods", default="restrained,free,rigid")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
@@ -485,7 +487,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     for p in parts:
         # each part's truth from its own stream: a case is the same whatever --parts lists
-        rng = np.random.default_rng([args.seed, ("panel", "shell", "bracket").index(p)])
+        rng = np.random.default_rng([args.seed, PARTS.index(p)])
         if p == "panel":
             setups[p] = panel_setup(rng, truth, cache)
         elif p == "bracket":
@@ -509,7 +511,7 @@ def main(argv: list[str] | None = None) -> int:
     weights = {"none": 2, "dent": 3, "bump": 3, "springback": 1, "overwarp": 1}
     plan = []
     for p in parts:
-        ip = ("panel", "shell", "bracket").index(p)  # a case's seed does not depend on --parts
+        ip = PARTS.index(p)  # a case's seed does not depend on --parts
         ks = kinds_of[p]
         w = np.array([weights[k] for k in ks], float)
         for i in range(per_part):
@@ -596,6 +598,16 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _counts(g: pd.DataFrame) -> dict:
+    """Agreement (%), false PASS, false FAIL and undecided of a set of runs."""
+    return {
+        "agree_%": 100 * (g.verdict == g.truth).mean(),
+        "false_PASS": int(((g.truth == "FAIL") & (g.verdict == "PASS")).sum()),
+        "false_FAIL": int(((g.truth == "PASS") & (g.verdict == "FAIL")).sum()),
+        "NE": int((~g.verdict.isin(["PASS", "FAIL"])).sum()),
+    }
+
+
 def report(df: pd.DataFrame) -> None:
     pd.set_option("display.width", 160)
     short = {"PASS": "P", "FAIL": "F", "NOT ESTABLISHED": "NE", "NOT MEASURED": "NM", "ERROR": "E"}
@@ -603,13 +615,10 @@ def report(df: pd.DataFrame) -> None:
     per_part = df.groupby("part").seed.nunique()
     print(f"cases: {df.seed.nunique()} ({', '.join(f'{p}: {n}' for p, n in per_part.items())})")
     for m, g in df.groupby("method", sort=False):
-        agree = (g.verdict == g.truth).mean()
-        false_pass = ((g.truth == "FAIL") & (g.verdict == "PASS")).sum()
-        false_fail = ((g.truth == "PASS") & (g.verdict == "FAIL")).sum()
-        ne = (~g.verdict.isin(["PASS", "FAIL"])).sum()
+        c = _counts(g)
         print(
-            f"\n== {m}: agreement {100 * agree:.1f} % of {len(g)}; false PASS {false_pass}, "
-            f"false FAIL {false_fail}, not established/other {ne}; "
+            f"\n== {m}: agreement {c['agree_%']:.1f} % of {len(g)}; false PASS "
+            f"{c['false_PASS']}, false FAIL {c['false_FAIL']}, not established/other {c['NE']}; "
             f"deviation vs held truth rms median {g.dev_rms.median():.4f} mm, "
             f"p95 {g.dev_rms.quantile(0.95):.4f}, max {g.dev_rms.max():.4f}; "
             f"median {g.seconds.median():.1f} s/run"
@@ -618,10 +627,7 @@ def report(df: pd.DataFrame) -> None:
             lambda x: pd.Series(
                 {
                     "cases": len(x),
-                    "agree_%": 100 * (x.verdict == x.truth).mean(),
-                    "false_PASS": int(((x.truth == "FAIL") & (x.verdict == "PASS")).sum()),
-                    "false_FAIL": int(((x.truth == "PASS") & (x.verdict == "FAIL")).sum()),
-                    "NE": int((~x.verdict.isin(["PASS", "FAIL"])).sum()),
+                    **_counts(x),
                     "field_med": x.dev_rms.median(),
                     "field_p95": x.dev_rms.quantile(0.95),
                 }

@@ -134,12 +134,9 @@ def nominal_feature(label: str, V: np.ndarray, N: np.ndarray) -> DatumFeature:
     E = np.eye(3) - np.outer(axis, axis)
     Nn = N @ E
     Nn /= np.linalg.norm(Nn, axis=1, keepdims=True)
-    A = np.zeros((3, 3))
-    b = np.zeros(3)
-    for v, m in zip(V, Nn, strict=True):
-        Pm = E - np.outer(m, m)
-        A += Pm
-        b += Pm @ v
+    # sum over the lines of (E - m m^T) (x - v) = 0, m the normal across the axis
+    A = len(V) * E - Nn.T @ Nn
+    b = E @ V.sum(axis=0) - Nn.T @ np.einsum("ij,ij->i", Nn, V)
     o = np.linalg.lstsq(A, b, rcond=None)[0]
     o -= ((o - V.mean(axis=0)) @ axis) * axis
     radial = (V - o) @ E
@@ -204,9 +201,8 @@ def _axis_fit(
     when given (a secondary datum's orientation to the primary)."""
     a = feature.direction if fixed_axis is None else fixed_axis
     o, a_ls, r = least_squares_cylinder(P, feature.origin, a, feature.radius)
-    if fixed_axis is not None:
-        a_ls = fixed_axis
-    o, a = o, a_ls / np.linalg.norm(a_ls)
+    a = a if fixed_axis is not None else a_ls  # a held axis keeps its direction
+    a = a / np.linalg.norm(a)
     length = float(np.ptp(P @ a)) or 1.0
     sign = 1.0 if feature.internal else -1.0  # maximise r (hole) / minimise r (pin)
     for _ in range(_ROUNDS):

@@ -190,6 +190,24 @@ def _slab(
     )
 
 
+def _annulus(
+    kind: str, rho: np.ndarray, ls: float, centre: np.ndarray, axis: np.ndarray | None
+) -> FormFit:
+    """A zone between two concentric circles (coaxial cylinders): ``rho`` (m,) the points'
+    radii about ``centre`` (a point of ``axis``); ``ls`` the least-squares width."""
+    mid = 0.5 * (rho.max() + rho.min())
+    return FormFit(
+        kind=kind,
+        minimum_zone=min(float(np.ptp(rho)), ls),
+        least_squares=ls,
+        n=len(rho),
+        origin=centre,
+        direction=axis,
+        radius=float(mid),
+        residuals=rho - mid,
+    )
+
+
 def flatness(P: np.ndarray) -> FormFit:
     """Flatness of the points ``P`` (m, 3), mm: the minimum zone between two parallel
     planes, and the least-squares plane's peak-to-valley."""
@@ -255,18 +273,7 @@ def roundness(Q: np.ndarray) -> FormFit:
         c = c + x
         if np.linalg.norm(x) < _SETTLED * max(r, 1.0):
             break
-    rho = np.linalg.norm(Q - c, axis=1)
-    mid = 0.5 * (rho.max() + rho.min())
-    return FormFit(
-        kind="roundness",
-        minimum_zone=min(float(np.ptp(rho)), ls),
-        least_squares=ls,
-        n=len(Q),
-        origin=c,
-        direction=None,
-        radius=float(mid),
-        residuals=rho - mid,
-    )
+    return _annulus("roundness", np.linalg.norm(Q - c, axis=1), ls, c, None)
 
 
 def cylindricity(P: np.ndarray, origin: np.ndarray, axis: np.ndarray, radius: float) -> FormFit:
@@ -296,15 +303,4 @@ def cylindricity(P: np.ndarray, origin: np.ndarray, axis: np.ndarray, radius: fl
         a /= np.linalg.norm(a)
         if np.hypot(p, q) + np.hypot(s, t) * length < _SETTLED * max(r, 1.0):
             break
-    X, rho = radii(o, a)
-    mid = 0.5 * (rho.max() + rho.min())
-    return FormFit(
-        kind="cylindricity",
-        minimum_zone=min(float(np.ptp(rho)), ls),
-        least_squares=ls,
-        n=len(P),
-        origin=o,
-        direction=a,
-        radius=float(mid),
-        residuals=rho - mid,
-    )
+    return _annulus("cylindricity", radii(o, a)[1], ls, o, a)

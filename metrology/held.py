@@ -38,6 +38,11 @@ __all__ = [
     "LOCATOR_GATE",
     "LOCATOR_PATCH",
     "MODEL_UNCERTAINTY",
+    "SEEN_SOURCES",
+    "SOURCE_FREE_FIT",
+    "SOURCE_PATCH",
+    "SOURCE_SCAN",
+    "SOURCE_SEATED",
     "ClampReadings",
     "HeldScan",
     "clamp_readings",
@@ -52,6 +57,15 @@ log = logging.getLogger(__name__)
 #: radii, and the largest free-state motion of a pair there, mm
 LOCATOR_PATCH = 3.0
 LOCATOR_GATE = 3.0
+
+#: where a clamp's offset came from (:attr:`Restraint.offset_sources`): the points under its
+#: pad, a locator's patch fitted with its neighbours, the free virtual fixture (a clamp face
+#: the scan does not see), the held seat (a stop too little seen); the first two are seen
+SOURCE_SCAN = "scan"
+SOURCE_PATCH = "scan (local fit)"
+SOURCE_FREE_FIT = "free-state fit"
+SOURCE_SEATED = "seated (patch not seen)"
+SEEN_SOURCES = (SOURCE_SCAN, SOURCE_PATCH)
 
 #: relative standard uncertainty of the displacement by which the elastic model holds the
 #: scan (wall thickness, Poisson's ratio, mesh and contact size the model cannot know):
@@ -159,13 +173,14 @@ def hold_scan(
         )
     origin = V.mean(axis=0)
     offsets = readings.offsets()
-    sources = ["scan"] * len(offsets)
+    sources = [SOURCE_SCAN] * len(offsets)
     # a locator on a face that faces its axis: its face and the neighbours placed together
     # (metrology.locators: proximity alone reads the neighbouring faces once the free state
     # moved a narrow face across its own width)
     facing = np.abs(restraint.coupling) >= np.cos(np.radians(FACING_ANGLE))
     locator = np.array([restraint.clamps[k].directions != "n" for k in restraint.owner])
     local = np.full(len(offsets), np.nan)
+    unplaced = np.zeros(len(offsets), dtype=bool)  # stops the seat places
     for k in np.unique(restraint.owner[facing & locator]):
         local[k] = patch_offset(
             V,
@@ -187,7 +202,7 @@ def hold_scan(
                 offsets[k],
             )
             offsets[k] = local[k]
-            sources[k] = "scan (local fit)"
+            sources[k] = SOURCE_PATCH
         else:
             # too little of its patch seen to place it (on the bench's bracket, 4 points
             # of a 1.2 mm flange edge): its own face's few points are no better (they read
@@ -198,9 +213,9 @@ def hold_scan(
                 restraint.clamps[k].name,
             )
             offsets[k] = np.nan
-            sources[k] = "seated (patch not seen)"
+            unplaced[k] = True
+            sources[k] = SOURCE_SEATED
     by_patch = np.isfinite(local)
-    unplaced = np.array([s.startswith("seated") for s in sources], dtype=bool)
     # the restrained directions whose drive the scan gives (the faces, the locators it
     # shows); the seat searches the rigid motions the others hold
     read = read_directions(restraint.clamps, restraint.owner, restraint.coupling, offsets)
@@ -215,7 +230,7 @@ def hold_scan(
         _, near = tree.query([restraint.clamps[k].position for k in unseen])
         for k, v in zip(unseen, np.atleast_1d(near), strict=True):
             fixed[k] = float((Vfit[v] - V[v]) @ restraint.normals[k])
-            sources[k] = "free-state fit"
+            sources[k] = SOURCE_FREE_FIT
         log.info(
             "clamp(s) %s not seen by the scan: offsets from the free virtual fixture",
             ", ".join(restraint.clamps[k].name for k in unseen),

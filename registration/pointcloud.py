@@ -705,7 +705,9 @@ WALL_MIN_POINTS = 10
 WALL_AGREEMENT = 0.9
 #: points looked from (every m // WALL_SAMPLE-th), each voting for its sheet
 WALL_SAMPLE = 30_000
-SCRAP_ROUNDS = 1
+#: a neighbour lies across a wall (stacked) when its offset along either normal exceeds
+#: this share of its distance (acos(0.7) = 46 deg of the normal), beside a point else
+STACKED = 0.7
 #: the sheet label of points whose side the scan itself decided (see
 #: :func:`orient_normals_consistent`): no vote against a nominal changes it
 SIDE_KNOWN = -1
@@ -746,7 +748,7 @@ def wall_sides(
             ok = (dist < np.maximum(WALL_CONE * a, reach[idx])) & (
                 np.abs(np.einsum("ij,ij->i", N0[idx], Ns[j])) > WALL_PARALLEL
             )
-            ok &= np.abs(np.einsum("ij,ij->i", d, N0[idx])) > 0.7 * np.linalg.norm(d, axis=1)
+            ok &= np.abs(np.einsum("ij,ij->i", d, N0[idx])) > STACKED * np.linalg.norm(d, axis=1)
             hit[side, idx[ok]] = a
     front, behind = hit
     out = np.zeros(len(at), dtype=np.int8)
@@ -798,8 +800,8 @@ def orient_normals_consistent(
     )
     par = np.abs(np.einsum("ij,ij->i", Ns[i], Ns[j]))
     keep = (off < TANGENT_EDGE * L) & (par > TANGENT_PARALLEL)
-    beside = (off < 0.7 * L) & (par > 0.7)  # not across a wall, nor a crease
-    i_all, j_all = i, j
+    beside = (off < STACKED * L) & (par > 0.7)  # not across a wall, nor a sharp crease
+    pi, pj = i[beside], j[beside]
     i, j = i[keep], j[keep]
     w = 1.0 - par[keep] + 1e-6
     G = coo_matrix((w, (i, j)), shape=(m, m)).tocsr()
@@ -836,16 +838,12 @@ def orient_normals_consistent(
     inward = known & (neg > pos)
     out[inward[labels]] *= -1.0
     # the scraps between them (points at creases and rims, whose PCA normals no tangent
-    # pair joins) take their known neighbours' side, not across a wall
-    pi, pj = i_all[beside], j_all[beside]
-    for _ in range(SCRAP_ROUNDS):
-        ask = ~known[labels[pi]] & known[labels[pj]]
-        if not ask.any():
-            break
-        agree = np.sign(np.einsum("ij,ij->i", out[pi[ask]], out[pj[ask]]))
-        votes = np.bincount(labels[pi[ask]], weights=agree, minlength=n_comp)
-        said = np.bincount(labels[pi[ask]], minlength=n_comp) > 0
-        out[(said & (votes < 0))[labels]] *= -1.0
-        known |= said & (votes != 0)
+    # pair joins) take their known neighbours' side, not across a wall; once (a second
+    # round, from scraps to scraps, turned more of the bracket's points inwards than right)
+    ask = ~known[labels[pi]] & known[labels[pj]]
+    agree = np.sign(np.einsum("ij,ij->i", out[pi[ask]], out[pj[ask]]))
+    votes = np.bincount(labels[pi[ask]], weights=agree, minlength=n_comp)
+    out[(votes < 0)[labels]] *= -1.0
+    known |= votes != 0
     labels = np.where(known[labels], SIDE_KNOWN, labels)
     return out, labels

@@ -14,6 +14,7 @@ import math
 
 import numpy as np
 
+from qifreport.metrology.held import SEEN_SOURCES
 from qifreport.metrology.inspection import InspectionResult, method_label
 
 from .kit import DASH, Table, finite, fmt_mm, fmt_pct
@@ -39,7 +40,7 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
     r = res.restraint
     if r is not None:
         held = f"{len(r.clamps)} clamps"
-        unseen = sum(s not in ("scan", "scan (local fit)") for s in r.offset_sources)
+        unseen = sum(s not in SEEN_SOURCES for s in r.offset_sources)
         if unseen:
             held += f" ({unseen} unseen)"
         mat = r.model_info.get("material")
