@@ -225,7 +225,9 @@ def zones_from_pmi(
     zones : one zone per surface-profile tolerance with a value and faces, in file order,
         then the general zone (always present; it applies to the faces no profile covers):
         the tightest whole-part profile of the PMI if there is one (module docstring).
-    skipped : PMI items that are not scored, with the reason.
+    skipped : profile tolerances that are not scored, with the reason (the other
+        tolerances and the dimensions are feature characteristics:
+        :func:`qifreport.metrology.characteristics.specs_from_pmi`).
 
     Raises
     ------
@@ -238,15 +240,7 @@ def zones_from_pmi(
     if pmi is not None:
         for tol in pmi.tolerances:
             if tol.type not in PROFILE_TYPES:
-                skipped.append(
-                    NotEvaluated(
-                        tol.type,
-                        tol.name,
-                        tol.step_id,
-                        "feature tolerance: needs a feature fit, not a surface band",
-                    )
-                )
-                continue
+                continue  # a feature characteristic (:mod:`.characteristics`)
             if tol.value is None:
                 skipped.append(
                     NotEvaluated(
@@ -287,15 +281,6 @@ def zones_from_pmi(
                 free_state="free_state" in mods,
             )
             (whole if is_whole else zones).append(zone)
-        for dim in pmi.dimensions:
-            skipped.append(
-                NotEvaluated(
-                    f"dimension ({dim.type})",
-                    dim.name,
-                    dim.step_id,
-                    "dimension: needs a feature fit, not a surface band",
-                )
-            )
     if whole:
         zones.append(_whole_part_zone(whole, general, skipped))
     elif general is None:

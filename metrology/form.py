@@ -28,6 +28,7 @@ __all__ = [
     "least_squares_circle",
     "least_squares_cylinder",
     "least_squares_plane",
+    "least_squares_sphere",
     "roundness",
     "straightness",
 ]
@@ -83,24 +84,36 @@ def _line_2d(Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return c, Vt[0]
 
 
-def least_squares_circle(Q: np.ndarray) -> tuple[np.ndarray, float]:
-    """(centre (2,), radius) of the geometric least-squares circle of ``Q`` (m, 2), mm:
-    the algebraic (Kasa) fit refined by Gauss-Newton on the orthogonal distances."""
+def _least_squares_ball(Q: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre (d,), radius) of the geometric least-squares circle (d = 2) or sphere
+    (d = 3) of ``Q`` (m, d): the algebraic (Kasa) fit refined by Gauss-Newton on the
+    orthogonal distances."""
     Q = np.asarray(Q, dtype=np.float64)
+    d = Q.shape[1]
     A = np.c_[2 * Q, np.ones(len(Q))]
     sol, *_ = np.linalg.lstsq(A, np.einsum("ij,ij->i", Q, Q), rcond=None)
-    c = sol[:2]
-    r = float(np.sqrt(max(sol[2] + c @ c, 0.0)))
+    c = sol[:d]
+    r = float(np.sqrt(max(sol[d] + c @ c, 0.0)))
     for _ in range(50):
-        d = Q - c
-        rho = np.linalg.norm(d, axis=1)
-        u = d / np.maximum(rho, 1e-300)[:, None]
+        x = Q - c
+        rho = np.linalg.norm(x, axis=1)
+        u = x / np.maximum(rho, 1e-300)[:, None]
         J = np.c_[-u, -np.ones(len(Q))]  # d(rho - r)/d(c, r)
         step, *_ = np.linalg.lstsq(J, -(rho - r), rcond=None)
-        c, r = c + step[:2], r + step[2]
+        c, r = c + step[:d], r + step[d]
         if np.abs(step).max() < 1e-12 * max(1.0, abs(r)):
             break
     return c, float(r)
+
+
+def least_squares_circle(Q: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre (2,), radius) of the geometric least-squares circle of ``Q`` (m, 2), mm."""
+    return _least_squares_ball(Q)
+
+
+def least_squares_sphere(P: np.ndarray) -> tuple[np.ndarray, float]:
+    """(centre (3,), radius) of the geometric least-squares sphere of ``P`` (m, 3), mm."""
+    return _least_squares_ball(P)
 
 
 def axis_frame(axis: np.ndarray) -> np.ndarray:

@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass, field, is_dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
+from trimesh.triangles import points_to_barycentric
 
 from qifreport.errors import InputError
 from qifreport.registration.deformable import DeformResult, orient_scan_normals
@@ -56,6 +57,12 @@ from .bands import (
     symmetric_zone,
     zone_vertex_areas,
 )
+from .characteristics import (
+    CharacteristicPlan,
+    CharacteristicResult,
+    frame_of,
+    measure_characteristics,
+)
 from .coverage import (
     DEFAULT_MIN_COVERAGE,
     GAP_AREA_FACTOR,
@@ -74,8 +81,10 @@ from .deviation import (
     surface_distance,
 )
 from .edges import EdgeDeviation, edge_deviation
+from .frames import DatumFrameResult
 from .held import hold_scan
 from .hygiene import MeshHygiene
+from .measured_surface import MeasuredSurface
 from .params import METHOD_LABELS, InspectionParams, method_label
 from .point_regions import ScanSamples, SurfacePoints, scan_samples
 from .prepared import PreparedPart, prepare_part
@@ -132,6 +141,9 @@ class ZoneResult:
         :mod:`qifreport.metrology.repeatability` to match regions between runs.
     coverage : whether the surface was measured (:mod:`qifreport.metrology.coverage`); None
         from older callers (taken as measured).
+    reading : where the zone was laid: ``'best fit'`` (no datums: a form control), or in
+        the datum reference frame the tolerance names (ASME Y14.5-2018 11.2.1:
+        ``'datum frame |A|B|C|'``), or ``'best fit (datum frame not established: ...)'``.
     """
 
     zone: ToleranceZone
@@ -140,6 +152,7 @@ class ZoneResult:
     fixtured: bool = True
     deviation: np.ndarray | None = None
     coverage: Coverage | None = None
+    reading: str = "best fit"
 
     @property
     def measured(self) -> bool:
@@ -175,6 +188,7 @@ class ZoneResult:
             "description": self.zone.describe(),
             "verdict": self.status,
             "fixtured": self.fixtured,
+            "reading": self.reading,
             "deviation": self.stats.to_dict(),
             "acceptance": self.acceptance.to_dict(),
             "measured": None if self.coverage is None else self.coverage.to_dict(),
@@ -230,6 +244,10 @@ class InspectionResult:
         (:func:`vertex_deviation`), for the decision rule.
     solid : the nominal is a B-rep solid (its size check is reported, not a trust gate:
         every face's own deviation measures the size).
+    characteristics : the drawing's feature tolerances and dimensions measured on the
+        judged surface (:mod:`qifreport.metrology.characteristics`); a FAIL fails the part,
+        an INDETERMINATE one leaves it NOT ESTABLISHED, one not measured is reported.
+    frames : the datum reference frames established (profiles and characteristics).
     restraint : the restrained condition (``params.fixture == "restrained"``): the clamps'
         free-state offsets and forces (:class:`qifreport.registration.restrained.Restraint`);
         ``P`` then holds the restrained scan. A clamp above its force limit fails the part
@@ -272,6 +290,8 @@ class InspectionResult:
     deviation_variance: np.ndarray | None = None
     solid: bool = False
     restraint: Restraint | None = None
+    characteristics: list[CharacteristicResult] = field(default_factory=list)
+    frames: list[DatumFrameResult] = field(default_factory=list)
 
     @property
     def free_state_stands(self) -> bool:
@@ -314,6 +334,7 @@ class InspectionResult:
             and (self.added is None or self.added.passed)
             and (self.judged_size is None or not self.judged_size.flagged)
             and not self.not_restrainable()
+            and not any(c.status == "FAIL" for c in self.characteristics)
         )
 
     def not_restrainable(self) -> list[str]:
@@ -481,6 +502,12 @@ class InspectionResult:
                 out += [
                     f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.acceptance.uncertain_reasons
                 ]
+        for c in self.characteristics:
+            if c.status == "INDETERMINATE":
+                out.append(
+                    f"{c.spec.key} {c.spec.name}: {c.value:.4g} within its uncertainty "
+                    f"{c.uncertainty:.2g} of the limit {c.spec.limits_text()}"
+                )
         return out
 
     @property
@@ -512,6 +539,11 @@ class InspectionResult:
         if self.judged_size is not None and self.judged_size.flagged:
             out += [f"size: {r}" for r in self.judged_size.reasons()]
         out += self.not_restrainable()
+        out += [
+            f"{c.spec.key} {c.spec.name} ({c.spec.kind}): {c.reason}"
+            for c in self.characteristics
+            if c.status == "FAIL"
+        ]
         if self.passed:
             out += [f"not established: {w}" for w in self.trust_warnings()]
             out += [f"not established: {w}" for w in self.uncertain()]
@@ -532,6 +564,8 @@ class InspectionResult:
             "acceptance": self.acceptance.to_dict(),
             "tolerances": [z.to_dict() for z in self.zones],
             "not_evaluated": [n.to_dict() for n in self.not_evaluated],
+            "characteristics": [c.to_dict() for c in self.characteristics],
+            "datum_frames": [f.to_dict() for f in self.frames],
             "vertex_deviation": self.vertex_stats.to_dict(),
             "point_deviation": self.point_stats.to_dict(),
             "added_material": None if self.added is None else self.added.to_dict(),
@@ -757,6 +791,7 @@ def inspect(
     solid: bool = False,
     brep_normals: np.ndarray | None = None,
     restraint: RestraintBasis | None = None,
+    plan: CharacteristicPlan | None = None,
 ) -> InspectionResult:
     """Inspect the scan ``P`` against the nominal ``(V, F)``.
 
@@ -791,6 +826,10 @@ def inspect(
         ``params.fixture == "restrained"``: the rigidly seated scan is held at its clamps
         and judged as held (no virtual fixture, no free-state shortcut: the drawing says
         how the part is inspected).
+    plan : the drawing's feature characteristics and datums
+        (:func:`qifreport.metrology.characteristics.specs_from_pmi`; a STEP nominal with
+        ``brep_normals``): measured on the judged surface, and the profiles that name
+        datums laid in their frame.
 
     Raises
     ------
@@ -859,6 +898,7 @@ def inspect(
         energy=energy,
         basis=basis,
         brep_normals=brep_normals,
+        plan=plan,
     )
     if params.rigid_only:
         res = _judge(reg, None, params, timings, **judge)
@@ -988,9 +1028,11 @@ def _fail_reasons(acc: Acceptance) -> list[str]:
     return [f"not proven ({acc.decision_rule}): {r}" for r in acc.uncertain_reasons]
 
 
-def _surface_points(samples: ScanSamples, sel: np.ndarray, half_width, center) -> SurfacePoints:
+def _surface_points(
+    samples: ScanSamples, sel: np.ndarray, half_width, center, extra_U=0.0
+) -> SurfacePoints:
     """The points ``sel`` (m,) bool of ``samples`` with the band of their nearest vertex
-    (``half_width``, ``center``: scalars or (n,) per vertex, mm)."""
+    (``half_width``, ``center``, ``extra_U``: scalars or (n,) per vertex, mm)."""
     idx = np.flatnonzero(sel)
     v = samples.vertex[idx]
 
@@ -999,7 +1041,11 @@ def _surface_points(samples: ScanSamples, sel: np.ndarray, half_width, center) -
         return np.full(len(idx), float(x)) if x.ndim == 0 else x[v]
 
     return SurfacePoints(
-        samples=samples, index=idx, tolerance=per_point(half_width), center=per_point(center)
+        samples=samples,
+        index=idx,
+        tolerance=per_point(half_width),
+        center=per_point(center),
+        extra_U=per_point(extra_U),
     )
 
 
@@ -1035,6 +1081,7 @@ def _judge(
     brep_normals: np.ndarray | None = None,
     free: _Registered | None = None,
     model_uncertainty: tuple[np.ndarray, np.ndarray] | None = None,
+    plan: CharacteristicPlan | None = None,
 ) -> InspectionResult:
     """Judge the rigidly seated scan against the nominal as the fixture ``fit`` holds it
     (``None``: the free state, the nominal where the rigid alignment put it).
@@ -1161,6 +1208,47 @@ def _judge(
     U = vertex_uncertainty(var_all, sys_vertices)
     U_free = None if var_free is None else vertex_uncertainty(var_free, params.scanner_uncertainty)
     rule = params.decision_rule
+    U_base = U  # the vertices' own uncertainty (a located zone adds its frame's)
+    point_center, point_U = bands.center, 0.0
+    feats = frames_used = None
+    zone_frames: dict[int, DatumFrameResult | None] = {}
+    if plan is not None and face_id is not None and brep_normals is not None:
+        t_feat = time.perf_counter()
+        surf = _measured_surface(
+            V, F, V_reg, face_id, brep_normals, dev_all, U, Pm, C, cface, pdev, plabel, pvert
+        )
+        free_surf = None
+        if dev_free is not None and U_free is not None:
+            free_surf = _measured_surface(
+                V, F, V, face_id, brep_normals, dev_free, U_free, *_no_points()
+            )
+        cache: dict = {}
+        # the profiles that name datums are laid in their frame (Y14.5-2018 11.2.1)
+        for i, z in enumerate(bands.zones):
+            if z.datums:
+                use_free = z.free_state and free_surf is not None
+                zone_frames[i] = frame_of(
+                    z.datums, plan.datums, free_surf if use_free else surf, cache
+                )
+        feats, frames_used = measure_characteristics(
+            plan.specs, plan.datums, surf, rule, free_surface=free_surf, frames=cache
+        )
+        frames_used = list(cache.values())
+        timings["characteristics"] = time.perf_counter() - t_feat
+    located = {i: f for i, f in zone_frames.items() if f is not None and f.established}
+    if located:
+        # each vertex governed by a located zone takes its reading in the zone's frame, and
+        # the frame's uncertainty with it
+        U = U.copy()
+        # the scan points judge against their vertex's band moved the other way
+        point_center = np.broadcast_to(bands.center, (len(V),)).astype(np.float64).copy()
+        point_U = np.zeros(len(V))
+        for i, f in located.items():
+            gv = bands.governing == i
+            dev_all[gv] = dev_all[gv] + f.normal_shift(V[gv], ops.normals[gv])
+            point_center[gv] -= f.normal_shift(V[gv], ops.normals[gv])
+            point_U[gv] = f.shift_uncertainty(V[gv], ops.normals[gv])
+            U[gv] = np.hypot(U[gv], f.shift_uncertainty(V[gv], ops.normals[gv]))
     if check_part:
         check_same_part(pdev, general_half, diag, rigid, fit)
     # the size from the trim edges, on a fixture that moves the nominal along its normals only
@@ -1187,7 +1275,7 @@ def _judge(
         center=bands.center,
         uncertainty=U,
         decision_rule=rule,
-        points=_surface_points(samples, pts_ok, bands.half_width, bands.center),
+        points=_surface_points(samples, pts_ok, bands.half_width, point_center, point_U),
     )
     # beside a drawing's own tolerances, qifreport's default band is no requirement: judged
     # where it was measured, its unmeasured patches reported (each PMI zone keeps its rules)
@@ -1195,10 +1283,24 @@ def _judge(
         z.faces is not None for z in bands.zones
     )
     zone_results = []
-    for z, mask in zip(bands.zones, bands.tri_masks, strict=True):
+    for i, (z, mask) in enumerate(zip(bands.zones, bands.tri_masks, strict=True)):
         az = zone_vertex_areas(V, F, mask)
         use_free = z.free_state and dev_free is not None
         dz = np.where(az > 0, dev_free if use_free else dev, np.nan)
+        reading = "best fit"
+        frame = zone_frames.get(i)
+        zU = U_free if use_free else U
+        zcenter, zpU = z.center, 0.0
+        if i in located:
+            dz = dz + frame.normal_shift(V, ops.normals)
+            zcenter = z.center - frame.normal_shift(V, ops.normals)
+            zpU = frame.shift_uncertainty(V, ops.normals)
+            zU = np.hypot(U_free if use_free else U_base, frame.shift_uncertainty(V, ops.normals))
+            reading = f"datum frame |{'|'.join(frame.labels)}|"
+            if frame.free:
+                reading += " (best fit: " + ", ".join(frame.free) + ")"
+        elif frame is not None:
+            reading = "best fit (datum frame not established: " + "; ".join(frame.problems) + ")"
         zacc = evaluate(
             V,
             F[mask],
@@ -1208,12 +1310,12 @@ def _judge(
             min_fraction=params.min_fraction,
             max_region_area=params.max_region_area,
             center=z.center,
-            uncertainty=U_free if use_free else U,
+            uncertainty=zU,
             decision_rule=rule,
             points=None
             if use_free
             else _surface_points(
-                samples, pts_ok & mask[np.maximum(cface, 0)], z.half_width, z.center
+                samples, pts_ok & mask[np.maximum(cface, 0)], z.half_width, zcenter, zpU
             ),
         )
         zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
@@ -1238,6 +1340,7 @@ def _judge(
                 fixtured=held and not use_free,
                 deviation=dz,
                 coverage=zcov,
+                reading=reading,
             )
         )
     whole = zone_coverage(
@@ -1322,4 +1425,38 @@ def _judge(
         coverage=whole,
         edges=edges,
         size=size,
+        characteristics=feats or [],
+        frames=frames_used or [],
+    )
+
+
+def _measured_surface(
+    V, F, V_reg, face_id, corner_normals, dev, U, P, C, cface, pdev, plabel, pvert
+) -> MeasuredSurface:
+    """The judged surface for the feature characteristics: the vertices' deviations, and
+    the scan points carried back through the fixture's displacement at their closest
+    point (:class:`~qifreport.metrology.measured_surface.MeasuredSurface`)."""
+    if len(P):
+        bary = points_to_barycentric(V_reg[F[cface]], C)
+        u = np.einsum("ij,ijk->ik", bary, (V_reg - V)[F[cface]])
+        P0 = P - u
+        PU = np.where(pvert >= 0, U[np.maximum(pvert, 0)], np.nan)
+        PU = np.where(np.isfinite(PU), PU, np.nanmedian(U) if np.isfinite(U).any() else 0.0)
+    else:
+        P0, PU = P, np.empty(0)
+    return MeasuredSurface(
+        V, F, face_id, corner_normals, dev.copy(), U, P0, np.asarray(plabel), np.asarray(pdev), PU
+    )
+
+
+def _no_points() -> tuple:
+    """Empty scan-point arrays for a surface measured on its vertices only."""
+    e = np.empty(0)
+    return (
+        np.empty((0, 3)),
+        np.empty((0, 3)),
+        e.astype(np.int64),
+        e,
+        e.astype(np.int64),
+        e.astype(np.int64),
     )

@@ -112,12 +112,15 @@ class SurfacePoints:
     samples : the inspection's :class:`ScanSamples`.
     index : (k,) the points of the surface.
     tolerance : (k,) half-width of each point's band, mm.  center : (k,) its centre, mm.
+    extra_U : (k,) an expanded uncertainty of where the band lies (a datum frame's), mm,
+        combined in quadrature with the points' own; 0 without.
     """
 
     samples: ScanSamples
     index: np.ndarray
     tolerance: np.ndarray
     center: np.ndarray
+    extra_U: np.ndarray | float = 0.0
 
     def regions(self, widen: float, region_type) -> list:
         """Connected regions of points out of the band widened by ``widen`` x their
@@ -128,7 +131,7 @@ class SurfacePoints:
         idx = self.index
         val = s.value[idx]
         k = 0.5 * PROOF_COVERAGE * widen
-        tol = np.maximum(self.tolerance + k * s.U[idx], 0.0)
+        tol = np.maximum(self.tolerance + k * np.hypot(s.U[idx], self.extra_U), 0.0)
         with np.errstate(invalid="ignore"):
             out = np.abs(val - self.center) > tol
         sel = idx[out]

@@ -125,7 +125,14 @@ def _text(el, path: str) -> str | None:
 
 
 def _num(s: str | None) -> float | None:
-    return None if s is None else float(s)
+    """A decimal's value; None without one (or for a word: an attribute characteristic's
+    value, e.g. ``CONFORMS``)."""
+    if s is None:
+        return None
+    try:
+        return float(s)
+    except ValueError:
+        return None
 
 
 def read_attributes(parent) -> dict:

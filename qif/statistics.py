@@ -213,6 +213,13 @@ class _Observation:
         return v if v is not None and math.isfinite(v) else None
 
 
+def _profiles(res: QIFResults) -> list[CharacteristicResult]:
+    """The surface-profile characteristics of one results document: what this
+    Statistics document carries (the feature characteristics of issue 22 are listed in
+    each results file; their batch statistics are not written yet)."""
+    return [c for c in res.characteristics if c.kind == "SurfaceProfile"]
+
+
 def _key(c: CharacteristicResult) -> str:
     key = c.designator if c.designator is not None else c.name
     if key is None:
@@ -233,7 +240,7 @@ def _group(results: list[QIFResults]) -> dict[str, list[_Observation]]:
     """
     groups: dict[str, list[_Observation]] = {}
     for k, res in enumerate(results):
-        for c in res.characteristics:
+        for c in _profiles(res):
             obs = groups.setdefault(_key(c), [])
             if obs:
                 first = obs[0].char
@@ -618,7 +625,7 @@ def build_statistics(
         actual_id, mr_id = ids(), ids()
         mr_ids.append(mr_id)
         meas = []
-        for c in res.characteristics:
+        for c in _profiles(res):
             m = meas_id[(k, c.id)] = ids()
             el = [
                 Attrs().s("source_id", c.id).element(),

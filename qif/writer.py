@@ -18,7 +18,11 @@ per inspection, written with lxml. What goes where:
 ``Characteristics``                         one ``SurfaceProfileCharacteristic`` per profile
                                             tolerance of the PMI, plus the general tolerance
                                             (the command line's, or the default) on the faces
-                                            no profile covers
+                                            no profile covers; beside each, its acceptance
+                                            rule's decision (a ``UserDefinedAttribute``
+                                            characteristic ``<key>_ACCEPTANCE``); then the
+                                            drawing's feature tolerances and dimensions as
+                                            their own types (:mod:`.feature_characteristics`)
 ``Results/MeasurementResultsSet``           one ``MeasurementResults``: traceability (input
                                             files and SHA-256, software, time), one feature
                                             measurement per surface, one characteristic
@@ -30,13 +34,21 @@ Values
 ------
 The characteristic measurement's ``Value`` is the **profile value** of QIF / ASME Y14.5: the
 width of the smallest zone, disposed as the tolerance zone (same centre ``c``), that contains
-every scored point of the surface, ``2 max |d - c|``. ``WorstPositiveDeviation`` and
-``WorstNegativeDeviation`` are the signed extremes of the deviation ``d``. The **status** is
-qifreport's decision for a compliant part (paper Section 10): the area criterion (at least
-``min_fraction`` of the scored area in the band) and the region criterion (no connected
-out-of-tolerance region larger than ``max_region_area``); the rule is stated in the
-characteristic definition's ``Description``. A part can therefore PASS with a profile value
-above the tolerance (a few isolated points out of the band): the statistics say how much.
+every scored point of the surface and the peaks of its out-of-tolerance regions,
+``2 max |d - c|``. ``WorstPositiveDeviation`` and ``WorstNegativeDeviation`` are the signed
+extremes of the deviation ``d``. Its **status** is the profile read as the drawing states it
+(:func:`strict_profile_status`): ``FAIL`` whenever the value exceeds the tolerance, so a
+``Value`` beyond its ``ToleranceValue`` is never ``PASS``.
+
+qifreport's decision for a compliant part (paper Section 10: the area criterion, at least
+``min_fraction`` of the scored area in the band, and the region criterion, no connected
+out-of-tolerance region larger than ``max_region_area``) is another rule than value <=
+tolerance. QIF states a characteristic judged by a rule of its own as a
+``UserDefinedAttributeCharacteristic`` (``WhatToMeasure``: the rule; ``PassValues``
+``CONFORMS``, ``FailValues`` ``DOES_NOT_CONFORM``): one per surface, ``<key>_ACCEPTANCE``,
+whose status is that decision (the one the inspection status follows). A surface with a few
+isolated points out of its band therefore reads FAIL on its profile and PASS on its
+acceptance: each status agrees with its own value.
 
 Statistics QIF has no element for (RMS, mean, P95/P99/P99.9, tail fractions, in-tolerance area
 fraction, coverage, out-of-tolerance regions) are typed ``Attributes`` (``AttributeD1``,
@@ -82,6 +94,7 @@ from qifreport.metrology.inspection import (
     ZoneResult,
 )
 
+from .feature_characteristics import characteristic_elements
 from .result_attributes import (
     MAX_REGIONS_LISTED,
     acceptance_attrs,
@@ -117,8 +130,10 @@ __all__ = [
     "acceptance_rule",
     "build_qif",
     "characteristic_status",
+    "strict_profile_status",
     "dec",
     "profile_value",
+    "worst_deviations",
     "write_qif",
 ]
 
@@ -167,13 +182,25 @@ class Provenance:
     standard: tuple[str, str, str] = ("ASME", "Y14.5", "2018")
 
 
-def profile_value(z: ZoneResult) -> float:
-    """QIF profile value of a surface: ``2 max |d - c|`` over its scored points (mm), NaN if
-    nothing was scored."""
-    s, c = z.stats, z.zone.center
+def worst_deviations(z: ZoneResult) -> tuple[float, float]:
+    """The signed extremes (mm) of a surface's deviation: its scored vertices' and the
+    peaks of its out-of-tolerance regions (a region found on the scan points, narrower
+    than the mesh, peaks beyond every vertex); NaN when nothing was scored."""
+    s = z.stats
     if s.n == 0 or not math.isfinite(s.max_pos):
+        return math.nan, math.nan
+    peaks = [r.peak for r in z.acceptance.regions if math.isfinite(r.peak)]
+    return max([s.max_pos, *peaks]), min([s.min_neg, *peaks])
+
+
+def profile_value(z: ZoneResult) -> float:
+    """QIF profile value of a surface: ``2 max |d - c|`` over its scored points and its
+    regions' peaks (:func:`worst_deviations`), mm; NaN if nothing was scored."""
+    hi, lo = worst_deviations(z)
+    if not math.isfinite(hi):
         return math.nan
-    return 2.0 * max(s.max_pos - c, c - s.min_neg)
+    c = z.zone.center
+    return 2.0 * max(hi - c, c - lo)
 
 
 def characteristic_status(z: ZoneResult, established: bool = True) -> str:
@@ -199,6 +226,28 @@ def characteristic_status(z: ZoneResult, established: bool = True) -> str:
         return "NOT_ANALYZED"
     if z.failed:
         return "FAIL"
+    if not z.measured:
+        return "NOT_ANALYZED"
+    return "PASS" if established and not z.uncertain else "INDETERMINATE"
+
+
+def strict_profile_status(z: ZoneResult, established: bool = True) -> str:
+    """The ``CharacteristicStatusEnum`` of a profile read as the drawing states it: every
+    scored point within the zone. ``FAIL`` when the profile value exceeds the tolerance
+    (whatever the area and region rule says) unless it does so only within the measurement
+    uncertainty (``INDETERMINATE``: the decision rule proved neither), ``NOT_ANALYZED`` as
+    :func:`characteristic_status`, ``INDETERMINATE`` when the value is within it but the
+    registration is not trusted or a point lies within the uncertainty of the limit, else
+    ``PASS``. So a ``Value`` beyond its ``ToleranceValue`` is never ``PASS``."""
+    if z.acceptance.scored_area <= 0 or z.stats.n == 0:
+        return "NOT_ANALYZED"
+    pv = profile_value(z)
+    if z.failed:
+        return "FAIL"
+    if math.isfinite(pv) and pv > z.zone.width + 1e-12:
+        # beyond the tolerance; within the measurement uncertainty of it when the decision
+        # rule could not prove the surface out (a face on its zone limit)
+        return "INDETERMINATE" if z.uncertain else "FAIL"
     if not z.measured:
         return "NOT_ANALYZED"
     return "PASS" if established and not z.uncertain else "INDETERMINATE"
@@ -239,7 +288,7 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
     units = _file_units()
 
     # -- datums and datum reference frames
-    datum_ids, drf_ids = _datum_ids(prov.datums, res.zones, ids)
+    datum_ids, drf_ids = _datum_ids(prov.datums, res, ids)
     datum_defs = _datum_definitions(datum_ids)
     drfs = _datum_reference_frames(drf_ids, datum_ids)
 
@@ -249,6 +298,21 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
     zs = _ZoneSections()
     for z in res.zones:
         _add_zone(zs, z, res, ids, rule, drf_ids, part.actual)
+    for c in res.characteristics:
+        els = characteristic_elements(c, ids, drf_ids, part.actual)
+        for sec, lst in (
+            ("fdef", zs.fdefs),
+            ("fnom", zs.fnoms),
+            ("fitem", zs.fitems),
+            ("fmeas", zs.fmeas),
+            ("cdef", zs.cdefs),
+            ("cnom", zs.cnoms),
+            ("citem", zs.citems),
+            ("cmeas", zs.cmeas),
+        ):
+            lst.append(els[sec])
+        zs.fnom_ids.append(els["fnom"].get("id"))
+        zs.cnom_ids.append(els["cnom"].get("id"))
     product = _product(prov.part_name, part, zs, datum_ids, drf_ids)
     features = E.Features(
         E.FeatureDefinitions(*zs.fdefs, n=str(len(zs.fdefs))),
@@ -439,16 +503,17 @@ def _file_units() -> etree._Element:
 
 
 def _datum_ids(
-    datums: list[str], zones: list[ZoneResult], ids: Ids
+    datums: list[str], res: InspectionResult, ids: Ids
 ) -> tuple[dict[str, str], dict[tuple[str, ...], str]]:
-    """Ids of the datums (the PMI's, then those the zones cite) and of one datum reference
-    frame per datum sequence a zone cites (first-cited order)."""
-    labels = list(dict.fromkeys(list(datums) + [d for z in zones for d in z.zone.datums]))
+    """Ids of the datums (the PMI's, then those the zones and characteristics cite) and of
+    one datum reference frame per datum sequence cited (first-cited order)."""
+    cited = [z.zone.datums for z in res.zones] + [c.spec.datums for c in res.characteristics]
+    labels = list(dict.fromkeys(list(datums) + [d for seq in cited for d in seq]))
     datum_ids = {lab: ids() for lab in labels}
     drf_ids: dict[tuple[str, ...], str] = {}
-    for z in zones:
-        if z.zone.datums:
-            drf_ids.setdefault(tuple(z.zone.datums), "")
+    for seq in cited:
+        if seq:
+            drf_ids.setdefault(tuple(seq), "")
     for key in drf_ids:
         drf_ids[key] = ids()
     return datum_ids, drf_ids
@@ -542,6 +607,73 @@ def _add_zone(
     _add_feature(zs, z.zone, fd, fn, fi, fm, actual_id)
     _add_characteristic(zs, z.zone, rule, drf_ids, cd, cn, ci, fn, fi)
     zs.cmeas.append(_characteristic_measurement(z, res, ci, fm, actual_id, cm))
+    _add_acceptance(zs, z, res, ids, rule, fn, fi, fm, actual_id)
+
+
+#: the values of a profile's acceptance characteristic (a UserDefinedAttribute)
+CONFORMS, DOES_NOT_CONFORM = "CONFORMS", "DOES_NOT_CONFORM"
+
+
+def _add_acceptance(
+    zs: _ZoneSections,
+    z: ZoneResult,
+    res: InspectionResult,
+    ids: Ids,
+    rule: str,
+    fn: str,
+    fi: str,
+    fm: str,
+    actual_id: str,
+) -> None:
+    """The profile's decision under qifreport's acceptance rule, as its own
+    ``UserDefinedAttributeCharacteristic`` (``<key>_ACCEPTANCE``): its status is the
+    inspection's decision for the surface (area and region criteria under the decision
+    rule), its value ``CONFORMS`` or ``DOES_NOT_CONFORM``; the profile characteristic beside
+    it keeps the strict reading, so neither contradicts its own value."""
+    cd, cn, ci, cm = ids(), ids(), ids(), ids()
+    zs.cnom_ids.append(cn)
+    name = token(f"{z.zone.key}_ACCEPTANCE")
+    zs.cdefs.append(
+        E.UserDefinedAttributeCharacteristicDefinition(
+            E.Description(f"{z.zone.describe()}: {rule}"),
+            E.Name(name),
+            E.WhatToMeasure(f"{rule}, on the faces of {z.zone.key}"),
+            id=cd,
+        )
+    )
+    zs.cnoms.append(
+        E.UserDefinedAttributeCharacteristicNominal(
+            E.CharacteristicDefinitionId(cd),
+            id_array("FeatureNominalIds", [fn]),
+            E.Name(name),
+            E.PassValues(E.StringValue(CONFORMS), n="1"),
+            E.FailValues(E.StringValue(DOES_NOT_CONFORM), n="1"),
+            id=cn,
+        )
+    )
+    zs.citems.append(
+        E.UserDefinedAttributeCharacteristicItem(
+            E.Name(name),
+            E.CharacteristicDesignator(E.Designator(f"{z.zone.key}_ACCEPTANCE"), E.UUID(qpid())),
+            id_array("FeatureItemIds", [fi]),
+            E.CharacteristicNominalId(cn),
+            id=ci,
+        )
+    )
+    status = characteristic_status(z, established=res.established)
+    meas = [
+        E.Status(E.CharacteristicStatusEnum(status)),
+        E.CharacteristicItemId(ci),
+        id_array("FeatureMeasurementIds", [fm]),
+        E.ActualComponentId(actual_id),
+    ]
+    if z.failed:
+        meas.append(
+            E.NonConformanceDesignator(token("; ".join(z.acceptance.reasons) or "not conforming"))
+        )
+    if status in ("PASS", "FAIL"):
+        meas.append(E.Value(CONFORMS if status == "PASS" else DOES_NOT_CONFORM))
+    zs.cmeas.append(E.UserDefinedAttributeCharacteristicMeasurement(*meas, id=cm))
 
 
 def _add_feature(
@@ -638,7 +770,8 @@ def _characteristic_measurement(
         if sp is not None:
             ma.i("repeatability_regions", sp.n_regions)
             ma.i("repeatability_persistent_regions", sp.n_persistent)
-    status = characteristic_status(z, established=res.established)
+    ma.s("reading", z.reading)
+    status = strict_profile_status(z, established=res.established)
     meas = [
         ma.element(),
         E.Status(E.CharacteristicStatusEnum(status)),
@@ -646,15 +779,14 @@ def _characteristic_measurement(
         id_array("FeatureMeasurementIds", [fm]),
         E.ActualComponentId(actual_id),
     ]
-    if z.failed:
-        meas.append(
-            E.NonConformanceDesignator(token("; ".join(z.acceptance.reasons) or "not conforming"))
-        )
+    if status == "FAIL":
+        meas.append(E.NonConformanceDesignator(token("profile value beyond the tolerance")))
     pv = profile_value(z)
     if math.isfinite(pv):
+        hi, lo = worst_deviations(z)
         meas.append(E.Value(dec(pv)))
-        meas.append(E.WorstPositiveDeviation(dec(z.stats.max_pos)))
-        meas.append(E.WorstNegativeDeviation(dec(z.stats.min_neg)))
+        meas.append(E.WorstPositiveDeviation(dec(hi)))
+        meas.append(E.WorstNegativeDeviation(dec(lo)))
     return E.SurfaceProfileCharacteristicMeasurement(*[x for x in meas if x is not None], id=cm)
 
 

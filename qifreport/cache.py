@@ -109,7 +109,9 @@ log = logging.getLogger(__name__)
 #: 6: vertex deviations from the scan points' own residuals (the prepared bands are kept)
 #: 7: supplemental faces (in no solid) left out of the mesh; zones carry their footprints
 #: 8: STEP nominals carry the B-rep's corner normals (Nominal.brep_normals)
-CACHE_FORMAT = 9
+#: 10: STEP nominals carry their feature characteristics and datums (Nominal.plan); no
+#:    feature tolerance or dimension is a not-evaluated zone
+CACHE_FORMAT = 10
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"

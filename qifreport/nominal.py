@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from qifreport.metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
+from qifreport.metrology.characteristics import CharacteristicPlan, specs_from_pmi
 from qifreport.registration.mesh import (
     bounding_diagonal,
     consistent_winding,
@@ -58,6 +59,8 @@ class Nominal:
     #: the tetrahedra filling the STEP part's solid, for its elastic model (when asked for:
     #: :func:`load_nominal` ``solid_mesh``)
     solid_mesh: SolidMesh | None = None
+    #: the drawing's feature characteristics and datums (a STEP nominal with PMI)
+    plan: CharacteristicPlan | None = None
 
 
 def load_nominal(
@@ -186,6 +189,7 @@ def load_nominal(
             list(dict.fromkeys(datums)),
             brep_normals=normals,
             solid_mesh=tets,
+            plan=specs_from_pmi(pmi, part.face_index()),
         )
     if tolerance is None:
         raise InputError(

@@ -108,8 +108,14 @@ def test_zones_from_pmi_sources_and_skips():
     assert (zones[1].lower, zones[1].upper) == pytest.approx((-0.3, 0.1))
     assert zones[-1].source == "default" and zones[-1].half_width == DEFAULT_GENERAL_TOLERANCE
     reasons = {s.step_id: s.reason for s in skipped}
-    assert set(reasons) == {13, 14, 15, 20}
+    # the flatness (14) and the dimension (20) are feature characteristics (issue 22)
+    assert set(reasons) == {13, 15}
     assert "could not be established" in reasons[13]
+    from qifreport.metrology.characteristics import specs_from_pmi
+
+    plan = specs_from_pmi(pmi, fidx)
+    assert [(s.key, s.step_id) for s in plan.specs] == [("G1", 14), ("D1", 20)]
+    assert plan.specs[1].lower_limit == pytest.approx(9.9)
     zones2, _ = zones_from_pmi(pmi, fidx, general=0.2)
     assert zones2[-1].source == "general" and zones2[-1].half_width == 0.2
 

@@ -177,13 +177,22 @@ def test_ids_counts_and_qpids(runs, name):
     assert set(map(int, refs)) <= set(ids)
 
 
+def _profiles(r) -> list:
+    return [c for c in r.characteristics if c.kind == "SurfaceProfile"]
+
+
+def _acceptances(r) -> dict:
+    return {c.designator: c for c in r.characteristics if c.kind == "UserDefinedAttribute"}
+
+
 def test_failing_part_carries_fail_and_its_regions(runs):
     rc, path, doc = runs["fail"]
     r = read_results(path)
     assert r.status == "FAIL"
-    (c,) = r.characteristics
+    (c,) = _profiles(r)
     assert c.kind == "SurfaceProfile" and c.designator == "general"
     assert c.status == "FAIL"
+    assert _acceptances(r)["general_ACCEPTANCE"].status == "FAIL"
     assert c.tolerance == pytest.approx(0.6)
     # the profile value found: the zone width that would contain every scored point
     assert c.value == pytest.approx(2 * max(abs(c.worst_positive), abs(c.worst_negative)), abs=2e-4)
@@ -198,13 +207,17 @@ def test_failing_part_carries_fail_and_its_regions(runs):
     assert any(x.startswith("region of") and "exceeds" in x for x in c.acceptance.reasons)
     root = etree.parse(str(path)).getroot()
     ncd = root.find(f".//{Q}SurfaceProfileCharacteristicMeasurement/{Q}NonConformanceDesignator")
+    assert ncd is not None and "beyond" in ncd.text
+    ncd = root.find(
+        f".//{Q}UserDefinedAttributeCharacteristicMeasurement/{Q}NonConformanceDesignator"
+    )
     assert ncd is not None and "region" in ncd.text
 
 
 def test_conforming_part_passes_everywhere(runs):
     r = read_results(runs["pass"][1])
     assert r.status == "PASS"
-    assert [c.status for c in r.characteristics] == ["PASS"]
+    assert [c.status for c in r.characteristics] == ["PASS", "PASS"]  # profile, acceptance
     root = etree.parse(str(runs["pass"][1])).getroot()
     assert root.find(f".//{Q}ActualComponent/{Q}Status/{Q}InspectionStatusEnum").text == "PASS"
     assert r.serial_number == "SN-0001"
@@ -218,14 +231,26 @@ def test_step_part_one_characteristic_per_profile_tolerance(runs):
     rc, path, doc = runs["step"]
     r = read_results(path)
     keys = [z["key"] for z in doc["tolerances"]]
-    assert [c.designator for c in r.characteristics] == keys
+    assert [c.designator for c in _profiles(r)] == keys
     assert len(keys) >= 2
-    for c, z in zip(r.characteristics, doc["tolerances"], strict=True):
+    accept = _acceptances(r)
+    assert set(accept) == {f"{k}_ACCEPTANCE" for k in keys}
+    for c, z in zip(_profiles(r), doc["tolerances"], strict=True):
         assert c.kind == "SurfaceProfile"
         assert c.tolerance == pytest.approx(z["width_mm"])
         assert c.datum_labels == z["datums"]
-        assert c.status == _char_status(z, doc)
-    assert r.characteristics[0].datum_labels == ["A", "B", "C"]
+        # the acceptance rule's decision is its own characteristic; the profile's status is
+        # its value against its tolerance
+        assert accept[f"{z['key']}_ACCEPTANCE"].status == _char_status(z, doc)
+        if c.value > c.tolerance:
+            assert c.status == "FAIL"
+        else:
+            assert c.status in ("PASS", "INDETERMINATE", "FAIL")
+    assert _profiles(r)[0].datum_labels == ["A", "B", "C"]
+    # the panel's two flatness tolerances, each as a FlatnessCharacteristic with its value
+    flat = [c for c in r.characteristics if c.kind == "Flatness"]
+    assert [c.designator for c in flat] == ["G1", "G2"]
+    assert all(c.tolerance == pytest.approx(0.2) and 0 < c.value < 0.2 for c in flat)
     root = etree.parse(str(path)).getroot()
     labels = [e.text for e in root.iter(f"{Q}DatumLabel")]
     assert labels == ["A", "B", "C"]
@@ -284,10 +309,13 @@ def test_round_trip_reproduces_verdicts_and_statistics(runs, name):
     for got_r, ref_r in zip(acc.regions, ref["regions"], strict=True):
         assert _close(got_r.area, ref_r["area"]) and _close(got_r.peak, ref_r["peak"])
         np.testing.assert_allclose(got_r.centroid, ref_r["centroid"], rtol=0, atol=1e-12)
-    for c, z in zip(r.characteristics, doc["tolerances"], strict=True):
-        assert c.status == _char_status(z, doc)
-        assert _close(c.worst_positive, z["deviation"]["max_pos"], DECIMAL_PLACES)
-        assert _close(c.worst_negative, z["deviation"]["min_neg"], DECIMAL_PLACES)
+    accept = _acceptances(r)
+    for c, z in zip(_profiles(r), doc["tolerances"], strict=True):
+        assert accept[f"{z['key']}_ACCEPTANCE"].status == _char_status(z, doc)
+        # the extremes are the vertices' or, beyond them, a region's peak on the points
+        peaks = [g["peak"] for g in z["acceptance"]["regions"]]
+        assert _close(c.worst_positive, max([z["deviation"]["max_pos"], *peaks]), DECIMAL_PLACES)
+        assert _close(c.worst_negative, min([z["deviation"]["min_neg"], *peaks]), DECIMAL_PLACES)
         for f in ("rms", "p95", "p999", "frac_beyond"):
             assert _close(getattr(c.stats, f), z["deviation"][f]), f
         assert c.acceptance.passed == z["acceptance"]["passed"]
@@ -295,6 +323,30 @@ def test_round_trip_reproduces_verdicts_and_statistics(runs, name):
     assert r.attributes["rigid_rms_mm"] == pytest.approx(
         doc["registration"]["rigid"]["rms_mm"], rel=0, abs=0
     )
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_no_characteristic_passes_beyond_its_tolerance(runs, name):
+    """Status never contradicts Value: no PASS with a value beyond its limits (issue 22)."""
+    from qifreport.qif.consistency import status_contradictions
+
+    root = etree.parse(str(runs[name][1])).getroot()
+    assert status_contradictions(root) == []
+    measured = [
+        e for e in root.iter() if etree.QName(e).localname.endswith("CharacteristicMeasurement")
+    ]
+    assert measured
+
+
+def test_consistency_check_catches_a_pass_beyond_tolerance(runs):
+    """The check can fail: a profile's PASS written over a value beyond its tolerance."""
+    from qifreport.qif.consistency import status_contradictions
+
+    root = etree.parse(str(runs["fail"][1])).getroot()
+    m = root.find(f".//{Q}SurfaceProfileCharacteristicMeasurement")
+    m.find(f"{Q}Status/{Q}CharacteristicStatusEnum").text = "PASS"
+    found = status_contradictions(root)
+    assert len(found) == 1 and "PASS with value" in found[0]
 
 
 def test_validate_subcommand_catches_a_corrupted_file(runs, tmp_path, capsys):

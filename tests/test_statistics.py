@@ -387,10 +387,12 @@ def test_rejects_what_it_cannot_write():
         build_statistics([ok], part_name="p", created=CREATED, sources=["a.qif"])
     with pytest.raises(ValueError, match="tolerance"):
         summarize([ok, _result("b.qif", [("T1", 0.2, "PASS", 2.0)])])
-    flat = _result("c.qif", [("F1", 0.1, "PASS", 0.2)])
+    # a feature characteristic (issue 22) is not carried by the Statistics document yet:
+    # left out, never written as a profile
+    flat = _result("c.qif", [("F1", 0.1, "PASS", 0.2), ("T1", 0.2, "PASS", 1.0)])
     flat.characteristics[0].kind = "Flatness"
-    with pytest.raises(ValueError, match="Flatness"):
-        build_statistics([flat], part_name="p", created=CREATED)
+    doc = etree.tostring(build_statistics([flat], part_name="p", created=CREATED, sources=None))
+    assert b"F1" not in doc and b"T1" in doc
     other = _result("d.qif", [("T1", 0.2, "PASS", 1.0)])
     other.attributes["nominal_sha256"] = "0" * 64
     with pytest.raises(ValueError, match="another nominal"):

@@ -260,7 +260,11 @@ def test_all_around_profile_without_faces_is_whole_part():
     assert flat.problems == ["#40: no associated geometry found"]
     zones, skipped = zones_from_pmi(pmi, {14: 0, 15: 1, 16: 2}, None)
     assert [(z.key, z.source, z.step_id, z.width) for z in zones] == [("general", "pmi", 32, 0.8)]
-    assert [s.step_id for s in skipped] == [42]
+    assert skipped == []  # the flatness is a feature characteristic (issue 22)
+    from qifreport.metrology.characteristics import specs_from_pmi
+
+    (spec,) = specs_from_pmi(pmi, {14: 0, 15: 1, 16: 2}).specs
+    assert spec.step_id == 42 and len(spec.faces) == 0
 
 
 def test_two_whole_part_profiles_the_tighter_governs():

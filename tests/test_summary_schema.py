@@ -139,7 +139,7 @@ def test_outputs_cover_the_variants(mesh_doc, rigid_doc, step_doc):
     assert mesh_doc["nominal"]["format"] == "mesh" and mesh_doc["verdict"] == "PASS"
     assert rigid_doc["registration"]["gbcicp"] is None
     assert rigid_doc["parameters"]["gbcicp"]["band_limit"] is None
-    assert step_doc["nominal"]["format"] == "step" and step_doc["not_evaluated"]
+    assert step_doc["nominal"]["format"] == "step" and step_doc["characteristics"]
     assert step_doc["verdict"] == "FAIL" and step_doc["acceptance"]["regions"]
     assert {z["source"] for z in step_doc["tolerances"]} == {"pmi"}
 

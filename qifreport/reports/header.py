@@ -82,9 +82,11 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
     if res.passed:
         n = len(res.zones)
         if res.verdict == "NOT ESTABLISHED" and res.established:
-            names = (["whole part"] if res.acceptance.decision == "UNCERTAIN" else []) + [
-                z.zone.key for z in res.zones if z.uncertain
-            ]
+            names = (
+                (["whole part"] if res.acceptance.decision == "UNCERTAIN" else [])
+                + [z.zone.key for z in res.zones if z.uncertain]
+                + [c.spec.key for c in res.characteristics if c.status == "INDETERMINATE"]
+            )
             return [
                 "neither in nor out within the",
                 fit_text(f"measurement uncertainty: {join_names(names, 4)}", width, size),
@@ -98,6 +100,13 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
             return [
                 "criteria met on what was scored,",
                 fit_text(f"too little scanned: {join_names(names, 4)}", width, size),
+            ]
+        judged = [c for c in res.characteristics if c.status in ("PASS", "FAIL")]
+        if judged:
+            k = len(judged)
+            return [
+                f"whole part, {n} profile{'s' if n != 1 else ''} and {k} feature",
+                f"characteristic{'s' if k != 1 else ''}: all within their limits",
             ]
         return [
             f"whole part and {n} tolerance{'s' if n != 1 else ''}:",
@@ -125,6 +134,9 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
         out.append(f"size: scale {size.scale:.4f} ({size.size_deviation:+.2f} mm at the edge)")
     if res.not_restrainable():
         out.append(f"not restrainable at {', '.join(res.restraint.over_limit)}")
+    failed = [c.spec.key for c in res.characteristics if c.status == "FAIL"]
+    if failed:
+        out.append(line("beyond its limit", failed))
     return out
 
 

@@ -59,7 +59,7 @@ from .notes import draw_notes_footer, note_lines, notes_height
 from .registration import registration_table
 from .render import RenderedView, ViewSpec, render_views
 from .stats import draw_histogram, stats_table
-from .tables import pick_tolerances, region_table, tolerance_table
+from .tables import characteristic_table, pick_tolerances, region_table, tolerance_table
 
 log = logging.getLogger(__name__)
 
@@ -131,6 +131,15 @@ class _Report(ReportContext):
         """The region table ``width`` points wide, at most ``limit`` rows."""
         return region_table(self.res, limit, width)
 
+    def characteristic_table(self, limit: int) -> Table | None:
+        """The feature characteristics across the page, at most ``limit`` rows (None:
+        the drawing has none)."""
+        return characteristic_table(self.res, self.CW, limit)
+
+    def _chr_height(self, limit: int) -> float:
+        t = self.characteristic_table(limit)
+        return 0.0 if t is None else t.height + self.GAP
+
     def plan(self) -> PageLayout:
         """Measure every block and shrink the lists and the maps until the page holds them.
 
@@ -141,7 +150,14 @@ class _Report(ReportContext):
         res = self.res
         avail = self.H - 2 * self.MT
         n_reg, n_tol, n_dec = len(res.acceptance.regions), len(res.zones), len(res.decided_by())
-        full = {"map": MAP_MAX_PT, "reg": n_reg, "tol": n_tol, "dec": min(n_dec, 8)}
+        n_chr = len(res.characteristics)
+        full = {
+            "map": MAP_MAX_PT,
+            "reg": n_reg,
+            "tol": n_tol,
+            "dec": min(n_dec, 8),
+            "chr": n_chr,
+        }
         st = dict(full)
         reg_w = self.CW * 0.56
         regf_w = self.CW - reg_w - 12.0
@@ -157,6 +173,7 @@ class _Report(ReportContext):
             h += s["map"] + colorbar_height(self) + self.GAP
             h += max(stats.height, 160.0) + self.GAP
             h += self.tolerance_table(s["tol"]).height + self.GAP
+            h += self._chr_height(s["chr"])
             h += max(self.region_table(s["reg"], reg_w).height, regtab.height) + self.GAP
             h += notes_height(notes, self.CW) + 34.0  # sign-off and footer
             return h
@@ -166,10 +183,12 @@ class _Report(ReportContext):
             ("dec", 6, 1),
             ("reg", 12, 1),
             ("tol", 10, 1),
+            ("chr", 10, 1),
             ("map", 210.0, 5.0),
             ("dec", 3, 1),
             ("reg", 8, 1),
             ("tol", 6, 1),
+            ("chr", 5, 1),
             ("map", 180.0, 5.0),
             ("reg", 5, 1),
             ("tol", 4, 1),
@@ -177,6 +196,7 @@ class _Report(ReportContext):
             ("map", 140.0, 5.0),
             ("reg", 2, 1),
             ("tol", 2, 1),
+            ("chr", 2, 1),
             ("dec", 1, 1),
             ("map", MAP_MIN_PT, 5.0),
         ]
@@ -214,7 +234,7 @@ class _Report(ReportContext):
         best = score(st["map"])
         while st["map"] - 5.0 >= MAP_MIN_PT and score(st["map"] - 5.0) >= best - 0.01:
             st["map"] -= 5.0
-        history = [(k, full[k], 1) for k in ("dec", "tol", "reg")]
+        history = [(k, full[k], 1) for k in ("dec", "tol", "chr", "reg")]
         grow_back()
 
         # -- geometry, top down
@@ -240,6 +260,10 @@ class _Report(ReportContext):
         tol = self.tolerance_table(st["tol"])
         blocks["tolerances"] = (Box(x0, y - tol.height, self.CW, tol.height), tol)
         y -= tol.height + self.GAP
+        chars = self.characteristic_table(st["chr"])
+        if chars is not None:
+            blocks["characteristics"] = (Box(x0, y - chars.height, self.CW, chars.height), chars)
+            y -= chars.height + self.GAP
         regt = self.region_table(st["reg"], reg_w)
         bottom_h = max(regt.height, regtab.height)
         blocks["regions"] = (Box(x0, y - regt.height, reg_w, regt.height), regt)
@@ -284,7 +308,9 @@ class _Report(ReportContext):
         draw_histogram(c, self, lay.histogram)
         box, t = b["stats"]
         draw_table(c, box.x, box.top, t)
-        for key in ("tolerances", "regions", "registration"):
+        for key in ("tolerances", "characteristics", "regions", "registration"):
+            if key not in b:
+                continue
             box, t = b[key]
             draw_table(c, box.x, box.top, t)
         draw_notes_footer(c, self, *b["notes"])

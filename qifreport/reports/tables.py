@@ -14,7 +14,13 @@ from qifreport.qif.writer import profile_value
 
 from .kit import Table, fit_text, fmt_area, fmt_band, fmt_mm, fmt_pct, fmt_smm, join_names
 
-__all__ = ["tolerance_table", "pick_tolerances", "region_table"]
+__all__ = [
+    "characteristic_table",
+    "pick_characteristics",
+    "pick_tolerances",
+    "region_table",
+    "tolerance_table",
+]
 
 
 def _fmt_coord(x: float) -> str:
@@ -183,3 +189,95 @@ def region_table(res: InspectionResult, limit: int, width: float) -> Table:
         f"{acc.max_region_area:g} mm\u00b2)"
     )
     return Table(columns=cols, rows=rows, note=note, emphasis=emph, title=title)
+
+
+#: the order characteristics are listed in when they do not all fit: what decides first
+_CHAR_ORDER = {"FAIL": 0, "INDETERMINATE": 1, "NOT_MEASURED": 2, "PASS": 3, "BASIC": 4}
+_CHAR_RESULT = {
+    "PASS": "PASS",
+    "FAIL": "FAIL",
+    "INDETERMINATE": "n/e",
+    "NOT_MEASURED": "n/m",
+    "BASIC": "basic",
+}
+
+
+def pick_characteristics(res: InspectionResult, limit: int) -> list[int]:
+    """Indices of the feature characteristics to list: failing, then not established, then
+    not measured, then passing ones, each in file order; at most ``limit``."""
+    chars = res.characteristics
+    order = sorted(range(len(chars)), key=lambda i: (_CHAR_ORDER[chars[i].status], i))
+    return sorted(order[: max(limit, 0)])
+
+
+def characteristic_table(res: InspectionResult, width: float, limit: int) -> Table | None:
+    """One row per feature characteristic of the drawing (form, orientation, location,
+    runout, dimensions), ``width`` points wide: what, measured value, limit, expanded
+    uncertainty, result and how it was read; at most ``limit`` rows, the rest counted by
+    result in the note. None when the drawing has none."""
+    chars = res.characteristics
+    if not chars:
+        return None
+    cols = [
+        ("Key", 24),
+        ("Characteristic", 150),
+        ("Value", 44),
+        ("Limit", 70),
+        ("U (k=2)", 36),
+        ("Result", 30),
+        ("Reading / reason", 200),
+    ]
+    scale = width / sum(c[1] for c in cols)
+    align = "llrrrcl"
+    cols = [(h, w * scale, align[i]) for i, (h, w) in enumerate(cols)]
+    shown = pick_characteristics(res, limit)
+    rows, emph = [], []
+    for i in shown:
+        c = chars[i]
+        s = c.spec
+        what = s.kind.replace("_", " ") if s.kind != "dimension" else s.dim_type or "dimension"
+        if s.datums:
+            what += " |" + "|".join(s.datums) + "|"
+        what += f" {s.name}"
+        unit = "\u00b0" if s.unit == "deg" else ""
+        value = "-" if c.value is None else f"{c.value:.4f}{unit}"
+        limit_text = s.limits_text()
+        if c.bonus > 0:
+            limit_text += f" +{c.bonus:.3f}"
+        how = c.reason if c.status in ("NOT_MEASURED", "FAIL") else c.reading
+        rows.append(
+            [
+                s.key,
+                fit_text(what, cols[1][1] - 4, 6.8),
+                value,
+                fit_text(limit_text, cols[3][1] - 4, 6.8),
+                fmt_mm(c.uncertainty) if c.uncertainty is not None else "-",
+                _CHAR_RESULT[c.status],
+                fit_text(how, cols[6][1] - 4, 6.8),
+            ]
+        )
+        emph.append(c.status == "FAIL")
+    note = ""
+    rest = [chars[i] for i in range(len(chars)) if i not in set(shown)]
+    if rest:
+        counts = {}
+        for c in rest:
+            counts[_CHAR_RESULT[c.status]] = counts.get(_CHAR_RESULT[c.status], 0) + 1
+        listing = ", ".join(f"{n} {k}" for k, n in counts.items())
+        note = f"+ {len(rest)} more in the QIF file ({listing})"
+    legend = []
+    statuses = {chars[i].status for i in shown}
+    if "INDETERMINATE" in statuses:
+        legend.append("n/e = within the uncertainty of its limit")
+    if "NOT_MEASURED" in statuses:
+        legend.append("n/m = not measured (reason given)")
+    if legend:
+        note = ("; ".join(legend) + ". " + note).strip()
+    return Table(
+        columns=cols,
+        rows=rows,
+        note=note,
+        emphasis=emph,
+        title=f"Feature characteristics ({len(chars)}): form by the minimum zone, "
+        "datum-referenced ones in their datum frame",
+    )

@@ -145,6 +145,11 @@ class BrepScan:
     directions: np.ndarray
 
 
+def _areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """(f,) triangle areas, mm^2."""
+    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+
+
 def _on_surface(faces: list, fid: np.ndarray, uv: np.ndarray, X: np.ndarray) -> np.ndarray:
     """Evaluate each point's face surface at ``uv``; points without UV keep ``X``."""
     from OCP.BRep import BRep_Tool
@@ -203,7 +208,7 @@ def brep_scan(
         else np.atleast_2d(np.asarray(directions, dtype=np.float64))
     )
     dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    area = _areas(V, F)
     # about half the surface faces one view: its projected area ~ area / 4 (a sphere's ratio)
     pixel = float(np.sqrt(area.sum() / 4.0 * len(dirs) / max(points, 1)))
     rng = np.random.default_rng(seed)
@@ -250,7 +255,7 @@ def plan_views(
     (``-n . v >= grazing``).
     """
     V, F = mesh.V, mesh.F
-    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    area = _areas(V, F)
     w = area if face_weight is None else area * np.asarray(face_weight)[mesh.face]
     if pixel is None:
         pixel = float(np.sqrt(area.sum() / 20_000.0))

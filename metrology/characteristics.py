@@ -1,0 +1,983 @@
+"""Feature characteristics of a drawing measured on the part's surface: form, orientation,
+location and runout tolerances and the dimensions (ASME Y14.5-2018; ISO 1101), each as a
+value against its limit with the value's expanded uncertainty.
+
+The surface is the compliance-removed (or restrained) one in the nominal frame
+(:class:`~qifreport.metrology.measured_surface.MeasuredSurface`); a tolerance that names
+datums is read in their frame (:mod:`.frames`), one without in the registration's.
+
+=====================  =====================================================================
+form                   flatness (plane: minimum zone), cylindricity (minimum radial zone),
+                       roundness (the worst cross-section's minimum radial zone), straightness
+                       (plane or cylinder line elements; a cylinder's derived median line when
+                       the zone is cylindrical)
+orientation            perpendicularity, parallelism, angularity: a plane's points across the
+                       zone's nominal normal in the frame (minimised over a rotation the frame
+                       leaves free); an axis: its lateral run over its length (diametral zone)
+location               position: a plane's points from true position (2 x farthest); an axis
+                       (actual mating envelope's: largest inscribed of a hole, smallest
+                       circumscribed of a pin) from its true position at both ends (diametral);
+                       with MMC the bonus from the actual mating size and the size's limits;
+                       coaxiality and concentricity the same about the nominal axis
+runout                 circular (worst cross-section) and total, about the frame's datum axis:
+                       radial for a cylinder, axial for a face across the axis
+size and distance      dimensions: the geometric quantity of the faces (cylinder diameter or
+                       radius, distance between opposed planes or between features, angle)
+                       that the nominal mesh gives as the drawing's nominal, then measured the
+                       same way: ``actual = nominal + (measured - nominal mesh)``; a quantity
+                       whose nominal disagrees with the drawing is not measured (never guessed)
+=====================  =====================================================================
+
+Statuses: ``PASS``/``FAIL``/``INDETERMINATE`` by the decision rule
+(:func:`qifreport.metrology.decision.decide`, the value's ``U`` against its limits),
+``NOT_MEASURED`` with the reason, ``BASIC`` (a basic or reference dimension: reported, no
+limits). Lengths mm, angles degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from .datums import MAX_OPEN_DEG, DatumFeature, largest_gap
+from .decision import decide
+from .form import (
+    axis_frame,
+    cylindricity,
+    flatness,
+    least_squares_circle,
+    least_squares_cylinder,
+    least_squares_sphere,
+    roundness,
+)
+from .form import straightness as line_straightness
+from .frames import DatumFrameResult, DatumSpec, TargetSpec, establish_frame
+from .measured_surface import FeatureSample, MeasuredSurface
+
+__all__ = [
+    "CharacteristicPlan",
+    "CharacteristicResult",
+    "CharacteristicSpec",
+    "GEOMETRIC_KINDS",
+    "frame_of",
+    "measure_characteristics",
+    "specs_from_pmi",
+]
+
+#: the geometric tolerance types measured here (surface profiles are zones: :mod:`.bands`)
+GEOMETRIC_KINDS = (
+    "flatness",
+    "straightness",
+    "roundness",
+    "cylindricity",
+    "perpendicularity",
+    "parallelism",
+    "angularity",
+    "position",
+    "coaxiality",
+    "concentricity",
+    "circular_runout",
+    "total_runout",
+)
+#: datum targets read as a contact at their placement on the surface (a line target at its
+#: placement's point); the others (circles, areas) simulate their datum's feature
+POINT_TARGETS = ("point", "line", "")
+#: kinds whose value is a diameter (twice an offset): the frame's uncertainty counts twice
+_DIAMETRAL = ("position", "coaxiality", "concentricity")
+#: fewest points in a cross-section or a line element
+_SECTION_POINTS = 8
+#: a drawing's nominal and the faces' own quantity agree within this share (or 0.02 mm)
+_NOMINAL_AGREEMENT = 0.01
+
+
+@dataclass
+class CharacteristicSpec:
+    """One PMI item to measure.
+
+    Attributes
+    ----------
+    key : ``'G<k>'`` (geometric tolerance) or ``'D<k>'`` (dimension), file order.
+    kind : the tolerance type (:data:`GEOMETRIC_KINDS` ...) or ``'dimension'``.
+    name, step_id : the PMI item's name and STEP entity.
+    faces : (k,) mesh face ids of the feature (a location's both ends).
+    tolerance : zone width, mm (geometric).
+    dim_type : the dimension's type (``'diameter'``, ``'linear distance'`` ...).
+    nominal, lower_limit, upper_limit : a dimension's nominal and limits (mm or deg).
+    unit : ``'mm'`` or ``'deg'``.
+    datums : the frame's labels in precedence (``[]``: none).
+    modifiers, zone_form : as read.  basic : a basic or reference dimension.
+    origin_faces, target_faces : a location's two features.
+    problems : why it cannot be measured (found when reading).
+    """
+
+    key: str
+    kind: str
+    name: str
+    step_id: int | None
+    faces: np.ndarray
+    tolerance: float | None = None
+    dim_type: str = ""
+    nominal: float | None = None
+    lower_limit: float | None = None
+    upper_limit: float | None = None
+    unit: str = "mm"
+    datums: list[str] = field(default_factory=list)
+    modifiers: list[str] = field(default_factory=list)
+    zone_form: str | None = None
+    basic: bool = False
+    origin_faces: np.ndarray | None = None
+    target_faces: np.ndarray | None = None
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def free_state(self) -> bool:
+        return "free_state" in self.modifiers
+
+    def limits_text(self) -> str:
+        if self.kind != "dimension":
+            return f"{self.tolerance:g} mm" if self.tolerance is not None else "?"
+        lo, hi = self.lower_limit, self.upper_limit
+        if lo is None and hi is None:
+            return "basic" if self.basic else "no limits"
+        return f"{_fmt(lo)} .. {_fmt(hi)} {self.unit}"
+
+
+@dataclass
+class CharacteristicResult:
+    """One characteristic measured.
+
+    Attributes
+    ----------
+    spec : what was measured.
+    value : the measured value (mm or deg; a tolerance's zone width, a dimension's size),
+        None when not measured.
+    least_squares : the least-squares reading beside a minimum zone (form), else None.
+    uncertainty : expanded uncertainty of ``value`` (k = 2).
+    status : ``'PASS'``, ``'FAIL'``, ``'INDETERMINATE'``, ``'NOT_MEASURED'``, ``'BASIC'``.
+    reason : why not measured, or how it failed.
+    reading : how it was measured (``'minimum zone, 1,204 vertices, frame |A|B|C|'`` ...).
+    n_points : points used.  coverage : share of the feature's vertices measured.
+    bonus : MMC/LMC bonus added to the tolerance, mm.
+    direction : (3,) the feature's nominal normal or axis where a report needs it (a line
+        profile's QIF ``Vector``), else None.
+    """
+
+    spec: CharacteristicSpec
+    value: float | None = None
+    least_squares: float | None = None
+    uncertainty: float | None = None
+    status: str = "NOT_MEASURED"
+    reason: str = ""
+    reading: str = ""
+    n_points: int = 0
+    coverage: float | None = None
+    bonus: float = 0.0
+    direction: np.ndarray | None = None
+
+    @property
+    def limit(self) -> float | None:
+        """The upper limit the value is judged against (tolerance + bonus), mm."""
+        if self.spec.kind == "dimension":
+            return self.spec.upper_limit
+        return None if self.spec.tolerance is None else self.spec.tolerance + self.bonus
+
+    def to_dict(self) -> dict:
+        s = self.spec
+        return {
+            "key": s.key,
+            "kind": s.kind if s.kind != "dimension" else f"dimension ({s.dim_type})",
+            "name": s.name,
+            "step_id": s.step_id,
+            "faces": [int(f) for f in s.faces],
+            "datums": list(s.datums),
+            "modifiers": list(s.modifiers),
+            "tolerance_mm": s.tolerance,
+            "nominal": s.nominal,
+            "lower_limit": s.lower_limit,
+            "upper_limit": s.upper_limit,
+            "unit": s.unit,
+            "value": _num(self.value),
+            "least_squares": _num(self.least_squares),
+            "uncertainty": _num(self.uncertainty),
+            "bonus_mm": self.bonus,
+            "status": self.status,
+            "reason": self.reason,
+            "reading": self.reading,
+            "n_points": self.n_points,
+            "coverage": _num(self.coverage),
+        }
+
+
+def _num(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _fmt(x: float | None) -> str:
+    return "-" if x is None else f"{x:g}"
+
+
+# --------------------------------------------------------------------------- from the PMI
+
+
+@dataclass
+class CharacteristicPlan:
+    """What a part's drawing asks to measure beyond its surface profiles: the feature
+    characteristics and the datums they (and the profiles) refer to."""
+
+    specs: list[CharacteristicSpec] = field(default_factory=list)
+    datums: dict[str, DatumSpec] = field(default_factory=dict)
+
+
+def specs_from_pmi(pmi, face_index: dict[int, int]) -> CharacteristicPlan:
+    """The feature characteristics and datums of a part's PMI (surface profiles excepted:
+    they are zones, :func:`qifreport.metrology.bands.zones_from_pmi`).
+
+    Parameters
+    ----------
+    pmi : :class:`qifreport.step.pmi.PMI` (mm, degrees) or None.
+    face_index : STEP face entity id -> mesh face id.
+
+    Returns
+    -------
+    CharacteristicPlan: one spec per geometric tolerance of another type than a profile,
+    then one per dimension, in file order; the datums by label, with their faces and
+    targets (a common datum ``A-B`` is not listed: its characteristics say so).
+    """
+    if pmi is None:
+        return CharacteristicPlan()
+
+    def faces_of(ids) -> np.ndarray:
+        return np.array(sorted({face_index[s] for s in ids if s in face_index}), dtype=np.int64)
+
+    datums: dict[str, DatumSpec] = {}
+    for d in pmi.datums:
+        targets = [
+            TargetSpec(t.name, np.asarray(t.position, dtype=np.float64), faces_of(t.face_step_ids))
+            for t in d.target_details
+            if t.position is not None and t.face_step_ids and t.kind in POINT_TARGETS
+        ]
+        if len(targets) < len(d.target_details):
+            # a target that is not a point on the surface (a circle a pin meets, an area) or
+            # has no place or face: the datum is simulated on its feature's faces instead
+            targets = []
+        datums.setdefault(d.label, DatumSpec(d.label, faces_of(d.face_step_ids), targets))
+    # a common datum (A-B): one simulator on the features of all its datums together
+    for tol in pmi.tolerances:
+        for ref in tol.datums:
+            parts = [p.strip() for p in ref.label.split("-")]
+            if len(parts) > 1 and ref.label not in datums and all(p in datums for p in parts):
+                faces = np.unique(np.concatenate([datums[p].faces for p in parts]))
+                datums[ref.label] = DatumSpec(ref.label, faces)
+    specs: list[CharacteristicSpec] = []
+    k = 0
+    for tol in pmi.tolerances:
+        if tol.type in ("surface_profile",):
+            continue
+        k += 1
+        spec = CharacteristicSpec(
+            key=f"G{k}",
+            kind=tol.type,
+            name=tol.name or f"#{tol.step_id}",
+            step_id=tol.step_id,
+            faces=faces_of(tol.face_step_ids),
+            tolerance=tol.value,
+            datums=[d.label for d in sorted(tol.datums, key=lambda d: d.precedence)],
+            modifiers=list(tol.modifiers),
+            zone_form=tol.zone_form,
+        )
+        if tol.value is None:
+            spec.problems.append("tolerance value could not be established")
+        if tol.unit_basis:
+            spec.problems.append(f"per-unit tolerance ({tol.unit_basis}) not evaluated")
+        for ref in tol.datums:
+            if ref.label not in datums:
+                spec.problems.append(f"datum {ref.label} is not defined on the part")
+            elif any("maximum_material" in m or "least_material" in m for m in ref.modifiers):
+                spec.problems.append(
+                    f"datum {ref.label} at a material condition: simulated regardless of "
+                    "material boundary"
+                )
+        specs.append(spec)
+    k = 0
+    for dim in pmi.dimensions:
+        k += 1
+        nominal = dim.nominal
+        lo = dim.lower_limit
+        hi = dim.upper_limit
+        if nominal is not None and lo is None and dim.lower is not None:
+            lo = nominal + dim.lower
+        if nominal is not None and hi is None and dim.upper is not None:
+            hi = nominal + dim.upper
+        spec = CharacteristicSpec(
+            key=f"D{k}",
+            kind="dimension",
+            name=dim.name or f"#{dim.step_id}",
+            step_id=dim.step_id,
+            faces=faces_of(dim.face_step_ids),
+            dim_type=dim.type,
+            nominal=nominal,
+            lower_limit=lo,
+            upper_limit=hi,
+            unit=dim.unit,
+            basic=any(q in ("basic", "reference") for q in dim.qualifiers),
+            origin_faces=faces_of(dim.origin_face_step_ids) if dim.origin_face_step_ids else None,
+            target_faces=faces_of(dim.target_face_step_ids) if dim.target_face_step_ids else None,
+        )
+        if nominal is None and (lo is None or hi is None):
+            spec.problems.append("the dimension's nominal could not be established")
+        specs.append(spec)
+    return CharacteristicPlan(specs, datums)
+
+
+# --------------------------------------------------------------------------- measuring
+
+
+def frame_of(
+    labels: list[str],
+    datums: dict[str, DatumSpec],
+    surface: MeasuredSurface,
+    frames: dict[tuple[tuple[str, ...], int], DatumFrameResult],
+) -> DatumFrameResult | None:
+    """The frame of ``labels`` on ``surface``, established once per surface (``frames``
+    keeps them); None when a label is not a datum of the part."""
+    if not labels or not all(d in datums for d in labels):
+        return None
+    key = (tuple(labels), id(surface))
+    if key not in frames:
+        frames[key] = establish_frame([datums[d] for d in labels], surface)
+    return frames[key]
+
+
+def measure_characteristics(
+    specs: list[CharacteristicSpec],
+    datums: dict[str, DatumSpec],
+    surface: MeasuredSurface,
+    rule: str,
+    free_surface: MeasuredSurface | None = None,
+    frames: dict | None = None,
+) -> tuple[list[CharacteristicResult], list[DatumFrameResult]]:
+    """Measure ``specs`` on ``surface`` (``free_surface`` for those with the free-state
+    modifier, when the part was held otherwise) and judge them by ``rule``.
+
+    ``frames``: the frames established so far (:func:`frame_of`), shared with the
+    datum-located profiles. Returns the results (one per spec, same order) and every
+    frame established (first-cited order).
+    """
+    frames = {} if frames is None else frames
+    sizes = [s for s in specs if s.kind == "dimension" and s.dim_type in ("diameter", "radius")]
+    results = []
+    for spec in specs:
+        surf = free_surface if spec.free_state and free_surface is not None else surface
+        frame = frame_of(spec.datums, datums, surf, frames)
+        results.append(_measure(spec, surf, frame, rule, sizes))
+    return results, list(frames.values())
+
+
+def _not_measured(spec: CharacteristicSpec, reason: str) -> CharacteristicResult:
+    return CharacteristicResult(spec, status="NOT_MEASURED", reason=reason)
+
+
+def _measure(
+    spec: CharacteristicSpec,
+    surf: MeasuredSurface,
+    frame: DatumFrameResult | None,
+    rule: str,
+    sizes: list[CharacteristicSpec],
+) -> CharacteristicResult:
+    hard = [p for p in spec.problems if "simulated regardless" not in p]
+    if hard:
+        return _not_measured(spec, "; ".join(hard))
+    if spec.kind == "dimension":
+        try:
+            return _dimension(spec, surf, rule)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            return _not_measured(spec, str(exc))
+    if spec.kind not in GEOMETRIC_KINDS:
+        res = _not_measured(spec, f"{spec.kind.replace('_', ' ')}: not measured by qifreport")
+        feat = surf.nominal(spec.faces) if len(spec.faces) else None
+        if feat is not None and feat.kind != "sphere":
+            res.direction = feat.direction  # a line profile's section normal, for its QIF
+        return res
+    if not len(spec.faces):
+        return _not_measured(spec, "no B-rep face of the part is associated")
+    if spec.datums and frame is None:
+        return _not_measured(spec, "its datums are not all defined on the part")
+    if frame is not None and not frame.established:
+        return _not_measured(spec, "datum frame not established: " + "; ".join(frame.problems))
+    needs_frame = spec.kind not in ("flatness", "straightness", "roundness", "cylindricity")
+    if needs_frame and frame is None and spec.kind != "position":
+        return _not_measured(spec, f"{spec.kind} without datums")
+    if not np.isin(surf.face_id, spec.faces).any():
+        return _not_measured(spec, "its faces are not on the part inspected")
+    members = surf.features(spec.faces)
+    if spec.kind == "position" and len(members) == 2:
+        width = _center_plane(spec, surf, members, frame, rule)
+        if width is not None:
+            return width
+    readings = []
+    for faces in members:
+        sample = surf.sample(faces)
+        feat = sample.nominal
+        try:
+            if feat is None:
+                raise _Unmeasurable("a feature that is neither a plane, a cylinder nor a sphere")
+            if len(sample.S) < (4 if feat.kind == "plane" else 8):
+                raise _Unmeasurable(f"{len(sample.S)} measured points on a feature")
+            S = sample.S if frame is None or not needs_frame else frame.move(sample.S)
+            value, ls, U, how, bonus = _MEASURES[spec.kind](
+                spec, S, sample, feat, frame, sizes, surf, faces
+            )
+            if frame is not None and needs_frame:  # the frame's own uncertainty
+                width = 2.0 if spec.kind in _DIAMETRAL else 1.0
+                U = float(np.hypot(U, width * frame.point_uncertainty(S)))
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            # _Unmeasurable, a fit refused (too few points, a partial arc), a programme failed
+            why = str(exc) if len(members) == 1 else f"faces {_faces(faces)}: {exc}"
+            return _not_measured(spec, why)
+        readings.append(
+            CharacteristicResult(
+                spec,
+                value=value,
+                least_squares=ls,
+                uncertainty=U,
+                reading=_reading(how, sample, frame if needs_frame else None),
+                n_points=len(S),
+                coverage=sample.coverage,
+                bonus=bonus,
+            )
+        )
+    # the worst member decides (each feature of a pattern has its own zone)
+    k = int(np.argmax([r.value - (r.limit or 0.0) for r in readings]))
+    res = readings[k]
+    if len(readings) > 1:
+        res.reading = (
+            f"worst of {len(readings)} features (faces {_faces(members[k])}): {res.reading}"
+        )
+    _judge(res, rule, None, res.limit)
+    return res
+
+
+def _faces(faces) -> str:
+    return " ".join(str(int(f)) for f in faces)
+
+
+def _center_plane(
+    spec: CharacteristicSpec,
+    surf: MeasuredSurface,
+    members: list[np.ndarray],
+    frame: DatumFrameResult | None,
+    rule: str,
+) -> CharacteristicResult | None:
+    """Position of a width feature (a slot or a tab: two opposed parallel planes): its
+    center plane from true position, ``2 x`` the farthest center-plane point (each side's
+    least-squares plane evaluated at every measured point of both); None when the members
+    are not such a pair."""
+    A, B = surf.nominal(members[0]), surf.nominal(members[1])
+    if A is None or B is None or A.kind != "plane" or B.kind != "plane":
+        return None
+    if A.direction @ B.direction > -0.999:
+        return None
+    sa, sb = surf.sample(members[0]), surf.sample(members[1])
+    if len(sa.S) < 3 or len(sb.S) < 3:
+        return None
+    Sa, Sb = (sa.S, sb.S) if frame is None else (frame.move(sa.S), frame.move(sb.S))
+    n = A.direction
+    E = axis_frame(n)
+    mid0 = 0.5 * (A.origin + B.origin) @ n  # the nominal center plane's offset
+
+    def side(S: np.ndarray) -> np.ndarray:  # w = a u + b v + c, least squares
+        X = S @ E.T
+        coef, *_ = np.linalg.lstsq(np.c_[X[:, :2], np.ones(len(X))], X[:, 2], rcond=None)
+        return coef
+
+    ca, cb = side(Sa), side(Sb)
+    X = np.vstack([Sa, Sb]) @ E.T
+    at = np.c_[X[:, :2], np.ones(len(X))]
+    centre = 0.5 * (at @ ca + at @ cb) - mid0
+    U = np.r_[sa.U, sb.U]
+    res = CharacteristicResult(
+        spec,
+        value=2 * float(np.abs(centre).max()),
+        uncertainty=2 * _fit_U(U, 3),
+        reading=_reading(
+            "center plane of the width feature from true position (2 x farthest)",
+            FeatureSample(np.vstack([Sa, Sb]), U, sa.source, sa.coverage, A),
+            frame,
+        ),
+        n_points=len(U),
+        coverage=sa.coverage,
+    )
+    _judge(res, rule, None, res.limit)
+    return res
+
+
+class _Unmeasurable(ValueError):
+    """The characteristic cannot be measured on this feature (the message says why)."""
+
+
+def _reading(how: str, sample: FeatureSample, frame: DatumFrameResult | None) -> str:
+    text = f"{how}; {len(sample.S)} {sample.source}"
+    if frame is not None:
+        text += f"; in |{'|'.join(frame.labels)}|"
+        if frame.free:
+            text += " (best fit: " + ", ".join(frame.free) + ")"
+    return text
+
+
+def _judge(res: CharacteristicResult, rule: str, lo: float | None, hi: float | None) -> None:
+    """Set ``res.status`` from its value, uncertainty and limits ``[lo, hi]`` (None: open)."""
+    v, U = res.value, res.uncertainty or 0.0
+    lo_ = -math.inf if lo is None else lo
+    hi_ = math.inf if hi is None else hi
+    passed = lo_ <= v <= hi_
+    proven_in = lo_ + U <= v <= hi_ - U
+    proven_out = v < lo_ - U or v > hi_ + U
+    status = decide(rule, passed, proven_in, proven_out)
+    res.status = "INDETERMINATE" if status == "UNCERTAIN" else status
+    if res.status == "FAIL":
+        res.reason = f"{_fmt(v)} outside {_fmt(None if lo is None else lo)} .. {_fmt(hi)}"
+
+
+def _extremes_U(residuals: np.ndarray, U: np.ndarray) -> float:
+    """Expanded uncertainty of a zone width: its two extreme points' in quadrature."""
+    return float(np.hypot(U[np.argmax(residuals)], U[np.argmin(residuals)]))
+
+
+def _fit_U(U: np.ndarray, n_params: int = 1) -> float:
+    """Expanded uncertainty of a fitted parameter from ``len(U)`` values; neighbouring
+    vertices share scan points, so a quarter of them count as independent."""
+    n_eff = max(len(U) / 4.0, float(n_params))
+    return float(np.median(U)) / math.sqrt(n_eff)
+
+
+def _axial(S: np.ndarray, o: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    X = (S - o) @ axis_frame(a).T
+    return X[:, 2], np.hypot(X[:, 0], X[:, 1])
+
+
+def _sections(z: np.ndarray, n_min: int = _SECTION_POINTS) -> list[np.ndarray]:
+    """Index sets of cross-sections along ``z`` with at least ``n_min`` points each."""
+    m = len(z)
+    k = int(np.clip(m // (3 * n_min), 1, 12))
+    edges = np.linspace(z.min(), z.max() + 1e-9, k + 1)
+    out = []
+    for i in range(k):
+        sel = np.flatnonzero((z >= edges[i]) & (z < edges[i + 1]))
+        if len(sel) >= n_min:
+            out.append(sel)
+    return out
+
+
+def _form(fit, U: np.ndarray, how: str) -> tuple:
+    """A minimum-zone form reading: value, least squares, ``U``, how, no bonus."""
+    return fit.minimum_zone, fit.least_squares, _extremes_U(fit.residuals, U), how, 0.0
+
+
+def _flatness(spec, S, sample, feat, frame, sizes, surf, faces):
+    if feat.kind != "plane":
+        raise _Unmeasurable("flatness of a feature that is not a plane")
+    return _form(flatness(S), sample.U, "minimum zone (least squares beside)")
+
+
+def _cylindricity(spec, S, sample, feat, frame, sizes, surf, faces):
+    if feat.kind != "cylinder":
+        raise _Unmeasurable("cylindricity of a feature that is not a cylinder")
+    fit = cylindricity(S, feat.origin, feat.direction, feat.radius)
+    return _form(fit, sample.U, "minimum radial zone (least squares beside)")
+
+
+def _roundness(spec, S, sample, feat, frame, sizes, surf, faces):
+    if feat.kind != "cylinder":
+        raise _Unmeasurable("roundness of a feature that is not a cylinder")
+    o, a, _ = least_squares_cylinder(S, feat.origin, feat.direction, feat.radius)
+    E = axis_frame(a)
+    X = (S - o) @ E.T
+    worst = None
+    for sel in _sections(X[:, 2]):
+        fit = roundness(X[sel, :2])
+        if worst is None or fit.minimum_zone > worst[0].minimum_zone:
+            worst = (fit, sel)
+    if worst is None:
+        raise _Unmeasurable("no cross-section with enough points")
+    fit, sel = worst
+    return (
+        fit.minimum_zone,
+        fit.least_squares,
+        _extremes_U(fit.residuals, sample.U[sel]),
+        ("worst cross-section's minimum radial zone"),
+        0.0,
+    )
+
+
+def _straightness(spec, S, sample, feat, frame, sizes, surf, faces):
+    if feat.kind == "cylinder":
+        o, a, _ = least_squares_cylinder(S, feat.origin, feat.direction, feat.radius)
+        E = axis_frame(a)
+        X = (S - o) @ E.T
+        if spec.zone_form and "cylindrical" in spec.zone_form:
+            # the derived median line: centres of the cross-sections
+            centres = []
+            for sel in _sections(X[:, 2]):
+                c, _ = least_squares_circle(X[sel, :2])
+                centres.append(np.r_[c, X[sel, 2].mean()])
+            if len(centres) < 2:
+                raise _Unmeasurable("fewer than two cross-sections with enough points")
+            C = np.array(centres)
+            lat = np.linalg.norm(C[:, :2] - C[:, :2].mean(axis=0), axis=1)
+            return (
+                2 * float(lat.max()),
+                None,
+                2 * _fit_U(sample.U, 3),
+                ("derived median line (cross-section centres)"),
+                0.0,
+            )
+        ang = np.arctan2(X[:, 1], X[:, 0])
+        groups = [np.flatnonzero(np.floor((ang + np.pi) / (np.pi / 4)) == k) for k in range(8)]
+        lines = [np.c_[X[g, 2], np.hypot(X[g, 0], X[g, 1])] for g in groups]
+        what = "worst surface line element (8 sectors)"
+    elif feat.kind == "plane":
+        E = axis_frame(feat.direction)
+        X = (S - feat.origin) @ E.T
+        _, _, Vt = np.linalg.svd(X[:, :2] - X[:, :2].mean(axis=0), full_matrices=False)
+        u, v = X[:, :2] @ Vt[0], X[:, :2] @ Vt[1]
+        k = 8
+        edges = np.linspace(v.min(), v.max() + 1e-9, k + 1)
+        groups = [np.flatnonzero((v >= edges[i]) & (v < edges[i + 1])) for i in range(k)]
+        lines = [np.c_[u[g], X[g, 2]] for g in groups]
+        what = "worst line element along the face's length (8 strips)"
+    else:
+        raise _Unmeasurable("straightness of this feature")
+    worst = None
+    for g, Q in zip(groups, lines, strict=True):
+        if len(Q) < _SECTION_POINTS:
+            continue
+        fit = line_straightness(Q)
+        if worst is None or fit.minimum_zone > worst[0].minimum_zone:
+            worst = (fit, g)
+    if worst is None:
+        raise _Unmeasurable("no line element with enough points")
+    fit, g = worst
+    return fit.minimum_zone, fit.least_squares, _extremes_U(fit.residuals, sample.U[g]), what, 0.0
+
+
+def _orientation(spec, S, sample, feat, frame, sizes, surf, faces):
+    if feat.kind == "sphere":
+        raise _Unmeasurable(f"{spec.kind} of a sphere")
+    if feat.kind == "plane":
+        n = feat.direction
+        w = S @ n
+        rot = _free_rotation(frame)
+        how = "planes at the nominal orientation in the frame"
+        if rot is not None and abs(rot @ n) < 1 - 1e-9:
+            u = S @ np.cross(rot, n)
+
+            def width(th: float) -> float:
+                return float(np.ptp(w + th * u))
+
+            best = minimize_scalar(width, bounds=(-0.05, 0.05), method="bounded")
+            w = w + best.x * u
+            how += " (turned about the free axis)"
+        res = w - 0.5 * (w.max() + w.min())
+        return float(np.ptp(w)), None, _extremes_U(res, sample.U), how, 0.0
+    o, a, _ = least_squares_cylinder(S, feat.origin, feat.direction, feat.radius)
+    z = (S - o) @ a
+    ends = o + np.outer([z.min(), z.max()], a)
+    E = np.eye(3) - np.outer(feat.direction, feat.direction)
+    run = float(np.linalg.norm(E @ (ends[1] - ends[0])))
+    return run, None, 2 * _fit_U(sample.U, 4), "axis (least squares) across its length", 0.0
+
+
+def _free_rotation(frame: DatumFrameResult | None) -> np.ndarray | None:
+    """The axis of a rotation the frame leaves free (None: none)."""
+    if frame is None or frame.free_basis is None or frame.free_basis.shape[1] == 0:
+        return None
+    W = frame.free_basis[:3]
+    U_, sv, _ = np.linalg.svd(W, full_matrices=False)
+    if sv[0] < 1e-9:
+        return None
+    return U_[:, 0]
+
+
+def _position(spec, S, sample, feat, frame, sizes, surf, faces):
+    if feat.kind == "sphere":  # a spherical zone about the true centre
+        c, _ = least_squares_sphere(S)
+        return (
+            2 * float(np.linalg.norm(c - feat.origin)),
+            None,
+            2 * _fit_U(sample.U, 4),
+            "centre (least-squares sphere) from true position",
+            0.0,
+        )
+    if feat.kind == "plane":
+        d = (S - feat.origin) @ feat.direction
+        return (
+            2 * float(np.abs(d).max()),
+            None,
+            float(sample.U[np.argmax(np.abs(d))]) * 2,
+            ("surface from true position (2 x farthest)"),
+            0.0,
+        )
+    return _axis_location(spec, S, sample, feat, sizes, faces, position=True)
+
+
+def _coaxiality(spec, S, sample, feat, frame, sizes, surf, faces):
+    if feat.kind != "cylinder":
+        raise _Unmeasurable(f"{spec.kind} of a feature that is not a cylinder")
+    return _axis_location(spec, S, sample, feat, sizes, faces, position=False)
+
+
+def _axis_location(spec, S, sample, feat: DatumFeature, sizes, faces, position: bool):
+    """An axis from true position at both ends of its measured length, diametral; the
+    axis is the least-squares cylinder's (ISO 14405's default association: a tangent
+    mating cylinder rests on a few extreme points, and on the partial arc a scan sees of
+    a hole it tilts with them), the mating size the largest inscribed (smallest
+    circumscribed) cylinder about that axis (never more bonus than the true envelope)."""
+    if largest_gap(S, feat.origin, feat.direction) > MAX_OPEN_DEG:
+        raise _Unmeasurable("too little of the cylinder's circumference measured")
+    o, a, r_ls = least_squares_cylinder(S, feat.origin, feat.direction, feat.radius)
+    a = a if a @ feat.direction > 0 else -a
+    z = (S - o) @ a
+    ends = o + np.outer([z.min(), z.max()], a)
+    E = np.eye(3) - np.outer(feat.direction, feat.direction)
+    off = np.linalg.norm((ends - feat.origin) @ E, axis=1)
+    value = 2 * float(off.max())
+    bonus = 0.0
+    how = "axis (least squares) from true position at both ends"
+    mods = " ".join(spec.modifiers)
+    if position and ("maximum_material" in mods or "least_material" in mods):
+        size = next((s for s in sizes if set(faces) <= set(s.faces)), None)
+        if size is None or size.lower_limit is None or size.upper_limit is None:
+            how += "; no size limits for the material condition: no bonus"
+        else:
+            scale = 2.0 if size.dim_type == "radius" else 1.0
+            lo, hi = size.lower_limit * scale, size.upper_limit * scale
+            rho = np.linalg.norm((S - o) @ (np.eye(3) - np.outer(a, a)), axis=1)
+            mmc = "maximum_material" in mods
+            if mmc:  # the mating size about the axis
+                actual = 2 * float(rho.min() if feat.internal else rho.max())
+                bonus = actual - lo if feat.internal else hi - actual
+            else:
+                actual = 2 * r_ls
+                bonus = hi - actual if feat.internal else actual - lo
+            bonus = max(bonus, 0.0)
+            how += f"; {'MMC' if mmc else 'LMC'} bonus {bonus:.4f} mm (size {actual:.4f} mm)"
+    return value, None, 2 * _fit_U(sample.U, 4), how, bonus
+
+
+def _runout(spec, S, sample, feat, frame, sizes, surf, faces):
+    if frame is None or frame.axis is None:
+        raise _Unmeasurable("runout needs a datum axis (a cylindrical datum)")
+    o, a = frame.axis
+    z, rho = _axial(S, o, a)
+    if feat.kind == "cylinder":
+        radial, along = rho, z
+        how = "radial about the datum axis"
+    elif feat.kind == "plane" and abs(feat.direction @ a) > 0.99:
+        radial, along = z, rho
+        how = "axial (face across the datum axis)"
+    else:
+        raise _Unmeasurable("runout of a feature neither coaxial with nor across the axis")
+    if spec.kind == "total_runout":
+        res = radial - 0.5 * (radial.max() + radial.min())
+        return float(np.ptp(radial)), None, _extremes_U(res, sample.U), "total " + how, 0.0
+    worst, worst_sel = -1.0, None
+    for sel in _sections(along):
+        if np.ptp(radial[sel]) > worst:
+            worst, worst_sel = float(np.ptp(radial[sel])), sel
+    if worst_sel is None:
+        raise _Unmeasurable("no circular element with enough points")
+    r = radial[worst_sel]
+    return worst, None, _extremes_U(r - r.mean(), sample.U[worst_sel]), "circular " + how, 0.0
+
+
+_MEASURES = {
+    "flatness": _flatness,
+    "cylindricity": _cylindricity,
+    "roundness": _roundness,
+    "straightness": _straightness,
+    "perpendicularity": _orientation,
+    "parallelism": _orientation,
+    "angularity": _orientation,
+    "position": _position,
+    "coaxiality": _coaxiality,
+    "concentricity": _coaxiality,
+    "circular_runout": _runout,
+    "total_runout": _runout,
+}
+
+
+# --------------------------------------------------------------------------- dimensions
+
+
+def _cylinder_values(surf: MeasuredSurface, faces) -> tuple[dict, dict, np.ndarray] | None:
+    """Nominal and measured diameter/radius of one cylindrical (or spherical) feature, and
+    its ``U`` values; None when it is neither or too little of it was measured."""
+    sample = surf.sample(faces)
+    feat = sample.nominal
+    if feat is None or feat.kind == "plane" or len(sample.S) < 8:
+        return None
+    if feat.kind == "sphere":
+        r = least_squares_sphere(sample.S)[1]
+        return (
+            {"diameter": 2 * feat.radius, "radius": feat.radius},
+            {"diameter": 2 * r, "radius": r},
+            sample.U,
+        )
+    r = least_squares_cylinder(sample.S, feat.origin, feat.direction, feat.radius)[2]
+    nom = {"diameter": 2 * feat.radius, "radius": feat.radius}
+    meas = {"diameter": 2 * r, "radius": r}
+    # the same fit on the raw scan points: their difference is a systematic part of U
+    on = np.isin(surf.P_face, faces)
+    if sample.source == "vertices" and on.sum() >= 8:
+        r_pts = least_squares_cylinder(surf.P[on], feat.origin, feat.direction, feat.radius)[2]
+        meas["_systematic_radius"] = abs(r_pts - r)
+    return nom, meas, sample.U
+
+
+def _plane_pair_values(surf: MeasuredSurface, fa, fb) -> tuple[dict, dict, np.ndarray] | None:
+    """Nominal and measured distance between two parallel planar features."""
+    A, B = surf.nominal(fa), surf.nominal(fb)
+    if A is None or B is None or A.kind != "plane" or B.kind != "plane":
+        return None
+    if abs(A.direction @ B.direction) < 0.999:
+        return None
+    ga, gb = surf.sample(fa), surf.sample(fb)
+    if len(ga.S) < 3 or len(gb.S) < 3:
+        return None
+    n = A.direction
+    nom = {"distance": abs(float((B.origin - A.origin) @ n))}
+    meas = {"distance": abs(float((gb.S.mean(axis=0) - ga.S.mean(axis=0)) @ n))}
+    return nom, meas, np.r_[ga.U, gb.U]
+
+
+def _size_candidates(surf: MeasuredSurface, faces) -> list[tuple[dict, dict, np.ndarray]]:
+    """The measurable sizes of a dimension's faces: each cylindrical member's diameter and
+    radius, and the distances (and angles) between every two members (parallel planes,
+    a plane and an axis, two axes)."""
+    members = surf.features(faces)
+    out = [c for c in (_cylinder_values(surf, m) for m in members) if c is not None]
+    for i in range(len(members)):
+        for j in range(i + 1, len(members)):
+            v = _plane_pair_values(surf, members[i], members[j]) or _pair(
+                surf, members[i], members[j]
+            )
+            if v is not None:
+                out.append(v)
+    return out
+
+
+def _between(surf: MeasuredSurface, fa, fb) -> list[tuple[dict, dict, np.ndarray]]:
+    """Distance and angle between two features (planes or axes), for each pair of their
+    members."""
+    out = []
+    for ma in surf.features(fa):
+        for mb in surf.features(fb):
+            v = _pair(surf, ma, mb)
+            if v is not None:
+                out.append(v)
+    return out
+
+
+def _pair(surf: MeasuredSurface, fa, fb) -> tuple[dict, dict, np.ndarray] | None:
+    sa, sb = surf.sample(fa), surf.sample(fb)
+    A, B = sa.nominal, sb.nominal
+    if A is None or B is None or len(sa.S) < 8 or len(sb.S) < 8:
+        return None
+
+    def fitted(sample: FeatureSample, feat: DatumFeature, nominal: bool):
+        if feat.kind == "plane":
+            if nominal:  # the nominal plane under the measured points
+                P = sample.S - np.outer((sample.S - feat.origin) @ feat.direction, feat.direction)
+                return P.mean(axis=0), feat.direction
+            return sample.S.mean(axis=0), feat.direction
+        if nominal:
+            z = (sample.S - feat.origin) @ feat.direction
+            return feat.origin + feat.direction * z.mean(), feat.direction
+        o, a, _ = least_squares_cylinder(sample.S, feat.origin, feat.direction, feat.radius)
+        z = (sample.S - o) @ a
+        return o + a * z.mean(), a if a @ feat.direction > 0 else -a
+
+    out: list[dict] = []
+    for nominal in (True, False):
+        (pa, da), (pb, db) = fitted(sa, A, nominal), fitted(sb, B, nominal)
+        q: dict[str, float] = {}
+        ang = math.degrees(math.acos(float(np.clip(abs(da @ db), 0.0, 1.0))))
+        q["angle"] = ang
+        q["angle_supplement"] = 180.0 - ang
+        d = pb - pa
+        if A.kind == "plane" and (B.kind != "plane" or abs(A.direction @ B.direction) > 0.999):
+            q["distance"] = abs(float(d @ A.direction))
+        elif B.kind == "plane":
+            q["distance"] = abs(float(d @ B.direction))
+        elif abs(A.direction @ B.direction) > 0.999:  # parallel axes: across them
+            E = np.eye(3) - np.outer(A.direction, A.direction)
+            q["distance"] = float(np.linalg.norm(E @ d))
+        else:
+            q["distance"] = float(np.linalg.norm(d))
+        out.append(q)
+    return out[0], out[1], np.r_[sa.U, sb.U]
+
+
+def _dimension(spec: CharacteristicSpec, surf: MeasuredSurface, rule: str) -> CharacteristicResult:
+    if spec.nominal is None:
+        return _not_measured(spec, "the dimension's nominal could not be established")
+    if spec.origin_faces is not None and spec.target_faces is not None:
+        if not len(spec.origin_faces) or not len(spec.target_faces):
+            return _not_measured(spec, "a feature of the location has no face on the part")
+        if set(spec.origin_faces) == set(spec.target_faces):
+            return _not_measured(
+                spec,
+                "its origin and target are both on face(s) "
+                f"{_faces(spec.origin_faces)} (curves of a face, not surfaces): not measured "
+                "from the scanned surface",
+            )
+        cands = _between(surf, spec.origin_faces, spec.target_faces)
+        what = "between its origin and target features"
+    elif len(spec.faces):
+        cands = _size_candidates(surf, spec.faces)
+        what = "of its feature"
+    else:
+        return _not_measured(spec, "no B-rep face of the part is associated")
+    if spec.unit == "deg":
+        keys = ["angle", "angle_supplement"]
+    elif spec.dim_type == "radius":
+        keys = ["radius", "distance"]
+    else:
+        keys = ["diameter", "distance", "radius"]
+    tol = max(_NOMINAL_AGREEMENT * abs(spec.nominal), 0.02 if spec.unit == "mm" else 0.1)
+    found = []
+    for nom, meas, U_pts in cands:
+        k = next((k for k in keys if k in nom and abs(nom[k] - spec.nominal) <= tol), None)
+        if k is not None:
+            found.append((spec.nominal + (meas[k] - nom[k]), k, meas, U_pts))
+    if not found:
+        seen = sorted({f"{k} {nom[k]:.4g}" for nom, _, _ in cands for k in keys if k in nom})
+        return _not_measured(
+            spec,
+            f"the faces' geometry ({', '.join(seen) or 'no plane pair or cylinder measured'}) "
+            f"does not give the drawing's nominal {spec.nominal:g} {spec.unit}",
+        )
+    lo, hi = spec.lower_limit, spec.upper_limit
+    mid = 0.5 * (lo + hi) if lo is not None and hi is not None else spec.nominal
+    value, k, meas, U_pts = max(found, key=lambda f: abs(f[0] - mid))  # the worst member
+    U = None
+    if spec.unit == "mm":
+        sys_r = meas.get("_systematic_radius", 0.0) * (2.0 if k == "diameter" else 1.0)
+        U = float(np.hypot(2 * _fit_U(U_pts, 2), sys_r))
+    n_members = f"worst of {len(found)} features; " if len(found) > 1 else ""
+    res = CharacteristicResult(
+        spec,
+        value=value,
+        uncertainty=U,
+        reading=f"{n_members}{k.replace('_', ' ')} {what} (drawing nominal + measured "
+        "- mesh nominal)",
+        n_points=len(U_pts),
+    )
+    if spec.basic or (lo is None and hi is None):
+        res.status = "BASIC"
+        return res
+    _judge(res, rule, lo, hi)
+    return res
