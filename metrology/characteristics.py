@@ -538,7 +538,12 @@ def _judge(res: CharacteristicResult, rule: str, lo: float | None, hi: float | N
     status = decide(rule, passed, proven_in, proven_out)
     res.status = "INDETERMINATE" if status == "UNCERTAIN" else status
     if res.status == "FAIL":
-        res.reason = f"{_fmt(v)} outside {_fmt(None if lo is None else lo)} .. {_fmt(hi)}"
+        if lo is None:
+            res.reason = f"{v:.4g} > {hi:g}"
+        elif hi is None or v < lo:
+            res.reason = f"{v:.4g} < {lo:g}" if v < lo else f"{v:.4g} > {hi:g}"
+        else:
+            res.reason = f"{v:.4g} > {hi:g}"
 
 
 def _extremes_U(residuals: np.ndarray, U: np.ndarray) -> float:
@@ -853,12 +858,16 @@ def _plane_pair_values(surf: MeasuredSurface, fa, fb) -> tuple[dict, dict, np.nd
     return nom, meas, np.r_[ga.U, gb.U]
 
 
-def _size_candidates(surf: MeasuredSurface, faces) -> list[tuple[dict, dict, np.ndarray]]:
-    """The measurable sizes of a dimension's faces: each cylindrical member's diameter and
-    radius, and the distances (and angles) between every two members (parallel planes,
-    a plane and an axis, two axes)."""
+def _size_candidates(
+    surf: MeasuredSurface, faces, pairs: bool
+) -> list[tuple[dict, dict, np.ndarray]]:
+    """The measurable sizes of a dimension's faces: each cylindrical (spherical) member's
+    diameter and radius, or with ``pairs`` the distances (and angles) between every two
+    members (parallel planes, a plane and an axis, two axes)."""
     members = surf.features(faces)
-    out = [c for c in (_cylinder_values(surf, m) for m in members) if c is not None]
+    if not pairs:
+        return [c for c in (_cylinder_values(surf, m) for m in members) if c is not None]
+    out = []
     for i in range(len(members)):
         for j in range(i + 1, len(members)):
             v = _plane_pair_values(surf, members[i], members[j]) or _pair(
@@ -937,7 +946,7 @@ def _dimension(spec: CharacteristicSpec, surf: MeasuredSurface, rule: str) -> Ch
         cands = _between(surf, spec.origin_faces, spec.target_faces)
         what = "between its origin and target features"
     elif len(spec.faces):
-        cands = _size_candidates(surf, spec.faces)
+        cands = _size_candidates(surf, spec.faces, pairs=False)
         what = "of its feature"
     else:
         return _not_measured(spec, "no B-rep face of the part is associated")
@@ -948,11 +957,19 @@ def _dimension(spec: CharacteristicSpec, surf: MeasuredSurface, rule: str) -> Ch
     else:
         keys = ["diameter", "distance", "radius"]
     tol = max(_NOMINAL_AGREEMENT * abs(spec.nominal), 0.02 if spec.unit == "mm" else 0.1)
-    found = []
-    for nom, meas, U_pts in cands:
-        k = next((k for k in keys if k in nom and abs(nom[k] - spec.nominal) <= tol), None)
-        if k is not None:
-            found.append((spec.nominal + (meas[k] - nom[k]), k, meas, U_pts))
+
+    def matching(cands) -> list:
+        found = []
+        for nom, meas, U_pts in cands:
+            k = next((k for k in keys if k in nom and abs(nom[k] - spec.nominal) <= tol), None)
+            if k is not None:
+                found.append((spec.nominal + (meas[k] - nom[k]), k, meas, U_pts))
+        return found
+
+    found = matching(cands)
+    if not found and spec.origin_faces is None:  # not its members' sizes: between them
+        cands = cands + _size_candidates(surf, spec.faces, pairs=True)
+        found = matching(cands)
     if not found:
         seen = sorted({f"{k} {nom[k]:.4g}" for nom, _, _ in cands for k in keys if k in nom})
         return _not_measured(

@@ -85,6 +85,7 @@ class MeasuredSurface:
             np.add.at(N, self.F[:, k], self.corner_normals[:, k])
         self.N = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
         self._nominal: dict[tuple[int, ...], DatumFeature | None] = {}
+        self._samples: dict[tuple, FeatureSample] = {}
 
     def own_vertices(self, faces) -> np.ndarray:
         """Vertex ids whose every triangle lies on ``faces`` (mesh face ids)."""
@@ -128,7 +129,14 @@ class MeasuredSurface:
 
     def sample(self, faces, label: str = "") -> FeatureSample:
         """The measured surface of ``faces``: their own vertices when enough were scored
-        (:data:`MIN_VERTICES`), else the scan points on them."""
+        (:data:`MIN_VERTICES`), else the scan points on them (kept: asked again, the same
+        object)."""
+        key = (tuple(sorted(int(f) for f in faces)), label)
+        if key not in self._samples:
+            self._samples[key] = self._sample(faces, label)
+        return self._samples[key]
+
+    def _sample(self, faces, label: str) -> FeatureSample:
         own = self.own_vertices(faces)
         ok = own[np.isfinite(self.dev[own])]
         nominal = self.nominal(faces, label)

@@ -127,6 +127,9 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
         out.append(line("region criterion", region))
     if empty:
         out.append(line("nothing scored", empty))
+    failed = [c.spec.key for c in res.characteristics if c.status == "FAIL"]
+    if failed:
+        out.append(line("beyond its limit", failed))
     if res.added is not None and not res.added.passed:
         out.append(f"added material: {res.added.largest_area:.0f} mm\u00b2 proud")
     size = res.judged_size  # a solid's size check is a note, never what failed it
@@ -134,9 +137,6 @@ def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) 
         out.append(f"size: scale {size.scale:.4f} ({size.size_deviation:+.2f} mm at the edge)")
     if res.not_restrainable():
         out.append(f"not restrainable at {', '.join(res.restraint.over_limit)}")
-    failed = [c.spec.key for c in res.characteristics if c.status == "FAIL"]
-    if failed:
-        out.append(line("beyond its limit", failed))
     return out
 
 

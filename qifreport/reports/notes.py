@@ -82,9 +82,17 @@ def note_lines(res: InspectionResult, chain_floor: float | None) -> list[tuple[s
     if res.size is not None and res.size.status != "no rim":
         edge = res.edges.reasons()[0] if res.edges is not None else ""
         s = res.size.reasons()[0]
-        out.append((f"Size from the trim edges: {s}; {edge}.", res.size.status != "conforming"))
+        judged = res.judged_size is not None
+        solid = "" if judged else " (a solid: reported, not judged)"
+        out.append(
+            (
+                f"Size from the trim edges{solid}: {s}; {edge}.",
+                judged and res.size.status != "conforming",
+            )
+        )
     for w in res.coverage_notes():
-        out.append((f"Left out by design: {w}.", False))
+        if not w.startswith("size (a solid"):  # said in the size line above
+            out.append((f"Left out by design: {w}.", False))
     for w in res.relaxed_guards():
         out.append((f"Relaxed guard: {w}.".replace("mm^2", "mm\u00b2"), True))
     a = res.added

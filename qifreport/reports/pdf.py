@@ -151,6 +151,7 @@ class _Report(ReportContext):
         avail = self.H - 2 * self.MT
         n_reg, n_tol, n_dec = len(res.acceptance.regions), len(res.zones), len(res.decided_by())
         n_chr = len(res.characteristics)
+        n_chr_fail = sum(c.status == "FAIL" for c in res.characteristics)
         full = {
             "map": MAP_MAX_PT,
             "reg": n_reg,
@@ -198,6 +199,7 @@ class _Report(ReportContext):
             ("tol", 2, 1),
             ("chr", 2, 1),
             ("dec", 1, 1),
+            ("chr", min(2, n_chr_fail), 1),  # failing ones stay listed
             ("map", MAP_MIN_PT, 5.0),
         ]
         history = []

@@ -273,11 +273,11 @@ def characteristic_table(res: InspectionResult, width: float, limit: int) -> Tab
         legend.append("n/m = not measured (reason given)")
     if legend:
         note = ("; ".join(legend) + ". " + note).strip()
-    return Table(
-        columns=cols,
-        rows=rows,
-        note=note,
-        emphasis=emph,
-        title=f"Feature characteristics ({len(chars)}): form by the minimum zone, "
-        "datum-referenced ones in their datum frame",
+    title = (
+        f"Feature characteristics ({len(chars)}): form by the minimum zone, "
+        "datum-referenced ones in their datum frame"
     )
+    if len(shown) < len(chars):  # short of room: the count in the heading, no title line
+        cols[1] = (f"Feature characteristic ({len(chars)})", cols[1][1], cols[1][2])
+        title = ""
+    return Table(columns=cols, rows=rows, note=note, emphasis=emph, title=title)
