@@ -41,7 +41,7 @@ __all__ = [
 ]
 
 #: a singular value below this share of the largest is no condition (rank)
-_RANK = 1e-6
+_RANK = 1e-3
 #: scan vertices within this many mm of a datum target measure it (at least the nearest)
 TARGET_RADIUS = 2.0
 #: how a datum feature's simulator is associated with its measured surface

@@ -161,6 +161,17 @@ def summary(res: InspectionResult) -> str:
             f"  {len(res.not_evaluated)} PMI item(s) listed, not scored "
             "(see the JSON 'not_evaluated')"
         )
+    if res.characteristics:
+        lines.append("feature characteristics (the drawing's form, orientation, location, size):")
+        for c in res.characteristics[:12]:
+            sp = c.spec
+            kind = sp.kind if sp.kind != "dimension" else sp.dim_type or "dimension"
+            frame = f" |{'|'.join(sp.datums)}|" if sp.datums else ""
+            value = "-" if c.value is None else f"{c.value:.4f}"
+            tail = c.reason if c.status in ("NOT_MEASURED", "FAIL") else f"limit {sp.limits_text()}"
+            lines.append(f"  {sp.key:8s} {c.status:13s} {kind}{frame} {value}: {tail}")
+        if len(res.characteristics) > 12:
+            lines.append(f"  ... {len(res.characteristics) - 12} more (see the JSON/QIF)")
     h = res.hygiene
     if h is not None and (
         h.boundary_edges or h.non_manifold_edges or h.degenerate_faces or h.duplicate_faces
