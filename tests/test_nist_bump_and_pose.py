@@ -49,3 +49,28 @@ def test_arbitrary_pose_and_rigid_only_agree(scans):
     verdicts = {z["key"]: z["verdict"] for z in base["tolerances"]}
     assert {z["key"]: z["verdict"] for z in posed["tolerances"]} == verdicts
     assert {z["key"]: z["verdict"] for z in rigid["tolerances"]} == verdicts
+
+
+def test_feature_characteristics_read_by_independent_consumers(scans, pyxb_qif, qif_xsd):
+    """FTC 06's results QIF carries its feature characteristics as their own QIF types
+    (Flatness, Position with MaterialCondition and Bonus, Perpendicularity, Diameter,
+    DistanceBetween ...; issue 22): Xerces-C and a PyXB binding read it, no status
+    contradicts its value, and the JSON and the QIF list the same characteristics."""
+    from lxml import etree
+
+    from qifreport.qif.consistency import status_contradictions
+    from tests.consumers import assert_read_by_independent_consumers
+
+    s = scans(PART)
+    doc = s.run()
+    qif = s.tmp / "perfect" / f"{s.step.stem}.qif"
+    assert_read_by_independent_consumers(qif, pyxb_qif, qif_xsd)
+    root = etree.parse(str(qif)).getroot()
+    assert status_contradictions(root) == []
+    tags = {etree.QName(e).localname for e in root.iter() if isinstance(e.tag, str)}
+    for t in ("Flatness", "Position", "Perpendicularity", "Diameter", "DistanceBetween"):
+        assert f"{t}CharacteristicMeasurement" in tags, t
+    designators = {d.text for d in root.iter("{http://qifstandards.org/xsd/qif3}Designator")}
+    assert {c["key"] for c in doc["characteristics"]} <= designators
+    assert len(doc["characteristics"]) == 40
+    assert not [c for c in doc["characteristics"] if c["status"] == "FAIL"]
