@@ -1233,7 +1233,6 @@ def _judge(
         feats, frames_used = measure_characteristics(
             plan.specs, plan.datums, surf, rule, free_surface=free_surf, frames=cache
         )
-        frames_used = list(cache.values())
         timings["characteristics"] = time.perf_counter() - t_feat
     located = {i: f for i, f in zone_frames.items() if f is not None and f.established}
     if located:
@@ -1245,8 +1244,9 @@ def _judge(
         point_U = np.zeros(len(V))
         for i, f in located.items():
             gv = bands.governing == i
-            dev_all[gv] = dev_all[gv] + f.normal_shift(V[gv], ops.normals[gv])
-            point_center[gv] -= f.normal_shift(V[gv], ops.normals[gv])
+            shift = f.normal_shift(V[gv], ops.normals[gv])
+            dev_all[gv] = dev_all[gv] + shift
+            point_center[gv] -= shift
             point_U[gv] = f.shift_uncertainty(V[gv], ops.normals[gv])
             U[gv] = np.hypot(U[gv], f.shift_uncertainty(V[gv], ops.normals[gv]))
     if check_part:
@@ -1292,8 +1292,9 @@ def _judge(
         zU = U_free if use_free else U
         zcenter, zpU = z.center, 0.0
         if i in located:
-            dz = dz + frame.normal_shift(V, ops.normals)
-            zcenter = z.center - frame.normal_shift(V, ops.normals)
+            shift = frame.normal_shift(V, ops.normals)
+            dz = dz + shift
+            zcenter = z.center - shift
             zpU = frame.shift_uncertainty(V, ops.normals)
             zU = np.hypot(U_free if use_free else U_base, frame.shift_uncertainty(V, ops.normals))
             reading = f"datum frame |{'|'.join(frame.labels)}|"
