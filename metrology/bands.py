@@ -59,6 +59,7 @@ __all__ = [
     "PROFILE_TYPES",
     "BandField",
     "lay_bands",
+    "material_boundary",
     "NotEvaluated",
     "profile_band",
     "symmetric_zone",
@@ -76,6 +77,17 @@ log = logging.getLogger(__name__)
 DEFAULT_GENERAL_TOLERANCE = 0.5
 
 PROFILE_TYPES = ("surface_profile",)
+
+
+def material_boundary(modifiers: list[str]) -> str:
+    """The material boundary a datum reference or tolerance names among its (PMI) modifiers:
+    ``'MAXIMUM'``, ``'LEAST'`` or ``'NONE'`` (regardless of material boundary)."""
+    text = " ".join(modifiers)
+    if "maximum_material" in text:
+        return "MAXIMUM"
+    if "least_material" in text:
+        return "LEAST"
+    return "NONE"
 
 
 @dataclass
@@ -100,6 +112,8 @@ class ToleranceZone:
     triangles : (k,) int64 triangles of the mesh that belong to the zone besides its faces'
         own: the footprint on the solid of a supplemental face the tolerance names
         (:mod:`qifreport.step.supplemental`); None: none.
+    datum_materials : each datum reference's material boundary as drawn
+        (:func:`material_boundary`), same order as ``datums``.
     """
 
     key: str
@@ -116,6 +130,7 @@ class ToleranceZone:
     free_state: bool = False
     min_coverage: float | None = None
     triangles: np.ndarray | None = None
+    datum_materials: list[str] = field(default_factory=list)
 
     @property
     def center(self) -> float:
@@ -279,6 +294,10 @@ def zones_from_pmi(
                 modifiers=mods,
                 step_id=tol.step_id,
                 free_state="free_state" in mods,
+                datum_materials=[
+                    material_boundary(d.modifiers)
+                    for d in sorted(tol.datums, key=lambda d: d.precedence)
+                ],
             )
             (whole if is_whole else zones).append(zone)
     if whole:

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from .bands import material_boundary
 from .datums import MAX_OPEN_DEG, DatumFeature, largest_gap
 from .decision import decide
 from .form import (
@@ -111,6 +112,10 @@ class CharacteristicSpec:
     modifiers, zone_form : as read.  basic : a basic or reference dimension.
     origin_faces, target_faces : a location's two features.
     problems : why it cannot be measured (found when reading).
+    datum_materials : each datum reference's material boundary as drawn (``'MAXIMUM'``,
+        ``'LEAST'``, ``'NONE'``; same order as ``datums``).
+    unit_basis : a per-unit tolerance's unit as read (``'per unit length 25 mm'``,
+        ``'per rectangular area 6.35 mm x 6.35 mm'``), None for a whole-feature tolerance.
     """
 
     key: str
@@ -131,6 +136,8 @@ class CharacteristicSpec:
     origin_faces: np.ndarray | None = None
     target_faces: np.ndarray | None = None
     problems: list[str] = field(default_factory=list)
+    datum_materials: list[str] = field(default_factory=list)
+    unit_basis: str | None = None
 
     @property
     def free_state(self) -> bool:
@@ -285,8 +292,13 @@ def specs_from_pmi(pmi, face_index: dict[int, int]) -> CharacteristicPlan:
             faces=faces_of(tol.face_step_ids),
             tolerance=tol.value,
             datums=[d.label for d in sorted(tol.datums, key=lambda d: d.precedence)],
+            datum_materials=[
+                material_boundary(d.modifiers)
+                for d in sorted(tol.datums, key=lambda d: d.precedence)
+            ],
             modifiers=list(tol.modifiers),
             zone_form=tol.zone_form,
+            unit_basis=tol.unit_basis,
         )
         if tol.value is None:
             spec.problems.append("tolerance value could not be established")

@@ -16,14 +16,25 @@ reference dimension (its value is reported).
 from __future__ import annotations
 
 import math
+import re
 
+import numpy as np
 from lxml import etree
 
-from qifreport.metrology.characteristics import CharacteristicResult
+from qifreport.metrology.characteristics import CharacteristicResult, CharacteristicSpec
 
+from .definitions import DrfKey, Sections, drf_key, face_attrs, feature_definition
 from .xmlkit import Attrs, E, Ids, dec, id_array, qpid, token
 
-__all__ = ["QIF_TYPES", "characteristic_elements", "qif_status"]
+__all__ = [
+    "QIF_TYPES",
+    "characteristic_definition",
+    "characteristic_measurement",
+    "material_condition",
+    "per_unit",
+    "qif_status",
+    "qif_type",
+]
 
 #: QIF characteristic type of each tolerance kind (the dimensions: :func:`_dimension_type`)
 QIF_TYPES = {
@@ -62,31 +73,40 @@ def qif_status(c: CharacteristicResult) -> str:
     return _STATUS[c.status]
 
 
-def _dimension_type(c: CharacteristicResult) -> str:
-    s = c.spec
+def _dimension_type(s: CharacteristicSpec) -> str:
     if s.unit == "deg":
-        return "AngleBetween"
+        # an angle between two features (a location) or the angular size of one (a cone's,
+        # a chamfer's)
+        both = s.origin_faces is not None and s.target_faces is not None
+        return "AngleBetween" if both else "Angle"
     if s.dim_type == "diameter":
         return "Diameter"
     if s.dim_type == "radius":
         return "Radius"
+    if s.dim_type == "spherical diameter":
+        return "SphericalDiameter"
+    if s.dim_type == "spherical radius":
+        return "SphericalRadius"
+    if s.dim_type == "thickness":
+        return "Thickness"
     if s.origin_faces is not None and s.target_faces is not None:
         return "DistanceBetween"
     return "Width"
 
 
-def qif_type(c: CharacteristicResult) -> str:
+def qif_type(s: CharacteristicSpec, direction: np.ndarray | None = None) -> str:
     """The QIF characteristic type name (without the Definition/Nominal/... suffix): a
     tolerance kind QIF has no type for, or a line profile whose section direction is not
     known (its nominal needs a ``Vector``), is a ``UserDefinedAttribute`` (not measured)."""
-    if c.spec.kind == "dimension":
-        return _dimension_type(c)
-    if c.spec.kind == "line_profile" and c.direction is None:
+    if s.kind == "dimension":
+        return _dimension_type(s)
+    if s.kind == "line_profile" and direction is None:
         return "UserDefinedAttribute"
-    return QIF_TYPES.get(c.spec.kind, "UserDefinedAttribute")
+    return QIF_TYPES.get(s.kind, "UserDefinedAttribute")
 
 
-def _material(mods: list[str]) -> str:
+def material_condition(mods: list[str]) -> str:
+    """QIF ``MaterialCondition`` of a tolerance's modifiers: MAXIMUM, LEAST or NONE."""
     text = " ".join(mods)
     if "maximum_material" in text:
         return "MAXIMUM"
@@ -95,80 +115,92 @@ def _material(mods: list[str]) -> str:
     return "NONE"
 
 
-def characteristic_elements(
-    c: CharacteristicResult,
+def characteristic_definition(
+    zs: Sections,
+    spec: CharacteristicSpec,
     ids: Ids,
-    drf_ids: dict[tuple[str, ...], str],
-    actual_id: str,
-) -> dict[str, etree._Element]:
-    """The elements of one characteristic and its surface feature, by section:
-    ``fdef``, ``fnom``, ``fitem``, ``fmeas``, ``cdef``, ``cnom``, ``citem``, ``cmeas``
-    (ids handed out in that order)."""
-    s = c.spec
-    t = qif_type(c)
-    fd, fn, fi, fm, cd, cn, ci, cm = (ids() for _ in range(8))
+    drf_ids: dict[DrfKey, str],
+    face_step_ids: np.ndarray | None = None,
+    *,
+    direction: np.ndarray | None = None,
+    result: CharacteristicResult | None = None,
+    actual_id: str | None = None,
+) -> tuple[str, str, str | None]:
+    """One PMI item's surface feature (definition, nominal, item) and characteristic
+    (definition, nominal, item), appended to ``zs``; with ``actual_id`` (a results document:
+    the inspected part) also the feature's measurement, and ``result`` says in the
+    definition's description how it was read. ``direction``: a line profile's section direction (its
+    nominal's ``Vector``; without it the item is a ``UserDefinedAttribute``).
+
+    Returns the feature item, characteristic item and feature measurement ids."""
+    s = spec
+    t = qif_type(s, direction)
     fname = token(f"FEATURE_{s.key}")
-    fa = Attrs().s("b_rep_faces", " ".join(str(int(f)) for f in s.faces) or "none")
-    out: dict[str, etree._Element] = {
-        "fdef": E.OtherSurfaceFeatureDefinition(id=fd),
-        "fnom": E.OtherSurfaceFeatureNominal(
-            *[x for x in (fa.element(), E.Name(fname), E.UUID(qpid())) if x is not None],
-            E.FeatureDefinitionId(fd),
-            id=fn,
-        ),
-        "fitem": E.OtherSurfaceFeatureItem(
-            E.FeatureNominalId(fn),
-            E.FeatureName(fname),
-            E.UUID(qpid()),
-            E.DeterminationMode(E.Checked(E.CheckDetails(E.Measured()))),
-            id=fi,
-        ),
-        "fmeas": E.OtherSurfaceFeatureMeasurement(
-            E.FeatureItemId(fi), E.FeatureName(fname), E.ActualComponentId(actual_id), id=fm
-        ),
-    }
+    fa = face_attrs(s.faces, face_step_ids)
+    fn, fi, fm = feature_definition(zs, fname, fa, ids, actual_id)
+    cd, cn, ci = ids(), ids(), ids()
+    zs.cnom_ids.append(cn)
     da = Attrs().s("key", s.key)
     if s.step_id is not None:
         da.i("step_entity_id", s.step_id)
     if s.modifiers:
         da.s("modifiers", " ".join(s.modifiers))
     name = token(s.name)
-    cdef = [da.element(), E.Description(_describe(c)), E.Name(name)]
+    cdef = [da.element(), E.Description(_describe(s, result)), E.Name(name)]
     if s.free_state:
         cdef.append(E.FreeState("true"))
     if t == "UserDefinedAttribute":
         cdef.append(E.WhatToMeasure(f"{s.kind.replace('_', ' ')} {s.limits_text()}"))
     elif s.kind == "dimension":
-        cdef += _dimension_definition(c)
+        cdef += _dimension_definition(s)
     else:
-        cdef.append(E.ToleranceValue(dec(s.tolerance if s.tolerance is not None else 0.0)))
-        if s.kind in _DRF and s.datums and tuple(s.datums) in drf_ids:
-            cdef.append(E.DatumReferenceFrameId(drf_ids[tuple(s.datums)]))
+        cdef += _tolerance_value(s, t)
+        key = drf_key(s.datums, s.datum_materials)
+        if s.kind in _DRF and s.datums and key in drf_ids:
+            cdef.append(E.DatumReferenceFrameId(drf_ids[key]))
         if s.kind in _MATERIAL:
-            cdef.append(E.MaterialCondition(_material(s.modifiers)))
+            cdef.append(E.MaterialCondition(material_condition(s.modifiers)))
         if s.kind in _ZONE_SHAPE:
-            diametral = bool(s.zone_form and "cylindrical" in s.zone_form)
-            other = E.PlanarZone() if s.kind in _ORIENTATION else E.NonDiametricalZone()
-            cdef.append(E.ZoneShape(E.DiametricalZone() if diametral else other))
+            form = s.zone_form or ""
+            if "cylindrical" in form:
+                shape = E.DiametricalZone()
+            elif "spherical" in form and s.kind == "position":
+                shape = E.SphericalZone()
+            else:
+                shape = E.PlanarZone() if s.kind in _ORIENTATION else E.NonDiametricalZone()
+            cdef.append(E.ZoneShape(shape))
         if s.kind == "line_profile":
             cdef.append(E.OuterDisposition(dec(0.5 * (s.tolerance or 0.0))))
-    out["cdef"] = E(f"{t}CharacteristicDefinition", *[x for x in cdef if x is not None], id=cd)
+    zs.cdefs.append(E(f"{t}CharacteristicDefinition", *[x for x in cdef if x is not None], id=cd))
     cnom = [E.CharacteristicDefinitionId(cd), id_array("FeatureNominalIds", [fn]), E.Name(name)]
     if s.kind == "dimension" and s.nominal is not None:
         cnom.append(E.TargetValue(dec(s.nominal)))
     if t in ("DistanceBetween", "AngleBetween"):
         cnom.append(E.AnalysisMode("THREEDIMENSIONAL"))
     if t == "LineProfile":
-        cnom.append(E.Vector(" ".join(repr(float(x)) for x in c.direction)))
-    out["cnom"] = E(f"{t}CharacteristicNominal", *cnom, id=cn)
-    out["citem"] = E(
-        f"{t}CharacteristicItem",
-        E.Name(name),
-        E.CharacteristicDesignator(E.Designator(s.key), E.UUID(qpid())),
-        id_array("FeatureItemIds", [fi]),
-        E.CharacteristicNominalId(cn),
-        id=ci,
+        cnom.append(E.Vector(" ".join(repr(float(x)) for x in direction)))
+    zs.cnoms.append(E(f"{t}CharacteristicNominal", *cnom, id=cn))
+    zs.citems.append(
+        E(
+            f"{t}CharacteristicItem",
+            E.Name(name),
+            E.CharacteristicDesignator(E.Designator(s.key), E.UUID(qpid())),
+            id_array("FeatureItemIds", [fi]),
+            E.CharacteristicNominalId(cn),
+            id=ci,
+        )
     )
+    return fi, ci, fm
+
+
+def characteristic_measurement(
+    c: CharacteristicResult, ids: Ids, ci: str, fm: str, actual_id: str
+) -> etree._Element:
+    """The characteristic's measurement (status, value, bonus; the reading, least-squares
+    value, uncertainty and points as ``Attributes``) of item ``ci`` on feature measurement
+    ``fm``."""
+    s = c.spec
+    t = qif_type(s, c.direction)
     ma = Attrs().s("reading", c.reading or "-")
     if c.least_squares is not None and math.isfinite(c.least_squares):
         ma.d("least_squares_mm", c.least_squares)
@@ -192,15 +224,15 @@ def characteristic_elements(
         meas.append(E.Value(dec(c.value)))
         if s.kind == "position" and c.bonus > 0:
             meas.append(E.Bonus(dec(c.bonus)))
-    out["cmeas"] = E(f"{t}CharacteristicMeasurement", *[x for x in meas if x is not None], id=cm)
-    return out
+    return E(f"{t}CharacteristicMeasurement", *[x for x in meas if x is not None], id=ids())
 
 
-def _describe(c: CharacteristicResult) -> str:
-    s = c.spec
+def _describe(s: CharacteristicSpec, c: CharacteristicResult | None) -> str:
     what = s.kind.replace("_", " ") if s.kind != "dimension" else f"{s.dim_type} dimension"
     frame = f" |{'|'.join(s.datums)}|" if s.datums else ""
     text = f"{what} {s.limits_text()}{frame} (pmi #{s.step_id})"
+    if c is None:
+        return text
     if c.status == "NOT_MEASURED":
         text += f"; not measured: {c.reason}"
     elif c.reading:
@@ -208,8 +240,54 @@ def _describe(c: CharacteristicResult) -> str:
     return text
 
 
-def _dimension_definition(c: CharacteristicResult) -> list[etree._Element]:
-    s = c.spec
+#: characteristic types whose definition can state a per-unit-length / per-unit-area zone
+_PER_LENGTH = ("Straightness", "Circularity", "Cylindricity")
+_PER_AREA = ("Flatness", "Cylindricity")
+
+
+def per_unit(text: str | None) -> tuple[str, list[float]] | None:
+    """A per-unit tolerance's unit from the PMI's text (mm): ``('length', [L])``,
+    ``('rectangular', [a, b])``, ``('circular', [d])``; None when there is none."""
+    if not text:
+        return None
+    nums = [float(x) for x in re.findall(r"[-+]?\d*\.?\d+(?:[eE][-+]?\d+)?", text)]
+    if not nums:
+        return None
+    if "length" in text:
+        return "length", nums[:1]
+    if "circular" in text:
+        return "circular", nums[:1]
+    return "rectangular", (nums + nums)[:2]  # a square area gives one side
+
+
+def _tolerance_value(s: CharacteristicSpec, t: str) -> list[etree._Element]:
+    """A geometric tolerance's value: ``ToleranceValue``, or for a per-unit tolerance
+    (flatness per unit area, straightness per unit length ...) its
+    ``ToleranceZonePerUnitArea`` / ``ToleranceZonePerUnitLength`` where the type has one."""
+    value = dec(s.tolerance if s.tolerance is not None else 0.0)
+    unit = per_unit(s.unit_basis)
+    if unit is not None:
+        kind, nums = unit
+        if kind == "length" and t in _PER_LENGTH:
+            return [
+                E.ToleranceZonePerUnitLength(
+                    E.ToleranceValuePerUnit(value), E.UnitLength(dec(nums[0]))
+                )
+            ]
+        if kind != "length" and t in _PER_AREA:
+            area = (
+                E.CircularUnitArea(E.CircularUnitAreaDiameter(dec(nums[0])))
+                if kind == "circular"
+                else E.RectangularUnitArea(
+                    E.RectangularUnitAreaLength(dec(nums[0])),
+                    E.RectangularUnitAreaWidth(dec(nums[1])),
+                )
+            )
+            return [E.ToleranceZonePerUnitArea(E.ToleranceValuePerUnit(value), area)]
+    return [E.ToleranceValue(value)]
+
+
+def _dimension_definition(s: CharacteristicSpec) -> list[etree._Element]:
     if s.lower_limit is None and s.upper_limit is None:
         return [E.NonTolerance("MEASURED")]  # a basic (or untoleranced) size, reported
     nominal = s.nominal if s.nominal is not None else 0.0

@@ -81,11 +81,10 @@ from dataclasses import asdict, dataclass, field, is_dataclass
 from datetime import datetime
 from pathlib import Path
 
+import numpy as np
 from lxml import etree
 
-from qifreport import __version__
 from qifreport.jsonio import json_default
-from qifreport.metrology.bands import ToleranceZone
 from qifreport.metrology.inspection import (
     FREE_STATE_CONFORMS,
     FREE_STATE_LOCAL_DEFECTS,
@@ -94,7 +93,26 @@ from qifreport.metrology.inspection import (
     ZoneResult,
 )
 
-from .feature_characteristics import characteristic_elements
+from .definitions import (
+    CONFORMS,
+    DOES_NOT_CONFORM,
+    DrfKey,
+    Sections,
+    acceptance_definition,
+    datum_definitions,
+    datum_ids,
+    datum_reference_frames,
+    drf_key,
+    face_attrs,
+    feature_definition,
+    file_units,
+    profile_definition,
+    profile_feature_name,
+    software_definitions,
+    standards_definitions,
+)
+from .feature_characteristics import characteristic_definition, characteristic_measurement
+from .plan import plan_reference
 from .result_attributes import (
     MAX_REGIONS_LISTED,
     acceptance_attrs,
@@ -161,6 +179,8 @@ class Provenance:
     nominal_sha256, scan_sha256 : hex SHA-256 digests of the input files.
     started, finished : time of inspection (timezone-aware).
     datums : datum labels defined by the PMI (file order), ``[]`` without PMI.
+    face_step_ids : (n_faces,) the STEP entity id of each B-rep face (-1 unknown), None for
+        a mesh nominal.
     nominal_info : description of the nominal (format, tessellation, PMI counts).
     author, organization, operator, serial_number : options of the command line.
     standard : (organization, designator, year) of the tolerancing standard.
@@ -175,6 +195,7 @@ class Provenance:
     finished: datetime
     datums: list[str] = field(default_factory=list)
     nominal_info: dict = field(default_factory=dict)
+    face_step_ids: np.ndarray | None = None
     author: str | None = None
     organization: str | None = None
     operator: str | None = None
@@ -281,58 +302,53 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
 
     # -- definitions that others reference: standard, software, algorithms, units
     std_id, sw_id = ids(), ids()
-    standards = _standards_definitions(prov.standard, std_id)
-    software = _software_definitions(sw_id)
+    standards = standards_definitions(prov.standard, std_id)
+    software = software_definitions(sw_id)
     rigid_alg_id, fit_alg_id = ids(), ids()
     algorithms = _algorithm_definitions(res, sw_id, rigid_alg_id, fit_alg_id)
-    units = _file_units()
+    units = file_units()
 
     # -- datums and datum reference frames
-    datum_ids, drf_ids = _datum_ids(prov.datums, res, ids)
-    datum_defs = _datum_definitions(datum_ids)
-    drfs = _datum_reference_frames(drf_ids, datum_ids)
+    cited = [drf_key(z.zone.datums, z.zone.datum_materials) for z in res.zones]
+    cited += [drf_key(c.spec.datums, c.spec.datum_materials) for c in res.characteristics]
+    dids, drf_ids = datum_ids(prov.datums, cited, ids)
+    datum_defs = datum_definitions(dids)
+    drfs = datum_reference_frames(drf_ids, dids)
 
     # -- one surface feature and one characteristic per zone
     rule = acceptance_rule(res.params.min_fraction, res.params.max_region_area)
     part = _PartIds(part=ids(), component=ids(), asm_path=ids(), actual=ids())
-    zs = _ZoneSections()
+    zs = Sections()
     for z in res.zones:
-        _add_zone(zs, z, res, ids, rule, drf_ids, part.actual)
+        _add_zone(zs, z, res, ids, rule, drf_ids, part.actual, prov.face_step_ids)
     for c in res.characteristics:
-        els = characteristic_elements(c, ids, drf_ids, part.actual)
-        for sec, lst in (
-            ("fdef", zs.fdefs),
-            ("fnom", zs.fnoms),
-            ("fitem", zs.fitems),
-            ("fmeas", zs.fmeas),
-            ("cdef", zs.cdefs),
-            ("cnom", zs.cnoms),
-            ("citem", zs.citems),
-            ("cmeas", zs.cmeas),
-        ):
-            lst.append(els[sec])
-        zs.fnom_ids.append(els["fnom"].get("id"))
-        zs.cnom_ids.append(els["cnom"].get("id"))
-    product = _product(prov.part_name, part, zs, datum_ids, drf_ids)
-    features = E.Features(
-        E.FeatureDefinitions(*zs.fdefs, n=str(len(zs.fdefs))),
-        E.FeatureNominals(*zs.fnoms, n=str(len(zs.fnoms))),
-        E.FeatureItems(*zs.fitems, n=str(len(zs.fitems))),
-    )
-    characteristics = E.Characteristics(
-        E.FormalStandardId(std_id),
-        E.CharacteristicDefinitions(*zs.cdefs, n=str(len(zs.cdefs))),
-        E.CharacteristicNominals(*zs.cnoms, n=str(len(zs.cnoms))),
-        E.CharacteristicItems(*zs.citems, n=str(len(zs.citems))),
-    )
+        fi, ci, fm = characteristic_definition(
+            zs,
+            c.spec,
+            ids,
+            drf_ids,
+            prov.face_step_ids,
+            direction=c.direction,
+            result=c,
+            actual_id=part.actual,
+        )
+        zs.cmeas.append(characteristic_measurement(c, ids, ci, fm, part.actual))
+    product = _product(prov.part_name, part, zs, dids, drf_ids)
+    features = zs.features()
+    characteristics = zs.characteristics(std_id)
 
     # -- results
     results = _results(res, prov, sw_id, zs, part, ids)
+    # a STEP nominal's plan (qifreport plan), by its QPId
+    plan_ref = None
+    if prov.face_step_ids is not None:
+        plan_ref = plan_reference(Path(prov.nominal_path).stem, prov.nominal_sha256, ids())
 
     children = [
         E.QPId(qpid()),
         E.Version(E.TimeCreated(xml_time(prov.finished))),
         _header(prov),
+        plan_ref,
         standards,
         software,
         algorithms,
@@ -373,34 +389,6 @@ def _header(prov: Provenance) -> etree._Element:
         )
     )
     return E.Header(*header)
-
-
-def _standards_definitions(standard: tuple[str, str, str], std_id: str) -> etree._Element:
-    """``StandardsDefinitions``: the tolerancing standard (organization, designator, year)."""
-    std_org, std_des, std_year = standard
-    return E.StandardsDefinitions(
-        E.Standard(
-            E.Organization(E.StandardsOrganizationEnum(std_org)),
-            E.Designator(std_des),
-            E.Year(std_year),
-            id=std_id,
-        ),
-        n="1",
-    )
-
-
-def _software_definitions(sw_id: str) -> etree._Element:
-    """``SoftwareDefinitions``: qifreport and its version."""
-    return E.SoftwareDefinitions(
-        E.Software(
-            E.VendorName("qifreport"),
-            E.ApplicationName("qifreport"),
-            E.Version(__version__),
-            E.Description("Dimensional inspection of flexible parts by virtual fixturing"),
-            id=sw_id,
-        ),
-        n="1",
-    )
 
 
 def _algorithm_definitions(
@@ -481,88 +469,6 @@ def _fixture_name(res) -> str:
     return "none (rigid only)"
 
 
-def _file_units() -> etree._Element:
-    """``FileUnits``: mm^2, degree, mm."""
-    return E.FileUnits(
-        E.PrimaryUnits(
-            E.AreaUnit(
-                E.SIUnitName("square meter"),
-                E.UnitName("mm^2"),
-                E.UnitConversion(E.Factor("0.000001")),
-            ),
-            E.AngularUnit(
-                E.SIUnitName("radian"),
-                E.UnitName("degree"),
-                E.UnitConversion(E.Factor("0.0174532925199433")),
-            ),
-            E.LinearUnit(
-                E.SIUnitName("meter"), E.UnitName("mm"), E.UnitConversion(E.Factor("0.001"))
-            ),
-        )
-    )
-
-
-def _datum_ids(
-    datums: list[str], res: InspectionResult, ids: Ids
-) -> tuple[dict[str, str], dict[tuple[str, ...], str]]:
-    """Ids of the datums (the PMI's, then those the zones and characteristics cite) and of
-    one datum reference frame per datum sequence cited (first-cited order)."""
-    cited = [z.zone.datums for z in res.zones] + [c.spec.datums for c in res.characteristics]
-    labels = list(dict.fromkeys(list(datums) + [d for seq in cited for d in seq]))
-    datum_ids = {lab: ids() for lab in labels}
-    drf_ids: dict[tuple[str, ...], str] = {}
-    for seq in cited:
-        if seq:
-            drf_ids.setdefault(tuple(seq), "")
-    for key in drf_ids:
-        drf_ids[key] = ids()
-    return datum_ids, drf_ids
-
-
-def _datum_definitions(datum_ids: dict[str, str]) -> etree._Element | None:
-    """``DatumDefinitions`` (None without datums)."""
-    if not datum_ids:
-        return None
-    return E.DatumDefinitions(
-        *[E.DatumDefinition(E.DatumLabel(lab), id=did) for lab, did in datum_ids.items()],
-        n=str(len(datum_ids)),
-    )
-
-
-def _datum_reference_frames(
-    drf_ids: dict[tuple[str, ...], str], datum_ids: dict[str, str]
-) -> etree._Element | None:
-    """``DatumReferenceFrames``, one per datum sequence (None without)."""
-    if not drf_ids:
-        return None
-    prec = ("PRIMARY", "SECONDARY", "TERTIARY")
-    frames = []
-    for seq, fid in drf_ids.items():
-        datums = []
-        for k, lab in enumerate(seq):
-            p = (
-                E.Precedence(E.PrecedenceEnum(prec[k]))
-                if k < 3
-                else E.Precedence(E.OtherPrecedence(str(k + 1)))
-            )
-            datums.append(
-                E.Datum(
-                    E.SimpleDatum(
-                        E.DatumDefinitionId(datum_ids[lab]),
-                        E.MaterialModifier("NONE"),
-                        E.ReferencedComponent("ACTUAL"),
-                    ),
-                    p,
-                )
-            )
-        frames.append(
-            E.DatumReferenceFrame(
-                E.Datums(*datums, n=str(len(datums))), E.Name("|" + "|".join(seq) + "|"), id=fid
-            )
-        )
-    return E.DatumReferenceFrames(*frames, n=str(len(frames)))
-
-
 @dataclass
 class _PartIds:
     """Ids of the part, its component and assembly path, and the inspected actual part."""
@@ -573,93 +479,33 @@ class _PartIds:
     actual: str
 
 
-@dataclass
-class _ZoneSections:
-    """The elements of every zone, per section, in zone order."""
-
-    fdefs: list[etree._Element] = field(default_factory=list)
-    fnoms: list[etree._Element] = field(default_factory=list)
-    fitems: list[etree._Element] = field(default_factory=list)
-    fmeas: list[etree._Element] = field(default_factory=list)
-    cdefs: list[etree._Element] = field(default_factory=list)
-    cnoms: list[etree._Element] = field(default_factory=list)
-    citems: list[etree._Element] = field(default_factory=list)
-    cmeas: list[etree._Element] = field(default_factory=list)
-    fnom_ids: list[str] = field(default_factory=list)
-    cnom_ids: list[str] = field(default_factory=list)
-
-
 def _add_zone(
-    zs: _ZoneSections,
+    zs: Sections,
     z: ZoneResult,
     res: InspectionResult,
     ids: Ids,
     rule: str,
-    drf_ids: dict[tuple[str, ...], str],
+    drf_ids: dict[DrfKey, str],
     actual_id: str,
+    face_step_ids: np.ndarray | None,
 ) -> None:
-    """One zone's surface feature (definition, nominal, item, measurement) and profile
-    characteristic (definition, nominal, item, measurement)."""
-    fd, fn, fi, fm = ids(), ids(), ids(), ids()
-    cd, cn, ci, cm = ids(), ids(), ids(), ids()
-    zs.fnom_ids.append(fn)
-    zs.cnom_ids.append(cn)
-    _add_feature(zs, z.zone, fd, fn, fi, fm, actual_id)
-    _add_characteristic(zs, z.zone, rule, drf_ids, cd, cn, ci, fn, fi)
-    zs.cmeas.append(_characteristic_measurement(z, res, ci, fm, actual_id, cm))
-    _add_acceptance(zs, z, res, ids, rule, fn, fi, fm, actual_id)
+    """One zone's surface feature and profile characteristic (definition, nominal, item,
+    measurement) and its acceptance characteristic."""
+    fa = face_attrs(z.zone.faces, face_step_ids)
+    fn, fi, fm = feature_definition(zs, profile_feature_name(z.zone), fa, ids, actual_id)
+    ci = profile_definition(zs, z.zone, rule, drf_ids, ids, fn, fi)
+    zs.cmeas.append(_characteristic_measurement(z, res, ci, fm, actual_id, ids()))
+    ci = acceptance_definition(zs, z.zone, rule, ids, fn, fi)
+    zs.cmeas.append(_acceptance_measurement(z, res, ci, fm, actual_id, ids()))
 
 
-#: the values of a profile's acceptance characteristic (a UserDefinedAttribute)
-CONFORMS, DOES_NOT_CONFORM = "CONFORMS", "DOES_NOT_CONFORM"
-
-
-def _add_acceptance(
-    zs: _ZoneSections,
-    z: ZoneResult,
-    res: InspectionResult,
-    ids: Ids,
-    rule: str,
-    fn: str,
-    fi: str,
-    fm: str,
-    actual_id: str,
-) -> None:
-    """The profile's decision under qifreport's acceptance rule, as its own
-    ``UserDefinedAttributeCharacteristic`` (``<key>_ACCEPTANCE``): its status is the
-    inspection's decision for the surface (area and region criteria under the decision
-    rule), its value ``CONFORMS`` or ``DOES_NOT_CONFORM``; the profile characteristic beside
-    it keeps the strict reading, so neither contradicts its own value."""
-    cd, cn, ci, cm = ids(), ids(), ids(), ids()
-    zs.cnom_ids.append(cn)
-    name = token(f"{z.zone.key}_ACCEPTANCE")
-    zs.cdefs.append(
-        E.UserDefinedAttributeCharacteristicDefinition(
-            E.Description(f"{z.zone.describe()}: {rule}"),
-            E.Name(name),
-            E.WhatToMeasure(f"{rule}, on the faces of {z.zone.key}"),
-            id=cd,
-        )
-    )
-    zs.cnoms.append(
-        E.UserDefinedAttributeCharacteristicNominal(
-            E.CharacteristicDefinitionId(cd),
-            id_array("FeatureNominalIds", [fn]),
-            E.Name(name),
-            E.PassValues(E.StringValue(CONFORMS), n="1"),
-            E.FailValues(E.StringValue(DOES_NOT_CONFORM), n="1"),
-            id=cn,
-        )
-    )
-    zs.citems.append(
-        E.UserDefinedAttributeCharacteristicItem(
-            E.Name(name),
-            E.CharacteristicDesignator(E.Designator(f"{z.zone.key}_ACCEPTANCE"), E.UUID(qpid())),
-            id_array("FeatureItemIds", [fi]),
-            E.CharacteristicNominalId(cn),
-            id=ci,
-        )
-    )
+def _acceptance_measurement(
+    z: ZoneResult, res: InspectionResult, ci: str, fm: str, actual_id: str, cm: str
+) -> etree._Element:
+    """The acceptance characteristic's measurement: the inspection's decision for the
+    surface (area and region criteria under the decision rule), ``CONFORMS`` or
+    ``DOES_NOT_CONFORM``; the profile characteristic beside it keeps the strict reading, so
+    neither contradicts its own value."""
     status = characteristic_status(z, established=res.established)
     meas = [
         E.Status(E.CharacteristicStatusEnum(status)),
@@ -673,86 +519,7 @@ def _add_acceptance(
         )
     if status in ("PASS", "FAIL"):
         meas.append(E.Value(CONFORMS if status == "PASS" else DOES_NOT_CONFORM))
-    zs.cmeas.append(E.UserDefinedAttributeCharacteristicMeasurement(*meas, id=cm))
-
-
-def _add_feature(
-    zs: _ZoneSections, zone: ToleranceZone, fd: str, fn: str, fi: str, fm: str, actual_id: str
-) -> None:
-    """An ``OtherSurfaceFeature`` definition, nominal (its B-rep faces), item, measurement."""
-    fname = _feature_name(zone)
-    zs.fdefs.append(E.OtherSurfaceFeatureDefinition(id=fd))
-    fa = Attrs()
-    if zone.faces is None:
-        fa.s("faces", "every face no other profile tolerance covers")
-    else:
-        fa.s("b_rep_faces", " ".join(str(int(f)) for f in zone.faces))
-    nom = [fa.element(), E.Name(fname), E.UUID(qpid()), E.FeatureDefinitionId(fd)]
-    zs.fnoms.append(E.OtherSurfaceFeatureNominal(*[x for x in nom if x is not None], id=fn))
-    zs.fitems.append(
-        E.OtherSurfaceFeatureItem(
-            E.FeatureNominalId(fn),
-            E.FeatureName(fname),
-            E.UUID(qpid()),
-            E.DeterminationMode(E.Checked(E.CheckDetails(E.Measured()))),
-            id=fi,
-        )
-    )
-    zs.fmeas.append(
-        E.OtherSurfaceFeatureMeasurement(
-            E.FeatureItemId(fi), E.FeatureName(fname), E.ActualComponentId(actual_id), id=fm
-        )
-    )
-
-
-def _add_characteristic(
-    zs: _ZoneSections,
-    zone: ToleranceZone,
-    rule: str,
-    drf_ids: dict[tuple[str, ...], str],
-    cd: str,
-    cn: str,
-    ci: str,
-    fn: str,
-    fi: str,
-) -> None:
-    """A ``SurfaceProfileCharacteristic`` definition (the zone and the acceptance rule),
-    nominal and item (its designator)."""
-    da = Attrs().s("key", zone.key).s("source", zone.source)
-    da.d("lower_mm", zone.lower).d("upper_mm", zone.upper)
-    if zone.step_id is not None:
-        da.i("step_entity_id", zone.step_id)
-    if zone.modifiers:
-        da.s("modifiers", " ".join(zone.modifiers))
-    cdef = [da.element(), E.Description(f"{zone.describe()}. {rule}."), E.Name(token(zone.name))]
-    if zone.free_state:
-        cdef.append(E.FreeState("true"))
-    cdef.append(E.ToleranceValue(dec(zone.width)))
-    if not math.isclose(zone.center, 0.0, abs_tol=1e-12):
-        # ASME UZ: the part of the zone outside the material (toward +normal) = upper
-        cdef.append(E.UnequallyDisposedZone(dec(zone.upper)))
-    if zone.datums:
-        cdef.append(E.DatumReferenceFrameId(drf_ids[tuple(zone.datums)]))
-    zs.cdefs.append(
-        E.SurfaceProfileCharacteristicDefinition(*[x for x in cdef if x is not None], id=cd)
-    )
-    zs.cnoms.append(
-        E.SurfaceProfileCharacteristicNominal(
-            E.CharacteristicDefinitionId(cd),
-            id_array("FeatureNominalIds", [fn]),
-            E.Name(token(zone.name)),
-            id=cn,
-        )
-    )
-    zs.citems.append(
-        E.SurfaceProfileCharacteristicItem(
-            E.Name(token(zone.name)),
-            E.CharacteristicDesignator(E.Designator(zone.key), E.UUID(qpid())),
-            id_array("FeatureItemIds", [fi]),
-            E.CharacteristicNominalId(cn),
-            id=ci,
-        )
-    )
+    return E.UserDefinedAttributeCharacteristicMeasurement(*meas, id=cm)
 
 
 def _characteristic_measurement(
@@ -793,9 +560,9 @@ def _characteristic_measurement(
 def _product(
     part_name: str,
     part: _PartIds,
-    zs: _ZoneSections,
+    zs: Sections,
     datum_ids: dict[str, str],
-    drf_ids: dict[tuple[str, ...], str],
+    drf_ids: dict[DrfKey, str],
 ) -> etree._Element:
     """``Product``: the part (its features, characteristics, datums), component, path."""
     part_el = E.Part(
@@ -818,7 +585,7 @@ def _product(
 
 
 def _results(
-    res: InspectionResult, prov: Provenance, sw_id: str, zs: _ZoneSections, part: _PartIds, ids: Ids
+    res: InspectionResult, prov: Provenance, sw_id: str, zs: Sections, part: _PartIds, ids: Ids
 ) -> etree._Element:
     """``Results``: one ``MeasurementResults`` (attributes, traceability, the input files,
     the measured features and characteristics, the status) and the actual component."""
@@ -917,12 +684,6 @@ def _params_dict(params) -> dict | None:
     if is_dataclass(params) and not isinstance(params, type):
         return asdict(params)
     return dict(params) if isinstance(params, dict) else None
-
-
-def _feature_name(zone: ToleranceZone) -> str:
-    if zone.faces is None:
-        return "SURFACE_GENERAL"
-    return token(f"SURFACE_{zone.key}")
 
 
 def _uri(path: str) -> str:

@@ -111,7 +111,8 @@ log = logging.getLogger(__name__)
 #: 8: STEP nominals carry the B-rep's corner normals (Nominal.brep_normals)
 #: 10: STEP nominals carry their feature characteristics and datums (Nominal.plan); no
 #:    feature tolerance or dimension is a not-evaluated zone
-CACHE_FORMAT = 10
+#: 11: STEP nominals carry their faces' STEP entity ids (Nominal.face_step_ids)
+CACHE_FORMAT = 11
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"

@@ -53,7 +53,7 @@ log = logging.getLogger("qifreport")
 
 #: the sub-commands; a first argument that is none of them (nor a top-level option) is the
 #: nominal of the default ``inspect``
-SUBCOMMANDS = ("inspect", "pmi", "validate", "prepare", "batch")
+SUBCOMMANDS = ("inspect", "pmi", "plan", "validate", "prepare", "batch")
 
 
 def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
@@ -542,6 +542,12 @@ def _run_validate(args: argparse.Namespace) -> int:
     return run(args)
 
 
+def _run_plan(args: argparse.Namespace) -> int:
+    from .plan_command import run
+
+    return run(args)
+
+
 def _run_batch(args: argparse.Namespace) -> int:
     from .batch import batch_options, run_batch_command
 
@@ -646,6 +652,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--rebuild", action="store_true", help="ignore an existing entry")
     add_accept_option(p)
     p.set_defaults(run=_run_prepare)
+
+    from .plan_command import add_arguments as add_plan_arguments
+
+    p = sub.add_parser(
+        "plan",
+        parents=[common],
+        help="write a STEP part's QIF measurement plan",
+        description="Write the QIF 3.0 measurement plan of a STEP part (<stem>_plan.qif): "
+        "its features, datums, datum reference frames and one characteristic per PMI item, "
+        "no results. --compare checks it item by item against another QIF document.",
+    )
+    add_plan_arguments(p)
+    p.set_defaults(run=_run_plan)
 
     from .batch import add_batch_arguments
 

@@ -61,6 +61,8 @@ class Nominal:
     solid_mesh: SolidMesh | None = None
     #: the drawing's feature characteristics and datums (a STEP nominal with PMI)
     plan: CharacteristicPlan | None = None
+    #: (n_faces,) the STEP entity id of each B-rep face (-1 unknown), None for a mesh
+    face_step_ids: np.ndarray | None = None
 
 
 def load_nominal(
@@ -190,6 +192,7 @@ def load_nominal(
             brep_normals=normals,
             solid_mesh=tets,
             plan=specs_from_pmi(pmi, part.face_index()),
+            face_step_ids=np.asarray(part.face_step_ids, dtype=np.int64),
         )
     if tolerance is None:
         raise InputError(

@@ -325,6 +325,15 @@ def check_job(job: InspectJob) -> None:
         path = getattr(job, name)
         if not path.is_file():
             raise InputError(f"{name} file not found: {path}")
+    plan = plan_path(job, job.out)
+    if plan is not None and plan.exists() and not job.force:
+        from qifreport.qif.plan import plan_qpid, read_qpid
+
+        if read_qpid(plan) != plan_qpid(sha256(job.nominal)):
+            raise InputError(
+                f"output exists: {plan} is not the plan of {job.nominal.name} by this "
+                "qifreport (use --force to overwrite)"
+            )
     for path in job.output_paths().values():
         if path.exists() and not job.force:
             raise InputError(f"output exists: {path} (use --force to overwrite)")
@@ -477,6 +486,7 @@ def output_writers(
             finished=finished,
             datums=nom.datums,
             nominal_info=nom.info,
+            face_step_ids=nom.face_step_ids,
             author=o.author,
             organization=o.organization,
             operator=o.operator,
@@ -487,6 +497,9 @@ def output_writers(
 
         qif_state = {"path": str(paths["qif"])}
         outputs.append((paths["qif"], qif_writer(build_qif(res, prov), qif_state)))
+        plan = plan_output(nom, job, paths["qif"].parent, digests["nominal"])
+        if plan is not None:
+            outputs.append(plan)
     if not o.no_pdf:
         from .reports.pdf import write_pdf
 
@@ -522,6 +535,42 @@ def output_writers(
             )
         )
     return outputs, qif_state
+
+
+def plan_path(job: InspectJob, out_dir: Path) -> Path | None:
+    """Where the part's QIF plan goes beside the results (``<nominal stem>_plan.qif``), None
+    when there is none: a mesh nominal (no PMI) or no QIF asked for."""
+    from qifreport.qif.plan import plan_file_name
+    from qifreport.step.reader import STEP_SUFFIXES
+
+    if job.options.no_qif or job.nominal.suffix.lower() not in STEP_SUFFIXES:
+        return None
+    return out_dir / plan_file_name(job.nominal.stem)
+
+
+def plan_output(
+    nom: Nominal, job: InspectJob, out_dir: Path, nominal_sha256: str
+) -> tuple[Path, Writer] | None:
+    """The writer of the part's QIF plan (:mod:`qifreport.qif.plan`), which the results
+    document names: None for a mesh nominal, or when the plan of this STEP file by this
+    version is there already (same QPId: every scan of a batch shares it)."""
+    from qifreport.qif.plan import PlanSource, build_plan, plan_qpid, read_qpid
+
+    path = plan_path(job, out_dir)
+    if path is None or nom.face_step_ids is None or nom.plan is None:
+        return None
+    if path.is_file() and read_qpid(path) == plan_qpid(nominal_sha256):
+        return None
+    src = PlanSource(
+        part_name=job.nominal.stem,
+        nominal_path=str(job.nominal),
+        nominal_sha256=nominal_sha256,
+        zones=nom.zones,
+        plan=nom.plan,
+        datums=nom.datums,
+        face_step_ids=nom.face_step_ids,
+    )
+    return path, qif_writer(build_plan(src), {})
 
 
 def scan_input(

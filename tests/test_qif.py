@@ -139,7 +139,11 @@ def test_dmsc_checks_format_clean(runs, name):
     findings = dmsc_checks(runs[name][1])
     assert [f for f in findings if f.category == "CheckFormat"] == []
     # what the quality checks do report: annotations without graphics (we write no views)
-    other = {re.sub(r"\).*", ")", f.message) for f in findings}
+    # (the plan the results name, checked as a linked document, reports the same kind)
+    other = {
+        re.sub(r"\).*", ")", re.sub(r"^in linked document \S+ line \d+: ", "", f.message))
+        for f in findings
+    }
     assert other <= {"Unviewed Annotation (A-AN-UV)", "Non-Graphical Annotation (A-AN-NG)"}, other
 
 
@@ -254,6 +258,18 @@ def test_step_part_one_characteristic_per_profile_tolerance(runs):
     root = etree.parse(str(path)).getroot()
     labels = [e.text for e in root.iter(f"{Q}DatumLabel")]
     assert labels == ["A", "B", "C"]
+    # the results name the part's plan (qifreport plan) by its QPId and file name
+    from qifreport.qif.plan import plan_qpid
+
+    ref = root.find(f"{Q}ExternalQIFReferences/{Q}ExternalQIFDocument")
+    assert ref.findtext(f"{Q}QPId") == plan_qpid(doc["inputs"]["nominal"]["sha256"])
+    assert ref.findtext(f"{Q}URI") == "panel_plan.qif"
+    # each surface names its B-rep faces by STEP entity id too
+    step_text = (ROOT / "samples/panel.step").read_text().replace(" ", "")
+    for f in root.iter(f"{Q}OtherSurfaceFeatureNominal"):
+        attrs = {a.get("name"): a.get("value") for a in f.iter(f"{Q}AttributeStr")}
+        if "b_rep_faces" in attrs:
+            assert all(f"#{sid}=" in step_text for sid in attrs["step_faces"].split())
     # traceability: both inputs with their SHA-256, the software version, time of inspection
     digests = {doc["inputs"]["nominal"]["sha256"], doc["inputs"]["scan"]["sha256"]}
     assert {d.rsplit(" ", 1)[-1] for _, d in r.inputs} == digests
