@@ -136,8 +136,8 @@ def build_plan(src: PlanSource, created: datetime | None = None) -> etree._Eleme
     part_el = E.Part(
         E.Header(E.Name(src.part_name)),
         E.UUID(qpid()),
-        id_array("FeatureNominalIds", zs.fnom_ids),
-        id_array("CharacteristicNominalIds", zs.cnom_ids),
+        *([id_array("FeatureNominalIds", zs.fnom_ids)] if zs.fnom_ids else []),
+        *([id_array("CharacteristicNominalIds", zs.cnom_ids)] if zs.cnom_ids else []),
         *([id_array("DatumDefinitionIds", dids.values())] if dids else []),
         *([id_array("DatumReferenceFrameIds", drf_ids.values())] if drf_ids else []),
         id=part_id,
@@ -165,8 +165,8 @@ def build_plan(src: PlanSource, created: datetime | None = None) -> etree._Eleme
         datum_definitions(dids, datum_features),
         datum_reference_frames(drf_ids, dids, referenced="NOMINAL"),
         product,
-        zs.features(),
-        zs.characteristics(std_id),
+        zs.features() if zs.fdefs else None,
+        zs.characteristics(std_id) if zs.cdefs else None,
         E.Plan(E.UnorderedPlanRoot(E.Steps(E.MeasureEvaluateAll(), n="1"))),
     ]
     root = E.QIFDocument(
