@@ -58,6 +58,7 @@ __all__ = [
     "DEFAULT_GENERAL_TOLERANCE",
     "PROFILE_TYPES",
     "BandField",
+    "composite_segment",
     "lay_bands",
     "material_boundary",
     "NotEvaluated",
@@ -77,6 +78,21 @@ log = logging.getLogger(__name__)
 DEFAULT_GENERAL_TOLERANCE = 0.5
 
 PROFILE_TYPES = ("surface_profile",)
+
+
+def composite_segment(tol, tolerances) -> str:
+    """A PMI tolerance's place in a composite feature control frame: ``'upper'`` (the
+    pattern-locating segment: the group's largest value), ``'lower'`` (a feature-relating
+    segment: its datums orient only, its zone may translate as a whole) or ``''`` (not
+    composite). ``tolerances``: every tolerance of the PMI."""
+    if not getattr(tol, "composite_with", None):
+        return ""
+    by_id = {t.step_id: t for t in tolerances}
+    group = [tol] + [by_id[i] for i in tol.composite_with if i in by_id]
+    values = [t.value for t in group if t.value is not None]
+    if tol.value is None or not values:
+        return ""
+    return "upper" if tol.value >= max(values) else "lower"
 
 
 def material_boundary(modifiers: list[str]) -> str:
@@ -114,6 +130,8 @@ class ToleranceZone:
         (:mod:`qifreport.step.supplemental`); None: none.
     datum_materials : each datum reference's material boundary as drawn
         (:func:`material_boundary`), same order as ``datums``.
+    composite : ``'upper'``/``'lower'`` segment of a composite profile
+        (:func:`composite_segment`), ``''`` for a single-segment one.
     """
 
     key: str
@@ -131,6 +149,7 @@ class ToleranceZone:
     min_coverage: float | None = None
     triangles: np.ndarray | None = None
     datum_materials: list[str] = field(default_factory=list)
+    composite: str = ""
 
     @property
     def center(self) -> float:
@@ -298,6 +317,7 @@ def zones_from_pmi(
                     material_boundary(d.modifiers)
                     for d in sorted(tol.datums, key=lambda d: d.precedence)
                 ],
+                composite=composite_segment(tol, pmi.tolerances),
             )
             (whole if is_whole else zones).append(zone)
     if whole:

@@ -42,7 +42,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from .bands import material_boundary
+from .bands import composite_segment, material_boundary
+from .composite import free_rotations, minimax_offsets, orientation_only
 from .datums import MAX_OPEN_DEG, DatumFeature, largest_gap
 from .decision import decide
 from .form import (
@@ -116,6 +117,8 @@ class CharacteristicSpec:
         ``'LEAST'``, ``'NONE'``; same order as ``datums``).
     unit_basis : a per-unit tolerance's unit as read (``'per unit length 25 mm'``,
         ``'per rectangular area 6.35 mm x 6.35 mm'``), None for a whole-feature tolerance.
+    composite : ``'upper'`` or ``'lower'`` segment of a composite feature control frame
+        (:func:`qifreport.metrology.bands.composite_segment`), ``''`` for none.
     """
 
     key: str
@@ -138,6 +141,7 @@ class CharacteristicSpec:
     problems: list[str] = field(default_factory=list)
     datum_materials: list[str] = field(default_factory=list)
     unit_basis: str | None = None
+    composite: str = ""
 
     @property
     def free_state(self) -> bool:
@@ -200,7 +204,9 @@ class CharacteristicResult:
             "step_id": s.step_id,
             "faces": [int(f) for f in s.faces],
             "datums": list(s.datums),
+            "datum_materials": list(s.datum_materials) or ["NONE"] * len(s.datums),
             "modifiers": list(s.modifiers),
+            "composite": s.composite,
             "tolerance_mm": s.tolerance,
             "nominal": s.nominal,
             "lower_limit": s.lower_limit,
@@ -299,6 +305,7 @@ def specs_from_pmi(pmi, face_index: dict[int, int]) -> CharacteristicPlan:
             modifiers=list(tol.modifiers),
             zone_form=tol.zone_form,
             unit_basis=tol.unit_basis,
+            composite=composite_segment(tol, pmi.tolerances),
         )
         if tol.value is None:
             spec.problems.append("tolerance value could not be established")
@@ -384,7 +391,11 @@ def measure_characteristics(
     for spec in specs:
         surf = free_surface if spec.free_state and free_surface is not None else surface
         frame = frame_of(spec.datums, datums, surf, frames)
-        results.append(_measure(spec, surf, frame, rule, sizes))
+        res = _measure(spec, surf, frame, rule, sizes)
+        soft = [p for p in spec.problems if "simulated regardless" in p]
+        if soft and res.status != "NOT_MEASURED":  # a datum at MMC/LMC: said in the reading
+            res.reading = "; ".join([res.reading, *soft]) if res.reading else "; ".join(soft)
+        results.append(res)
     return results, list(frames.values())
 
 
@@ -425,6 +436,8 @@ def _measure(
     if not np.isin(surf.face_id, spec.faces).any():
         return _not_measured(spec, "its faces are not on the part inspected")
     members = surf.features(spec.faces)
+    if spec.kind == "position" and spec.composite == "lower":
+        return _pattern_position(spec, surf, members, frame, rule, sizes)
     if spec.kind == "position" and len(members) == 2:
         width = _center_plane(spec, surf, members, frame, rule)
         if width is not None:
@@ -746,42 +759,139 @@ def _coaxiality(spec, S, sample, feat, frame, sizes, surf, faces):
     return _axis_location(spec, S, sample, feat, sizes, faces, position=False)
 
 
+def _axis_fit(
+    S: np.ndarray, feat: DatumFeature
+) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """The least-squares axis of a cylinder's points: origin, unit direction (as the
+    nominal's), radius, and its two ends over the measured length (2, 3)."""
+    if largest_gap(S, feat.origin, feat.direction) > MAX_OPEN_DEG:
+        raise _Unmeasurable("too little of the cylinder's circumference measured")
+    o, a, r_ls = least_squares_cylinder(S, feat.origin, feat.direction, feat.radius)
+    a = a if a @ feat.direction > 0 else -a
+    z = (S - o) @ a
+    return o, a, r_ls, o + np.outer([z.min(), z.max()], a)
+
+
+def _material_bonus(spec, S, o, a, r_ls, feat: DatumFeature, sizes, faces) -> tuple[float, str]:
+    """The MMC/LMC bonus of a position from the feature's measured size and its size
+    dimension's limits (0 without a material condition), and how it was found."""
+    mods = " ".join(spec.modifiers)
+    if not ("maximum_material" in mods or "least_material" in mods):
+        return 0.0, ""
+    size = next((s for s in sizes if set(faces) <= set(s.faces)), None)
+    if size is None or size.lower_limit is None or size.upper_limit is None:
+        return 0.0, "; no size limits for the material condition: no bonus"
+    scale = 2.0 if size.dim_type == "radius" else 1.0
+    lo, hi = size.lower_limit * scale, size.upper_limit * scale
+    rho = np.linalg.norm((S - o) @ (np.eye(3) - np.outer(a, a)), axis=1)
+    mmc = "maximum_material" in mods
+    if mmc:  # the mating size about the axis
+        actual = 2 * float(rho.min() if feat.internal else rho.max())
+        bonus = actual - lo if feat.internal else hi - actual
+    else:
+        actual = 2 * r_ls
+        bonus = hi - actual if feat.internal else actual - lo
+    bonus = max(bonus, 0.0)
+    return bonus, f"; {'MMC' if mmc else 'LMC'} bonus {bonus:.4f} mm (size {actual:.4f} mm)"
+
+
 def _axis_location(spec, S, sample, feat: DatumFeature, sizes, faces, position: bool):
     """An axis from true position at both ends of its measured length, diametral; the
     axis is the least-squares cylinder's (ISO 14405's default association: a tangent
     mating cylinder rests on a few extreme points, and on the partial arc a scan sees of
     a hole it tilts with them), the mating size the largest inscribed (smallest
     circumscribed) cylinder about that axis (never more bonus than the true envelope)."""
-    if largest_gap(S, feat.origin, feat.direction) > MAX_OPEN_DEG:
-        raise _Unmeasurable("too little of the cylinder's circumference measured")
-    o, a, r_ls = least_squares_cylinder(S, feat.origin, feat.direction, feat.radius)
-    a = a if a @ feat.direction > 0 else -a
-    z = (S - o) @ a
-    ends = o + np.outer([z.min(), z.max()], a)
+    o, a, r_ls, ends = _axis_fit(S, feat)
     E = np.eye(3) - np.outer(feat.direction, feat.direction)
     off = np.linalg.norm((ends - feat.origin) @ E, axis=1)
     value = 2 * float(off.max())
-    bonus = 0.0
     how = "axis (least squares) from true position at both ends"
-    mods = " ".join(spec.modifiers)
-    if position and ("maximum_material" in mods or "least_material" in mods):
-        size = next((s for s in sizes if set(faces) <= set(s.faces)), None)
-        if size is None or size.lower_limit is None or size.upper_limit is None:
-            how += "; no size limits for the material condition: no bonus"
-        else:
-            scale = 2.0 if size.dim_type == "radius" else 1.0
-            lo, hi = size.lower_limit * scale, size.upper_limit * scale
-            rho = np.linalg.norm((S - o) @ (np.eye(3) - np.outer(a, a)), axis=1)
-            mmc = "maximum_material" in mods
-            if mmc:  # the mating size about the axis
-                actual = 2 * float(rho.min() if feat.internal else rho.max())
-                bonus = actual - lo if feat.internal else hi - actual
-            else:
-                actual = 2 * r_ls
-                bonus = hi - actual if feat.internal else actual - lo
-            bonus = max(bonus, 0.0)
-            how += f"; {'MMC' if mmc else 'LMC'} bonus {bonus:.4f} mm (size {actual:.4f} mm)"
+    bonus = 0.0
+    if position:
+        bonus, more = _material_bonus(spec, S, o, a, r_ls, feat, sizes, faces)
+        how += more
     return value, None, 2 * _fit_U(sample.U, 4), how, bonus
+
+
+def _pattern_position(
+    spec: CharacteristicSpec,
+    surf: MeasuredSurface,
+    members: list[np.ndarray],
+    frame: DatumFrameResult | None,
+    rule: str,
+    sizes: list[CharacteristicSpec],
+) -> CharacteristicResult:
+    """The lower segment of a composite position (:mod:`.composite`): each member's
+    least-squares axis in the orientation of the segment's frame, the pattern placed as a
+    whole (translation, and rotation about what the segment's datums leave free) at the
+    position that minimises its worst member's offset beyond its bonus; that member's
+    diametral offset reported against the tolerance plus its bonus."""
+    fo = None if frame is None else orientation_only(frame)
+    rotations = free_rotations(fo)
+    Q, P, axes, allow, owner, info = [], [], [], [], [], []
+    for j, faces in enumerate(members):
+        sample = surf.sample(faces)
+        feat = sample.nominal
+        why = None
+        if feat is None or feat.kind != "cylinder":
+            why = "a composite lower segment of a feature that is not a hole or a pin"
+        elif len(sample.S) < 8:
+            why = f"{len(sample.S)} measured points on a feature"
+        try:
+            if why is not None:
+                raise _Unmeasurable(why)
+            S = sample.S if fo is None else fo.move(sample.S)
+            o, a, r_ls, ends = _axis_fit(S, feat)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            why = str(exc) if len(members) == 1 else f"faces {_faces(faces)}: {exc}"
+            return _not_measured(spec, why)
+        bonus, more = _material_bonus(spec, S, o, a, r_ls, feat, sizes, faces)
+        d = feat.direction
+        for e in ends:
+            Q.append(e - (feat.origin + ((e - feat.origin) @ d) * d))
+            P.append(e)
+            axes.append(d)
+            allow.append(bonus / 2)
+            owner.append(j)
+        U = 2 * _fit_U(sample.U, 4)
+        if fo is not None:
+            U = float(np.hypot(U, 2 * fo.point_uncertainty(S)))
+        info.append((bonus, more, U, len(S), sample))
+    try:
+        _, _, off = minimax_offsets(
+            np.array(Q), np.array(P), np.array(axes), rotations, np.array(allow)
+        )
+    except RuntimeError as exc:
+        return _not_measured(spec, str(exc))
+    owner = np.array(owner)
+    values = np.array([2 * float(off[owner == j].max()) for j in range(len(members))])
+    margin = values - np.array([b for b, *_ in info])
+    k = int(np.argmax(margin))
+    bonus, more, U, n, sample = info[k]
+    moves = "translation" + (
+        ", rotation about " + ", ".join(_axis_name(r) for r in rotations) if len(rotations) else ""
+    )
+    frame_txt = f"orientation in |{'|'.join(frame.labels)}|" if frame is not None else "no datums"
+    res = CharacteristicResult(
+        spec,
+        value=float(values[k]),
+        uncertainty=U,
+        reading=(
+            f"composite lower segment: axes (least squares) relative to the pattern of "
+            f"{len(members)}, placed as a whole at its minimax position ({moves}); "
+            f"{frame_txt}; worst: faces {_faces(members[k])}{more}"
+        ),
+        n_points=n,
+        coverage=sample.coverage,
+        bonus=bonus,
+    )
+    _judge(res, rule, None, res.limit)
+    return res
+
+
+def _axis_name(v: np.ndarray) -> str:
+    i = int(np.argmax(np.abs(v)))
+    return "xyz"[i] if abs(v[i]) > 1 - 1e-6 else "(" + ", ".join(f"{x:.3f}" for x in v) + ")"
 
 
 def _runout(spec, S, sample, feat, frame, sizes, surf, faces):

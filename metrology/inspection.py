@@ -63,6 +63,7 @@ from .characteristics import (
     frame_of,
     measure_characteristics,
 )
+from .composite import composite_zone_frame
 from .coverage import (
     DEFAULT_MIN_COVERAGE,
     GAP_AREA_FACTOR,
@@ -1230,6 +1231,10 @@ def _judge(
                 zone_frames[i] = frame_of(
                     z.datums, plan.datums, free_surf if use_free else surf, cache
                 )
+            if z.composite == "lower":  # its own placement, in its frame's orientation
+                zone_frames[i] = composite_zone_frame(
+                    zone_frames.get(i), V, ops.normals, dev_all - z.center, bands.governing == i
+                )
         feats, frames_used = measure_characteristics(
             plan.specs, plan.datums, surf, rule, free_surface=free_surf, frames=cache
         )
@@ -1298,7 +1303,11 @@ def _judge(
             zpU = frame.shift_uncertainty(V, ops.normals)
             zU = np.hypot(U_free if use_free else U_base, frame.shift_uncertainty(V, ops.normals))
             reading = f"datum frame |{'|'.join(frame.labels)}|"
-            if frame.free:
+            if z.composite == "lower":
+                reading = "composite lower segment: zone placed at its minimax position" + (
+                    f", orientation in |{'|'.join(frame.labels)}|" if frame.labels else ""
+                )
+            elif frame.free:
                 reading += " (best fit: " + ", ".join(frame.free) + ")"
         elif frame is not None:
             reading = "best fit (datum frame not established: " + "; ".join(frame.problems) + ")"

@@ -295,6 +295,8 @@ def profile_definition(
         da.i("step_entity_id", zone.step_id)
     if zone.modifiers:
         da.s("modifiers", " ".join(zone.modifiers))
+    if zone.composite:
+        da.s("composite_segment", zone.composite)
     text = f"{zone.describe()}. {rule}." if rule else f"{zone.describe()}."
     cdef = [da.element(), E.Description(text), E.Name(token(zone.name))]
     if zone.free_state:

@@ -68,6 +68,13 @@ _ORIENTATION = ("perpendicularity", "parallelism", "angularity")
 _DRF = _MATERIAL + ("coaxiality", "concentricity", "circular_runout", "total_runout", "symmetry")
 
 
+#: a composite feature control frame's segments, as the definition's attribute says them
+_COMPOSITE = {
+    "upper": "upper (pattern-locating: located in its datum reference frame)",
+    "lower": "lower (feature-relating: its datums orient only; the pattern placed as a whole)",
+}
+
+
 def qif_status(c: CharacteristicResult) -> str:
     """The ``CharacteristicStatusEnum`` of a measured characteristic."""
     return _STATUS[c.status]
@@ -145,6 +152,8 @@ def characteristic_definition(
         da.i("step_entity_id", s.step_id)
     if s.modifiers:
         da.s("modifiers", " ".join(s.modifiers))
+    if s.composite:
+        da.s("composite_segment", _COMPOSITE[s.composite])
     name = token(s.name)
     cdef = [da.element(), E.Description(_describe(s, result)), E.Name(name)]
     if s.free_state:
