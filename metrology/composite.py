@@ -23,6 +23,7 @@ from .frames import DatumFrameResult
 __all__ = [
     "composite_zone_frame",
     "free_rotations",
+    "least_squares_shift",
     "minimax_offsets",
     "minimax_shift",
     "orientation_only",
@@ -190,6 +191,7 @@ def composite_zone_frame(
     N: np.ndarray,
     d: np.ndarray,
     governed: np.ndarray,
+    half_width: float | None = None,
 ) -> DatumFrameResult | None:
     """The placement of a composite profile's lower segment (:mod:`.composite`): the
     orientation of its datum frame (none: the best fit's), the zone moved as a whole
@@ -201,6 +203,9 @@ def composite_zone_frame(
     frame : the segment's datum frame (None: it cites no datum).
     V, N : (n, 3) nominal vertices and unit normals.  d : (n,) deviation from the zone's
         centre, mm (NaN unscored).  governed : (n,) the zone's vertices.
+    half_width : the zone's half width, mm: when no placement keeps the surface within it,
+        the zone is laid at the surface's trimmed least-squares placement instead (the
+        failing regions then where the surface departs from the rest), None: minimax always.
 
     Returns the frame to lay the zone in (not established: ``frame`` as it is).
     """
@@ -221,5 +226,32 @@ def composite_zone_frame(
     if sel.sum() < 6:
         return f0
     rot = free_rotations(f0)
-    t, theta, _ = minimax_shift(d[sel] + f0.normal_shift(V[sel], N[sel]), V[sel], N[sel], rot)
+    d0 = d[sel] + f0.normal_shift(V[sel], N[sel])
+    t, theta, half = minimax_shift(d0, V[sel], N[sel], rot)
+    if half_width is not None and half > half_width:
+        # no placement contains the surface: the part fails whatever the placement, and the
+        # minimax one would share a local defect's excess with the far side of the zone (a
+        # bump's region reported half at the bump, half where nothing is wrong); lay it
+        # where the surface mostly is instead (trimmed least squares), the defect alone out
+        t, theta = least_squares_shift(d0, V[sel], N[sel], rot)
     return shift_frame(f0, t, theta, rot)
+
+
+def least_squares_shift(
+    d: np.ndarray, V: np.ndarray, N: np.ndarray, rotations: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The small motion ``(t, theta)`` that brings ``d + N . (t + theta x V)`` nearest 0 in
+    least squares, refitted once without the values beyond 3 robust standard deviations
+    (a local defect does not move it). Same arguments as :func:`minimax_shift`."""
+    cols = [np.einsum("ij,ij->i", N, np.cross(om, V)) for om in rotations]
+    A = np.column_stack([N, *cols]) if cols else np.asarray(N, dtype=np.float64)
+    keep = np.ones(len(d), dtype=bool)
+    x = np.zeros(A.shape[1])
+    for _ in range(2):
+        x = np.linalg.lstsq(A[keep], -d[keep], rcond=1e-9)[0]
+        r = d + A @ x
+        mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+        keep = np.abs(r - np.median(r)) <= 3 * max(mad, 1e-6)
+        if keep.sum() < A.shape[1] + 1:
+            break
+    return x[:3], x[3:]

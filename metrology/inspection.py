@@ -1233,7 +1233,12 @@ def _judge(
                 )
             if z.composite == "lower":  # its own placement, in its frame's orientation
                 zone_frames[i] = composite_zone_frame(
-                    zone_frames.get(i), V, ops.normals, dev_all - z.center, bands.governing == i
+                    zone_frames.get(i),
+                    V,
+                    ops.normals,
+                    dev_all - z.center,
+                    bands.governing == i,
+                    z.half_width,
                 )
         feats, frames_used = measure_characteristics(
             plan.specs, plan.datums, surf, rule, free_surface=free_surf, frames=cache

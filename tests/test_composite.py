@@ -158,3 +158,21 @@ def test_composite_profile_zone_keeps_the_orientation_and_places_the_zone():
     # read as a located zone (the frame's own translation) the same surface is 3 mm off
     assert np.abs(d + frame.normal_shift(V, N)).max() > 1.0
     assert "translation (composite lower segment)" in f.free
+
+
+def test_a_local_defect_stays_where_it_is_when_no_placement_conforms():
+    from qifreport.metrology.composite import composite_zone_frame
+
+    rng = np.random.default_rng(6)
+    V = np.c_[rng.uniform(-50, 50, (6000, 2)), np.zeros(6000)]
+    N = np.tile([0.0, 0.0, 1.0], (6000, 1))
+    d = 0.2 + rng.uniform(-0.02, 0.02, 6000)  # the face sits 0.2 mm out
+    bump = np.linalg.norm(V[:, :2] - [20.0, 10.0], axis=1) < 3.0
+    d[bump] += 0.5  # a 0.5 mm bump: beyond the +/-0.127 zone wherever it is laid
+    f = composite_zone_frame(None, V, N, d, np.ones(6000, bool), half_width=0.127)
+    r = d + f.normal_shift(V, N)
+    assert np.abs(r[~bump]).max() < 0.03  # the face itself in its zone
+    assert (r[bump] > 0.127).all()  # the bump alone out
+    # minimax (no half width given) would split the bump's excess with the whole face
+    g = composite_zone_frame(None, V, N, d, np.ones(6000, bool))
+    assert np.abs((d + g.normal_shift(V, N))[~bump]).max() > 0.2
