@@ -37,6 +37,7 @@ limits). Lengths mm, angles degrees.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -66,6 +67,7 @@ __all__ = [
     "GEOMETRIC_KINDS",
     "frame_of",
     "measure_characteristics",
+    "per_unit",
     "specs_from_pmi",
 ]
 
@@ -309,7 +311,7 @@ def specs_from_pmi(pmi, face_index: dict[int, int]) -> CharacteristicPlan:
         )
         if tol.value is None:
             spec.problems.append("tolerance value could not be established")
-        if tol.unit_basis:
+        if tol.unit_basis and not (tol.type == "flatness" and "area" in tol.unit_basis):
             spec.problems.append(f"per-unit tolerance ({tol.unit_basis}) not evaluated")
         for ref in tol.datums:
             if ref.label not in datums:
@@ -345,7 +347,8 @@ def specs_from_pmi(pmi, face_index: dict[int, int]) -> CharacteristicPlan:
             origin_faces=faces_of(dim.origin_face_step_ids) if dim.origin_face_step_ids else None,
             target_faces=faces_of(dim.target_face_step_ids) if dim.target_face_step_ids else None,
         )
-        if nominal is None and (lo is None or hi is None):
+        if nominal is None and (lo is None) != (hi is None):
+            # one limit without a nominal (none at all: a size reported, :func:`_reported`)
             spec.problems.append("the dimension's nominal could not be established")
         specs.append(spec)
     return CharacteristicPlan(specs, datums)
@@ -609,7 +612,92 @@ def _form(fit, U: np.ndarray, how: str) -> tuple:
 def _flatness(spec, S, sample, feat, frame, sizes, surf, faces):
     if feat.kind != "plane":
         raise _Unmeasurable("flatness of a feature that is not a plane")
+    unit = per_unit(spec.unit_basis)
+    if unit is not None and unit[0] != "length":
+        # a unit area is a few mm wide: the scan points on the face when they are denser
+        on = np.isin(surf.P_face, np.asarray(list(faces), dtype=np.int64))
+        if on.sum() > len(S):
+            S, U = surf.P[on], surf.P_U[on]
+        else:
+            U = sample.U
+        return _flatness_per_area(S, U, feat, unit)
     return _form(flatness(S), sample.U, "minimum zone (least squares beside)")
+
+
+#: a unit area's window holds at least this many measured points to be judged
+_WINDOW_POINTS = 6
+#: the windows whose least-squares peak-to-valley is largest are then judged by the
+#: minimum zone (the least-squares one is never below it), this many
+_WINDOWS_EXACT = 8
+
+
+def _flatness_per_area(S, U, feat: DatumFeature, unit: tuple[str, list[float]]) -> tuple:
+    """Flatness per unit area (Y14.5-2018 5.4.2.1): the worst minimum-zone flatness of the
+    surface within any unit area (a rectangle a x b, square to the plane's principal
+    directions, or a circle), its windows centred on a grid of a quarter of the unit's size
+    over the measured points; the worst few by least squares, then by the minimum zone."""
+    kind, dims = unit
+    E = axis_frame(feat.direction)
+    X = (S - feat.origin) @ E.T
+    # the face's own in-plane directions (its principal axes), for the rectangles
+    C = np.cov(X[:, :2].T)
+    _, vec = np.linalg.eigh(C)
+    UV = X[:, :2] @ vec
+    a = dims[0]
+    b = dims[1] if kind == "rectangular" else dims[0]
+    lo, hi = UV.min(axis=0), UV.max(axis=0)
+    cu = np.arange(lo[0], hi[0] + a / 4, a / 4)
+    cv = np.arange(lo[1], hi[1] + b / 4, b / 4)
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(UV)
+    windows = []
+    for u0 in cu:
+        for v0 in cv:
+            idx = np.array(tree.query_ball_point([u0, v0], 0.5 * np.hypot(a, b)), dtype=np.int64)
+            if kind == "circular":
+                idx = idx[np.hypot(*(UV[idx] - [u0, v0]).T) <= a / 2] if len(idx) else idx
+            elif len(idx):
+                d = np.abs(UV[idx] - [u0, v0])
+                idx = idx[(d[:, 0] <= a / 2) & (d[:, 1] <= b / 2)]
+            if len(idx) >= _WINDOW_POINTS:
+                h = X[idx, 2]
+                A = np.c_[UV[idx], np.ones(len(idx))]
+                r = h - A @ np.linalg.lstsq(A, h, rcond=None)[0]
+                windows.append((float(np.ptp(r)), idx, (u0, v0)))
+    if not windows:
+        raise _Unmeasurable(f"no unit area ({kind} {a:g} x {b:g} mm) holds enough points")
+    windows.sort(key=lambda w: -w[0])
+    best = None
+    for ls, idx, at in windows[:_WINDOWS_EXACT]:
+        fit = flatness(S[idx])
+        if best is None or fit.minimum_zone > best[0].minimum_zone:
+            best = (fit, idx, ls, at)
+    fit, idx, ls, at = best
+    size = f"{a:g} x {b:g} mm" if kind == "rectangular" else f"diameter {a:g} mm"
+    return (
+        fit.minimum_zone,
+        ls,
+        _extremes_U(fit.residuals, U[idx]),
+        f"per unit area ({kind} {size}): worst of {len(windows)} windows, minimum zone "
+        f"(least squares beside)",
+        0.0,
+    )
+
+
+def per_unit(text: str | None) -> tuple[str, list[float]] | None:
+    """A per-unit tolerance's unit from the PMI's text (mm): ``('length', [L])``,
+    ``('rectangular', [a, b])``, ``('circular', [d])``; None when there is none."""
+    if not text:
+        return None
+    nums = [float(x) for x in re.findall(r"[-+]?\d*\.?\d+(?:[eE][-+]?\d+)?", text)]
+    if not nums:
+        return None
+    if "length" in text:
+        return "length", nums[:1]
+    if "circular" in text:
+        return "circular", nums[:1]
+    return "rectangular", (nums + nums)[:2]  # a square area gives one side
 
 
 def _cylindricity(spec, S, sample, feat, frame, sizes, surf, faces):
@@ -1052,8 +1140,37 @@ def _pair(surf: MeasuredSurface, fa, fb) -> tuple[dict, dict, np.ndarray] | None
     return out[0], out[1], np.r_[sa.U, sb.U]
 
 
+def _reported(spec: CharacteristicSpec, cands: list, key: str, what: str) -> CharacteristicResult:
+    """A dimension the drawing gives no value (and no limits): the size its faces give,
+    measured and reported (status BASIC: a reference, not judged) when they give one
+    quantity of its kind, not measured when they give none or several."""
+    found = [(nom, meas, U_pts) for nom, meas, U_pts in cands if key in nom]
+    values = sorted({round(nom[key], 6) for nom, _, _ in found})
+    if len(values) != 1:
+        return _not_measured(
+            spec,
+            "the drawing gives no value and its faces give "
+            + ("no " + key if not values else f"several ({', '.join(f'{v:g}' for v in values)})"),
+        )
+    nom, meas, U_pts = max(found, key=lambda f: abs(f[1][key] - f[0][key]))
+    U = None
+    if spec.unit == "mm":
+        sys_r = meas.get("_systematic_radius", 0.0) * (2.0 if key == "diameter" else 1.0)
+        U = float(np.hypot(2 * _fit_U(U_pts, 2), sys_r))
+    return CharacteristicResult(
+        spec,
+        value=float(meas[key]),
+        uncertainty=U,
+        status="BASIC",
+        reading=f"{key} {what}; the drawing gives no value (nominal {nom[key]:.4g} on the "
+        "model): reported, not judged",
+        n_points=len(U_pts),
+    )
+
+
 def _dimension(spec: CharacteristicSpec, surf: MeasuredSurface, rule: str) -> CharacteristicResult:
-    if spec.nominal is None:
+    no_value = spec.nominal is None
+    if no_value and (spec.lower_limit is not None or spec.upper_limit is not None):
         return _not_measured(spec, "the dimension's nominal could not be established")
     if spec.origin_faces is not None and spec.target_faces is not None:
         if not len(spec.origin_faces) or not len(spec.target_faces):
@@ -1078,6 +1195,9 @@ def _dimension(spec: CharacteristicSpec, surf: MeasuredSurface, rule: str) -> Ch
         keys = ["radius", "distance"]
     else:
         keys = ["diameter", "distance", "radius"]
+    if no_value:
+        natural = {"diameter": "diameter", "radius": "radius"}.get(spec.dim_type, "distance")
+        return _reported(spec, cands, "angle" if spec.unit == "deg" else natural, what)
     tol = max(_NOMINAL_AGREEMENT * abs(spec.nominal), 0.02 if spec.unit == "mm" else 0.1)
 
     def matching(cands) -> list:

@@ -16,12 +16,15 @@ reference dimension (its value is reported).
 from __future__ import annotations
 
 import math
-import re
 
 import numpy as np
 from lxml import etree
 
-from qifreport.metrology.characteristics import CharacteristicResult, CharacteristicSpec
+from qifreport.metrology.characteristics import (
+    CharacteristicResult,
+    CharacteristicSpec,
+    per_unit,
+)
 
 from .definitions import DrfKey, Sections, drf_key, face_attrs, feature_definition
 from .xmlkit import Attrs, E, Ids, dec, id_array, qpid, token
@@ -31,7 +34,6 @@ __all__ = [
     "characteristic_definition",
     "characteristic_measurement",
     "material_condition",
-    "per_unit",
     "qif_status",
     "qif_type",
 ]
@@ -252,21 +254,6 @@ def _describe(s: CharacteristicSpec, c: CharacteristicResult | None) -> str:
 #: characteristic types whose definition can state a per-unit-length / per-unit-area zone
 _PER_LENGTH = ("Straightness", "Circularity", "Cylindricity")
 _PER_AREA = ("Flatness", "Cylindricity")
-
-
-def per_unit(text: str | None) -> tuple[str, list[float]] | None:
-    """A per-unit tolerance's unit from the PMI's text (mm): ``('length', [L])``,
-    ``('rectangular', [a, b])``, ``('circular', [d])``; None when there is none."""
-    if not text:
-        return None
-    nums = [float(x) for x in re.findall(r"[-+]?\d*\.?\d+(?:[eE][-+]?\d+)?", text)]
-    if not nums:
-        return None
-    if "length" in text:
-        return "length", nums[:1]
-    if "circular" in text:
-        return "circular", nums[:1]
-    return "rectangular", (nums + nums)[:2]  # a square area gives one side
 
 
 def _tolerance_value(s: CharacteristicSpec, t: str) -> list[etree._Element]:

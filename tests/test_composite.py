@@ -176,3 +176,49 @@ def test_a_local_defect_stays_where_it_is_when_no_placement_conforms():
     # minimax (no half width given) would split the bump's excess with the whole face
     g = composite_zone_frame(None, V, N, d, np.ones(6000, bool))
     assert np.abs((d + g.normal_shift(V, N))[~bump]).max() > 0.2
+
+
+def test_flatness_per_unit_area_on_ctc_03():
+    """CTC 03's flatness 0.127 mm per 6.35 x 6.35 mm area (Y14.5-2018 5.4.2.1): a gentle
+    bow of 0.3 mm over the face passes it (no unit area holds more than a few um of it),
+    a 0.2 mm dent 2 mm wide fails it; read on a full-coverage sample of the exact B-rep."""
+    from qifreport.nominal import load_nominal
+    from qifreport.simulate.brep_scan import surface_sample
+    from qifreport.step.reader import read_step
+
+    step = shared_file("step/nist/nist_ctc_03_asme1_ap242-e2.stp")
+    nom = load_nominal(step, None)
+    part = read_step(step)
+    spec = next(s for s in nom.plan.specs if s.kind == "flatness" and s.unit_basis)
+    scan = surface_sample(part.shape, part.faces, 0.5)
+    on = np.isin(scan.face, spec.faces)
+    P, Nn = scan.P[on], scan.normal[on]
+    c = P[np.argmin(np.linalg.norm(P - P.mean(axis=0), axis=1))]  # a point of the face
+    span = np.ptp(P, axis=0).max()
+
+    def run(h):
+        n, m = len(nom.V), len(P)
+        surf = MeasuredSurface(
+            nom.V,
+            nom.F,
+            nom.face_id,
+            nom.brep_normals,
+            np.zeros(n),
+            np.full(n, U_VERTEX),
+            P + h[:, None] * Nn,
+            np.full(m, spec.faces[0], dtype=np.int64),
+            h,
+            np.full(m, U_VERTEX),
+        )
+        res, _ = measure_characteristics([spec], nom.plan.datums, surf, "iso14253")
+        return res[0]
+
+    r = np.linalg.norm(P - c, axis=1)
+    bow = 0.3 * (r / (span / 2)) ** 2
+    ok = run(bow)
+    assert ok.status == "PASS" and ok.value < 0.03, (ok.value, ok.reading)
+    assert "per unit area" in ok.reading
+    dent = -0.2 * np.exp(-0.5 * (r / 1.0) ** 2)
+    bad = run(dent)
+    assert bad.value == pytest.approx(0.2, rel=0.1), bad.reading
+    assert bad.status == "FAIL"

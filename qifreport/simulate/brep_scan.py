@@ -32,6 +32,7 @@ __all__ = [
     "bump",
     "bump_site",
     "random_pose",
+    "surface_sample",
     "toleranced_weight",
     "technician_scan",
 ]
@@ -233,6 +234,37 @@ def brep_scan(
         normal=np.concatenate(ns),
         view=np.concatenate(vs),
         directions=dirs,
+    )
+
+
+def surface_sample(
+    shape, faces: list, spacing: float, *, seed: int = 0, mesh: BrepSurfaceMesh | None = None
+) -> BrepScan:
+    """Points on every face of the exact B-rep, about one per ``spacing`` x ``spacing`` mm^2
+    (a full-coverage sample, as a CT scan sees a part; no noise, no views).
+
+    Returns a :class:`BrepScan` (``view`` -1, ``directions`` empty)."""
+    if mesh is None:
+        mesh = brep_surface_mesh(shape, faces, deflection=2e-4 * _diagonal(shape))
+    V, F = mesh.V, mesh.F
+    area = _areas(V, F)
+    rng = np.random.default_rng(seed)
+    n = rng.poisson(area / spacing**2)
+    n[n == 0] = (rng.random(int((n == 0).sum())) < (area[n == 0] / spacing**2)).astype(int)
+    tri = np.repeat(np.arange(len(F)), n)
+    r1, r2 = rng.random(len(tri)), rng.random(len(tri))
+    flip = r1 + r2 > 1
+    r1[flip], r2[flip] = 1 - r1[flip], 1 - r2[flip]
+    B = np.c_[1 - r1 - r2, r1, r2]
+    X = np.einsum("ij,ijk->ik", B, V[F[tri]])
+    uv = np.einsum("ij,ijk->ik", B, mesh.UV[tri])
+    X = _on_surface(faces, mesh.face[tri], uv, X)
+    return BrepScan(
+        P=X,
+        face=mesh.face[tri],
+        normal=mesh.normal[tri],
+        view=np.full(len(X), -1, dtype=np.int64),
+        directions=np.zeros((0, 3)),
     )
 
 
