@@ -52,6 +52,7 @@ from .form import (
     cylindricity,
     flatness,
     least_squares_circle,
+    least_squares_cone,
     least_squares_cylinder,
     least_squares_sphere,
     roundness,
@@ -1034,6 +1035,8 @@ def _cylinder_values(surf: MeasuredSurface, faces) -> tuple[dict, dict, np.ndarr
     feat = sample.nominal
     if feat is None or feat.kind == "plane" or len(sample.S) < 8:
         return None
+    if feat.kind == "cone":
+        return _cone_values(surf, faces, sample, feat)[0]
     if feat.kind == "sphere":
         r = least_squares_sphere(sample.S)[1]
         return (
@@ -1050,6 +1053,33 @@ def _cylinder_values(surf: MeasuredSurface, faces) -> tuple[dict, dict, np.ndarr
         r_pts = least_squares_cylinder(surf.P[on], feat.origin, feat.direction, feat.radius)[2]
         meas["_systematic_radius"] = abs(r_pts - r)
     return nom, meas, sample.U
+
+
+def _cone_values(
+    surf: MeasuredSurface, faces, sample: FeatureSample, feat: DatumFeature
+) -> list[tuple[dict, dict, np.ndarray]]:
+    """A cone's included angle (degrees) and its diameters at the model's two ends (a
+    countersink's at the face it opens on, a taper's at either end), nominal and measured:
+    the least-squares cone's, in the same planes across the nominal axis. Widest end
+    first."""
+    tri = np.isin(surf.face_id, np.asarray(list(faces), dtype=np.int64))
+    X = surf.V[np.unique(surf.F[tri])]
+    z = (X - feat.origin) @ feat.direction
+    apex, axis, half = least_squares_cone(sample.S, feat.origin, feat.direction, feat.half_angle)
+    out = []
+    for z_end in (float(z.max()), float(z.min())):
+        plane = feat.origin + z_end * feat.direction
+        t = float((plane - apex) @ feat.direction / (axis @ feat.direction))
+        d_nom = 2 * z_end * np.tan(feat.half_angle)
+        d_meas = 2 * t * np.tan(half)
+        out.append(
+            (
+                {"diameter": d_nom, "radius": d_nom / 2, "angle": np.degrees(2 * feat.half_angle)},
+                {"diameter": d_meas, "radius": d_meas / 2, "angle": np.degrees(2 * half)},
+                sample.U,
+            )
+        )
+    return out
 
 
 def _plane_pair_values(surf: MeasuredSurface, fa, fb) -> tuple[dict, dict, np.ndarray] | None:
@@ -1076,7 +1106,18 @@ def _size_candidates(
     members (parallel planes, a plane and an axis, two axes)."""
     members = surf.features(faces)
     if not pairs:
-        return [c for c in (_cylinder_values(surf, m) for m in members) if c is not None]
+        out = []
+        for m in members:
+            feat = surf.nominal(m)
+            if feat is not None and feat.kind == "cone":
+                sample = surf.sample(m)
+                if len(sample.S) >= 8:
+                    out += _cone_values(surf, m, sample, feat)
+                continue
+            c = _cylinder_values(surf, m)
+            if c is not None:
+                out.append(c)
+        return out
     out = []
     for i in range(len(members)):
         for j in range(i + 1, len(members)):

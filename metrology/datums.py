@@ -63,10 +63,13 @@ class DatumFeature:
     Attributes
     ----------
     label : the datum's letter.
-    kind : ``'plane'``, ``'cylinder'`` or ``'sphere'`` (a feature only, not simulated as
-        a datum).
-    origin : (3,) a point of the plane, or of the cylinder's axis, mm.
-    direction : (3,) unit: the plane's outward normal, or the cylinder's axis.
+    kind : ``'plane'``, ``'cylinder'``, ``'sphere'`` or ``'cone'`` (a sphere is a feature
+        only, not simulated as a datum; a cone's datum is its axis).
+    origin : (3,) a point of the plane, of the cylinder's axis, the sphere's centre or the
+        cone's apex, mm.
+    direction : (3,) unit: the plane's outward normal, the cylinder's axis, or the cone's
+        axis toward its wider end.
+    half_angle : the cone's half angle, rad (None for the others).
     radius : the cylinder's radius, mm (None for a plane).
     internal : a hole (material outside the cylinder), else a pin (None for a plane).
     """
@@ -77,6 +80,7 @@ class DatumFeature:
     direction: np.ndarray
     radius: float | None = None
     internal: bool | None = None
+    half_angle: float | None = None
 
 
 @dataclass
@@ -145,10 +149,10 @@ def nominal_feature(label: str, V: np.ndarray, N: np.ndarray) -> DatumFeature:
     _, sv, Vt = np.linalg.svd(N, full_matrices=False)
     axis = Vt[-1]
     if sv[-1] > _KIND_TOL * np.sqrt(len(N)) * 10:
-        sphere = _nominal_sphere(label, V, N)
-        if sphere is None:
+        feat = _nominal_cone(label, V, N) or _nominal_sphere(label, V, N)
+        if feat is None:
             raise ValueError(f"datum {label}: its faces are neither a plane nor a cylinder")
-        return sphere
+        return feat
     # the axis' point: least squares of the lines along the normals (x = V - s N)
     E = np.eye(3) - np.outer(axis, axis)
     Nn = N @ E
@@ -164,6 +168,47 @@ def nominal_feature(label: str, V: np.ndarray, N: np.ndarray) -> DatumFeature:
     # a hole's outward normals point at its axis
     internal = bool(np.mean(np.einsum("ij,ij->i", N, (V - o) @ E)) < 0)
     return DatumFeature(label, "cylinder", o, axis, r, internal)
+
+
+def _axis_point(V: np.ndarray, N: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The point of an axis every normal line ``v + s n`` crosses (least squares across the
+    axis), nearest the points' centroid."""
+    E = np.eye(3) - np.outer(axis, axis)
+    Nn = N @ E
+    Nn /= np.linalg.norm(Nn, axis=1, keepdims=True)
+    A = len(V) * E - Nn.T @ Nn
+    b = E @ V.sum(axis=0) - Nn.T @ np.einsum("ij,ij->i", Nn, V)
+    o = np.linalg.lstsq(A, b, rcond=None)[0]
+    return o - ((o - V.mean(axis=0)) @ axis) * axis
+
+
+def _nominal_cone(label: str, V: np.ndarray, N: np.ndarray) -> DatumFeature | None:
+    """The cone whose normals all make one angle with its axis and whose normal lines all
+    cross it (None when they do not, within :data:`_KIND_TOL`): apex, axis toward the wider
+    end, half angle; a countersink's material is outside (``internal``)."""
+    C = np.cov(N.T)
+    w, vec = np.linalg.eigh(C)
+    axis = vec[:, 0]
+    c = N @ axis
+    s = float(np.mean(c))
+    if np.std(c) > _KIND_TOL * 10 or abs(s) < 1e-3 or abs(s) > 1 - 1e-3:
+        return None
+    o = _axis_point(V, N, axis)
+    E = np.eye(3) - np.outer(axis, axis)
+    rho = np.linalg.norm((V - o) @ E, axis=1)
+    z = (V - o) @ axis
+    m, q = np.polyfit(z, rho, 1)  # rho = m z + q
+    if abs(m) < 1e-6:
+        return None
+    if m < 0:  # the axis toward the wider end
+        axis, z, m, q = -axis, -z, -m, q
+    z0 = -q / m
+    half = float(np.arctan(m))
+    if np.max(np.abs(rho - m * z - q)) * np.cos(half) > 10 * _KIND_TOL * max(rho.max(), 1.0):
+        return None
+    apex = o + z0 * axis
+    internal = bool(np.mean(np.einsum("ij,ij->i", N, (V - o) @ E)) < 0)
+    return DatumFeature(label, "cone", apex, axis, None, internal, half)
 
 
 def _nominal_sphere(label: str, V: np.ndarray, N: np.ndarray) -> DatumFeature | None:

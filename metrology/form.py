@@ -26,6 +26,7 @@ __all__ = [
     "cylindricity",
     "flatness",
     "least_squares_circle",
+    "least_squares_cone",
     "least_squares_cylinder",
     "least_squares_plane",
     "least_squares_sphere",
@@ -114,6 +115,35 @@ def least_squares_circle(Q: np.ndarray) -> tuple[np.ndarray, float]:
 def least_squares_sphere(P: np.ndarray) -> tuple[np.ndarray, float]:
     """(centre (3,), radius) of the geometric least-squares sphere of ``P`` (m, 3), mm."""
     return _least_squares_ball(P)
+
+
+def least_squares_cone(
+    P: np.ndarray, apex: np.ndarray, axis: np.ndarray, half_angle: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The least-squares cone of the points ``P`` (m, 3), from a nominal one: apex (3,),
+    unit axis toward the wider end, half angle (rad); the distance to the cone's surface
+    minimised in least squares (Gauss-Newton, ``scipy.optimize.least_squares``)."""
+    from scipy.optimize import least_squares
+
+    P = np.asarray(P, dtype=np.float64)
+    if len(P) < 7:
+        raise ValueError("a cone needs at least 7 points")
+    E = axis_frame(axis)  # rows: two across, the axis
+
+    def unpack(x):
+        a = E[2] + x[3] * E[0] + x[4] * E[1]
+        return apex + x[:3], a / np.linalg.norm(a), half_angle + x[5]
+
+    def residual(x):
+        o, a, h = unpack(x)
+        v = P - o
+        z = v @ a
+        rho = np.linalg.norm(v - np.outer(z, a), axis=1)
+        return rho * np.cos(h) - z * np.sin(h)
+
+    scale = max(float(np.linalg.norm(np.ptp(P, axis=0))), 1.0)
+    res = least_squares(residual, np.zeros(6), x_scale=[scale] * 3 + [1.0, 1.0, 0.1])
+    return unpack(res.x)
 
 
 def axis_frame(axis: np.ndarray) -> np.ndarray:

@@ -27,10 +27,12 @@ rank is judged on comparable numbers.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from types import SimpleNamespace
 
 import numpy as np
 
 from .datums import DatumFeature, simulate_datum
+from .form import least_squares_cone
 from .measured_surface import MeasuredSurface
 
 __all__ = [
@@ -199,13 +201,23 @@ def _simulator_rows(
     for faces in surf.features(spec.faces):
         sample = surf.sample(faces, spec.label)
         feat = None if sample.nominal is None else replace(sample.nominal, label=spec.label)
-        if feat is None or feat.kind not in ("plane", "cylinder"):
-            raise ValueError(f"datum {spec.label}: its feature is neither a plane nor a cylinder")
-        if len(sample.S) < (3 if feat.kind == "plane" else 6):
+        if feat is None or feat.kind not in ("plane", "cylinder", "cone"):
+            raise ValueError(
+                f"datum {spec.label}: its feature is neither a plane, a cylinder nor a cone"
+            )
+        if len(sample.S) < (3 if feat.kind == "plane" else 7 if feat.kind == "cone" else 6):
             raise ValueError(f"datum {spec.label}: {len(sample.S)} measured points on its feature")
-        sim = simulate_datum(
-            sample.S, feat, keep if feat.kind == "plane" else keep[:1], ASSOCIATION
-        )
+        if feat.kind == "cone":
+            # a conical datum feature's axis (its least-squares cone's); its apex along the
+            # axis is left to the other datums (a primary plane fixes it)
+            apex, axis, _ = least_squares_cone(
+                sample.S, feat.origin, feat.direction, feat.half_angle
+            )
+            sim = SimpleNamespace(origin=apex, direction=axis, method="least-squares cone axis")
+        else:
+            sim = simulate_datum(
+                sample.S, feat, keep if feat.kind == "plane" else keep[:1], ASSOCIATION
+            )
         a_m, a_n = sim.direction, feat.direction
         if a_m @ a_n < 0:
             a_m = -a_m
@@ -277,7 +289,7 @@ def establish_frame(datums: list[DatumSpec], surf: MeasuredSurface) -> DatumFram
             else:
                 A, b, u, how, feat = _simulator_rows(spec, surf, kept)
                 kept.append(feat.direction)
-                if feat.kind == "cylinder" and axis is None:
+                if feat.kind in ("cylinder", "cone") and axis is None:
                     axis = (feat.origin, feat.direction)
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             return DatumFrameResult(labels, np.zeros(3), np.zeros(3), False, [str(exc)])

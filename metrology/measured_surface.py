@@ -181,6 +181,13 @@ def _same_feature(g: DatumFeature, h: DatumFeature, tol: float) -> bool:
             and abs(g.radius - h.radius) < tol
             and g.internal == h.internal
         )
+    if g.kind == "cone":
+        return bool(
+            g.direction @ h.direction > 1 - 1e-6
+            and np.linalg.norm(g.origin - h.origin) < tol
+            and abs(g.half_angle - h.half_angle) < 1e-4
+            and g.internal == h.internal
+        )
     if abs(g.direction @ h.direction) < 1 - 1e-6 or g.internal != h.internal:
         return False
     d = h.origin - g.origin

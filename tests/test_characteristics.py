@@ -72,7 +72,7 @@ def test_perfect_part_conforms_everywhere(part):
     measured = [r for r in got.values() if r.status != "NOT_MEASURED"]
     # every drawing item the faces can give (not: spheres, curves of one face, a datum on a
     # torus, dimensions whose faces do not give the drawing's nominal; see the reasons)
-    assert len(measured) >= 32, {k: r.reason for k, r in got.items() if r.value is None}
+    assert len(measured) >= 34, {k: r.reason for k, r in got.items() if r.value is None}
     for r in measured:
         assert r.status in ("PASS", "BASIC"), (r.spec.key, r.status, r.value, r.reason)
         if r.spec.kind != "dimension":

@@ -222,3 +222,30 @@ def test_flatness_per_unit_area_on_ctc_03():
     bad = run(dent)
     assert bad.value == pytest.approx(0.2, rel=0.1), bad.reading
     assert bad.status == "FAIL"
+
+
+def test_countersink_cone_measured_on_ctc_04():
+    """CTC 04's 90 deg countersinks (cones): their included angle and diameter measured by
+    a least-squares cone; the cone's surface moved 0.05 mm out of the material along its
+    normals widens the diameter at the face by 2 x 0.05 / cos 45 deg."""
+    from qifreport.nominal import load_nominal
+
+    nom = load_nominal(shared_file("step/nist/nist_ctc_04_asme1_ap242-e1.stp"), None)
+    angle = next(s for s in nom.plan.specs if s.kind == "dimension" and s.unit == "deg")
+    dia = next(
+        s for s in nom.plan.specs if s.dim_type == "diameter" and set(s.faces) == set(angle.faces)
+    )
+    surf, res = _measure(nom, np.zeros(len(nom.V)))
+    got = {r.spec.key: r for r in res}
+    assert got[angle.key].value == pytest.approx(90.0, abs=0.01), got[angle.key].reason
+    assert got[dia.key].value == pytest.approx(dia.nominal, abs=1e-3), got[dia.key].reason
+    members = surf.features(dia.faces)
+    assert all(surf.nominal(m).kind == "cone" for m in members)
+    dev = np.zeros(len(nom.V))
+    for m in members:
+        v = surf.own_vertices(m)
+        dev[v] = -0.05  # into the hole: the countersink opened up
+    _, res = _measure(nom, dev)
+    got = {r.spec.key: r for r in res}
+    assert got[dia.key].value == pytest.approx(dia.nominal + 0.1 / np.cos(np.pi / 4), abs=0.01)
+    assert got[angle.key].value == pytest.approx(90.0, abs=0.05)
