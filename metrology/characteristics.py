@@ -49,10 +49,10 @@ from .datums import MAX_OPEN_DEG, DatumFeature, largest_gap
 from .decision import decide
 from .form import (
     axis_frame,
+    cone_draws,
     cylindricity,
     flatness,
     least_squares_circle,
-    least_squares_cone,
     least_squares_cylinder,
     least_squares_sphere,
     roundness,
@@ -1060,22 +1060,33 @@ def _cone_values(
 ) -> list[tuple[dict, dict, np.ndarray]]:
     """A cone's included angle (degrees) and its diameters at the model's two ends (a
     countersink's at the face it opens on, a taper's at either end), nominal and measured:
-    the least-squares cone's, in the same planes across the nominal axis. Widest end
-    first."""
+    the least-squares cone's, in the same planes across the nominal axis; each measured
+    value's expanded uncertainty from the fit's own spread (``_U_<key>``: a cone seen on a
+    few dozen points of a narrow band is poorly known). Widest end first."""
     tri = np.isin(surf.face_id, np.asarray(list(faces), dtype=np.int64))
     X = surf.V[np.unique(surf.F[tri])]
     z = (X - feat.origin) @ feat.direction
-    apex, axis, half = least_squares_cone(sample.S, feat.origin, feat.direction, feat.half_angle)
+    draws = cone_draws(sample.S, feat.origin, feat.direction, feat.half_angle)
     out = []
     for z_end in (float(z.max()), float(z.min())):
         plane = feat.origin + z_end * feat.direction
-        t = float((plane - apex) @ feat.direction / (axis @ feat.direction))
+        d = []
+        for apex, axis, half in draws:
+            t = float((plane - apex) @ feat.direction / (axis @ feat.direction))
+            d.append(2 * t * np.tan(half))
+        ang = [np.degrees(2 * h) for _, _, h in draws]
         d_nom = 2 * z_end * np.tan(feat.half_angle)
-        d_meas = 2 * t * np.tan(half)
         out.append(
             (
                 {"diameter": d_nom, "radius": d_nom / 2, "angle": np.degrees(2 * feat.half_angle)},
-                {"diameter": d_meas, "radius": d_meas / 2, "angle": np.degrees(2 * half)},
+                {
+                    "diameter": d[0],
+                    "radius": d[0] / 2,
+                    "angle": ang[0],
+                    "_U_diameter": 2 * float(np.std(d[1:])),
+                    "_U_radius": float(np.std(d[1:])),
+                    "_U_angle": 2 * float(np.std(ang[1:])),
+                },
                 sample.U,
             )
         )
@@ -1267,6 +1278,8 @@ def _dimension(spec: CharacteristicSpec, surf: MeasuredSurface, rule: str) -> Ch
     if spec.unit == "mm":
         sys_r = meas.get("_systematic_radius", 0.0) * (2.0 if k == "diameter" else 1.0)
         U = float(np.hypot(2 * _fit_U(U_pts, 2), sys_r))
+    if f"_U_{k}" in meas:  # a fit's own spread (a cone's)
+        U = float(np.hypot(U or 0.0, meas[f"_U_{k}"]))
     n_members = f"worst of {len(found)} features; " if len(found) > 1 else ""
     res = CharacteristicResult(
         spec,

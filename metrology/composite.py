@@ -131,7 +131,8 @@ def minimax_shift(
     d: np.ndarray, V: np.ndarray, N: np.ndarray, rotations: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """The small motion ``(t, theta)`` that minimises ``max |d_i + N_i . (t + theta x V_i)|``:
-    a profile's zone placed at its minimax position.
+    a profile's zone placed at its minimax position. Motions the zone's normals do not see
+    (a flat face's own plane, a rotation about its normal) are left at 0.
 
     Parameters
     ----------
@@ -144,23 +145,17 @@ def minimax_shift(
     t : (3,) mm.  theta : (k,) rad.  half : the zone's half width then, mm.
     """
     d = np.asarray(d, dtype=np.float64)
-    cols = [np.einsum("ij,ij->i", N, np.cross(om, V)) for om in rotations]
-    A = np.column_stack([N, *cols]) if cols else np.asarray(N, dtype=np.float64)
-    # only the translations the normals can see (a flat face cannot fix its own plane)
-    _, sv, Vt = np.linalg.svd(A[:: max(1, len(A) // 2000)], full_matrices=False)
-    rank = int(np.sum(sv > 1e-9 * max(sv.max(initial=0.0), 1e-300)))
-    B = Vt[:rank].T  # x = B y
-    Ay = A @ B
+    A, to_motion = _motion_columns(V, N, rotations)
     active = np.argsort(-np.abs(d))[:ACTIVE_POINTS]
     for _ in range(8):
-        y, half = _minimax_linear(d[active], Ay[active])
-        r = np.abs(d + Ay @ y)
+        y, half = _minimax_linear(d[active], A[active])
+        r = np.abs(d + A @ y)
         out = np.flatnonzero(r > half + 1e-9)
         if not len(out):
             break
         active = np.union1d(active, out[np.argsort(-r[out])][:ACTIVE_POINTS])
-    x = B @ y
-    return x[:3], x[3:], float(np.abs(d + A @ x).max())
+    t, theta = to_motion(y)
+    return t, theta, float(np.abs(d + A @ y).max())
 
 
 def _minimax_linear(d: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, float]:
@@ -243,15 +238,43 @@ def least_squares_shift(
     """The small motion ``(t, theta)`` that brings ``d + N . (t + theta x V)`` nearest 0 in
     least squares, refitted once without the values beyond 3 robust standard deviations
     (a local defect does not move it). Same arguments as :func:`minimax_shift`."""
-    cols = [np.einsum("ij,ij->i", N, np.cross(om, V)) for om in rotations]
-    A = np.column_stack([N, *cols]) if cols else np.asarray(N, dtype=np.float64)
+    A, to_motion = _motion_columns(V, N, rotations)
     keep = np.ones(len(d), dtype=bool)
-    x = np.zeros(A.shape[1])
+    y = np.zeros(A.shape[1])
     for _ in range(2):
-        x = np.linalg.lstsq(A[keep], -d[keep], rcond=1e-9)[0]
-        r = d + A @ x
+        y = np.linalg.lstsq(A[keep], -d[keep], rcond=None)[0]
+        r = d + A @ y
         mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
         keep = np.abs(r - np.median(r)) <= 3 * max(mad, 1e-6)
         if keep.sum() < A.shape[1] + 1:
             break
-    return x[:3], x[3:]
+    return to_motion(y)
+
+
+#: a motion that moves a zone's surface less than this share of its best-seen one (each
+#: as the displacement it makes across the zone) is not observable: left at 0
+_OBSERVABLE = 1e-3
+
+
+def _motion_columns(V: np.ndarray, N: np.ndarray, rotations: np.ndarray):
+    """The columns ``A`` (n, r) of the motions the zone's normals observe, and the map from
+    their coefficients back to ``(t, theta)`` (translation mm, rotations rad about the
+    origin). Rotations are taken about the zone's centroid and scaled by its extent, so a
+    rotation is weighed as the displacement it makes across the zone (a millionth of a
+    normal's tilt times a 600 mm lever is no information: about the origin it made a
+    rotation of 236 rad on CTC 04's flat face)."""
+    c = V.mean(axis=0)
+    L = max(float(np.linalg.norm(np.ptp(V, axis=0))), 1e-6)
+    cols = [N] + [np.einsum("ij,ij->i", N, np.cross(om, V - c))[:, None] / L for om in rotations]
+    A = np.column_stack(cols)
+    _, sv, Vt = np.linalg.svd(A[:: max(1, len(A) // 2000)], full_matrices=False)
+    rank = int(np.sum(sv > _OBSERVABLE * max(sv.max(initial=0.0), 1e-300)))
+    B = Vt[:rank].T
+
+    def to_motion(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x = B @ y
+        theta = x[3:] / L
+        t = x[:3] - (theta @ np.cross(rotations, c) if len(theta) else 0.0)
+        return np.asarray(t, dtype=np.float64), theta
+
+    return A @ B, to_motion

@@ -154,14 +154,8 @@ def nominal_feature(label: str, V: np.ndarray, N: np.ndarray) -> DatumFeature:
             raise ValueError(f"datum {label}: its faces are neither a plane nor a cylinder")
         return feat
     # the axis' point: least squares of the lines along the normals (x = V - s N)
+    o = _axis_point(V, N, axis)
     E = np.eye(3) - np.outer(axis, axis)
-    Nn = N @ E
-    Nn /= np.linalg.norm(Nn, axis=1, keepdims=True)
-    # sum over the lines of (E - m m^T) (x - v) = 0, m the normal across the axis
-    A = len(V) * E - Nn.T @ Nn
-    b = E @ V.sum(axis=0) - Nn.T @ np.einsum("ij,ij->i", Nn, V)
-    o = np.linalg.lstsq(A, b, rcond=None)[0]
-    o -= ((o - V.mean(axis=0)) @ axis) * axis
     radial = (V - o) @ E
     r = float(np.mean(np.linalg.norm(radial, axis=1)))
     o, axis, r = least_squares_cylinder(V, o, axis, r)
@@ -176,6 +170,7 @@ def _axis_point(V: np.ndarray, N: np.ndarray, axis: np.ndarray) -> np.ndarray:
     E = np.eye(3) - np.outer(axis, axis)
     Nn = N @ E
     Nn /= np.linalg.norm(Nn, axis=1, keepdims=True)
+    # sum over the lines of (E - m m^T) (x - v) = 0, m the normal across the axis
     A = len(V) * E - Nn.T @ Nn
     b = E @ V.sum(axis=0) - Nn.T @ np.einsum("ij,ij->i", Nn, V)
     o = np.linalg.lstsq(A, b, rcond=None)[0]

@@ -27,6 +27,7 @@ __all__ = [
     "flatness",
     "least_squares_circle",
     "least_squares_cone",
+    "cone_draws",
     "least_squares_cylinder",
     "least_squares_plane",
     "least_squares_sphere",
@@ -144,6 +145,40 @@ def least_squares_cone(
     scale = max(float(np.linalg.norm(np.ptp(P, axis=0))), 1.0)
     res = least_squares(residual, np.zeros(6), x_scale=[scale] * 3 + [1.0, 1.0, 0.1])
     return unpack(res.x)
+
+
+def cone_draws(
+    P: np.ndarray, apex: np.ndarray, axis: np.ndarray, half_angle: float, n: int = 200
+) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """``n`` cones drawn from the least-squares cone's parameter distribution (its
+    Jacobian and residual scatter, ``s^2 (J^T J)^-1``; a poorly seen cone, e.g. a few dozen
+    points on a narrow countersink, spreads widely): for the uncertainty of any quantity
+    derived from the fit. The least-squares cone first."""
+    from scipy.optimize import least_squares
+
+    P = np.asarray(P, dtype=np.float64)
+    fit = least_squares_cone(P, apex, axis, half_angle)
+    E = axis_frame(fit[1])
+
+    def unpack(x):
+        a = E[2] + x[3] * E[0] + x[4] * E[1]
+        return fit[0] + x[:3], a / np.linalg.norm(a), fit[2] + x[5]
+
+    def residual(x):
+        o, a, h = unpack(x)
+        v = P - o
+        z = v @ a
+        rho = np.linalg.norm(v - np.outer(z, a), axis=1)
+        return rho * np.cos(h) - z * np.sin(h)
+
+    res = least_squares(residual, np.zeros(6), max_nfev=20)
+    J = res.jac
+    dof = max(len(P) - 6, 1)
+    s2 = float(res.fun @ res.fun) / dof
+    cov = s2 * np.linalg.pinv(J.T @ J)
+    rng = np.random.default_rng(0)
+    xs = rng.multivariate_normal(res.x, cov, size=n, check_valid="ignore")
+    return [unpack(res.x)] + [unpack(x) for x in xs]
 
 
 def axis_frame(axis: np.ndarray) -> np.ndarray:

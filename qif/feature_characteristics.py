@@ -20,6 +20,7 @@ import math
 import numpy as np
 from lxml import etree
 
+from qifreport.metrology.bands import material_boundary
 from qifreport.metrology.characteristics import (
     CharacteristicResult,
     CharacteristicSpec,
@@ -116,12 +117,7 @@ def qif_type(s: CharacteristicSpec, direction: np.ndarray | None = None) -> str:
 
 def material_condition(mods: list[str]) -> str:
     """QIF ``MaterialCondition`` of a tolerance's modifiers: MAXIMUM, LEAST or NONE."""
-    text = " ".join(mods)
-    if "maximum_material" in text:
-        return "MAXIMUM"
-    if "least_material" in text:
-        return "LEAST"
-    return "NONE"
+    return material_boundary(mods)
 
 
 def characteristic_definition(

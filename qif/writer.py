@@ -5,6 +5,8 @@ per inspection, written with lxml. What goes where:
 
 =========================================  ==================================================
 ``Header``, ``SoftwareDefinitions``         qifreport and its version, author/organization
+``ExternalQIFReferences``                   a STEP nominal's QIF plan (:mod:`.plan`), by its
+                                            QPId and file name ``<stem>_plan.qif``
 ``AlgorithmDefinitions``                    rigid alignment and the virtual fixture (GB-CICP
                                             or the ``--method`` baseline), with their
                                             parameters (JSON)

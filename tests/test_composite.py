@@ -249,3 +249,17 @@ def test_countersink_cone_measured_on_ctc_04():
     got = {r.spec.key: r for r in res}
     assert got[dia.key].value == pytest.approx(dia.nominal + 0.1 / np.cos(np.pi / 4), abs=0.01)
     assert got[angle.key].value == pytest.approx(90.0, abs=0.05)
+
+
+def test_a_flat_face_far_from_the_origin_does_not_turn():
+    """A rotation about a flat face's own normal moves it nowhere: the minimax leaves it at
+    0 (the normals' millionth tilts times a 600 mm lever once made a 236 rad turn on CTC
+    04, and its perfect scan FAILed)."""
+    rng = np.random.default_rng(7)
+    V = np.c_[rng.uniform(-20, 20, (500, 2)) + [0.0, 600.0], np.full(500, -90.0)]
+    N = np.tile([0.0, 0.0, 1.0], (500, 1)) + rng.normal(0, 1e-6, (500, 3))
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    d = 0.01 + rng.uniform(-0.005, 0.005, 500)
+    t, theta, half = minimax_shift(d, V, N, np.array([[0.0, 0.0, 1.0]]))
+    assert abs(theta[0]) < 1e-6 and np.abs(t[:2]).max() < 1e-6
+    assert t[2] == pytest.approx(-0.01, abs=0.002) and half <= 0.005 + 1e-9
