@@ -126,7 +126,8 @@ def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: st
         from qifreport.qif.reader import read_results
         from qifreport.qif.statistics import build_statistics
 
-        names = [n for r in recs if r["ok"] for n in r["outputs"] if n.endswith(".qif")]
+        # each scan's results document (not the part's plan written beside them)
+        names = [f"{r['id']}.qif" for r in recs if r["ok"] and f"{r['id']}.qif" in r["outputs"]]
         results = [read_results(out / "scans" / n) for n in names]
         tree = build_statistics(
             results,
