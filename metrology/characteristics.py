@@ -53,13 +53,14 @@ from .form import (
     cylindricity,
     flatness,
     least_squares_circle,
+    least_squares_cone,
     least_squares_cylinder,
     least_squares_sphere,
     roundness,
 )
 from .form import straightness as line_straightness
 from .frames import DatumFrameResult, DatumSpec, TargetSpec, establish_frame
-from .measured_surface import FeatureSample, MeasuredSurface
+from .measured_surface import MIN_VERTICES, FeatureSample, MeasuredSurface
 
 __all__ = [
     "CharacteristicPlan",
@@ -422,6 +423,8 @@ def _measure(
             return _dimension(spec, surf, rule)
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             return _not_measured(spec, str(exc))
+    if spec.kind == "line_profile":
+        return _line_profile(spec, surf, frame, rule)
     if spec.kind not in GEOMETRIC_KINDS:
         res = _not_measured(spec, f"{spec.kind.replace('_', ' ')}: not measured by qifreport")
         feat = surf.nominal(spec.faces) if len(spec.faces) else None
@@ -487,6 +490,57 @@ def _measure(
         )
     _judge(res, rule, None, res.limit)
     return res
+
+
+def _line_profile(
+    spec: CharacteristicSpec, surf: MeasuredSurface, frame: DatumFrameResult | None, rule: str
+) -> CharacteristicResult:
+    """Profile of a line with datums (Y14.5 11.3.1.2): each line element of the faces within
+    a zone of the tolerance's width, equally disposed about the true profile and located in
+    the datum frame. The zone is one for every element, so the value is twice the largest
+    deviation of the faces' measured vertices in the frame (exact when the frame fixes every
+    motion; with motions left free, the frame's fit of them is kept, and the value bounds
+    each element's from above)."""
+    res = _not_measured(spec, "")
+    feat = surf.nominal(spec.faces) if len(spec.faces) else None
+    if feat is not None and feat.kind != "sphere":
+        res.direction = feat.direction  # the sections' normal, for its QIF
+    if not spec.datums:
+        res.reason = "line profile without datums (the form of each line element): not measured"
+        return res
+    if any("unequal" in m for m in spec.modifiers):
+        res.reason = "line profile with an unequally disposed zone: not measured"
+        return res
+    if frame is None or not frame.established:
+        why = "; ".join(frame.problems) if frame is not None else "its datums are not defined"
+        res.reason = f"datum frame not established: {why}"
+        return res
+    v = surf.own_vertices(spec.faces)
+    v = v[np.isfinite(surf.dev[v])]
+    if len(v) < MIN_VERTICES:
+        res.reason = f"{len(v)} measured vertices on its faces"
+        return res
+    d = surf.dev[v] + frame.normal_shift(surf.V[v], surf.N[v])
+    k = int(np.argmax(np.abs(d)))
+    U = float(
+        np.hypot(
+            surf.U[v[k]], frame.shift_uncertainty(surf.V[v[k : k + 1]], surf.N[v[k : k + 1]])[0]
+        )
+    )
+    out = CharacteristicResult(
+        spec,
+        value=2.0 * float(np.abs(d).max()),
+        uncertainty=2.0 * U,
+        reading=(
+            f"twice the largest deviation ({d[k]:+.4f} mm) of {len(v)} measured vertices in "
+            f"|{'|'.join(frame.labels)}|, one zone for every line element"
+            + (f" (best fit: {', '.join(frame.free)}: an upper bound)" if frame.free else "")
+        ),
+        n_points=len(v),
+        direction=res.direction,
+    )
+    _judge(out, rule, None, out.limit)
+    return out
 
 
 def _faces(faces) -> str:
@@ -1142,20 +1196,65 @@ def _size_candidates(
 
 def _between(surf: MeasuredSurface, fa, fb) -> list[tuple[dict, dict, np.ndarray]]:
     """Distance and angle between two features (planes or axes), for each pair of their
-    members."""
+    members; and a drilled hole's depth when one side is the plane it opens on and the
+    other its cylinder and drill point (:func:`_depth_values`)."""
     out = []
-    for ma in surf.features(fa):
-        for mb in surf.features(fb):
+    members_a, members_b = surf.features(fa), surf.features(fb)
+    for ma in members_a:
+        for mb in members_b:
             v = _pair(surf, ma, mb)
             if v is not None:
                 out.append(v)
+    for planes, hole in ((members_a, members_b), (members_b, members_a)):
+        for m in planes:
+            v = _depth_values(surf, m, hole)
+            if v is not None:
+                out.append(v)
     return out
+
+
+def _depth_values(
+    surf: MeasuredSurface, plane_faces, hole: list[np.ndarray]
+) -> tuple[dict, dict, np.ndarray] | None:
+    """A drilled hole's depth (mm): from the plane it opens on (``plane_faces``) along its
+    axis to the circle where its cylinder meets its drill point (a coaxial cone), nominal
+    and measured (the points' mean plane across the nominal normal; the least-squares
+    cylinder's radius on the least-squares cone); None when ``hole`` is not one cylinder
+    and one coaxial cone, or the plane is not across their axis."""
+    P = surf.nominal(plane_faces)
+    feats = [(m, surf.nominal(m)) for m in hole]
+    cyl = [(m, f) for m, f in feats if f is not None and f.kind == "cylinder"]
+    cone = [(m, f) for m, f in feats if f is not None and f.kind == "cone"]
+    if P is None or P.kind != "plane" or len(cyl) != 1 or len(cone) != 1:
+        return None
+    (mc, C), (mk, K) = cyl[0], cone[0]
+    if abs(C.direction @ K.direction) < 0.999 or abs(P.direction @ C.direction) < 0.999:
+        return None
+    off = K.origin - C.origin
+    if np.linalg.norm(off - (off @ C.direction) * C.direction) > 1e-3 * max(C.radius, 1.0):
+        return None
+    sp, sc, sk = surf.sample(plane_faces), surf.sample(mc), surf.sample(mk)
+    if len(sp.S) < 3 or len(sc.S) < 8 or len(sk.S) < 7:
+        return None
+    n = P.direction
+
+    def depth(plane_point, r, apex, axis, half) -> float:
+        edge = apex + axis * (r / math.tan(half))
+        return abs(float((edge - plane_point) @ n))
+
+    nom = {"distance": depth(P.origin, C.radius, K.origin, K.direction, K.half_angle)}
+    r = least_squares_cylinder(sc.S, C.origin, C.direction, C.radius)[2]
+    apex, axis, half = least_squares_cone(sk.S, K.origin, K.direction, K.half_angle)
+    meas = {"distance": depth(sp.S.mean(axis=0), r, apex, axis, half)}
+    return nom, meas, np.r_[sp.U, sc.U, sk.U]
 
 
 def _pair(surf: MeasuredSurface, fa, fb) -> tuple[dict, dict, np.ndarray] | None:
     sa, sb = surf.sample(fa), surf.sample(fb)
     A, B = sa.nominal, sb.nominal
     if A is None or B is None or len(sa.S) < 8 or len(sb.S) < 8:
+        return None
+    if "cone" in (A.kind, B.kind):  # a drill point, a countersink: see _depth_values
         return None
 
     def fitted(sample: FeatureSample, feat: DatumFeature, nominal: bool):

@@ -102,6 +102,9 @@ class MeasuredSurface:
             if len(tri):
                 X = self.V[self.F[tri]].reshape(-1, 3)
                 Nc = self.corner_normals[tri].reshape(-1, 3)
+                # a cone's apex has no normal (the B-rep's is NaN there: a drill point)
+                ok = np.isfinite(Nc).all(axis=1) & (np.linalg.norm(Nc, axis=1) > 0.5)
+                X, Nc = X[ok], Nc[ok]
                 try:
                     feat = nominal_feature(label, X, Nc)
                 except ValueError:

@@ -163,3 +163,50 @@ def test_hole_moved_beyond_its_tolerance_fails(part):
     got = _measure(part, dev)
     assert got["G3"].value == pytest.approx(0.50, rel=0.10)
     assert got["G3"].status == "FAIL" and "> 0.381" in got["G3"].reason
+
+
+def test_drill_point_moved_deepens_its_hole(part):
+    """D23, the 12.7 mm depth of a drilled hole (from the plane it opens on to where its
+    cylinder meets its 118 deg drill point): the drill point moved 0.05 mm deeper along the
+    axis reads 12.75 mm; the perfect part's 12.700."""
+    s = _spec(part, "D23")
+    assert s.nominal == pytest.approx(12.7) and set(s.target_faces) == {18, 20}
+    surf = _surface(part, np.zeros(len(part.V)))
+    cone = surf.nominal([18])
+    assert cone is not None and cone.kind == "cone"
+    assert np.degrees(2 * cone.half_angle) == pytest.approx(118.0, abs=0.1)
+    hole = surf.nominal([20])
+    inward = hole.direction if (hole.origin - cone.origin) @ hole.direction < 0 else -hole.direction
+    v = surf.own_vertices([18])
+    dev = np.zeros(len(part.V))
+    dev[v] = 0.05 * (surf.N[v] @ inward)  # the cone translated 0.05 mm into the part
+    assert _measure(part, np.zeros(len(part.V)))["D23"].value == pytest.approx(12.7, abs=1e-3)
+    got = _measure(part, dev)["D23"]
+    assert got.value == pytest.approx(12.75, abs=0.005), got.reading
+
+
+@pytest.fixture(scope="module")
+def ctc02():
+    from qifreport.nominal import load_nominal
+
+    return load_nominal(shared_file("step/nist/nist_ctc_02_asme1_ap242-e2.stp"), None)
+
+
+def test_line_profile_is_located_in_its_frame(ctc02):
+    """CTC 02's G6, a 0.25 mm profile of a line of face 18 to |A|B|C|, where datum C is the
+    target C1 on that face: the face turned 0.15 mm about a line through C1 (the frame keeps
+    C where it was) reads 0.30 mm, twice its largest deviation, and FAILs; the perfect part
+    reads 0 and PASSes."""
+    s = _spec(ctc02, "G6")
+    assert s.kind == "line_profile" and s.datums == ["A", "B", "C"]
+    c1 = ctc02.plan.datums["C"].targets[0].position
+    surf = _surface(ctc02, np.zeros(len(ctc02.V)))
+    v = surf.own_vertices([18])
+    x = surf.V[v, 0] - c1[0]
+    dev = np.zeros(len(ctc02.V))
+    dev[v] = 0.15 * x / np.abs(x).max()
+    perfect = _measure(ctc02, np.zeros(len(ctc02.V)))["G6"]
+    assert perfect.status == "PASS" and perfect.value < 1e-3
+    got = _measure(ctc02, dev)["G6"]
+    assert got.value == pytest.approx(0.30, rel=0.10), got.reading
+    assert got.status == "FAIL"
