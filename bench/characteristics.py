@@ -3,7 +3,9 @@ its PMI items (geometric tolerances other than surface profiles, and dimensions)
 are measured on the perfect part (every vertex at zero deviation and a full-coverage sample
 of the exact B-rep as its scan points, so what is counted is what the part's geometry and the
 PMI allow, not what a scan happened to see), how many of
-those PASS (a perfect part must), and the reasons of the rest, grouped.
+those PASS (a perfect part must), how many are theoretically exact and applied as given
+(TED: a datum target area's sides, nothing of the part to measure), and the reasons of the
+rest, grouped.
 
     python bench/characteristics.py [FILE ...]
 
@@ -60,7 +62,8 @@ def main() -> None:
 
     files = a.files or sorted(NIST.glob("*.stp"))
     head = (
-        f"{'model':<10} {'items':>5} {'measured':>8} {'share':>6} {'PASS':>5} {'other':>5} {'s':>5}"
+        f"{'model':<10} {'items':>5} {'measured':>8} {'share':>6} {'PASS':>5} {'other':>5} "
+        f"{'TED':>4} {'s':>5}"
     )
     print(head)
     print("-" * len(head))
@@ -76,7 +79,10 @@ def main() -> None:
             nom.plan.specs, nom.plan.datums, _surface(nom, f), "iso14253"
         )
         dt = time.perf_counter() - t0
-        measured = [r for r in res if r.status != "NOT_MEASURED"]
+        # a basic dimension of supplemental geometry (a datum target area's side) is applied
+        # as given, nothing measured: counted apart (TED), not as measured
+        ted = [r for r in res if r.status == "BASIC" and r.value is None]
+        measured = [r for r in res if r.status != "NOT_MEASURED" and r.value is not None]
         ok = [r for r in measured if r.status in ("PASS", "BASIC")]
         for r in res:
             if r.status == "NOT_MEASURED":
@@ -86,7 +92,7 @@ def main() -> None:
         print(
             f"{f.stem.split('_asme')[0]:<10} {len(res):>5} {len(measured):>8} "
             f"{100 * len(measured) / len(res):>5.0f}% {len(ok):>5} "
-            f"{len(measured) - len(ok):>5} {dt:>5.1f}",
+            f"{len(measured) - len(ok):>5} {len(ted):>4} {dt:>5.1f}",
             flush=True,
         )
     print("-" * len(head))

@@ -95,6 +95,8 @@ POINT_TARGETS = ("point", "line", "")
 _DIAMETRAL = ("position", "coaxiality", "concentricity")
 #: fewest points in a cross-section or a line element
 _SECTION_POINTS = 8
+#: supplemental geometry standing for a thread, in a face note (:mod:`qifreport.step.pmi`)
+_THREAD = re.compile(r"('[^']*thread[^']*')", re.IGNORECASE)
 #: a drawing's nominal and the faces' own quantity agree within this share (or 0.02 mm)
 _NOMINAL_AGREEMENT = 0.01
 
@@ -123,6 +125,10 @@ class CharacteristicSpec:
         ``'per rectangular area 6.35 mm x 6.35 mm'``), None for a whole-feature tolerance.
     composite : ``'upper'`` or ``'lower'`` segment of a composite feature control frame
         (:func:`qifreport.metrology.bands.composite_segment`), ``''`` for none.
+    thread : the supplemental geometry a dimension of a thread is given on (``"'Thread
+        Cylinder.1'"``: a cosmetic thread, its model a tap-drill hole), ``''`` for none.
+    drawn : a location dimension between curves drawn on faces (supplemental geometry,
+        e.g. construction lines), not between the faces.
     """
 
     key: str
@@ -146,6 +152,8 @@ class CharacteristicSpec:
     datum_materials: list[str] = field(default_factory=list)
     unit_basis: str | None = None
     composite: str = ""
+    thread: str = ""
+    drawn: bool = False
 
     @property
     def free_state(self) -> bool:
@@ -275,10 +283,28 @@ def specs_from_pmi(pmi, face_index: dict[int, int]) -> CharacteristicPlan:
             TargetSpec(t.name, np.asarray(t.position, dtype=np.float64), faces_of(t.face_step_ids))
             for t in d.target_details
             if t.position is not None and t.face_step_ids and t.kind in POINT_TARGETS
+        ] + [
+            TargetSpec(
+                t.name,
+                np.asarray(t.position, dtype=np.float64),
+                faces_of(t.face_step_ids) if t.face_step_ids else np.empty(0, dtype=np.int64),
+                normal=np.asarray(t.direction, dtype=np.float64),
+                x_direction=None if t.x_direction is None else np.asarray(t.x_direction, float),
+                length=t.length,
+                width=t.width,
+                diameter=t.diameter,
+            )
+            for t in d.target_details
+            if t.position is not None
+            and t.direction is not None
+            and (
+                (t.kind == "circle" and t.diameter)
+                or (t.kind == "rectangle" and t.length and t.width and t.x_direction)
+            )
         ]
         if len(targets) < len(d.target_details):
-            # a target that is not a point on the surface (a circle a pin meets, an area) or
-            # has no place or face: the datum is simulated on its feature's faces instead
+            # a target that is not a point on the surface nor a sized area (a circle a pin
+            # meets) or has no place or face: the datum is simulated on its feature's faces
             targets = []
         datums.setdefault(d.label, DatumSpec(d.label, faces_of(d.face_step_ids), targets))
     # a common datum (A-B): one simulator on the features of all its datums together
@@ -348,6 +374,9 @@ def specs_from_pmi(pmi, face_index: dict[int, int]) -> CharacteristicPlan:
             basic=any(q in ("basic", "reference") for q in dim.qualifiers),
             origin_faces=faces_of(dim.origin_face_step_ids) if dim.origin_face_step_ids else None,
             target_faces=faces_of(dim.target_face_step_ids) if dim.target_face_step_ids else None,
+            thread=next((m.group(1) for n in dim.face_notes if (m := _THREAD.search(n))), ""),
+            drawn=bool(dim.face_notes)
+            and all("carrying the geometry" in n and "CURVE" in n for n in dim.face_notes),
         )
         if nominal is None and (lo is None) != (hi is None):
             # one limit without a nominal (none at all: a size reported, :func:`_reported`)
@@ -392,11 +421,12 @@ def measure_characteristics(
     """
     frames = {} if frames is None else frames
     sizes = [s for s in specs if s.kind == "dimension" and s.dim_type in ("diameter", "radius")]
+    areas = [(d.label, t) for d in datums.values() for t in d.targets if t.is_area]
     results = []
     for spec in specs:
         surf = free_surface if spec.free_state and free_surface is not None else surface
         frame = frame_of(spec.datums, datums, surf, frames)
-        res = _measure(spec, surf, frame, rule, sizes)
+        res = _measure(spec, surf, frame, rule, sizes, areas)
         soft = [p for p in spec.problems if "simulated regardless" in p]
         if soft and res.status != "NOT_MEASURED":  # a datum at MMC/LMC: said in the reading
             res.reading = "; ".join([res.reading, *soft]) if res.reading else "; ".join(soft)
@@ -414,13 +444,14 @@ def _measure(
     frame: DatumFrameResult | None,
     rule: str,
     sizes: list[CharacteristicSpec],
+    areas: list[tuple[str, TargetSpec]],
 ) -> CharacteristicResult:
     hard = [p for p in spec.problems if "simulated regardless" not in p]
     if hard:
         return _not_measured(spec, "; ".join(hard))
     if spec.kind == "dimension":
         try:
-            return _dimension(spec, surf, rule)
+            return _dimension(spec, surf, rule, areas)
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             return _not_measured(spec, str(exc))
     if spec.kind == "line_profile":
@@ -1110,19 +1141,30 @@ def _cylinder_values(surf: MeasuredSurface, faces) -> tuple[dict, dict, np.ndarr
 
 
 def _cone_values(
-    surf: MeasuredSurface, faces, sample: FeatureSample, feat: DatumFeature
+    surf: MeasuredSurface,
+    faces,
+    sample: FeatureSample,
+    feat: DatumFeature,
+    gauge: float | None = None,
 ) -> list[tuple[dict, dict, np.ndarray]]:
     """A cone's included angle (degrees) and its diameters at the model's two ends (a
     countersink's at the face it opens on, a taper's at either end), nominal and measured:
     the least-squares cone's, in the same planes across the nominal axis; each measured
     value's expanded uncertainty from the fit's own spread (``_U_<key>``: a cone seen on a
-    few dozen points of a narrow band is poorly known). Widest end first."""
+    few dozen points of a narrow band is poorly known). Widest end first; then, with a
+    ``gauge`` diameter (mm) between the ends, the measured diameter in the plane where the
+    model's is ``gauge`` (a basic diameter locating a taper's gauge section)."""
     tri = np.isin(surf.face_id, np.asarray(list(faces), dtype=np.int64))
     X = surf.V[np.unique(surf.F[tri])]
     z = (X - feat.origin) @ feat.direction
     draws = cone_draws(sample.S, feat.origin, feat.direction, feat.half_angle)
     out = []
-    for z_end in (float(z.max()), float(z.min())):
+    sections = [float(z.max()), float(z.min())]
+    if gauge is not None:
+        z_gauge = 0.5 * gauge / math.tan(feat.half_angle)
+        if z.min() < z_gauge < z.max():
+            sections.append(z_gauge)
+    for z_end in sections:
         plane = feat.origin + z_end * feat.direction
         d = []
         for apex, axis, half in draws:
@@ -1164,10 +1206,11 @@ def _plane_pair_values(surf: MeasuredSurface, fa, fb) -> tuple[dict, dict, np.nd
 
 
 def _size_candidates(
-    surf: MeasuredSurface, faces, pairs: bool
+    surf: MeasuredSurface, faces, pairs: bool, gauge: float | None = None
 ) -> list[tuple[dict, dict, np.ndarray]]:
     """The measurable sizes of a dimension's faces: each cylindrical (spherical) member's
-    diameter and radius, or with ``pairs`` the distances (and angles) between every two
+    diameter and radius (a cone's at its ends, and at the ``gauge`` diameter's section,
+    :func:`_cone_values`), or with ``pairs`` the distances (and angles) between every two
     members (parallel planes, a plane and an axis, two axes)."""
     members = surf.features(faces)
     if not pairs:
@@ -1177,7 +1220,7 @@ def _size_candidates(
             if feat is not None and feat.kind == "cone":
                 sample = surf.sample(m)
                 if len(sample.S) >= 8:
-                    out += _cone_values(surf, m, sample, feat)
+                    out += _cone_values(surf, m, sample, feat, gauge)
                 continue
             c = _cylinder_values(surf, m)
             if c is not None:
@@ -1319,14 +1362,61 @@ def _reported(spec: CharacteristicSpec, cands: list, key: str, what: str) -> Cha
     )
 
 
-def _dimension(spec: CharacteristicSpec, surf: MeasuredSurface, rule: str) -> CharacteristicResult:
+def _target_area_size(
+    spec: CharacteristicSpec, surf: MeasuredSurface, areas: list[tuple[str, TargetSpec]]
+) -> CharacteristicResult | None:
+    """A basic dimension between two curves of one face that is a side (or the diameter)
+    of a datum target area on that face: theoretically exact, the extent of the simulator
+    that establishes the datum, applied as given (QIF ``BASIC_OR_TED``; nothing of the part
+    to measure); None when it is not one."""
+    if spec.nominal is None or spec.origin_faces is None:
+        return None
+    for label, tg in areas:
+        faces = tg.faces
+        if not len(faces):
+            v = tg.area_vertices(surf)
+            tri = np.isin(surf.F, v).any(axis=1)
+            faces = np.unique(surf.face_id[tri])
+        if not np.isin(spec.origin_faces, faces).any():
+            continue
+        sides = {"diameter": tg.diameter, "length": tg.length, "width": tg.width}
+        for side, size in sides.items():
+            if size is not None and abs(size - spec.nominal) <= 1e-3 * max(size, 1.0):
+                return CharacteristicResult(
+                    spec,
+                    status="BASIC",
+                    reading=(
+                        f"the {side} of datum target area {tg.name} ({tg.size_text()}): "
+                        f"theoretically exact, the extent of the simulator establishing datum "
+                        f"{label}, applied as given; nothing of the part to measure"
+                    ),
+                )
+    return None
+
+
+def _dimension(
+    spec: CharacteristicSpec,
+    surf: MeasuredSurface,
+    rule: str,
+    areas: list[tuple[str, TargetSpec]] = (),
+) -> CharacteristicResult:
     no_value = spec.nominal is None
+    if spec.thread:
+        return _not_measured(
+            spec,
+            f"a thread's dimension, given on supplemental geometry {spec.thread}: the model "
+            "carries the thread as its tap-drill hole (a cosmetic thread), so its size and "
+            "depth are no surface a scan measures (a thread gauge does)",
+        )
     if no_value and (spec.lower_limit is not None or spec.upper_limit is not None):
         return _not_measured(spec, "the dimension's nominal could not be established")
     if spec.origin_faces is not None and spec.target_faces is not None:
         if not len(spec.origin_faces) or not len(spec.target_faces):
             return _not_measured(spec, "a feature of the location has no face on the part")
         if set(spec.origin_faces) == set(spec.target_faces):
+            applied = _target_area_size(spec, surf, list(areas))
+            if applied is not None:
+                return applied
             return _not_measured(
                 spec,
                 "its origin and target are both on face(s) "
@@ -1336,7 +1426,8 @@ def _dimension(spec: CharacteristicSpec, surf: MeasuredSurface, rule: str) -> Ch
         cands = _between(surf, spec.origin_faces, spec.target_faces)
         what = "between its origin and target features"
     elif len(spec.faces):
-        cands = _size_candidates(surf, spec.faces, pairs=False)
+        gauge = spec.nominal if spec.dim_type == "diameter" else None
+        cands = _size_candidates(surf, spec.faces, pairs=False, gauge=gauge)
         what = "of its feature"
     else:
         return _not_measured(spec, "no B-rep face of the part is associated")
@@ -1365,11 +1456,17 @@ def _dimension(spec: CharacteristicSpec, surf: MeasuredSurface, rule: str) -> Ch
         found = matching(cands)
     if not found:
         seen = sorted({f"{k} {nom[k]:.4g}" for nom, _, _ in cands for k in keys if k in nom})
-        return _not_measured(
-            spec,
+        why = (
             f"the faces' geometry ({', '.join(seen) or 'no plane pair or cylinder measured'}) "
-            f"does not give the drawing's nominal {spec.nominal:g} {spec.unit}",
+            f"does not give the drawing's nominal {spec.nominal:g} {spec.unit}"
         )
+        if spec.drawn:
+            why = (
+                "its origin and target are curves drawn on faces "
+                f"{_faces(spec.origin_faces)} and {_faces(spec.target_faces)} (supplemental "
+                f"geometry), not the faces themselves, and {why}"
+            )
+        return _not_measured(spec, why)
     lo, hi = spec.lower_limit, spec.upper_limit
     mid = 0.5 * (lo + hi) if lo is not None and hi is not None else spec.nominal
     value, k, meas, U_pts = max(found, key=lambda f: abs(f[0] - mid))  # the worst member

@@ -59,11 +59,55 @@ MIN_TARGET_POINTS = 3
 
 @dataclass
 class TargetSpec:
-    """A datum target: its name, position (3,) mm and the mesh faces it lies on."""
+    """A datum target: its name, position (3,) mm and the mesh faces it lies on (empty: the
+    faces under it, found by its placement). A target area also has its placement's unit
+    ``normal`` and ``x_direction`` (3,) and its ``length`` (along ``x_direction``) and
+    ``width`` (across) in mm, or its ``diameter`` (a circle); a point or a line none."""
 
     name: str
     position: np.ndarray
     faces: np.ndarray
+    normal: np.ndarray | None = None
+    x_direction: np.ndarray | None = None
+    length: float | None = None
+    width: float | None = None
+    diameter: float | None = None
+
+    @property
+    def is_area(self) -> bool:
+        return self.normal is not None and (
+            self.diameter is not None or (self.length is not None and self.width is not None)
+        )
+
+    def area_vertices(self, surf: MeasuredSurface) -> np.ndarray:
+        """Vertex ids of ``surf`` under the target area (projected along its normal inside
+        its outline): of its faces, facing it; without faces (or a supplemental face, not
+        meshed), any vertex within 1 mm of its plane whose normal lies along the area's."""
+        n = self.normal
+        tri = np.isin(surf.face_id, self.faces)
+        if tri.any():
+            v = np.unique(surf.F[tri])
+            X = surf.V[v] - self.position
+            c = surf.N[v] @ n
+            ok = np.abs(c) > 0.3
+            ok &= np.sign(c) == np.sign(np.sum(c[ok])) if ok.any() else ok
+        else:
+            v = np.arange(len(surf.V))
+            X = surf.V[v] - self.position
+            ok = (np.abs(X @ n) < 1.0) & (np.abs(surf.N[v] @ n) > 0.9)
+        if self.diameter is not None:
+            across = X - np.outer(X @ n, n)
+            ok &= np.linalg.norm(across, axis=1) <= 0.5 * self.diameter
+        else:
+            x = self.x_direction
+            y = np.cross(n, x)
+            ok &= (np.abs(X @ x) <= 0.5 * self.length) & (np.abs(X @ y) <= 0.5 * self.width)
+        return v[ok]
+
+    def size_text(self) -> str:
+        if self.diameter is not None:
+            return f"diameter {self.diameter:g} mm"
+        return f"{self.length:g} x {self.width:g} mm"
 
 
 @dataclass
@@ -161,6 +205,12 @@ def _target_rows(
     uncertainty (mm)."""
     rows, rhs, unc = [], [], []
     for tg in spec.targets:
+        if tg.is_area:
+            row, r, u = _area_row(tg, surf)
+            rows.append(row)
+            rhs.append(r)
+            unc.append(u)
+            continue
         d = surf.point_deviation_near(tg.faces, tg.position, TARGET_RADIUS)
         if len(d) < MIN_TARGET_POINTS:  # no scan points there: the measured vertices
             d = surf.vertex_deviation_near(
@@ -184,8 +234,31 @@ def _target_rows(
         # average out (CTC 02's perfect scan reads its targets 2 um off at 1.9 um)
         sigma = 1.4826 * float(np.median(np.abs(d - np.median(d))))
         unc.append(max(2 * 1.2533 * sigma / np.sqrt(len(d)), float(np.nanmedian(surf.U))))
-    how = "targets " + " ".join(t.name for t in spec.targets)
+    how = "targets " + " ".join(
+        f"{t.name} (area {t.size_text()}: its highest point)" if t.is_area else t.name
+        for t in spec.targets
+    )
     return np.array(rows), np.array(rhs), np.array(unc), how
+
+
+def _area_row(tg: TargetSpec, surf: MeasuredSurface) -> tuple[np.ndarray, float, float]:
+    """The row of a target area: its simulator, a flat area of the target's outline held at
+    its nominal orientation, moves along its normal until it meets the measured surface
+    under it (the most material; on a curved face not where the nominal touches); the row
+    says how far, at the contact, with that vertex's expanded uncertainty. Raises
+    ValueError when too few measured vertices lie under it."""
+    v = tg.area_vertices(surf)
+    v = v[np.isfinite(surf.dev[v])]
+    if len(v) < MIN_TARGET_POINTS:
+        raise ValueError(
+            f"datum target {tg.name} ({tg.size_text()}): {len(v)} measured vertices under it"
+        )
+    n = tg.normal * np.sign(np.sum(surf.N[v] @ tg.normal))  # out of the material
+    h_nom = surf.V[v] @ n
+    h = h_nom + surf.dev[v] * (surf.N[v] @ n)
+    k = int(np.argmax(h))
+    p = surf.V[v[k]]
+    return np.r_[np.cross(p, n), n], -float(h[k] - h_nom.max()), float(surf.U[v[k]])
 
 
 def _simulator_rows(
@@ -218,41 +291,94 @@ def _simulator_rows(
             sim = simulate_datum(
                 sample.S, feat, keep if feat.kind == "plane" else keep[:1], ASSOCIATION
             )
-        a_m, a_n = sim.direction, feat.direction
-        if a_m @ a_n < 0:
-            a_m = -a_m
-        # orientation: a_m + w x a_m = a_n, two independent rows (across a_n), times the
-        # feature's extent: the tilt as the displacement it makes across the feature, in
-        # mm as the location rows (else a few micrometres at the location rows' far-apart
-        # contact points would turn the part)
-        E = _across(a_n)
-        size = float(np.linalg.norm(np.ptp(sample.S, axis=0)))
-        rows.append(size * np.c_[E @ _cross_rows(a_m), np.zeros((2, 3))])
-        rhs.append(size * (E @ (a_n - a_m)))
-        # location: the simulator at the middle of the measured points onto the nominal,
-        # across the plane or the axis
-        c = sample.S.mean(axis=0)
-        if feat.kind == "plane":
-            Lr = a_n[None, :]
-            o = c - ((c - sim.origin) @ a_m) * a_m
-        else:
-            Lr = E
-            o = sim.origin + ((c - sim.origin) @ a_m) * a_m
-        rows.append(np.c_[Lr @ _cross_rows(o), Lr])
-        rhs.append(Lr @ (feat.origin - o))
-        # expanded uncertainties: a least-squares tilt over the feature (as the displacement
-        # across it), the high points' height (a plane), a least-squares axis' place;
-        # neighbouring vertices share scan points: a quarter of them count
-        u = float(np.nanmedian(sample.U))
-        n_eff = max(len(sample.S) / 4.0, 1.0)
-        unc.append(np.full(2, u * np.sqrt(12.0 / n_eff)))
-        unc.append(np.full(len(Lr), u if feat.kind == "plane" else u * np.sqrt(2.0 / n_eff)))
+        for r, b, u in _seat_rows(sample.S, sample.U, feat, sim):
+            rows.append(r)
+            rhs.append(b)
+            unc.append(u)
         hows.append(f"{sim.method} ({len(sample.S)} {sample.source})")
         first = first or feat
     if first is None:
         raise ValueError(f"datum {spec.label}: no face of the part carries its feature")
     how = hows[0] if len(hows) == 1 else f"pattern of {len(hows)}: " + ", ".join(hows)
     return np.vstack(rows), np.concatenate(rhs), np.concatenate(unc), how, first
+
+
+def _seat_rows(
+    S: np.ndarray, U: np.ndarray, feat: DatumFeature, sim
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(rows, right-hand sides, expanded uncertainties) seating the simulator ``sim``
+    (``origin``, ``direction``) fitted to the measured points ``S`` (m, 3) of uncertainties
+    ``U`` (m,) on the nominal feature ``feat``: its orientation, then its location."""
+    a_m, a_n = sim.direction, feat.direction
+    if a_m @ a_n < 0:
+        a_m = -a_m
+    # orientation: a_m + w x a_m = a_n, two independent rows (across a_n), times the
+    # feature's extent: the tilt as the displacement it makes across the feature, in mm as
+    # the location rows (else a few micrometres at the location rows' far-apart contact
+    # points would turn the part)
+    E = _across(a_n)
+    size = float(np.linalg.norm(np.ptp(S, axis=0)))
+    # expanded uncertainties: a least-squares tilt over the feature (as the displacement
+    # across it), the high points' height (a plane), a least-squares axis' place;
+    # neighbouring vertices share scan points: a quarter of them count
+    u = float(np.nanmedian(U))
+    n_eff = max(len(S) / 4.0, 1.0)
+    out = [
+        (
+            size * np.c_[E @ _cross_rows(a_m), np.zeros((2, 3))],
+            size * (E @ (a_n - a_m)),
+            np.full(2, u * np.sqrt(12.0 / n_eff)),
+        )
+    ]
+    # location: the simulator at the middle of the measured points onto the nominal, across
+    # the plane or the axis
+    c = S.mean(axis=0)
+    if feat.kind == "plane":
+        Lr = a_n[None, :]
+        o = c - ((c - sim.origin) @ a_m) * a_m
+    else:
+        Lr = E
+        o = sim.origin + ((c - sim.origin) @ a_m) * a_m
+    out.append(
+        (
+            np.c_[Lr @ _cross_rows(o), Lr],
+            Lr @ (feat.origin - o),
+            np.full(len(Lr), u if feat.kind == "plane" else u * np.sqrt(2.0 / n_eff)),
+        )
+    )
+    return out
+
+
+def _area_plane_rows(
+    spec: DatumSpec, surf: MeasuredSurface, keep: list[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, str, DatumFeature] | None:
+    """A datum established by one target area on a flat region (Y14.5 7.24: the target
+    area's simulator is a flat area of its outline): the datum plane simulated on the
+    measured vertices under the area only, as a planar datum feature's; None when the
+    region under it is not flat (then the area meets the surface at one point,
+    :func:`_area_row`)."""
+    (tg,) = spec.targets
+    v = tg.area_vertices(surf)
+    v = v[np.isfinite(surf.dev[v])]
+    if len(v) < 3:
+        return None
+    n = tg.normal * np.sign(np.sum(surf.N[v] @ tg.normal))
+    X = surf.V[v]
+    size = max(float(np.linalg.norm(np.ptp(X, axis=0))), 1.0)
+    if np.min(surf.N[v] @ n) < 1 - 1e-6 or np.ptp(X @ n) > 1e-4 * size:
+        return None
+    feat = DatumFeature(spec.label, "plane", X.mean(axis=0), n)
+    S = X + surf.dev[v, None] * surf.N[v]
+    sim = simulate_datum(S, feat, keep, ASSOCIATION)
+    parts = _seat_rows(S, surf.U[v], feat, sim)
+    how = f"target area {tg.name} ({tg.size_text()}): {sim.method} ({len(v)} vertices under it)"
+    return (
+        np.vstack([r for r, _, _ in parts]),
+        np.concatenate([b for _, b, _ in parts]),
+        np.concatenate([u for _, _, u in parts]),
+        how,
+        feat,
+    )
 
 
 def _across(a: np.ndarray) -> np.ndarray:
@@ -284,7 +410,12 @@ def establish_frame(datums: list[DatumSpec], surf: MeasuredSurface) -> DatumFram
     axis = None
     for spec in datums:
         try:
-            if spec.targets:
+            single_area = len(spec.targets) == 1 and spec.targets[0].is_area
+            area = _area_plane_rows(spec, surf, kept) if single_area else None
+            if area is not None:
+                A, b, u, how, feat = area
+                kept.append(feat.direction)
+            elif spec.targets:
                 A, b, u, how = _target_rows(spec, surf)
             else:
                 A, b, u, how, feat = _simulator_rows(spec, surf, kept)

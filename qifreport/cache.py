@@ -112,7 +112,8 @@ log = logging.getLogger(__name__)
 #: 10: STEP nominals carry their feature characteristics and datums (Nominal.plan); no
 #:    feature tolerance or dimension is a not-evaluated zone
 #: 11: STEP nominals carry their faces' STEP entity ids (Nominal.face_step_ids)
-CACHE_FORMAT = 11
+#: 12: dimensions of a thread known (CharacteristicSpec.thread); datum target areas sized
+CACHE_FORMAT = 12
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"

@@ -15,7 +15,7 @@ caching.
 from __future__ import annotations
 
 from .brep_geometry import FACE_TYPES, FaceLocator
-from .instance_graph import refs_of
+from .instance_graph import refs_of, text_of
 from .p21 import P21Model, Ref
 from .units import MeasureReader
 
@@ -117,8 +117,17 @@ class FaceLinker(MeasureReader):
         return sorted(cached[0]), list(cached[1]), list(cached[2])
 
     def _type_label(self, ref: Ref) -> str:
+        """The item's entity type, and its name for a named set of supplemental geometry
+        (``"GEOMETRIC_CURVE_SET 'Thread Cylinder.1'"``: what the geometry stands for)."""
         types = self.types(ref)
-        return types[0] if len(types) == 1 else "+".join(types) or f"#{ref.id}?"
+        label = types[0] if len(types) == 1 else "+".join(types) or f"#{ref.id}?"
+        if label in ("GEOMETRIC_CURVE_SET", "GEOMETRIC_SET"):
+            ent = self.get(ref)
+            p = ent.part(label) if ent is not None else None
+            name = text_of(p[0]) if p else ""
+            if name:
+                label += f" '{name}'"
+        return label
 
     def _collect(self, eid: int, seen: set[int], found: set[int], others: list[Ref]) -> None:
         if eid in seen:

@@ -53,6 +53,11 @@ class DatumTarget:
     position : [x, y, z] mm of its placement's origin (None: not placed in the file).
     direction : [x, y, z] unit, its placement's axis (None: not placed).
     face_step_ids : the faces it lies on (FEATURE_FOR_DATUM_TARGET_RELATIONSHIP).
+    x_direction : [x, y, z] unit, its placement's reference direction: a rectangle's length
+        lies along it, its width across (None: not given).
+    length, width : mm, a rectangular target area's sides ('target length', 'target width');
+        None for another kind.
+    diameter : mm, a circular target area's ('target diameter'); None for another kind.
     """
 
     name: str
@@ -61,6 +66,10 @@ class DatumTarget:
     position: list[float] | None = None
     direction: list[float] | None = None
     face_step_ids: list[int] = field(default_factory=list)
+    x_direction: list[float] | None = None
+    length: float | None = None
+    width: float | None = None
+    diameter: float | None = None
 
 
 @dataclass

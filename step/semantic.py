@@ -148,23 +148,37 @@ class _Reader(FaceLinker):
         'orientation' by AP242) and faces (its FEATURE_FOR_DATUM_TARGET_RELATIONSHIP's
         shape aspect's)."""
         kind = (text_of(tp[1]) if len(tp) >= 2 else "") or ""
-        position = direction = None
+        position = direction = x_direction = None
+        sizes: dict[str, float] = {}
         scale = self.context_length.scale or 1.0
+
+        def unit(ref: object) -> list[float] | None:
+            ent = self.get(ref) if isinstance(ref, Ref) else None
+            if ent is None or not ent.has("DIRECTION"):
+                return None
+            d = [float(x) for x in ent.part("DIRECTION")[1]] + [0.0] * 3
+            n = math.sqrt(sum(x * x for x in d[:3]))
+            return [x / n for x in d[:3]] if n > 0 else None
+
         for items in self._property_shape_items(tid):
             for r in items:
                 pl = self.get(r)
-                pp = pl.part("AXIS2_PLACEMENT_3D") if pl is not None else None
-                if not pp or len(pp) < 3:
+                if pl is not None and pl.has("MEASURE_REPRESENTATION_ITEM"):
+                    # the target's size: 'target length', 'target width', 'target diameter'
+                    item = self.item_name(pl).strip().lower()
+                    meas = self.measure(r, expect="length")
+                    if item.startswith("target ") and meas.value is not None:
+                        sizes[item[len("target ") :]] = meas.value
                     continue
-                loc, axis = self.get(pp[1]), self.get(pp[2]) if isinstance(pp[2], Ref) else None
+                pp = pl.part("AXIS2_PLACEMENT_3D") if pl is not None else None
+                if not pp or len(pp) < 3 or position is not None:
+                    continue
+                loc = self.get(pp[1])
                 if loc is not None and loc.has("CARTESIAN_POINT"):
                     c = [float(x) for x in loc.part("CARTESIAN_POINT")[1]] + [0.0] * 3
                     position = [scale * x for x in c[:3]]
-                if axis is not None and axis.has("DIRECTION"):
-                    d = [float(x) for x in axis.part("DIRECTION")[1]] + [0.0] * 3
-                    n = math.sqrt(sum(x * x for x in d[:3]))
-                    direction = [x / n for x in d[:3]] if n > 0 else None
-                break
+                direction = unit(pp[2])
+                x_direction = unit(pp[3]) if len(pp) >= 4 else None
             if position is not None:
                 break
         faces: set[int] = set()
@@ -179,6 +193,10 @@ class _Reader(FaceLinker):
             position=position,
             direction=direction,
             face_step_ids=sorted(faces),
+            x_direction=x_direction,
+            length=sizes.get("length"),
+            width=sizes.get("width"),
+            diameter=sizes.get("diameter"),
         )
 
     def datum_label(self, ref: object) -> tuple[str, list[int], list[str]]:

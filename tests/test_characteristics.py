@@ -210,3 +210,25 @@ def test_line_profile_is_located_in_its_frame(ctc02):
     got = _measure(ctc02, dev)["G6"]
     assert got.value == pytest.approx(0.30, rel=0.10), got.reading
     assert got.status == "FAIL"
+
+
+def test_perpendicularity_to_a_datum_from_one_target_area(ctc02):
+    """CTC 02's G5: a hole perpendicular within 0.254 (diametral) to datum K, which is one
+    85 mm circular target area on a face the part file leaves out of its solid (its
+    simulator a flat disk at its nominal orientation, mated to the surface under it): the
+    hole's axis tilted 0.1 mm over its length reads 0.10 mm; the perfect part 0."""
+    s = _spec(ctc02, "G5")
+    assert s.kind == "perpendicularity" and s.datums == ["K"]
+    surf = _surface(ctc02, np.zeros(len(ctc02.V)))
+    hole = surf.nominal([231])
+    v = surf.own_vertices([231, 232])
+    z = (surf.V[v] - hole.origin) @ hole.direction
+    across = np.cross(hole.direction, [1.0, 0.0, 0.0])
+    across /= np.linalg.norm(across)
+    dev = np.zeros(len(ctc02.V))
+    dev[v] = 0.10 * (z - z.mean()) / np.ptp(z) * (surf.N[v] @ across)
+    perfect = _measure(ctc02, np.zeros(len(ctc02.V)))["G5"]
+    assert perfect.status == "PASS" and perfect.value < 1e-3, perfect.reason
+    got = _measure(ctc02, dev)["G5"]
+    assert got.value == pytest.approx(0.10, rel=0.10), got.reading
+    assert got.status == "PASS"

@@ -619,6 +619,40 @@ def test_thread_geometry_maps_to_the_tapped_holes():
         assert abs(abs(z @ axis) - 1.0) < 1e-6
 
 
+def test_dimensions_of_threads_and_of_drawn_lines_say_what_they_are():
+    """CTC 04's M12 thread size and 25 mm thread depth are given on supplemental geometry
+    named 'Thread Cylinder.1' / 'Upper Thread Plane.1' (the B-rep holds the 10.2 mm tap
+    drill): not measured, with that reason; FTC 06's 1.106 in REF between two lines drawn
+    on the faces of a V: its reason says so."""
+    from qifreport.metrology.characteristics import measure_characteristics, specs_from_pmi
+    from qifreport.metrology.measured_surface import MeasuredSurface
+
+    dims = {d.step_id: d for d in _pmi(NIST[3]).dimensions}
+    assert "'Thread Cylinder.1'" in dims[18938].face_notes[0]
+    assert "'Upper Thread Plane.1'" in dims[20263].face_notes[0]
+    plan = specs_from_pmi(_pmi(NIST[3]), {})
+    thread = {s.step_id: s for s in plan.specs if s.thread}
+    assert sorted(thread) == [18938, 20263]
+    e = np.empty(0)
+    surf = MeasuredSurface(
+        np.eye(3),
+        np.array([[0, 1, 2]]),
+        np.zeros(1, dtype=np.int64),
+        np.ones((1, 3, 3)),
+        np.zeros(3),
+        np.zeros(3),
+        np.empty((0, 3)),
+        e.astype(np.int64),
+        e,
+        e,
+    )
+    res, _ = measure_characteristics(list(thread.values()), {}, surf, "iso14253")
+    for r in res:
+        assert r.status == "NOT_MEASURED" and "a thread's dimension" in r.reason, r.reason
+    drawn = [s.step_id for s in specs_from_pmi(_pmi(NIST[5]), {}).specs if s.drawn]
+    assert {16846, 16853} <= set(drawn)
+
+
 # ============================================================================================
 # speed
 # ============================================================================================
