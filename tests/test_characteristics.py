@@ -33,7 +33,9 @@ def part():
     return load_nominal(shared_file("step/nist/nist_ftc_06_asme1_ap242-e1.stp"), None)
 
 
-def _surface(nom, dev: np.ndarray) -> MeasuredSurface:
+def exact_surface(nom, dev: np.ndarray) -> MeasuredSurface:
+    """The nominal mesh measured exactly: each vertex at ``dev`` (n,) mm along its normal,
+    every vertex's uncertainty :data:`U_VERTEX`, no scan points."""
     n = len(nom.V)
     e = np.empty(0)
     return MeasuredSurface(
@@ -52,7 +54,7 @@ def _surface(nom, dev: np.ndarray) -> MeasuredSurface:
 
 def _measure(nom, dev: np.ndarray) -> dict:
     res, _ = measure_characteristics(
-        nom.plan.specs, nom.plan.datums, _surface(nom, dev), "iso14253"
+        nom.plan.specs, nom.plan.datums, exact_surface(nom, dev), "iso14253"
     )
     return {r.spec.key: r for r in res}
 
@@ -88,7 +90,7 @@ def test_perfect_part_conforms_everywhere(part):
 
 
 def test_hole_moved_and_oversize(part):
-    surf = _surface(part, np.zeros(len(part.V)))
+    surf = exact_surface(part, np.zeros(len(part.V)))
     v, cyl = _hole(surf, [25, 26])
     assert cyl.kind == "cylinder" and cyl.internal
     d = np.cross(cyl.direction, [1.0, 0.0, 0.0])
@@ -117,7 +119,7 @@ def test_hole_moved_and_oversize(part):
 
 
 def test_face_tilted_gives_its_perpendicularity(part):
-    surf = _surface(part, np.zeros(len(part.V)))
+    surf = exact_surface(part, np.zeros(len(part.V)))
     v = surf.own_vertices([44])
     plane = surf.nominal([44])
     assert plane.kind == "plane"
@@ -134,7 +136,7 @@ def test_face_tilted_gives_its_perpendicularity(part):
 
 
 def test_face_bowed_gives_its_flatness(part):
-    surf = _surface(part, np.zeros(len(part.V)))
+    surf = exact_surface(part, np.zeros(len(part.V)))
     v = surf.own_vertices([180])
     assert _spec(part, "G12").kind == "flatness"
     X = surf.V[v]
@@ -154,7 +156,7 @@ def test_face_bowed_gives_its_flatness(part):
 def test_hole_moved_beyond_its_tolerance_fails(part):
     s = _spec(part, "G3")
     assert s.kind == "position" and s.tolerance == pytest.approx(0.381) and not s.modifiers
-    surf = _surface(part, np.zeros(len(part.V)))
+    surf = exact_surface(part, np.zeros(len(part.V)))
     v, cyl = _hole(surf, [163, 164])
     d = np.cross(cyl.direction, [0.0, 0.0, 1.0])
     d /= np.linalg.norm(d)
@@ -171,7 +173,7 @@ def test_drill_point_moved_deepens_its_hole(part):
     axis reads 12.75 mm; the perfect part's 12.700."""
     s = _spec(part, "D23")
     assert s.nominal == pytest.approx(12.7) and set(s.target_faces) == {18, 20}
-    surf = _surface(part, np.zeros(len(part.V)))
+    surf = exact_surface(part, np.zeros(len(part.V)))
     cone = surf.nominal([18])
     assert cone is not None and cone.kind == "cone"
     assert np.degrees(2 * cone.half_angle) == pytest.approx(118.0, abs=0.1)
@@ -200,7 +202,7 @@ def test_line_profile_is_located_in_its_frame(ctc02):
     s = _spec(ctc02, "G6")
     assert s.kind == "line_profile" and s.datums == ["A", "B", "C"]
     c1 = ctc02.plan.datums["C"].targets[0].position
-    surf = _surface(ctc02, np.zeros(len(ctc02.V)))
+    surf = exact_surface(ctc02, np.zeros(len(ctc02.V)))
     v = surf.own_vertices([18])
     x = surf.V[v, 0] - c1[0]
     dev = np.zeros(len(ctc02.V))
@@ -219,7 +221,7 @@ def test_perpendicularity_to_a_datum_from_one_target_area(ctc02):
     hole's axis tilted 0.1 mm over its length reads 0.10 mm; the perfect part 0."""
     s = _spec(ctc02, "G5")
     assert s.kind == "perpendicularity" and s.datums == ["K"]
-    surf = _surface(ctc02, np.zeros(len(ctc02.V)))
+    surf = exact_surface(ctc02, np.zeros(len(ctc02.V)))
     hole = surf.nominal([231])
     v = surf.own_vertices([231, 232])
     z = (surf.V[v] - hole.origin) @ hole.direction

@@ -21,8 +21,7 @@ from qifreport.metrology.characteristics import measure_characteristics
 from qifreport.metrology.frames import establish_frame
 from qifreport.step.semantic import read_pmi_text
 from tests.conftest import shared_file
-from tests.test_characteristics import _surface
-from tests.test_datum_targets import xde_targets
+from tests.test_characteristics import exact_surface
 
 CTC05 = "step/nist/nist_ctc_05_asme1_ap242-e1.stp"
 CTC02 = "step/nist/nist_ctc_02_asme1_ap242-e2.stp"
@@ -99,7 +98,7 @@ def ctc05():
 
 
 def _frame_C(nom, dev):
-    surf = _surface(nom, dev)
+    surf = exact_surface(nom, dev)
     return establish_frame([nom.plan.datums["C"]], surf), surf
 
 
@@ -127,7 +126,10 @@ def test_datum_c_is_simulated_under_its_area_only(ctc05):
 
 def test_the_area_sides_are_theoretically_exact(ctc05):
     res, _ = measure_characteristics(
-        ctc05.plan.specs, ctc05.plan.datums, _surface(ctc05, np.zeros(len(ctc05.V))), "iso14253"
+        ctc05.plan.specs,
+        ctc05.plan.datums,
+        exact_surface(ctc05, np.zeros(len(ctc05.V))),
+        "iso14253",
     )
     got = {r.spec.key: r for r in res}
     for key, side in (("D3", "width"), ("D4", "width"), ("D5", "length"), ("D6", "length")):
