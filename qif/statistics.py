@@ -3,10 +3,36 @@
 qifreport inspects many scans of one part (a batch); each scan has its QIF results document
 (:mod:`qifreport.qif.writer`), read back with :func:`qifreport.qif.reader.read_results`.
 :func:`summarize` reduces the batch to one :class:`CharacteristicSummary` per characteristic
-(per designator, e.g. ``"T1"``, ``"general"``) and :func:`build_statistics` writes it as a
-QIF 3.0 document whose ``Statistics`` section (``QIFApplications/QIFStatistics.xsd``,
+(per designator: a toleranced surface's zone key, ``"T1"``, ``"general"``; a feature
+characteristic's key, ``"G1"``, ``"D3"``) and :func:`build_statistics` writes it as a QIF
+3.0 document whose ``Statistics`` section (``QIFApplications/QIFStatistics.xsd``,
 ``QIFLibrary/Statistics.xsd``) holds one capability study with one typed statistics element
 per characteristic.
+
+Characteristics
+---------------
+Every characteristic of a kind in :data:`SUPPORTED_KINDS` with a numeric tolerance or limits
+is carried:
+
+* the surface profiles (``SurfaceProfile``), as the results documents carry them;
+* the geometric tolerances of the drawing (:data:`GEOMETRIC_KINDS`: ``Flatness``,
+  ``Position``, ``Perpendicularity``, ``CircularRunout`` ...): a zone width judged against
+  its ``ToleranceValue`` (or the ``ToleranceValuePerUnit`` of a per-unit-length or
+  per-unit-area tolerance), one-sided like a profile;
+* the dimensions (:data:`LINEAR_DIMENSION_KINDS`: ``Diameter``, ``DistanceBetween``,
+  ``Width`` ..., mm; :data:`ANGULAR_DIMENSION_KINDS`: ``Angle``, ``AngleBetween``, degrees):
+  a size between the limits of the definition's ``Tolerance`` (``MaxValue``/``MinValue``
+  about the nominal's ``TargetValue``, or the limits themselves with ``DefinedAsLimit``),
+  two-sided.
+
+A feature characteristic's definition and nominal are read from its results document (the
+file of :attr:`QIFResults.path <qifreport.qif.reader.QIFResults.path>`: the results as read
+back carry neither a dimension's limits nor the elements a definition of its type needs).
+Left out, each with a logged reason (never an error): a characteristic without a numeric
+tolerance or limits (a basic or reference dimension, ``NonTolerance``; a limits-and-fits
+code), one whose results document cannot be read, and every other type (the
+``UserDefinedAttribute`` acceptance characteristics ``<key>_ACCEPTANCE`` beside each
+profile, the PMI items QIF has no type for).
 
 Layout
 ------
@@ -19,20 +45,33 @@ they measure (the structure of qifreport's results documents, one per designator
 ``ExternalQIFReferences``                    with ``sources``: one ``ExternalQIFDocument`` per
                                              inspection (the per-scan results document's
                                              ``QPId`` and its URI relative to this file)
-``FileUnits``                                mm
+``FileUnits``                                mm (and degree when an angle is carried)
 ``Product``, ``Features``                    the part, one ``OtherSurfaceFeature`` definition,
                                              nominal and item per characteristic
-``Characteristics``                          per designator: ``SurfaceProfileCharacteristic``
-                                             ``Definition`` (``Name``, ``Description``,
-                                             ``ToleranceValue``, ``UnequallyDisposedZone``),
-                                             ``Nominal`` and ``Item`` (``CharacteristicDesignator``)
+                                             (``SURFACE_<key>`` for a profile,
+                                             ``FEATURE_<key>`` for a feature characteristic)
+``Characteristics``                          per designator, its type's ``Definition``,
+                                             ``Nominal`` and ``Item``
+                                             (``CharacteristicDesignator``). A profile's
+                                             definition is written from the results read back
+                                             (``Name``, ``Description``, ``ToleranceValue``,
+                                             ``UnequallyDisposedZone``); a feature
+                                             characteristic's definition and nominal are
+                                             copies of those of its first results document
+                                             (tolerance or limits, material condition, zone
+                                             shape, ``TargetValue``, ``AnalysisMode`` ...)
+                                             without the ``DatumReferenceFrameId`` (this
+                                             document has no datums: the frame is named in
+                                             the description) and with the description's
+                                             first clause only (the rest says how that one
+                                             scan was read)
 ``Results/MeasurementResultsSet``            one ``MeasurementResults`` per inspection, in the
                                              order given: inspection times, (with ``sources``)
                                              an ``ExternalFileReference`` to its QIF file, one
-                                             ``SurfaceProfileCharacteristicMeasurement`` per
-                                             characteristic (``Status``, ``Value``,
-                                             ``WorstPositiveDeviation``,
-                                             ``WorstNegativeDeviation`` copied; its id in the
+                                             ``<Kind>CharacteristicMeasurement`` per carried
+                                             characteristic (``Status`` and ``Value``, for a
+                                             profile also ``WorstPositiveDeviation`` and
+                                             ``WorstNegativeDeviation``, copied; its id in the
                                              source is the ``source_id`` attribute), the
                                              inspection status
 ``Results/ActualComponentSets``              one ``ActualComponent`` per inspection (serial
@@ -46,34 +85,43 @@ they measure (the structure of qifreport's results documents, one per designator
                                              (the number of inspections)
 ==========================================  ==================================================
 
-Each characteristic's statistics are a ``SurfaceProfileCharacteristicStats`` element
-(``SurfaceProfileCharacteristicStatsEvalType``, from ``ProfileCharacteristicStatsEvalBaseType``
-and ``GeometricCharacteristicStatsEvalType``):
+Each characteristic's statistics are a ``<Kind>CharacteristicStats`` element: for a profile
+``SurfaceProfileCharacteristicStats`` (``SurfaceProfileCharacteristicStatsEvalType``, from
+``ProfileCharacteristicStatsEvalBaseType`` and ``GeometricCharacteristicStatsEvalType``), for a
+geometric tolerance e.g. ``FlatnessCharacteristicStats`` or ``PositionCharacteristicStats``
+(from ``GeometricCharacteristicStatsEvalType`` too), for a dimension e.g.
+``DiameterCharacteristicStats`` (``LinearCharacteristicStatsEvalType``) or
+``AngleBetweenCharacteristicStats`` (``AngularCharacteristicStatsEvalType``):
 
 * ``Attributes``: ``designator`` (``AttributeStr``); ``n_pass``, ``n_fail``, ``n_other``
   (``AttributeI1``): how many of its measurements have the characteristic status ``PASS``,
   ``FAIL`` or another one (``INDETERMINATE``, ``NOT_ANALYZED``...). QIF has no statistics
   element for counts of a characteristic's status: ``NumberOutOfTolerance`` counts values
   beyond the tolerance, and qifreport's status is its acceptance rule, not that comparison
-  (a part can PASS with a profile value above the tolerance, see :mod:`qifreport.qif.writer`).
+  (a part can PASS with a profile value above the tolerance, see :mod:`qifreport.qif.writer`;
+  a position at MMC with a bonus).
 * ``MeasuredIds`` (``StatsArrayIdType``): the ids of its measurements in ``Results``, all of
   them; those without a measured value are ``Exclusions`` (reason ``OtherExclusionReason``).
 * ``Status``: ``INFORMATIONAL`` (no capability requirement was given to judge against).
-* ``ValueStats`` (``StatsWithTolLinearType``), over the profile values (the measurements'
-  ``Value``, mm; see :mod:`qifreport.qif.writer`): ``TotalNumber`` (measurements),
+* ``ValueStats`` (``StatsWithTolLinearType``; ``StatsWithTolAngularType`` for an angle, in
+  degrees), over the measurements' ``Value`` (a profile value or a geometric tolerance's
+  zone width, mm; a dimension's size, mm or degrees): ``TotalNumber`` (measurements),
   ``EffectiveNumber`` (those with a value, ``count``), ``Average``, ``StandardDeviation`` (the
   sample standard deviation, ``n - 1`` in the denominator, as the schema defines ``STDDEV``;
   written when ``count >= 2``), ``Minimum`` and ``Maximum`` (each with the ``Id`` of its
-  measurement),
-  ``Range``, ``NumberOutOfTolerance`` (values above the tolerance, with their ``Ids``),
-  ``Cpk``.
-* ``CapabilityCalculationMethod``: ``THREE_SIGMA`` when ``Cpk`` is written.
-* ``WorstPositiveDeviationStats``, ``WorstNegativeDeviationStats`` (``StatsLinearType``):
-  ``Average``, ``Minimum``, ``Maximum`` of the measurements' worst deviations (mm).
+  measurement), ``Range``, ``NumberOutOfTolerance`` (values above the tolerance; for a
+  dimension beyond either limit; with their ``Ids``), for a dimension also
+  ``NumberOverUpperTolerance`` and ``NumberUnderLowerTolerance`` (for each limit it has),
+  ``Cp`` (a dimension with both limits) and ``Cpk``.
+* ``CapabilityCalculationMethod`` (a profile or a geometric tolerance): ``THREE_SIGMA`` when
+  ``Cpk`` is written. The dimensions' statistics types have no such element.
+* A profile's ``WorstPositiveDeviationStats``, ``WorstNegativeDeviationStats``
+  (``StatsLinearType``): ``Average``, ``Minimum``, ``Maximum`` of the measurements' worst
+  deviations (mm).
 
 Capability
 ----------
-A profile tolerance is one-sided: the profile value is a zone width, at least 0, and the
+A profile or geometric tolerance is one-sided: the value is a zone width, at least 0, and the
 characteristic conforms when it is at most ``ToleranceValue``. The lower specification limit
 is 0 and the upper ``USL = ToleranceValue``. ``Cp = (USL - LSL) / (6 sigma)`` supposes a
 two-sided tolerance with a process centred between the limits; it has no meaning here and
@@ -83,10 +131,21 @@ deviation ``s``::
     Cpk = (USL - mean) / (3 s)
 
 (the schema's ``CapabilityCalculationMethod`` ``THREE_SIGMA`` for one-sided tolerances),
-written when ``count >= 2`` and ``s > 0``. With the overall sample deviation (no rational
-subgroups) the index is what AIAG SPC calls ``Ppk``; it is written as ``Cpk``, the name the
-product uses. Profile values are bounded below by 0 and skewed, so the normal-tail reading of
-a ``Cpk`` (e.g. 1.33 ~ 32 ppm) is an approximation.
+written when ``count >= 2`` and ``s > 0``. A zone width is bounded below by 0 and skewed, so
+the normal-tail reading of a ``Cpk`` (e.g. 1.33 ~ 32 ppm) is an approximation. A position's
+tolerance is the stated one (an MMC/LMC bonus, which differs from part to part, is not
+added).
+
+A dimension is two-sided, between ``LSL`` and ``USL`` (its limits;
+:func:`qifreport.metrology.spc.capability`)::
+
+    Cp  = (USL - LSL) / (6 s)
+    Cpk = min(USL - mean, mean - LSL) / (3 s)
+
+each written when ``count >= 2`` and ``s > 0`` (``Cp`` only with both limits; with one
+limit ``Cpk`` is that side's index). With the overall sample deviation (no rational
+subgroups) the indices are what AIAG SPC calls ``Pp`` and ``Ppk``; they are written as ``Cp``
+and ``Cpk``, the names the product uses.
 
 Numbers
 -------
@@ -97,10 +156,12 @@ values are written the same way, so they equal the values read from the source d
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime
+from decimal import Decimal
 from pathlib import Path
 from urllib.parse import quote
 
@@ -108,15 +169,20 @@ import numpy as np
 from lxml import etree
 
 from qifreport import __version__
-from qifreport.metrology.spc import upper_cpk
+from qifreport.metrology.spc import capability, upper_cpk
 
 from .reader import CharacteristicResult, QIFResults
 from .writer import write_qif
-from .xmlkit import SCHEMA_LOCATION, XSI, Attrs, E, Ids, id_array, qpid, token, xml_time
+from .xmlkit import NS, SCHEMA_LOCATION, XSI, Attrs, E, Ids, id_array, qpid, token, xml_time
+from .xsd import DocumentRefused, parse_document
 
 __all__ = [
+    "ANGULAR_DIMENSION_KINDS",
     "CHARACTERISTIC_STATUSES",
+    "DIMENSION_KINDS",
+    "GEOMETRIC_KINDS",
     "INSPECTION_STATUSES",
+    "LINEAR_DIMENSION_KINDS",
     "NO_VALUE_REASON",
     "SUPPORTED_KINDS",
     "CharacteristicSummary",
@@ -144,10 +210,55 @@ CHARACTERISTIC_STATUSES = frozenset(
 INSPECTION_STATUSES = frozenset(
     {"PASS", "FAIL", "REWORK", "SYSERROR", "UNKNOWN", "NOT_CALCULATED", "NOT_MEASURED", "UNDEFINED"}
 )
+#: geometric characteristic kinds: a zone width (mm) at most the ``ToleranceValue`` (one-sided)
+GEOMETRIC_KINDS = frozenset(
+    {
+        "SurfaceProfile",
+        "LineProfile",
+        "Flatness",
+        "Straightness",
+        "Circularity",
+        "Cylindricity",
+        "Perpendicularity",
+        "Parallelism",
+        "Angularity",
+        "Position",
+        "Coaxiality",
+        "Concentricity",
+        "Symmetry",
+        "CircularRunout",
+        "TotalRunout",
+    }
+)
+#: dimensions in mm between limits (two-sided; ``LinearCharacteristicStatsEvalType``)
+LINEAR_DIMENSION_KINDS = frozenset(
+    {
+        "Diameter",
+        "Radius",
+        "SphericalDiameter",
+        "SphericalRadius",
+        "Thickness",
+        "DistanceBetween",
+        "DistanceFrom",
+        "Width",
+        "Length",
+        "Height",
+        "Depth",
+        "Chord",
+        "CurveLength",
+        "LinearCoordinate",
+    }
+)
+#: dimensions in degrees between limits (``AngularCharacteristicStatsEvalType``)
+ANGULAR_DIMENSION_KINDS = frozenset({"Angle", "AngleBetween", "AngleFrom", "AngularCoordinate"})
+#: every dimension kind
+DIMENSION_KINDS = LINEAR_DIMENSION_KINDS | ANGULAR_DIMENSION_KINDS
 #: characteristic kinds :func:`build_statistics` can write (``<kind>CharacteristicStats``)
-SUPPORTED_KINDS = frozenset({"SurfaceProfile"})
+SUPPORTED_KINDS = GEOMETRIC_KINDS | DIMENSION_KINDS
 #: exclusion reason of a measurement without a value
 NO_VALUE_REASON = "no measured value"
+#: the profile kinds (worst deviations copied and summarised)
+_PROFILE_KINDS = ("SurfaceProfile", "LineProfile")
 
 
 @dataclass
@@ -157,30 +268,46 @@ class CharacteristicSummary:
     Attributes
     ----------
     designator : str
-        The characteristic's designator (qifreport: the zone key, ``"T1"``, ``"general"``);
-        its name when it has none.
+        The characteristic's designator (qifreport: the zone key, ``"T1"``, ``"general"``,
+        or the feature characteristic's key, ``"G1"``, ``"D3"``); its name when it has none.
     kind : str
-        QIF characteristic type without suffix, e.g. ``"SurfaceProfile"``.
+        QIF characteristic type without suffix, e.g. ``"SurfaceProfile"``, ``"Flatness"``,
+        ``"Diameter"``.
     description : str or None
         The definition's description (first one seen).
     tolerance : float or None
-        The definition's ``ToleranceValue`` (mm): the upper specification limit of the value.
+        A profile's or geometric tolerance's ``ToleranceValue`` (mm): the upper specification
+        limit of the value; None for a dimension.
     count : int
         Measurements with a finite value.
     mean, std : float
-        Mean and sample standard deviation (``ddof=1``) of the values, mm; NaN when
-        ``count`` is 0 (mean) or below 2 (std).
+        Mean and sample standard deviation (``ddof=1``) of the values, in the value's unit
+        (:attr:`unit`); NaN when ``count`` is 0 (mean) or below 2 (std).
     min, max : float
-        Smallest and largest value, mm (NaN when ``count`` is 0).
+        Smallest and largest value (NaN when ``count`` is 0).
     n_pass, n_fail, n_other : int
         Measurements whose characteristic status is ``PASS``, ``FAIL``, anything else.
     cp : float or None
-        Two-sided capability index: None, a geometric tolerance is one-sided.
+        Two-sided capability index ``(upper - lower) / (6 std)`` of a dimension with both
+        limits; None for a geometric tolerance (one-sided), with ``count < 2`` or
+        ``std == 0``.
     cpk : float or None
-        Upper capability index ``(tolerance - mean) / (3 std)``; None without a tolerance,
+        Capability index: upper ``(tolerance - mean) / (3 std)`` of a geometric tolerance,
+        ``min(upper - mean, mean - lower) / (3 std)`` of a dimension; None without a limit,
         with ``count < 2`` or ``std == 0``.
     n_out_of_tolerance : int
-        Values above the tolerance (0 without a tolerance).
+        Values above the tolerance, or beyond either limit of a dimension (0 without a
+        tolerance).
+    lower, upper : float or None
+        The specification limits of the value: for a geometric tolerance ``lower`` is None
+        (the value is at least 0) and ``upper`` the tolerance; a dimension's limits (None for
+        a side without one).
+    nominal : float or None
+        A dimension's nominal (``TargetValue``).
+    unit : str
+        Unit of the values and limits: ``"mm"``, or ``"deg"`` for an angle.
+    n_above, n_below : int
+        Values above ``upper`` and below ``lower``.
     """
 
     designator: str
@@ -198,6 +325,38 @@ class CharacteristicSummary:
     cp: float | None
     cpk: float | None
     n_out_of_tolerance: int = 0
+    lower: float | None = None
+    upper: float | None = None
+    nominal: float | None = None
+    unit: str = "mm"
+    n_above: int = 0
+    n_below: int = 0
+
+    @property
+    def two_sided(self) -> bool:
+        """A dimension (limits about a nominal), not a one-sided geometric tolerance."""
+        return self.kind in DIMENSION_KINDS
+
+
+@dataclass(frozen=True)
+class _Spec:
+    """What a characteristic's value is judged against: ``lower`` (None for a geometric
+    tolerance, whose value is at least 0) and ``upper`` limits, a dimension's ``nominal``."""
+
+    lower: float | None
+    upper: float | None
+    nominal: float | None = None
+
+
+@dataclass
+class _Source:
+    """A feature characteristic in its results document: its definition and nominal
+    elements and its limits, or why it is not carried."""
+
+    spec: _Spec | None
+    definition: etree._Element | None = None
+    nominal: etree._Element | None = None
+    reason: str = ""
 
 
 @dataclass
@@ -206,18 +365,27 @@ class _Observation:
 
     scan: int
     char: CharacteristicResult
+    source: _Source = field(default_factory=lambda: _Source(None))
 
     @property
     def value(self) -> float | None:
         v = self.char.value
         return v if v is not None and math.isfinite(v) else None
 
+    @property
+    def spec(self) -> _Spec:
+        if self.char.kind == "SurfaceProfile":
+            return _Spec(None, self.char.tolerance)
+        assert self.source.spec is not None
+        return self.source.spec
 
-def _profiles(res: QIFResults) -> list[CharacteristicResult]:
-    """The surface-profile characteristics of one results document: what this
-    Statistics document carries (the feature characteristics of issue 22 are listed in
-    each results file; their batch statistics are not written yet)."""
-    return [c for c in res.characteristics if c.kind == "SurfaceProfile"]
+
+def _description(c: CharacteristicResult) -> str | None:
+    """A characteristic's description: a feature characteristic's first clause (what it is;
+    the rest, after ``"; "``, says how one scan was read, :mod:`.feature_characteristics`)."""
+    if c.description is None or c.kind == "SurfaceProfile":
+        return c.description
+    return c.description.split("; ")[0]
 
 
 def _key(c: CharacteristicResult) -> str:
@@ -230,49 +398,161 @@ def _key(c: CharacteristicResult) -> str:
     return key
 
 
+# ------------------------------------------------------------------- feature definitions
+
+_Q = f"{{{NS}}}"
+
+
+def _child_text(el: etree._Element | None, path: str) -> str | None:
+    x = el.find(path.replace("q:", _Q)) if el is not None else None
+    return None if x is None or x.text is None else x.text.strip()
+
+
+def _float(text: str | None) -> float | None:
+    if text is None:
+        return None
+    try:
+        x = float(text)
+    except ValueError:
+        return None
+    return x if math.isfinite(x) else None
+
+
+def _limits(kind: str, definition: etree._Element, nominal: etree._Element) -> _Spec | str:
+    """The limits a feature characteristic's definition states, or why it has none."""
+    if kind in GEOMETRIC_KINDS:
+        tol = _float(_child_text(definition, "q:ToleranceValue"))
+        for per_unit in ("q:ToleranceZonePerUnitArea", "q:ToleranceZonePerUnitLength"):
+            if tol is None:
+                tol = _float(_child_text(definition, f"{per_unit}/q:ToleranceValuePerUnit"))
+        if tol is None:
+            return "no numeric tolerance value"
+        return _Spec(None, tol)
+    if definition.find(f"{_Q}NonTolerance") is not None:
+        return "no limits (a basic or reference dimension)"
+    if definition.find(f"{_Q}LimitsAndFitsSpecification") is not None:
+        return "limits given as a limits-and-fits code, not evaluated here"
+    tol = definition.find(f"{_Q}Tolerance")
+    if tol is None or tol.find(f"{_Q}DefinitionId") is not None:
+        return "no limits in its definition"
+    hi, lo = _child_text(tol, "q:MaxValue"), _child_text(tol, "q:MinValue")
+    target = _child_text(nominal, "q:TargetValue")
+    if _float(hi) is None and _float(lo) is None:
+        return "no limits in its definition"
+    if _child_text(tol, "q:DefinedAsLimit") in ("true", "1"):
+        return _Spec(_float(lo), _float(hi), _float(target))
+    if _float(target) is None:
+        return "limits relative to a nominal it does not state"
+
+    def limit(offset: str | None) -> float | None:
+        # nominal + offset as decimals, then the nearest double (10 + 0.1 is 10.1 exactly)
+        return None if _float(offset) is None else float(Decimal(target) + Decimal(offset))
+
+    return _Spec(limit(lo), limit(hi), _float(target))
+
+
+def _sources(res: QIFResults) -> dict[str, _Source]:
+    """The feature characteristics of one results document (every supported kind but the
+    surface profiles) by measurement id: their definition, nominal and limits, read from the
+    file, or why they cannot be carried."""
+    wanted = [
+        c for c in res.characteristics if c.kind in SUPPORTED_KINDS and c.kind != "SurfaceProfile"
+    ]
+    if not wanted:
+        return {}
+    try:
+        root = parse_document(res.path).getroot()
+    except (OSError, DocumentRefused, etree.XMLSyntaxError) as exc:
+        why = f"its results document {res.path.name} could not be read ({exc})"
+        return {c.id: _Source(None, reason=why) for c in wanted}
+    by_id = {el.get("id"): el for el in root.iter() if el.get("id") is not None}
+    out: dict[str, _Source] = {}
+    for c in wanted:
+        item = by_id.get(_child_text(by_id.get(c.id), "q:CharacteristicItemId"))
+        nominal = by_id.get(_child_text(item, "q:CharacteristicNominalId"))
+        definition = by_id.get(_child_text(nominal, "q:CharacteristicDefinitionId"))
+        if definition is None or nominal is None:
+            out[c.id] = _Source(None, reason=f"no definition in {res.path.name}")
+            continue
+        spec = _limits(c.kind, definition, nominal)
+        if isinstance(spec, str):
+            out[c.id] = _Source(None, reason=spec)
+        else:
+            out[c.id] = _Source(spec, definition, nominal)
+    return out
+
+
 def _group(results: list[QIFResults]) -> dict[str, list[_Observation]]:
-    """The batch's measurements by designator, designators in first-seen order.
+    """The batch's carried measurements by designator, designators in first-seen order.
+
+    A designator of a supported kind without limits (in any inspection) is left out, its
+    reason logged; so is every unsupported kind.
 
     Raises
     ------
     ValueError
-        A designator changes type or tolerance within the batch.
+        A designator changes type, tolerance or limits within the batch.
     """
     groups: dict[str, list[_Observation]] = {}
+    left_out: dict[str, str] = {}
     for k, res in enumerate(results):
-        for c in _profiles(res):
-            obs = groups.setdefault(_key(c), [])
+        sources = _sources(res)
+        for c in res.characteristics:
+            if c.kind not in SUPPORTED_KINDS:
+                log.debug("%s (%s) left out: no statistics of this type", _key(c), c.kind)
+                continue
+            key = _key(c)
+            src = sources.get(c.id, _Source(None))
+            if c.kind != "SurfaceProfile" and src.spec is None:
+                left_out.setdefault(key, f"{c.kind}: {src.reason}")
+                continue
+            obs = groups.setdefault(key, [])
+            o = _Observation(k, c, src)
             if obs:
-                first = obs[0].char
-                if c.kind != first.kind:
+                first = obs[0]
+                if c.kind != first.char.kind:
                     raise ValueError(
-                        f"{_key(c)}: {c.kind} in {res.path.name} but {first.kind} "
+                        f"{key}: {c.kind} in {res.path.name} but {first.char.kind} "
                         "before: not one part's batch"
                     )
-                if c.tolerance != first.tolerance:
+                if c.kind == "SurfaceProfile" and c.tolerance != first.char.tolerance:
                     raise ValueError(
-                        f"{_key(c)}: tolerance {c.tolerance} in {res.path.name} "
-                        f"but {first.tolerance} before: not one part's batch"
+                        f"{key}: tolerance {c.tolerance} in {res.path.name} "
+                        f"but {first.char.tolerance} before: not one part's batch"
                     )
-            obs.append(_Observation(k, c))
+                if o.spec != first.spec:
+                    raise ValueError(
+                        f"{key}: limits {o.spec} in {res.path.name} but {first.spec} "
+                        "before: not one part's batch"
+                    )
+            obs.append(o)
+    for key, why in left_out.items():
+        groups.pop(key, None)
+        log.info("characteristic %s left out of the batch statistics: %s", key, why)
     return groups
 
 
 def _summary(key: str, obs: list[_Observation]) -> CharacteristicSummary:
     first = obs[0].char
+    spec = obs[0].spec
     values = np.array([o.value for o in obs if o.value is not None], dtype=float)
     count = len(values)
     mean = float(values.mean()) if count else math.nan
     std = float(values.std(ddof=1)) if count >= 2 else math.nan
-    tol = first.tolerance
-    cpk = None if tol is None else upper_cpk(mean, std, tol, count)
-    cpk = None if cpk is None or math.isnan(cpk) else cpk
     statuses = [o.char.status for o in obs]
     n_pass, n_fail = statuses.count("PASS"), statuses.count("FAIL")
+    n_above = int((values > spec.upper).sum()) if spec.upper is not None else 0
+    n_below = int((values < spec.lower).sum()) if spec.lower is not None else 0
+    if first.kind in DIMENSION_KINDS:
+        tol = None
+        cp, cpk = capability(mean, std, count, spec.lower, spec.upper)
+    else:
+        tol = spec.upper
+        cp, cpk = math.nan, (math.nan if tol is None else upper_cpk(mean, std, tol, count))
     return CharacteristicSummary(
         designator=key,
         kind=first.kind,
-        description=next((o.char.description for o in obs if o.char.description), None),
+        description=next((_description(o.char) for o in obs if o.char.description), None),
         tolerance=tol,
         count=count,
         mean=mean,
@@ -282,9 +562,15 @@ def _summary(key: str, obs: list[_Observation]) -> CharacteristicSummary:
         n_pass=n_pass,
         n_fail=n_fail,
         n_other=len(obs) - n_pass - n_fail,
-        cp=None,
-        cpk=cpk,
-        n_out_of_tolerance=int((values > tol).sum()) if tol is not None else 0,
+        cp=None if math.isnan(cp) else cp,
+        cpk=None if math.isnan(cpk) else cpk,
+        n_out_of_tolerance=n_above + n_below,
+        lower=spec.lower,
+        upper=spec.upper,
+        nominal=spec.nominal,
+        unit="deg" if first.kind in ANGULAR_DIMENSION_KINDS else "mm",
+        n_above=n_above,
+        n_below=n_below,
     )
 
 
@@ -294,18 +580,20 @@ def summarize(results: list[QIFResults]) -> list[CharacteristicSummary]:
     Parameters
     ----------
     results : list of QIFResults
-        The batch's results documents, read back (:func:`qifreport.qif.reader.read_results`).
+        The batch's results documents, read back (:func:`qifreport.qif.reader.read_results`);
+        a feature characteristic's limits are read from the file itself (:attr:`path`).
 
     Returns
     -------
     list of CharacteristicSummary
-        One per designator, in the order the designators first appear.
+        One per carried designator (see the module docstring), in the order the
+        designators first appear.
 
     Raises
     ------
     ValueError
-        A characteristic has no designator and no name, or a designator changes type or
-        tolerance within the batch.
+        A characteristic has no designator and no name, or a designator changes type,
+        tolerance or limits within the batch.
     """
     return [_summary(key, obs) for key, obs in _group(results).items()]
 
@@ -392,13 +680,11 @@ def _check_batch(
         missing = [r.path.name for r in results if not r.qpid]
         if missing:
             raise ValueError(f"results without a QPId cannot be referenced: {missing}")
-    kinds = sorted({obs[0].char.kind for obs in groups.values()} - SUPPORTED_KINDS)
-    if kinds:
-        raise ValueError(
-            f"characteristic types without statistics support here: {kinds} "
-            f"(supported: {sorted(SUPPORTED_KINDS)})"
-        )
-    untoleranced = [key for key, obs in groups.items() if obs[0].char.tolerance is None]
+    untoleranced = [
+        key
+        for key, obs in groups.items()
+        if obs[0].char.kind == "SurfaceProfile" and obs[0].char.tolerance is None
+    ]
     if untoleranced:
         raise ValueError(f"characteristics without a ToleranceValue: {untoleranced}")
     if nominal_sha256 is not None:
@@ -414,7 +700,7 @@ def _check_batch(
 def _characteristic_stats(
     key: str, obs: list[_Observation], s: CharacteristicSummary, meas_ids: list[str]
 ) -> etree._Element:
-    """The ``SurfaceProfileCharacteristicStats`` of one characteristic.
+    """The ``<Kind>CharacteristicStats`` of one characteristic.
 
     ``meas_ids[i]`` is the local id of the measurement ``obs[i]``.
     """
@@ -446,19 +732,36 @@ def _characteristic_stats(
             _stat("Maximum", hi[0], hi[1]),
             _stat("Range", hi[0] - lo[0]),
         ]
-    above = [m for v, m in values if v > s.tolerance]
-    vs.append(_count("NumberOutOfTolerance", len(above), above))
+    above = [m for v, m in values if s.upper is not None and v > s.upper]
+    below = [m for v, m in values if s.lower is not None and v < s.lower]
+    if s.two_sided:
+        out = set(above) | set(below)
+        beyond = [m for _, m in values if m in out]
+        vs.append(_count("NumberOutOfTolerance", len(beyond), beyond))
+        if s.upper is not None:
+            vs.append(_count("NumberOverUpperTolerance", len(above), above))
+        if s.lower is not None:
+            vs.append(_count("NumberUnderLowerTolerance", len(below), below))
+        if s.cp is not None:
+            vs.append(_stat("Cp", s.cp))
+    else:
+        vs.append(_count("NumberOutOfTolerance", len(above), above))
     if s.cpk is not None:
         vs.append(_stat("Cpk", s.cpk))
 
     children = [attrs.element(), E.MeasuredIds(*measured), _informational(), E.ValueStats(*vs)]
-    if s.cpk is not None:
+    if s.cpk is not None and not s.two_sided:
         children.append(E.CapabilityCalculationMethod("THREE_SIGMA"))
-    for tag, field in (
-        ("WorstPositiveDeviationStats", "worst_positive"),
-        ("WorstNegativeDeviationStats", "worst_negative"),
-    ):
-        w = [(getattr(o.char, field), m) for o, m in zip(obs, meas_ids, strict=True)]
+    deviations = (
+        (
+            ("WorstPositiveDeviationStats", "worst_positive"),
+            ("WorstNegativeDeviationStats", "worst_negative"),
+        )
+        if s.kind in _PROFILE_KINDS
+        else ()
+    )
+    for tag, name in deviations:
+        w = [(getattr(o.char, name), m) for o, m in zip(obs, meas_ids, strict=True)]
         w = [(x, m) for x, m in w if x is not None and math.isfinite(x)]
         if w:
             lo = min(w, key=lambda xm: xm[0])
@@ -471,7 +774,34 @@ def _characteristic_stats(
                     _stat("Maximum", hi[0], hi[1]),
                 )
             )
-    return E.SurfaceProfileCharacteristicStats(*children)
+    return E(f"{s.kind}CharacteristicStats", *children)
+
+
+def _feature_copies(
+    key: str, obs: list[_Observation], cd: str, cn: str, fn: str
+) -> tuple[etree._Element, etree._Element]:
+    """Copies of a feature characteristic's definition and nominal from its first results
+    document, with the ids ``cd`` and ``cn``: the nominal refers to the definition ``cd`` and
+    the feature nominal ``fn``; the definition without its ``DatumReferenceFrameId`` (this
+    document has no datums) and with the first clause of its description (the rest says how
+    that one scan was read)."""
+    src = obs[0].source
+    assert src.definition is not None and src.nominal is not None
+    cdef, cnom = copy.deepcopy(src.definition), copy.deepcopy(src.nominal)
+    cdef.set("id", cd)
+    for drf in cdef.findall(f"{_Q}DatumReferenceFrameId"):
+        cdef.remove(drf)
+    desc = cdef.find(f"{_Q}Description")
+    if desc is not None and desc.text:
+        desc.text = _description(obs[0].char) or desc.text
+    cnom.set("id", cn)
+    ref = cnom.find(f"{_Q}CharacteristicDefinitionId")
+    ref.text = cd
+    for old in cnom.findall(f"{_Q}FeatureNominalIds"):
+        old.addnext(id_array("FeatureNominalIds", [fn]))
+        cnom.remove(old)
+    log.debug("%s: definition and nominal copied from %s", key, obs[0].char.id)
+    return cdef, cnom
 
 
 def build_statistics(
@@ -490,7 +820,10 @@ def build_statistics(
     ----------
     results : list of QIFResults
         The batch's results documents, read back; one ``MeasurementResults`` each, in this
-        order. Every characteristic must be a surface profile with a ``ToleranceValue``.
+        order. Their surface profiles (each must have a ``ToleranceValue``) and feature
+        characteristics with a tolerance or limits are carried (see the module docstring:
+        the feature characteristics' definitions are read from the files, :attr:`path`);
+        the others are left out, logged.
     part_name : str
         Name of the part (``Product``).
     created : datetime
@@ -517,9 +850,9 @@ def build_statistics(
     Raises
     ------
     ValueError
-        No results, ``sources`` of another length, a source without QPId, another
-        characteristic type, a characteristic without tolerance or changing type or
-        tolerance within the batch, or a result inspected against another nominal.
+        No results, ``sources`` of another length, a source without QPId, a surface profile
+        without tolerance, a characteristic changing type, tolerance or limits within the
+        batch, or a result inspected against another nominal.
     """
     groups = _group(results)
     _check_batch(results, groups, sources, nominal_sha256)
@@ -546,11 +879,21 @@ def build_statistics(
         ),
         n="1",
     )
+    angular = []
+    if any(obs[0].char.kind in ANGULAR_DIMENSION_KINDS for obs in groups.values()):
+        angular.append(
+            E.AngularUnit(
+                E.SIUnitName("radian"),
+                E.UnitName("degree"),
+                E.UnitConversion(E.Factor("0.0174532925199433")),
+            )
+        )
     units = E.FileUnits(
         E.PrimaryUnits(
+            *angular,
             E.LinearUnit(
                 E.SIUnitName("meter"), E.UnitName("mm"), E.UnitConversion(E.Factor("0.001"))
-            )
+            ),
         )
     )
 
@@ -575,9 +918,10 @@ def build_statistics(
     item_ids: dict[str, str] = {}
     for key, obs in groups.items():
         c = obs[0].char
+        profile = c.kind == "SurfaceProfile"
         fd, fn, fi, cd, cn, ci = (ids() for _ in range(6))
         item_ids[key] = ci
-        fname = token(f"SURFACE_{key}".upper())
+        fname = token(f"SURFACE_{key}".upper() if profile else f"FEATURE_{key}")
         name = token(c.name or key)
         fdefs.append(E.OtherSurfaceFeatureDefinition(id=fd))
         fnoms.append(
@@ -594,22 +938,28 @@ def build_statistics(
                 id=fi,
             )
         )
-        description = next((o.char.description for o in obs if o.char.description), None)
-        cdef = [E.Description(description)] if description else []
-        cdef += [E.Name(name), E.ToleranceValue(_num(c.tolerance))]
-        if c.unequally_disposed is not None:
-            cdef.append(E.UnequallyDisposedZone(_num(c.unequally_disposed)))
-        cdefs.append(E.SurfaceProfileCharacteristicDefinition(*cdef, id=cd))
-        cnoms.append(
-            E.SurfaceProfileCharacteristicNominal(
-                E.CharacteristicDefinitionId(cd),
-                id_array("FeatureNominalIds", [fn]),
-                E.Name(name),
-                id=cn,
+        if profile:
+            description = next((o.char.description for o in obs if o.char.description), None)
+            cdef = [E.Description(description)] if description else []
+            cdef += [E.Name(name), E.ToleranceValue(_num(c.tolerance))]
+            if c.unequally_disposed is not None:
+                cdef.append(E.UnequallyDisposedZone(_num(c.unequally_disposed)))
+            cdefs.append(E.SurfaceProfileCharacteristicDefinition(*cdef, id=cd))
+            cnoms.append(
+                E.SurfaceProfileCharacteristicNominal(
+                    E.CharacteristicDefinitionId(cd),
+                    id_array("FeatureNominalIds", [fn]),
+                    E.Name(name),
+                    id=cn,
+                )
             )
-        )
+        else:
+            cdef_el, cnom_el = _feature_copies(key, obs, cd, cn, fn)
+            cdefs.append(cdef_el)
+            cnoms.append(cnom_el)
         citems.append(
-            E.SurfaceProfileCharacteristicItem(
+            E(
+                f"{c.kind}CharacteristicItem",
                 E.Name(name),
                 E.CharacteristicDesignator(E.Designator(token(key))),
                 id_array("FeatureItemIds", [fi]),
@@ -619,13 +969,16 @@ def build_statistics(
         )
 
     # -- the batch's measurements, copied: one MeasurementResults per inspection
+    carried = {(o.scan, o.char.id) for obs in groups.values() for o in obs}
     meas_id: dict[tuple[int, str], str] = {}  # (inspection, source measurement id) -> id
     mr_ids, mrs, actuals = [], [], []
     for k, res in enumerate(results):
         actual_id, mr_id = ids(), ids()
         mr_ids.append(mr_id)
         meas = []
-        for c in _profiles(res):
+        for c in res.characteristics:
+            if (k, c.id) not in carried:
+                continue
             m = meas_id[(k, c.id)] = ids()
             el = [
                 Attrs().s("source_id", c.id).element(),
@@ -633,14 +986,16 @@ def build_statistics(
                 E.CharacteristicItemId(item_ids[_key(c)]),
                 E.ActualComponentId(actual_id),
             ]
-            for tag, x in (
-                ("Value", c.value),
-                ("WorstPositiveDeviation", c.worst_positive),
-                ("WorstNegativeDeviation", c.worst_negative),
-            ):
+            copied = [("Value", c.value)]
+            if c.kind in _PROFILE_KINDS:
+                copied += [
+                    ("WorstPositiveDeviation", c.worst_positive),
+                    ("WorstNegativeDeviation", c.worst_negative),
+                ]
+            for tag, x in copied:
                 if x is not None and math.isfinite(x):
                     el.append(E(tag, _num(x)))
-            meas.append(E.SurfaceProfileCharacteristicMeasurement(*el, id=m))
+            meas.append(E(f"{c.kind}CharacteristicMeasurement", *el, id=m))
         times = [
             (tag, _parse_time(t))
             for tag, t in (
@@ -706,13 +1061,7 @@ def build_statistics(
         E.SoftwareId(sw_id),
         E.InspectionTraceability(*trace),
         E.Name(token(f"{part_name} batch")),
-        E.Description(
-            f"Capability of {len(results)} inspections of {part_name}: per "
-            "characteristic, statistics of the profile values (mm) of the "
-            "measurements in Results; Cpk is the upper one-sided index "
-            "(ToleranceValue - mean) / (3 s), s the sample standard deviation; "
-            "attributes n_pass, n_fail, n_other count the characteristic statuses"
-        ),
+        E.Description(_study_description(len(results), part_name, groups)),
         id_array("ResultsIds", mr_ids),
         E.CharacteristicsStats(*stats, n=str(len(stats))),
         E.NumberOfSamples(str(len(results))),
@@ -785,6 +1134,28 @@ def build_statistics(
         ids.max,
     )
     return etree.ElementTree(root)
+
+
+def _study_description(n: int, part_name: str, groups: dict[str, list[_Observation]]) -> str:
+    """The study's description: what its statistics are over and how Cpk is computed."""
+    kinds = {obs[0].char.kind for obs in groups.values()}
+    if kinds <= {"SurfaceProfile"}:
+        return (
+            f"Capability of {n} inspections of {part_name}: per "
+            "characteristic, statistics of the profile values (mm) of the "
+            "measurements in Results; Cpk is the upper one-sided index "
+            "(ToleranceValue - mean) / (3 s), s the sample standard deviation; "
+            "attributes n_pass, n_fail, n_other count the characteristic statuses"
+        )
+    return (
+        f"Capability of {n} inspections of {part_name}: per characteristic, statistics "
+        "of the values of the measurements in Results (profile values and geometric "
+        "tolerances' zone widths, mm; dimensions' sizes, mm or degrees); for a profile or "
+        "geometric tolerance Cpk is the upper one-sided index (ToleranceValue - mean) / "
+        "(3 s), for a dimension Cp = (USL - LSL) / (6 s) and Cpk = min(USL - mean, "
+        "mean - LSL) / (3 s), s the sample standard deviation; attributes n_pass, n_fail, "
+        "n_other count the characteristic statuses"
+    )
 
 
 def write_statistics(path: Path, tree: etree._ElementTree) -> None:

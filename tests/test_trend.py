@@ -464,3 +464,310 @@ def test_degenerate_batches_still_one_page(tmp_path, case):
         # no rate without a verdict: a dash
         assert re.search(r"\u2014\s+0 PASS of 0 scans with a verdict", out.text)
         assert not re.search(r"\d %", out.text)
+
+
+# ------------------------------------------------------------------ feature characteristics
+#
+# The drawing's feature characteristics (issue 22) charted beside the profiles: a geometric
+# tolerance one-sided like a profile (from 0 to its tolerance), a dimension two-sided (its
+# lower and upper limits about its nominal), an angle in degrees, a basic dimension without
+# limits or verdict.
+
+FEATURE_CHARS = [
+    CHARS[0],
+    TrendCharacteristic(
+        "G1", "flatness 0.2 mm (pmi #1541)", 0.2, kind="geometric", quantity="flatness"
+    ),
+    TrendCharacteristic(
+        "D1",
+        "diameter dimension 9.9 .. 10.1 mm |A| (pmi #77)",
+        float("nan"),
+        kind="dimension",
+        lower=9.9,
+        upper=10.1,
+        nominal=10.0,
+        quantity="diameter",
+    ),
+    TrendCharacteristic(
+        "D2",
+        "angular dimension 89.5 .. 90.5 deg (pmi #78)",
+        float("nan"),
+        kind="dimension",
+        lower=89.5,
+        upper=90.5,
+        nominal=90.0,
+        unit="deg",
+        quantity="angle",
+    ),
+    TrendCharacteristic(
+        "D3",
+        "linear distance dimension basic (pmi #79)",
+        float("nan"),
+        kind="dimension",
+        nominal=42.0,
+        quantity="distance",
+    ),
+]
+#: scans (1-based) where D1 is below its lower limit (FAIL) or above its upper one (FAIL)
+D1_LOW, D1_HIGH = (4,), (11,)
+
+
+def feature_frame(n: int = 16, seed: int = 11) -> pd.DataFrame:
+    """A batch summary with the columns of ``qifreport batch`` for ``FEATURE_CHARS``:
+    ``value_<key>_<unit>``, the limits, ``status_<key>``; D1 sits below the middle of its
+    limits and leaves them at the scans ``D1_LOW`` and ``D1_HIGH``."""
+    df = batch_frame(n, [CHARS[0]], seed=seed, error_at=(7,))
+    rng = np.random.default_rng(seed)
+    g1 = 0.2 * (0.2 + 0.5 * rng.random(n))
+    d1 = 9.93 + 0.05 * rng.random(n)
+    d1[[s - 1 for s in D1_LOW]] = 9.87
+    d1[[s - 1 for s in D1_HIGH]] = 10.12
+    d2 = 90.0 + 0.3 * rng.standard_normal(n)
+    d3 = 42.0 + 0.02 * rng.standard_normal(n)
+    df["value_G1_mm"], df["tolerance_G1_mm"], df["status_G1"] = g1, 0.2, "PASS"
+    df["value_D1_mm"], df["lower_D1_mm"], df["upper_D1_mm"] = d1, 9.9, 10.1
+    df["status_D1"] = np.where((d1 < 9.9) | (d1 > 10.1), "FAIL", "PASS")
+    df["value_D2_deg"], df["lower_D2_deg"], df["upper_D2_deg"] = d2, 89.5, 90.5
+    df["status_D2"] = np.where((d2 < 89.5) | (d2 > 90.5), "FAIL", "PASS")
+    df["value_D3_mm"], df["status_D3"] = d3, "BASIC"
+    failed = ((df["status_D1"] == "FAIL") | (df["status_D2"] == "FAIL")) & (
+        df["verdict"] != "ERROR"
+    )
+    df.loc[failed, "verdict"] = "FAIL"
+    df.loc[failed, "decided_by"] = "D1 or D2 beyond a limit"
+    err = df["verdict"] == "ERROR"
+    for col in ("value_G1_mm", "value_D1_mm", "value_D2_deg", "value_D3_mm"):
+        df.loc[err, col] = np.nan
+    for key in ("G1", "D1", "D2", "D3"):
+        df.loc[err, f"status_{key}"] = ""
+    return df
+
+
+def _dimension_line(
+    df: pd.DataFrame, key: str, unit: str, lo: float, hi: float, extremes: bool
+) -> str:
+    """The statistics line of a dimension's chart, computed here from the frame (spaces
+    collapsed, as ``pdftotext`` reads them)."""
+    v = df[f"value_{key}_{unit}"].to_numpy(float)
+    v = v[np.isfinite(v)]
+    m, s = v.mean(), v.std(ddof=1)
+    n_pass = int((df[f"status_{key}"] == "PASS").sum())
+    n_judged = int(df[f"status_{key}"].isin(["PASS", "FAIL", "NOT ESTABLISHED"]).sum())
+    tail = (
+        f"Cp {(hi - lo) / (6 * s):.2f} Cpk {min(hi - m, m - lo) / (3 * s):.2f} "
+        f"PASS {n_pass} of {n_judged}"
+    )
+    if extremes:
+        return (
+            f"n {len(v)} mean {fmt_mm(m)} \u03c3 {fmt_mm(s)} min {fmt_mm(v.min())} max "
+            f"{fmt_mm(v.max())} {unit} {tail}"
+        )
+    return f"n {len(v)} mean {fmt_mm(m)} {unit} \u03c3 {fmt_mm(s)} {tail}"
+
+
+def test_lone_dimension_chart(tmp_path):
+    """A chart as wide as the page gives a dimension's smallest and largest values too."""
+    df = feature_frame()
+    out = _render(tmp_path, "lone", df, [FEATURE_CHARS[2]])
+    assert [g.key for g in out.lay.charts] == ["D1"]
+    line = _dimension_line(df, "D1", "mm", 9.9, 10.1, extremes=True)
+    assert line in " ".join(out.text.split()), line
+
+
+@pytest.fixture(scope="module")
+def features(tmp_path_factory):
+    df = feature_frame()
+    return df, _render(tmp_path_factory.mktemp("features"), "features", df, FEATURE_CHARS)
+
+
+def test_feature_charts_and_their_statistics(features):
+    df, out = features
+    lay, text = out.lay, out.text
+    assert out.info["Pages"] == "1"
+    assert [g.key for g in lay.charts] == ["T1", "G1", "D1", "D2", "D3"] and not lay.omitted
+    flat = " ".join(text.split())
+    assert "VALUE OF EACH CHARACTERISTIC BY SCAN" in flat
+    assert "5 characteristics, values in mm, angles in degrees" in flat
+    # a geometric tolerance: one-sided, as a profile
+    v = df["value_G1_mm"].to_numpy(float)
+    v = v[np.isfinite(v)]
+    line = (
+        f"n {len(v)} mean {fmt_mm(v.mean())} \u03c3 {fmt_mm(v.std(ddof=1))} max "
+        f"{fmt_mm(v.max())} mm Cpk {(0.2 - v.mean()) / (3 * v.std(ddof=1)):.2f} PASS 15 of 15"
+    )
+    assert line in flat, line
+    # a dimension: two-sided, Cp and Cpk between its limits (its lower side decides Cpk);
+    # two charts a row: no room for its extremes (test_lone_dimension_chart)
+    for key, unit, lo, hi in (("D1", "mm", 9.9, 10.1), ("D2", "deg", 89.5, 90.5)):
+        assert _dimension_line(df, key, unit, lo, hi, extremes=False) in flat, key
+    v = df["value_D1_mm"].to_numpy(float)
+    v = v[np.isfinite(v)]
+    assert (v.mean() - 9.9) < (10.1 - v.mean())  # the lower side decides D1's Cpk
+    v = df["value_D3_mm"].to_numpy(float)
+    v = v[np.isfinite(v)]
+    line = (
+        f"n 15 mean {fmt_mm(v.mean())} mm \u03c3 {fmt_mm(v.std(ddof=1))} min "
+        f"{fmt_mm(v.min())} max {fmt_mm(v.max())} basic, no verdict"
+    )
+    assert line in flat, line
+    # the axis titles name the quantity and its unit
+    for title in ("flatness, mm", "diameter, mm", "angle, deg", "distance, mm"):
+        assert title in flat, title
+    # the footer's definitions, whole
+    assert "Cpk = min(USL \u2212 mean, mean \u2212 LSL) / (3\u03c3)" in flat
+    assert "PASS / (PASS + FAIL + NOT ESTABLISHED)." in flat
+
+
+def test_dimension_chart_limits_and_points(features):
+    """Both limits of a dimension are red lines at their values around the nominal, labelled
+    beside them; each value is a point at its height, red where beyond a limit, green
+    within; a basic dimension's points are dark (no verdict)."""
+    df, out = features
+    lay, img = out.lay, out.img
+    geo = next(g for g in lay.charts if g.key == "D1")
+    assert geo.bottom < 9.87 and geo.top > 10.12  # the values beyond the limits are on scale
+    k = DPI / 72.0
+    c0, c1 = int(geo.plot.x * k) + 2, int((geo.plot.x + geo.plot.w) * k) - 2
+    red_rows = []
+    for limit in (9.9, 10.1):
+        row = _px(lay, 0, float(geo.y(limit)))[0]
+        runs = _is_red(img[row - 2 : row + 3, c0:c1]).mean(axis=1)
+        assert runs.max() > 0.9, (limit, runs)
+        red_rows.append(row)
+    # no other long red line in the plot (the nominal and the mean are not red)
+    rows = _is_red(img[_px(lay, 0, geo.plot.top)[0] + 2 : _px(lay, 0, geo.plot.y)[0], c0:c1])
+    long = np.flatnonzero(rows.mean(axis=1) > 0.9) + _px(lay, 0, geo.plot.top)[0] + 2
+    assert all(min(abs(r - x) for x in red_rows) <= 3 for r in long), (long, red_rows)
+    # the nominal: a grey line at 10.0 between them
+    row = _px(lay, 0, float(geo.y(10.0)))[0]
+    band = img[row - 1 : row + 2, c0:c1]
+    assert (_is_grey(band) | (band.mean(axis=-1) < 0.5)).any(axis=0).mean() > 0.4
+    # the labels of the limits, right of the frame at their lines
+    words = _words(out.pdf, lay.height)
+    right = geo.plot.x + geo.plot.w
+    beside = [
+        (w, y)
+        for w, x, y in words
+        if right < x < right + 30 and geo.plot.y - 8 < y < geo.plot.top + 2
+    ]
+    for label, value in (("USL", 10.1), ("LSL", 9.9)):
+        for word in (label, fmt_mm(value)):
+            (y,) = [y for w, y in beside if w == word]
+            assert abs(y - float(geo.y(value))) < 6.0, word
+    # the points
+    v = df["value_D1_mm"].to_numpy(float)
+    for s in range(1, len(v) + 1):
+        if not np.isfinite(v[s - 1]):
+            continue
+        p = _patch(img, _px(lay, float(geo.x(s)), float(geo.y(v[s - 1]))))
+        if s in D1_LOW + D1_HIGH:
+            assert _is_red(p).sum() >= 5, s
+        else:
+            assert _is_green(p).sum() >= 5 and not _is_red(p).any(), s
+    # the basic dimension: dark points, neither green nor red
+    geo = next(g for g in lay.charts if g.key == "D3")
+    v = df["value_D3_mm"].to_numpy(float)
+    for s in (1, 2, 3):
+        p = _patch(img, _px(lay, float(geo.x(s)), float(geo.y(v[s - 1]))))
+        assert (p.mean(axis=1) < 0.35).sum() >= 5 and not (_is_green(p).any() or _is_red(p).any())
+
+
+def test_dimension_axis_matches_the_geometry(features):
+    """The value ticks of a dimension's chart (not from 0) sit where the points are drawn."""
+    _, out = features
+    lay = out.lay
+    words = _words(out.pdf, lay.height)
+    for key in ("D1", "D2"):
+        geo = next(g for g in lay.charts if g.key == key)
+        pa = geo.plot
+        ticks = [
+            (float(w), y)
+            for w, x, y in words
+            if re.fullmatch(r"\d+\.\d+", w) and pa.x - 28 < x < pa.x and pa.y - 2 < y < pa.top + 2
+        ]
+        assert len(ticks) >= 3, key
+        for v, y in ticks:
+            assert geo.bottom <= v <= geo.top
+            assert abs(y - float(geo.y(v))) < 2.0, (key, v)
+
+
+def test_values_beyond_the_scale(tmp_path):
+    """A dimension's wild values stay on the page: the chart keeps its limits' scale and
+    draws them as triangles at the top or bottom edge."""
+    df = feature_frame(12)
+    df.loc[2, "value_D1_mm"], df.loc[2, "status_D1"] = 3.0, "FAIL"
+    df.loc[5, "value_D1_mm"], df.loc[5, "status_D1"] = 25.0, "FAIL"
+    out = _render(tmp_path, "wild", df, FEATURE_CHARS)
+    lay, img = out.lay, out.img
+    geo = next(g for g in lay.charts if g.key == "D1")
+    assert 9.5 < geo.bottom < 9.9 and 10.1 < geo.top < 10.5
+    low = _patch(img, _px(lay, float(geo.x(3)), geo.y_low + 2.0), 1)
+    high = _patch(img, _px(lay, float(geo.x(6)), geo.plot.top - 2.5), 1)
+    assert _is_red(low).any() and _is_red(high).any()
+    assert "off the scale" in out.text
+    # the legend stays on the page: its last word left of the right margin
+    words = _words(out.pdf, lay.height)
+    (x,) = [x for w, x, _ in words if w == "scale"]
+    assert x < lay.width - 20
+
+
+def test_most_critical_feature_characteristics_charted(tmp_path):
+    """Beyond the page's room the characteristics with the smallest margin are charted: a
+    dimension's margin is its worst value's room to the nearer limit relative to half its
+    tolerance range, a tolerance's relative to the tolerance."""
+    chars = [
+        TrendCharacteristic(
+            f"G{k}", f"flatness {0.2 * k:g} mm", 0.2 * k, kind="geometric", quantity="flatness"
+        )
+        for k in range(1, 7)
+    ] + [
+        TrendCharacteristic(
+            f"D{k}",
+            f"diameter {10 * k} +/-0.1",
+            float("nan"),
+            kind="dimension",
+            lower=10.0 * k - 0.1,
+            upper=10.0 * k + 0.1,
+            nominal=10.0 * k,
+            quantity="diameter",
+        )
+        for k in (1, 2)
+    ]
+    rng = np.random.default_rng(3)
+    df = batch_frame(10, [], seed=3)
+    for ch in chars:
+        if ch.kind == "geometric":  # margins 0.7 to 0.9
+            df[f"value_{ch.key}_mm"] = ch.tolerance_mm * (0.1 + 0.2 * rng.random(10))
+        else:  # within 0.005 of the nominal: margins above 0.95
+            df[f"value_{ch.key}_mm"] = ch.nominal + 0.005 * rng.uniform(-1, 1, 10)
+        df[f"status_{ch.key}"] = "PASS"
+    df.loc[3, "value_D2_mm"] = 19.915  # 0.015 from its lower limit: margin 0.15
+    df.loc[3, "value_G4_mm"] = 0.78  # 0.02 below 0.8: margin 0.025
+    out = _render(tmp_path, "critical", df, chars)
+    shown = [g.key for g in out.lay.charts]
+    assert len(shown) == MAX_CHARTS and {"G4", "D2"} <= set(shown)
+    assert "D1" in out.lay.omitted  # the most room of all
+    assert "smallest margin to their limits" in " ".join(out.text.split())
+
+
+def test_dimension_stats_by_hand():
+    from qifreport.metrology import spc
+
+    v = np.array([9.92, 9.94, 9.97, 9.89, np.nan])
+    st = spc.dimension_stats(v, np.array(["PASS", "PASS", "PASS", "FAIL", ""]), 9.9, 10.1, 10.0)
+    m, s = np.nanmean(v), np.nanstd(v, ddof=1)
+    assert (st.n, st.n_pass, st.n_judged) == (4, 3, 4)
+    assert st.cp == pytest.approx(0.2 / (6 * s)) and st.cpk == pytest.approx((m - 9.9) / (3 * s))
+    assert (st.min, st.max) == (9.89, 9.97)
+    assert st.margin == pytest.approx((9.89 - 9.9) / 0.1)  # beyond the lower limit: < 0
+    # one limit: its side only, no Cp; the margin relative to the nominal's distance to it
+    st = spc.dimension_stats(v, v.astype(str), None, 10.1, 10.0)
+    assert np.isnan(st.cp) and st.cpk == pytest.approx((10.1 - m) / (3 * s))
+    assert st.margin == pytest.approx((10.1 - 9.97) / 0.1)
+    # no limit (basic): no index, never critical
+    st = spc.dimension_stats(v, v.astype(str), None, None, 10.0)
+    assert np.isnan(st.cp) and np.isnan(st.cpk) and st.margin == np.inf
+    # a one-sided tolerance has min too, and no Cp
+    st = spc.characteristic_stats(v, v.astype(str), 10.0)
+    assert st.min == 9.89 and np.isnan(st.cp)
+    assert spc.capability(1.0, 0.0, 5, 0.0, 2.0) == pytest.approx((np.nan, np.nan), nan_ok=True)

@@ -19,8 +19,10 @@ from .task import TaskResult
 
 __all__ = ["RECORD_FORMAT", "commit", "read_record", "record_digest", "record_path"]
 
-#: version of the record files' layout (part of the digest: a new layout redoes the scans)
-RECORD_FORMAT = 1
+#: version of the record files' layout (part of the digest: a new layout redoes the scans);
+#: 2: the summary row has the feature characteristics' columns
+#: (:func:`qifreport.batch.task.characteristic_columns`)
+RECORD_FORMAT = 2
 
 
 def record_digest(

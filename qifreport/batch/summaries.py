@@ -1,5 +1,12 @@
 """The batch's summaries: ``summary.csv`` / ``summary.parquet`` (one row per scan), and per
-nominal the QIF Statistics document and the trend PDF."""
+nominal the QIF Statistics document and the trend PDF.
+
+Every toleranced characteristic is carried by all three: the toleranced surfaces (profile
+zones) and the drawing's feature characteristics (geometric tolerances and dimensions) --
+their columns in the table (:func:`qifreport.batch.task.summary_row`), their statistics in
+the QIF (:mod:`qifreport.qif.statistics`), their run charts in the PDF
+(:func:`trend_characteristics`).
+"""
 
 from __future__ import annotations
 
@@ -11,16 +18,18 @@ import numpy as np
 
 from qifreport import __version__
 from qifreport.atomic_io import atomic_write_many
+from qifreport.metrology.characteristics import CharacteristicSpec
 
 from ..cache import PartState
 from ..pipeline import qif_writer
 from .plan import ScanItem, safe_id
 
-__all__ = ["COLUMNS", "summary_frame", "write_summaries"]
+__all__ = ["COLUMNS", "summary_frame", "trend_characteristics", "write_summaries"]
 
 log = logging.getLogger("qifreport.batch")
 
-#: column order of the summary table (per-tolerance columns follow, then TAIL)
+#: column order of the summary table (per-tolerance columns follow -- each toleranced
+#: surface's, then each feature characteristic's, as the rows list them -- then TAIL)
 COLUMNS = (
     "seq",
     "id",
@@ -145,15 +154,77 @@ def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: st
     return write
 
 
+def _spec_description(s: CharacteristicSpec) -> str:
+    """One line for a feature characteristic, e.g. ``flatness 0.2 mm (pmi #1541)``,
+    ``diameter dimension 9.9 .. 10.1 mm |A|B| (pmi #77)``."""
+    what = s.kind.replace("_", " ") if s.kind != "dimension" else f"{s.dim_type} dimension"
+    frame = f" |{'|'.join(s.datums)}|" if s.datums else ""
+    return f"{what} {s.limits_text()}{frame} (pmi #{s.step_id})"
+
+
+def trend_characteristics(st: PartState, df) -> list:
+    """The characteristics the trend report charts: each toleranced surface, then each
+    feature characteristic of the drawing, that the summary ``df`` has values of.
+
+    Parameters
+    ----------
+    st : the prepared part (its zones, and its plan of feature characteristics).
+    df : the summary table of its scans.
+
+    Returns
+    -------
+    list of qifreport.reports.trend.TrendCharacteristic
+        A zone as a profile (its tolerance the zone's width); a geometric tolerance with a
+        tolerance one-sided like it (``value_<key>_mm``); a dimension with its limits and
+        nominal (``value_<key>_<unit>``; a basic one without limits).
+    """
+    from qifreport.reports.trend import TrendCharacteristic
+
+    chars = [
+        TrendCharacteristic(z.key, z.describe(), float(z.upper - z.lower))
+        for z in st.nominal.zones
+        if f"profile_{z.key}_mm" in df
+    ]
+    plan = st.nominal.plan
+    for s in plan.specs if plan is not None else []:
+        column = f"value_{s.key}_{s.unit}"
+        if column not in df:  # never measured
+            continue
+        quantity = s.kind.replace("_", " ") if s.kind != "dimension" else s.dim_type
+        if s.kind == "dimension":
+            chars.append(
+                TrendCharacteristic(
+                    s.key,
+                    _spec_description(s),
+                    float("nan"),
+                    kind="dimension",
+                    lower=s.lower_limit,
+                    upper=s.upper_limit,
+                    nominal=s.nominal,
+                    unit=s.unit,
+                    quantity=quantity or "dimension",
+                    column=column,
+                )
+            )
+        elif s.tolerance is not None:
+            chars.append(
+                TrendCharacteristic(
+                    s.key,
+                    _spec_description(s),
+                    float(s.tolerance),
+                    kind="geometric",
+                    quantity=quantity,
+                    column=column,
+                )
+            )
+    return chars
+
+
 def _trend_writer(df, st: PartState, part_name: str, page: str):
     def write(p: Path) -> None:
-        from qifreport.reports.trend import TrendCharacteristic, write_trend_pdf
+        from qifreport.reports.trend import write_trend_pdf
 
-        chars = [
-            TrendCharacteristic(z.key, z.describe(), float(z.upper - z.lower))
-            for z in st.nominal.zones
-            if f"profile_{z.key}_mm" in df
-        ]
+        chars = trend_characteristics(st, df)
         write_trend_pdf(
             p,
             df,

@@ -3,11 +3,19 @@ to bytes, and summarise it as one row of the summary table.
 
 A task carries the scan's bytes and returns the bytes of its outputs, so workers need no
 shared file system; the client does all the file writing.
+
+The row (:func:`summary_row`) holds the whole part's results, then per toleranced surface
+(zone key ``K``: ``T1``, ``general`` ...) ``profile_K_mm``, ``tolerance_K_mm``, ``status_K``
+and ``in_tolerance_K_pct``, then per feature characteristic of the drawing
+(:func:`characteristic_columns`, key ``K``: ``G1``, ``D3`` ...) ``value_K_U`` (its value in
+its unit ``U``, ``mm`` or ``deg``), its limits (``tolerance_K_mm`` for a geometric tolerance,
+``lower_K_U`` and ``upper_K_U`` for a dimension) and ``status_K``.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import os
 import socket
 import tempfile
@@ -17,6 +25,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from qifreport.errors import InputError
+from qifreport.metrology.characteristics import CharacteristicResult
+from qifreport.qif.feature_characteristics import qif_status
 from qifreport.qif.writer import characteristic_status, profile_value
 from qifreport.registration.pointcloud import read_scan
 
@@ -27,8 +37,10 @@ from ..profile import peak_rss_bytes
 from .plan import ScanItem
 
 __all__ = [
+    "STATUS_WORDS",
     "ScanTask",
     "TaskResult",
+    "characteristic_columns",
     "deciding_criteria",
     "error_row",
     "run_task",
@@ -37,13 +49,17 @@ __all__ = [
 
 log = logging.getLogger("qifreport.batch")
 
-#: the QIF characteristic status -> the summary's words
+#: the QIF characteristic status -> the summary's words (``BASIC_OR_TED``: a basic or
+#: reference dimension, reported without a verdict)
 STATUS_WORDS = {
     "PASS": "PASS",
     "FAIL": "FAIL",
     "INDETERMINATE": "NOT ESTABLISHED",
     "NOT_ANALYZED": "NOT MEASURED",
+    "BASIC_OR_TED": "BASIC",
 }
+#: feature characteristic statuses whose value is judged against limits (the row gives them)
+JUDGED_STATUSES = ("PASS", "FAIL", "INDETERMINATE")
 
 
 @dataclass
@@ -206,18 +222,58 @@ def summary_row(res, item: ScanItem, scan_sha256: str, seconds: float) -> dict:
         # as in the QIF
         row[f"status_{k}"] = STATUS_WORDS[characteristic_status(z, res.established)]
         row[f"in_tolerance_{k}_pct"] = 100.0 * z.acceptance.in_tolerance_fraction
+    for c in res.characteristics:
+        row.update(characteristic_columns(c))
     return row
+
+
+def characteristic_columns(c: CharacteristicResult) -> dict:
+    """The summary columns of one feature characteristic (key ``K``) of a scan.
+
+    Parameters
+    ----------
+    c : the characteristic as measured on the scan.
+
+    Returns
+    -------
+    dict
+        ``value_K_U``: the measured value in its unit ``U`` (``mm``; ``deg`` for an angle):
+        a geometric tolerance's zone, a dimension's size; its limits: ``tolerance_K_mm`` (a
+        geometric tolerance: the stated tolerance, without an MMC/LMC bonus), or
+        ``lower_K_U`` and ``upper_K_U`` (a dimension; a side without a limit has no column);
+        ``status_K``: the QIF status in the summary's words (:data:`STATUS_WORDS`). A
+        characteristic not measured has its status only; a basic dimension its value and
+        status (``BASIC``), no limits.
+    """
+    s = c.spec
+    k, unit = s.key, s.unit
+    out: dict = {}
+    judged = c.status in JUDGED_STATUSES
+    if (judged or c.status == "BASIC") and c.value is not None and math.isfinite(c.value):
+        out[f"value_{k}_{unit}"] = float(c.value)
+    if judged:
+        if s.kind == "dimension":
+            if s.lower_limit is not None:
+                out[f"lower_{k}_{unit}"] = float(s.lower_limit)
+            if s.upper_limit is not None:
+                out[f"upper_{k}_{unit}"] = float(s.upper_limit)
+        elif s.tolerance is not None:
+            out[f"tolerance_{k}_mm"] = float(s.tolerance)
+    out[f"status_{k}"] = STATUS_WORDS[qif_status(c)]  # as in the QIF
+    return out
 
 
 def deciding_criteria(res) -> str:
     """The criteria that decided a verdict other than PASS, short: ``"T2:region"``,
-    ``"part:area"``, ``"added material"``, ``"not established"`` (``;``-separated)."""
+    ``"part:area"``, ``"G1:limit"`` (a feature characteristic beyond its limit),
+    ``"added material"``, ``"not established"`` (``;``-separated)."""
     out = []
     for name, acc in [("part", res.acceptance)] + [(z.zone.key, z.acceptance) for z in res.zones]:
         if not acc.area_ok:
             out.append(f"{name}:area")
         if not acc.region_ok:
             out.append(f"{name}:region")
+    out += [f"{c.spec.key}:limit" for c in res.characteristics if c.status == "FAIL"]
     if res.added is not None and not res.added.passed:
         out.append("added material")
     if res.passed and not res.established:

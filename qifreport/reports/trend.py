@@ -1,26 +1,34 @@
-"""The one-page trend report of a batch: how the profile of each characteristic runs over scans.
+"""The one-page trend report of a batch: how the value of each characteristic runs over scans.
 
 ``qifreport batch`` inspects many scans of one part; its summary table (one row per scan, in
 batch order) is drawn here on one page, A4 or US Letter, in the house style of the per-scan
 report (:mod:`qifreport.reports.kit`: DejaVu Sans embedded, the same colours, number formats
-and tables). Top to bottom:
+and tables). The characteristics (:class:`TrendCharacteristic`) are the toleranced surfaces
+(their profile value, mm) and the drawing's feature characteristics: geometric tolerances
+(flatness, position ...: a zone width, mm, one-sided like a profile) and dimensions (a size,
+mm, or an angle, degrees, between a lower and an upper limit). Top to bottom:
 
 1. **Header** -- part, nominal SHA-256 (first 16 hex digits), creation time (UTC), number of
    scans and the count of each verdict (PASS, FAIL, NOT ESTABLISHED, ERROR); on the right the
    **pass rate**, PASS over the scans that produced a verdict, with the number that errored.
 2. **Legend** of the run charts.
-3. **Run charts**, one per characteristic (up to :data:`MAX_CHARTS`): the profile value (mm)
-   of every scan against its sequence number, coloured by that characteristic's verdict on
-   the scan (green PASS, red FAIL, grey NOT ESTABLISHED; without a verdict, by the value
-   against the tolerance), joined by a thin line where the scans are at least a point apart
-   (denser, the line would only grey the cloud of points); the profile
-   tolerance (the upper limit; the lower limit of a profile value is 0) and the mean as
-   horizontal lines labelled on the right; scans that errored as grey crosses in a strip
-   below zero; values far above the rest as triangles at the top edge. Above each chart one
-   line of statistics: n, mean, sigma, max, the one-sided Cpk = (tolerance - mean) / (3 sigma)
-   and the pass count. With more characteristics than fit, those with the smallest margin
-   (tolerance minus the largest value, relative to the tolerance) are drawn and the others
-   named.
+3. **Run charts**, one per characteristic (up to :data:`MAX_CHARTS`): the value of every
+   scan against its sequence number, coloured by that characteristic's verdict on the scan
+   (green PASS, red FAIL, grey NOT ESTABLISHED, dark for a basic dimension, which has none;
+   without a verdict, by the value against the limits), joined by a thin line where the
+   scans are at least a point apart (denser, the line would only grey the cloud of points);
+   the limits and the mean as horizontal lines labelled on the right: for a profile or a
+   geometric tolerance the tolerance (the upper limit; the lower limit of a zone width is 0,
+   the axis starts there), for a dimension its lower and upper limits (``LSL``, ``USL``) about
+   its nominal (a thin line, ``nom``) on an axis around them; scans that errored as grey
+   crosses in a strip below the axis; values far beyond the rest as triangles at the top
+   (or bottom) edge. Above each chart one line of statistics: n, mean, sigma, max (and min
+   for a dimension), the capability -- the one-sided Cpk = (tolerance - mean) / (3 sigma) of
+   a tolerance, Cp = (USL - LSL) / (6 sigma) and Cpk = min(USL - mean, mean - LSL) / (3 sigma)
+   of a dimension -- and the pass count. With more characteristics than fit, the most
+   critical are drawn, those with the smallest margin (the room between the worst value and
+   its limit, relative to the tolerance: a tolerance's width, half a dimension's tolerance
+   range), and the others named.
 4. **Pass rate** against sequence (cumulative, and rolling for long batches) with the
    failed and errored scans marked below it, beside the **table of the scans that did not
    pass** (failed, not established or errored: sequence, serial or scan, verdict, deciding
@@ -31,8 +39,9 @@ Nothing is labelled per point and the axis ticks are chosen from the page space,
 reads the same for 3 scans and for 2000. :func:`plan_trend` returns where everything goes
 (used by :func:`write_trend_pdf`, and by the tests to find the points on a rasterized page).
 
-The statistics (mean, sigma, Cpk, pass rates) are computed by :mod:`qifreport.metrology.spc`,
-the axes and marks of the charts drawn with :mod:`qifreport.reports.charts`.
+The statistics (mean, sigma, Cp, Cpk, pass rates) are computed by
+:mod:`qifreport.metrology.spc`, the axes and marks of the charts drawn with
+:mod:`qifreport.reports.charts`.
 """
 
 from __future__ import annotations
@@ -111,9 +120,15 @@ MAX_CHARTS = 6
 VERDICTS = spc.VERDICTS
 #: point colours by the characteristic's verdict on the scan (RGB 0..1)
 POINT_COLORS = {"PASS": GREEN_ZERO, "FAIL": FAIL_BG, "NOT ESTABLISHED": (0.62, 0.62, 0.62)}
-#: the tolerance (upper limit) line and the mean line
+#: points of a basic dimension (a value without a verdict)
+BASIC_COLOR = (0.22, 0.22, 0.22)
+#: the tolerance (upper limit) line, a dimension's limits, and the mean line
 TOL_COLOR = FAIL_INK
 MEAN_COLOR = (0.18, 0.33, 0.62)
+#: a dimension's nominal
+NOMINAL_COLOR = (0.35, 0.35, 0.35)
+#: the kinds of :class:`TrendCharacteristic`
+KINDS = ("profile", "geometric", "dimension")
 #: the line joining the points, and the marks of scans that errored
 JOIN_COLOR = (0.70, 0.70, 0.70)
 ERROR_COLOR = (0.45, 0.45, 0.45)
@@ -132,15 +147,65 @@ class TrendCharacteristic:
 
     Attributes
     ----------
-    key : zone key, e.g. ``"T1"`` or ``"general"``; the summary columns are
-        ``profile_<key>_mm`` and ``status_<key>``.
+    key : zone key, e.g. ``"T1"`` or ``"general"``, or a feature characteristic's key
+        (``"G1"``, ``"D3"``); the summary columns are :attr:`value_column` and
+        ``status_<key>``.
     description : what the tolerance is, e.g. ``"surface profile 1 mm |A|B|C| ..."``.
-    tolerance_mm : profile tolerance (the zone width), the upper limit of the profile value.
+    tolerance_mm : a profile's or geometric tolerance's tolerance (the zone width), the
+        upper limit of its value, mm; NaN for a dimension (its limits are ``lower`` and
+        ``upper``).
+    kind : ``"profile"`` (a toleranced surface, the default), ``"geometric"`` (a geometric
+        tolerance of the drawing: flatness, position ...; one-sided like a profile) or
+        ``"dimension"`` (two-sided: between ``lower`` and ``upper``).
+    lower, upper : a dimension's limits, in ``unit``; None for a side without one (both
+        None: a basic dimension, charted without limits or verdict).
+    nominal : a dimension's nominal, in ``unit`` (None if not known).
+    unit : of the values: ``"mm"``, or ``"deg"`` for an angle.
+    quantity : what the value is, for the axis title (``"profile"``, ``"flatness"``,
+        ``"diameter"`` ...).
+    column : the summary column of the value; default ``profile_<key>_mm`` for a profile,
+        ``value_<key>_<unit>`` otherwise (:func:`qifreport.batch.task.characteristic_columns`).
     """
 
     key: str
     description: str
     tolerance_mm: float
+    kind: str = "profile"
+    lower: float | None = None
+    upper: float | None = None
+    nominal: float | None = None
+    unit: str = "mm"
+    quantity: str = "profile"
+    column: str = ""
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"kind {self.kind!r} is not one of {KINDS}")
+
+    @property
+    def value_column(self) -> str:
+        """The summary column of the value."""
+        if self.column:
+            return self.column
+        if self.kind == "profile":
+            return f"profile_{self.key}_mm"
+        return f"value_{self.key}_{self.unit}"
+
+    @property
+    def two_sided(self) -> bool:
+        """A dimension (its axis around its limits), not a one-sided tolerance from 0."""
+        return self.kind == "dimension"
+
+    def limits(self) -> list[tuple[str, float]]:
+        """The limit lines of its chart, (label, value): ``tol`` or ``LSL``/``USL``."""
+        if not self.two_sided:
+            tol = float(self.tolerance_mm)
+            return [("tol", tol)] if math.isfinite(tol) and tol > 0 else []
+        out = []
+        for label, x in (("USL", self.upper), ("LSL", self.lower)):
+            if x is not None and math.isfinite(x):
+                out.append((label, float(x)))
+        return out
 
 
 def _column(df: pd.DataFrame, name: str, kind: type) -> np.ndarray:
@@ -155,7 +220,9 @@ def _column(df: pd.DataFrame, name: str, kind: type) -> np.ndarray:
 
 def characteristic_stats(df: pd.DataFrame, ch: TrendCharacteristic) -> CharacteristicStats:
     """The statistics printed above a characteristic's run chart: those of
-    :func:`qifreport.metrology.spc.characteristic_stats` on its columns of the summary.
+    :func:`qifreport.metrology.spc.characteristic_stats` (a profile or geometric tolerance)
+    or :func:`qifreport.metrology.spc.dimension_stats` (a dimension) on its columns of the
+    summary.
 
     Parameters
     ----------
@@ -165,13 +232,13 @@ def characteristic_stats(df: pd.DataFrame, ch: TrendCharacteristic) -> Character
     Returns
     -------
     CharacteristicStats
-        Over every scan with a finite profile value (NOT ESTABLISHED ones included).
+        Over every scan with a finite value (NOT ESTABLISHED ones included).
     """
-    return spc.characteristic_stats(
-        _column(df, f"profile_{ch.key}_mm", float),
-        _column(df, f"status_{ch.key}", str),
-        ch.tolerance_mm,
-    )
+    values = _column(df, ch.value_column, float)
+    status = _column(df, f"status_{ch.key}", str)
+    if ch.two_sided:
+        return spc.dimension_stats(values, status, ch.lower, ch.upper, ch.nominal)
+    return spc.characteristic_stats(values, status, ch.tolerance_mm)
 
 
 def _fmt_rate(rate: float) -> str:
@@ -244,12 +311,14 @@ class _Trend(ReportPage):
         self.counts = spc.verdict_counts(self.verdict)
         self.rate = spc.pass_rate(self.counts)
         self.stats = {ch.key: characteristic_stats(self.df, ch) for ch in self.chars}
-        self.values = {ch.key: _column(self.df, f"profile_{ch.key}_mm", float) for ch in self.chars}
+        self.values = {ch.key: _column(self.df, ch.value_column, float) for ch in self.chars}
         self.status = {ch.key: _column(self.df, f"status_{ch.key}", str) for ch in self.chars}
+        #: only surface profiles: the page reads as before feature characteristics were charted
+        self.profiles_only = all(ch.kind == "profile" for ch in self.chars)
         missing = [
             name
             for ch in self.chars
-            for name in (f"profile_{ch.key}_mm", f"status_{ch.key}")
+            for name in (ch.value_column, f"status_{ch.key}")
             if name not in self.df.columns
         ]
         if missing:
@@ -271,8 +340,9 @@ class _Trend(ReportPage):
         )
 
     def _top(self, ch: TrendCharacteristic) -> float:
-        """Value at the top of a run chart, mm: a round number above the tolerance and the
-        values, except for values far above the rest (drawn at the top edge)."""
+        """Value at the top of a one-sided run chart (from 0), mm: a round number above the
+        tolerance and the values, except for values far above the rest (drawn at the top
+        edge)."""
         v = self.values[ch.key]
         v = v[np.isfinite(v)]
         tol = float(ch.tolerance_mm) if math.isfinite(ch.tolerance_mm) else 0.0
@@ -284,6 +354,32 @@ class _Trend(ReportPage):
             hi = 1.0
         step = nice_step(hi / 8.0)
         return step * math.ceil(1.06 * hi / step - 1e-9)
+
+    def _span(self, ch: TrendCharacteristic) -> tuple[float, float]:
+        """(bottom, top) of a dimension's run chart, in its unit: round numbers around its
+        limits, nominal and values, except for values beyond the limits by more than the
+        tolerance range (drawn at the edge)."""
+        v = self.values[ch.key]
+        v = v[np.isfinite(v)]
+        refs = [x for _, x in ch.limits()]
+        if ch.nominal is not None and math.isfinite(ch.nominal):
+            refs.append(float(ch.nominal))
+        width = max(refs) - min(refs) if len(refs) >= 2 else 0.0
+        if width <= 0 and len(v):
+            width = float(np.ptp(v)) or 0.01 * max(abs(float(v.mean())), 1.0)
+        width = width if width > 0 else 1.0
+        marks = refs + ([float(v.min()), float(v.max())] if len(v) else [])
+        if not marks:  # nothing measured, no limit, no nominal
+            return 0.0, 1.0
+        lo, hi = min(marks), max(marks)
+        if len(ch.limits()) == 2:  # far-off values do not squash the limits
+            lo = max(lo, min(refs) - width)
+            hi = min(hi, max(refs) + width)
+        pad = 0.06 * (hi - lo) or 0.5 * width
+        step = nice_step((hi - lo + 2 * pad) / 6.0)
+        return step * math.floor((lo - pad) / step + 1e-9), step * math.ceil(
+            (hi + pad) / step - 1e-9
+        )
 
     def plan(self) -> TrendLayout:
         """Where everything goes: header, legend, the grid of run charts (one or two
@@ -317,7 +413,12 @@ class _Trend(ReportPage):
                 cell.h - self.CHART_TOP - self.CHART_BOTTOM,
             )
             cells.append(cell)
-            charts.append(ChartGeometry(ch.key, plot, self.n, plot.y + ERROR_STRIP, self._top(ch)))
+            if ch.two_sided:
+                bottom, top = self._span(ch)
+                geo = ChartGeometry(ch.key, plot, self.n, plot.y + ERROR_STRIP, top, bottom)
+            else:
+                geo = ChartGeometry(ch.key, plot, self.n, plot.y + ERROR_STRIP, self._top(ch))
+            charts.append(geo)
         y -= rows * cell_h + (rows - 1) * row_gap if k else 40.0
         blocks["cells"] = cells
         if omitted:
@@ -367,7 +468,10 @@ class _Trend(ReportPage):
             f"{self.n} scans; pass rate {_fmt_rate(self.rate)}; nominal SHA-256 {self.sha or DASH}"
         )
         c.setCreator(f"qifreport {__version__}")
-        c.setKeywords(["qifreport", "batch", "trend", "surface profile"])
+        keywords = ["qifreport", "batch", "trend", "surface profile"]
+        if not self.profiles_only:
+            keywords.append("feature characteristics")
+        c.setKeywords(keywords)
         b = lay.blocks
         self._draw_header(c, b["header"])
         self._draw_legend(c, b["legend"], lay)
@@ -379,6 +483,7 @@ class _Trend(ReportPage):
         if lay.omitted:
             box = b["omitted"]
             keys = ", ".join(lay.omitted)
+            room = "below the tolerance" if self.profiles_only else "to their limits"
             draw_text(
                 c,
                 box.x,
@@ -386,7 +491,7 @@ class _Trend(ReportPage):
                 fit_text(
                     f"+ {len(lay.omitted)} more characteristic"
                     f"{'s' if len(lay.omitted) != 1 else ''} not charted (the "
-                    f"{MAX_CHARTS} with the smallest margin below the tolerance are "
+                    f"{MAX_CHARTS} with the smallest margin {room} are "
                     f"shown): {keys}",
                     box.w,
                     6.8,
@@ -439,11 +544,12 @@ class _Trend(ReportPage):
         )
         # title and facts
         tw = box.w - vw - 12
+        what = "PROFILE" if self.profiles_only else "VALUE"
         draw_text(
             c,
             box.x,
             box.top - 8,
-            "BATCH TREND REPORT \u2014 PROFILE OF EACH CHARACTERISTIC BY SCAN",
+            f"BATCH TREND REPORT \u2014 {what} OF EACH CHARACTERISTIC BY SCAN",
             7.0,
             True,
             MUTED,
@@ -457,7 +563,13 @@ class _Trend(ReportPage):
             (
                 "Scans",
                 f"{self.n}{span}; {len(self.chars)} characteristic"
-                f"{'s' if len(self.chars) != 1 else ''}, profile values in mm",
+                f"{'s' if len(self.chars) != 1 else ''}, "
+                + (
+                    "profile values in mm"
+                    if self.profiles_only
+                    else "values in mm"
+                    + (", angles in degrees" if any(ch.unit == "deg" for ch in self.chars) else "")
+                ),
             ),
         ]
         yy = box.top - 35
@@ -485,28 +597,67 @@ class _Trend(ReportPage):
         c.setLineWidth(0.6)
         c.line(box.x, box.y - 4, box.x + box.w, box.y - 4)
 
-    def _draw_legend(self, c: Canvas, box: Box, lay: TrendLayout) -> None:
-        y = box.y + 3
-        x = box.x
-        head = "Run charts \u2014 point colour: the characteristic\u2019s verdict"
-        draw_text(c, x, y, head, 6.8, True)
-        x += text_width(head, 6.8, True) + 10
+    def _legend_items(self, lay: TrendLayout) -> list[tuple[str, str, tuple[float, float, float]]]:
+        """The legend's (mark, label, colour), for the charts drawn (short labels beside
+        feature characteristics: their legend has more items)."""
+        by_key = {ch.key: ch for ch in self.chars}
+        drawn = {g.key: by_key[g.key] for g in lay.charts}
         items: list[tuple[str, str, tuple[float, float, float]]] = [
             ("dot", "PASS", POINT_COLORS["PASS"]),
             ("dot", "FAIL", POINT_COLORS["FAIL"]),
             ("dot", "not established", POINT_COLORS["NOT ESTABLISHED"]),
-            ("line", "tolerance (upper limit)", TOL_COLOR),
-            ("dash", "mean", MEAN_COLOR),
-            ("cross", "scan errored", ERROR_COLOR),
         ]
-        if any(np.any(self.values[g.key] > g.top) for g in lay.charts):
-            items.append(("tri", "above the scale", INK))
+        above = any(np.any(self.values[g.key] > g.top) for g in lay.charts)
+        if self.profiles_only:
+            items += [
+                ("line", "tolerance (upper limit)", TOL_COLOR),
+                ("dash", "mean", MEAN_COLOR),
+                ("cross", "scan errored", ERROR_COLOR),
+            ]
+            if above:
+                items.append(("tri", "above the scale", INK))
+            return items
+        if any(np.any(self.status[k] == "BASIC") for k in drawn):
+            items.append(("dot", "basic", BASIC_COLOR))
+        items.append(("line", "limits", TOL_COLOR))
+        if any(ch.two_sided and ch.nominal is not None for ch in drawn.values()):
+            items.append(("dot-line", "nominal", NOMINAL_COLOR))
+        items += [("dash", "mean", MEAN_COLOR), ("cross", "scan errored", ERROR_COLOR)]
+        below = any(np.any(self.values[k] < geo.bottom) for k, geo in self._two_sided(lay))
+        if above or below:
+            items.append(("tri", "off the scale", INK))
+        return items
+
+    def _two_sided(self, lay: TrendLayout) -> list[tuple[str, ChartGeometry]]:
+        """(key, geometry) of the dimensions' charts drawn."""
+        two = {ch.key for ch in self.chars if ch.two_sided}
+        return [(g.key, g) for g in lay.charts if g.key in two]
+
+    def _draw_legend(self, c: Canvas, box: Box, lay: TrendLayout) -> None:
+        y = box.y + 3
+        x = box.x
+        items = self._legend_items(lay)
+        head = "Run charts \u2014 point colour: the characteristic\u2019s verdict"
+        if not self.profiles_only:
+            # the longest heading with which the legend fits its line
+            width = sum(
+                (15 if kind in ("line", "dash", "dot-line") else 7.5) + text_width(label, 6.8) + 9
+                for kind, label, _ in items
+            )
+            heads = (head, "Run charts \u2014 colour: verdict", "Run charts")
+            head = next(
+                (h for h in heads if text_width(h, 6.8, True) + 10 + width <= box.w), heads[-1]
+            )
+        draw_text(c, x, y, head, 6.8, True)
+        x += text_width(head, 6.8, True) + 10
         for kind, label, col in items:
-            if kind in ("line", "dash"):
+            if kind in ("line", "dash", "dot-line"):
                 c.setStrokeColorRGB(*col)
-                c.setLineWidth(1.1 if kind == "line" else 0.8)
+                c.setLineWidth({"line": 1.1, "dash": 0.8, "dot-line": 0.6}[kind])
                 if kind == "dash":
                     c.setDash(2.5, 1.5)
+                elif kind == "dot-line":
+                    c.setDash(0.8, 1.2)
                 c.line(x, y + 2.3, x + 12, y + 2.3)
                 c.setDash()
                 x += 15
@@ -522,48 +673,80 @@ class _Trend(ReportPage):
             return str(int(self.seq[pos - 1]))
         return str(pos)
 
+    def _stats_line(self, ch: TrendCharacteristic, st: CharacteristicStats, width: float) -> str:
+        """The line of statistics above a run chart ``width`` points wide: a dimension's
+        smallest and largest values are left out when the line would not fit."""
+        cpk = f"{st.cpk:.2f}" if math.isfinite(st.cpk) else DASH
+        sigma = fmt_mm(st.sigma)
+        if not ch.two_sided:
+            return (
+                f"n {st.n}   mean {fmt_mm(st.mean)}   \u03c3 {sigma}   max {fmt_mm(st.max)} mm"
+                f"   Cpk {cpk}   PASS {st.n_pass} of {st.n_judged}"
+            )
+        u = ch.unit
+        head = f"n {st.n}   mean {fmt_mm(st.mean)}"
+        extremes = f"min {fmt_mm(st.min)}   max {fmt_mm(st.max)}"
+        if ch.limits():
+            cp = f"{st.cp:.2f}" if math.isfinite(st.cp) else DASH
+            tail = f"Cp {cp}   Cpk {cpk}   PASS {st.n_pass} of {st.n_judged}"
+            lines = [
+                f"{head}   \u03c3 {sigma}   {extremes} {u}   {tail}",
+                f"{head} {u}   \u03c3 {sigma}   {tail}",
+            ]
+        else:
+            lines = [
+                f"{head}   \u03c3 {sigma}   {extremes} {u}   basic: no limits, no verdict",
+                f"{head} {u}   \u03c3 {sigma}   {extremes}   basic, no verdict",
+            ]
+        return next((x for x in lines if text_width(x, 6.6) <= width), lines[-1])
+
     def _draw_run_chart(
         self, c: Canvas, cell: Box, geo: ChartGeometry, ch: TrendCharacteristic
     ) -> None:
         pa = geo.plot
         st = self.stats[ch.key]
-        tol = float(ch.tolerance_mm)
         # title and statistics
         title = f"{ch.key} \u2014 {ch.description}" if ch.description else ch.key
         draw_text(c, cell.x, cell.top - 7.5, fit_text(title, cell.w, 7.5, True), 7.5, True)
-        cpk = f"{st.cpk:.2f}" if math.isfinite(st.cpk) else DASH
-        sigma = fmt_mm(st.sigma)
-        line = (
-            f"n {st.n}   mean {fmt_mm(st.mean)}   \u03c3 {sigma}   max {fmt_mm(st.max)} mm"
-            f"   Cpk {cpk}   PASS {st.n_pass} of {st.n_judged}"
-        )
+        line = self._stats_line(ch, st, cell.w)
         draw_text(c, cell.x, cell.top - 16.5, fit_text(line, cell.w, 6.6), 6.6, False, MUTED)
-        # grid and value axis
-        step = nice_step(geo.top / 4.2)
+        # grid and value axis (from 0 for a one-sided value, around the limits for a dimension)
+        step = nice_step((geo.top - geo.bottom) / 4.2)
         d = decimals(step)
         c.setLineWidth(0.3)
-        for k in range(math.floor(geo.top / step + 1e-9) + 1):
+        for k in range(math.ceil(geo.bottom / step - 1e-9), math.floor(geo.top / step + 1e-9) + 1):
             v = k * step
             y = float(geo.y(v))
             c.setStrokeColorRGB(*RULE)
-            if 0 < k and v < geo.top - 1e-9:
+            if geo.bottom + 1e-9 < v < geo.top - 1e-9:
                 c.line(pa.x, y, pa.x + pa.w, y)
             draw_text(c, pa.x - 3, y - 2.2, f"{v:.{d}f}", 6.0, False, MUTED, "r")
         c.setStrokeColorRGB(*RULE)
         c.setLineWidth(0.5)
-        c.line(pa.x, geo.y_low, pa.x + pa.w, geo.y_low)  # zero, the lower limit
-        draw_y_title(c, cell.x + 5, pa, "profile, mm")
-        # tolerance and mean
+        c.line(pa.x, geo.y_low, pa.x + pa.w, geo.y_low)  # the axis' bottom: 0 for a zone
+        draw_y_title(c, cell.x + 5, pa, f"{ch.quantity}, {ch.unit}")
+        # the limits (the tolerance, or a dimension's LSL and USL), its nominal, the mean
         right = pa.x + pa.w
-        if math.isfinite(tol) and tol > 0:
-            y_tol = float(geo.y(tol))
+        y_limits = []
+        for label, x in ch.limits():
+            if not geo.bottom <= x <= geo.top:
+                continue
+            y_lim = float(geo.y(x))
+            y_limits.append(y_lim)
             c.setStrokeColorRGB(*TOL_COLOR)
             c.setLineWidth(1.1)
-            c.line(pa.x, y_tol, right, y_tol)
-            draw_text(c, right + 3, y_tol + 1.2, "tol", 6.0, True, TOL_COLOR)
-            draw_text(c, right + 3, y_tol - 5.6, fmt_mm(tol), 6.0, False, TOL_COLOR)
-        else:
-            y_tol = math.nan
+            c.line(pa.x, y_lim, right, y_lim)
+            draw_text(c, right + 3, y_lim + 1.2, label, 6.0, True, TOL_COLOR)
+            draw_text(c, right + 3, y_lim - 5.6, fmt_mm(x), 6.0, False, TOL_COLOR)
+        y_nominal = math.nan
+        if ch.two_sided and ch.nominal is not None and geo.bottom < ch.nominal < geo.top:
+            y_nominal = float(geo.y(ch.nominal))
+            c.setStrokeColorRGB(*NOMINAL_COLOR)
+            c.setLineWidth(0.6)
+            c.setDash(0.8, 1.2)
+            c.line(pa.x, y_nominal, right, y_nominal)
+            c.setDash()
+        y_mean = math.nan
         if math.isfinite(st.mean):
             y_mean = float(geo.y(st.mean))
             c.setStrokeColorRGB(*MEAN_COLOR)
@@ -571,19 +754,47 @@ class _Trend(ReportPage):
             c.setDash(2.5, 1.5)
             c.line(pa.x, y_mean, right, y_mean)
             c.setDash()
-            if not abs(y_mean - y_tol) < 14.0 and y_mean < pa.top - 2:
+            if all(not abs(y_mean - y) < 14.0 for y in y_limits) and y_mean < pa.top - 2:
                 draw_text(c, right + 3, y_mean - 2.2, "mean", 6.0, False, MEAN_COLOR)
+            else:
+                y_mean = math.nan  # not labelled
+        if math.isfinite(y_nominal) and all(
+            not abs(y_nominal - y) < 10.0 for y in [*y_limits, y_mean]
+        ):
+            draw_text(c, right + 3, y_nominal - 2.2, "nom", 6.0, False, NOMINAL_COLOR)
         self._draw_points(c, geo, ch)
         draw_frame(c, geo, self._seq_label)
 
     def _radius(self, geo: ChartGeometry) -> float:
         return float(np.clip(0.32 * geo.plot.w / max(self.n, 1), 0.65, 2.3))
 
-    def _draw_points(self, c: Canvas, geo: ChartGeometry, ch: TrendCharacteristic) -> None:
+    def _point_kinds(self, ch: TrendCharacteristic) -> np.ndarray:
+        """Each scan's point colour (a key of :data:`POINT_COLORS`, or ``"BASIC"``): the
+        characteristic's verdict; a value without one by its limits."""
         v, status = self.values[ch.key], self.status[ch.key]
-        tol = float(ch.tolerance_mm)
+        if not ch.two_sided:
+            tol = float(ch.tolerance_mm)
+            return np.where(
+                np.isin(status, tuple(POINT_COLORS)),
+                status,
+                np.where(np.isfinite(tol) & (v > tol), "FAIL", "PASS"),
+            )
+        beyond = np.zeros(len(v), dtype=bool)
+        if ch.upper is not None:
+            beyond |= v > ch.upper
+        if ch.lower is not None:
+            beyond |= v < ch.lower
+        by_value = np.where(beyond, "FAIL", "PASS" if ch.limits() else "BASIC")
+        return np.where(
+            np.isin(status, tuple(POINT_COLORS)),
+            status,
+            np.where(status == "BASIC", "BASIC", by_value),
+        )
+
+    def _draw_points(self, c: Canvas, geo: ChartGeometry, ch: TrendCharacteristic) -> None:
+        v = self.values[ch.key]
         ok = np.isfinite(v)
-        xs, ys = geo.x(self.pos), geo.y(np.where(ok, v, 0.0))
+        xs, ys = geo.x(self.pos), geo.y(np.where(ok, v, geo.bottom))
         r = self._radius(geo)
         # the joining line, broken where a scan has no value; not where the scans are
         # closer than a point (it would only grey the cloud of points)
@@ -592,31 +803,26 @@ class _Trend(ReportPage):
             c.setLineWidth(0.45 if r > 1.2 else 0.25)
             draw_polyline(c, xs, ys, ok)
         # the points: the characteristic's verdict; a value without one by the tolerance
-        kind = np.where(
-            np.isin(status, tuple(POINT_COLORS)),
-            status,
-            np.where(np.isfinite(tol) & (v > tol), "FAIL", "PASS"),
-        )
+        kind = self._point_kinds(ch)
         clipped = ok & (v > geo.top)
+        below = ok & (v < geo.bottom) if ch.two_sided else np.zeros(len(v), dtype=bool)
+        colors = {"BASIC": BASIC_COLOR, **POINT_COLORS}
         c.setStrokeColorRGB(1, 1, 1)
         c.setLineWidth(0.35)
-        for name in ("PASS", "NOT ESTABLISHED", "FAIL"):
+        for name in ("BASIC", "PASS", "NOT ESTABLISHED", "FAIL"):
             # the rare ones on top, and no smaller than a readable dot however many scans
-            rr = r if name == "PASS" else max(r, 1.5)
-            c.setFillColorRGB(*POINT_COLORS[name])
+            rr = r if name in ("PASS", "BASIC") else max(r, 1.5)
+            c.setFillColorRGB(*colors[name])
             for i in np.flatnonzero(ok & (kind == name)):
                 if clipped[i]:
                     draw_marker(
-                        c,
-                        "tri",
-                        float(xs[i]),
-                        geo.plot.top - 1.2 * rr,
-                        1.2 * rr,
-                        POINT_COLORS[name],
+                        c, "tri", float(xs[i]), geo.plot.top - 1.2 * rr, 1.2 * rr, colors[name]
                     )
+                elif below[i]:
+                    _down_triangle(c, float(xs[i]), geo.y_low + 1.2 * rr, 1.2 * rr, colors[name])
                 else:
                     c.circle(float(xs[i]), float(ys[i]), rr, stroke=int(rr >= 1.5), fill=1)
-        # scans that errored: crosses in the strip below zero
+        # scans that errored: crosses in the strip below the axis
         err = np.flatnonzero(self.verdict == "ERROR")
         size = 1.6
         for i in err:
@@ -754,6 +960,8 @@ class _Trend(ReportPage):
             "least 0), \u03c3 the sample standard deviation (n \u2212 1) of the measured "
             "scans; pass rate = PASS / (PASS + FAIL + NOT ESTABLISHED)."
         )
+        if not self.profiles_only:
+            defs = FEATURE_DEFINITIONS
         y = top - 1
         for s in wrap_text(defs, self.CW, 6.2)[:3]:
             draw_text(c, self.M, y - 6, s, 6.2, False, MUTED)
@@ -763,6 +971,30 @@ class _Trend(ReportPage):
             f"{self.n} scans of {self.part_name} \u00b7 created {fmt_utc(self.created)}"
         )
         draw_text(c, self.M, self.MT, fit_text(foot, self.CW, 6.2), 6.2, False, MUTED)
+
+
+#: the footer's definitions when feature characteristics are charted (three lines at most)
+FEATURE_DEFINITIONS = (
+    "Value as in the QIF: a surface's profile value (smallest zone about the band centre "
+    "holding every scored point), a geometric tolerance's zone, a dimension's size. A "
+    "profile's verdict applies the area and region criteria (a value above the tolerance may "
+    "pass). Tolerance: Cpk = (tol \u2212 mean) / (3\u03c3), one-sided; dimension: "
+    "Cp = (USL \u2212 LSL) / (6\u03c3), Cpk = min(USL \u2212 mean, mean \u2212 LSL) / (3\u03c3); "
+    "\u03c3 the sample deviation (n \u2212 1); pass rate = PASS / (PASS + FAIL + NOT ESTABLISHED)."
+)
+
+
+def _down_triangle(
+    c: Canvas, x: float, y: float, size: float, color: tuple[float, float, float]
+) -> None:
+    """A triangle pointing down at (x, y): a value below the chart's scale."""
+    c.setFillColorRGB(*color)
+    p = c.beginPath()
+    p.moveTo(x - size, y + size * 0.8)
+    p.lineTo(x + size, y + size * 0.8)
+    p.lineTo(x, y - size * 0.9)
+    p.close()
+    c.drawPath(p, stroke=0, fill=1)
 
 
 # ----------------------------------------------------------------------------- public API
