@@ -12,6 +12,7 @@ nominal frame.
 
 from __future__ import annotations
 
+import functools
 import logging
 import time
 from dataclasses import asdict, dataclass, field, is_dataclass, replace
@@ -1063,6 +1064,12 @@ class _Registered:
     sheets: np.ndarray
     diag: float
 
+    @functools.cached_property
+    def scan_area(self) -> float:
+        """The area the seated scan covers, mm^2 (:func:`scan_area`): the same points for
+        every judgement, measured once."""
+        return scan_area(self.P)
+
 
 def _judge(
     reg: _Registered,
@@ -1371,7 +1378,7 @@ def _judge(
         max_gap_area=params.max_gap_area,
         advisory_gaps=advisory,
     )
-    s_area = scan_area(Pm)
+    s_area = reg.scan_area
     # the ceiling catches a deformable fit that met points of other features; a B-rep's free
     # state is rigid and scores each vertex from its own faces' points only, while the
     # scan-area estimate merges the two skins of a wall thinner than a point neighbourhood

@@ -113,7 +113,8 @@ log = logging.getLogger(__name__)
 #:    feature tolerance or dimension is a not-evaluated zone
 #: 11: STEP nominals carry their faces' STEP entity ids (Nominal.face_step_ids)
 #: 12: dimensions of a thread known (CharacteristicSpec.thread); datum target areas sized
-CACHE_FORMAT = 12
+#: 13: geodesic balls pickled compactly (rows as counts, cols narrow: issue 23)
+CACHE_FORMAT = 13
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"
