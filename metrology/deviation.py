@@ -27,6 +27,7 @@ import igl
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
+from trimesh.triangles import closest_point as _triangle_closest_point
 
 from qifreport.registration.mesh import (
     barycentric,
@@ -168,9 +169,48 @@ def closest_points(
         normals = vertex_normals(V, F)
     tree = igl.AABB()
     tree.init(V, F)
-    _, best_face, best_C = tree.squared_distance(V, F, P)
+    d2, best_face, best_C = tree.squared_distance(V, F, P)
+    _lowest_tied_face(V, F, P, d2, best_face, best_C)
     signed = _signed_distance(V, F, P, best_C, best_face, normals)
     return best_C, best_face, signed
+
+
+def _lowest_tied_face(
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    d2: np.ndarray,
+    face: np.ndarray,
+    C: np.ndarray,
+) -> None:
+    """Where a point's closest point lies on an edge or a vertex (beyond a convex crease,
+    every point does), several faces are nearest at once; the point is given the
+    lowest-numbered of them (in place: ``face``, ``C``), so its face, and the B-rep face
+    its deviation is scored on, does not depend on the order the tree was searched in.
+    Candidates: the faces around the chosen face's corners, each evaluated exactly
+    (``trimesh.triangles.closest_point``)."""
+    bary = barycentric(V, F, face, C)
+    todo = np.flatnonzero(bary.min(axis=1) < 1e-9)
+    if not len(todo):
+        return
+    inc = vertex_face_csr(F, len(V)).tocsr()
+    corners = F[face[todo]]  # (t, 3)
+    rows = [inc[corners[:, k]] for k in range(3)]
+    ring = (rows[0] + rows[1] + rows[2]).tocsr()  # faces around each point's face's corners
+    counts = np.diff(ring.indptr)
+    pid = np.repeat(todo, counts)
+    fid = ring.indices.astype(np.int64)
+    Cc = _triangle_closest_point(V[F[fid]], P[pid])
+    dd = np.einsum("ij,ij->i", P[pid] - Cc, P[pid] - Cc)
+    # the nearest exactly, the lowest-numbered among equals (as the search it replaced)
+    dmin = np.full(len(P), np.inf)
+    np.minimum.at(dmin, pid, dd)
+    tied = dd == dmin[pid]
+    best = np.full(len(P), np.iinfo(np.int64).max, dtype=np.int64)
+    np.minimum.at(best, pid[tied], fid[tied])
+    pick = tied & (fid == best[pid])
+    face[pid[pick]] = fid[pick]
+    C[pid[pick]] = Cc[pick]
 
 
 def _signed_distance(
