@@ -733,27 +733,17 @@ class _Trend(ReportPage):
                 continue
             y_lim = float(geo.y(x))
             y_limits.append(y_lim)
-            c.setStrokeColorRGB(*TOL_COLOR)
-            c.setLineWidth(1.1)
-            c.line(pa.x, y_lim, right, y_lim)
+            _rule(c, pa.x, right, y_lim, TOL_COLOR, 1.1)
             draw_text(c, right + 3, y_lim + 1.2, label, 6.0, True, TOL_COLOR)
             draw_text(c, right + 3, y_lim - 5.6, fmt_mm(x), 6.0, False, TOL_COLOR)
         y_nominal = math.nan
         if ch.two_sided and ch.nominal is not None and geo.bottom < ch.nominal < geo.top:
             y_nominal = float(geo.y(ch.nominal))
-            c.setStrokeColorRGB(*NOMINAL_COLOR)
-            c.setLineWidth(0.6)
-            c.setDash(0.8, 1.2)
-            c.line(pa.x, y_nominal, right, y_nominal)
-            c.setDash()
+            _rule(c, pa.x, right, y_nominal, NOMINAL_COLOR, 0.6, (0.8, 1.2))
         y_mean = math.nan
         if math.isfinite(st.mean):
             y_mean = float(geo.y(st.mean))
-            c.setStrokeColorRGB(*MEAN_COLOR)
-            c.setLineWidth(0.7)
-            c.setDash(2.5, 1.5)
-            c.line(pa.x, y_mean, right, y_mean)
-            c.setDash()
+            _rule(c, pa.x, right, y_mean, MEAN_COLOR, 0.7, (2.5, 1.5))
             if all(not abs(y_mean - y) < 14.0 for y in y_limits) and y_mean < pa.top - 2:
                 draw_text(c, right + 3, y_mean - 2.2, "mean", 6.0, False, MEAN_COLOR)
             else:
@@ -1055,3 +1045,22 @@ def write_trend_pdf(
         len(characteristics),
         time.perf_counter() - t0,
     )
+
+
+def _rule(
+    c: Canvas,
+    x0: float,
+    x1: float,
+    y: float,
+    rgb: tuple[float, float, float],
+    width: float,
+    dash: tuple[float, float] | None = None,
+) -> None:
+    """A horizontal line across a chart from ``x0`` to ``x1`` at ``y`` (points)."""
+    c.setStrokeColorRGB(*rgb)
+    c.setLineWidth(width)
+    if dash is not None:
+        c.setDash(*dash)
+    c.line(x0, y, x1, y)
+    if dash is not None:
+        c.setDash()
