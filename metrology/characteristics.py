@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -1363,7 +1364,7 @@ def _reported(spec: CharacteristicSpec, cands: list, key: str, what: str) -> Cha
 
 
 def _target_area_size(
-    spec: CharacteristicSpec, surf: MeasuredSurface, areas: list[tuple[str, TargetSpec]]
+    spec: CharacteristicSpec, surf: MeasuredSurface, areas: Sequence[tuple[str, TargetSpec]]
 ) -> CharacteristicResult | None:
     """A basic dimension between two curves of one face that is a side (or the diameter)
     of a datum target area on that face: theoretically exact, the extent of the simulator
@@ -1398,7 +1399,7 @@ def _dimension(
     spec: CharacteristicSpec,
     surf: MeasuredSurface,
     rule: str,
-    areas: list[tuple[str, TargetSpec]] = (),
+    areas: Sequence[tuple[str, TargetSpec]] = (),
 ) -> CharacteristicResult:
     no_value = spec.nominal is None
     if spec.thread:
@@ -1414,7 +1415,7 @@ def _dimension(
         if not len(spec.origin_faces) or not len(spec.target_faces):
             return _not_measured(spec, "a feature of the location has no face on the part")
         if set(spec.origin_faces) == set(spec.target_faces):
-            applied = _target_area_size(spec, surf, list(areas))
+            applied = _target_area_size(spec, surf, areas)
             if applied is not None:
                 return applied
             return _not_measured(

@@ -193,7 +193,7 @@ def _lowest_tied_face(
     todo = np.flatnonzero(bary.min(axis=1) < 1e-9)
     if not len(todo):
         return
-    inc = vertex_face_csr(F, len(V)).tocsr()
+    inc = vertex_face_csr(F, len(V))
     corners = F[face[todo]]  # (t, 3)
     rows = [inc[corners[:, k]] for k in range(3)]
     ring = (rows[0] + rows[1] + rows[2]).tocsr()  # faces around each point's face's corners

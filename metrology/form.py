@@ -118,17 +118,10 @@ def least_squares_sphere(P: np.ndarray) -> tuple[np.ndarray, float]:
     return _least_squares_ball(P)
 
 
-def least_squares_cone(
-    P: np.ndarray, apex: np.ndarray, axis: np.ndarray, half_angle: float
-) -> tuple[np.ndarray, np.ndarray, float]:
-    """The least-squares cone of the points ``P`` (m, 3), from a nominal one: apex (3,),
-    unit axis toward the wider end, half angle (rad); the distance to the cone's surface
-    minimised in least squares (Gauss-Newton, ``scipy.optimize.least_squares``)."""
-    from scipy.optimize import least_squares
-
-    P = np.asarray(P, dtype=np.float64)
-    if len(P) < 7:
-        raise ValueError("a cone needs at least 7 points")
+def _cone_model(P: np.ndarray, apex: np.ndarray, axis: np.ndarray, half_angle: float):
+    """A cone's six small parameters about ``(apex, axis, half_angle)`` (apex shift, mm; axis
+    tilt across it; half-angle change, rad): ``unpack(x) -> (apex, unit axis, half angle)``
+    and ``residual(x)``, each point of ``P`` (m, 3) its distance to the cone's surface."""
     E = axis_frame(axis)  # rows: two across, the axis
 
     def unpack(x):
@@ -142,6 +135,21 @@ def least_squares_cone(
         rho = np.linalg.norm(v - np.outer(z, a), axis=1)
         return rho * np.cos(h) - z * np.sin(h)
 
+    return unpack, residual
+
+
+def least_squares_cone(
+    P: np.ndarray, apex: np.ndarray, axis: np.ndarray, half_angle: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The least-squares cone of the points ``P`` (m, 3), from a nominal one: apex (3,),
+    unit axis toward the wider end, half angle (rad); the distance to the cone's surface
+    minimised in least squares (Gauss-Newton, ``scipy.optimize.least_squares``)."""
+    from scipy.optimize import least_squares
+
+    P = np.asarray(P, dtype=np.float64)
+    if len(P) < 7:
+        raise ValueError("a cone needs at least 7 points")
+    unpack, residual = _cone_model(P, apex, axis, half_angle)
     scale = max(float(np.linalg.norm(np.ptp(P, axis=0))), 1.0)
     res = least_squares(residual, np.zeros(6), x_scale=[scale] * 3 + [1.0, 1.0, 0.1])
     return unpack(res.x)
@@ -158,19 +166,7 @@ def cone_draws(
 
     P = np.asarray(P, dtype=np.float64)
     fit = least_squares_cone(P, apex, axis, half_angle)
-    E = axis_frame(fit[1])
-
-    def unpack(x):
-        a = E[2] + x[3] * E[0] + x[4] * E[1]
-        return fit[0] + x[:3], a / np.linalg.norm(a), fit[2] + x[5]
-
-    def residual(x):
-        o, a, h = unpack(x)
-        v = P - o
-        z = v @ a
-        rho = np.linalg.norm(v - np.outer(z, a), axis=1)
-        return rho * np.cos(h) - z * np.sin(h)
-
+    unpack, residual = _cone_model(P, *fit)
     res = least_squares(residual, np.zeros(6), max_nfev=20)
     J = res.jac
     dof = max(len(P) - 6, 1)

@@ -104,6 +104,13 @@ class TargetSpec:
             ok &= (np.abs(X @ x) <= 0.5 * self.length) & (np.abs(X @ y) <= 0.5 * self.width)
         return v[ok]
 
+    def measured_under(self, surf: MeasuredSurface) -> tuple[np.ndarray, np.ndarray]:
+        """The measured vertex ids under the area (:meth:`area_vertices`, deviation known)
+        and the area's unit normal turned out of the material (3,)."""
+        v = self.area_vertices(surf)
+        v = v[np.isfinite(surf.dev[v])]
+        return v, self.normal * np.sign(np.sum(surf.N[v] @ self.normal))
+
     def size_text(self) -> str:
         if self.diameter is not None:
             return f"diameter {self.diameter:g} mm"
@@ -247,13 +254,11 @@ def _area_row(tg: TargetSpec, surf: MeasuredSurface) -> tuple[np.ndarray, float,
     under it (the most material; on a curved face not where the nominal touches); the row
     says how far, at the contact, with that vertex's expanded uncertainty. Raises
     ValueError when too few measured vertices lie under it."""
-    v = tg.area_vertices(surf)
-    v = v[np.isfinite(surf.dev[v])]
+    v, n = tg.measured_under(surf)
     if len(v) < MIN_TARGET_POINTS:
         raise ValueError(
             f"datum target {tg.name} ({tg.size_text()}): {len(v)} measured vertices under it"
         )
-    n = tg.normal * np.sign(np.sum(surf.N[v] @ tg.normal))  # out of the material
     h_nom = surf.V[v] @ n
     h = h_nom + surf.dev[v] * (surf.N[v] @ n)
     k = int(np.argmax(h))
@@ -358,11 +363,9 @@ def _area_plane_rows(
     region under it is not flat (then the area meets the surface at one point,
     :func:`_area_row`)."""
     (tg,) = spec.targets
-    v = tg.area_vertices(surf)
-    v = v[np.isfinite(surf.dev[v])]
+    v, n = tg.measured_under(surf)
     if len(v) < 3:
         return None
-    n = tg.normal * np.sign(np.sum(surf.N[v] @ tg.normal))
     X = surf.V[v]
     size = max(float(np.linalg.norm(np.ptp(X, axis=0))), 1.0)
     if np.min(surf.N[v] @ n) < 1 - 1e-6 or np.ptp(X @ n) > 1e-4 * size:

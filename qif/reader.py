@@ -27,6 +27,7 @@ from .writer import NS
 
 __all__ = [
     "acceptance_from_attributes",
+    "child_text",
     "CharacteristicResult",
     "QIFResults",
     "read_attributes",
@@ -119,7 +120,9 @@ class QIFResults:
         raise KeyError(designator)
 
 
-def _text(el, path: str) -> str | None:
+def child_text(el, path: str) -> str | None:
+    """The stripped text of ``el``'s first descendant at ``path`` (``q:`` prefixes for the
+    QIF namespace); None without ``el``, such an element or its text."""
     x = el.find(path.replace("q:", _Q)) if el is not None else None
     return None if x is None or x.text is None else x.text.strip()
 
@@ -261,43 +264,45 @@ def read_results(path: Path | str) -> QIFResults:
     for drf in root.iterfind(f"{_Q}DatumReferenceFrames/{_Q}DatumReferenceFrame"):
         labels = []
         for d in drf.iterfind(f"{_Q}Datums/{_Q}Datum"):
-            did = _text(d, "q:SimpleDatum/q:DatumDefinitionId")
-            lab = _text(by_id.get(did), "q:DatumLabel") if did else None
+            did = child_text(d, "q:SimpleDatum/q:DatumDefinitionId")
+            lab = child_text(by_id.get(did), "q:DatumLabel") if did else None
             if lab:
                 labels.append(lab)
         drf_labels[drf.get("id")] = labels
 
-    ours = _text(root, "q:Header/q:Application/q:Name") == "qifreport"
+    ours = child_text(root, "q:Header/q:Application/q:Name") == "qifreport"
     chars = []
     cms = mr.find(f"{_Q}MeasuredCharacteristics/{_Q}CharacteristicMeasurements")
     for m in cms if cms is not None else []:
         tag = etree.QName(m).localname
         kind = tag.removesuffix("CharacteristicMeasurement")
-        item = by_id.get(_text(m, "q:CharacteristicItemId"))
-        nominal = by_id.get(_text(item, "q:CharacteristicNominalId")) if item is not None else None
+        item = by_id.get(child_text(m, "q:CharacteristicItemId"))
+        nominal = (
+            by_id.get(child_text(item, "q:CharacteristicNominalId")) if item is not None else None
+        )
         definition = (
-            by_id.get(_text(nominal, "q:CharacteristicDefinitionId"))
+            by_id.get(child_text(nominal, "q:CharacteristicDefinitionId"))
             if nominal is not None
             else None
         )
-        status = _text(m, "q:Status/q:CharacteristicStatusEnum") or _text(
+        status = child_text(m, "q:Status/q:CharacteristicStatusEnum") or child_text(
             m, "q:Status/q:OtherCharacteristicStatus"
         )
         attrs = read_attributes(m)
-        tol = _num(_text(definition, "q:ToleranceValue"))
+        tol = _num(child_text(definition, "q:ToleranceValue"))
         c = CharacteristicResult(
             kind=kind,
             id=m.get("id"),
-            name=_text(item, "q:Name") or _text(definition, "q:Name"),
-            designator=_text(item, "q:CharacteristicDesignator/q:Designator"),
+            name=child_text(item, "q:Name") or child_text(definition, "q:Name"),
+            designator=child_text(item, "q:CharacteristicDesignator/q:Designator"),
             status=status,
-            value=_num(_text(m, "q:Value")),
-            worst_positive=_num(_text(m, "q:WorstPositiveDeviation")),
-            worst_negative=_num(_text(m, "q:WorstNegativeDeviation")),
+            value=_num(child_text(m, "q:Value")),
+            worst_positive=_num(child_text(m, "q:WorstPositiveDeviation")),
+            worst_negative=_num(child_text(m, "q:WorstNegativeDeviation")),
             tolerance=tol,
-            unequally_disposed=_num(_text(definition, "q:UnequallyDisposedZone")),
-            description=_text(definition, "q:Description"),
-            datum_labels=drf_labels.get(_text(definition, "q:DatumReferenceFrameId"), []),
+            unequally_disposed=_num(child_text(definition, "q:UnequallyDisposedZone")),
+            description=child_text(definition, "q:Description"),
+            datum_labels=drf_labels.get(child_text(definition, "q:DatumReferenceFrameId"), []),
             attributes=attrs,
         )
         if ours:
@@ -311,13 +316,13 @@ def read_results(path: Path | str) -> QIFResults:
 
     attrs = read_attributes(mr)
     inputs = [
-        (_text(r, "q:URI") or "", _text(r, "q:Description") or "")
+        (child_text(r, "q:URI") or "", child_text(r, "q:Description") or "")
         for r in mr.iterfind(f"{_Q}ExternalFileReferences/{_Q}ExternalFileReference")
     ]
     sw_version = None
     for sw in root.iterfind(f"{_Q}SoftwareDefinitions/{_Q}Software"):
-        if _text(sw, "q:ApplicationName") == "qifreport":
-            sw_version = _text(sw, "q:Version")
+        if child_text(sw, "q:ApplicationName") == "qifreport":
+            sw_version = child_text(sw, "q:Version")
     trace = mr.find(f"{_Q}InspectionTraceability")
     actual = root.find(
         f"{_Q}Results/{_Q}ActualComponentSets/{_Q}ActualComponentSet/{_Q}ActualComponent"
@@ -325,19 +330,19 @@ def read_results(path: Path | str) -> QIFResults:
     return QIFResults(
         path=path,
         version=root.get("versionQIF"),
-        qpid=_text(root, "q:QPId"),
-        application=_text(root, "q:Header/q:Application/q:Name"),
+        qpid=child_text(root, "q:QPId"),
+        application=child_text(root, "q:Header/q:Application/q:Name"),
         software_version=sw_version,
         status=(
-            _text(mr, "q:InspectionStatus/q:InspectionStatusEnum")
-            or _text(mr, "q:InspectionStatus/q:OtherInspectionStatus")
+            child_text(mr, "q:InspectionStatus/q:InspectionStatusEnum")
+            or child_text(mr, "q:InspectionStatus/q:OtherInspectionStatus")
         ),
         characteristics=chars,
         attributes=attrs,
         inputs=inputs,
-        inspection_start=_text(trace, "q:InspectionStart"),
-        inspection_end=_text(trace, "q:InspectionEnd"),
-        serial_number=_text(actual, "q:SerialNumber"),
+        inspection_start=child_text(trace, "q:InspectionStart"),
+        inspection_end=child_text(trace, "q:InspectionEnd"),
+        serial_number=child_text(actual, "q:SerialNumber"),
         stats=stats_from_attributes(attrs) if ours else None,
         point_stats=stats_from_attributes(attrs, "scan_points_") if ours else None,
         acceptance=acceptance_from_attributes(attrs) if ours else None,

@@ -171,7 +171,7 @@ from lxml import etree
 from qifreport import __version__
 from qifreport.metrology.spc import capability, upper_cpk
 
-from .reader import CharacteristicResult, QIFResults
+from .reader import CharacteristicResult, QIFResults, child_text
 from .writer import write_qif
 from .xmlkit import NS, SCHEMA_LOCATION, XSI, Attrs, E, Ids, id_array, qpid, token, xml_time
 from .xsd import DocumentRefused, parse_document
@@ -403,11 +403,6 @@ def _key(c: CharacteristicResult) -> str:
 _Q = f"{{{NS}}}"
 
 
-def _child_text(el: etree._Element | None, path: str) -> str | None:
-    x = el.find(path.replace("q:", _Q)) if el is not None else None
-    return None if x is None or x.text is None else x.text.strip()
-
-
 def _float(text: str | None) -> float | None:
     if text is None:
         return None
@@ -421,10 +416,10 @@ def _float(text: str | None) -> float | None:
 def _limits(kind: str, definition: etree._Element, nominal: etree._Element) -> _Spec | str:
     """The limits a feature characteristic's definition states, or why it has none."""
     if kind in GEOMETRIC_KINDS:
-        tol = _float(_child_text(definition, "q:ToleranceValue"))
+        tol = _float(child_text(definition, "q:ToleranceValue"))
         for per_unit in ("q:ToleranceZonePerUnitArea", "q:ToleranceZonePerUnitLength"):
             if tol is None:
-                tol = _float(_child_text(definition, f"{per_unit}/q:ToleranceValuePerUnit"))
+                tol = _float(child_text(definition, f"{per_unit}/q:ToleranceValuePerUnit"))
         if tol is None:
             return "no numeric tolerance value"
         return _Spec(None, tol)
@@ -435,11 +430,11 @@ def _limits(kind: str, definition: etree._Element, nominal: etree._Element) -> _
     tol = definition.find(f"{_Q}Tolerance")
     if tol is None or tol.find(f"{_Q}DefinitionId") is not None:
         return "no limits in its definition"
-    hi, lo = _child_text(tol, "q:MaxValue"), _child_text(tol, "q:MinValue")
-    target = _child_text(nominal, "q:TargetValue")
+    hi, lo = child_text(tol, "q:MaxValue"), child_text(tol, "q:MinValue")
+    target = child_text(nominal, "q:TargetValue")
     if _float(hi) is None and _float(lo) is None:
         return "no limits in its definition"
-    if _child_text(tol, "q:DefinedAsLimit") in ("true", "1"):
+    if child_text(tol, "q:DefinedAsLimit") in ("true", "1"):
         return _Spec(_float(lo), _float(hi), _float(target))
     if _float(target) is None:
         return "limits relative to a nominal it does not state"
@@ -468,9 +463,9 @@ def _sources(res: QIFResults) -> dict[str, _Source]:
     by_id = {el.get("id"): el for el in root.iter() if el.get("id") is not None}
     out: dict[str, _Source] = {}
     for c in wanted:
-        item = by_id.get(_child_text(by_id.get(c.id), "q:CharacteristicItemId"))
-        nominal = by_id.get(_child_text(item, "q:CharacteristicNominalId"))
-        definition = by_id.get(_child_text(nominal, "q:CharacteristicDefinitionId"))
+        item = by_id.get(child_text(by_id.get(c.id), "q:CharacteristicItemId"))
+        nominal = by_id.get(child_text(item, "q:CharacteristicNominalId"))
+        definition = by_id.get(child_text(nominal, "q:CharacteristicDefinitionId"))
         if definition is None or nominal is None:
             out[c.id] = _Source(None, reason=f"no definition in {res.path.name}")
             continue
