@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .nearest import TrackedNearest
+
 __all__ = [
     "MAD_SCALE",
     "TUKEY_C",
@@ -182,9 +184,12 @@ def rigid_icp(
     scale = 0.0
     w = np.zeros(len(P))
     it = 0
+    # the scan moves a fraction of the mesh spacing per step: the tree is asked again only
+    # for the points whose nearest vertex may have changed (the same answers, exactly)
+    nearest = TrackedNearest(tree, V)
     for it in range(1, max_iter + 1):  # noqa: B007 - `it` is reported after the loop
         X = P @ R.T + t
-        dist, idx = tree.query(X, workers=-1)
+        dist, idx = nearest.query(X)
         n = N[idx]
         r = np.einsum("ij,ij->i", X - V[idx], n)  # signed point-to-plane residual
         near = dist < max_distance

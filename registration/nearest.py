@@ -1,0 +1,86 @@
+"""Exact nearest vertices of points that move a little between queries (iterative fits).
+
+An iterative rigid fit asks a k-d tree for the nearest model vertex of every scan point once
+per iteration, though the points move by a small fraction of the mesh spacing per step.
+:class:`TrackedNearest` keeps, for each point, its ``k`` nearest vertices where it was last
+looked up (its anchor) and the ``k``-th distance ``r_k``. A point now at distance ``delta``
+from its anchor has every other vertex at least ``r_k - delta`` away (triangle inequality),
+so the closest of its ``k`` candidates is *the* nearest vertex whenever it is closer than
+that; only the points this does not certify go back to the tree. The answers are the tree's
+own, exactly (distance ties aside, which the tree breaks arbitrarily too).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["TrackedNearest"]
+
+
+class TrackedNearest:
+    """Nearest vertex of ``V`` for a point set queried again and again as it moves.
+
+    Parameters
+    ----------
+    tree : ``cKDTree(V)``.  V : (n, 3) the tree's points, mm.
+    k : candidates kept per point (>= 2): more survive larger moves, each check costs more.
+
+    Attributes
+    ----------
+    queried : points sent to the tree so far (the first call sends all of them).
+    """
+
+    def __init__(self, tree: cKDTree, V: np.ndarray, k: int = 3) -> None:
+        if k < 2:
+            raise ValueError(f"k must be at least 2, got {k}")
+        self.tree = tree
+        self.V = np.asarray(V, dtype=np.float64)
+        self.k = min(int(k), len(self.V))
+        self.queried = 0
+        self._anchor = np.empty((0, 3))
+        self._cand = np.empty((0, self.k), dtype=np.int64)
+        self._coords = np.empty((3, 0, self.k))  # the candidates' x, y, z: (3, m, k)
+        self._reach = np.empty(0)
+
+    def query(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance (m,) mm and index (m,) of the nearest vertex of each point of ``X`` (m, 3).
+
+        ``X`` should hold the same points (same order) on every call; a call with another
+        number of points starts afresh.
+        """
+        X = np.asarray(X, dtype=np.float64)
+        m = len(X)
+        if len(self._anchor) != m:
+            self._anchor = np.empty((m, 3))
+            self._cand = np.empty((m, self.k), dtype=np.int64)
+            self._coords = np.empty((3, m, self.k))
+            self._reach = np.empty(m)
+            return self._requery(X, np.arange(m), np.empty(m), np.empty(m, dtype=np.int64))
+        C = self._coords
+        D2 = (C[0] - X[:, :1]) ** 2
+        D2 += (C[1] - X[:, 1:2]) ** 2
+        D2 += (C[2] - X[:, 2:]) ** 2
+        j = D2.argmin(axis=1)[:, None]
+        dist = np.sqrt(np.take_along_axis(D2, j, axis=1)[:, 0])
+        idx = np.take_along_axis(self._cand, j, axis=1)[:, 0]
+        step = X - self._anchor
+        moved = np.sqrt(np.einsum("ij,ij->i", step, step))
+        # every vertex outside the candidates lies at least reach - moved from the point
+        todo = np.flatnonzero(~(dist < self._reach - moved))
+        return self._requery(X, todo, dist, idx)
+
+    def _requery(
+        self, X: np.ndarray, todo: np.ndarray, dist: np.ndarray, idx: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Ask the tree for the points ``todo``; anchor them where they are now."""
+        if len(todo):
+            d, i = self.tree.query(X[todo], k=self.k, workers=-1)
+            self._anchor[todo] = X[todo]
+            self._cand[todo] = i
+            self._coords[:, todo] = np.moveaxis(self.V[i], 2, 0)
+            self._reach[todo] = d[:, -1]
+            dist[todo] = d[:, 0]
+            idx[todo] = i[:, 0]
+            self.queried += len(todo)
+        return dist, idx
