@@ -15,7 +15,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["TrackedNearest"]
+__all__ = ["PARALLEL_MIN", "TrackedNearest"]
+
+#: points from which a query runs on every core
+PARALLEL_MIN = 4096
 
 
 class TrackedNearest:
@@ -75,7 +78,10 @@ class TrackedNearest:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Ask the tree for the points ``todo``; anchor them where they are now."""
         if len(todo):
-            d, i = self.tree.query(X[todo], k=self.k, workers=-1)
+            # threads only for a large batch: starting them costs more than a few
+            # thousand points' search
+            workers = -1 if len(todo) >= PARALLEL_MIN else 1
+            d, i = self.tree.query(X[todo], k=self.k, workers=workers)
             self._anchor[todo] = X[todo]
             self._cand[todo] = i
             self._coords[:, todo] = np.moveaxis(self.V[i], 2, 0)

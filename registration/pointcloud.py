@@ -743,11 +743,16 @@ def wall_sides(
             idx = np.flatnonzero(np.isinf(hit[side]))
             if not len(idx):
                 break
-            dist, j = tree.query(X0[idx] + sgn * a * N0[idx], workers=-1)
-            d = P[j] - X0[idx]
-            ok = (dist < np.maximum(WALL_CONE * a, reach[idx])) & (
-                np.abs(np.einsum("ij,ij->i", N0[idx], Ns[j])) > WALL_PARALLEL
+            cone = np.maximum(WALL_CONE * a, reach[idx])
+            # a bounded search (most probes of a single skin find nothing near): the same
+            # nearest point wherever one lies within the cone, index len(P) where none does
+            dist, j = tree.query(
+                X0[idx] + sgn * a * N0[idx], distance_upper_bound=float(cone.max()), workers=-1
             )
+            found = dist < cone
+            idx, j, dist = idx[found], j[found], dist[found]
+            d = P[j] - X0[idx]
+            ok = np.abs(np.einsum("ij,ij->i", N0[idx], Ns[j])) > WALL_PARALLEL
             ok &= np.abs(np.einsum("ij,ij->i", d, N0[idx])) > STACKED * np.linalg.norm(d, axis=1)
             hit[side, idx[ok]] = a
     front, behind = hit
