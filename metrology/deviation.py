@@ -22,6 +22,7 @@ All arrays are plain numpy: ``V`` (n, 3) float64 mm, ``F`` (f, 3) int64, ``P`` (
 from __future__ import annotations
 
 import logging
+from itertools import chain
 
 import igl
 import numpy as np
@@ -37,6 +38,8 @@ from qifreport.registration.mesh import (
     vertex_normals,
 )
 from qifreport.registration.pointcloud import median_spacing
+
+from .groups import sort_within_groups
 
 __all__ = [
     "beyond_rim",
@@ -570,7 +573,7 @@ def nearest_face_distance(
     inside = lam.min(axis=1) >= -0.05
     pid, tri, h, X = pid[inside], tri[inside], h[inside], X[inside]
     d = h - curved_offset(V, F, X, tri, normals)
-    order = np.lexsort((np.abs(d), pid))
+    order = sort_within_groups(pid, np.abs(d))
     first = np.r_[True, pid[order][1:] != pid[order][:-1]]
     best = order[first]
     better = np.abs(d[best]) < np.abs(out_d[pid[best]])
@@ -675,6 +678,10 @@ def residual_referenced(
     return dev, _pooled_variance(h, sse, dof, first_face)
 
 
+#: (vertex, B-rep face) pairs up to which :func:`_residual_fit` looks them up in a table
+_PAIR_TABLE_MAX = 1 << 26
+
+
 def _residual_fit(
     V, P, r, N, sel, tree, min_points, own, m, point_label, verts, radius, max_centroid_offset
 ):
@@ -690,17 +697,30 @@ def _residual_fit(
     cand = verts[local]
     if len(cand) == 0:
         return none
-    idx = sel[np.concatenate([np.asarray(hits[i], dtype=np.int64) for i in local])]
+    total = int(cnt[cand].sum())
+    idx = sel[np.fromiter(chain.from_iterable(hits[i] for i in local), np.int64, count=total)]
     vrt = np.repeat(cand, cnt[cand])
     pl = point_label[idx]
-    key = vrt * m + pl
-    pos = np.clip(np.searchsorted(own, key), 0, len(own) - 1)
-    keep = (pl >= 0) & (own[pos] == key)
+    key = vrt * m + np.maximum(pl, 0)
+    # (vertex, face) pairs looked up in a table of them where it is small, else by bisection
+    table = n * m <= _PAIR_TABLE_MAX
+    if table:
+        is_own = np.zeros(n * m, dtype=bool)
+        is_own[own] = True
+        keep = (pl >= 0) & is_own[key]
+    else:
+        pos = np.clip(np.searchsorted(own, key), 0, len(own) - 1)
+        keep = (pl >= 0) & (own[pos] == key)
     idx, vrt = idx[keep], vrt[keep]
     # a vertex on several faces (a crease) is measured only where every one of its faces
     # was: the back skin of a sheet is not scored from its edge face's points
     faces_of = np.bincount(own // m, minlength=n)
-    seen_of = np.bincount(np.unique(key[keep]) // m, minlength=n)
+    if table:
+        seen = np.zeros(n * m, dtype=bool)
+        seen[key[keep]] = True
+        seen_of = seen.reshape(n, m).sum(axis=1)
+    else:
+        seen_of = np.bincount(np.unique(key[keep]) // m, minlength=n)
     whole = (seen_of == faces_of)[vrt]
     idx, vrt = idx[whole], vrt[whole]
     if len(idx) == 0:
@@ -709,13 +729,13 @@ def _residual_fit(
     # median (material the nominal does not have: a rib standing on the surface, a burr)
     # does not count for the vertex
     rr = r[idx]
-    order = np.lexsort((rr, vrt))
+    order = sort_within_groups(vrt, rr)
     vs, rs = vrt[order], rr[order]
     first = np.flatnonzero(np.r_[True, vs[1:] != vs[:-1]])
     size = np.diff(np.r_[first, len(vs)])
     med = np.repeat(rs[first + size // 2], size)
     dev_abs = np.abs(rs - med)
-    o2 = np.lexsort((dev_abs, vs))
+    o2 = sort_within_groups(vs, dev_abs)
     mad = np.repeat(dev_abs[o2][first + size // 2], size)
     keep = np.empty(len(order), dtype=bool)
     keep[order] = dev_abs <= np.maximum(5.0 * 1.4826 * mad, 1e-9)

@@ -84,6 +84,7 @@ from qifreport.registration.mesh import (
 from qifreport.registration.pointcloud import pca_normals
 
 from .deviation import closest_points
+from .groups import sort_within_groups
 from .statistics import json_float
 
 __all__ = [
@@ -541,7 +542,7 @@ def _group_quantile(group: np.ndarray, x: np.ndarray, q: float, k: int) -> np.nd
     out = np.full(k, np.nan)
     if len(x) == 0:
         return out
-    order = np.lexsort((x, group))
+    order = sort_within_groups(group, x)
     xs = x[order]
     cnt = np.bincount(group, minlength=k)
     start = np.cumsum(cnt) - cnt
