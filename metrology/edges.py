@@ -330,19 +330,21 @@ def _weighted_quantile(x: np.ndarray, w: np.ndarray, q: float) -> float:
     return float(np.interp(q * c[-1], c - 0.5 * w, x))
 
 
-def scan_spacing(P: np.ndarray) -> float:
+def scan_spacing(P: np.ndarray, tree: cKDTree | None = None) -> float:
     """Median nearest-neighbour distance of the scan points (mm), from a fixed subsample.
 
     Parameters
     ----------
     P : (m, 3) scan points, mm.
+    tree : ``cKDTree(P)`` when at hand (``P`` then all finite).
     """
     P = np.asarray(P, dtype=np.float64).reshape(-1, 3)
-    P = P[np.isfinite(P).all(axis=1)]
+    if tree is None:
+        P = P[np.isfinite(P).all(axis=1)]
     if len(P) < 2:
         return float("nan")
     step = max(1, len(P) // _SPACING_SAMPLE)
-    d, _ = cKDTree(P).query(P[::step], k=2, workers=-1)
+    d, _ = (cKDTree(P) if tree is None else tree).query(P[::step], k=2, workers=-1)
     return float(np.median(d[:, 1]))
 
 
@@ -717,8 +719,10 @@ def edge_deviation(
         raise ValueError(f"edge tolerance must be positive, got {tolerance}")
     if not 0.5 <= quantile < 1.0:
         raise ValueError(f"quantile must lie in [0.5, 1), got {quantile}")
+    tree = cKDTree(P) if len(P) else None
     if radius is None:
-        radius = max(2.0 * median_edge_length(V, F), 6.0 * np.nan_to_num(scan_spacing(P)))
+        spacing = scan_spacing(P, tree) if tree is not None else float("nan")
+        radius = max(2.0 * median_edge_length(V, F), 6.0 * np.nan_to_num(spacing))
     radius = float(radius)
     if not radius > 0:
         raise ValueError(f"radius must be positive, got {radius}")
@@ -738,7 +742,6 @@ def edge_deviation(
     if len(P) == 0 or len(measured) == 0:
         return EdgeDeviation("not seen", rim, dev, cnt, tolerance, radius, max_gap)
 
-    tree = cKDTree(P)
     window = _CREASE_WINDOW * radius if rim.mode == "crease" else radius
     parts = []
     for c0 in range(0, len(measured), _CHUNK_VERTICES):

@@ -241,7 +241,16 @@ def edge_uses(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     F = np.asarray(F)
     half = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    E, inv, count = np.unique(half, axis=0, return_inverse=True, return_counts=True)
+    if len(half) == 0:
+        E, inv, count = np.unique(half, axis=0, return_inverse=True, return_counts=True)
+        return E, count, inv.ravel().reshape(3, len(F)).T
+    # one int64 key per edge, in the rows' lexicographic order: the same unique edges,
+    # counts and inverse as ``np.unique(half, axis=0)``, ~10x faster
+    base = int(half.max()) + 1
+    key, inv, count = np.unique(
+        half[:, 0].astype(np.int64) * base + half[:, 1], return_inverse=True, return_counts=True
+    )
+    E = np.stack([key // base, key % base], axis=1).astype(half.dtype, copy=False)
     return E, count, inv.ravel().reshape(3, len(F)).T
 
 
