@@ -151,16 +151,29 @@ def join_names(names: list[str], limit: int = 4) -> str:
 # ---------------------------------------------------------------------------------- fonts
 
 
+def _matplotlib_fonts() -> Path:
+    """matplotlib's bundled TrueType folder, found without importing matplotlib (0.1-0.2 s)."""
+    import importlib.util
+
+    spec = importlib.util.find_spec("matplotlib")
+    if spec is not None and spec.origin is not None:
+        d = Path(spec.origin).parent / "mpl-data" / "fonts" / "ttf"
+        if (d / "DejaVuSans.ttf").is_file():
+            return d
+    import matplotlib  # a relocated data path: ask matplotlib
+
+    return Path(matplotlib.get_data_path()) / "fonts" / "ttf"
+
+
 def register_fonts() -> None:
     """Register DejaVu Sans (regular, bold) from matplotlib's bundled fonts (embedded)."""
     global _fonts_registered
     if _fonts_registered:
         return
-    import matplotlib
     from reportlab.pdfbase import pdfmetrics
     from reportlab.pdfbase.ttfonts import TTFont
 
-    d = Path(matplotlib.get_data_path()) / "fonts" / "ttf"
+    d = _matplotlib_fonts()
     pdfmetrics.registerFont(TTFont(FONT, str(d / "DejaVuSans.ttf")))
     pdfmetrics.registerFont(TTFont(FONT_BOLD, str(d / "DejaVuSans-Bold.ttf")))
     _fonts_registered = True
