@@ -873,7 +873,10 @@ def inspect(
     t0 = time.perf_counter()
     # scan normals, oriented consistently per connected sheet once; each use below only
     # chooses the sheets' sides against its own nominal
-    Ns, sheets = orient_normals_consistent(Pm, pca_normals(Pm, params.gbcicp.scan_normal_k))
+    scan_tree = cKDTree(Pm)
+    Ns, sheets = orient_normals_consistent(
+        Pm, pca_normals(Pm, params.gbcicp.scan_normal_k, tree=scan_tree), tree=scan_tree
+    )
     timings["scan normals"] = time.perf_counter() - t0
     if zones is None:
         tol = params.tolerance
