@@ -35,7 +35,7 @@ import scipy.sparse.linalg as spla
 import trimesh
 from scipy.spatial import cKDTree
 
-from qifreport.registration.gbcicp import GBCICPParams, _resolve
+from qifreport.registration.gbcicp import GBCICPParams, resolve_params
 from qifreport.registration.mesh import bending_operator, boundary_vertices, load_mesh
 from qifreport.simulate.cases import inspection_error
 
@@ -53,7 +53,7 @@ def splu_unit(
     product's options (symmetric mode, minimum-degree ordering), or scipy's defaults."""
     energy = "hessian" if boundary_vertices(F, len(V)).any() else "laplacian"
     ops = bending_operator(V, F, energy)
-    p = _resolve(GBCICPParams(), V, F, P)
+    p = resolve_params(GBCICPParams(), V, F, P)
     lam = p.band_limit**4
     A = (sp.diags(ops.area) + lam * ops.Q + 1e-9 * lam * ops.M).tocsc()
     times = []

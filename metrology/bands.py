@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from qifreport.errors import InputError
+from qifreport.registration.arrays import unique_sorted
 
 __all__ = [
     "DEFAULT_GENERAL_TOLERANCE",
@@ -429,7 +430,7 @@ def lay_bands(
     # tightest first wins; ties keep the earlier zone (stable order)
     order = sorted(range(len(zones)), key=lambda i: (zones[i].width, i))
     for i in order:
-        verts = np.unique(F[masks[i]].ravel())
+        verts = unique_sorted(F[masks[i]].ravel())
         free = verts[gov[verts] < 0]
         gov[free] = i
         width[free] = zones[i].width

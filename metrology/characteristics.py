@@ -44,6 +44,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from qifreport.registration.arrays import unique_sorted
+
 from .bands import composite_segment, material_boundary
 from .composite import free_rotations, minimax_offsets, orientation_only
 from .datums import MAX_OPEN_DEG, DatumFeature, largest_gap
@@ -313,7 +315,7 @@ def specs_from_pmi(pmi, face_index: dict[int, int]) -> CharacteristicPlan:
         for ref in tol.datums:
             parts = [p.strip() for p in ref.label.split("-")]
             if len(parts) > 1 and ref.label not in datums and all(p in datums for p in parts):
-                faces = np.unique(np.concatenate([datums[p].faces for p in parts]))
+                faces = unique_sorted(np.concatenate([datums[p].faces for p in parts]))
                 datums[ref.label] = DatumSpec(ref.label, faces)
     specs: list[CharacteristicSpec] = []
     k = 0
@@ -1156,7 +1158,7 @@ def _cone_values(
     ``gauge`` diameter (mm) between the ends, the measured diameter in the plane where the
     model's is ``gauge`` (a basic diameter locating a taper's gauge section)."""
     tri = np.isin(surf.face_id, np.asarray(list(faces), dtype=np.int64))
-    X = surf.V[np.unique(surf.F[tri])]
+    X = surf.V[unique_sorted(surf.F[tri])]
     z = (X - feat.origin) @ feat.direction
     draws = cone_draws(sample.S, feat.origin, feat.direction, feat.half_angle)
     out = []
@@ -1377,7 +1379,7 @@ def _target_area_size(
         if not len(faces):
             v = tg.area_vertices(surf)
             tri = np.isin(surf.F, v).any(axis=1)
-            faces = np.unique(surf.face_id[tri])
+            faces = unique_sorted(surf.face_id[tri])
         if not np.isin(spec.origin_faces, faces).any():
             continue
         sides = {"diameter": tg.diameter, "length": tg.length, "width": tg.width}

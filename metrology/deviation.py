@@ -30,6 +30,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as _triangle_closest_point
 
+from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.mesh import (
     barycentric,
     edge_uses,
@@ -562,7 +563,7 @@ def nearest_face_distance(
     pid, tri = pid[other], tri[other]
     if len(pid) == 0:
         return out_d, out_f
-    key = np.unique(pid * len(F) + tri)
+    key = unique_sorted(pid * len(F) + tri)
     pid, tri = key // len(F), key % len(F)
     A, B, Cc = V[F[tri, 0]], V[F[tri, 1]], V[F[tri, 2]]
     n = np.cross(B - A, Cc - A)
@@ -655,7 +656,7 @@ def residual_referenced(
     min_points = max(int(min_points), 1)
     # the (vertex, B-rep face) pairs of the mesh, as sorted keys vertex * m + face
     m = int(np.max(labels)) + 1
-    own = np.unique(F.astype(np.int64) * m + np.asarray(labels, dtype=np.int64)[:, None])
+    own = unique_sorted(F.astype(np.int64) * m + np.asarray(labels, dtype=np.int64)[:, None])
     pl = np.asarray(point_label, dtype=np.int64)
     args = (V, P, r, N, sel, tree, min_points, own, m, pl)
     # a second, twice as wide ball for the vertices the first left unscored (surfaces seen
@@ -720,7 +721,7 @@ def _residual_fit(
         seen[key[keep]] = True
         seen_of = seen.reshape(n, m).sum(axis=1)
     else:
-        seen_of = np.bincount(np.unique(key[keep]) // m, minlength=n)
+        seen_of = np.bincount(unique_sorted(key[keep]) // m, minlength=n)
     whole = (seen_of == faces_of)[vrt]
     idx, vrt = idx[whole], vrt[whole]
     if len(idx) == 0:

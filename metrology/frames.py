@@ -31,6 +31,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from qifreport.registration.arrays import unique_sorted
+
 from .datums import DatumFeature, simulate_datum
 from .form import least_squares_cone
 from .measured_surface import MeasuredSurface
@@ -86,7 +88,7 @@ class TargetSpec:
         n = self.normal
         tri = np.isin(surf.face_id, self.faces)
         if tri.any():
-            v = np.unique(surf.F[tri])
+            v = unique_sorted(surf.F[tri])
             X = surf.V[v] - self.position
             c = surf.N[v] @ n
             ok = np.abs(c) > 0.3

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from qifreport.registration.arrays import unique_sorted
+
 from .datums import DatumFeature, nominal_feature
 
 __all__ = ["FeatureSample", "MeasuredSurface"]
@@ -155,7 +157,7 @@ class MeasuredSurface:
         """Deviations of the ``k`` measured vertices of ``faces`` (any of their triangles)
         nearest ``position``, those within ``radius`` mm of it."""
         tri = np.isin(self.face_id, np.asarray(list(faces), dtype=np.int64))
-        v = np.unique(self.F[tri])
+        v = unique_sorted(self.F[tri])
         v = v[np.isfinite(self.dev[v])]
         d = np.linalg.norm(self.V[v] - np.asarray(position, dtype=np.float64), axis=1)
         near = np.argsort(d)[:k]

@@ -41,6 +41,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.pointcloud import median_spacing
 
 from .decision import PROOF_COVERAGE
@@ -149,7 +150,7 @@ class SurfacePoints:
             am = a[members]
             total = float(am.sum())
             j = members[int(np.argmax(np.abs(d[members] - c[members])))]
-            verts = np.unique(s.vertex[sel[members]])
+            verts = unique_sorted(s.vertex[sel[members]])
             regions.append(
                 region_type(
                     vertices=verts[verts >= 0].astype(np.int64),

@@ -18,6 +18,7 @@ import numpy as np
 
 from qifreport.metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
 from qifreport.metrology.characteristics import CharacteristicPlan, specs_from_pmi
+from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.mesh import (
     bounding_diagonal,
     consistent_winding,
@@ -273,7 +274,7 @@ def seat_faces(
             continue
         mine = [int(f) for f in z.faces if free[f]]
         tris = [new_tri[prints[f].triangles] for f in mine if f in prints]
-        tris = np.unique(np.concatenate(tris)) if tris else np.zeros(0, dtype=np.int64)
+        tris = unique_sorted(np.concatenate(tris)) if tris else np.zeros(0, dtype=np.int64)
         kept = np.array([f for f in z.faces if not free[f] and not other[f]], dtype=np.int64)
         if len(tris) == 0 and len(kept) == 0:
             if other[z.faces].any():

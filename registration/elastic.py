@@ -28,6 +28,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from .arrays import unique_sorted
+
 __all__ = [
     "GRAVITY",
     "rigid_rank",
@@ -472,7 +474,7 @@ class ElasticModel:
         for k, pad in enumerate(pads):
             d = np.asarray(pad.direction, dtype=np.float64)
             d = d / np.linalg.norm(d)
-            v = np.unique(np.asarray(pad.vertices, dtype=np.int64))
+            v = unique_sorted(np.asarray(pad.vertices, dtype=np.int64))
             if pad.mean:  # one row: the mean of its vertices' displacement along d
                 dofs = self.vertex_dofs[v]  # (k, 3)
                 rows.append(np.full(dofs.size, m))

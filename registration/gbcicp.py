@@ -53,6 +53,7 @@ __all__ = [
     "gbcicp",
     "GBCICPParams",
     "GBCICPResult",
+    "resolve_params",
 ]
 
 log = logging.getLogger(__name__)
@@ -366,7 +367,7 @@ def gbcicp(
         holding out the measurement around every edge would starve the refit.
     """
     t_start = time.perf_counter()
-    p = _resolve(params or GBCICPParams(), V0, F, P)
+    p = resolve_params(params or GBCICPParams(), V0, F, P)
     solver = solver or SPDSolver()
     n = len(V0)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
@@ -581,8 +582,9 @@ def _holdout(X: np.ndarray, flagged: np.ndarray, radius: float) -> np.ndarray:
     return hold
 
 
-def _resolve(p: GBCICPParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> GBCICPParams:
-    """Fill in the size-dependent defaults."""
+def resolve_params(p: GBCICPParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray) -> GBCICPParams:
+    """``p`` with its size-dependent defaults filled in (coverage radius, band limits, mm)
+    from the nominal ``(V0, F)`` and the scan ``P``."""
     diag = bounding_diagonal(V0)
     q = GBCICPParams(**vars(p))
     if q.solver not in ("modal", "full"):

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .arrays import unique_sorted
 from .mesh import bounding_diagonal, vertex_areas
 
 __all__ = ["Handles", "clamp_handles", "pca_frame"]
@@ -67,7 +68,7 @@ class Handles:
         """All handle vertex indices, unique and sorted (int64)."""
         if not self.groups:
             return np.zeros(0, dtype=np.int64)
-        return np.unique(np.concatenate(self.groups)).astype(np.int64)
+        return unique_sorted(np.concatenate(self.groups)).astype(np.int64)
 
 
 def clamp_handles(

@@ -23,6 +23,8 @@ from scipy.spatial import cKDTree
 
 from qifreport.errors import InputError
 
+from .arrays import unique_sorted
+
 __all__ = [
     "barycentric",
     "MESH_SUFFIXES",
@@ -213,7 +215,7 @@ def edges(F: np.ndarray) -> np.ndarray:
         return E.reshape(0, 2)
     # one int64 key per edge: a 1-D unique is ~10x faster than np.unique(..., axis=0)
     base = int(E.max()) + 1
-    key = np.unique(E[:, 0] * base + E[:, 1])
+    key = unique_sorted(E[:, 0] * base + E[:, 1])
     return np.stack([key // base, key % base], axis=1)
 
 
@@ -224,10 +226,18 @@ def median_edge_length(V: np.ndarray, F: np.ndarray) -> float:
 
 
 def adjacency(F: np.ndarray, n: int) -> sp.csr_matrix:
-    """Symmetric vertex adjacency (n, n) over mesh edges, boolean CSR."""
-    E = edges(F)
-    A = sp.coo_matrix((np.ones(len(E), dtype=bool), (E[:, 0], E[:, 1])), shape=(n, n))
-    return (A + A.T).tocsr()
+    """Symmetric vertex adjacency (n, n) over mesh edges, boolean CSR.
+
+    Built from the triangles' six directed pairs, the duplicates merged by the CSR
+    conversion: the same matrix as from the unique edges, ~10x faster (no sort of the
+    edges; a 400k-triangle mesh: 0.49 -> 0.04 s).
+    """
+    F = np.asarray(F, dtype=np.int64)
+    i = F.ravel()
+    j = F[:, [1, 2, 0]].ravel()
+    A = sp.csr_matrix((np.ones(2 * len(i), dtype=bool), (np.r_[i, j], np.r_[j, i])), shape=(n, n))
+    A.sum_duplicates()
+    return A
 
 
 def edge_uses(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -433,7 +443,7 @@ def crease_band(V: np.ndarray, F: np.ndarray, width: float, angle_deg: float = 4
     out = np.zeros(len(V), dtype=bool)
     if len(sharp) == 0:
         return out
-    seeds = np.unique(sharp.ravel())
+    seeds = unique_sorted(sharp.ravel())
     out[seeds] = True
     if width <= 0:
         return out

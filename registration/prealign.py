@@ -92,6 +92,7 @@ from scipy.spatial import cKDTree
 
 from qifreport.errors import InputError
 
+from .arrays import unique_sorted
 from .basins import Candidate, coarse_fits, group_basins, refine_basins, screen_starts
 from .icp import RigidResult, pose_conditioning, rigid_icp
 from .mesh import bounding_diagonal, vertex_normals, wall_thickness
@@ -362,7 +363,7 @@ def prealign(
             f"basin ({best.inlier_fraction:.1%} within {tau:.2f} mm, rms {best.rms:.3f} mm; "
             f"need {p.min_agreement}); the restarts disagree"
         )
-    at = np.unique(model.tree.query(S @ best.R.T + best.t)[1])
+    at = unique_sorted(model.tree.query(S @ best.R.T + best.t)[1])
     th = wall_thickness(model.V, model.N, at, radius=tau, tree=model.tree)
     wall = float(np.median(th))
     if p.refuse_thin_wall and wall < tau:

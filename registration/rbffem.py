@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .arrays import unique_sorted
 from .deformable import DeformResult, coverage_radius, finish, scan_matcher
 from .mesh import MeshOperators
 from .pointcloud import pca_normals
@@ -76,7 +77,7 @@ def default_clamps(V0: np.ndarray, F: np.ndarray, anchor: bool = True) -> np.nda
         [V0[g].mean(axis=0) for g, k in zip(h.groups, h.kind, strict=True) if k in kinds]
     )
     _, idx = cKDTree(V0).query(centres)
-    return np.unique(np.asarray(idx, dtype=np.int64))
+    return unique_sorted(np.asarray(idx, dtype=np.int64))
 
 
 def clamp_targets(
