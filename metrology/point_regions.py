@@ -42,6 +42,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from qifreport.registration.arrays import unique_sorted
+from qifreport.registration.nearest import workers_for
 from qifreport.registration.pointcloud import median_spacing
 
 from .decision import PROOF_COVERAGE
@@ -213,7 +214,7 @@ def scan_samples(
         kk = min(int(k), len(group))
         if kk < 3:
             continue
-        _, nb = cKDTree(P[group]).query(P[group], k=kk, workers=-1)
+        _, nb = cKDTree(P[group]).query(P[group], k=kk, workers=workers_for(len(group)))
         med = np.median(r[group][nb], axis=1)
         s = 1.4826 * np.median(np.abs(r[group] - med)) * np.sqrt(kk / (kk - 1.0))
         value[group] = med

@@ -19,6 +19,7 @@ from scipy.spatial import cKDTree
 
 from .icp import robust_scale
 from .mesh import MeshOperators, median_edge_length
+from .nearest import workers_for
 from .pointcloud import SIDE_KNOWN, median_spacing, orient_normals_consistent, pca_normals
 
 __all__ = [
@@ -151,7 +152,9 @@ class ScanMatcher:
         """Match the vertices ``X`` (n, 3) mm; with ``rows`` (k,), ``X`` (k, 3) holds the
         positions of those vertices only (their normals are ``normals[rows]``)."""
         N = self.N if rows is None else self.N[rows]
-        dist, j = self.tree.query(X, workers=-1, distance_upper_bound=self.max_distance)
+        dist, j = self.tree.query(
+            X, workers=workers_for(len(X)), distance_upper_bound=self.max_distance
+        )
         found = np.isfinite(dist)
         j = np.where(found, j, 0)
         diff = np.where(found[:, None], self.P[j] - X, 0.0)

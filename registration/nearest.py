@@ -15,10 +15,17 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["PARALLEL_MIN", "TrackedNearest"]
+__all__ = ["PARALLEL_MIN", "TrackedNearest", "workers_for"]
 
 #: points from which a query runs on every core
 PARALLEL_MIN = 4096
+
+
+def workers_for(n: int) -> int:
+    """``workers`` for a k-d tree query of ``n`` points: every core (-1) for a large batch,
+    one thread below :data:`PARALLEL_MIN` (starting the threads costs more than a few
+    thousand points' search; the answers are the same)."""
+    return -1 if n >= PARALLEL_MIN else 1
 
 
 class TrackedNearest:
@@ -78,10 +85,7 @@ class TrackedNearest:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Ask the tree for the points ``todo``; anchor them where they are now."""
         if len(todo):
-            # threads only for a large batch: starting them costs more than a few
-            # thousand points' search
-            workers = -1 if len(todo) >= PARALLEL_MIN else 1
-            d, i = self.tree.query(X[todo], k=self.k, workers=workers)
+            d, i = self.tree.query(X[todo], k=self.k, workers=workers_for(len(todo)))
             self._anchor[todo] = X[todo]
             self._cand[todo] = i
             self._coords[:, todo] = np.moveaxis(self.V[i], 2, 0)
