@@ -1,5 +1,5 @@
 """``python -m qifreport``: the command line."""
 
-from qifreport.cli import main
+from qifreport.launch import main
 
 main()

@@ -698,10 +698,7 @@ def _guard(fn: Callable[[], int], verbose: bool) -> int:
         # holds the interrupted frames: freeing their arrays (or the interpreter's
         # finalisation) can crash in an extension caught mid-computation (SIGSEGV seen after
         # the one-line message under load)
-        print(f"qifreport: interrupted by {exc.name}: nothing written", file=sys.stderr)
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(128 + exc.signum)
+        exc.leave()
     except InputError as exc:
         print(f"qifreport: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
@@ -729,9 +726,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(_with_default_command(argv))
     except Interrupted as exc:  # while the parser's modules load
-        print(f"qifreport: interrupted by {exc.name}: nothing written", file=sys.stderr)
-        sys.stderr.flush()
-        os._exit(128 + exc.signum)
+        exc.leave()
     verbose = bool(getattr(args, "verbose", False))
     level = logging.INFO if verbose and args.command != "validate" else logging.WARNING
     logging.basicConfig(level=level, format="qifreport: %(levelname)s: %(message)s")

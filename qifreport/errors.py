@@ -5,7 +5,9 @@ Defined here, in the most upstream package, so that every stage (``step`` ->
 downstream one.
 """
 
+import os
 import signal
+import sys
 
 __all__ = [
     "InputError",
@@ -36,6 +38,14 @@ class Interrupted(KeyboardInterrupt):
         self.signum = signum
         self.name = signal.Signals(signum).name
         Interrupted.received.append(signum)
+
+    def leave(self) -> None:
+        """End the process now: the command's one line on stderr, exit ``128 + signal``
+        (no finalisation: an extension caught mid-computation can crash in it)."""
+        print(f"qifreport: interrupted by {self.name}: nothing written", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(128 + self.signum)
 
 
 def raise_if_interrupted() -> None:

@@ -154,6 +154,28 @@ def test_stale_temporary_files_of_a_killed_run_are_removed(tmp_path):
     assert files(out) == [".notes.txt.tmp", "shell_nominal.pdf", "shell_nominal.qif"]
 
 
+@pytest.mark.parametrize("sig", [signal.SIGHUP, signal.SIGINT])
+def test_a_signal_while_the_command_loads_ends_it_the_same_way(tmp_path, sig):
+    """0.3 s in, the command is still importing its libraries (about a second): the signal
+    ends it with the same one line and exit code as mid-run, not by the signal's default
+    action (SIGHUP: killed, no message) or a traceback (SIGINT)."""
+    out = tmp_path / "o"
+    p = subprocess.Popen(
+        [str(EXE), str(NOMINAL), str(SCAN), "--tolerance", "0.5", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    time.sleep(0.3)
+    p.send_signal(sig)
+    stdout, stderr = p.communicate(timeout=120)
+    err = stderr.decode().strip()
+    assert p.returncode == 128 + sig, (p.returncode, err, stdout.decode())
+    assert err.splitlines() == [
+        f"qifreport: interrupted by {signal.Signals(sig).name}: nothing written"
+    ], err
+    assert not out.exists() or files(out) == []
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP])
 def test_a_signal_ends_the_run_with_one_line_and_no_files(tmp_path, sig):
