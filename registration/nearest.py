@@ -86,6 +86,7 @@ class TrackedNearest:
         """Ask the tree for the points ``todo``; anchor them where they are now."""
         if len(todo):
             d, i = self.tree.query(X[todo], k=self.k, workers=workers_for(len(todo)))
+            d, i = d.reshape(len(todo), self.k), i.reshape(len(todo), self.k)  # k = 1: 1-D
             self._anchor[todo] = X[todo]
             self._cand[todo] = i
             self._coords[:, todo] = np.moveaxis(self.V[i], 2, 0)

@@ -84,3 +84,15 @@ def test_rigid_icp_pose_unchanged_by_the_tracking(monkeypatch: pytest.MonkeyPatc
     np.testing.assert_array_equal(tracked.R, plain.R)
     np.testing.assert_array_equal(tracked.t, plain.t)
     assert np.linalg.norm(tracked.t - t0) > 0.05  # it moved: the check compares real paths
+
+
+def test_a_model_of_one_vertex_and_an_empty_scan() -> None:
+    V = np.array([[1.0, 2.0, 3.0]])
+    nearest = TrackedNearest(cKDTree(V), V)
+    X = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 4.0]])
+    for _ in range(2):
+        d, i = nearest.query(X)
+        np.testing.assert_array_equal(i, [0, 0])
+        np.testing.assert_allclose(d, [np.sqrt(14.0), 1.0])
+    d, i = TrackedNearest(cKDTree(V), V).query(np.zeros((0, 3)))
+    assert d.shape == i.shape == (0,)
