@@ -680,6 +680,7 @@ def edge_deviation(
     corner_angle: float = 30.0,
     trim_edges: str = "auto",
     crease_angle: float = 60.0,
+    tree: cKDTree | None = None,
 ) -> EdgeDeviation:
     """Trim-edge deviation of the scan ``P`` at every open-rim vertex of ``(V, F)``.
 
@@ -705,6 +706,7 @@ def edge_deviation(
         patches between sharp creases, :func:`crease_frames`: the trim edges of a closed
         solid) or ``"auto"`` (default): the open boundary if there is one, else the creases.
     crease_angle : degrees, the creases of ``"crease"`` mode (:func:`split_at_creases`).
+    tree : ``cKDTree(P)`` when at hand (used when every point of ``P`` is finite).
 
     Returns
     -------
@@ -713,13 +715,16 @@ def edge_deviation(
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     P = np.asarray(P, dtype=np.float64).reshape(-1, 3)
-    P = P[np.isfinite(P).all(axis=1)]
+    finite = np.isfinite(P).all(axis=1)
+    if not finite.all():
+        P, tree = P[finite], None
     tolerance = float(tolerance)
     if not (np.isfinite(tolerance) and tolerance > 0):
         raise ValueError(f"edge tolerance must be positive, got {tolerance}")
     if not 0.5 <= quantile < 1.0:
         raise ValueError(f"quantile must lie in [0.5, 1), got {quantile}")
-    tree = cKDTree(P) if len(P) else None
+    if tree is None and len(P):
+        tree = cKDTree(P)
     if radius is None:
         spacing = scan_spacing(P, tree) if tree is not None else float("nan")
         radius = max(2.0 * median_edge_length(V, F), 6.0 * np.nan_to_num(spacing))

@@ -1068,6 +1068,11 @@ class _Registered:
     diag: float
 
     @functools.cached_property
+    def scan_tree(self) -> cKDTree:
+        """``cKDTree(P)``: built once for every judgement's searches of the seated scan."""
+        return cKDTree(self.P)
+
+    @functools.cached_property
     def scan_area(self) -> float:
         """The area the seated scan covers, mm^2 (:func:`scan_area`): the same points for
         every judgement, measured once."""
@@ -1198,7 +1203,9 @@ def _judge(
         sys_vertices = np.hypot(params.scanner_uncertainty, model_uncertainty[0])
         sys_points = np.hypot(params.scanner_uncertainty, model_uncertainty[1])
     t_pts = time.perf_counter()
-    samples = scan_samples(V_reg, F, Pm, pdev, C, cface, plabel, systematic=sys_points)
+    samples = scan_samples(
+        V_reg, F, Pm, pdev, C, cface, plabel, systematic=sys_points, tree=reg.scan_tree
+    )
     pvert = samples.vertex
     # a point judges a surface where its nearest vertex is scored there (the same crease
     # and rim bands); the free-state zones of a fixtured judgement are the free state's
@@ -1278,7 +1285,13 @@ def _judge(
     if fit is None or fit.method == "gbcicp":
         t_edges = time.perf_counter()
         edges = edge_deviation(
-            V_reg, F, Pm, general_half, normals=N_reg, trim_edges="crease" if solid else "auto"
+            V_reg,
+            F,
+            Pm,
+            general_half,
+            normals=N_reg,
+            trim_edges="crease" if solid else "auto",
+            tree=reg.scan_tree,
         )
         size = size_error(edges)
         timings["edges"] = time.perf_counter() - t_edges

@@ -179,6 +179,7 @@ def scan_samples(
     *,
     k: int = DEFAULT_K,
     systematic: float | np.ndarray = 0.0,
+    tree: cKDTree | None = None,
 ) -> ScanSamples:
     """The scan points' local values and uncertainties (:class:`ScanSamples`).
 
@@ -192,6 +193,7 @@ def scan_samples(
     k : points in each median.
     systematic : a scanner's stated expanded uncertainty, mm, added in quadrature (or one
         per point (m,): a restrained hold's model uncertainty besides).
+    tree : ``cKDTree(P)`` when at hand (kept as the samples' tree).
     """
     P = np.asarray(P, dtype=np.float64)
     r = np.asarray(residual, dtype=np.float64)
@@ -219,7 +221,7 @@ def scan_samples(
         s = 1.4826 * np.median(np.abs(r[group] - med)) * np.sqrt(kk / (kk - 1.0))
         value[group] = med
         var[group] = 0.5 * np.pi * s * s / kk
-    tree = cKDTree(P)
+    tree = cKDTree(P) if tree is None else tree
     spacing = median_spacing(P, tree, probes=5000) if m > 1 else 0.0
     U = np.sqrt(4.0 * var + np.asarray(systematic, dtype=np.float64) ** 2)
     return ScanSamples(P=P, value=value, U=U, vertex=vertex, spacing=max(spacing, 1e-9), tree=tree)
