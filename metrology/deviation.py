@@ -135,9 +135,9 @@ def closest_points(
 
     libigl's axis-aligned bounding-box tree (``igl.AABB``, C++), built on the mesh and
     queried for every point: exact, and about 14x faster than the certified
-    k-nearest-vertex search it replaced (same closest points to the last bit on the thin-shell
-    sample; the face differs only where two faces tie at a shared edge, where the sign below
-    interpolates the vertex normals anyway).
+    k-nearest-vertex search it replaced. Where several faces are nearest at once (the
+    closest point on a shared edge or vertex) the point takes the lowest-numbered of them
+    (:func:`_lowest_tied_face`), so its face does not depend on the tree's search order.
 
     Parameters
     ----------
@@ -194,7 +194,7 @@ def _lowest_tied_face(
     Candidates: the faces around the chosen face's corners, each evaluated exactly
     (``trimesh.triangles.closest_point``)."""
     bary = barycentric(V, F, face, C)
-    todo = np.flatnonzero(bary.min(axis=1) < 1e-9)
+    todo = np.flatnonzero(bary.min(axis=1) < _BARY_EDGE_TOL)
     if not len(todo):
         return
     inc = vertex_face_csr(F, len(V))

@@ -207,16 +207,32 @@ def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return out
 
 
+def _half_edges(F: np.ndarray) -> np.ndarray:
+    """(3f, 2) the triangles' edges 01, 12, 20 (all of the first, then the second, ...),
+    each as a sorted vertex pair."""
+    return np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+
+
+def _edge_keys(half: np.ndarray) -> tuple[np.ndarray, int]:
+    """One int64 key per sorted pair of ``half`` (non-empty), in the pairs' lexicographic
+    order, and the base that decodes it (:func:`_edge_pairs`): a 1-D unique of the keys is
+    ~10x faster than ``np.unique(half, axis=0)``."""
+    base = int(half.max()) + 1
+    return half[:, 0].astype(np.int64) * base + half[:, 1], base
+
+
+def _edge_pairs(key: np.ndarray, base: int) -> np.ndarray:
+    """(e, 2) the vertex pairs of the keys of :func:`_edge_keys`."""
+    return np.stack([key // base, key % base], axis=1)
+
+
 def edges(F: np.ndarray) -> np.ndarray:
     """Unique undirected edges (e, 2) of the triangles ``F``, sorted lexicographically."""
-    F = np.asarray(F, dtype=np.int64)
-    E = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    E = _half_edges(np.asarray(F, dtype=np.int64))
     if len(E) == 0:
         return E.reshape(0, 2)
-    # one int64 key per edge: a 1-D unique is ~10x faster than np.unique(..., axis=0)
-    base = int(E.max()) + 1
-    key = unique_sorted(E[:, 0] * base + E[:, 1])
-    return np.stack([key // base, key % base], axis=1)
+    key, base = _edge_keys(E)
+    return _edge_pairs(unique_sorted(key), base)
 
 
 def median_edge_length(V: np.ndarray, F: np.ndarray) -> float:
@@ -250,17 +266,14 @@ def edge_uses(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     triangle's edges 01, 12, 20.
     """
     F = np.asarray(F)
-    half = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    half = _half_edges(F)
     if len(half) == 0:
         E, inv, count = np.unique(half, axis=0, return_inverse=True, return_counts=True)
         return E, count, inv.ravel().reshape(3, len(F)).T
-    # one int64 key per edge, in the rows' lexicographic order: the same unique edges,
-    # counts and inverse as ``np.unique(half, axis=0)``, ~10x faster
-    base = int(half.max()) + 1
-    key, inv, count = np.unique(
-        half[:, 0].astype(np.int64) * base + half[:, 1], return_inverse=True, return_counts=True
-    )
-    E = np.stack([key // base, key % base], axis=1).astype(half.dtype, copy=False)
+    # the same unique edges, counts and inverse as ``np.unique(half, axis=0)``
+    key, base = _edge_keys(half)
+    key, inv, count = np.unique(key, return_inverse=True, return_counts=True)
+    E = _edge_pairs(key, base).astype(half.dtype, copy=False)
     return E, count, inv.ravel().reshape(3, len(F)).T
 
 

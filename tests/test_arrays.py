@@ -1,4 +1,4 @@
-"""unique_sorted is np.unique; the vertex adjacency is the unique edges' (faster builds)."""
+"""unique_sorted is np.unique; the adjacency and edge uses are the unique edges' (faster)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from qifreport.registration.arrays import unique_sorted
-from qifreport.registration.mesh import adjacency, edges
+from qifreport.registration.mesh import adjacency, edge_uses, edges
 
 
 @settings(max_examples=200, deadline=None)
@@ -41,3 +41,18 @@ def test_adjacency_is_the_unique_edges() -> None:
         got = adjacency(F, n)
         assert got.dtype == bool and got.has_canonical_format
         assert (got != want).nnz == 0 and got.nnz == want.nnz
+
+
+def test_edge_uses_is_the_row_wise_unique() -> None:
+    """The edges, their use counts and each triangle's edges, as ``np.unique(axis=0)`` gives
+    them, for int64 and int32 triangles and a non-manifold fan."""
+    sphere = np.asarray(trimesh.creation.icosphere(3).faces)
+    fan = np.array([[0, 1, 2], [0, 1, 3], [0, 1, 4], [4, 5, 0]])
+    for F in (sphere, sphere.astype(np.int32), fan):
+        half = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+        E0, inv0, count0 = np.unique(half, axis=0, return_inverse=True, return_counts=True)
+        E, count, of = edge_uses(F)
+        assert E.dtype == E0.dtype
+        np.testing.assert_array_equal(E, E0)
+        np.testing.assert_array_equal(count, count0)
+        np.testing.assert_array_equal(of, inv0.ravel().reshape(3, len(F)).T)
