@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .icp import RigidResult, converged_rigid_fit, kabsch
+from .nearest import workers_for
 from .pose_geometry import rotation_angle_deg
 from .pose_model import PreparedModel
 
@@ -46,8 +47,7 @@ def score_pose(
     which rewards both overlap and closeness, so a saturated inlier fraction (a smooth part
     under a loose gate) does not make every sliding pose a tie.
     """
-    workers = 1 if len(S) < 5000 else -1
-    d, _ = model.tree.query(S @ R.T + t, distance_upper_bound=tau, workers=workers)
+    d, _ = model.tree.query(S @ R.T + t, distance_upper_bound=tau, workers=workers_for(len(S)))
     inl = np.isfinite(d)
     frac = float(inl.mean())
     rms = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
