@@ -12,6 +12,7 @@ import sys
 __all__ = [
     "InputError",
     "Interrupted",
+    "pending_interrupt",
     "raise_if_interrupted",
 ]
 
@@ -46,6 +47,17 @@ class Interrupted(KeyboardInterrupt):
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(128 + self.signum)
+
+
+def pending_interrupt(exc: BaseException) -> Interrupted | None:
+    """The interruption behind ``exc``: ``exc`` itself, or the signal received while an
+    extension turned its exception into another one (NumPy's import reports a Ctrl-C
+    during its C set-up as an ``ImportError``); None when no signal arrived."""
+    if isinstance(exc, Interrupted):
+        return exc
+    if Interrupted.received:
+        return Interrupted(Interrupted.received[0])
+    return None
 
 
 def raise_if_interrupted() -> None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import signal
 
-from qifreport.errors import Interrupted
+from qifreport.errors import Interrupted, pending_interrupt
 
 __all__ = ["main"]
 
@@ -28,6 +28,9 @@ def main() -> None:
             signal.signal(getattr(signal, name), _interrupt)
     try:
         from qifreport.cli import main as cli_main
-    except Interrupted as exc:
-        exc.leave()
+    except BaseException as exc:
+        interrupted = pending_interrupt(exc)
+        if interrupted is None:
+            raise
+        interrupted.leave()
     cli_main()

@@ -227,3 +227,15 @@ def test_a_signal_ends_the_run_with_one_line_and_no_files(tmp_path, sig):
         f"qifreport: interrupted by {signal.Signals(sig).name}: nothing written"
     ], err
     assert files(out) == []
+
+
+def test_a_signal_an_import_turned_into_another_error_is_still_the_signal(monkeypatch):
+    """NumPy's import reports a Ctrl-C in its C set-up as an ImportError: the entry point
+    still ends the run as interrupted, from the signal it received."""
+    from qifreport.errors import Interrupted, pending_interrupt
+
+    monkeypatch.setattr(Interrupted, "received", [])
+    assert pending_interrupt(ImportError("numpy: could not import module datetime")) is None
+    Interrupted.received.append(int(signal.SIGINT))
+    got = pending_interrupt(ImportError("numpy: could not import module datetime"))
+    assert got is not None and got.signum == signal.SIGINT and got.name == "SIGINT"
