@@ -7,7 +7,7 @@ XSD_SRC := $(SHARED)/qif/xsd
 XSD_DST := schemas/qif-3.0
 OUT    ?= out/demo
 
-.PHONY: install system-deps accel demo test lint bench clean
+.PHONY: install system-deps accel accel-if-possible demo test lint bench clean
 
 # Create the venv and install the package (editable) once; re-run when pyproject changes.
 $(VENV)/.installed: pyproject.toml
@@ -20,6 +20,7 @@ $(VENV)/.installed: pyproject.toml
 	@if [ -d "$(XSD_DST)/QIFLibrary" ]; then \
 	  DSIG=$$($(PY) -c "import os, xmlschema; print(os.path.join(os.path.dirname(xmlschema.__file__), 'schemas', 'DSIG', 'xmldsig-core-schema.xsd'))") && \
 	  cp "$$DSIG" $(XSD_DST)/QIFLibrary/xmldsig-core-schema.xsd; fi
+	@$(MAKE) --no-print-directory accel-if-possible
 	touch $@
 
 install: $(VENV)/.installed
@@ -93,13 +94,38 @@ bench: install
 	$(PY) bench/detectability.py
 	$(PY) bench/uncertainty.py
 
-# Optional accelerator: CHOLMOD (scikit-sparse, built against Debian's SuiteSparse) for the
-# sparse Cholesky solves of GB-CICP and NICP. Everything runs without it (SuperLU).
+# Optional accelerator: CHOLMOD (scikit-sparse, built against Debian's SuiteSparse, with
+# OpenBLAS) for the sparse Cholesky solves of GB-CICP, its bending basis and NICP. `install`
+# tries it (Debian packages via apt when root or sudo allows, then the `cholmod` extra) and
+# goes on without it: everything runs on scipy's SuperLU then. `make accel` insists.
+ACCEL_DEPS := libsuitesparse-dev libopenblas0-pthread
+
+accel-if-possible:
+	@if ! $(PY) -c "import sksparse.cholmod" >/dev/null 2>&1; then \
+	  if ! dpkg -s $(ACCEL_DEPS) >/dev/null 2>&1; then \
+	    if [ "$$(id -u)" -eq 0 ]; then SUDO=; \
+	    elif command -v sudo >/dev/null 2>&1; then SUDO="sudo -n"; \
+	    else SUDO=none; fi; \
+	    if [ "$$SUDO" != none ] && command -v apt-get >/dev/null 2>&1; then \
+	      { $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive \
+	        apt-get install -y -qq $(ACCEL_DEPS); } >/dev/null 2>&1 || true; \
+	    fi; \
+	  fi; \
+	  if [ -e /usr/include/suitesparse/cholmod.h ] && \
+	     $(PY) -m pip install -q -e '.[cholmod]' >/dev/null 2>&1 && \
+	     $(PY) -c "import sksparse.cholmod" >/dev/null 2>&1; then \
+	    echo "installed the CHOLMOD accelerator (scikit-sparse)"; \
+	  else \
+	    echo "note: CHOLMOD accelerator not installed (needs $(ACCEL_DEPS) and a C compiler);" \
+	         "sparse solves use scipy's SuperLU"; \
+	  fi; \
+	fi
+
 accel: install
 	@if [ "$$(id -u)" -eq 0 ]; then SUDO=; else SUDO="sudo -n"; fi; \
-	  $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libsuitesparse-dev \
-	    libopenblas0-pthread >/dev/null
+	  $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(ACCEL_DEPS) >/dev/null
 	$(PY) -m pip install -q -e '.[cholmod]'
+	$(PY) -c "import sksparse.cholmod"
 
 clean:
 	rm -rf $(VENV) out .pytest_cache $(XSD_DST)

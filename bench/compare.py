@@ -45,6 +45,7 @@ from qifreport.registration import methods
 from qifreport.registration.cpd import CPDParams, cpd_warp, resolve_params, sample_points
 from qifreport.registration.gbcicp import GBCICPParams, bending_basis
 from qifreport.registration.icp import rigid_icp
+from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import (
     bending_operator,
     boundary_vertices,
@@ -191,7 +192,7 @@ def run_table(part: str, generator: str, args) -> pd.DataFrame:
     t_basis = np.nan
     if any(m.startswith("gbcicp") for m in args.methods):
         t0 = time.perf_counter()
-        basis = bending_basis(ops)
+        basis = bending_basis(ops, solver=SPDSolver(points=V))
         t_basis = time.perf_counter() - t0
     S = case.measured_vertices()
 

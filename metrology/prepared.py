@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from qifreport.registration.gbcicp import BendingBasis, bending_basis
+from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import MeshOperators, bending_operator, boundary_vertices
 from qifreport.registration.prealign import PreparedModel, prepare_model
 
@@ -140,7 +141,7 @@ def prepare_part(
     timings["bands"] = time.perf_counter() - t0
     b = None
     if basis:
-        b = bending_basis(ops, params.gbcicp.modes)
+        b = bending_basis(ops, params.gbcicp.modes, solver=SPDSolver(points=V))
         timings["basis"] = b.seconds
     m = None
     if model:

@@ -42,6 +42,7 @@ from qifreport.metrology.inspection import (
 from qifreport.metrology.params import method_label
 from qifreport.metrology.repeatability import KEEP_FRACTION, resample_mask
 from qifreport.metrology.repeatability import apply as apply_repeatability
+from qifreport.registration.linalg import default_backend
 from qifreport.registration.pointcloud import read_scan
 from qifreport.registration.restrained import Restraint
 from qifreport.registration.thinning import ThinningReport, nominal_spacing, thin_scan
@@ -510,7 +511,11 @@ def output_writers(
     if job.json:
         doc = res.to_dict()
         doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}
-        doc["software"] = {"name": "qifreport", "version": __version__}
+        doc["software"] = {
+            "name": "qifreport",
+            "version": __version__,
+            "sparse_solver": default_backend(),
+        }
         doc["nominal"] = nom.info
         doc["inputs"] = {
             "nominal": {"path": str(job.nominal), "sha256": digests["nominal"]},

@@ -174,7 +174,9 @@ BASIS_SEED = 20240607
 _EIGSH_TAKES_RNG = "rng" in signature(spla.eigsh).parameters
 
 
-def bending_basis(ops: MeshOperators, k: int = 100, tol: float = 1e-6) -> BendingBasis:
+def bending_basis(
+    ops: MeshOperators, k: int = 100, tol: float = 1e-6, solver: SPDSolver | None = None
+) -> BendingBasis:
     """The ``k`` lowest modes of the generalized problem ``Q phi = mu M phi``.
 
     Shift-invert Lanczos (``scipy.sparse.linalg.eigsh``) around a small negative shift, so
@@ -193,6 +195,9 @@ def bending_basis(ops: MeshOperators, k: int = 100, tol: float = 1e-6) -> Bendin
     k : number of modes (capped at ``n - 2``).
     tol : relative accuracy of the eigenvalues (``eigsh``); the modes are then orthonormal
         to round-off and ``Phi^T Q Phi`` diagonal to ~1e-15.
+    solver : the sparse factorisation of the shifted operator (default
+        :class:`~qifreport.registration.linalg.SPDSolver` without positions; give it the
+        vertices, ``SPDSolver(points=V)``, for SuperLU's nested-dissection order).
     """
     t0 = time.perf_counter()
     n = ops.Q.shape[0]
@@ -204,7 +209,7 @@ def bending_basis(ops: MeshOperators, k: int = 100, tol: float = 1e-6) -> Bendin
     A = (ops.Q - shift * ops.M).tocsc()
     # the shifted operator is SPD: a Cholesky (CHOLMOD) or a symmetric-mode SuperLU
     # factorisation is cheaper than the general LU eigsh would otherwise make
-    fac = SPDSolver().factor(A)
+    fac = (solver or SPDSolver()).factor(A)
     opinv = spla.LinearOperator(A.shape, matvec=lambda b: fac(b), dtype=np.float64)
     rng = np.random.default_rng(BASIS_SEED)
     # ARPACK's own default start, uniform on [-1, 1], but drawn from the seeded generator
@@ -368,7 +373,7 @@ def gbcicp(
     """
     t_start = time.perf_counter()
     p = resolve_params(params or GBCICPParams(), V0, F, P)
-    solver = solver or SPDSolver()
+    solver = solver or SPDSolver(points=V0)
     n = len(V0)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
     if p.signed_compat:
@@ -399,7 +404,7 @@ def gbcicp(
         lam_refit = p.band_limit_refit**4
     if modal:
         if basis is None or basis.Phi.shape[0] != n or basis.energy != ops.energy:
-            basis = bending_basis(ops, p.modes)
+            basis = bending_basis(ops, p.modes, solver=SPDSolver(points=V0))
         stride = max(1, int(np.ceil(n / max(p.modal_rows, 1))))
         rows = np.arange(0, n, stride)
         Phi_r = basis.Phi[rows]

@@ -60,10 +60,10 @@ from .deformable import DeformResult, ScanMatcher, coverage_radius, finish, scan
 from .icp import robust_scale
 from .linalg import SPDSolver, have_cholmod
 from .mesh import MeshOperators, bounding_diagonal, edges, vertex_normals
+from .ordering import mesh_adjacency, nested_dissection
 from .pointcloud import pca_normals
 
 __all__ = [
-    "nested_dissection",
     "nicp",
     "NICPParams",
 ]
@@ -194,39 +194,6 @@ class _AffineSystem:
         return np.einsum("ia,iac->ic", self.H, X.reshape(self.n, 4, 3))
 
 
-def nested_dissection(V: np.ndarray, F: np.ndarray, leaf: int = 64) -> np.ndarray:
-    """A fill-reducing vertex order (n,) by geometric nested dissection.
-
-    The vertices are split at the median of their longest extent; the vertices of one half
-    adjacent to the other form the separator, ordered after both halves, recursively.
-    """
-    n = len(V)
-    E = edges(F)
-    adj = sp.coo_matrix(
-        (np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])), shape=(n, n)
-    ).tocsr()
-    out: list[np.ndarray] = []
-    stack: list[tuple[np.ndarray, int]] = [(np.arange(n), 0)]
-    # iterative post-order: (idx, 0) = split, (idx, 1) = emit
-    while stack:
-        idx, emit = stack.pop()
-        if emit or len(idx) <= leaf:
-            out.append(idx)
-            continue
-        X = V[idx]
-        ax = int(np.argmax(X.max(axis=0) - X.min(axis=0)))
-        left = X[:, ax] <= np.median(X[:, ax])
-        if left.all() or not left.any():
-            out.append(idx)
-            continue
-        right = np.zeros(n)
-        right[idx[~left]] = 1.0
-        touches = np.asarray(adj[idx[left]] @ right).ravel() > 0
-        L, S, R = idx[left][~touches], idx[left][touches], idx[~left]
-        stack += [(S, 1), (R, 0), (L, 0)]  # popped as L, R, then the separator
-    return np.concatenate(out)
-
-
 class _Factorizer:
     """Sparse SPD factorisation of the 4n NICP system.
 
@@ -240,7 +207,7 @@ class _Factorizer:
     def __init__(self, V: np.ndarray, F: np.ndarray):
         self.cholmod = SPDSolver() if have_cholmod() else None
         if self.cholmod is None:
-            perm = nested_dissection(V, F)
+            perm = nested_dissection(V, mesh_adjacency(F, len(V)), leaf=64)
             self.p4 = (4 * perm[:, None] + np.arange(4)).ravel()
             self.inv = np.empty_like(self.p4)
             self.inv[self.p4] = np.arange(len(self.p4))

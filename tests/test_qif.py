@@ -274,6 +274,10 @@ def test_step_part_one_characteristic_per_profile_tolerance(runs):
     digests = {doc["inputs"]["nominal"]["sha256"], doc["inputs"]["scan"]["sha256"]}
     assert {d.rsplit(" ", 1)[-1] for _, d in r.inputs} == digests
     assert r.software_version == doc["software"]["version"]
+    # the sparse factorisation the numbers came from (CHOLMOD or SuperLU: see test_linalg)
+    from qifreport.registration.linalg import default_backend
+
+    assert doc["software"]["sparse_solver"] == default_backend()
     assert r.inspection_start and r.inspection_end >= r.inspection_start
     alg = root.find(f"{Q}AlgorithmDefinitions")
     assert "band_limit" in alg[1].find(f"{Q}Parameters").text
