@@ -19,7 +19,7 @@ from qifreport.qif.writer import Provenance
 from .kit import ReportPage
 from .render import camera_frame, choose_views, color_scale
 
-__all__ = ["ReportContext", "vertex_bands", "distinct_bands"]
+__all__ = ["ReportContext", "clamp_markers", "distinct_bands", "vertex_bands"]
 
 
 def vertex_bands(res: InspectionResult) -> tuple[np.ndarray, np.ndarray]:
@@ -67,6 +67,19 @@ def distinct_bands(res: InspectionResult) -> list[tuple[float, float, list[str]]
         lo, hi = vertex_bands(res)
         out.append((float(np.nanmin(lo)), float(np.nanmax(hi)), ["part"]))
     return out
+
+
+def clamp_markers(res: InspectionResult) -> list[tuple[str, tuple]]:
+    """The clamps of a restrained inspection for the maps: ``(label, (x, y, z) mm)``, each
+    named with its force (N) when the material was stated and it bears 0.01 N or more (the
+    page's clamp-force table is on the map); empty for an inspection not held at clamps."""
+    r = res.restraint
+    if r is None:
+        return []
+    return [
+        (f"{c.name} {f:.2g} N" if r.forces_known and f >= 0.01 else c.name, c.position)
+        for c, f in zip(r.clamps, r.force, strict=True)
+    ]
 
 
 class ReportContext(ReportPage):
