@@ -22,8 +22,9 @@ deviation from the data, never from the positions), colours uint8, deviations fl
 triangles uint16 (uint32 above 65,536 vertices). The sample panel (36k vertices) makes a file
 of about 3 MB.
 
-Opening the page with ``#pick=FX,FY`` (fractions of the map's width and height) picks the
-point drawn there, as a click would.
+Opening the page with ``#at=X,Y,Z`` (mm, e.g. ``panel.html#at=30.0,19.3,3.8``, a region's
+centroid as the PDF and the QIF give it) picks the part where that point is drawn in view A,
+as a click there would.
 """
 
 from __future__ import annotations

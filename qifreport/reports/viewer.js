@@ -1,7 +1,7 @@
 /* qifreport HTML viewer: the deviation map of one inspection (qifreport/reports/html.py).
 
-   Draws with three.js (the global THREE, with THREE.TrackballControls) the data of the
-   <script id="viewer-data"> element: typed arrays in base64 (little-endian), lengths in mm.
+   Draws with three.js (the global THREE, with THREE.TrackballControls) the JSON of the
+   page's "viewer-data" script element: typed arrays in base64 (little-endian), lengths in mm.
    Sets <body data-status> to "drawn" once the map is drawn, or "error" (with the reason
    shown) when it cannot be. */
 (function () {
@@ -319,6 +319,17 @@
   function pickAt(x, y) {
     const rect = canvas.getBoundingClientRect();
     ndc.set((x - rect.left) / rect.width * 2 - 1, -((y - rect.top) / rect.height) * 2 + 1);
+    pickNdc();
+  }
+
+  /* pick what is drawn where the point (x, y, z) mm projects */
+  function pickPoint(x, y, z) {
+    const q = new THREE.Vector3(x, y, z).project(camera);
+    ndc.set(q.x, q.y);
+    pickNdc();
+  }
+
+  function pickNdc() {
     raycaster.setFromCamera(ndc, camera);
     const hits = raycaster.intersectObjects(surfaces.filter((m) => m.visible), false);
     if (!hits.length) {
@@ -378,10 +389,11 @@
   // --------------------------------------------------------------------------- start
   setView(0);
   draw();
-  const m = /pick=([0-9.]+),([0-9.]+)/.exec(window.location.hash);
+  // #at=X,Y,Z (mm, e.g. a region's centroid from the PDF or the QIF): pick the part there
+  const num = "(-?[0-9.]+(?:e-?[0-9]+)?)";
+  const m = new RegExp("at=" + num + "," + num + "," + num).exec(window.location.hash);
   if (m) {
-    const rect = canvas.getBoundingClientRect();
-    pickAt(rect.left + Number(m[1]) * rect.width, rect.top + Number(m[2]) * rect.height);
+    pickPoint(Number(m[1]), Number(m[2]), Number(m[3]));
     draw();
   }
   requestAnimationFrame(frame);
