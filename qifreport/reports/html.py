@@ -42,7 +42,7 @@ from qifreport import __version__
 from qifreport.metrology.inspection import InspectionResult
 from qifreport.qif.writer import Provenance
 
-from .context import clamp_markers, distinct_bands, vertex_bands
+from .context import clamp_markers, distinct_bands, map_views, vertex_bands
 from .kit import (
     FAIL_BG,
     PASS_BG,
@@ -60,7 +60,6 @@ from .render import (
     OUTLINE,
     band_outline,
     camera_frame,
-    choose_views,
     color_scale,
     deviation_colors,
 )
@@ -120,9 +119,8 @@ def html_page(
     max_points: int = MAX_SCAN_POINTS,
 ) -> str:
     """The HTML text of :func:`write_html` (one self-contained page)."""
-    lower, upper = vertex_bands(res)
-    scale = color_scale(res.deviation, lower, upper)
     data = viewer_data(res, prov, face_id=face_id, max_points=max_points)
+    scale = data["scale"]
     package = resources.files("qifreport.reports")
     script = package.joinpath("viewer.js").read_text(encoding="utf-8")
     style = package.joinpath("viewer.css").read_text(encoding="utf-8")
@@ -195,77 +193,9 @@ def viewer_data(
         q = np.clip(np.rint((X - origin) / step), 0, _LEVELS).astype("<u2")
         return _typed(q)
 
-    bands = res.bands
-    zones, governing = [], np.full(n, -1, dtype=np.int16)
-    covered = np.zeros(len(F), dtype=bool)
-    if bands is not None:
-        governing = np.asarray(bands.governing, dtype=np.int16)
-        results = {z.zone.key: z for z in res.zones}
-        for zone, mask in zip(bands.zones, bands.tri_masks, strict=True):
-            mask = np.asarray(mask, dtype=bool)
-            covered |= mask
-            z = results.get(zone.key)
-            zones.append(
-                _zone_entry(
-                    zone.key,
-                    zone.describe(),
-                    zone.lower,
-                    zone.upper,
-                    "" if z is None else zone_status(res, z),
-                    F[mask],
-                    None if face_id is None else np.asarray(face_id)[mask],
-                    index_type,
-                )
-            )
-    if not covered.all():  # triangles no zone covers: drawn, no tolerance to read out
-        rest = ~covered
-        zones.append(
-            _zone_entry(
-                "",
-                "no tolerance",
-                np.nan,
-                np.nan,
-                "",
-                F[rest],
-                None if face_id is None else np.asarray(face_id)[rest],
-                index_type,
-            )
-        )
+    governing = np.full(n, -1) if res.bands is None else np.asarray(res.bands.governing)
     tol = np.asarray(res.acceptance.tolerance, dtype=np.float64)
     default = float(np.nanmax(tol)) if tol.size else float("nan")
-    regions = []
-    for k, r in enumerate(res.acceptance.regions, start=1):
-        idx = np.asarray(r.vertices, dtype=np.int64)
-        X = V[idx]
-        anchor = X[np.argmin(((X - X.mean(axis=0)) ** 2).sum(axis=1))] if len(X) else r.centroid
-        regions.append(
-            {
-                "number": k,
-                "area": float(r.area),
-                "peak": float(r.peak),
-                "anchor": [float(a) for a in anchor],
-                "vertices": _typed(idx.astype(index_type)),
-            }
-        )
-    views = []
-    for k, v in enumerate(choose_views(V, F, dev, res.acceptance.regions, n_views=3)):
-        r, u, d = camera_frame(v)
-        x, y, z = V @ r, V @ u, V @ d
-        c = (
-            0.5 * (x.min() + x.max()) * r
-            + 0.5 * (y.min() + y.max()) * u
-            + 0.5 * (z.min() + z.max()) * d
-        )
-        views.append(
-            {
-                "name": f"{'ABC'[k]}: {v.name}",
-                "direction": d.tolist(),
-                "up": u.tolist(),
-                "center": c.tolist(),
-                "half_width": float(max(np.ptp(x), 1e-6) / 2),
-                "half_height": float(max(np.ptp(y), 1e-6) / 2),
-            }
-        )
     step_ids = prov.face_step_ids
     return {
         "part": prov.part_name,
@@ -277,20 +207,112 @@ def viewer_data(
         "colors": _typed(rgb),
         "deviation": _typed(dev.astype("<f4")),
         "governing": _typed(governing.astype("<i2")),
-        "zones": zones,
+        "zones": _zone_groups(res, face_id, index_type),
         "default_band": [-default, default] if np.isfinite(default) else None,
         "face_step_ids": None if step_ids is None else [int(s) for s in step_ids],
         "outline": quantised(outline) if len(outline) else None,
         "outline_color": _css(OUTLINE),
-        "regions": regions,
+        "regions": _regions(res, index_type),
         "markers": [
             {"name": str(name), "position": [float(a) for a in p]}
             for (name, _), p in zip(markers, M, strict=True)
         ],
         "points": {"positions": quantised(P), "shown": len(P), "total": len(res.P)},
-        "views": views,
+        "views": _views(res),
         "scale": scale,
     }
+
+
+def _zone_groups(res: InspectionResult, face_id: np.ndarray | None, index_type: type) -> list:
+    """One group of triangles per tolerance zone laid on the mesh (``res.bands``, in its
+    order: ``governing`` indexes it), and one of the triangles no zone covers, if any."""
+    F = np.asarray(res.F, dtype=np.int64)
+    fid = None if face_id is None else np.asarray(face_id)
+    covered = np.zeros(len(F), dtype=bool)
+    groups = []
+    if res.bands is not None:
+        results = {z.zone.key: z for z in res.zones}
+        for zone, mask in zip(res.bands.zones, res.bands.tri_masks, strict=True):
+            mask = np.asarray(mask, dtype=bool)
+            covered |= mask
+            z = results.get(zone.key)
+            status = "" if z is None else zone_status(res, z)
+            groups.append(
+                _zone_entry(
+                    zone.key,
+                    zone.describe(),
+                    zone.lower,
+                    zone.upper,
+                    status,
+                    F[mask],
+                    None if fid is None else fid[mask],
+                    index_type,
+                )
+            )
+    if not covered.all():  # drawn, with no tolerance to read out
+        rest = ~covered
+        groups.append(
+            _zone_entry(
+                "",
+                "no tolerance",
+                np.nan,
+                np.nan,
+                "",
+                F[rest],
+                None if fid is None else fid[rest],
+                index_type,
+            )
+        )
+    return groups
+
+
+def _regions(res: InspectionResult, index_type: type) -> list[dict]:
+    """The out-of-tolerance regions numbered as in the PDF (1 = the first of the list), each
+    with its vertices and an anchor for its number: its vertex nearest to their mean (mm, on
+    the registered nominal, so on the region)."""
+    V = np.asarray(res.V_registered, dtype=np.float64)
+    out = []
+    for k, r in enumerate(res.acceptance.regions, start=1):
+        idx = np.asarray(r.vertices, dtype=np.int64)
+        X = V[idx]
+        anchor = X[np.argmin(((X - X.mean(axis=0)) ** 2).sum(axis=1))] if len(X) else r.centroid
+        out.append(
+            {
+                "number": k,
+                "area": float(r.area),
+                "peak": float(r.peak),
+                "anchor": [float(a) for a in anchor],
+                "vertices": _typed(idx.astype(index_type)),
+            }
+        )
+    return out
+
+
+def _views(res: InspectionResult) -> list[dict]:
+    """The PDF's views A, B, C (:func:`~qifreport.reports.context.map_views`): direction
+    toward the camera, picture up, the centre of the part's extent and its half extents
+    across and up the picture, mm."""
+    V = np.asarray(res.V_registered, dtype=np.float64)
+    out = []
+    for k, v in enumerate(map_views(res)):
+        r, u, d = camera_frame(v)
+        x, y, z = V @ r, V @ u, V @ d
+        c = (
+            0.5 * (x.min() + x.max()) * r
+            + 0.5 * (y.min() + y.max()) * u
+            + 0.5 * (z.min() + z.max()) * d
+        )
+        out.append(
+            {
+                "name": f"{'ABC'[k]}: {v.name}",
+                "direction": d.tolist(),
+                "up": u.tolist(),
+                "center": c.tolist(),
+                "half_width": float(max(np.ptp(x), 1e-6) / 2),
+                "half_height": float(max(np.ptp(y), 1e-6) / 2),
+            }
+        )
+    return out
 
 
 def _zone_entry(
