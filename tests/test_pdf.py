@@ -526,7 +526,10 @@ def html_pages(tmp_path_factory, results, panel_nominal) -> dict[str, Path]:
 
 
 def _viewer_json(page: Path) -> dict:
-    text = page.read_text(encoding="utf-8")
+    return _viewer_json_text(page.read_text(encoding="utf-8"))
+
+
+def _viewer_json_text(text: str) -> dict:
     m = re.search(r'<script type="application/json" id="viewer-data">(.*?)</script>', text, re.S)
     return json.loads(m.group(1))
 
@@ -555,6 +558,19 @@ def test_html_is_one_offline_file(html_pages, results):
         res = results[name][0]
         assert '<div class="verdict" style="background:' in text
         assert f">{res.verdict}</div>" in text
+
+
+def test_html_escapes_what_the_files_name(results):
+    """A part or file name is text on the page, never markup: no script can come in."""
+    from qifreport.reports.html import html_page
+
+    res, prov = results["fail"]
+    evil = '</script><script>alert(1)</script><img src="http://x/y.png">&amp;'
+    page = html_page(res, dataclasses.replace(prov, part_name=evil, scan_path=evil))
+    assert "alert(1)" in page  # as text ...
+    assert "<script>alert" not in page and "<img" not in page  # ... never as markup
+    assert len(re.findall(r"<script\b", page)) == 3
+    assert _viewer_json_text(page)["part"] == evil
 
 
 def test_html_data_are_the_pdf_map(html_pages, results):

@@ -2,7 +2,7 @@
 
 trimesh (a declared dependency) bundles three.js (r140, MIT licence) with its
 ``TrackballControls`` and ``GLTFLoader`` in the template of its notebook viewer
-(``trimesh/resources/templates/viewer.zip``, used by
+(``trimesh/resources/templates/viewer.zip``, package data of trimesh, used by
 :func:`trimesh.viewer.notebook.scene_to_html`), so that viewer works offline. Its own viewer
 shows a mesh and nothing else (no readout, no toggles), so :mod:`qifreport.reports.html`
 uses only the library: :func:`three_js` returns three.js and its TrackballControls from that
@@ -19,11 +19,12 @@ from __future__ import annotations
 import functools
 import io
 import zipfile
+from importlib import resources
 
 __all__ = ["ThreeJsUnavailable", "three_js", "three_js_origin"]
 
 #: trimesh's packed viewer template and the member holding the page
-_ARCHIVE, _MEMBER = "templates/viewer.zip", "viewer.html.template"
+_ARCHIVE, _MEMBER = "resources/templates/viewer.zip", "viewer.html.template"
 #: the end of the TrackballControls module, which follows three.js in the template's script
 _CONTROLS_END = "THREE.TrackballControls=TrackballControls;})();"
 
@@ -49,11 +50,10 @@ def three_js() -> str:
     ThreeJsUnavailable
         The installed trimesh ships no such bundle.
     """
-    from trimesh import resources
-
     where = three_js_origin()
     try:
-        with zipfile.ZipFile(io.BytesIO(resources.get_bytes(_ARCHIVE))) as z:
+        packed = resources.files("trimesh").joinpath(_ARCHIVE).read_bytes()
+        with zipfile.ZipFile(io.BytesIO(packed)) as z:
             page = z.read(_MEMBER).decode("utf-8")
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
         raise ThreeJsUnavailable(
