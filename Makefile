@@ -25,14 +25,15 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
-# Debian packages the tests use: Xerces-C DOMCount (an independent QIF validator) and
-# poppler-utils (pdftoppm/pdftotext). Installed only when the commands are missing; if that
-# is impossible (no root/sudo, no apt) print a note and go on: the tests that need them then
+# Debian packages the tests use: Xerces-C DOMCount (an independent QIF validator),
+# poppler-utils (pdftoppm/pdftotext) and chromium (opens the --html viewer headless, WebGL on
+# SwiftShader: tests/browser.py). Installed only when the commands are missing; if that is
+# impossible (no root/sudo, no apt) print a note and go on: the tests that need them then
 # skip, or fail with a clear message under CI=true.
-SYSTEM_DEPS := libxerces-c-samples poppler-utils
+SYSTEM_DEPS := libxerces-c-samples poppler-utils chromium
 
 system-deps:
-	@if ! { command -v DOMCount && command -v pdftoppm; } >/dev/null 2>&1; then \
+	@if ! { command -v DOMCount && command -v pdftoppm && command -v chromium; } >/dev/null 2>&1; then \
 	  if [ "$$(id -u)" -eq 0 ]; then SUDO=; \
 	  elif command -v sudo >/dev/null 2>&1; then SUDO="sudo -n"; \
 	  else SUDO=none; fi; \
@@ -40,11 +41,11 @@ system-deps:
 	    $$SUDO apt-get update -qq && \
 	    $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_DEPS) >/dev/null; \
 	  fi; \
-	  if { command -v DOMCount && command -v pdftoppm; } >/dev/null 2>&1; then \
+	  if { command -v DOMCount && command -v pdftoppm && command -v chromium; } >/dev/null 2>&1; then \
 	    echo "installed $(SYSTEM_DEPS)"; \
 	  else \
 	    echo "note: could not install $(SYSTEM_DEPS) (needs apt-get as root or sudo);" \
-	         "DOMCount/pdftoppm tests will skip, or fail under CI=true"; \
+	         "DOMCount/pdftoppm/chromium tests will skip, or fail under CI=true"; \
 	  fi; \
 	fi
 
@@ -57,9 +58,9 @@ demo: install system-deps
 	mkdir -p $(OUT)
 	$(VENV)/bin/qifreport pmi samples/panel.step --clamps pmi
 	$(VENV)/bin/qifreport samples/panel.step samples/panel_scan.ply --out $(OUT) --json --force \
-	  --export-mesh $(OUT)/panel_registered.ply; rc=$$?; if [ $$rc -gt 1 ]; then exit $$rc; fi
+	  --html --export-mesh $(OUT)/panel_registered.ply; rc=$$?; if [ $$rc -gt 1 ]; then exit $$rc; fi
 	test -s $(OUT)/panel.json && test -s $(OUT)/panel.qif && test -s $(OUT)/panel.pdf \
-	  && test -s $(OUT)/panel_registered.ply
+	  && test -s $(OUT)/panel.html && test -s $(OUT)/panel_registered.ply
 	$(VENV)/bin/qifreport samples/shell_nominal.ply samples/shell_scan.ply --tolerance 0.5 \
 	  --out $(OUT) --json --force --export-mesh $(OUT)/shell_registered.ply; rc=$$?; \
 	  if [ $$rc -gt 1 ]; then exit $$rc; fi
@@ -71,14 +72,15 @@ demo: install system-deps
 	test -s $(OUT)/batch/summary.csv && test -s $(OUT)/batch/panel_statistics.qif \
 	  && test -s $(OUT)/batch/panel_trend.pdf
 	$(VENV)/bin/qifreport samples/panel.step samples/panel_scan_warped.ply \
-	  --clamps pmi --max-clamp-force 20 --material abs --out $(OUT)/restrained --json --force; \
-	  rc=$$?; if [ $$rc -gt 1 ]; then exit $$rc; fi
+	  --clamps pmi --max-clamp-force 20 --material abs --out $(OUT)/restrained --json --html \
+	  --force; rc=$$?; if [ $$rc -gt 1 ]; then exit $$rc; fi
 	test -s $(OUT)/restrained/panel.json && test -s $(OUT)/restrained/panel.qif \
-	  && test -s $(OUT)/restrained/panel.pdf
+	  && test -s $(OUT)/restrained/panel.pdf && test -s $(OUT)/restrained/panel.html
 	$(VENV)/bin/qifreport validate $(OUT)/panel.qif $(OUT)/shell_nominal.qif \
 	  $(OUT)/batch/panel_statistics.qif $(OUT)/restrained/panel.qif
 	@echo "demo outputs in $(OUT)/ (a two-scan batch of the panel in $(OUT)/batch/, the" \
-	  "panel held at its datum targets, ISO 10579, in $(OUT)/restrained/)"
+	  "panel held at its datum targets, ISO 10579, in $(OUT)/restrained/; open" \
+	  "$(OUT)/panel.html in any browser for the deviation map in 3-D)"
 
 # both cores of the CI machine, a test file per worker (module fixtures stay in one process)
 test: install system-deps

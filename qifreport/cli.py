@@ -132,6 +132,12 @@ def add_inspect_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         help="do not write DIR/<nominal>.pdf (the one-page conformance report)",
     )
     ap.add_argument(
+        "--html",
+        action="store_true",
+        help="also write DIR/<nominal>.html: the deviation map in 3-D with a readout at the "
+        "pointer (one self-contained file: any browser, offline)",
+    )
+    ap.add_argument(
         "--page",
         choices=["A4", "Letter"],
         default="A4",

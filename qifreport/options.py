@@ -42,6 +42,7 @@ RESULT_OPTIONS = (
     "scan_units",
     "no_qif",
     "no_pdf",
+    "html",
     "page",
     "author",
     "organization",
@@ -120,6 +121,8 @@ class InspectOptions:
     solid : STEP: the solid to inspect in a file with several, index or name.
     scan_units : ``"mm"``, ``"in"``, ``"m"`` or None (mm; E57 m).
     no_qif, no_pdf : leave out the QIF document / the PDF report.
+    html : also write the interactive deviation map ``<stem>.html``
+        (:mod:`qifreport.reports.html`).
     page : PDF paper size, ``"A4"`` or ``"Letter"``.
     author, organization, operator : QIF header and traceability fields.
     min_fraction : area criterion, in-tolerance fraction of the scored area (0, 1].
@@ -162,6 +165,7 @@ class InspectOptions:
     scan_units: str | None = None
     no_qif: bool = False
     no_pdf: bool = False
+    html: bool = False
     page: str = "A4"
     author: str | None = None
     organization: str | None = None
@@ -381,12 +385,14 @@ class InspectJob:
             seen[key] = kind
 
     def output_paths(self) -> dict[str, Path]:
-        """The files this job writes: ``qif``, ``pdf``, ``json``, ``mesh`` (those asked for)."""
+        """The files this job writes: ``qif``, ``pdf``, ``html``, ``json``, ``mesh`` (those
+        asked for)."""
         stem = self.nominal.stem if self.stem is None else self.stem
         o = self.options
         out = {
             "qif": None if o.no_qif else self.out / f"{stem}.qif",
             "pdf": None if o.no_pdf else self.out / f"{stem}.pdf",
+            "html": self.out / f"{stem}.html" if o.html else None,
             "json": self.out / f"{stem}.json" if self.json else None,
             "mesh": self.export_mesh,
         }

@@ -6,7 +6,8 @@ the prepared part from their parent and return the outputs' bytes instead of wri
 
 Outputs (``job.out``, all or none): ``<stem>.qif``, the QIF 3.0 results document, validated
 against the official schemas before it is published (never called valid when the schemas are
-missing); ``<stem>.pdf``, the one-page conformance report; with ``json`` the summary
+missing); ``<stem>.pdf``, the one-page conformance report; with ``html`` the interactive
+deviation map ``<stem>.html`` (:mod:`qifreport.reports.html`); with ``json`` the summary
 ``<stem>.json`` (``schemas/summary-1.schema.json``); with ``export_mesh`` the registered
 nominal as PLY with a per-vertex ``deviation``.
 """
@@ -467,14 +468,15 @@ def output_writers(
 
     ``job`` gives the names recorded in the outputs (``nominal``, ``scan``), the header
     fields (options ``author``, ``organization``, ``operator``; ``serial``) and the choices
-    (``no_qif``, ``no_pdf``, ``json``, ``page``); ``paths`` is ``job.output_paths()``;
+    (``no_qif``, ``no_pdf``, ``html``, ``json``, ``page``); ``paths`` is
+    ``job.output_paths()``;
     ``scan_report`` (:func:`scan_input`) is the JSON summary's ``scan_input`` block.
     """
     o = job.options
     outputs: list = []
     qif_state = None
     prov = None
-    if not (o.no_qif and o.no_pdf):
+    if not (o.no_qif and o.no_pdf) or o.html:
         from qifreport.qif.writer import Provenance
 
         prov = Provenance(
@@ -508,6 +510,10 @@ def output_writers(
         outputs.append(
             (paths["pdf"], lambda p: write_pdf(p, res, prov, page=o.page, qif_name=qif_name))
         )
+    if o.html:
+        from .reports.html import write_html
+
+        outputs.append((paths["html"], lambda p: write_html(p, res, prov, face_id=nom.face_id)))
     if job.json:
         doc = res.to_dict()
         doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}

@@ -82,15 +82,17 @@ def records(out: Path) -> dict[str, dict]:
     }
 
 
-def check_complete(out: Path) -> pd.DataFrame:
-    """Every scan has its record and outputs; the summary has a row for each, in order."""
+def check_complete(out: Path, html: bool = False) -> pd.DataFrame:
+    """Every scan has its record and outputs (with ``html``, its HTML viewer too, in the
+    record's outputs); the summary has a row for each, in order."""
     rec = records(out)
     assert sorted(rec) == sorted([*GOOD, "broken"])
     for name in GOOD:
         r = rec[name]
         assert r["ok"], r
-        for ext in ("qif", "pdf", "json"):
+        for ext in ("qif", "pdf", "json", *(("html",) if html else ())):
             assert (out / "scans" / f"{name}.{ext}").stat().st_size > 1000
+        assert (f"{name}.html" in r["outputs"]) == html, r["outputs"]
     assert not rec["broken"]["ok"] and "broken.ply" in rec["broken"]["error"]
     assert "\n" not in rec["broken"]["error"]
     assert not list((out / "scans").glob("broken.*[!n]"))  # only its record
@@ -178,10 +180,10 @@ def test_plan_folders_globs_and_manifest(scans, tmp_path):
 @pytest.mark.slow
 def test_local_batch_records_everything_and_resumes(scans, tmp_path):
     out = tmp_path / "out"
-    rc, stdout, stderr = finish(batch(scans, "--out", out, "--jobs", "2"))
+    rc, stdout, stderr = finish(batch(scans, "--out", out, "--jobs", "2", "--html"))
     assert rc == 1, stdout + stderr  # a FAIL and an ERROR among the scans
     assert "6 scans: 4 PASS, 1 FAIL, 0 NOT ESTABLISHED, 1 ERROR (6 inspected now" in stdout
-    df = check_complete(out)
+    df = check_complete(out, html=True)
     assert df["worker"].nunique() == 2  # two processes shared the work
     # a batch output is what the single-scan command writes for that scan
     from qifreport.qif.reader import read_results
@@ -197,12 +199,19 @@ def test_local_batch_records_everything_and_resumes(scans, tmp_path):
             "--out",
             one,
             "--json",
+            "--html",
             "--quiet",
         ],
         capture_output=True,
         text=True,
     )
     assert r.returncode == 1, r.stderr
+    # --html writes the viewer with the other outputs, as the batch does for each scan
+    assert sorted(p.name for p in one.iterdir()) == [
+        f"shell_nominal.{ext}" for ext in ("html", "json", "pdf", "qif")
+    ]
+    page = (one / "shell_nominal.html").read_text(encoding="utf-8")
+    assert ">FAIL</div>" in page and 'id="viewer-data"' in page
     a = read_results(one / "shell_nominal.qif")
     b = read_results(out / "scans" / "shell_scan_defect.qif")
     assert a.status == b.status == "FAIL"
@@ -218,17 +227,19 @@ def test_local_batch_records_everything_and_resumes(scans, tmp_path):
         assert_close(ja[key], jb[key], key)
     # the same command again does no work and rewrites nothing
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}
-    rc, stdout, _ = finish(batch(scans, "--out", out, "--jobs", "2"))
+    rc, stdout, _ = finish(batch(scans, "--out", out, "--jobs", "2", "--html"))
     assert rc == 1 and "(0 inspected now, 6 done earlier)" in stdout, stdout
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
     # a changed scan is redone, alone; --retry-failed retries the corrupt file
     P = load_scan(scans / "noisy_2.ply")
     trimesh.PointCloud(P + 0.001).export(scans / "noisy_2.ply")
-    rc, stdout, _ = finish(batch(scans, "--out", out, "--jobs", "1", "--retry-failed"))
+    rc, stdout, _ = finish(batch(scans, "--out", out, "--jobs", "1", "--retry-failed", "--html"))
     assert "(2 inspected now, 4 done earlier)" in stdout, stdout
     assert records(out)["noisy_2"]["ok"]
     # a re-run over a subset inspects nothing and summarises just that subset
-    rc, stdout, _ = finish(batch(scans / "noisy_0.ply", scans / "shell_scan.ply", "--out", out))
+    rc, stdout, _ = finish(
+        batch(scans / "noisy_0.ply", scans / "shell_scan.ply", "--out", out, "--html")
+    )
     assert rc == 0 and "2 scans: 2 PASS" in stdout and "(0 inspected now, 2 done" in stdout
     assert list(pd.read_csv(out / "summary.csv")["id"]) == ["noisy_0", "shell_scan"]
 

@@ -76,6 +76,8 @@ def test_wheel_has_one_top_level_package_and_the_json_schema(wheel):
     roots = {n.split("/")[0] for n in names if not n.split("/")[0].endswith(".dist-info")}
     assert roots == {"qifreport"}, roots
     assert "qifreport/schemas/summary-1.schema.json" in names
+    # the HTML viewer's own script and style (package data of qifreport.reports)
+    assert {"qifreport/reports/viewer.js", "qifreport/reports/viewer.css"} <= set(names)
     for sub in ("step", "registration", "metrology", "qif", "batch", "reports"):
         assert f"qifreport/{sub}/__init__.py" in names, sub
     assert not [n for n in names if n.endswith(".xsd")], "the QIF XSDs must never be shipped"
@@ -112,6 +114,7 @@ def test_installed_copy_inspects_the_sample_panel(installed, tmp_path):
             "--out",
             str(out),
             "--json",
+            "--html",
             "--quiet",
         ],
         cwd=tmp_path,
@@ -121,6 +124,12 @@ def test_installed_copy_inspects_the_sample_panel(installed, tmp_path):
     doc = json.loads((out / "panel.json").read_text())
     assert doc["verdict"] == "PASS" and doc["qif"]["valid"] is True, doc["qif"]
     assert (out / "panel.pdf").stat().st_size > 10_000
+    # the HTML viewer from the installed copy: its script and three.js inside, under 5 MB
+    size = (out / "panel.html").stat().st_size
+    print(f"panel.html: {size / 1e6:.2f} MB")
+    page = (out / "panel.html").read_text(encoding="utf-8")
+    assert 500_000 < size < 5_000_000 and "THREE.TrackballControls" in page
+    assert "function pickAt" in page and 'id="viewer-data"' in page
 
 
 def test_installed_copy_without_xsds_says_where_to_put_them(installed, tmp_path):

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import json
 import re
 import subprocess
 from datetime import datetime, timedelta, timezone
@@ -72,11 +73,18 @@ def _produce(d: Path, name: str, res, prov: Provenance, page: str = "A4") -> Out
 
 
 @pytest.fixture(scope="module")
-def results(shell, shell_case, shell_case_defect):
+def panel_nominal():
+    """The STEP panel as the CLI reads it (default max edge: diagonal / 60)."""
+    from qifreport.nominal import load_nominal
+
+    return load_nominal(ROOT / "samples/panel.step", None, None)
+
+
+@pytest.fixture(scope="module")
+def results(shell, shell_case, shell_case_defect, panel_nominal):
     """name -> (InspectionResult, Provenance): a passing shell, a failing shell and the STEP
     panel (two PMI profile tolerances, two PMI items not scored), inspected as the CLI does."""
     from qifreport.metrology.inspection import InspectionParams, inspect
-    from qifreport.nominal import load_nominal
     from qifreport.registration.pointcloud import load_scan
 
     V, F = shell
@@ -85,7 +93,7 @@ def results(shell, shell_case, shell_case_defect):
     out["pass"] = (res, _prov("shell", "shell.ply", "shell_scan.npy"))
     res = inspect(V, F, shell_case_defect.P, InspectionParams(tolerance=0.3))
     out["fail"] = (res, _prov("shell", "shell.ply", "shell_defect.npy"))
-    nom = load_nominal(ROOT / "samples/panel.step", None, None)  # default max edge: diag/60
+    nom = panel_nominal
     P = load_scan(ROOT / "samples/panel_scan_defect.ply")
     res = inspect(
         nom.V,
@@ -96,7 +104,8 @@ def results(shell, shell_case, shell_case_defect):
         zones=nom.zones,
         not_evaluated=nom.not_evaluated,
     )
-    out["panel"] = (res, _prov("panel", "samples/panel.step", "samples/panel_scan_defect.ply"))
+    prov = _prov("panel", "samples/panel.step", "samples/panel_scan_defect.ply")
+    out["panel"] = (res, dataclasses.replace(prov, face_step_ids=nom.face_step_ids))
     return out
 
 
@@ -493,3 +502,225 @@ def test_fallback_when_vtk_cannot_render(results, monkeypatch, caplog):
             size=(64, 48),
             backend="vtk",
         )
+
+
+# ------------------------------------------------------------------- the HTML viewer
+# The same inspections as the PDF's, written as the interactive page (``--html``) and opened
+# in real headless Chromium with software WebGL (tests/browser.py).
+
+HTML_WINDOW = (1100, 700)
+
+
+@pytest.fixture(scope="module")
+def html_pages(tmp_path_factory, results, panel_nominal) -> dict[str, Path]:
+    """name -> the HTML page of each result (the panel with its B-rep faces)."""
+    from qifreport.reports.html import write_html
+
+    d = tmp_path_factory.mktemp("html")
+    pages = {}
+    for name, (res, prov) in results.items():
+        pages[name] = d / f"{name}.html"
+        face_id = panel_nominal.face_id if name == "panel" else None
+        write_html(pages[name], res, prov, face_id=face_id)
+    return pages
+
+
+def _viewer_json(page: Path) -> dict:
+    return _viewer_json_text(page.read_text(encoding="utf-8"))
+
+
+def _viewer_json_text(text: str) -> dict:
+    m = re.search(r'<script type="application/json" id="viewer-data">(.*?)</script>', text, re.S)
+    return json.loads(m.group(1))
+
+
+def _typed(a: dict) -> np.ndarray:
+    import base64
+
+    kinds = {"u8": "<u1", "u16": "<u2", "u32": "<u4", "i16": "<i2", "i32": "<i4", "f32": "<f4"}
+    return np.frombuffer(base64.b64decode(a["data"]), dtype=kinds[a["dtype"]])
+
+
+def test_html_is_one_offline_file(html_pages, results):
+    """Nothing is fetched: no script or stylesheet from anywhere (every script inline), no
+    link, no CSS import; the sample panel's page is far below 5 MB; the verdict is there."""
+    for name, page in html_pages.items():
+        text = page.read_text(encoding="utf-8")
+        size = page.stat().st_size
+        print(f"{name}: {size / 1e6:.2f} MB")
+        assert size < (5e6 if name == "panel" else 2e6), (name, size)
+        scripts = re.findall(r"<script\b[^>]*>", text, re.I)
+        assert len(scripts) == 3 and not [s for s in scripts if "src" in s.lower()], scripts
+        assert not re.search(r"<link\b", text, re.I)
+        assert not re.search(r"""(?:src|href)\s*=\s*["']?\s*(?:https?:)?//""", text, re.I)
+        assert not re.search(r"""url\(\s*["']?\s*(?:https?:)?//|@import""", text, re.I)
+        assert "Three.js Authors" in text and "SPDX-License-Identifier: MIT" in text
+        res = results[name][0]
+        assert '<div class="verdict" style="background:' in text
+        assert f">{res.verdict}</div>" in text
+
+
+def test_html_escapes_what_the_files_name(results):
+    """A part or file name is text on the page, never markup: no script can come in."""
+    from qifreport.reports.html import html_page
+
+    res, prov = results["fail"]
+    evil = '</script><script>alert(1)</script><img src="http://x/y.png">&amp;'
+    page = html_page(res, dataclasses.replace(prov, part_name=evil, scan_path=evil))
+    assert "alert(1)" in page  # as text ...
+    assert "<script>alert" not in page and "<img" not in page  # ... never as markup
+    assert len(re.findall(r"<script\b", page)) == 3
+    assert _viewer_json_text(page)["part"] == evil
+
+
+def test_html_data_are_the_pdf_map(html_pages, results):
+    """The page carries the PDF's map: the same deviations (float32), the PDF's colours under
+    each vertex's band, every triangle in a zone's group, the regions numbered in the PDF's
+    order, positions within half a quantisation step."""
+    from qifreport.reports.render import GREY
+
+    for name, page in html_pages.items():
+        res = results[name][0]
+        d = _viewer_json(page)
+        V = np.asarray(res.V_registered)
+        q = _typed(d["positions"]).reshape(-1, 3)
+        X = np.asarray(d["frame"]["origin"]) + q * np.asarray(d["frame"]["step"])
+        assert np.all(np.abs(X - V) <= 0.51 * np.asarray(d["frame"]["step"]))
+        dev = _typed(d["deviation"])
+        np.testing.assert_array_equal(dev, res.deviation.astype(np.float32))
+        rgb = _typed(d["colors"]).reshape(-1, 3).astype(int)
+        lo, hi = res.bands.lower, res.bands.upper
+        nan = ~np.isfinite(res.deviation)
+        assert np.all(rgb[nan] == np.round(np.asarray(GREY) * 255).astype(int))
+        with np.errstate(invalid="ignore"):
+            inside, proud = (res.deviation >= lo) & (res.deviation <= hi), res.deviation > hi
+        r, g, b = rgb.T
+        assert np.all(g[inside] > r[inside]) and np.all(r[proud] > g[proud] + 50)
+        assert (proud.any() or name == "pass") and not (name == "pass" and proud.any())
+        gov = _typed(d["governing"])
+        np.testing.assert_array_equal(gov, res.bands.governing)
+        tris = np.concatenate([_typed(z["index"]).reshape(-1, 3) for z in d["zones"]])
+        assert _triangle_set(tris) == _triangle_set(res.F)
+        assert [z["key"] for z in d["zones"]] == [z.key for z in res.bands.zones]
+        regs = res.acceptance.regions
+        assert [r["number"] for r in d["regions"]] == list(range(1, len(regs) + 1))
+        for r, want in zip(d["regions"], regs, strict=True):
+            assert r["area"] == want.area and r["peak"] == want.peak
+            np.testing.assert_array_equal(_typed(r["vertices"]), np.asarray(want.vertices))
+        assert d["points"]["shown"] == min(len(res.P), 20_000)
+
+
+def _triangle_set(T: np.ndarray) -> set:
+    return set(map(tuple, np.sort(np.asarray(T), axis=1).tolist()))
+
+
+def _map_pixels(img: np.ndarray) -> np.ndarray:
+    """The map of a page screenshot (right of the side panel)."""
+    from qifreport.reports.html import PANEL_WIDTH_PX
+
+    return img[:, PANEL_WIDTH_PX + 2 :]
+
+
+def _part_mask(img: np.ndarray) -> np.ndarray:
+    """The scored part's pixels: green, red or blue (the grey of the unscored rim is left
+    out: the anti-aliased text and axes of the PDF's map are grey too)."""
+    px = img.reshape(-1, 3)
+    return (_green(px) | _red(px) | _blue(px)).reshape(img.shape[:2])
+
+
+def _red_in_part(img: np.ndarray) -> tuple[float, np.ndarray]:
+    """The red share of the part's pixels, and the red pixels' centroid as fractions of the
+    part's bounding box (x right, y down)."""
+    part = _part_mask(img)
+    red = _red(img.reshape(-1, 3)).reshape(img.shape[:2])
+    ys, xs = np.nonzero(part)
+    ry, rx = np.nonzero(red)
+    if len(rx) == 0:
+        return 0.0, np.full(2, np.nan)
+    frac = np.array([(rx.mean() - xs.min()) / np.ptp(xs), (ry.mean() - ys.min()) / np.ptp(ys)])
+    return len(rx) / part.sum(), frac
+
+
+def test_html_map_in_chromium(html_pages, reports, tmp_path):
+    """Real Chromium draws the pages with WebGL: the failing shell green and red, the red
+    region as large a share of the part and in the same place as on the PDF's map A (the
+    page opens in the PDF's first view); the passing shell green, no red, no blue."""
+    from PIL import Image
+
+    from tests.browser import screenshot
+
+    fail = _map_pixels(screenshot(html_pages["fail"], tmp_path / "fail.png", HTML_WINDOW))
+    Image.fromarray(fail.astype(np.uint8)).save(tmp_path / "fail_map.png")
+    px = fail.reshape(-1, 3)
+    assert _green(px).sum() > 20_000, _green(px).sum()
+    share, where = _red_in_part(fail)
+    o = reports["fail"]
+    lay = plan_layout(o.res, o.prov)
+    box = lay.maps[0]
+    pdf = np.asarray(Image.open(o.png).convert("RGB")).astype(int)
+    s = DPI / 72.0
+    pdf_map = pdf[
+        int(np.ceil((lay.height - box.top) * s)) + 2 : int(np.floor((lay.height - box.y) * s)) - 2,
+        int(np.ceil(box.x * s)) + 2 : int(np.floor((box.x + box.w) * s)) - 2,
+    ]
+    pdf_share, pdf_where = _red_in_part(pdf_map)
+    print(f"red share {share:.4f} (PDF {pdf_share:.4f}) at {where} (PDF {pdf_where})")
+    assert 0.002 < share < 0.05
+    assert 0.5 < share / pdf_share < 2.0
+    assert np.all(np.abs(where - pdf_where) < 0.03), (where, pdf_where)
+    ok = _map_pixels(screenshot(html_pages["pass"], tmp_path / "pass.png", HTML_WINDOW))
+    px = ok.reshape(-1, 3)
+    assert _green(px).sum() > 20_000
+    assert _red(px).sum() == 0 and _blue(px).sum() == 0, (_red(px).sum(), _blue(px).sum())
+
+
+def _readout(dom: str) -> tuple[dict, str]:
+    m = re.search(r'<div id="readout"([^>]*)>(.*?)</div><div id="msg"', dom, re.S)
+    assert m, "no readout in the page"
+    attrs = dict(re.findall(r'data-([a-z]+)="([^"]*)"', m.group(1)))
+    return attrs, re.sub(r"<[^>]+>", " ", m.group(2))
+
+
+def test_html_readout_in_chromium(html_pages, results, panel_nominal):
+    """Picking the part (``#at=X,Y,Z``) reads out the vertex's own deviation, tolerance,
+    region and B-rep face: on the failing shell's region 1 (its centroid, as the PDF prints
+    it) the readout is region 1, out of tolerance, proud; on the panel's face the face and its
+    STEP id."""
+    from tests.browser import dump_dom
+
+    res = results["fail"][0]
+    reg = res.acceptance.regions[0]
+    c = reg.centroid
+    dom = dump_dom(html_pages["fail"], HTML_WINDOW, f"#at={c[0]:.3f},{c[1]:.3f},{c[2]:.3f}")
+    assert 'data-status="drawn"' in dom
+    attrs, text = _readout(dom)
+    v = int(attrs["vertex"])
+    assert float(attrs["deviation"]) == pytest.approx(float(res.deviation[v]), rel=1e-6)
+    assert res.deviation[v] > res.bands.upper[v]
+    assert attrs["region"] == "1" and v in set(reg.vertices.tolist())
+    assert attrs["zone"] == res.bands.zones[res.bands.governing[v]].key == "general"
+    assert "out of tolerance: proud" in text and re.search(r"region\s+1 \(", text)
+    assert np.linalg.norm(res.V_registered[v, :2] - c[:2]) < 3.0  # picked where asked
+    # the panel: the highest vertex inside one face, as seen from view A
+    res, prov = results["panel"]
+    page = html_pages["panel"]
+    d = np.asarray(_viewer_json(page)["views"][0]["direction"])
+    fid = panel_nominal.face_id
+    F = np.asarray(res.F)
+    n = len(res.V)
+    lo = np.full(n, np.iinfo(np.int64).max)
+    hi = np.full(n, -1)
+    np.minimum.at(lo, F.ravel(), np.repeat(fid, 3))
+    np.maximum.at(hi, F.ravel(), np.repeat(fid, 3))
+    inner = (lo == hi) & np.isfinite(res.deviation)
+    height = np.where(inner, res.V_registered @ d, -np.inf)
+    top = int(np.argmax(height))
+    p = res.V_registered[top]
+    dom = dump_dom(page, HTML_WINDOW, f"#at={p[0]:.4f},{p[1]:.4f},{p[2]:.4f}")
+    attrs, text = _readout(dom)
+    v = int(attrs["vertex"])
+    assert attrs["face"] == str(lo[top]), (attrs, lo[top])
+    assert f"B-rep face {lo[top]} (STEP #{prov.face_step_ids[lo[top]]})" in text
+    assert float(attrs["deviation"]) == pytest.approx(float(res.deviation[v]), rel=1e-6)
+    assert attrs["zone"] == res.bands.zones[res.bands.governing[v]].key
+    assert attrs["zone"] in text and "in tolerance" in text

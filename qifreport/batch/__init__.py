@@ -16,16 +16,16 @@ Work
     this process does all the file writing.
 
 Outputs (``DIR``)
-    ``scans/<id>.qif``, ``.pdf``, ``.json``: exactly what ``qifreport NOMINAL SCAN --json``
-    writes, and ``scans/<id>.record.json``: the scan's summary row and the digest of
-    everything that made it (scan and nominal SHA-256, the inspection options, the
-    software version). The record is renamed into place last, after the outputs, so it
-    marks a finished scan. A scan that cannot be inspected (bad file, pose not established,
-    internal error) gets a record with its one-line error and no other output; it does not
-    stop the batch. ``summary.csv`` and ``summary.parquet`` hold one row per scan in plan
-    order; per nominal, ``<part>_statistics.qif`` (the QIF 3.0 Statistics document,
-    :mod:`qifreport.qif.statistics`) and ``<part>_trend.pdf`` (run charts,
-    :mod:`qifreport.reports.trend`). Every file is written atomically.
+    ``scans/<id>.qif``, ``.pdf``, ``.json`` (and ``.html`` with ``--html``): exactly what
+    ``qifreport NOMINAL SCAN --json`` writes, and ``scans/<id>.record.json``: the scan's summary row
+    and the digest of everything that made it (scan and nominal SHA-256, the inspection options, the
+    software version). The record is renamed into place last, after the outputs, so it marks a
+    finished scan. A scan that cannot be inspected (bad file, pose not established, internal error)
+    gets a record with its one-line error and no other output; it does not stop the batch.
+    ``summary.csv`` and ``summary.parquet`` hold one row per scan in plan order; per nominal,
+    ``<part>_statistics.qif`` (the QIF 3.0 Statistics document, :mod:`qifreport.qif.statistics`) and
+    ``<part>_trend.pdf`` (run charts, :mod:`qifreport.reports.trend`). Every file is written
+    atomically.
 
 Resume
     Running the same command again skips every scan whose record and outputs exist and

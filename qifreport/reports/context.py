@@ -17,9 +17,9 @@ from qifreport.metrology.inspection import InspectionResult
 from qifreport.qif.writer import Provenance
 
 from .kit import ReportPage
-from .render import camera_frame, choose_views, color_scale
+from .render import ViewSpec, camera_frame, choose_views, color_scale
 
-__all__ = ["ReportContext", "vertex_bands", "distinct_bands"]
+__all__ = ["ReportContext", "clamp_markers", "distinct_bands", "map_views", "vertex_bands"]
 
 
 def vertex_bands(res: InspectionResult) -> tuple[np.ndarray, np.ndarray]:
@@ -69,6 +69,26 @@ def distinct_bands(res: InspectionResult) -> list[tuple[float, float, list[str]]
     return out
 
 
+def map_views(res: InspectionResult) -> list[ViewSpec]:
+    """The views of the deviation map, A, B, C in order (two or three,
+    :func:`~qifreport.reports.render.choose_views` on the registered nominal and its
+    regions): the PDF's maps and the HTML viewer's view buttons."""
+    return choose_views(res.V_registered, res.F, res.deviation, res.acceptance.regions, n_views=3)
+
+
+def clamp_markers(res: InspectionResult) -> list[tuple[str, tuple]]:
+    """The clamps of a restrained inspection for the maps: ``(label, (x, y, z) mm)``, each
+    named with its force (N) when the material was stated and it bears 0.01 N or more (the
+    page's clamp-force table is on the map); empty for an inspection not held at clamps."""
+    r = res.restraint
+    if r is None:
+        return []
+    return [
+        (f"{c.name} {f:.2g} N" if r.forces_known and f >= 0.01 else c.name, c.position)
+        for c, f in zip(r.clamps, r.force, strict=True)
+    ]
+
+
 class ReportContext(ReportPage):
     """The inspection page's inputs and the facts derived from them once.
 
@@ -101,9 +121,7 @@ class ReportContext(ReportPage):
         self.lower, self.upper = vertex_bands(res)
         self.scale = color_scale(res.deviation, self.lower, self.upper)
         self.bands = distinct_bands(res)
-        self.views = choose_views(
-            res.V_registered, res.F, res.deviation, res.acceptance.regions, n_views=3
-        )
+        self.views = map_views(res)
         Vr = np.asarray(res.V_registered, dtype=float)
         self.spans = []
         for v in self.views:

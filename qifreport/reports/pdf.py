@@ -51,7 +51,7 @@ from qifreport import __version__
 from qifreport.metrology.inspection import InspectionResult
 from qifreport.qif.writer import Provenance
 
-from .context import ReportContext
+from .context import ReportContext, clamp_markers
 from .header import HEADER_H, decision_lines, draw_decision, draw_header
 from .kit import FONT, Box, Table, draw_table, fmt_area, fmt_mm, fmt_pct, fmt_smm
 from .maps import colorbar_height, draw_colorbar, draw_maps, layout_score, map_boxes, map_margins
@@ -363,19 +363,6 @@ def write_pdf(
     )
 
 
-def _clamp_markers(res: InspectionResult) -> list[tuple[str, tuple]]:
-    """The clamps of a restrained inspection for the maps, each named with its force (N)
-    when the material was stated and it bears 0.01 N or more: the page's clamp-force table
-    is on the map."""
-    r = res.restraint
-    if r is None:
-        return []
-    return [
-        (f"{c.name} {f:.2g} N" if r.forces_known and f >= 0.01 else c.name, c.position)
-        for c, f in zip(r.clamps, r.force, strict=True)
-    ]
-
-
 def write_report(
     path: Path,
     res: InspectionResult,
@@ -412,7 +399,7 @@ def write_report(
         scale=lay.scale,
         backend=backend,
         margin=[map_margins(b) for b in lay.maps],
-        markers=_clamp_markers(res),
+        markers=clamp_markers(res),
     )
     t2 = time.perf_counter()
     rep.draw(path, lay, views)

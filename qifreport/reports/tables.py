@@ -9,7 +9,7 @@
 
 from __future__ import annotations
 
-from qifreport.metrology.inspection import InspectionResult
+from qifreport.metrology.inspection import InspectionResult, ZoneResult
 from qifreport.qif.writer import profile_value
 
 from .kit import Table, fit_text, fmt_area, fmt_band, fmt_mm, fmt_pct, fmt_smm, join_names
@@ -20,6 +20,7 @@ __all__ = [
     "pick_tolerances",
     "region_table",
     "tolerance_table",
+    "zone_status",
 ]
 
 
@@ -27,6 +28,19 @@ def _fmt_coord(x: float) -> str:
     """A coordinate in mm, 1 decimal, never ``-0.0``."""
     s = f"{float(x):.1f}"
     return "0.0" if s == "-0.0" else s
+
+
+def zone_status(res: InspectionResult, z: ZoneResult) -> str:
+    """A toleranced surface's result as the reports print it: ``PASS``, ``FAIL``, ``n/m``
+    (not measured: too little of it scored) or ``n/e`` (its criteria are met but the
+    registration is not trusted, or it lies on a limit within the uncertainty)."""
+    if not z.acceptance.scored_area > 0:
+        return "n/m"
+    if z.failed:
+        return "FAIL"
+    if not z.measured:
+        return "n/m"
+    return "n/e" if (not res.established or z.uncertain) else "PASS"
 
 
 def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
@@ -53,7 +67,6 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
     zones = res.zones
     shown = pick_tolerances(res, limit)
     rows, emph = [], []
-    untrusted = not res.established  # a zone's criteria met: "n/e", not PASS
     for i in shown:
         z = zones[i]
         zone, acc, s = z.zone, z.acceptance, z.stats
@@ -63,17 +76,7 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
             desc = desc[:cut] + desc[desc.find("]", cut) + 1 :]
         if not z.fixtured:
             desc += ", free state"
-        status = (
-            "n/m"
-            if not acc.scored_area > 0
-            else "FAIL"
-            if z.failed
-            else "n/m"
-            if not z.measured
-            else "PASS"
-            if not (untrusted or z.uncertain)
-            else "n/e"
-        )
+        status = zone_status(res, z)
         nreg = len(acc.regions)
         rows.append(
             [
@@ -103,7 +106,7 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
             "\u2014 every tolerance is in "
             "the QIF file"
         )
-    if untrusted:
+    if not res.established:
         note = (
             "n/e = criteria met, not established (registration not trusted; see the "
             "warning). " + note
