@@ -74,6 +74,7 @@ __all__ = [
     "measure_characteristics",
     "per_unit",
     "specs_from_pmi",
+    "zone_uncertainty",
 ]
 
 #: the geometric tolerance types measured here (surface profiles are zones: :mod:`.bands`)
@@ -663,9 +664,31 @@ def _judge(res: CharacteristicResult, rule: str, lo: float | None, hi: float | N
             res.reason = f"{v:.4g} > {hi:g}"
 
 
-def _extremes_U(residuals: np.ndarray, U: np.ndarray) -> float:
-    """Expanded uncertainty of a zone width: its two extreme points' in quadrature."""
-    return float(np.hypot(U[np.argmax(residuals)], U[np.argmin(residuals)]))
+def zone_uncertainty(residuals: np.ndarray, U: np.ndarray) -> float:
+    """Expanded uncertainty (mm) of a zone width: its two extremes' in quadrature.
+
+    ``residuals`` (m,) mm: the points' signed distances from the fitted feature; ``U`` (m,)
+    mm: each point's expanded uncertainty (k = 2).
+
+    Each extreme's U is that of the points near it, weighted by how near: ``w = 1 - d / h``
+    for a point ``d`` below the extreme (mm), ``h`` the median U, none beyond ``h``. A
+    point that stands out by more than ``h`` gives its own U, as before. Where several points
+    nearly tie, which one is the extreme is itself within the measurement's uncertainty, and
+    the zone's U is their weighted U: a continuous function of the residuals. (The extreme
+    point's U alone jumped by a third when round-off, a 1e-13 mm change of the fit, picked
+    the other of two tied points of the sample panel's flatness G2.)
+    """
+    r = np.asarray(residuals, dtype=np.float64)
+    U = np.asarray(U, dtype=np.float64)
+    h = float(np.median(U))
+    if not h > 0.0:
+        return float(np.hypot(U[np.argmax(r)], U[np.argmin(r)]))
+
+    def side(d: np.ndarray) -> float:
+        w = np.clip(1.0 - d / h, 0.0, None)
+        return float(w @ U / w.sum())
+
+    return float(np.hypot(side(r.max() - r), side(r - r.min())))
 
 
 def _fit_U(U: np.ndarray, n_params: int = 1) -> float:
@@ -695,7 +718,7 @@ def _sections(z: np.ndarray, n_min: int = _SECTION_POINTS) -> list[np.ndarray]:
 
 def _form(fit, U: np.ndarray, how: str) -> tuple:
     """A minimum-zone form reading: value, least squares, ``U``, how, no bonus."""
-    return fit.minimum_zone, fit.least_squares, _extremes_U(fit.residuals, U), how, 0.0
+    return fit.minimum_zone, fit.least_squares, zone_uncertainty(fit.residuals, U), how, 0.0
 
 
 def _flatness(spec, S, sample, feat, frame, sizes, surf, faces):
@@ -767,7 +790,7 @@ def _flatness_per_area(S, U, feat: DatumFeature, unit: tuple[str, list[float]]) 
     return (
         fit.minimum_zone,
         ls,
-        _extremes_U(fit.residuals, U[idx]),
+        zone_uncertainty(fit.residuals, U[idx]),
         f"per unit area ({kind} {size}): worst of {len(windows)} windows, minimum zone "
         f"(least squares beside)",
         0.0,
@@ -813,7 +836,7 @@ def _roundness(spec, S, sample, feat, frame, sizes, surf, faces):
     return (
         fit.minimum_zone,
         fit.least_squares,
-        _extremes_U(fit.residuals, sample.U[sel]),
+        zone_uncertainty(fit.residuals, sample.U[sel]),
         ("worst cross-section's minimum radial zone"),
         0.0,
     )
@@ -867,7 +890,7 @@ def _straightness(spec, S, sample, feat, frame, sizes, surf, faces):
     if worst is None:
         raise _Unmeasurable("no line element with enough points")
     fit, g = worst
-    return fit.minimum_zone, fit.least_squares, _extremes_U(fit.residuals, sample.U[g]), what, 0.0
+    return fit.minimum_zone, fit.least_squares, zone_uncertainty(fit.residuals, sample.U[g]), what, 0.0
 
 
 def _orientation(spec, S, sample, feat, frame, sizes, surf, faces):
@@ -888,7 +911,7 @@ def _orientation(spec, S, sample, feat, frame, sizes, surf, faces):
             w = w + best.x * u
             how += " (turned about the free axis)"
         res = w - 0.5 * (w.max() + w.min())
-        return float(np.ptp(w)), None, _extremes_U(res, sample.U), how, 0.0
+        return float(np.ptp(w)), None, zone_uncertainty(res, sample.U), how, 0.0
     o, a, _ = least_squares_cylinder(S, feat.origin, feat.direction, feat.radius)
     z = (S - o) @ a
     ends = o + np.outer([z.min(), z.max()], a)
@@ -1086,7 +1109,7 @@ def _runout(spec, S, sample, feat, frame, sizes, surf, faces):
         raise _Unmeasurable("runout of a feature neither coaxial with nor across the axis")
     if spec.kind == "total_runout":
         res = radial - 0.5 * (radial.max() + radial.min())
-        return float(np.ptp(radial)), None, _extremes_U(res, sample.U), "total " + how, 0.0
+        return float(np.ptp(radial)), None, zone_uncertainty(res, sample.U), "total " + how, 0.0
     worst, worst_sel = -1.0, None
     for sel in _sections(along):
         if np.ptp(radial[sel]) > worst:
@@ -1094,7 +1117,7 @@ def _runout(spec, S, sample, feat, frame, sizes, surf, faces):
     if worst_sel is None:
         raise _Unmeasurable("no circular element with enough points")
     r = radial[worst_sel]
-    return worst, None, _extremes_U(r - r.mean(), sample.U[worst_sel]), "circular " + how, 0.0
+    return worst, None, zone_uncertainty(r - r.mean(), sample.U[worst_sel]), "circular " + how, 0.0
 
 
 _MEASURES = {

@@ -200,3 +200,27 @@ def test_least_squares_cylinder_agrees_with_scikit_spatial():
     assert r == pytest.approx(ref.radius, abs=1e-5)
     d = np.asarray(ref.point) - o
     assert np.linalg.norm(d - (d @ a) * a) < 1e-4
+
+
+def test_zone_uncertainty_is_continuous_where_extremes_tie():
+    """A zone's U comes from its extreme points; where two points nearly tie for the
+    extreme, a change far below U (round-off) must not swap one point's U for the other's."""
+    from qifreport.metrology.characteristics import zone_uncertainty
+
+    rng = np.random.default_rng(0)
+    r = rng.uniform(-0.05, 0.05, 200)
+    U = np.full(200, 0.006)
+    r[10], U[10] = 0.1, 0.004  # the highest point ...
+    r[11], U[11] = 0.1 - 1e-13, 0.012  # ... and a rival 1e-13 mm below it, another U
+    r[12], U[12] = -0.1, 0.006  # the lowest point stands out alone
+    a = zone_uncertainty(r, U)
+    r2 = r.copy()
+    r2[11] += 2e-13  # the rival becomes the highest
+    b = zone_uncertainty(r2, U)
+    assert abs(a - b) < 1e-9, (a, b)
+    # the tie counts both: between the U of either point alone with the low extreme
+    assert np.hypot(0.004, 0.006) < a < np.hypot(0.012, 0.006)
+    # extremes that stand out by more than the median U keep their own U exactly
+    r3 = r.copy()
+    r3[11] = 0.0
+    assert zone_uncertainty(r3, U) == pytest.approx(np.hypot(0.004, 0.006), rel=1e-12)
