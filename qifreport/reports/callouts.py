@@ -152,7 +152,7 @@ class LabelPlacer:
     """
 
     #: gaps tried between a label and its point (beyond the region's extent), points
-    GAPS = (3.0, 10.0, 18.0)
+    GAPS = (3.0, 10.0, 18.0, 28.0, 40.0)
     #: directions tried, degrees counter-clockwise from +x (diagonals first)
     ANGLES = (45, 135, -45, -135, 90, -90, 0, 180, 22, 158, -22, -158)
 
@@ -160,6 +160,11 @@ class LabelPlacer:
         self.box = box
         self.anchors = list(anchors)
         self.placed: list[tuple[float, float, float, float]] = []  # x0, y0, x1, y1
+
+    def reserve(self, x0: float, y0: float, x1: float, y1: float) -> None:
+        """Keep labels off the rectangle ``(x0, y0)``-``(x1, y1)`` (points), e.g. a clamp's
+        mark and name."""
+        self.placed.append((x0, y0, x1, y1))
 
     def place(
         self, ax: float, ay: float, w: float, h: float, extent: float = 0.0

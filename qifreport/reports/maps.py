@@ -138,6 +138,13 @@ def draw_maps(
         _draw_markers(c, box, v)
 
 
+def _marker_extent(x: float, y: float, name: str) -> tuple[float, float, float, float]:
+    """The rectangle ``(x0, y0, x1, y1)`` (points) a clamp's triangle at ``(x, y)`` and its
+    ``name`` (empty: none) cover on the page (:func:`_draw_markers`)."""
+    half = max(3.2, text_width(name, 5.5, True) / 2) if name else 3.2
+    return x - half, y - (14.0 if name else 5.5), x + half, y
+
+
 def _draw_markers(c: Canvas, box: Box, v: RenderedView) -> None:
     """The clamps (RPS points): a triangle with the clamp's name (and force); hollow, grey
     and unnamed where the part hides it (a clamp on the far side: another view names it)."""
@@ -232,7 +239,9 @@ def _draw_labels(
     labels = sorted((lb for lb in v.labels if lb.number <= n_listed), key=lambda lb: lb.number)
     worst = {cl.region: cl for cl in todo if cl.region is not None}
     anchors = [page(lb.x, lb.y) for lb in labels] + [seen[cl.key] for cl in todo]
-    placer = LabelPlacer(box, anchors + [page(m.x, m.y) for m in v.markers])
+    placer = LabelPlacer(box, anchors)
+    for m in v.markers:  # the clamps' triangles and names (drawn after the labels)
+        placer.reserve(*_marker_extent(*page(m.x, m.y), m.name if m.visible else ""))
     drawn: set[str] = set()
     for lb in labels:
         mid = page(lb.x, lb.y)
