@@ -508,6 +508,44 @@ def test_points_of_interest_on_the_passing_shell(reports):
     assert not any(w[1].isdigit() and int(w[1]) < 10 for w in words)  # no region number
 
 
+def test_label_placer_keeps_labels_apart():
+    """Many labels around crowded points: each placed label inside the picture, none over
+    another, over a named point or over another label's leader, and no leader through
+    another label (segments checked by sampling, not by the placer's own test)."""
+    from qifreport.reports.callouts import LabelPlacer
+    from qifreport.reports.kit import Box
+
+    rng = np.random.default_rng(3)
+    box = Box(50.0, 60.0, 300.0, 200.0)
+    pts = np.c_[rng.uniform(80, 320, 40), rng.uniform(90, 230, 40)]
+    placer = LabelPlacer(box, [tuple(p) for p in pts])
+    rects, leaders = [], []
+    for (ax, ay), w in zip(pts, rng.uniform(10, 40, len(pts)), strict=True):
+        spot = placer.place(ax, ay, w, 10.0, extent=rng.uniform(0, 20))
+        if spot is not None:
+            px, py = spot
+            rects.append((px - w / 2, py - 5.0, px + w / 2, py + 5.0))
+            leaders.append((ax, ay, px, py))
+    assert len(rects) >= 15, len(rects)
+
+    def inside(x, y, r, pad=0.0):
+        return r[0] - pad < x < r[2] + pad and r[1] - pad < y < r[3] + pad
+
+    for i, r in enumerate(rects):
+        assert box.x <= r[0] and r[2] <= box.x + box.w and box.y <= r[1] and r[3] <= box.top
+        assert not any(inside(x, y, r) for x, y in pts)
+        for j, (ax, ay, px, py) in enumerate(leaders):
+            if i == j:
+                continue
+            q = rects[j]
+            assert q[2] <= r[0] or r[2] <= q[0] or q[3] <= r[1] or r[3] <= q[1], (r, q)
+            ts = np.linspace(0, 1, 200)
+            xs, ys = ax + ts * (px - ax), ay + ts * (py - ay)
+            own = [inside(x, y, rects[j]) for x, y in zip(xs, ys, strict=True)]
+            hits = [inside(x, y, r) for x, y, o in zip(xs, ys, own, strict=True) if not o]
+            assert not any(hits), (i, j)
+
+
 def _raster(pdf: Path, stem: Path, dpi: int):
     """The page at ``dpi`` as an (h, w, 3) int array, and the map from page points (y up)
     to its pixels."""

@@ -160,6 +160,7 @@ class LabelPlacer:
         self.box = box
         self.anchors = list(anchors)
         self.placed: list[tuple[float, float, float, float]] = []  # x0, y0, x1, y1
+        self.leaders: list[tuple[float, float, float, float]] = []  # ax, ay, ex, ey
 
     def reserve(self, x0: float, y0: float, x1: float, y1: float) -> None:
         """Keep labels off the rectangle ``(x0, y0)``-``(x1, y1)`` (points), e.g. a clamp's
@@ -174,7 +175,8 @@ class LabelPlacer:
 
         The label is tried beyond ``extent`` (how far the region it names reaches from the
         point, capped at 40 pt) and then close to the point, at each gap in every direction,
-        its near edge at the gap's distance.
+        its near edge at the gap's distance. Its leader line may cross no other label, and
+        it may cover no other label's leader.
         """
         ext = min(extent, 40.0)
         for base in (ext, 0.0) if ext > 0 else (0.0,):
@@ -183,14 +185,17 @@ class LabelPlacer:
                     c, s = math.cos(math.radians(ang)), math.sin(math.radians(ang))
                     reach = base + gap + abs(c) * w / 2 + abs(s) * h / 2
                     px, py = ax + reach * c, ay + reach * s
-                    if self._free(px, py, w, h):
-                        self.placed.append((px - w / 2, py - h / 2, px + w / 2, py + h / 2))
+                    rect = (px - w / 2, py - h / 2, px + w / 2, py + h / 2)
+                    leader = (ax, ay, *leader_end(ax, ay, px, py, w, h))
+                    if self._free(rect, leader):
+                        self.placed.append(rect)
+                        self.leaders.append(leader)
                         return px, py
         return None
 
-    def _free(self, px: float, py: float, w: float, h: float) -> bool:
+    def _free(self, rect: tuple, leader: tuple) -> bool:
         b = self.box
-        x0, y0, x1, y1 = px - w / 2, py - h / 2, px + w / 2, py + h / 2
+        x0, y0, x1, y1 = rect
         if x0 < b.x + 1 or x1 > b.x + b.w - 1 or y0 < b.y + 1 or y1 > b.top - 1:
             return False
         if any(
@@ -198,7 +203,37 @@ class LabelPlacer:
             for q in self.placed
         ):
             return False
-        return not any(x0 - 1 < qx < x1 + 1 and y0 - 1 < qy < y1 + 1 for qx, qy in self.anchors)
+        if any(x0 - 1 < qx < x1 + 1 and y0 - 1 < qy < y1 + 1 for qx, qy in self.anchors):
+            return False
+        if any(_crosses(seg, rect, 1.0) for seg in self.leaders):
+            return False
+        return not any(_crosses(leader, q, 0.5) for q in self.placed)
+
+
+def _crosses(seg: tuple, rect: tuple, pad: float) -> bool:
+    """Whether the segment ``(ax, ay, bx, by)`` meets the rectangle ``(x0, y0, x1, y1)``
+    grown by ``pad`` (points; Liang-Barsky clipping)."""
+    ax, ay, bx, by = seg
+    x0, y0, x1, y1 = rect[0] - pad, rect[1] - pad, rect[2] + pad, rect[3] + pad
+    t0, t1 = 0.0, 1.0
+    for p, q in (
+        (-(bx - ax), ax - x0),
+        (bx - ax, x1 - ax),
+        (-(by - ay), ay - y0),
+        (by - ay, y1 - ay),
+    ):
+        if abs(p) < 1e-12:
+            if q < 0:
+                return False
+            continue
+        t = q / p
+        if p < 0:
+            t0 = max(t0, t)
+        else:
+            t1 = min(t1, t)
+        if t0 > t1:
+            return False
+    return True
 
 
 def leader_end(ax: float, ay: float, cx: float, cy: float, w: float, h: float) -> tuple:
