@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from qifreport.metrology.acceptance import Region
 from qifreport.metrology.inspection import InspectionResult
 
 from .kit import Box, fmt_smm
@@ -52,7 +53,8 @@ class Callout:
     key : unique name of the point (``"region 1"``, ``"max"``, ``"min"``, ``"zone T2"``),
         as passed to :func:`~qifreport.reports.render.render_views` (``points``).
     value : the signed deviation, mm.
-    position : (3,) the point on the registered nominal, mm.
+    position : (3,) the point on the registered nominal, mm (for a region found on the
+        scan points, the region's vertex nearest its peak point).
     region : the number of the region whose worst point it is (1 = the first of the region
         table), or None for a point of interest.
     tag : what the value is, printed before it (``"max"``, ``"T2 min"``; empty for a
@@ -96,7 +98,7 @@ def callouts(res: InspectionResult, n_listed: int) -> list[Callout]:
         Callout(
             key=f"region {k}",
             value=float(r.peak),
-            position=np.asarray(r.peak_at(V), dtype=float),
+            position=_on_surface(r, V),
             region=k,
             vertex=int(r.peak_vertex) if r.peak_location is None else None,
         )
@@ -114,6 +116,20 @@ def callouts(res: InspectionResult, n_listed: int) -> list[Callout]:
     if len(res.zones) >= 2:
         out += _zone_extremes(res, V, dev, in_region, {c.vertex for c in out})
     return out
+
+
+def _on_surface(region: Region, V: np.ndarray) -> np.ndarray:
+    """(3,) mm: where a region's worst point is on the registered nominal ``V``: its peak
+    vertex, or for a region found on the scan points the region's vertex nearest its peak
+    point (the point itself lies off the surface by its deviation: a sunk one would be
+    hidden behind the surface in every view)."""
+    if region.peak_location is None:
+        return V[int(region.peak_vertex)].copy()
+    idx = np.asarray(region.vertices, dtype=np.int64)
+    p = np.asarray(region.peak_location, dtype=float)
+    if len(idx) == 0:
+        return p.copy()
+    return V[idx[np.argmin(np.linalg.norm(V[idx] - p, axis=1))]].copy()
 
 
 def _zone_extremes(
