@@ -20,10 +20,11 @@ import logging
 import os
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -65,6 +66,7 @@ __all__ = [
     "exit_code",
     "inspect_state",
     "output_writers",
+    "progress_bar",
     "qif_writer",
     "resampled_runs",
     "run_job",
@@ -317,6 +319,41 @@ def qif_writer(tree, state: dict) -> Writer:
 def _stage(prof: Profiler | None, name: str):
     """``prof.stage(name)``, or a no-op context without a profiler."""
     return prof.stage(name) if prof is not None else contextlib.nullcontext()
+
+
+@contextlib.contextmanager
+def progress_bar(desc: str, *, enabled: bool = True) -> Iterator[Any]:
+    """A tqdm progress bar on stderr for the ``with`` block, or None (no bar).
+
+    The bar is drawn only when ``enabled`` and stderr is a terminal: in a file or a pipe its
+    carriage returns would leave the bar's text on the line of whatever is written next.
+    When the block ends (normally or not) the bar's line is ended by a newline, its final
+    count left on it, so whatever follows (the summary on stdout, an error on stderr)
+    starts on a line of its own, never after the bar on the line the carriage return went
+    back to. Log records of the block are written above the bar (``tqdm.write``), not
+    after its text.
+
+    Parameters
+    ----------
+    desc : the bar's label.  enabled : False: no bar (``--quiet``).
+
+    Yields
+    ------
+    tqdm or None
+        The bar (``update(n)`` per iteration), or None when there is none.
+    """
+    if not enabled or not sys.stderr.isatty():
+        yield None
+        return
+    from tqdm import tqdm
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    bar = tqdm(desc=desc, unit="it", file=sys.stderr, leave=True)
+    try:
+        with logging_redirect_tqdm(tqdm_class=tqdm):
+            yield bar
+    finally:
+        bar.close()
 
 
 def check_job(job: InspectJob) -> None:
@@ -620,7 +657,8 @@ def run_job(job: InspectJob, *, progress: bool = True, prof: Profiler | None = N
 
     Parameters
     ----------
-    job : the files, options and outputs.  progress : a tqdm bar on stderr.
+    job : the files, options and outputs.  progress : a progress bar on stderr when it
+        is a terminal (:func:`progress_bar`).
     prof : a started :class:`~qifreport.profile.Profiler` to time the stages, or None.
 
     Raises
@@ -659,17 +697,9 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     log.info("%s", cache.describe())
     with _stage(prof, "thin scan"):
         P, scan_report = scan_input(P, n_read, state.nominal, job.scan.name)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(desc="virtual fixturing", unit="it", file=sys.stderr, leave=False)
     t_inspect = time.perf_counter()
-    try:
+    with progress_bar("virtual fixturing", enabled=progress) as bar:
         res = inspect_state(P, state, job, bar=bar, prof=prof)
-    finally:
-        if bar is not None:
-            bar.close()
     if prof is not None:
         prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
     if res.fit is not None:

@@ -1,8 +1,16 @@
 """The qifreport console script on the bundled samples and on bad inputs."""
 
+import fcntl
 import json
+import os
+import pty
+import re
+import select
+import struct
 import subprocess
 import sys
+import termios
+import time
 from pathlib import Path
 
 import numpy as np
@@ -165,3 +173,91 @@ def test_bad_input_one_line_exit_2_no_output(tmp_path, scan_points, case):
 def test_bad_tolerance_is_an_error():
     r = run(SAMPLES / "shell_nominal.ply", SAMPLES / "shell_scan.ply", "--tolerance", "-1")
     assert r.returncode == 2 and "tolerance" in r.stderr
+
+
+# ------------------------------------------------------------- the progress bar on a terminal
+
+
+def run_in_terminal(*args, columns: int = 100, timeout: float = 180.0) -> tuple[int, bytes]:
+    """Run the console script with stdin, stdout and stderr on one pseudo-terminal
+    ``columns`` wide (as in an interactive shell: the progress bar is live), and return its
+    exit code and every byte it wrote to the terminal."""
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, columns, 0, 0))
+    proc = subprocess.Popen(
+        [str(EXE), *map(str, args)], stdin=slave, stdout=slave, stderr=slave, close_fds=True
+    )
+    os.close(slave)
+    chunks = []
+    deadline = time.monotonic() + timeout
+    try:
+        while True:
+            ready, _, _ = select.select([master], [], [], max(0.0, deadline - time.monotonic()))
+            if not ready:
+                raise TimeoutError(f"no end after {timeout} s: {b''.join(chunks)[-500:]!r}")
+            try:
+                data = os.read(master, 65536)
+            except OSError:  # EIO: the program has closed the terminal (it exited)
+                break
+            if not data:
+                break
+            chunks.append(data)
+    finally:
+        os.close(master)
+        if proc.poll() is None:
+            proc.kill()
+        code = proc.wait()
+    return code, b"".join(chunks)
+
+
+def terminal_lines(stream: str) -> list[tuple[str, str]]:
+    """The lines of a terminal's byte stream: ``(shown, written)`` per line, where ``shown``
+    is what the terminal displays (a carriage return goes back to column 0 and what follows
+    overwrites the line's characters; trailing blanks dropped) and ``written`` is all the
+    text sent to that line, overwritten or not, carriage returns removed."""
+    out = []
+    for raw in stream.split("\n"):
+        cells: list[str] = []
+        col = 0
+        for ch in raw:
+            if ch == "\r":
+                col = 0
+                continue
+            if col < len(cells):
+                cells[col] = ch
+            else:
+                cells.append(ch)
+            col += 1
+        out.append(("".join(cells).rstrip(), raw.replace("\r", "").rstrip()))
+    return out
+
+
+def test_progress_bar_never_shares_the_summary_line(tmp_path):
+    """On a terminal (stdout and stderr one pseudo-terminal, the bar live) the summary's
+    first line is a line of its own: no progress bar text was written on it, even text a
+    carriage return overwrote (a terminal's scrollback, ``script`` logs and ``2>&1 | tee``
+    show that text), and the bar's own line is ended before the summary is printed."""
+    code, raw = run_in_terminal(
+        SAMPLES / "shell_nominal.ply",
+        SAMPLES / "shell_scan.ply",
+        "--tolerance",
+        "0.5",
+        "--out",
+        tmp_path,
+        "--no-pdf",
+        "--no-qif",
+        "--no-cache",
+    )
+    stream = raw.decode("utf-8", errors="replace")
+    assert code == 0, stream
+    lines = terminal_lines(stream)
+    assert re.search(r"virtual fixturing: [1-9]\d*it \[", stream), stream  # the bar was live
+    verdict = [(shown, written) for shown, written in lines if "verdict:" in written]
+    assert len(verdict) == 1, stream
+    shown, written = verdict[0]
+    assert shown == "verdict: PASS", repr(shown)
+    assert written == "verdict: PASS", repr(written)
+    # every line of the summary is whole; the bar wrote on no line but its own
+    for shown, written in lines:
+        if "virtual fixturing" not in written:
+            assert shown == written, (shown, written)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
+import math
 import re
 import subprocess
 from datetime import datetime, timedelta, timezone
@@ -23,7 +24,16 @@ import pytest
 
 from qifreport.qif.reader import read_results
 from qifreport.qif.writer import Provenance, build_qif, profile_value, write_qif
-from qifreport.reports.pdf import fmt_area, fmt_mm, fmt_pct, fmt_smm, plan_layout, write_report
+from qifreport.reports.callouts import MAX_PER_VIEW
+from qifreport.reports.pdf import (
+    fmt_area,
+    fmt_mm,
+    fmt_pct,
+    fmt_smm,
+    map_points,
+    plan_layout,
+    write_report,
+)
 from tests.conftest import ROOT
 from tests.consumers import poppler_tool as _tool
 
@@ -210,16 +220,44 @@ def test_nothing_outside_the_page(reports, case):
     _assert_words_inside(o.pdf)
 
 
-def _assert_words_inside(pdf: Path) -> None:
+def _words(pdf: Path) -> tuple[float, float, list[tuple[str, float, float, float, float]]]:
+    """The page's width and height and its words ``(text, x0, y0, x1, y1)``, points, y down
+    from the top of the page (``pdftotext -bbox``)."""
+    import html
+
     xml = subprocess.run(
         [_tool("pdftotext"), "-bbox", str(pdf), "-"], check=True, capture_output=True, text=True
     ).stdout
     page = re.search(r'<page width="([\d.]+)" height="([\d.]+)"', xml)
     W, H = float(page.group(1)), float(page.group(2))
-    words = re.findall(r'xMin="([\d.-]+)" yMin="([\d.-]+)" xMax="([\d.-]+)" yMax="([\d.-]+)"', xml)
+    words = re.findall(
+        r'<word xMin="([\d.-]+)" yMin="([\d.-]+)" xMax="([\d.-]+)" yMax="([\d.-]+)">(.*?)</word>',
+        xml,
+    )
+    return W, H, [(html.unescape(t), *map(float, b)) for *b, t in words]
+
+
+def _assert_words_inside(pdf: Path) -> None:
+    W, H, words = _words(pdf)
     assert len(words) > 200
-    for x0, y0, x1, y1 in (tuple(map(float, w)) for w in words):
+    for _, x0, y0, x1, y1 in words:
         assert 20 <= x0 and x1 <= W - 20 and 20 <= y0 and y1 <= H - 20, (x0, y0, x1, y1)
+
+
+SIGNED = re.compile(r"^[+-]\d+\.\d{3}$")  # a deviation as the page prints it (fmt_smm)
+
+
+def _map_words(pdf: Path, lay) -> list[tuple[int, str, float, float, float, float]]:
+    """The words drawn on the map pictures: ``(map index, text, x0, y0, x1, y1)``, page
+    points with y up (as the layout's boxes)."""
+    _, H, words = _words(pdf)
+    out = []
+    for t, x0, y0, x1, y1 in words:
+        cx, cy = 0.5 * (x0 + x1), H - 0.5 * (y0 + y1)
+        for k, b in enumerate(lay.maps):
+            if b.x < cx < b.x + b.w and b.y < cy < b.top:
+                out.append((k, t, x0, H - y1, x1, H - y0))
+    return out
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -394,6 +432,140 @@ def test_stress_many_regions_and_tolerances(reports, tmp_path, page):
     lay = plan_layout(res, prov, page=page)
     assert lay.regions_listed >= 2 and lay.tolerances_listed >= 2
     assert min(b.h for b in lay.maps) >= 100
+    # the deviation callouts stay few and never overlap
+    values = [w for w in _map_words(out.pdf, lay) if SIGNED.match(w[1])]
+    assert values
+    for k in range(len(lay.maps)):
+        assert sum(w[0] == k for w in values) <= MAX_PER_VIEW
+    for i, a in enumerate(values):
+        for b in values[i + 1 :]:
+            assert a[4] <= b[2] or b[4] <= a[2] or a[5] <= b[3] or b[5] <= a[3], (a, b)
+
+
+def test_region_callout_at_the_worst_point(reports, tmp_path):
+    """The failing shell's map calls out region 1's worst deviation beside its number, once,
+    with the result's (and the QIF's) value at that vertex and its sign, the label near the
+    point on the map that shows it and a leader line drawn from the point to the label."""
+    o = reports["fail"]
+    res = o.res
+    lay = plan_layout(res, o.prov)
+    r1 = res.acceptance.regions[0]
+    v = r1.peak_vertex
+    value = fmt_smm(res.deviation[v])
+    assert value == fmt_smm(r1.peak) == fmt_smm(read_results(o.qif).acceptance.regions[0].peak)
+    assert r1.sign == 1 and res.deviation[v] > res.bands.upper[v] and value.startswith("+")
+    words = _map_words(o.pdf, lay)
+    hits = [w for w in words if w[1] == value]
+    assert len(hits) == 1, (value, [w[1] for w in words])  # called out once, on a map
+    k, _, x0, y0, x1, y1 = hits[0]
+    # the region's number right before the value, on the same line
+    assert any(
+        w[0] == k and w[1] == "1" and 0 <= x0 - w[4] < 6 and abs(w[3] - y0) < 3 for w in words
+    ), words
+    # the label is beside the worst point, as map k projects it
+    px, py = map_points(res, lay, k, res.V_registered[v][None])[0]
+    gap = math.hypot(max(x0 - px, 0, px - x1), max(y0 - py, 0, py - y1))
+    assert 2.0 < gap < 70.0, gap
+    # the raster: a dark dot on the point and a leader line from it toward the label
+    img, pt_to_px = _raster(o.pdf, tmp_path / "callout", dpi=150)
+    lx0, lx1 = x0 - 14.0, x1 + 1.0  # the label: the number's circle and the value
+    cx, cy = 0.5 * (lx0 + lx1), 0.5 * (y0 + y1)
+    assert _dark_near(img, *pt_to_px(px, py), 2), "no dot on the worst point"
+    along = [
+        (px + t * (cx - px), py + t * (cy - py))
+        for t in np.linspace(0.0, 1.0, 41)[1:]
+        if math.hypot(t * (cx - px), t * (cy - py)) > 3.0
+    ]
+    along = [(x, y) for x, y in along if not (lx0 - 2 < x < lx1 + 2 and y0 - 3 < y < y1 + 3)]
+    assert len(along) >= 3, along
+    dark = [_dark_near(img, *pt_to_px(x, y), 1) for x, y in along]
+    assert np.mean(dark) > 0.9, dark
+
+
+def test_points_of_interest_on_the_passing_shell(reports):
+    """The passing shell has no region and no region callout, but its largest proud and
+    largest sunk deviation called out (``max``/``min``, the statistics' values, at the
+    vertices where they are); no more than MAX_PER_VIEW values on any map."""
+    o = reports["pass"]
+    res = o.res
+    assert not res.acceptance.regions
+    lay = plan_layout(res, o.prov)
+    words = _map_words(o.pdf, lay)
+    values = [(w[0], w[1]) for w in words if SIGNED.match(w[1])]
+    q = read_results(o.qif)
+    dev = res.deviation
+    want = {
+        "max": fmt_smm(dev[np.nanargmax(dev)]),
+        "min": fmt_smm(dev[np.nanargmin(dev)]),
+    }
+    assert want == {"max": fmt_smm(q.stats.max_pos), "min": fmt_smm(q.stats.min_neg)}
+    assert want["max"].startswith("+") and want["min"].startswith("-")
+    assert sorted(t for _, t in values) == sorted(want.values()), values
+    for tag, value in want.items():  # the tag right before its value
+        (k, _, x0, y0, x1, y1), *rest = [w for w in words if w[1] == value]
+        assert not rest
+        assert any(w[0] == k and w[1] == tag and 0 <= x0 - w[4] < 5 for w in words), tag
+    assert not any(w[1].isdigit() and int(w[1]) < 10 for w in words)  # no region number
+
+
+def test_label_placer_keeps_labels_apart():
+    """Many labels around crowded points: each placed label inside the picture, none over
+    another, over a named point or over another label's leader, and no leader through
+    another label (segments checked by sampling, not by the placer's own test)."""
+    from qifreport.reports.callouts import LabelPlacer
+    from qifreport.reports.kit import Box
+
+    rng = np.random.default_rng(3)
+    box = Box(50.0, 60.0, 300.0, 200.0)
+    pts = np.c_[rng.uniform(80, 320, 40), rng.uniform(90, 230, 40)]
+    placer = LabelPlacer(box, [tuple(p) for p in pts])
+    rects, leaders = [], []
+    for (ax, ay), w in zip(pts, rng.uniform(10, 40, len(pts)), strict=True):
+        spot = placer.place(ax, ay, w, 10.0, extent=rng.uniform(0, 20))
+        if spot is not None:
+            px, py = spot
+            rects.append((px - w / 2, py - 5.0, px + w / 2, py + 5.0))
+            leaders.append((ax, ay, px, py))
+    assert len(rects) >= 15, len(rects)
+
+    def inside(x, y, r, pad=0.0):
+        return r[0] - pad < x < r[2] + pad and r[1] - pad < y < r[3] + pad
+
+    for i, r in enumerate(rects):
+        assert box.x <= r[0] and r[2] <= box.x + box.w and box.y <= r[1] and r[3] <= box.top
+        assert not any(inside(x, y, r) for x, y in pts)
+        for j, (ax, ay, px, py) in enumerate(leaders):
+            if i == j:
+                continue
+            q = rects[j]
+            assert q[2] <= r[0] or r[2] <= q[0] or q[3] <= r[1] or r[3] <= q[1], (r, q)
+            ts = np.linspace(0, 1, 200)
+            xs, ys = ax + ts * (px - ax), ay + ts * (py - ay)
+            own = [inside(x, y, rects[j]) for x, y in zip(xs, ys, strict=True)]
+            hits = [inside(x, y, r) for x, y, o in zip(xs, ys, own, strict=True) if not o]
+            assert not any(hits), (i, j)
+
+
+def _raster(pdf: Path, stem: Path, dpi: int):
+    """The page at ``dpi`` as an (h, w, 3) int array, and the map from page points (y up)
+    to its pixels."""
+    from PIL import Image
+
+    subprocess.run(
+        [_tool("pdftoppm"), "-r", str(dpi), "-png", "-singlefile", str(pdf), str(stem)],
+        check=True,
+    )
+    img = np.asarray(Image.open(f"{stem}.png").convert("RGB")).astype(int)
+    H = _words(pdf)[1]
+    s = dpi / 72.0
+    return img, lambda x, y: (x * s, (H - y) * s)
+
+
+def _dark_near(img: np.ndarray, x: float, y: float, r: int) -> bool:
+    """Whether a dark (ink) pixel lies within ``r`` pixels of ``(x, y)``."""
+    ix, iy = int(round(x)), int(round(y))
+    patch = img[max(iy - r, 0) : iy + r + 1, max(ix - r, 0) : ix + r + 1].reshape(-1, 3)
+    return bool((patch.max(axis=1) < 90).any())
 
 
 def test_write_time(reports):

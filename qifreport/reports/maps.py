@@ -2,7 +2,10 @@
 
 The registered nominal from two or three automatically chosen directions
 (:mod:`qifreport.reports.render`), green inside the band, red proud / blue sunk outside, grey
-unscored, out-of-tolerance regions outlined and numbered as in the region table. Three views
+unscored, out-of-tolerance regions outlined and numbered as in the region table, and the
+signed deviation called out at each numbered region's worst point and at a few points of
+interest (:mod:`qifreport.reports.callouts`: a value beside the region's number, a leader
+line to the point). Three views
 are one large picture with the other two stacked on its right, or the three in a row,
 whichever draws the part larger (:func:`map_boxes`); each has its axes and a scale bar. The
 colour bar (mm, symmetric about 0) marks each distinct band.
@@ -12,10 +15,12 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .callouts import MAX_PER_VIEW, Callout, LabelPlacer, leader_end
 from .context import ReportContext
 from .kit import (
     INK,
@@ -99,12 +104,21 @@ def colorbar_height(ctx: ReportContext) -> float:
 # ------------------------------------------------------------------------------ drawing
 
 
-def draw_maps(c: Canvas, boxes: list[Box], views: list[RenderedView], n_listed: int) -> None:
-    """The map pictures in ``boxes`` with their captions, axes, scale bars and the numbers of
-    the first ``n_listed`` regions (the ones the region table lists)."""
+def draw_maps(
+    c: Canvas,
+    boxes: list[Box],
+    views: list[RenderedView],
+    n_listed: int,
+    calls: Sequence[Callout] = (),
+) -> None:
+    """The map pictures in ``boxes`` with their captions, axes, scale bars, the numbers of
+    the first ``n_listed`` regions (the ones the region table lists) and the deviation
+    ``calls`` (each in the first view that shows its point and has room for it; their keys
+    are the names of the views' :attr:`~RenderedView.points`)."""
     from PIL import Image
     from reportlab.lib.utils import ImageReader
 
+    done: set[str] = set()
     for k, (box, v) in enumerate(zip(boxes, views, strict=True)):
         img = ImageReader(Image.fromarray(v.image))
         c.drawImage(img, box.x, box.y, box.w, box.h)
@@ -120,8 +134,15 @@ def draw_maps(c: Canvas, boxes: list[Box], views: list[RenderedView], n_listed: 
         _draw_axes(c, box, v)
         if not v.name.startswith("oblique"):
             _draw_scale_bar(c, box, v)
-        _draw_labels(c, box, v, n_listed)
+        done |= _draw_labels(c, box, v, n_listed, calls, done)
         _draw_markers(c, box, v)
+
+
+def _marker_extent(x: float, y: float, name: str) -> tuple[float, float, float, float]:
+    """The rectangle ``(x0, y0, x1, y1)`` (points) a clamp's triangle at ``(x, y)`` and its
+    ``name`` (empty: none) cover on the page (:func:`_draw_markers`)."""
+    half = max(3.2, text_width(name, 5.5, True) / 2) if name else 3.2
+    return x - half, y - (14.0 if name else 5.5), x + half, y
 
 
 def _draw_markers(c: Canvas, box: Box, v: RenderedView) -> None:
@@ -176,50 +197,142 @@ def _draw_scale_bar(c: Canvas, box: Box, v: RenderedView) -> None:
     draw_text(c, x1 - Lp / 2, y1 + 3, f"{length:g} mm", 6.0, False, INK, "c")
 
 
-def _draw_labels(c: Canvas, box: Box, v: RenderedView, n_listed: int) -> None:
-    """Region numbers beside their regions (a leader line to the anchor), never on top of
-    the region they name nor of another number."""
+#: callout text: size (points) of the region numbers and of the values
+_NUMBER_PT, _VALUE_PT = 6.3, 6.0
+
+
+def _number_radius(number: int) -> float:
+    """Radius of a region number's circle, points."""
+    return 5.2 if number < 10 else 6.2
+
+
+def _draw_labels(
+    c: Canvas,
+    box: Box,
+    v: RenderedView,
+    n_listed: int,
+    calls: Sequence[Callout],
+    done: set[str],
+) -> set[str]:
+    """Region numbers and deviation callouts of one view, each beside its point with a
+    leader line, never over the region it names, another label or a named point.
+
+    A region whose worst point this view shows (and is not called out in an earlier view)
+    gets its value after its number, the leader to the worst point; other regions their
+    number alone, the leader to the region's middle. Then the points of interest the view
+    shows, as long as fewer than :data:`~qifreport.reports.callouts.MAX_PER_VIEW` values
+    are on it.
+
+    Returns
+    -------
+    set of str
+        The keys of the callouts drawn here.
+    """
     h_px, w_px = v.image.shape[:2]
     sx, sy = box.w / w_px, box.h / h_px
+
+    def page(x: float, y: float) -> tuple[float, float]:
+        return box.x + x * sx, box.top - y * sy
+
+    seen = {p.name: page(p.x, p.y) for p in v.points if p.visible}
+    todo = [cl for cl in calls if cl.key in seen and cl.key not in done]
     labels = sorted((lb for lb in v.labels if lb.number <= n_listed), key=lambda lb: lb.number)
-    anchors = [(box.x + lb.x * sx, box.top - lb.y * sy) for lb in labels]
-    placed: list[tuple[float, float, float]] = []
-    for lb, (ax, ay) in zip(labels, anchors, strict=True):
-        r = 5.2 if lb.number < 10 else 6.2
-        ext = min(lb.extent * sx, 40.0)
-        spot = None
-        for dist in (ext + r + 3, ext + r + 10, ext + r + 18, r + 3, 2 * r + 12, 2 * r + 24):
-            for ang in (45, 135, -45, -135, 90, -90, 0, 180, 22, 158, -22, -158):
-                px = ax + dist * math.cos(math.radians(ang))
-                py = ay + dist * math.sin(math.radians(ang))
-                if not (
-                    box.x + r + 1 <= px <= box.x + box.w - r - 1
-                    and box.y + r + 1 <= py <= box.top - r - 1
-                ):
-                    continue
-                if any(math.hypot(px - qx, py - qy) < r + qr + 1.5 for qx, qy, qr in placed):
-                    continue
-                if any(math.hypot(px - qx, py - qy) < r + 1.0 for qx, qy in anchors):
-                    continue
-                spot = (px, py)
-                break
-            if spot:
-                break
+    worst = {cl.region: cl for cl in todo if cl.region is not None}
+    anchors = [page(lb.x, lb.y) for lb in labels] + [seen[cl.key] for cl in todo]
+    placer = LabelPlacer(box, anchors)
+    for m in v.markers:  # the clamps' triangles and names (drawn after the labels)
+        placer.reserve(*_marker_extent(*page(m.x, m.y), m.name if m.visible else ""))
+    drawn: set[str] = set()
+    for lb in labels:
+        mid = page(lb.x, lb.y)
+        cl = worst.get(lb.number) if len(drawn) < MAX_PER_VIEW else None
+        if cl is not None:
+            at = seen[cl.key]
+            w, h = _region_label_size(lb.number, cl)
+            ext = math.dist(at, mid) + lb.extent * sx
+            spot = placer.place(*at, w, h, ext)
+            if spot is not None:
+                _leader(c, at, spot, w, h)
+                _draw_region_label(c, spot, w, lb.number, cl)
+                drawn.add(cl.key)
+                continue
+        r = _number_radius(lb.number)
+        spot = placer.place(*mid, 2 * r, 2 * r, lb.extent * sx)
         if spot is None:
             log.debug("no room for the label of region %d in view %s", lb.number, v.name)
             continue
-        px, py = spot
-        d = math.hypot(px - ax, py - ay)
-        c.setStrokeColorRGB(*INK)
-        c.setFillColorRGB(*INK)
-        c.setLineWidth(0.6)
-        c.line(ax, ay, px - (px - ax) * r / d, py - (py - ay) * r / d)
-        c.circle(ax, ay, 1.0, stroke=0, fill=1)
+        _leader(c, mid, spot, 2 * r, 2 * r, round_end=True)
+        _draw_region_label(c, spot, 2 * r, lb.number, None)
+    for cl in todo:
+        if cl.region is not None or len(drawn) >= MAX_PER_VIEW:
+            continue
+        at = seen[cl.key]
+        w, h = text_width(cl.text, _VALUE_PT) + 6.0, 9.0
+        spot = placer.place(*at, w, h)
+        if spot is None:
+            log.debug("no room for the callout %r in view %s", cl.key, v.name)
+            continue
+        _leader(c, at, spot, w, h)
+        _draw_value_label(c, spot, w, h, cl.text)
+        drawn.add(cl.key)
+    return drawn
+
+
+def _region_label_size(number: int, cl: Callout) -> tuple[float, float]:
+    """Width and height (points) of a region's number circle followed by its value."""
+    r = _number_radius(number)
+    return 2 * r + text_width(cl.text, _VALUE_PT, True) + 4.0, 2 * r
+
+
+def _leader(
+    c: Canvas,
+    at: tuple[float, float],
+    spot: tuple[float, float],
+    w: float,
+    h: float,
+    round_end: bool = False,
+) -> None:
+    """The leader line from the point ``at`` to the edge of the ``w`` x ``h`` label centred
+    at ``spot`` (to its circle's edge with ``round_end``), and a dot on the point."""
+    ax, ay = at
+    px, py = spot
+    if round_end:
+        d = max(math.hypot(px - ax, py - ay), 1e-9)
+        ex, ey = px - (px - ax) * (w / 2) / d, py - (py - ay) * (w / 2) / d
+    else:
+        ex, ey = leader_end(ax, ay, px, py, w, h)
+    c.setStrokeColorRGB(*INK)
+    c.setFillColorRGB(*INK)
+    c.setLineWidth(0.6)
+    c.line(ax, ay, ex, ey)
+    c.circle(ax, ay, 1.0, stroke=0, fill=1)
+
+
+def _draw_region_label(
+    c: Canvas, spot: tuple[float, float], w: float, number: int, cl: Callout | None
+) -> None:
+    """A region's number in its circle, its worst value after it in a rounded box when
+    ``cl`` is given; ``spot`` is the centre of the whole label, ``w`` its width."""
+    r = _number_radius(number)
+    x0, cy = spot[0] - w / 2, spot[1]
+    c.setStrokeColorRGB(*INK)
+    c.setFillColorRGB(1, 1, 1)
+    c.setLineWidth(0.7)
+    if cl is not None:
+        c.roundRect(x0, cy - r, w, 2 * r, r, stroke=1, fill=1)
+        draw_text(c, x0 + 2 * r + 1.5, cy - 2.1, cl.text, _VALUE_PT, True, INK)
         c.setFillColorRGB(1, 1, 1)
-        c.setLineWidth(0.7)
-        c.circle(px, py, r, stroke=1, fill=1)
-        draw_text(c, px, py - 2.3, str(lb.number), 6.3, True, INK, "c")
-        placed.append((px, py, r))
+    c.circle(x0 + r, cy, r, stroke=1, fill=1)
+    draw_text(c, x0 + r, cy - 2.3, str(number), _NUMBER_PT, True, INK, "c")
+
+
+def _draw_value_label(c: Canvas, spot: tuple[float, float], w: float, h: float, text: str) -> None:
+    """A point of interest's value (with its tag) in a rounded box centred at ``spot``."""
+    c.setStrokeColorRGB(*INK)
+    c.setFillColorRGB(1, 1, 1)
+    c.setLineWidth(0.5)
+    c.roundRect(spot[0] - w / 2, spot[1] - h / 2, w, h, 2.0, stroke=1, fill=1)
+    draw_text(c, spot[0], spot[1] - 2.1, text, _VALUE_PT, False, INK, "c")
 
 
 def draw_colorbar(c: Canvas, ctx: ReportContext, box: Box) -> None:
@@ -323,6 +436,9 @@ def draw_colorbar(c: Canvas, ctx: ReportContext, box: Box) -> None:
     c.setFillColorRGB(1, 1, 1)
     c.setStrokeColorRGB(*INK)
     c.setLineWidth(0.7)
-    c.circle(lx + 5, ly + 3, 4.6, stroke=1, fill=1)
-    draw_text(c, lx + 5, ly + 0.9, "1", 5.8, True, INK, "c")
-    draw_text(c, lx + 14, ly + 0.8, "region number (region table)", 6.5)
+    c.roundRect(lx, ly - 1.6, 25.0, 9.2, 4.6, stroke=1, fill=1)
+    draw_text(c, lx + 10.8, ly + 0.9, "dev", 5.2, True, INK)
+    c.setFillColorRGB(1, 1, 1)
+    c.circle(lx + 4.6, ly + 3, 4.6, stroke=1, fill=1)
+    draw_text(c, lx + 4.6, ly + 0.9, "1", 5.8, True, INK, "c")
+    draw_text(c, lx + 29, ly + 0.8, "region no., worst deviation (mm)", 6.5)

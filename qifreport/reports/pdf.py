@@ -12,7 +12,9 @@ matplotlib's bundled fonts). Top to bottom:
 3. **Deviation maps** -- the registered nominal from two or three automatically chosen
    directions (:mod:`qifreport.reports.render`), green inside the band, red proud / blue
    sunk outside, grey unscored, out-of-tolerance regions outlined and numbered as in the
-   region table; the colour bar (mm, symmetric about 0) marks each distinct band.
+   region table, the signed deviation called out at each numbered region's worst point and
+   at the part's extremes (:mod:`qifreport.reports.callouts`); the colour bar (mm,
+   symmetric about 0) marks each distinct band.
 4. **Histogram** of the area-weighted signed deviation with the band limits and the
    data-referenced distribution, beside the **statistics** (whole part at the vertices,
    scan points, and each tolerance on its own faces when there are two or three).
@@ -47,17 +49,20 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from qifreport import __version__
 from qifreport.metrology.inspection import InspectionResult
 from qifreport.qif.writer import Provenance
 
+from .callouts import Callout, callouts
 from .context import ReportContext, clamp_markers
 from .header import HEADER_H, decision_lines, draw_decision, draw_header
 from .kit import FONT, Box, Table, draw_table, fmt_area, fmt_mm, fmt_pct, fmt_smm
 from .maps import colorbar_height, draw_colorbar, draw_maps, layout_score, map_boxes, map_margins
 from .notes import draw_notes_footer, note_lines, notes_height
 from .registration import registration_table
-from .render import RenderedView, ViewSpec, render_views
+from .render import RenderedView, ViewSpec, picture_points, render_views
 from .stats import draw_histogram, stats_table
 from .tables import characteristic_table, pick_tolerances, region_table, tolerance_table
 
@@ -68,6 +73,7 @@ __all__ = [
     "MAP_DPI",
     "MAP_MAX_PT",
     "PageLayout",
+    "map_points",
     "plan_layout",
     "write_pdf",
     "write_report",
@@ -290,8 +296,11 @@ class _Report(ReportContext):
             blocks=blocks,
         )
 
-    def draw(self, path: Path, lay: PageLayout, views: list[RenderedView]) -> None:
-        """Write the page laid out as ``lay``, with the rendered ``views``, to ``path``."""
+    def draw(
+        self, path: Path, lay: PageLayout, views: list[RenderedView], calls: list[Callout]
+    ) -> None:
+        """Write the page laid out as ``lay``, with the rendered ``views`` and the deviation
+        ``calls`` on them, to ``path``."""
         res, prov = self.res, self.prov
         c = self.new_canvas(path)
         c.setTitle(f"Surface deviation report: {prov.part_name}")
@@ -305,7 +314,7 @@ class _Report(ReportContext):
         b = lay.blocks
         draw_header(c, self, b["header"])
         draw_decision(c, *b["decision"])
-        draw_maps(c, lay.maps, views, lay.regions_listed)
+        draw_maps(c, lay.maps, views, lay.regions_listed, calls)
         draw_colorbar(c, self, lay.colorbar)
         draw_histogram(c, self, lay.histogram)
         box, t = b["stats"]
@@ -332,6 +341,34 @@ def plan_layout(
     rasterized page (tests) or to know how many regions and tolerances the page lists.
     """
     return _Report(res, prov, page, chain_floor, None).plan()
+
+
+def _picture_sizes(lay: PageLayout) -> list[tuple[int, int]]:
+    """The pixel size ``(width, height)`` of each map picture (:data:`MAP_DPI`)."""
+    px_per_pt = MAP_DPI / 72.0
+    return [
+        (max(16, int(round(b.w * px_per_pt))), max(16, int(round(b.h * px_per_pt))))
+        for b in lay.maps
+    ]
+
+
+def map_points(res: InspectionResult, lay: PageLayout, k: int, X: np.ndarray) -> np.ndarray:
+    """Where points of the registered nominal fall on the page, in map ``k`` (0 = A).
+
+    Parameters
+    ----------
+    res : the inspection result.  lay : its layout (:func:`plan_layout`).
+    k : the map.  X : (m, 3) points, mm, in the registered nominal's frame.
+
+    Returns
+    -------
+    (m, 2) page coordinates, points, origin at the bottom-left corner of the page (no
+    visibility test: a point may be hidden in that view, or outside the picture).
+    """
+    box = lay.maps[k]
+    w, h = _picture_sizes(lay)[k]
+    px = picture_points(res.V_registered, lay.views[k], (w, h), X, margin=map_margins(box))
+    return np.c_[box.x + px[:, 0] * box.w / w, box.top - px[:, 1] * box.h / h]
 
 
 def write_pdf(
@@ -381,11 +418,7 @@ def write_report(
         qif_name = f"{prov.part_name}.qif"
     rep = _Report(res, prov, page, chain_floor, qif_name or None)
     lay = rep.plan()
-    px_per_pt = MAP_DPI / 72.0
-    sizes = [
-        (max(16, int(round(b.w * px_per_pt))), max(16, int(round(b.h * px_per_pt))))
-        for b in lay.maps
-    ]
+    calls = callouts(res, lay.regions_listed)
     t1 = time.perf_counter()
     views = render_views(
         res.V_registered,
@@ -394,15 +427,16 @@ def write_report(
         rep.lower,
         rep.upper,
         res.acceptance.regions,
-        size=sizes,
+        size=_picture_sizes(lay),
         views=lay.views,
         scale=lay.scale,
         backend=backend,
         margin=[map_margins(b) for b in lay.maps],
         markers=clamp_markers(res),
+        points=[(cl.key, cl.position) for cl in calls],
     )
     t2 = time.perf_counter()
-    rep.draw(path, lay, views)
+    rep.draw(path, lay, views, calls)
     t3 = time.perf_counter()
     log.info(
         "PDF report %s: layout %.2f s, maps %.2f s (%s), drawing %.2f s",

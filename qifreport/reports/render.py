@@ -16,7 +16,10 @@ band edge is where the colour jumps from green to red/blue, and every out-of-tol
 region is outlined by the iso-line ``|dev - centre| = half-width`` (drawn in black, the exact
 band edge interpolated along the triangle edges). Region numbers are not burnt into the
 images: each :class:`RenderedView` carries the pixel anchor of every region visible in it,
-so the caller draws the numbers as vector text on top (:mod:`qifreport.reports.pdf`).
+so the caller draws the numbers as vector text on top (:mod:`qifreport.reports.pdf`); the same
+way, any named 3-D point (a region's worst point, the part's extremes: the deviation callouts
+of :mod:`qifreport.reports.callouts`) comes back as its pixel and whether the view shows it
+(:attr:`RenderedView.points`, the region anchors' visibility rule).
 
 Rendering uses VTK offscreen through EGL (``VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow``,
 no display needed) with a parallel (orthographic) camera; if VTK cannot render (not
@@ -46,6 +49,7 @@ __all__ = [
     "color_scale",
     "deviation_colors",
     "nice_ceil",
+    "picture_points",
     "RegionLabel",
     "render_views",
     "RenderedView",
@@ -143,6 +147,9 @@ class RenderedView:
     mm_per_px : scale of the picture (parallel projection), mm per pixel.
     backend : ``"vtk"`` or ``"matplotlib"``.
     markers : the clamps in this picture (:class:`Marker`).
+    points : the named points asked for (``render_views(points=...)``) that fall inside the
+        picture, each with its pixel and whether the view shows it (:class:`Marker`; the
+        visibility rule of the region anchors, :attr:`labels`).
     """
 
     image: np.ndarray
@@ -154,6 +161,7 @@ class RenderedView:
     mm_per_px: float = math.nan
     backend: str = "vtk"
     markers: list[Marker] = field(default_factory=list)
+    points: list[Marker] = field(default_factory=list)
 
 
 # ------------------------------------------------------------------------------- colours
@@ -444,6 +452,39 @@ def _projection(
     )
 
 
+def _margins(margin, n: int) -> np.ndarray:
+    """(n, 4) margins ``(left, right, top, bottom)`` of ``n`` views from one number, one
+    tuple for all views or one tuple per view."""
+    m = np.asarray(margin, dtype=float)
+    if m.ndim == 0:
+        return np.full((n, 4), float(m))
+    return np.tile(m, (n, 1)) if m.ndim == 1 else m[:n]
+
+
+def picture_points(
+    V: np.ndarray,
+    view: ViewSpec,
+    size: tuple[int, int],
+    X: np.ndarray,
+    margin: float | Sequence[float] = 0.04,
+) -> np.ndarray:
+    """Where points fall in the picture :func:`render_views` draws of ``V`` from ``view``.
+
+    Parameters
+    ----------
+    V : (n, 3) vertices of the registered nominal, mm (they fix the picture's scale).
+    view : the camera direction.  size : picture ``(width, height)``, pixels.
+    X : (m, 3) points, mm.  margin : as :func:`render_views` (one view's).
+
+    Returns
+    -------
+    (m, 2) pixel coordinates, origin at the top-left corner (no visibility test).
+    """
+    V = np.asarray(V, dtype=np.float64)
+    pj = _projection(V, view, int(size[0]), int(size[1]), tuple(_margins(margin, 1)[0]))
+    return pj.pixels(np.asarray(X, dtype=np.float64).reshape(-1, 3))
+
+
 def band_outline(V: np.ndarray, F: np.ndarray, dev: np.ndarray, lower, upper) -> np.ndarray:
     """Segments (s, 2, 3) of the band edge ``|dev - c| = h`` (marching triangles).
 
@@ -493,6 +534,7 @@ def render_views(
     backend: str | None = None,
     margin: float | Sequence[float] | Sequence[Sequence[float]] = 0.04,
     markers: Sequence[tuple[str, Sequence[float]]] = (),
+    points: Sequence[tuple[str, Sequence[float]]] = (),
 ) -> list[RenderedView]:
     """Pictures of the deviation map from two or three directions.
 
@@ -515,6 +557,8 @@ def render_views(
     margin : empty border around the part, fraction of the picture size: one number, or
         ``(left, right, top, bottom)``, or one such tuple per view.
     markers : ``(name, (x, y, z) mm)`` of the clamps to mark (:attr:`RenderedView.markers`).
+    points : ``(name, (x, y, z) mm)`` of points on the surface to locate in every view
+        (:attr:`RenderedView.points`), e.g. the worst point of each region.
 
     Returns
     -------
@@ -537,14 +581,7 @@ def render_views(
         scale = color_scale(dev, lower, upper)
     rgb = (deviation_colors(dev, lower, upper, scale) * 255 + 0.5).astype(np.uint8)
     outline = band_outline(V, F, dev, lower, upper)
-    m = np.asarray(margin, dtype=float)
-    margins = (
-        np.full((len(views), 4), float(m))
-        if m.ndim == 0
-        else np.tile(m, (len(views), 1))
-        if m.ndim == 1
-        else m[: len(views)]
-    )
+    margins = _margins(margin, len(views))
     projs = [
         _projection(V, v, w, h, tuple(mg))
         for v, (w, h), mg in zip(views, sizes, margins, strict=True)
@@ -573,17 +610,19 @@ def render_views(
     out = []
     for view, pj, img, zb in zip(views, projs, images, depths, strict=True):
         axes = np.array([[pj.r[i], pj.u[i]] for i in range(3)])
+        seen = _Visibility(V, pj, zb)
         out.append(
             RenderedView(
                 image=img,
                 name=view.name,
                 direction=pj.d.copy(),
                 up=pj.u.copy(),
-                labels=_labels(V, regions, pj, zb),
+                labels=_labels(V, regions, seen),
                 axes=axes,
                 mm_per_px=1.0 / pj.k,
                 backend=used,
                 markers=_markers(V, markers, pj, zb),
+                points=_points(points, seen),
             )
         )
     return out
@@ -609,32 +648,62 @@ def _markers(V: np.ndarray, markers, pj: _Projection, zbuf: np.ndarray) -> list[
     return out
 
 
-def _labels(V: np.ndarray, regions: list, pj: _Projection, zbuf: np.ndarray) -> list[RegionLabel]:
-    """Label anchors of the regions visible in a view.
+class _Visibility:
+    """Which points of the surface a view shows, from its distance buffer.
 
     ``zbuf`` (h, w) is the distance (mm, :meth:`_Projection.distance`) of the nearest surface
-    at each pixel (inf on background). A vertex is visible when it is no farther than the
-    nearest surface in its 3x3 pixel neighbourhood plus a small tolerance. The anchor is the
-    visible vertex nearest to the visible vertices' mean, so it lies on the region.
+    at each pixel (inf on background). A point is seen when it falls inside the picture and
+    is no farther than the nearest surface in its 3x3 pixel neighbourhood (the farthest of
+    the nine: grazing surfaces) plus a tolerance of two pixels or 1e-3 of the part's
+    extent, whichever is larger.
     """
-    h, w = zbuf.shape
-    # 3x3 maximum of finite depths (grazing surfaces), background stays inf
-    z = np.where(np.isfinite(zbuf), zbuf, -np.inf)
-    pad = np.pad(z, 1, mode="edge")
-    zmax = np.max([pad[i : i + h, j : j + w] for i in range(3) for j in range(3)], axis=0)
-    zmax = np.where(np.isfinite(zmax), zmax, np.inf)
-    tol = max(2.0 / pj.k, 1e-3 * (np.ptp(V, axis=0).max()))
+
+    def __init__(self, V: np.ndarray, pj: _Projection, zbuf: np.ndarray):
+        h, w = zbuf.shape
+        z = np.where(np.isfinite(zbuf), zbuf, -np.inf)
+        pad = np.pad(z, 1, mode="edge")
+        zmax = np.max([pad[i : i + h, j : j + w] for i in range(3) for j in range(3)], axis=0)
+        self.zmax = np.where(np.isfinite(zmax), zmax, np.inf)
+        self.tol = max(2.0 / pj.k, 1e-3 * float(np.ptp(V, axis=0).max()))
+        self.pj = pj
+
+    def __call__(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixels (m, 2) of the points X (m, 3) mm, whether each falls inside the picture
+        and whether each is seen (both (m,) bool)."""
+        h, w = self.zmax.shape
+        px = self.pj.pixels(X)
+        ix = np.clip(np.round(px[:, 0]).astype(int), 0, w - 1)
+        iy = np.clip(np.round(px[:, 1]).astype(int), 0, h - 1)
+        inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
+        seen = inside & (self.pj.distance(X) <= self.zmax[iy, ix] + self.tol)
+        return px, inside, seen
+
+
+def _points(points, seen: _Visibility) -> list[Marker]:
+    """The named points inside a view, with their pixels and whether the view shows them."""
+    if not len(points):
+        return []
+    X = np.array([np.asarray(p, dtype=np.float64) for _, p in points]).reshape(-1, 3)
+    px, inside, vis = seen(X)
+    return [
+        Marker(str(name), float(q[0]), float(q[1]), bool(v))
+        for (name, _), q, i, v in zip(points, px, inside, vis, strict=True)
+        if i
+    ]
+
+
+def _labels(V: np.ndarray, regions: list, seen: _Visibility) -> list[RegionLabel]:
+    """Label anchors of the regions visible in a view (:class:`_Visibility`).
+
+    The anchor is the visible vertex nearest to the visible vertices' mean, so it lies on
+    the region.
+    """
     labels = []
     for num, reg in enumerate(regions, start=1):
         idx = np.asarray(reg.vertices, dtype=np.int64)
         if len(idx) == 0:
             continue
-        X = V[idx]
-        px = pj.pixels(X)
-        ix = np.clip(np.round(px[:, 0]).astype(int), 0, w - 1)
-        iy = np.clip(np.round(px[:, 1]).astype(int), 0, h - 1)
-        inside = (px[:, 0] >= 0) & (px[:, 0] < w) & (px[:, 1] >= 0) & (px[:, 1] < h)
-        vis = inside & (pj.distance(X) <= zmax[iy, ix] + tol)
+        px, _, vis = seen(V[idx])
         if not vis.any():
             continue
         pv = px[vis]
