@@ -890,7 +890,13 @@ def _straightness(spec, S, sample, feat, frame, sizes, surf, faces):
     if worst is None:
         raise _Unmeasurable("no line element with enough points")
     fit, g = worst
-    return fit.minimum_zone, fit.least_squares, zone_uncertainty(fit.residuals, sample.U[g]), what, 0.0
+    return (
+        fit.minimum_zone,
+        fit.least_squares,
+        zone_uncertainty(fit.residuals, sample.U[g]),
+        what,
+        0.0,
+    )
 
 
 def _orientation(spec, S, sample, feat, frame, sizes, surf, faces):
