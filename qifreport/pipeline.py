@@ -322,7 +322,9 @@ def _stage(prof: Profiler | None, name: str):
 
 
 @contextlib.contextmanager
-def progress_bar(desc: str, *, enabled: bool = True) -> Iterator[Any]:
+def progress_bar(
+    desc: str, *, enabled: bool = True, total: int | None = None, unit: str = "it"
+) -> Iterator[Any]:
     """A tqdm progress bar on stderr for the ``with`` block, or None (no bar).
 
     The bar is drawn only when ``enabled`` and stderr is a terminal: in a file or a pipe its
@@ -336,6 +338,7 @@ def progress_bar(desc: str, *, enabled: bool = True) -> Iterator[Any]:
     Parameters
     ----------
     desc : the bar's label.  enabled : False: no bar (``--quiet``).
+    total : the number of iterations, when known.  unit : what one iteration is.
 
     Yields
     ------
@@ -348,7 +351,7 @@ def progress_bar(desc: str, *, enabled: bool = True) -> Iterator[Any]:
     from tqdm import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
 
-    bar = tqdm(desc=desc, unit="it", file=sys.stderr, leave=True)
+    bar = tqdm(desc=desc, total=total, unit=unit, file=sys.stderr, leave=True)
     try:
         with logging_redirect_tqdm(tqdm_class=tqdm):
             yield bar

@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import sys
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -21,6 +20,7 @@ from qifreport.errors import InputError
 
 from ..cache import PartState, part_state, sha256
 from ..options import InspectJob, InspectOptions
+from ..pipeline import progress_bar
 from .executors import run_dask, run_local
 from .plan import ScanItem, plan
 from .records import commit, read_record, record_digest
@@ -162,12 +162,10 @@ def run_batch(opts: BatchOptions) -> BatchReport:
             yield ScanTask(item, data, sd, states[item.nominal].key)
 
     jobs = opts.jobs or max(1, min(os.cpu_count() or 1, len(todo)))
-    bar = None
-    if not opts.quiet and todo:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(todo), desc="scans", unit="scan", file=sys.stderr)
-    try:
+    # drawn only on a terminal, its line ended before the summary (pipeline.progress_bar)
+    with progress_bar(
+        "scans", enabled=not opts.quiet and bool(todo), total=len(todo), unit="scan"
+    ) as bar:
         if todo and opts.scheduler:
             results = run_dask(tasks(), part_states, template, opts.scheduler, 4 * jobs)
         else:
@@ -178,9 +176,6 @@ def run_batch(opts: BatchOptions) -> BatchReport:
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix_str(f"{item.id}: {res.row.get('verdict')}")
-    finally:
-        if bar is not None:
-            bar.close()
 
     ordered = [records[i.id] for i in items if i.id in records]
     counts = {v: sum(r["row"].get("verdict") == v for r in ordered) for v in VERDICTS}
