@@ -82,9 +82,11 @@ demo: install system-deps
 	  "panel held at its datum targets, ISO 10579, in $(OUT)/restrained/; open" \
 	  "$(OUT)/panel.html in any browser for the deviation map in 3-D)"
 
-# both cores of the CI machine, a test file per worker (module fixtures stay in one process)
+# both cores of the CI machine, a test file per worker (module fixtures stay in one process),
+# each worker's BLAS and OpenMP on one thread (two workers on two cores: a second thread per
+# worker would only spin against the other worker; the command line sets the same itself)
 test: install system-deps
-	$(PY) -m pytest -q -n 2 --dist loadfile
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -q -n 2 --dist loadfile
 
 lint: install
 	$(VENV)/bin/ruff check .

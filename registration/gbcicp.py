@@ -38,6 +38,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
+from threadpoolctl import ThreadpoolController
 
 from .deformable import DeformResult, Match, ScanMatcher, coverage_radius, orient_scan_normals
 from .icp import robust_scale
@@ -215,9 +216,14 @@ def bending_basis(
     # ARPACK's own default start, uniform on [-1, 1], but drawn from the seeded generator
     v0 = rng.uniform(-1.0, 1.0, n)
     restarts = {"rng": rng} if _EIGSH_TAKES_RNG else {}
-    mu, Phi = spla.eigsh(
-        ops.Q, k=k, M=ops.M, sigma=shift, which="LM", OPinv=opinv, tol=tol, v0=v0, **restarts
-    )
+    # one thread for every BLAS and OpenMP pool: ARPACK's steps are vector operations and
+    # one-vector solves, which a second thread does not speed up, and whose spinning waits
+    # take the core from other work (beside another busy process, 48 s on the fandisk with
+    # two threads, 4.7 s with one); the command line sets the same for the whole run
+    with ThreadpoolController().limit(limits=1):
+        mu, Phi = spla.eigsh(
+            ops.Q, k=k, M=ops.M, sigma=shift, which="LM", OPinv=opinv, tol=tol, v0=v0, **restarts
+        )
     order = np.argsort(mu, kind="stable")
     mu, Phi = canonical_modes(mu[order], Phi[:, order], ops.area, tol=tol)
     return BendingBasis(
