@@ -63,10 +63,18 @@ class SPDSolver:
     backend : ``"auto"`` (:func:`default_backend`), ``"cholmod"`` or ``"superlu"``.
     points : (n, d) positions of the unknowns (mm), optional. With SuperLU, the first matrix's
         pattern and these positions give a nested-dissection order, kept for the sequence
-        (CHOLMOD orders by itself). Without them SuperLU's minimum-degree order is used.
+        (CHOLMOD orders by itself).
+    order : (n,) a fill-reducing permutation of the unknowns for SuperLU, instead of
+        ``points`` (e.g. a block order keeping each vertex's unknowns together). With
+        neither, SuperLU's own minimum-degree order is used.
     """
 
-    def __init__(self, backend: str = "auto", points: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        backend: str = "auto",
+        points: np.ndarray | None = None,
+        order: np.ndarray | None = None,
+    ) -> None:
         if backend == "auto":
             backend = default_backend()
         if backend not in ("cholmod", "superlu"):
@@ -79,6 +87,13 @@ class SPDSolver:
         self._pools: ThreadpoolController | None = None
         self._perm: np.ndarray | None = None
         self._inv: np.ndarray | None = None
+        if order is not None:
+            self._set_order(np.asarray(order, dtype=np.int64))
+
+    def _set_order(self, perm: np.ndarray) -> None:
+        self._perm = perm
+        self._inv = np.empty_like(perm)
+        self._inv[perm] = np.arange(len(perm))
 
     def _one_thread(self):
         """CHOLMOD's BLAS (the system's OpenBLAS) and OpenMP on one thread for the call.
@@ -108,9 +123,11 @@ class SPDSolver:
                     return f(b)
 
             return solve_cholmod
-        if self.points is not None and len(self.points) != A.shape[0]:
-            raise ValueError(f"{len(self.points)} points for a {A.shape[0]}-unknown system")
-        if self.points is None:
+        if self._perm is None and self.points is not None:
+            if len(self.points) != A.shape[0]:
+                raise ValueError(f"{len(self.points)} points for a {A.shape[0]}-unknown system")
+            self._set_order(nested_dissection(self.points, A))
+        if self._perm is None:
             lu = spla.splu(
                 A,
                 permc_spec="MMD_AT_PLUS_A",
@@ -118,10 +135,8 @@ class SPDSolver:
                 options={"SymmetricMode": True},
             )
             return lu.solve
-        if self._perm is None:
-            self._perm = nested_dissection(self.points, A)
-            self._inv = np.empty_like(self._perm)
-            self._inv[self._perm] = np.arange(len(self._perm))
+        if len(self._perm) != A.shape[0]:
+            raise ValueError(f"an order of {len(self._perm)} for a {A.shape[0]}-unknown system")
         p, inv = self._perm, self._inv
         lu = spla.splu(
             sp.csc_matrix(A[p][:, p]),

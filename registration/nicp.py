@@ -54,13 +54,12 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 
 from .deformable import DeformResult, ScanMatcher, coverage_radius, finish, scan_matcher
 from .icp import robust_scale
-from .linalg import SPDSolver, have_cholmod
-from .mesh import MeshOperators, bounding_diagonal, edges, vertex_normals
-from .ordering import mesh_adjacency, nested_dissection
+from .linalg import SPDSolver, default_backend
+from .mesh import MeshOperators, adjacency, bounding_diagonal, edges, vertex_normals
+from .ordering import nested_dissection
 from .pointcloud import pca_normals
 
 __all__ = [
@@ -194,38 +193,14 @@ class _AffineSystem:
         return np.einsum("ia,iac->ic", self.H, X.reshape(self.n, 4, 3))
 
 
-class _Factorizer:
-    """Sparse SPD factorisation of the 4n NICP system.
-
-    CHOLMOD through :class:`qifreport.registration.linalg.SPDSolver` when installed (its symbolic
-    analysis is reused: the pattern is fixed). Without it, SuperLU in symmetric mode on the
-    matrix permuted by a *block* nested-dissection order of the vertices (each vertex's
-    four unknowns kept together); on the 28,910-vertex fandisk this factors in about half
-    the time of SuperLU's own MMD order on the scalar pattern, at the same fill.
-    """
-
-    def __init__(self, V: np.ndarray, F: np.ndarray):
-        self.cholmod = SPDSolver() if have_cholmod() else None
-        if self.cholmod is None:
-            perm = nested_dissection(V, mesh_adjacency(F, len(V)), leaf=64)
-            self.p4 = (4 * perm[:, None] + np.arange(4)).ravel()
-            self.inv = np.empty_like(self.p4)
-            self.inv[self.p4] = np.arange(len(self.p4))
-
-    def factor(self, A: sp.csc_matrix) -> Callable[[np.ndarray], np.ndarray]:
-        """Factorise ``A`` (4n, 4n) and return ``solve(b)`` for (4n,) or (4n, k) ``b``."""
-        if self.cholmod is not None:
-            return self.cholmod.factor(A)
-        Ap = sp.csc_matrix(A[self.p4][:, self.p4])
-        lu = spla.splu(
-            Ap, permc_spec="NATURAL", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
-        )
-        p4, inv = self.p4, self.inv
-
-        def solve(b: np.ndarray) -> np.ndarray:
-            return lu.solve(np.ascontiguousarray(b[p4]))[inv]
-
-        return solve
+def _block_order(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """SuperLU's fill-reducing order of the 4n NICP unknowns: a nested dissection of the
+    vertices (:func:`qifreport.registration.ordering.nested_dissection` on the mesh's vertex
+    graph), each vertex's four unknowns kept together. On the 28,910-vertex fandisk this
+    factors in about half the time of SuperLU's own MMD order on the scalar pattern, at the
+    same fill. (CHOLMOD, when installed, orders by itself.)"""
+    perm = nested_dissection(V, adjacency(F, len(V)), leaf=64)
+    return (4 * perm[:, None] + np.arange(4)).ravel()
 
 
 def _pcg(
@@ -312,7 +287,10 @@ def nicp(
     s = bounding_diagonal(V0)
     H = np.c_[(V0 - c) / s, np.ones(len(V0))]
     system = _AffineSystem(H, edges(F), p.gamma)
-    solver = _Factorizer(V0, F)
+    # CHOLMOD's analysis is reused across the levels (the pattern is fixed); SuperLU gets a
+    # block nested-dissection order
+    superlu = default_backend() == "superlu"
+    solver = SPDSolver(order=_block_order(V0, F) if superlu else None)
     alphas = np.geomspace(p.alpha_start, p.alpha_end, p.levels)
     eps = 1e-9 * max(min(p.alpha_end, 1.0), 1e-6) ** 2
 

@@ -20,20 +20,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .mesh import edges
-
 __all__ = [
     "nested_dissection",
-    "mesh_adjacency",
 ]
-
-
-def mesh_adjacency(F: np.ndarray, n: int) -> sp.csr_matrix:
-    """The vertex graph of the triangles ``F`` (f, 3) on ``n`` vertices, (n, n) CSR."""
-    E = edges(F)
-    return sp.coo_matrix(
-        (np.ones(2 * len(E)), (np.r_[E[:, 0], E[:, 1]], np.r_[E[:, 1], E[:, 0]])), shape=(n, n)
-    ).tocsr()
 
 
 def nested_dissection(X: np.ndarray, adjacency: sp.spmatrix, leaf: int = 16) -> np.ndarray:
@@ -47,7 +36,8 @@ def nested_dissection(X: np.ndarray, adjacency: sp.spmatrix, leaf: int = 16) -> 
     ----------
     X : (n, d) positions of the unknowns (mm; only their order along each axis matters).
     adjacency : (n, n) sparse, the coupling pattern (the matrix to factorise, or the mesh's
-        vertex graph); its values are ignored, the diagonal may be present.
+        vertex graph, :func:`qifreport.registration.mesh.adjacency`); its values are
+        ignored, the diagonal may be present.
     leaf : size below which a part is not split further.
 
     Returns
@@ -55,7 +45,7 @@ def nested_dissection(X: np.ndarray, adjacency: sp.spmatrix, leaf: int = 16) -> 
     (n,) int64 permutation: ``A[p][:, p]`` is the reordered matrix.
     """
     n = len(X)
-    adj = sp.csr_matrix(adjacency, copy=True)
+    adj = sp.csr_matrix(adjacency, dtype=np.float64, copy=True)
     adj.data[:] = 1.0
     out: list[np.ndarray] = []
     stack: list[tuple[np.ndarray, int]] = [(np.arange(n), 0)]
