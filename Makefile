@@ -32,14 +32,15 @@ install: $(VENV)/.installed
 # skip, or fail with a clear message under CI=true.
 SYSTEM_DEPS := libxerces-c-samples poppler-utils chromium
 
+# how apt-get runs as root here: as is (root), through `sudo -n`, or not at all (`none`)
+SUDO = $(shell if [ "$$(id -u)" -eq 0 ]; then echo; \
+  elif command -v sudo >/dev/null 2>&1; then echo "sudo -n"; else echo none; fi)
+
 system-deps:
 	@if ! { command -v DOMCount && command -v pdftoppm && command -v chromium; } >/dev/null 2>&1; then \
-	  if [ "$$(id -u)" -eq 0 ]; then SUDO=; \
-	  elif command -v sudo >/dev/null 2>&1; then SUDO="sudo -n"; \
-	  else SUDO=none; fi; \
-	  if [ "$$SUDO" != none ] && command -v apt-get >/dev/null 2>&1; then \
-	    $$SUDO apt-get update -qq && \
-	    $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_DEPS) >/dev/null; \
+	  if [ "$(SUDO)" != none ] && command -v apt-get >/dev/null 2>&1; then \
+	    $(SUDO) apt-get update -qq && \
+	    $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(SYSTEM_DEPS) >/dev/null; \
 	  fi; \
 	  if { command -v DOMCount && command -v pdftoppm && command -v chromium; } >/dev/null 2>&1; then \
 	    echo "installed $(SYSTEM_DEPS)"; \
@@ -106,14 +107,10 @@ ACCEL_DEPS := libsuitesparse-dev libopenblas0-pthread
 
 accel-if-possible:
 	@if ! $(PY) -c "import sksparse.cholmod" >/dev/null 2>&1; then \
-	  if ! dpkg -s $(ACCEL_DEPS) >/dev/null 2>&1; then \
-	    if [ "$$(id -u)" -eq 0 ]; then SUDO=; \
-	    elif command -v sudo >/dev/null 2>&1; then SUDO="sudo -n"; \
-	    else SUDO=none; fi; \
-	    if [ "$$SUDO" != none ] && command -v apt-get >/dev/null 2>&1; then \
-	      { $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive \
-	        apt-get install -y -qq $(ACCEL_DEPS); } >/dev/null 2>&1 || true; \
-	    fi; \
+	  if ! dpkg -s $(ACCEL_DEPS) >/dev/null 2>&1 && [ "$(SUDO)" != none ] && \
+	     command -v apt-get >/dev/null 2>&1; then \
+	    { $(SUDO) apt-get update -qq && $(SUDO) env DEBIAN_FRONTEND=noninteractive \
+	      apt-get install -y -qq $(ACCEL_DEPS); } >/dev/null 2>&1 || true; \
 	  fi; \
 	  if [ -e /usr/include/suitesparse/cholmod.h ] && \
 	     $(PY) -m pip install -q -e '.[cholmod]' >/dev/null 2>&1 && \
@@ -126,8 +123,8 @@ accel-if-possible:
 	fi
 
 accel: install
-	@if [ "$$(id -u)" -eq 0 ]; then SUDO=; else SUDO="sudo -n"; fi; \
-	  $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(ACCEL_DEPS) >/dev/null
+	$(filter-out none,$(SUDO)) env DEBIAN_FRONTEND=noninteractive \
+	  apt-get install -y -qq $(ACCEL_DEPS) >/dev/null
 	$(PY) -m pip install -q -e '.[cholmod]'
 	$(PY) -c "import sksparse.cholmod"
 
