@@ -794,6 +794,7 @@ def inspect(
     brep_normals: np.ndarray | None = None,
     restraint: RestraintBasis | None = None,
     plan: CharacteristicPlan | None = None,
+    executor=None,
 ) -> InspectionResult:
     """Inspect the scan ``P`` against the nominal ``(V, F)``.
 
@@ -832,6 +833,12 @@ def inspect(
         (:func:`qifreport.metrology.characteristics.specs_from_pmi`; a STEP nominal with
         ``brep_normals``): measured on the judged surface, and the profiles that name
         datums laid in their frame.
+    executor : an object whose ``submit(fn, *args, **kwargs)`` returns a future (with
+        ``result()`` and ``cancel()``), e.g. a :class:`concurrent.futures.Executor` or the
+        command line's forked child (:class:`qifreport.forked.ForkExecutor`): the
+        free-state judgement is given to it and runs beside the virtual fixture, which is
+        wasted when the free state stands. The outcome is the sequential one. Default:
+        sequential.
 
     Raises
     ------
@@ -870,14 +877,22 @@ def inspect(
             f"of the points lie within {0.02 * diag:.3g} mm of it"
         )
 
-    t0 = time.perf_counter()
-    # scan normals, oriented consistently per connected sheet once; each use below only
-    # chooses the sheets' sides against its own nominal
-    scan_tree = cKDTree(Pm)
-    Ns, sheets = orient_normals_consistent(
-        Pm, pca_normals(Pm, params.gbcicp.scan_normal_k, tree=scan_tree), tree=scan_tree
-    )
-    timings["scan normals"] = time.perf_counter() - t0
+    # the area the seated scan covers (every judgement's coverage), measured beside the
+    # scan normals when there is an executor
+    area = None if executor is None else executor.submit(scan_area, Pm)
+    try:
+        t0 = time.perf_counter()
+        # scan normals, oriented consistently per connected sheet once; each use below only
+        # chooses the sheets' sides against its own nominal
+        scan_tree = cKDTree(Pm)
+        Ns, sheets = orient_normals_consistent(
+            Pm, pca_normals(Pm, params.gbcicp.scan_normal_k, tree=scan_tree), tree=scan_tree
+        )
+        timings["scan normals"] = time.perf_counter() - t0
+        area_mm2 = None if area is None else area.result()
+    finally:
+        if area is not None:
+            area.cancel()
     if zones is None:
         tol = params.tolerance
         zones = [
@@ -894,6 +909,9 @@ def inspect(
     reg = _Registered(
         V=V, F=F, P=Pm, rigid=rigid, seat=seat, scan_normals=Ns, sheets=sheets, diag=diag
     )
+    reg.scan_tree = scan_tree  # the cached properties, known already
+    if area_mm2 is not None:
+        reg.scan_area = area_mm2
     judge = dict(
         face_id=face_id,
         bands=bands,
@@ -915,37 +933,107 @@ def inspect(
         if len(restraint.points) != len(V):
             raise ValueError("the restraint basis was built for another mesh of the part")
         return _restrained(reg, restraint, params, timings, progress, zones, **judge)
-    free = None
-    if not params.always_fixture:
-        # ISO 10579 / Y14.5: restraint is there to bring a compliant part to its drawing
-        # shape; the free state (no force) is one of the states a fixture may hold it in.
-        # When it conforms on its own, no restraint is needed and none is simulated: a
-        # virtual fixture can then only add its own error (a stiff part moved by it).
-        t0 = time.perf_counter()
-        free = _judge(reg, None, params, dict(timings), check_part=False, **judge)
-        # nothing of it proven out of tolerance, registration trusted: the free state stands
-        # (PASS; NOT MEASURED where the scan has holes; or NOT ESTABLISHED on a zone limit
-        # within the uncertainty: a fixture cannot decide what the measurement cannot)
-        if free.passed and free.established:  # its stages are the inspection's
-            free.fixture_decision = (
-                FREE_STATE_UNCERTAIN if free.uncertain() else FREE_STATE_CONFORMS
-            )
-            return free
-        if free.established and free.fails_only_narrower_than_mesh():
-            free.fixture_decision = FREE_STATE_LOCAL_DEFECTS
-            return free
-        timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
+    if params.always_fixture:
+        return _fixtured(reg, None, params, prepared, zones, basis, progress, timings, judge)
+    # ISO 10579 / Y14.5: restraint is there to bring a compliant part to its drawing shape;
+    # the free state (no force) is one of the states a fixture may hold it in. When it
+    # conforms on its own, no restraint is needed and none is simulated: a virtual fixture
+    # can then only add its own error (a stiff part moved by it).
+    t0 = time.perf_counter()
+    args = (reg, None, params, dict(timings))
+    if executor is None:
+        free = _judge(*args, check_part=False, **judge)
+    else:  # judged beside the virtual fixture, which is wasted only when the free state stands
+        pending = executor.submit(_judge, *args, check_part=False, **judge)
+        try:
+            return _fixtured(reg, pending, params, prepared, zones, basis, progress, timings, judge)
+        finally:
+            pending.cancel()
+    decided = _free_state_stands(free)
+    if decided is not None:
+        return decided
+    timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
+    return _fixtured(reg, free, params, prepared, zones, basis, progress, timings, judge)
+
+
+def _free_state_stands(free: InspectionResult) -> InspectionResult | None:
+    """The free-state judgement ``free`` as the inspection's result when it decides it:
+    nothing of it proven out of tolerance with the registration trusted (PASS; NOT
+    MEASURED where the scan has holes; NOT ESTABLISHED on a zone limit within the
+    uncertainty: a fixture cannot decide what the measurement cannot), or only defects
+    narrower than the mesh failed (which no fixture can remove). None: it does not."""
+    if free.passed and free.established:  # its stages are the inspection's
+        free.fixture_decision = FREE_STATE_UNCERTAIN if free.uncertain() else FREE_STATE_CONFORMS
+        return free
+    if free.established and free.fails_only_narrower_than_mesh():
+        free.fixture_decision = FREE_STATE_LOCAL_DEFECTS
+        return free
+    return None
+
+
+def _fixtured(
+    reg: _Registered,
+    free,
+    params: InspectionParams,
+    prepared: PreparedPart,
+    zones: list[ToleranceZone],
+    basis: BendingBasis | None,
+    progress,
+    timings: dict[str, float],
+    judge: dict,
+) -> InspectionResult:
+    """The virtual fixture and the judgement of the part as it holds it.
+
+    ``free``: the free state's judgement that did not stand, None (``always_fixture``), or
+    its pending result (``executor.submit``): then it is taken when needed, and it stands
+    instead of the fixtured judgement when it decides the inspection
+    (:func:`_free_state_stands`)."""
     t0 = time.perf_counter()
     fit = _virtual_fixture(reg, params, prepared, zones, basis, progress)
     timings[params.method] = time.perf_counter() - t0
+    if _pending(free) and any(z.free_state for z in judge["bands"].zones):
+        free = _take(free, timings)  # the free-state zones take its deviation (below)
+        if (decided := _free_state_stands(free)) is not None:
+            return _with_timings(decided, timings)
     # the free state, measured once
-    free_dev = None if free is None else (free.deviation, free.deviation_variance)
+    free_dev = (
+        None
+        if not isinstance(free, InspectionResult)
+        else (
+            free.deviation,
+            free.deviation_variance,
+        )
+    )
     res = _judge(reg, fit, params, timings, free_deviation=free_dev, **judge)
+    if _pending(free):
+        free = _take(free, timings)
+        if (decided := _free_state_stands(free)) is not None:
+            return _with_timings(decided, timings)
     res.fixture_decision = "always" if free is None else "free state does not conform"
     if free is not None:
         res.free_state = free.verdict
         res.free_state_decided_by = free.decided_by()
     return res
+
+
+def _pending(free) -> bool:
+    """Whether ``free`` is a pending free-state judgement (``executor.submit``'s)."""
+    return free is not None and not isinstance(free, InspectionResult)
+
+
+def _with_timings(free: InspectionResult, timings: dict[str, float]) -> InspectionResult:
+    """The standing free state, with the stages this process ran while it was judged
+    beside them (their sum is the inspection's wall time)."""
+    free.timings = dict(timings)
+    return free
+
+
+def _take(pending, timings: dict[str, float]) -> InspectionResult:
+    """The pending free-state judgement's result; the time waited for it is a stage."""
+    t0 = time.perf_counter()
+    free = pending.result()
+    timings["free state (waited)"] = time.perf_counter() - t0
+    return free
 
 
 def _virtual_fixture(

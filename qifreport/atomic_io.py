@@ -6,7 +6,7 @@ import contextlib
 import os
 import signal
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from pathlib import Path
 
 from .errors import raise_if_interrupted
@@ -41,28 +41,49 @@ def atomic_write(path: str | Path, write: Callable[[Path], object]) -> None:
         raise
 
 
-def atomic_write_many(items: list[tuple[str | Path, Callable[[Path], object]]]) -> None:
+def atomic_write_many(
+    items: list[tuple[str | Path, Callable[[Path], object]]],
+    *,
+    executor=None,
+    beside: Collection[str | Path] = (),
+) -> None:
     """Write several files all-or-nothing: every ``write(tmp)`` runs (in order) into a temp
     file beside its target; only when all succeeded are they renamed into place.
 
     A failure in any writer leaves none of the targets created or changed.
+
+    ``executor`` (``submit(fn, *args)`` returning a future with ``result()`` and
+    ``cancel()``, e.g. :class:`qifreport.forked.ForkExecutor`) runs the writers of the
+    targets in ``beside`` while the others run here: writers that only read their inputs
+    (a report), not state the others share.
     """
     staged: list[tuple[Path, Path]] = []
+    pending: list = []
+    later = {Path(p) for p in beside} if executor is not None else set()
     try:
         raise_if_interrupted()
-        for path, write in items:
+        for path, _write in items:
             path = Path(path)
             path.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
             os.close(fd)
             staged.append((path, Path(tmp)))
-            write(Path(tmp))
+        for (path, tmp), (_path, write) in zip(staged, items, strict=True):
+            if path in later:
+                pending.append(executor.submit(write, tmp))
+        for (path, tmp), (_path, write) in zip(staged, items, strict=True):
+            if path not in later:
+                write(tmp)
+        for future in pending:
+            future.result()
         umask = os.umask(0)
         os.umask(umask)
         for _path, tmp in staged:
             os.chmod(tmp, 0o666 & ~umask)
         raise_if_interrupted()
     except BaseException:
+        for future in pending:
+            future.cancel()
         for _path, tmp in staged:
             tmp.unlink(missing_ok=True)
         raise

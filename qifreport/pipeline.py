@@ -50,6 +50,7 @@ from qifreport.registration.restrained import Restraint
 from qifreport.registration.thinning import ThinningReport, nominal_spacing, thin_scan
 
 from .cache import CacheOutcome, PartState, part_state, sha256, store_basis
+from .forked import fork_executor
 from .jsonio import finite, json_default
 from .nominal import Nominal
 from .options import InspectJob
@@ -461,10 +462,17 @@ def zones_with_coverage(
 
 
 def inspect_state(
-    P: np.ndarray, state: PartState, job: InspectJob, *, bar=None, prof: Profiler | None = None
+    P: np.ndarray,
+    state: PartState,
+    job: InspectJob,
+    *,
+    bar=None,
+    prof: Profiler | None = None,
+    executor=None,
 ) -> InspectionResult:
     """Inspect the scan points ``P`` (mm) against a prepared part, with the job's options
-    (the repeatability runs included)."""
+    (the repeatability runs included); ``executor``: where the free-state judgement runs
+    beside the virtual fixture (:func:`qifreport.metrology.inspection.inspect`)."""
     o = job.options
     params = o.inspection_params()
     if state.restraint is not None:
@@ -485,6 +493,7 @@ def inspect_state(
         prepared=state.prepared,
         solid=bool(nom.info.get("solids")),
         restraint=state.restraint,
+        executor=executor,
     )
     if o.seeds > 1:
         with _stage(prof, f"repeatability ({o.seeds} resamplings)"):
@@ -701,8 +710,11 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     with _stage(prof, "thin scan"):
         P, scan_report = scan_input(P, n_read, state.nominal, job.scan.name)
     t_inspect = time.perf_counter()
+    # one command, one scan: a second CPU judges the free state beside the fixture and
+    # renders the reports beside the QIF (a batch's processes fill the CPUs already)
+    beside = fork_executor()
     with progress_bar("virtual fixturing", enabled=progress) as bar:
-        res = inspect_state(P, state, job, bar=bar, prof=prof)
+        res = inspect_state(P, state, job, bar=bar, prof=prof, executor=beside)
     if prof is not None:
         prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
     if res.fit is not None:
@@ -714,5 +726,6 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
         res, state.nominal, job, paths, digests, started, finished, scan_report=scan_report
     )
     with _stage(prof, "write outputs"):  # all outputs or none
-        atomic_write_many(outputs)
+        reports = [paths[k] for k in ("pdf", "html") if k in paths]
+        atomic_write_many(outputs, executor=beside, beside=reports)
     return JobOutcome(res, paths, qif_state, cache)

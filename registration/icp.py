@@ -60,9 +60,10 @@ def kabsch(
     sw = w.sum()
     if sw <= 0:
         return np.eye(3), np.zeros(3)
-    a_bar = (w[:, None] * A).sum(axis=0) / sw
-    b_bar = (w[:, None] * B).sum(axis=0) / sw
-    H = ((A - a_bar) * w[:, None]).T @ (B - b_bar)
+    a_bar = (w @ A) / sw
+    b_bar = (w @ B) / sw
+    # sum_i w_i (a_i - a_bar)(b_i - b_bar)^T, as one product (no centred copies)
+    H = (A * w[:, None]).T @ B - sw * np.outer(a_bar, b_bar)
     U, _, Vt = np.linalg.svd(H)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
     R = Vt.T @ D @ U.T

@@ -1,0 +1,152 @@
+"""Run one call in a forked child process while the caller goes on (Linux).
+
+:class:`ForkExecutor` has the one method of :class:`concurrent.futures.Executor` that
+:func:`qifreport.metrology.inspection.inspect` uses, ``submit(fn, *args, **kwargs)``. The
+inspection gives it the free-state judgement, which needs the CPU while the virtual fixture
+runs in the caller: threads cannot share that work (the judgement is many short numpy calls
+that hold the GIL; measured on the sample panel: no gain), a forked child can, and it starts
+with the caller's arrays without copying or pickling them (copy-on-write). Only the
+result travels back, pickled through a pipe.
+
+The child never writes a file and never runs the parent's exit handlers (``os._exit``); it
+takes the default action of SIGINT/SIGTERM, so an interrupted command stops it too, and
+:meth:`ForkedCall.cancel` kills it when the caller no longer needs it. Whatever goes wrong
+in the child (an exception, a crash, a result that does not pickle, no answer within the
+time limit) the call is made again in the caller, so the outcome is the sequential one and
+only the time differs.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import pickle
+import select
+import signal
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+__all__ = ["ForkExecutor", "ForkedCall", "fork_executor"]
+
+log = logging.getLogger(__name__)
+
+
+def _cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def fork_executor() -> ForkExecutor | None:
+    """A :class:`ForkExecutor` where forking is safe and a second CPU is free to use: Linux
+    (macOS's system libraries are not fork-safe; Windows has no fork) with at least two
+    CPUs in this process's affinity; otherwise None (run sequentially)."""
+    if not sys.platform.startswith("linux") or not hasattr(os, "fork") or _cpus() < 2:
+        return None
+    return ForkExecutor()
+
+
+class ForkedCall:
+    """The pending result of one call in a forked child (:meth:`ForkExecutor.submit`)."""
+
+    def __init__(self, fn: Callable[..., Any], args: tuple, kwargs: dict, timeout: float):
+        self._fn, self._args, self._kwargs = fn, args, kwargs
+        self._timeout = timeout
+        self._started = time.monotonic()
+        self._done = False
+        self._value: Any = None
+        read, write = os.pipe()
+        pid = os.fork()
+        if pid == 0:  # the child: compute, send, leave without the parent's exit handlers
+            os.close(read)
+            code = 0
+            try:
+                signal.signal(signal.SIGINT, signal.SIG_DFL)
+                signal.signal(signal.SIGTERM, signal.SIG_DFL)
+                data = pickle.dumps(fn(*args, **kwargs), protocol=pickle.HIGHEST_PROTOCOL)
+                with os.fdopen(write, "wb") as f:
+                    f.write(data)
+            except BaseException:  # noqa: BLE001 - any failure: the parent computes it
+                code = 1
+            finally:
+                os._exit(code)
+        os.close(write)
+        self._pid, self._fd = pid, read
+        self._reaped = False
+
+    def _reap(self, kill: bool) -> int:
+        """Close the pipe, kill the child if asked, and wait for it (once); its exit status."""
+        if self._reaped:
+            return -1
+        self._reaped = True
+        os.close(self._fd)
+        if kill:
+            try:
+                os.kill(self._pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        _, status = os.waitpid(self._pid, 0)
+        return status
+
+    def result(self) -> Any:
+        """The call's value: the child's, or (when the child failed) the caller's own."""
+        if self._done:
+            return self._value
+        chunks = []
+        deadline = self._started + self._timeout
+        try:
+            while True:
+                left = deadline - time.monotonic()
+                if left <= 0 or not select.select([self._fd], [], [], left)[0]:
+                    raise TimeoutError
+                chunk = os.read(self._fd, 1 << 20)
+                if not chunk:
+                    break
+                chunks.append(chunk)
+        except TimeoutError:
+            self._reap(kill=True)
+            log.warning(
+                "the forked %s gave no answer in %.0f s: computed here", self._name(), self._timeout
+            )
+            return self._local()
+        except BaseException:  # interrupted while waiting: stop the child too
+            self._reap(kill=True)
+            raise
+        status = self._reap(kill=False)
+        if status != 0 or not chunks:
+            log.info("the forked %s failed (status %d): computed here", self._name(), status)
+            return self._local()
+        self._value = pickle.loads(b"".join(chunks))
+        self._done = True
+        return self._value
+
+    def cancel(self) -> bool:
+        """Stop the child if its result was not taken (True when it was stopped)."""
+        if self._done:
+            return False
+        self._reap(kill=True)
+        self._done = True
+        return True
+
+    def _local(self) -> Any:
+        self._value = self._fn(*self._args, **self._kwargs)
+        self._done = True
+        return self._value
+
+    def _name(self) -> str:
+        return getattr(self._fn, "__name__", "call")
+
+
+class ForkExecutor:
+    """``submit(fn, *args, **kwargs)`` runs the call in a forked child process
+    (:class:`ForkedCall`); ``timeout`` (s) bounds how long :meth:`ForkedCall.result`
+    waits for it before computing it in the caller."""
+
+    def __init__(self, timeout: float = 600.0):
+        self.timeout = float(timeout)
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> ForkedCall:
+        return ForkedCall(fn, args, kwargs, self.timeout)

@@ -1,0 +1,155 @@
+"""Work beside the caller in a forked child (:mod:`qifreport.forked`): the outcome is the
+sequential one, bit for bit, whatever the child does.
+
+The inspection gives the free-state judgement and the scan's area to the child
+(:func:`qifreport.metrology.inspection.inspect`, ``executor=``): on a thin shell whose free
+state conforms (the free state stands: the child's judgement is the result) and on one
+warped beyond its band (the fixture's judgement, with the child's free-state verdict), every
+number of the result equals the sequential run's. The child's failures (an exception, a
+crash, no answer in time) fall back to the caller's own computation; a cancelled child is
+gone; the reports written beside the other outputs are published with them, or none is.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from qifreport.atomic_io import atomic_write_many
+from qifreport.forked import ForkExecutor, fork_executor
+from qifreport.metrology.inspection import inspect
+from qifreport.metrology.params import InspectionParams
+from qifreport.registration.mesh import vertex_normals
+from qifreport.simulate.shapes import thin_shell
+from tests.test_determinism import flatten
+
+PARENT = os.getpid()
+
+
+def where() -> int:
+    return os.getpid()
+
+
+def fails_in_child(x: int) -> int:
+    if os.getpid() != PARENT:
+        raise RuntimeError("child")
+    return 2 * x
+
+
+def dies_in_child(x: int) -> int:
+    if os.getpid() != PARENT:
+        os._exit(7)
+    return 3 * x
+
+
+def hangs_in_child(x: int) -> int:
+    if os.getpid() != PARENT:
+        time.sleep(60)
+    return 4 * x
+
+
+def always_fails(x: int) -> int:
+    raise ValueError(f"bad {x}")
+
+
+def test_the_call_runs_in_a_child_and_its_value_comes_back():
+    assert fork_executor() is not None  # Linux, 2 CPUs: the CI machine
+    future = ForkExecutor().submit(where)
+    assert future.result() not in (PARENT, 0)
+    big = ForkExecutor().submit(np.arange, 3_000_000)  # larger than a pipe's buffer
+    assert np.array_equal(big.result(), np.arange(3_000_000))
+
+
+@pytest.mark.parametrize("fn, factor", [(fails_in_child, 2), (dies_in_child, 3)])
+def test_a_failing_child_is_replaced_by_the_callers_own_computation(fn, factor):
+    assert ForkExecutor().submit(fn, 21).result() == 21 * factor
+
+
+def test_a_child_without_an_answer_in_time_is_killed_and_replaced():
+    t0 = time.monotonic()
+    future = ForkExecutor(timeout=0.5).submit(hangs_in_child, 5)
+    assert future.result() == 20
+    assert time.monotonic() - t0 < 10
+    with pytest.raises(ChildProcessError):
+        os.waitpid(future._pid, os.WNOHANG)  # reaped: no zombie left
+
+
+def test_an_error_of_the_call_itself_reaches_the_caller():
+    with pytest.raises(ValueError, match="bad 9"):
+        ForkExecutor().submit(always_fails, 9).result()
+
+
+def test_a_cancelled_child_is_gone():
+    future = ForkExecutor().submit(hangs_in_child, 1)
+    t0 = time.monotonic()
+    assert future.cancel()
+    assert time.monotonic() - t0 < 5
+    with pytest.raises(ProcessLookupError):
+        os.kill(future._pid, 0)
+
+
+def write_text(text: str):
+    def write(p: Path) -> None:
+        p.write_text(text)
+
+    return write
+
+
+def write_fails(p: Path) -> None:
+    p.write_text("half")
+    raise OSError("disk full")
+
+
+def test_reports_written_beside_are_published_with_the_others(tmp_path):
+    a, b = tmp_path / "a.qif", tmp_path / "a.pdf"
+    atomic_write_many(
+        [(a, write_text("qif")), (b, write_text("pdf"))], executor=ForkExecutor(), beside=[b]
+    )
+    assert a.read_text() == "qif" and b.read_text() == "pdf"
+    c, d = tmp_path / "c.qif", tmp_path / "c.pdf"
+    with pytest.raises(OSError, match="disk full"):
+        atomic_write_many(
+            [(c, write_text("qif")), (d, write_fails)], executor=ForkExecutor(), beside=[d]
+        )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.pdf", "a.qif"]
+
+
+def shell_scan(V, F, lift: float, seed: int = 3) -> np.ndarray:
+    """20,000 points on the shell, its corners lifted quadratically by ``lift`` mm (0: the
+    nominal shape), 10 um noise."""
+    rng = np.random.default_rng(seed)
+    A = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    t = rng.choice(len(F), 20_000, p=A / A.sum())
+    b = rng.dirichlet(np.ones(3), len(t))
+    N = vertex_normals(V, F)
+    P = np.einsum("ij,ijk->ik", b, V[F[t]])
+    n = np.einsum("ij,ijk->ik", b, N[F[t]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    x, y = (P[:, :2] / np.abs(V[:, :2]).max(axis=0)).T
+    return P + (lift * x * y + rng.normal(0.0, 0.01, len(P)))[:, None] * n
+
+
+@pytest.mark.parametrize("lift, stands", [(0.0, True), (3.0, False)])
+def test_the_inspection_beside_the_fixture_is_the_sequential_one(lift, stands, caplog):
+    V, F = thin_shell(spacing=3.0)
+    P = shell_scan(V, F, lift)
+    params = InspectionParams(tolerance=0.3, prealign="never")
+    alone = inspect(V, F, P, params)
+    with caplog.at_level(logging.INFO, logger="qifreport.forked"):
+        beside = inspect(V, F, P, params, executor=ForkExecutor())
+    assert not caplog.records  # the children answered: nothing was computed again here
+    assert "free state (waited)" in beside.timings
+    assert ("free state" in alone.timings) != stands
+    assert (alone.fit is None) == stands, alone.fixture_decision
+    assert beside.verdict == alone.verdict
+    assert beside.fixture_decision == alone.fixture_decision
+    assert beside.free_state == alone.free_state
+    x, y = flatten(alone), flatten(beside)
+    assert x.keys() == y.keys()
+    differ = [k for k in x if not np.array_equal(x[k], y[k], equal_nan=True)]
+    assert not differ, differ[:10]
