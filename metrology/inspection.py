@@ -34,7 +34,7 @@ from qifreport.registration.mesh import (
     vertex_normals,
 )
 from qifreport.registration.methods import METHODS, deform
-from qifreport.registration.pointcloud import orient_normals_consistent, pca_normals
+from qifreport.registration.pointcloud import oriented_normals
 from qifreport.registration.prealign import PrealignResult, seat_scan
 from qifreport.registration.restrained import (
     Restraint,
@@ -860,39 +860,37 @@ def inspect(
     energy, ops = prepared.energy, prepared.ops
     timings["operators"] = time.perf_counter() - t0
 
-    t0 = time.perf_counter()
-    seat = seat_scan(V, F, P, mode=params.prealign, model=prepared.model)
-    timings["prealign"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
-    rigid = rigid_icp(V, ops.normals, P, R0=seat.R, t0=seat.t, tree=tree)
-    Pm = rigid.apply(P)
-    timings["rigid"] = time.perf_counter() - t0
-    diag = bounding_diagonal(V)
-    d_near, _ = tree.query(Pm, workers=-1)
-    overlap = float(np.mean(d_near < 0.02 * diag))
-    if overlap < 0.3 or rigid.inlier_fraction < 0.3:
-        raise InputError(
-            f"scan does not overlap the nominal: after rigid alignment only {100 * overlap:.0f} % "
-            f"of the points lie within {0.02 * diag:.3g} mm of it"
-        )
-
-    # the area the seated scan covers (every judgement's coverage), measured beside the
-    # scan normals when there is an executor
-    area = None if executor is None else executor.submit(scan_area, Pm)
+    # the scan's own normals (oriented consistently per connected sheet once; each use below
+    # only chooses the sheets' sides against its own nominal) and the area it covers do not
+    # depend on where it lies: measured on the points as read, beside the pose search and
+    # the rigid fit when there is an executor, and turned with the scan
+    normals = _submit(executor, oriented_normals, P, params.gbcicp.scan_normal_k)
+    area = _submit(executor, scan_area, P)
     try:
         t0 = time.perf_counter()
-        # scan normals, oriented consistently per connected sheet once; each use below only
-        # chooses the sheets' sides against its own nominal
-        scan_tree = cKDTree(Pm)
-        Ns, sheets = orient_normals_consistent(
-            Pm, pca_normals(Pm, params.gbcicp.scan_normal_k, tree=scan_tree), tree=scan_tree
-        )
+        seat = seat_scan(V, F, P, mode=params.prealign, model=prepared.model)
+        timings["prealign"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
+        rigid = rigid_icp(V, ops.normals, P, R0=seat.R, t0=seat.t, tree=tree)
+        Pm = rigid.apply(P)
+        timings["rigid"] = time.perf_counter() - t0
+        diag = bounding_diagonal(V)
+        d_near, _ = tree.query(Pm, workers=-1)
+        overlap = float(np.mean(d_near < 0.02 * diag))
+        if overlap < 0.3 or rigid.inlier_fraction < 0.3:
+            raise InputError(
+                f"scan does not overlap the nominal: after rigid alignment only "
+                f"{100 * overlap:.0f} % of the points lie within {0.02 * diag:.3g} mm of it"
+            )
+        t0 = time.perf_counter()
+        Ns, sheets = normals.result()
+        Ns = Ns @ rigid.R.T
+        area_mm2 = area.result()
         timings["scan normals"] = time.perf_counter() - t0
-        area_mm2 = None if area is None else area.result()
     finally:
-        if area is not None:
-            area.cancel()
+        normals.cancel()
+        area.cancel()
     if zones is None:
         tol = params.tolerance
         zones = [
@@ -909,9 +907,7 @@ def inspect(
     reg = _Registered(
         V=V, F=F, P=Pm, rigid=rigid, seat=seat, scan_normals=Ns, sheets=sheets, diag=diag
     )
-    reg.scan_tree = scan_tree  # the cached properties, known already
-    if area_mm2 is not None:
-        reg.scan_area = area_mm2
+    reg.scan_area = area_mm2  # the cached property, known already
     judge = dict(
         face_id=face_id,
         bands=bands,
@@ -954,6 +950,24 @@ def inspect(
         return decided
     timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
     return _fixtured(reg, free, params, prepared, zones, basis, progress, timings, judge)
+
+
+class _Now:
+    """A value computed here, with the future's interface :func:`_submit` returns."""
+
+    def __init__(self, value) -> None:
+        self.value = value
+
+    def result(self):
+        return self.value
+
+    def cancel(self) -> bool:
+        return False
+
+
+def _submit(executor, fn, *args):
+    """``executor.submit(fn, *args)``, or without an executor the value computed now."""
+    return _Now(fn(*args)) if executor is None else executor.submit(fn, *args)
 
 
 def _free_state_stands(free: InspectionResult) -> InspectionResult | None:

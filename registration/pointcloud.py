@@ -36,6 +36,7 @@ __all__ = [
     "median_spacing",
     "one_line",
     "orient_normals_consistent",
+    "oriented_normals",
     "pca_normals",
     "read_scan",
     "principal_spreads",
@@ -852,3 +853,16 @@ def orient_normals_consistent(
     known |= votes != 0
     labels = np.where(known[labels], SIDE_KNOWN, labels)
     return out, labels
+
+
+def oriented_normals(P: np.ndarray, k: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (m, 3) of the scan points ``P`` (m, 3), mm, from the PCA of their ``k``
+    nearest neighbours (:func:`pca_normals`), signed consistently per connected sheet, and
+    each point's sheet label (:func:`orient_normals_consistent`).
+
+    Both depend only on the points' relative positions: a rigid motion of the scan turns
+    the normals with it and keeps the labels, so they can be measured before the scan is
+    placed.
+    """
+    tree = cKDTree(P)
+    return orient_normals_consistent(P, pca_normals(P, k, tree=tree), tree=tree)
