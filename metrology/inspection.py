@@ -930,7 +930,9 @@ def inspect(
             raise ValueError("the restraint basis was built for another mesh of the part")
         return _restrained(reg, restraint, params, timings, progress, zones, **judge)
     if params.always_fixture:
-        return _fixtured(reg, None, params, prepared, zones, basis, progress, timings, judge)
+        return _fixtured(
+            reg, None, params, prepared, zones, basis, progress, timings, judge, executor
+        )
     # ISO 10579 / Y14.5: restraint is there to bring a compliant part to its drawing shape;
     # the free state (no force) is one of the states a fixture may hold it in. When it
     # conforms on its own, no restraint is needed and none is simulated: a virtual fixture
@@ -942,14 +944,31 @@ def inspect(
     else:  # judged beside the virtual fixture, which is wasted only when the free state stands
         pending = executor.submit(_judge, *args, check_part=False, **judge)
         try:
-            return _fixtured(reg, pending, params, prepared, zones, basis, progress, timings, judge)
+            return _fixtured(
+                reg, pending, params, prepared, zones, basis, progress, timings, judge, executor
+            )
         finally:
             pending.cancel()
     decided = _free_state_stands(free)
     if decided is not None:
         return decided
     timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
-    return _fixtured(reg, free, params, prepared, zones, basis, progress, timings, judge)
+    return _fixtured(reg, free, params, prepared, zones, basis, progress, timings, judge, None)
+
+
+def _trim_edges(
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    tolerance: float,
+    normals: np.ndarray,
+    trim_edges: str,
+    tree: cKDTree,
+) -> tuple[EdgeDeviation, SizeEstimate]:
+    """The trim-edge deviation of the scan ``P`` along the nominal ``(V, F)`` as the fixture
+    holds it, and the size error read from it (:func:`edge_deviation`, :func:`size_error`)."""
+    edges = edge_deviation(V, F, P, tolerance, normals=normals, trim_edges=trim_edges, tree=tree)
+    return edges, size_error(edges)
 
 
 class _Now:
@@ -995,8 +1014,10 @@ def _fixtured(
     progress,
     timings: dict[str, float],
     judge: dict,
+    executor,
 ) -> InspectionResult:
-    """The virtual fixture and the judgement of the part as it holds it.
+    """The virtual fixture and the judgement of the part as it holds it (``executor``: as
+    :func:`inspect`'s).
 
     ``free``: the free state's judgement that did not stand, None (``always_fixture``), or
     its pending result (``executor.submit``): then it is taken when needed, and it stands
@@ -1018,7 +1039,7 @@ def _fixtured(
             free.deviation_variance,
         )
     )
-    res = _judge(reg, fit, params, timings, free_deviation=free_dev, **judge)
+    res = _judge(reg, fit, params, timings, free_deviation=free_dev, executor=executor, **judge)
     if _pending(free):
         free = _take(free, timings)
         if (decided := _free_state_stands(free)) is not None:
@@ -1200,6 +1221,7 @@ def _judge(
     free: _Registered | None = None,
     model_uncertainty: tuple[np.ndarray, np.ndarray] | None = None,
     plan: CharacteristicPlan | None = None,
+    executor=None,
 ) -> InspectionResult:
     """Judge the rigidly seated scan against the nominal as the fixture ``fit`` holds it
     (``None``: the free state, the nominal where the rigid alignment put it).
@@ -1209,7 +1231,8 @@ def _judge(
     again). ``free``: the free state's registration when ``reg`` holds the scan otherwise
     (restrained): the free-state zones are judged on it. ``model_uncertainty``: expanded
     uncertainties (mm, (n,) per vertex and (m,) per scan point) the hold adds, combined in
-    quadrature with the scanner's."""
+    quadrature with the scanner's. ``executor``: where the trim-edge measure runs beside
+    the rest (:func:`inspect`)."""
     V, F, Pm, rigid, diag = reg.V, reg.F, reg.P, reg.rigid, reg.diag
     Ns, sheets = reg.scan_normals, reg.sheets
     ops = prepared.ops
@@ -1226,6 +1249,25 @@ def _judge(
         near_crease = None
     t0 = time.perf_counter()
     N_reg = ops.normals if fit is None else vertex_normals(V_reg, F)
+    # the size from the trim edges, on a fixture that moves the nominal along its normals
+    # only (GB-CICP) or not at all; the baselines move it along the surface too, and so
+    # absorb or make up a size error at the rim
+    general = [z for z in bands.zones if z.faces is None]
+    general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
+    trim = None
+    if fit is None or fit.method == "gbcicp":
+        reg.scan_tree  # noqa: B018 - built once, before a child would build its own
+        trim = _submit(
+            executor,
+            _trim_edges,
+            V_reg,
+            F,
+            Pm,
+            general_half,
+            N_reg,
+            "crease" if solid else "auto",
+            reg.scan_tree,
+        )
     # the B-rep's exact corner normals, turned with each triangle when the fixture bent it
     cn_reg = brep_normals
     if brep_normals is not None and fit is not None:
@@ -1291,11 +1333,9 @@ def _judge(
         free_v = np.isin(bands.governing, [i for i, z in enumerate(bands.zones) if z.free_state])
         dev_all[free_v] = dev_free[free_v]
         var_all[free_v] = var_free[free_v]
-    # threshold of the whole-part tail fractions: the general zone's half-width, or (all faces
-    # under PMI profiles) the widest zone's: "beyond every band" (per-zone fractions use their
-    # own band)
-    general = [z for z in bands.zones if z.faces is None]
-    general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
+    # threshold of the whole-part tail fractions (``general_half``): the general zone's
+    # half-width, or (all faces under PMI profiles) the widest zone's: "beyond every band"
+    # (per-zone fractions use their own band)
     # a STEP nominal's scan points grouped by their B-rep face: a thin wall's two skins are
     # kept apart in the noise estimate and in the points' own values
     plabel = None if face_id is None else point_faces(cface, face_id)
@@ -1380,22 +1420,10 @@ def _judge(
             U[gv] = np.hypot(U[gv], f.shift_uncertainty(V[gv], ops.normals[gv]))
     if check_part:
         check_same_part(pdev, general_half, diag, rigid, fit)
-    # the size from the trim edges, on a fixture that moves the nominal along its normals only
-    # (GB-CICP) or not at all; the baselines move it along the surface too, and so absorb or
-    # make up a size error at the rim
     edges = size = None
-    if fit is None or fit.method == "gbcicp":
+    if trim is not None:
         t_edges = time.perf_counter()
-        edges = edge_deviation(
-            V_reg,
-            F,
-            Pm,
-            general_half,
-            normals=N_reg,
-            trim_edges="crease" if solid else "auto",
-            tree=reg.scan_tree,
-        )
-        size = size_error(edges)
+        edges, size = trim.result()
         timings["edges"] = time.perf_counter() - t_edges
     vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
     pstats = deviation_statistics(pdev, threshold=general_half)

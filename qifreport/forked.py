@@ -131,6 +131,12 @@ class ForkedCall:
         self._done = True
         return True
 
+    def __del__(self) -> None:  # abandoned (an exception unwound its caller): no orphan
+        try:
+            self.cancel()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
+
     def _local(self) -> Any:
         self._value = self._fn(*self._args, **self._kwargs)
         self._done = True
