@@ -40,6 +40,18 @@ def _cpus() -> int:
         return os.cpu_count() or 1
 
 
+def _peak_rss() -> int:
+    """This process's peak resident set size, bytes (``VmHWM``; 0 where unknown)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return 0
+
+
 def fork_executor() -> ForkExecutor | None:
     """A :class:`ForkExecutor` where forking is safe and a second CPU is free to use: Linux
     (macOS's system libraries are not fork-safe; Windows has no fork) with at least two
@@ -52,8 +64,16 @@ def fork_executor() -> ForkExecutor | None:
 class ForkedCall:
     """The pending result of one call in a forked child (:meth:`ForkExecutor.submit`)."""
 
-    def __init__(self, fn: Callable[..., Any], args: tuple, kwargs: dict, timeout: float):
+    def __init__(
+        self,
+        fn: Callable[..., Any],
+        args: tuple,
+        kwargs: dict,
+        timeout: float,
+        peaks: list[int] | None = None,
+    ):
         self._fn, self._args, self._kwargs = fn, args, kwargs
+        self._peaks = peaks
         self._timeout = timeout
         self._started = time.monotonic()
         self._done = False
@@ -66,7 +86,8 @@ class ForkedCall:
             try:
                 signal.signal(signal.SIGINT, signal.SIG_DFL)
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
-                data = pickle.dumps(fn(*args, **kwargs), protocol=pickle.HIGHEST_PROTOCOL)
+                value = fn(*args, **kwargs)
+                data = pickle.dumps((value, _peak_rss()), protocol=pickle.HIGHEST_PROTOCOL)
                 with os.fdopen(write, "wb") as f:
                     f.write(data)
             except BaseException:  # noqa: BLE001 - any failure: the parent computes it
@@ -119,7 +140,9 @@ class ForkedCall:
         if status != 0 or not chunks:
             log.info("the forked %s failed (status %d): computed here", self._name(), status)
             return self._local()
-        self._value = pickle.loads(b"".join(chunks))
+        self._value, peak = pickle.loads(b"".join(chunks))
+        if self._peaks is not None:
+            self._peaks.append(peak)
         self._done = True
         return self._value
 
@@ -149,10 +172,17 @@ class ForkedCall:
 class ForkExecutor:
     """``submit(fn, *args, **kwargs)`` runs the call in a forked child process
     (:class:`ForkedCall`); ``timeout`` (s) bounds how long :meth:`ForkedCall.result`
-    waits for it before computing it in the caller."""
+    waits for it before computing it in the caller.
+
+    Attributes
+    ----------
+    peaks : the peak resident set size (bytes, ``VmHWM``) of each child that answered: its
+        pages shared with the caller (copy-on-write) included.
+    """
 
     def __init__(self, timeout: float = 600.0):
         self.timeout = float(timeout)
+        self.peaks: list[int] = []
 
     def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> ForkedCall:
-        return ForkedCall(fn, args, kwargs, self.timeout)
+        return ForkedCall(fn, args, kwargs, self.timeout, self.peaks)

@@ -728,4 +728,6 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     with _stage(prof, "write outputs"):  # all outputs or none
         reports = [paths[k] for k in ("pdf", "html") if k in paths]
         atomic_write_many(outputs, executor=beside, beside=reports)
+    if prof is not None and beside is not None:
+        prof.children.extend(beside.peaks)
     return JobOutcome(res, paths, qif_state, cache)

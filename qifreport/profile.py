@@ -60,6 +60,8 @@ class Profiler:
     interval: float = 0.05
     stages: list[tuple[str, float, float]] = field(default_factory=list)
     samples: list[tuple[float, int]] = field(default_factory=list)
+    #: peak RSS (bytes) of each child process the run forked (their shared pages included)
+    children: list[int] = field(default_factory=list)
     _stop: threading.Event = field(default_factory=threading.Event)
     _thread: threading.Thread | None = None
 
@@ -118,4 +120,9 @@ class Profiler:
         if self.stages:
             total = max(t1 for _, _, t1 in self.stages) - min(t0 for _, t0, _ in self.stages)
             lines.append(f"{'total':28s} {total:9.2f} {peak_rss_bytes() / 2**20:14.0f}")
+        if self.children:
+            lines.append(
+                f"{len(self.children)} forked children, the largest's peak RSS "
+                f"{max(self.children) / 2**20:.0f} MiB (pages shared with this process included)"
+            )
         return "\n".join(lines)

@@ -24,6 +24,7 @@ from qifreport.atomic_io import atomic_write_many
 from qifreport.forked import ForkExecutor, fork_executor
 from qifreport.metrology.inspection import inspect
 from qifreport.metrology.params import InspectionParams
+from qifreport.profile import peak_rss_bytes
 from qifreport.registration.mesh import vertex_normals
 from qifreport.simulate.shapes import thin_shell
 from tests.test_determinism import flatten
@@ -82,6 +83,20 @@ def test_a_child_without_an_answer_in_time_is_killed_and_replaced():
 def test_an_error_of_the_call_itself_reaches_the_caller():
     with pytest.raises(ValueError, match="bad 9"):
         ForkExecutor().submit(always_fails, 9).result()
+
+
+def allocates(mib: int) -> int:
+    a = np.ones(mib * 2**20 // 8)
+    a[::512] += 1.0  # resident
+    return int(a.size)
+
+
+def test_the_childrens_memory_is_reported_not_lost():
+    ex = ForkExecutor()
+    before = peak_rss_bytes()
+    assert ex.submit(allocates, 300).result() == 300 * 2**17
+    assert ex.peaks and ex.peaks[-1] >= 300 * 2**20  # the child's own high-water mark
+    assert peak_rss_bytes() < before + 100 * 2**20  # it was not this process's
 
 
 def test_a_cancelled_child_is_gone():
