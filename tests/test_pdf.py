@@ -896,3 +896,27 @@ def test_html_readout_in_chromium(html_pages, results, panel_nominal):
     assert float(attrs["deviation"]) == pytest.approx(float(res.deviation[v]), rel=1e-6)
     assert attrs["zone"] == res.bands.zones[res.bands.governing[v]].key
     assert attrs["zone"] in text and "in tolerance" in text
+
+
+def test_notes_are_cut_to_the_room_above_the_sign_off():
+    """Notes that do not fit (a part NOT MEASURED for many reasons: on the fandisk of the
+    speed benchmark they ran 31 pt into the sign-off line) are cut to two lines each, then
+    left out from the end, not-warnings first, and the cut is stated."""
+    from qifreport.reports.notes import fit_notes, notes_height
+
+    words = "the scan left an unmeasured patch of 1909.7 mm2 larger than the limit " * 4
+    notes = [(f"Note {i}: {words}", i % 2 == 0) for i in range(12)]
+    width = 500.0
+    assert fit_notes(notes, width, 1e4) == notes  # room enough: untouched
+    two = fit_notes(notes, width, notes_height(notes, width) - 10)
+    assert len(two) == 12 and notes_height(two, width) <= notes_height(notes, width) - 10
+    assert all(t.endswith("\u2026") for t, _ in two)
+    cut = fit_notes(notes, width, 80.0)
+    assert notes_height(cut, width) <= 80.0
+    kept, last = cut[:-1], cut[-1][0]
+    n = int(re.search(r"\+ (\d+) more notes?", last).group(1))
+    assert n == 12 - len(kept) and n > 0
+    assert all(w for _, w in kept)  # the warnings outlast the other notes
+    assert [t.split(":")[0] for t, _ in kept] == sorted(
+        (t.split(":")[0] for t, _ in kept), key=lambda s: int(s.split()[1])
+    )  # in their order

@@ -31,7 +31,7 @@ from .kit import (
 if TYPE_CHECKING:
     from reportlab.pdfgen.canvas import Canvas
 
-__all__ = ["note_lines", "notes_height", "draw_notes_footer"]
+__all__ = ["note_lines", "notes_height", "fit_notes", "draw_notes_footer"]
 
 
 def note_lines(res: InspectionResult, chain_floor: float | None) -> list[tuple[str, bool]]:
@@ -125,6 +125,46 @@ def note_lines(res: InspectionResult, chain_floor: float | None) -> list[tuple[s
 def notes_height(lines: list[tuple[str, bool]], width: float) -> float:
     """Height of the notes (:func:`note_lines`) wrapped to ``width`` points, points."""
     return sum(8.2 * len(wrap_text(t, width, 6.8, w)) for t, w in lines) + 2.0
+
+
+def fit_notes(lines: list[tuple[str, bool]], width: float, height: float) -> list[tuple[str, bool]]:
+    """The notes (:func:`note_lines`) cut to fit ``height`` points at ``width`` points.
+
+    As they are when they fit. Else each note is cut to its first two lines (ending in an
+    ellipsis); if that is still too tall, notes are left out from the end, those that are
+    not warnings first, and a last line says how many and where they all are (the command's
+    summary and ``--json``). Never text drawn over the sign-off line.
+    """
+    if notes_height(lines, width) <= height:
+        return lines
+    short = []
+    for text, warn in lines:
+        wrapped = wrap_text(text, width, 6.8, warn)
+        if len(wrapped) > 2:
+            text = " ".join(wrapped[:2])
+            while len(wrap_text(text + "…", width, 6.8, warn)) > 2:
+                text = text[: text.rstrip().rfind(" ")] if " " in text.rstrip() else text[:-1]
+            text += "…"
+        short.append((text, warn))
+    if notes_height(short, width) <= height:
+        return short
+    # left out last: the warnings, and of each kind the notes nearer the top
+    order = [i for i in range(len(short)) if short[i][1]]
+    order = [i for i in range(len(short)) if not short[i][1]][::-1] + order[::-1]
+    keep = set(range(len(short)))
+    for i in order:
+        keep.discard(i)
+        n = len(short) - len(keep)
+        cut = [short[j] for j in sorted(keep)] + [
+            (
+                f"+ {n} more note{'s' if n > 1 else ''}, left out for lack of room: the "
+                "command's summary and its --json summary give every note.",
+                False,
+            )
+        ]
+        if notes_height(cut, width) <= height:
+            return cut
+    return cut
 
 
 def draw_notes_footer(

@@ -60,7 +60,7 @@ from .context import ReportContext, clamp_markers
 from .header import HEADER_H, decision_lines, draw_decision, draw_header
 from .kit import FONT, Box, Table, draw_table, fmt_area, fmt_mm, fmt_pct, fmt_smm
 from .maps import colorbar_height, draw_colorbar, draw_maps, layout_score, map_boxes, map_margins
-from .notes import draw_notes_footer, note_lines, notes_height
+from .notes import draw_notes_footer, fit_notes, note_lines, notes_height
 from .registration import registration_table
 from .render import RenderedView, ViewSpec, picture_points, render_views
 from .stats import draw_histogram, stats_table
@@ -215,8 +215,11 @@ class _Report(ReportContext):
                 st[key] -= step
             if st[key] != before:
                 history.append((key, before, step))
-        if total(st) > avail:
-            log.warning("report content exceeds the page by %.0f pt", total(st) - avail)
+        if total(st) > avail:  # last, the notes: cut to the room left above the sign-off
+            over = total(st) - avail
+            notes = fit_notes(notes, self.CW, notes_height(notes, self.CW) - over)
+            if total(st) > avail:
+                log.warning("report content exceeds the page by %.0f pt", total(st) - avail)
 
         def grow_back() -> None:
             # undo what was cut for nothing (a list beside a taller block), last cut first
