@@ -6,9 +6,8 @@ deflection (4.6 mm), scanned from 3 views; the nominal and the scan are written 
 ``qifreport --profile`` runs on them in a fresh process (so its peak memory is its own).
 Prints the part, the scan, the CLI's per-stage table (wall time, peak resident memory) and
 the child's own peak RSS (its ``VmHWM``, from the profile; ``--no-cache``: a cold run), and
-the peak of the RSS summed over it and the processes it forks (the command judges the free
-state and measures the scan in forked children; their pages shared with it are counted
-twice, so the sum is an upper bound).
+the peak memory of it and the processes it forks together (the command judges the free
+state and measures the scan in forked children): their proportional set sizes summed.
 
     python bench/scale.py [--vertices 200000] [--points 400000] [--keep DIR]
 """
@@ -16,7 +15,6 @@ twice, so the sum is an upper bound).
 from __future__ import annotations
 
 import argparse
-import os
 import re
 import subprocess
 import sys
@@ -95,18 +93,23 @@ def main() -> None:
     child = float(m.group(1)) / 1024 if m else float("nan")  # MiB -> GiB
     print(
         f"exit {proc.returncode}; wall {wall:.0f} s; peak RSS of the qifreport process "
-        f"{child:.2f} GiB; of it and the children it forks, summed "
-        f"{tree_peak.peak / 2**30:.2f} GiB (limit 1.5 GiB)"
+        f"{child:.2f} GiB; of it and the children it forks together {tree_peak.peak / 2**30:.2f} "
+        f"GiB (proportional set sizes; their RSS summed {tree_peak.peak_rss / 2**30:.2f} GiB, "
+        "shared pages counted twice; limit 1.5 GiB)"
     )
 
 
 class TreePeak:
-    """The largest sum of resident set sizes over a process and its descendants, sampled
-    every ``interval`` s from ``/proc`` (pages a forked child shares with its parent are
-    counted in both: an upper bound on the memory the command holds)."""
+    """The largest memory held by a process and its descendants together, sampled every
+    ``interval`` s from ``/proc``: the sum of their proportional set sizes (``Pss`` of
+    ``smaps_rollup``: a page shared by k processes, as a forked child shares its parent's
+    until either writes it, counts 1/k in each, so the sum is the memory the tree holds),
+    and the sum of their resident set sizes (shared pages counted in each: an upper
+    bound)."""
 
-    def __init__(self, pid: int, interval: float = 0.02) -> None:
-        self.pid, self.interval, self.peak = pid, interval, 0
+    def __init__(self, pid: int, interval: float = 0.05) -> None:
+        self.pid, self.interval = pid, interval
+        self.peak = self.peak_rss = 0
         self._done = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -121,16 +124,22 @@ class TreePeak:
             pass
         return pids
 
+    @staticmethod
+    def _kib(pid: int, key: str) -> int:
+        try:
+            for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+                if line.startswith(key):
+                    return int(line.split()[1])
+        except (OSError, ValueError, IndexError):
+            pass
+        return 0
+
     def _run(self) -> None:
-        page = os.sysconf("SC_PAGE_SIZE")
         while not self._done.wait(self.interval):
-            total = 0
-            for pid in self._tree(self.pid):
-                try:
-                    total += int(Path(f"/proc/{pid}/statm").read_text().split()[1]) * page
-                except (OSError, ValueError, IndexError):
-                    pass
-            self.peak = max(self.peak, total)
+            pids = self._tree(self.pid)
+            pss = sum(self._kib(p, "Pss:") for p in pids) * 1024
+            rss = sum(self._kib(p, "Rss:") for p in pids) * 1024
+            self.peak, self.peak_rss = max(self.peak, pss), max(self.peak_rss, rss)
 
     def stop(self) -> None:
         self._done.set()

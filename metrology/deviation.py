@@ -665,11 +665,15 @@ def residual_referenced(
         todo = np.flatnonzero(np.isnan(dev))
         if len(todo) == 0:
             break
-        vid, t, hv, ev, dv = _residual_fit(*args, todo, ball, max_centroid_offset)
-        dev[vid] = t
-        h[vid] = hv
-        sse[vid] = ev
-        dof[vid] = dv
+        # in blocks of vertices: each vertex's fit is its own (the same numbers), and the
+        # (vertex, point) pairs of a large part's ball search stay a bounded size
+        for s in range(0, len(todo), _FIT_BLOCK):
+            block = todo[s : s + _FIT_BLOCK]
+            vid, t, hv, ev, dv = _residual_fit(*args, block, ball, max_centroid_offset)
+            dev[vid] = t
+            h[vid] = hv
+            sse[vid] = ev
+            dof[vid] = dv
     if not variance:
         return dev
     first_face = np.full(n, -1, dtype=np.int64)  # each vertex's lowest B-rep face
@@ -678,6 +682,10 @@ def residual_referenced(
     first_face[vo[first]] = fo[first]
     return dev, _pooled_variance(h, sse, dof, first_face)
 
+
+#: vertices per call of :func:`_residual_fit` (its ball search holds every (vertex, point)
+#: pair of the call: ~10^2 per vertex, as Python lists)
+_FIT_BLOCK = 16384
 
 #: (vertex, B-rep face) pairs up to which :func:`_residual_fit` looks them up in a table
 _PAIR_TABLE_MAX = 1 << 26

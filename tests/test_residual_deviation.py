@@ -75,3 +75,23 @@ def test_residual_referenced_reads_an_offset_where_a_plane_fit_is_biased():
     # the plane fit over the same neighbourhoods reads the curvature too
     plane = nominal_referenced(V, F, P, normals=N)[inner]
     assert np.nanmax(np.abs(plane - 0.1)) > 0.05
+
+
+def test_residual_referenced_in_blocks_of_vertices_is_the_same(monkeypatch):
+    """A large part's vertices are fitted in blocks (the ball search's pairs stay bounded):
+    every number equals the one-block fit's, bit for bit."""
+    import qifreport.metrology.deviation as deviation
+
+    V, F = _cylinder()
+    lab = np.zeros(len(F), dtype=np.int64)
+    N = vertex_normals(V, F)
+    P = _points(0.1, seed=2)
+    P[::7, 2] += 3.0  # some vertices left to the second, wider ball
+    C, face, d = closest_points(V, F, P)
+    r = d - curved_offset(V, F, C, face, corner_normals(V, F, lab))
+    whole = residual_referenced(V, F, P, r, N, lab[face], lab, variance=True)
+    monkeypatch.setattr(deviation, "_FIT_BLOCK", 17)
+    blocks = residual_referenced(V, F, P, r, N, lab[face], lab, variance=True)
+    assert len(V) > 5 * 17 and np.isfinite(whole[0]).sum() > 100
+    for a, b in zip(whole, blocks, strict=True):
+        assert np.array_equal(a, b, equal_nan=True)
