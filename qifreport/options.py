@@ -137,6 +137,10 @@ class InspectOptions:
     seeds : runs of the repeatability check (1: none).
     rigid_only : no virtual fixture.
     always_fixture : apply the virtual fixture even when the free state conforms.
+    one_process : one CPU, no forked child processes. By default one command judges the
+        free state, measures the scan's normals and area and the trim edges, and renders the
+        reports in forked children beside its main work (:mod:`qifreport.forked`; the same
+        results, bit for bit), each child holding a copy of the memory it changes.
     cache_dir : per-part cache directory (None: no cache).
     accept_tolerance_as_read : inspect with tolerances the plausibility check of
         :mod:`qifreport.step.plausibility` flags (default: refuse the part).
@@ -183,6 +187,7 @@ class InspectOptions:
     seeds: int = 1
     rigid_only: bool = False
     always_fixture: bool = False
+    one_process: bool = False
     cache_dir: Path | None = None
     accept_tolerance_as_read: bool = False
     min_coverage: float = DEFAULT_MIN_COVERAGE

@@ -712,7 +712,7 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     t_inspect = time.perf_counter()
     # one command, one scan: a second CPU judges the free state beside the fixture and
     # renders the reports beside the QIF (a batch's processes fill the CPUs already)
-    beside = fork_executor()
+    beside = None if o.one_process else fork_executor()
     with progress_bar("virtual fixturing", enabled=progress) as bar:
         res = inspect_state(P, state, job, bar=bar, prof=prof, executor=beside)
     if prof is not None:

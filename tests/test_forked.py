@@ -168,3 +168,37 @@ def test_the_inspection_beside_the_fixture_is_the_sequential_one(lift, stands, c
     assert x.keys() == y.keys()
     differ = [k for k in x if not np.array_equal(x[k], y[k], equal_nan=True)]
     assert not differ, differ[:10]
+
+
+def test_the_command_with_and_without_its_children_writes_the_same(tmp_path):
+    """``qifreport`` with its forked children (the default) and ``--one-process`` write the
+    same summary, every number equal; both write the PDF report."""
+    import json
+    import subprocess
+    import sys
+
+    from tests.test_determinism import VOLATILE
+
+    exe = Path(sys.executable).parent / "qifreport"
+    samples = Path(__file__).resolve().parents[1] / "samples"
+    docs = {}
+    for way in ("default", "one"):
+        cmd = [str(exe), samples / "shell_nominal.ply", samples / "shell_scan_defect.ply"]
+        cmd += ["--tolerance", "0.5", "--out", tmp_path / way, "--json", "--quiet"]
+        cmd += ["--no-cache"] + (["--one-process"] if way == "one" else [])
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        assert r.returncode == 1, r.stderr[-2000:]  # the sample's dent fails
+        assert (tmp_path / way / "shell_nominal.pdf").stat().st_size > 10_000
+        docs[way] = json.loads((tmp_path / way / "shell_nominal.json").read_text())
+
+    def strip(d):
+        if isinstance(d, dict):
+            return {
+                k: strip(v) for k, v in d.items() if not any(s in k for s in VOLATILE + ("qif",))
+            }
+        if isinstance(d, list):
+            return [strip(v) for v in d]
+        return d
+
+    assert strip(docs["default"]) == strip(docs["one"])
+    assert docs["default"]["verdict"] == "FAIL"
