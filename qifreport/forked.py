@@ -78,8 +78,21 @@ class ForkedCall:
         self._started = time.monotonic()
         self._done = False
         self._value: Any = None
-        read, write = os.pipe()
-        pid = os.fork()
+        self._reaped = True  # until there is a child
+        try:
+            read, write = os.pipe()
+        except OSError as e:  # no descriptors left: computed in the caller
+            log.info("no pipe for a forked %s (%s): computed here", self._name(), e)
+            self._pid = -1
+            return
+        try:
+            pid = os.fork()
+        except OSError as e:  # no memory or no process slot to fork with
+            os.close(read)
+            os.close(write)
+            log.info("cannot fork for %s (%s): computed here", self._name(), e)
+            self._pid = -1
+            return
         if pid == 0:  # the child: compute, send, leave without the parent's exit handlers
             os.close(read)
             code = 0
@@ -116,6 +129,8 @@ class ForkedCall:
         """The call's value: the child's, or (when the child failed) the caller's own."""
         if self._done:
             return self._value
+        if self._pid < 0:  # never forked
+            return self._local()
         chunks = []
         deadline = self._started + self._timeout
         try:

@@ -672,7 +672,8 @@ def pca_normals(P: np.ndarray, k: int = 12, tree: cKDTree | None = None) -> np.n
     tree = tree or cKDTree(P)
     k = min(k, len(P))
     _, idx = tree.query(P, k=k, workers=-1)
-    X = P[idx] - P[idx].mean(axis=1, keepdims=True)
+    Q = P[idx]
+    X = Q - Q.mean(axis=1, keepdims=True)
     C = np.einsum("mki,mkj->mij", X, X)
     _, vecs = np.linalg.eigh(C)
     return vecs[:, :, 0]

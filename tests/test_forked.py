@@ -80,6 +80,30 @@ def test_a_child_without_an_answer_in_time_is_killed_and_replaced():
         os.waitpid(future._pid, os.WNOHANG)  # reaped: no zombie left
 
 
+def test_no_child_to_be_had_means_the_caller_computes_it():
+    """Out of file descriptors (no pipe), the call is made in the caller: same value."""
+    import subprocess
+    import sys
+
+    code = (
+        "import os, resource\n"
+        "from qifreport.forked import ForkExecutor\n"
+        "ex = ForkExecutor()\n"
+        "high = max(int(f) for f in os.listdir('/proc/self/fd'))\n"
+        "hard = resource.getrlimit(resource.RLIMIT_NOFILE)[1]\n"
+        "resource.setrlimit(resource.RLIMIT_NOFILE, (high + 1, hard))\n"
+        "while True:\n"
+        "    try:\n"
+        "        os.open('/dev/null', os.O_RDONLY)\n"
+        "    except OSError:\n"
+        "        break\n"
+        "f = ex.submit(os.getpid)\n"
+        "print(f.result() == os.getpid(), f.cancel())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.split() == ["True", "False"], out.stderr[-2000:]
+
+
 def test_an_error_of_the_call_itself_reaches_the_caller():
     with pytest.raises(ValueError, match="bad 9"):
         ForkExecutor().submit(always_fails, 9).result()
