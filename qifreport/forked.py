@@ -40,6 +40,11 @@ def _cpus() -> int:
         return os.cpu_count() or 1
 
 
+#: a child is given up (and the call made in the caller) when it has not answered within
+#: this many times the time the caller took until it asked (and at least the timeout)
+SLOWER = 5.0
+
+
 def _peak_rss() -> int:
     """This process's peak resident set size, bytes (``VmHWM``; 0 where unknown)."""
     try:
@@ -132,7 +137,10 @@ class ForkedCall:
         if self._pid < 0:  # never forked
             return self._local()
         chunks = []
-        deadline = self._started + self._timeout
+        # the child's work is about the size of the caller's meanwhile: a child that takes
+        # many times as long is stuck (a lock a thread of the caller held at the fork)
+        waited = max(self._timeout, SLOWER * (time.monotonic() - self._started))
+        deadline = self._started + waited
         try:
             while True:
                 left = deadline - time.monotonic()
@@ -145,7 +153,7 @@ class ForkedCall:
         except TimeoutError:
             self._reap(kill=True)
             log.warning(
-                "the forked %s gave no answer in %.0f s: computed here", self._name(), self._timeout
+                "the forked %s gave no answer in %.0f s: computed here", self._name(), waited
             )
             return self._local()
         except BaseException:  # interrupted while waiting: stop the child too
@@ -186,7 +194,8 @@ class ForkedCall:
 
 class ForkExecutor:
     """``submit(fn, *args, **kwargs)`` runs the call in a forked child process
-    (:class:`ForkedCall`); ``timeout`` (s) bounds how long :meth:`ForkedCall.result`
+    (:class:`ForkedCall`); ``timeout`` (s) and :data:`SLOWER` times the caller's own time
+    until it asks bound how long :meth:`ForkedCall.result`
     waits for it before computing it in the caller.
 
     Attributes
@@ -195,7 +204,7 @@ class ForkExecutor:
         pages shared with the caller (copy-on-write) included.
     """
 
-    def __init__(self, timeout: float = 600.0):
+    def __init__(self, timeout: float = 60.0):
         self.timeout = float(timeout)
         self.peaks: list[int] = []
 
