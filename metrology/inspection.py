@@ -1029,7 +1029,7 @@ def _fixtured(
     if _pending(free) and any(z.free_state for z in judge["bands"].zones):
         free = _take(free, timings)  # the free-state zones take its deviation (below)
         if (decided := _free_state_stands(free)) is not None:
-            return _with_timings(decided, timings)
+            return _with_timings(decided, timings, fit)
     # the free state, measured once
     free_dev = (
         None
@@ -1043,7 +1043,7 @@ def _fixtured(
     if _pending(free):
         free = _take(free, timings)
         if (decided := _free_state_stands(free)) is not None:
-            return _with_timings(decided, timings)
+            return _with_timings(decided, timings, fit)
     res.fixture_decision = "always" if free is None else "free state does not conform"
     if free is not None:
         res.free_state = free.verdict
@@ -1056,10 +1056,16 @@ def _pending(free) -> bool:
     return free is not None and not isinstance(free, InspectionResult)
 
 
-def _with_timings(free: InspectionResult, timings: dict[str, float]) -> InspectionResult:
+def _with_timings(
+    free: InspectionResult, timings: dict[str, float], fit: DeformResult
+) -> InspectionResult:
     """The standing free state, with the stages this process ran while it was judged
-    beside them (their sum is the inspection's wall time)."""
+    beside them (their sum is the inspection's wall time), and the bending basis the
+    fixture built meanwhile when the part had none (for the caller to keep for the next
+    scans: the fixture's work is not all lost)."""
     free.timings = dict(timings)
+    if free.basis is None:
+        free.basis = fit.basis
     return free
 
 

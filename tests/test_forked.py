@@ -188,6 +188,10 @@ def test_the_inspection_beside_the_fixture_is_the_sequential_one(lift, stands, c
     assert beside.verdict == alone.verdict
     assert beside.fixture_decision == alone.fixture_decision
     assert beside.free_state == alone.free_state
+    # a free state that stood beside the fixture also hands over the bending basis the
+    # fixture built (for the cache); alone, no basis was built
+    assert (beside.basis is not None) and ((alone.basis is None) == stands)
+    alone.basis = beside.basis = None
     x, y = flatten(alone), flatten(beside)
     assert x.keys() == y.keys()
     differ = [k for k in x if not np.array_equal(x[k], y[k], equal_nan=True)]
@@ -226,3 +230,36 @@ def test_the_command_with_and_without_its_children_writes_the_same(tmp_path):
 
     assert strip(docs["default"]) == strip(docs["one"])
     assert docs["default"]["verdict"] == "FAIL"
+
+
+def test_a_free_state_that_stands_beside_the_fixture_leaves_the_basis_in_the_cache(tmp_path):
+    """The fixture run beside a free state that conforms is not all lost: the bending basis
+    it built completes the new cache entry (the next fixtured scan of the part loads it)."""
+    import json
+    import subprocess
+    import sys
+
+    import trimesh
+
+    from qifreport.cache import part_state
+    from qifreport.options import InspectOptions
+
+    nominal = Path(__file__).resolve().parents[1] / "samples" / "shell_nominal.ply"
+    mesh = trimesh.load(nominal, process=False)
+    P, _ = trimesh.sample.sample_surface_even(mesh, 20_000, seed=4)
+    scan = tmp_path / "conforming.ply"
+    trimesh.PointCloud(np.asarray(P) + np.random.default_rng(4).normal(0, 0.005, P.shape)).export(
+        scan
+    )
+    cache = tmp_path / "cache"
+    exe = Path(sys.executable).parent / "qifreport"
+    cmd = [str(exe), nominal, scan, "--tolerance", "0.5", "--out", tmp_path / "out"]
+    cmd += ["--cache", cache, "--json", "--quiet"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr[-2000:]
+    doc = json.loads((tmp_path / "out" / "shell_nominal.json").read_text())
+    assert doc["registration"]["fixture"]["decision"] == "free state conforms"
+    o = InspectOptions(tolerance=0.5, cache_dir=cache)
+    state, outcome = part_state(nominal, o.nominal_options(nominal), o.inspection_params(), cache)
+    assert outcome.status == "hit"
+    assert state.prepared.basis is not None
