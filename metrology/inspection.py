@@ -887,7 +887,7 @@ def inspect(
         Ns, sheets = normals.result()
         Ns = Ns @ rigid.R.T
         area_mm2 = area.result()
-        timings["scan normals"] = time.perf_counter() - t0
+        timings["scan normals, area"] = time.perf_counter() - t0
     finally:
         normals.cancel()
         area.cancel()
@@ -971,13 +971,16 @@ def _trim_edges(
     return edges, size_error(edges)
 
 
-class _Now:
-    """A value computed here, with the future's interface :func:`_submit` returns."""
+class _Later:
+    """A call made here when its result is asked for (the sequential order), with the
+    future's interface :func:`_submit` returns."""
 
-    def __init__(self, value) -> None:
-        self.value = value
+    def __init__(self, fn, args) -> None:
+        self.fn, self.args, self.done, self.value = fn, args, False, None
 
     def result(self):
+        if not self.done:
+            self.value, self.done = self.fn(*self.args), True
         return self.value
 
     def cancel(self) -> bool:
@@ -985,8 +988,9 @@ class _Now:
 
 
 def _submit(executor, fn, *args):
-    """``executor.submit(fn, *args)``, or without an executor the value computed now."""
-    return _Now(fn(*args)) if executor is None else executor.submit(fn, *args)
+    """``executor.submit(fn, *args)``; without an executor, the call made when its result
+    is asked for."""
+    return _Later(fn, args) if executor is None else executor.submit(fn, *args)
 
 
 def _free_state_stands(free: InspectionResult) -> InspectionResult | None:
@@ -1029,21 +1033,15 @@ def _fixtured(
     if _pending(free) and any(z.free_state for z in judge["bands"].zones):
         free = _take(free, timings)  # the free-state zones take its deviation (below)
         if (decided := _free_state_stands(free)) is not None:
-            return _with_timings(decided, timings, fit)
-    # the free state, measured once
-    free_dev = (
-        None
-        if not isinstance(free, InspectionResult)
-        else (
-            free.deviation,
-            free.deviation_variance,
-        )
-    )
+            return _stood_beside(decided, timings, fit)
+    free_dev = None
+    if isinstance(free, InspectionResult):  # the free state, measured once
+        free_dev = (free.deviation, free.deviation_variance)
     res = _judge(reg, fit, params, timings, free_deviation=free_dev, executor=executor, **judge)
     if _pending(free):
         free = _take(free, timings)
         if (decided := _free_state_stands(free)) is not None:
-            return _with_timings(decided, timings, fit)
+            return _stood_beside(decided, timings, fit)
     res.fixture_decision = "always" if free is None else "free state does not conform"
     if free is not None:
         res.free_state = free.verdict
@@ -1056,7 +1054,7 @@ def _pending(free) -> bool:
     return free is not None and not isinstance(free, InspectionResult)
 
 
-def _with_timings(
+def _stood_beside(
     free: InspectionResult, timings: dict[str, float], fit: DeformResult
 ) -> InspectionResult:
     """The standing free state, with the stages this process ran while it was judged
