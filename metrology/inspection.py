@@ -23,12 +23,13 @@ from trimesh.triangles import points_to_barycentric
 
 from qifreport.errors import InputError
 from qifreport.registration.deformable import DeformResult, orient_scan_normals
-from qifreport.registration.gbcicp import BendingBasis
+from qifreport.registration.gbcicp import BendingBasis, bending_basis
 from qifreport.registration.icp import (
     RigidResult,
     rigid_icp,
     robust_scale,
 )
+from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import (
     bounding_diagonal,
     vertex_normals,
@@ -941,12 +942,27 @@ def inspect(
     args = (reg, None, params, dict(timings))
     if executor is None:
         free = _judge(*args, check_part=False, **judge)
-    else:  # judged beside the virtual fixture, which is wasted only when the free state stands
+    else:  # judged beside the virtual fixture, which is given up when the free state stands
         pending = executor.submit(_judge, *args, check_part=False, **judge)
+        stood = _StoodCheck(pending)
         try:
+            if basis is None and _modal(params):
+                # a new part's bending basis (a fixture's costliest step), built here and
+                # given up between two of its solves once the free state stands
+                t_basis = time.perf_counter()
+                basis = _bending_basis(prepared.ops, params, V, stood)
+                timings["bending basis"] = time.perf_counter() - t_basis
+
+            def watched(k: int) -> None:  # between two fixture iterations, likewise
+                stood()
+                if progress is not None:
+                    progress(k)
+
             return _fixtured(
-                reg, pending, params, prepared, zones, basis, progress, timings, judge, executor
+                reg, pending, params, prepared, zones, basis, watched, timings, judge, executor
             )
+        except _FreeStateStood:
+            return _stood_beside(_take(pending, timings), timings)
         finally:
             pending.cancel()
     decided = _free_state_stands(free)
@@ -954,6 +970,36 @@ def inspect(
         return decided
     timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
     return _fixtured(reg, free, params, prepared, zones, basis, progress, timings, judge, None)
+
+
+def _modal(params: InspectionParams) -> bool:
+    """Whether the inspection's virtual fixture iterates in the part's bending basis
+    (GB-CICP's modal solver)."""
+    g = params.gbcicp
+    return params.method == "gbcicp" and g.solver == "modal" and g.lambda0 is None
+
+
+def _bending_basis(ops, params: InspectionParams, V: np.ndarray, check) -> BendingBasis:
+    """The part's bending basis as the virtual fixture builds it when it has none
+    (:func:`qifreport.registration.gbcicp.bending_basis`; ``check`` before every solve)."""
+    return bending_basis(ops, params.gbcicp.modes, solver=SPDSolver(points=V), check=check)
+
+
+class _FreeStateStood(Exception):
+    """The free state, judged beside the virtual fixture, stands: the fixture is given up."""
+
+
+class _StoodCheck:
+    """Called between two steps of the virtual fixture: raises :class:`_FreeStateStood`
+    when the free-state judgement beside it is done and stands."""
+
+    def __init__(self, pending) -> None:
+        self.pending = pending
+
+    def __call__(self) -> None:
+        done = getattr(self.pending, "done", None)
+        if done is not None and done() and _free_state_stands(self.pending.result()):
+            raise _FreeStateStood
 
 
 def _trim_edges(
@@ -1033,7 +1079,7 @@ def _fixtured(
     if _pending(free) and any(z.free_state for z in judge["bands"].zones):
         free = _take(free, timings)  # the free-state zones take its deviation (below)
         if (decided := _free_state_stands(free)) is not None:
-            return _stood_beside(decided, timings, fit)
+            return _stood_beside(decided, timings)
     free_dev = None
     if isinstance(free, InspectionResult):  # the free state, measured once
         free_dev = (free.deviation, free.deviation_variance)
@@ -1041,7 +1087,7 @@ def _fixtured(
     if _pending(free):
         free = _take(free, timings)
         if (decided := _free_state_stands(free)) is not None:
-            return _stood_beside(decided, timings, fit)
+            return _stood_beside(decided, timings)
     res.fixture_decision = "always" if free is None else "free state does not conform"
     if free is not None:
         res.free_state = free.verdict
@@ -1054,16 +1100,10 @@ def _pending(free) -> bool:
     return free is not None and not isinstance(free, InspectionResult)
 
 
-def _stood_beside(
-    free: InspectionResult, timings: dict[str, float], fit: DeformResult
-) -> InspectionResult:
+def _stood_beside(free: InspectionResult, timings: dict[str, float]) -> InspectionResult:
     """The standing free state, with the stages this process ran while it was judged
-    beside them (their sum is the inspection's wall time), and the bending basis the
-    fixture built meanwhile when the part had none (for the caller to keep for the next
-    scans: the fixture's work is not all lost)."""
+    beside them (their sum is the inspection's wall time)."""
     free.timings = dict(timings)
-    if free.basis is None:
-        free.basis = fit.basis
     return free
 
 

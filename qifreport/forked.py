@@ -169,6 +169,14 @@ class ForkedCall:
         self._done = True
         return self._value
 
+    def done(self) -> bool:
+        """Whether the child has answered (or ended): :meth:`result` would not wait for it."""
+        if self._done:
+            return True
+        if self._pid < 0 or self._reaped:
+            return False
+        return bool(select.select([self._fd], [], [], 0)[0])
+
     def cancel(self) -> bool:
         """Stop the child if its result was not taken (True when it was stopped)."""
         if self._done:

@@ -717,8 +717,8 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
         res = inspect_state(P, state, job, bar=bar, prof=prof, executor=beside)
     if prof is not None:
         prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
-    # the basis a fixture built (also one run beside a free state that stood)
-    store_basis(state, cache, res.basis, nominal_options, params, o.cache_dir)
+    if res.fit is not None:
+        store_basis(state, cache, res.basis, nominal_options, params, o.cache_dir)
     finished = datetime.now(timezone.utc)
     digests = {"nominal": state.nominal_sha256, "scan": sha256(job.scan)}
     paths = job.output_paths()

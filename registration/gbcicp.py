@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from inspect import signature
 
@@ -176,7 +177,11 @@ _EIGSH_TAKES_RNG = "rng" in signature(spla.eigsh).parameters
 
 
 def bending_basis(
-    ops: MeshOperators, k: int = 100, tol: float = 1e-6, solver: SPDSolver | None = None
+    ops: MeshOperators,
+    k: int = 100,
+    tol: float = 1e-6,
+    solver: SPDSolver | None = None,
+    check: Callable[[], None] | None = None,
 ) -> BendingBasis:
     """The ``k`` lowest modes of the generalized problem ``Q phi = mu M phi``.
 
@@ -199,6 +204,8 @@ def bending_basis(
     solver : the sparse factorisation of the shifted operator (default
         :class:`~qifreport.registration.linalg.SPDSolver` without positions; give it the
         vertices, ``SPDSolver(points=V)``, for SuperLU's nested-dissection order).
+    check : called before every solve of the Lanczos iteration; an exception it raises
+        abandons the basis (a caller that learns it no longer needs it).
     """
     t0 = time.perf_counter()
     n = ops.Q.shape[0]
@@ -211,7 +218,13 @@ def bending_basis(
     # the shifted operator is SPD: a Cholesky (CHOLMOD) or a symmetric-mode SuperLU
     # factorisation is cheaper than the general LU eigsh would otherwise make
     fac = (solver or SPDSolver()).factor(A)
-    opinv = spla.LinearOperator(A.shape, matvec=lambda b: fac(b), dtype=np.float64)
+
+    def solve(b: np.ndarray) -> np.ndarray:
+        if check is not None:
+            check()
+        return fac(b)
+
+    opinv = spla.LinearOperator(A.shape, matvec=solve, dtype=np.float64)
     rng = np.random.default_rng(BASIS_SEED)
     # ARPACK's own default start, uniform on [-1, 1], but drawn from the seeded generator
     v0 = rng.uniform(-1.0, 1.0, n)
