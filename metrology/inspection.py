@@ -835,11 +835,12 @@ def inspect(
         ``brep_normals``): measured on the judged surface, and the profiles that name
         datums laid in their frame.
     executor : an object whose ``submit(fn, *args, **kwargs)`` returns a future (with
-        ``result()`` and ``cancel()``), e.g. a :class:`concurrent.futures.Executor` or the
-        command line's forked child (:class:`qifreport.forked.ForkExecutor`): the
-        free-state judgement is given to it and runs beside the virtual fixture, which is
-        wasted when the free state stands. The outcome is the sequential one. Default:
-        sequential.
+        ``result()`` and ``cancel()``, and ``done()`` to give up the fixture early), e.g. a
+        :class:`concurrent.futures.Executor` or the command line's forked child
+        (:class:`qifreport.forked.ForkExecutor`). Given to it: the scan's normals and area
+        (beside the pose), the free-state judgement (beside the virtual fixture, which is
+        given up once the free state stands) and the fixtured part's trim edges. The
+        outcome is the sequential one. Default: sequential.
 
     Raises
     ------
@@ -961,8 +962,13 @@ def inspect(
             return _fixtured(
                 reg, pending, params, prepared, zones, basis, watched, timings, judge, executor
             )
-        except _FreeStateStood:
-            return _stood_beside(_take(pending, timings), timings)
+        except _FreeStateStood:  # its fixture_decision is set (_free_state_stands)
+            free = pending.result()
+            # taken when it was done already (between two fixture steps), or waited for
+            timings.setdefault("free state (waited)", 0.0)
+            # the stages this process ran beside it: their sum is the inspection's wall time
+            free.timings = dict(timings)
+            return free
         finally:
             pending.cancel()
     decided = _free_state_stands(free)
@@ -1070,24 +1076,20 @@ def _fixtured(
     :func:`inspect`'s).
 
     ``free``: the free state's judgement that did not stand, None (``always_fixture``), or
-    its pending result (``executor.submit``): then it is taken when needed, and it stands
-    instead of the fixtured judgement when it decides the inspection
+    its pending result (``executor.submit``): then it is taken when needed, and
+    :class:`_FreeStateStood` raised when it decides the inspection
     (:func:`_free_state_stands`)."""
     t0 = time.perf_counter()
     fit = _virtual_fixture(reg, params, prepared, zones, basis, progress)
     timings[params.method] = time.perf_counter() - t0
     if _pending(free) and any(z.free_state for z in judge["bands"].zones):
         free = _take(free, timings)  # the free-state zones take its deviation (below)
-        if (decided := _free_state_stands(free)) is not None:
-            return _stood_beside(decided, timings)
     free_dev = None
     if isinstance(free, InspectionResult):  # the free state, measured once
         free_dev = (free.deviation, free.deviation_variance)
     res = _judge(reg, fit, params, timings, free_deviation=free_dev, executor=executor, **judge)
     if _pending(free):
         free = _take(free, timings)
-        if (decided := _free_state_stands(free)) is not None:
-            return _stood_beside(decided, timings)
     res.fixture_decision = "always" if free is None else "free state does not conform"
     if free is not None:
         res.free_state = free.verdict
@@ -1100,18 +1102,14 @@ def _pending(free) -> bool:
     return free is not None and not isinstance(free, InspectionResult)
 
 
-def _stood_beside(free: InspectionResult, timings: dict[str, float]) -> InspectionResult:
-    """The standing free state, with the stages this process ran while it was judged
-    beside them (their sum is the inspection's wall time)."""
-    free.timings = dict(timings)
-    return free
-
-
 def _take(pending, timings: dict[str, float]) -> InspectionResult:
-    """The pending free-state judgement's result; the time waited for it is a stage."""
+    """The pending free-state judgement's result (the time waited for it is a stage);
+    :class:`_FreeStateStood` when it stands."""
     t0 = time.perf_counter()
     free = pending.result()
     timings["free state (waited)"] = time.perf_counter() - t0
+    if _free_state_stands(free) is not None:
+        raise _FreeStateStood
     return free
 
 

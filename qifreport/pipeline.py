@@ -471,8 +471,8 @@ def inspect_state(
     executor=None,
 ) -> InspectionResult:
     """Inspect the scan points ``P`` (mm) against a prepared part, with the job's options
-    (the repeatability runs included); ``executor``: where the free-state judgement runs
-    beside the virtual fixture (:func:`qifreport.metrology.inspection.inspect`)."""
+    (the repeatability runs included); ``executor``: where side work of the inspection runs
+    beside its main line (:func:`qifreport.metrology.inspection.inspect`)."""
     o = job.options
     params = o.inspection_params()
     if state.restraint is not None:
