@@ -28,6 +28,8 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from .profile import peak_rss_bytes
+
 __all__ = ["ForkExecutor", "ForkedCall", "fork_executor"]
 
 log = logging.getLogger(__name__)
@@ -43,18 +45,6 @@ def _cpus() -> int:
 #: a child is given up (and the call made in the caller) when it has not answered within
 #: this many times the time the caller took until it asked (and at least the timeout)
 SLOWER = 5.0
-
-
-def _peak_rss() -> int:
-    """This process's peak resident set size, bytes (``VmHWM``; 0 where unknown)."""
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return 0
 
 
 def fork_executor() -> ForkExecutor | None:
@@ -105,7 +95,7 @@ class ForkedCall:
                 signal.signal(signal.SIGINT, signal.SIG_DFL)
                 signal.signal(signal.SIGTERM, signal.SIG_DFL)
                 value = fn(*args, **kwargs)
-                data = pickle.dumps((value, _peak_rss()), protocol=pickle.HIGHEST_PROTOCOL)
+                data = pickle.dumps((value, peak_rss_bytes()), protocol=pickle.HIGHEST_PROTOCOL)
                 with os.fdopen(write, "wb") as f:
                     f.write(data)
             except BaseException:  # noqa: BLE001 - any failure: the parent computes it
