@@ -113,8 +113,17 @@ class DescriptorSet:
         return DescriptorSet(self.index, self.X, D, self.scales, self.sigma_r)
 
 
-def farthest_points(X: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
-    """Indices (k,) of a farthest-point sample of ``X`` (n, 3), starting at a random point."""
+def farthest_points(
+    X: np.ndarray, k: int, seed: int = 0, tree: cKDTree | None = None
+) -> np.ndarray:
+    """Indices (k,) of a farthest-point sample of ``X`` (n, 3), starting at a random point.
+
+    Each new sample ``p`` lies at the largest distance ``D`` of any point from the samples
+    so far, so only points within ``D`` of ``p`` can come closer to the sample: they are
+    found with a k-d tree (``tree``: ``cKDTree(X)``, built when not given) instead of
+    measuring all ``n`` points at each step. The squared distances are the same numbers as
+    the full sweep's, so the sample is the same, index for index.
+    """
     n = len(X)
     if k >= n:
         return np.arange(n, dtype=np.int64)
@@ -123,19 +132,23 @@ def farthest_points(X: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
     out[0] = rng.integers(n)
     X = np.ascontiguousarray(X, dtype=np.float64)
     x, y, z = X[:, 0].copy(), X[:, 1].copy(), X[:, 2].copy()
-    d = np.full(n, np.inf)
-    buf = np.empty(n)
+    tree = cKDTree(X) if tree is None else tree
+    d = np.full(n, np.inf)  # squared distance to the nearest sample so far, mm^2
     for i in range(k):
         if i:
             out[i] = int(np.argmax(d))
         p = X[out[i]]
-        np.subtract(x, p[0], out=buf)
-        dd = buf * buf
-        np.subtract(y, p[1], out=buf)
-        dd += buf * buf
-        np.subtract(z, p[2], out=buf)
-        dd += buf * buf
-        np.minimum(d, dd, out=d)
+        if i:
+            # the ball of radius sqrt(D) (a hair wider, for the tree's rounding) holds every
+            # point whose distance can drop
+            r = float(np.sqrt(d[out[i]])) * (1.0 + 1e-9)
+            near = np.asarray(tree.query_ball_point(p, r, return_sorted=False), dtype=np.intp)
+        else:
+            near = slice(None)
+        dd = (x[near] - p[0]) ** 2
+        dd += (y[near] - p[1]) ** 2
+        dd += (z[near] - p[2]) ** 2
+        d[near] = np.minimum(d[near], dd)
     return out
 
 

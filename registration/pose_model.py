@@ -198,10 +198,19 @@ def prepare_model(
     raw = mesh_curvatures(V, F)
     planar = 1e-3 / diag
     fields = presmooth(V, raw.H, raw.K, area, p.presmooth * h, planar, tree=tree).stack()
-    kp = farthest_points(V, p.model_keypoints, seed=seed)
+    # one farthest-point sequence: its first samples are the keypoints, and its first
+    # ``coarse_vertices`` the coarse model (a shorter run from the same seed is its prefix;
+    # a sample of every vertex is all of them, in order)
+    n = len(V)
+    fps = farthest_points(V, min(max(p.model_keypoints, p.coarse_vertices), n - 1), seed, tree)
+
+    def sample(k: int) -> np.ndarray:
+        return fps[:k] if k < n else np.arange(n, dtype=np.int64)
+
+    kp = sample(p.model_keypoints)
     balls = geodesic_balls(mesh_graph(V, F), kp, 3.0 * max(p.scales) * h)
     c, U = principal_axes(V, area)
-    Vc = V[farthest_points(V, p.coarse_vertices, seed=seed)]
+    Vc = V[sample(p.coarse_vertices)]
     log.debug(
         "model: %d vertices, h %.3f mm, %d keypoints, %d ball entries",
         len(V),
@@ -272,6 +281,6 @@ def prepare_scan(P: np.ndarray, model: PreparedModel, seed: int) -> PreparedScan
     fields = presmooth(
         P, sc.H, sc.K, area, p.presmooth * model.h, 1e-3 / model.diag, tree=tree
     ).stack()
-    kp = farthest_points(P, p.scan_keypoints, seed=seed)
+    kp = farthest_points(P, p.scan_keypoints, seed=seed, tree=tree)
     balls = geodesic_balls(knn_graph(P, tree=tree), kp, 3.0 * max(p.scales) * model.h)
     return PreparedScan(P, tree, fields, area, eta, sc.noise, balls)
