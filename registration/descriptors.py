@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from itertools import chain
 
 import numpy as np
 import scipy.sparse as sp
@@ -241,22 +242,58 @@ class GeodesicBalls:
 
 
 def geodesic_balls(
-    G: sp.csr_matrix, sources: np.ndarray, radius: float, chunk: int = 64
+    G: sp.csr_matrix,
+    sources: np.ndarray,
+    radius: float,
+    chunk: int = 64,
+    tree: cKDTree | None = None,
 ) -> GeodesicBalls:
     """Dijkstra distances from each source up to ``radius`` (mm) on the graph ``G``.
 
     ``scipy.sparse.csgraph.dijkstra`` with ``limit=radius``, ``chunk`` sources per call (each
-    call holds a dense ``chunk x n`` array).
+    call holds a dense ``chunk x n`` array). With ``tree``, a ``cKDTree`` of the graph's
+    node positions (its edges weighted by their Euclidean lengths, as :func:`mesh_graph` and
+    :func:`knn_graph` are), each call runs on the nodes within ``radius`` of its sources
+    only: a path no longer than ``radius`` never leaves that Euclidean ball, so the
+    distances are the same numbers, in the same order, and the dense array is
+    ``chunk x (nodes near the sources)`` instead of ``chunk x n``.
     """
     sources = np.asarray(sources, dtype=np.int64)
+    G = sp.csr_matrix(G)
+    # with the node positions, the sources go through in compact groups (sorted by a grid
+    # of 4 radii), so that a group's balls cover a small share of the nodes
+    order = np.arange(len(sources))
+    if tree is not None and len(sources):
+        cell = np.floor(tree.data[sources] / (4.0 * radius + 1e-300)).astype(np.int64)
+        order = np.lexsort(cell.T[::-1])
     rows_l, cols_l, g2_l = [], [], []
     for start in range(0, len(sources), chunk):
-        src = sources[start : start + chunk]
-        Dg = dijkstra(G, directed=False, indices=src, limit=radius)
-        r, c = np.nonzero(np.isfinite(Dg))
-        rows_l.append((r + start).astype(np.int32))
+        pos = order[start : start + chunk]
+        src = sources[pos]
+        if tree is None:
+            Dg = dijkstra(G, directed=False, indices=src, limit=radius)
+            r, c = np.nonzero(np.isfinite(Dg))
+            d = Dg[r, c]
+        else:
+            # a hair wider than the limit, for the rounding of the edge lengths
+            near = tree.query_ball_point(tree.data[src], radius * (1.0 + 1e-9) + 1e-12)
+            nodes = np.unique(np.fromiter(chain.from_iterable(near), dtype=np.int64))
+            Dg = dijkstra(
+                G[nodes][:, nodes],
+                directed=False,
+                indices=np.searchsorted(nodes, src),
+                limit=radius,
+            )
+            r, sub = np.nonzero(np.isfinite(Dg))
+            c = nodes[sub]  # ``nodes`` ascending: each row's columns in the graph's order
+            d = Dg[r, sub]
+        rows_l.append(pos[r].astype(np.int32))
         cols_l.append(c.astype(np.int32))
-        g2_l.append((Dg[r, c] ** 2).astype(np.float32))
+        g2_l.append((d**2).astype(np.float32))
+    if tree is not None and rows_l:
+        # back to the order of the sources (each source's entries keep their column order)
+        back = np.argsort(np.concatenate(rows_l), kind="stable")
+        rows_l, cols_l, g2_l = ([np.concatenate(x)[back]] for x in (rows_l, cols_l, g2_l))
     cat = np.concatenate if rows_l else (lambda _x: np.zeros(0))
     return GeodesicBalls(
         sources=sources,

@@ -208,7 +208,7 @@ def prepare_model(
         return fps[:k] if k < n else np.arange(n, dtype=np.int64)
 
     kp = sample(p.model_keypoints)
-    balls = geodesic_balls(mesh_graph(V, F), kp, 3.0 * max(p.scales) * h)
+    balls = geodesic_balls(mesh_graph(V, F), kp, 3.0 * max(p.scales) * h, tree=tree)
     c, U = principal_axes(V, area)
     Vc = V[sample(p.coarse_vertices)]
     log.debug(
@@ -282,5 +282,5 @@ def prepare_scan(P: np.ndarray, model: PreparedModel, seed: int) -> PreparedScan
         P, sc.H, sc.K, area, p.presmooth * model.h, 1e-3 / model.diag, tree=tree
     ).stack()
     kp = farthest_points(P, p.scan_keypoints, seed=seed, tree=tree)
-    balls = geodesic_balls(knn_graph(P, tree=tree), kp, 3.0 * max(p.scales) * model.h)
+    balls = geodesic_balls(knn_graph(P, tree=tree), kp, 3.0 * max(p.scales) * model.h, tree=tree)
     return PreparedScan(P, tree, fields, area, eta, sc.noise, balls)

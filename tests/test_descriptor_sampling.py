@@ -1,19 +1,28 @@
-"""Farthest-point sampling with a k-d tree (issue 23): the same sample as the full sweep.
+"""The pose search's samples, found with a k-d tree (issue 23): the same numbers as by
+definition.
 
 :func:`qifreport.registration.descriptors.farthest_points` updates only the points within
 the current covering radius of each new sample. The reference here measures every point at
 every step, as the definition does; the two must agree index for index, and a prefix of a
 longer run must be the shorter run (``prepare_model`` takes its keypoints and its coarse
-vertices from one run).
+vertices from one run). :func:`~qifreport.registration.descriptors.geodesic_balls` with the
+nodes' tree runs Dijkstra on the nodes near each group of sources; its balls must equal the
+whole graph's, entry for entry.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import trimesh
 from scipy.spatial import cKDTree
 
-from qifreport.registration.descriptors import farthest_points
+from qifreport.registration.descriptors import (
+    farthest_points,
+    geodesic_balls,
+    knn_graph,
+    mesh_graph,
+)
 
 
 def full_sweep(X: np.ndarray, k: int, seed: int = 0) -> np.ndarray:
@@ -58,3 +67,18 @@ def test_a_shorter_run_is_a_prefix_and_small_clouds_are_whole():
     long = farthest_points(X, 3000)
     assert np.array_equal(farthest_points(X, 800), long[:800])
     assert np.array_equal(farthest_points(X[:100], 100), np.arange(100))
+
+
+@pytest.mark.parametrize("graph", ["mesh", "knn"])
+def test_geodesic_balls_near_the_sources_equal_the_whole_graphs(graph):
+    sphere = trimesh.creation.icosphere(5, radius=150.0)
+    V, F = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    tree = cKDTree(V)
+    G = mesh_graph(V, F) if graph == "mesh" else knn_graph(V, tree=tree)
+    sources = farthest_points(V, 300, tree=tree)
+    for radius in (20.0, 60.0):  # balls of ~40 and ~340 of the 10k nodes
+        whole = geodesic_balls(G, sources, radius, chunk=32)
+        near = geodesic_balls(G, sources, radius, chunk=32, tree=tree)
+        assert len(whole.rows) > 30 * len(sources)
+        for name in ("sources", "rows", "cols", "g2"):
+            assert np.array_equal(getattr(near, name), getattr(whole, name)), name
