@@ -22,7 +22,6 @@ All arrays are plain numpy: ``V`` (n, 3) float64 mm, ``F`` (f, 3) int64, ``P`` (
 from __future__ import annotations
 
 import logging
-from itertools import chain
 
 import igl
 import numpy as np
@@ -684,7 +683,7 @@ def residual_referenced(
 
 
 #: vertices per call of :func:`_residual_fit` (its ball search holds every (vertex, point)
-#: pair of the call: ~10^2 per vertex, as Python lists)
+#: pair of the call: ~10^2 per vertex)
 _FIT_BLOCK = 16384
 
 #: (vertex, B-rep face) pairs up to which :func:`_residual_fit` looks them up in a table
@@ -699,16 +698,14 @@ def _residual_fit(
     residuals of their fits and those residuals' degrees of freedom)."""
     n = len(V)
     none = (np.empty(0, dtype=np.int64),) + (np.empty(0),) * 4
-    hits = tree.query_ball_point(V[verts], r=radius, workers=-1)
-    cnt = np.zeros(n, dtype=np.int64)
-    cnt[verts] = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(verts))
-    local = np.flatnonzero(cnt[verts] >= min_points)
-    cand = verts[local]
-    if len(cand) == 0:
+    # every (vertex, point) pair within the ball, as flat arrays from one dual-tree search
+    pairs = cKDTree(V[verts]).sparse_distance_matrix(tree, radius, output_type="ndarray")
+    enough = np.bincount(pairs["i"], minlength=len(verts)) >= min_points
+    pairs = pairs[enough[pairs["i"]]]
+    if len(pairs) == 0:
         return none
-    total = int(cnt[cand].sum())
-    idx = sel[np.fromiter(chain.from_iterable(hits[i] for i in local), np.int64, count=total)]
-    vrt = np.repeat(cand, cnt[cand])
+    idx = sel[pairs["j"]]
+    vrt = verts[pairs["i"]]
     pl = point_label[idx]
     key = vrt * m + np.maximum(pl, 0)
     # (vertex, face) pairs looked up in a table of them where it is small, else by bisection
@@ -737,22 +734,25 @@ def _residual_fit(
     # robust: a point whose residual is more than 5 robust sigmas from its neighbourhood's
     # median (material the nominal does not have: a rib standing on the surface, a burr)
     # does not count for the vertex
+    order = sort_within_groups(vrt, r[idx])
+    idx, vrt = idx[order], vrt[order]  # from here on by vertex, then by residual
     rr = r[idx]
-    order = sort_within_groups(vrt, rr)
-    vs, rs = vrt[order], rr[order]
-    first = np.flatnonzero(np.r_[True, vs[1:] != vs[:-1]])
-    size = np.diff(np.r_[first, len(vs)])
-    med = np.repeat(rs[first + size // 2], size)
-    dev_abs = np.abs(rs - med)
-    o2 = sort_within_groups(vs, dev_abs)
+    first = np.flatnonzero(np.r_[True, vrt[1:] != vrt[:-1]])
+    size = np.diff(np.r_[first, len(vrt)])
+    med = np.repeat(rr[first + size // 2], size)
+    dev_abs = np.abs(rr - med)
+    o2 = sort_within_groups(vrt, dev_abs)
     mad = np.repeat(dev_abs[o2][first + size // 2], size)
-    keep = np.empty(len(order), dtype=bool)
-    keep[order] = dev_abs <= np.maximum(5.0 * 1.4826 * mad, 1e-9)
+    keep = dev_abs <= np.maximum(5.0 * 1.4826 * mad, 1e-9)
     idx, vrt, rr = idx[keep], vrt[keep], rr[keep]
     Q = P[idx] - V[vrt]
     nv = N[vrt]
     Q = Q - np.einsum("ij,ij->i", Q, nv)[:, None] * nv  # tangent-plane offsets
-    vid, row, counts = np.unique(vrt, return_inverse=True, return_counts=True)
+    # the vertices (ascending) and each pair's row among them: ``vrt`` is sorted
+    first = np.flatnonzero(np.r_[True, vrt[1:] != vrt[:-1]])
+    vid = vrt[first]
+    counts = np.diff(np.r_[first, len(vrt)])
+    row = np.repeat(np.arange(len(vid)), counts)
     enough = counts >= min_points
 
     def _sum(w: np.ndarray) -> np.ndarray:
