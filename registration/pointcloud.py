@@ -813,7 +813,9 @@ def orient_normals_consistent(
     w = 1.0 - par[keep] + 1e-6
     G = coo_matrix((w, (i, j)), shape=(m, m)).tocsr()
     G = G.maximum(G.T)
-    T = minimum_spanning_tree(G)
+    # each edge once (the upper triangle): Kruskal sorts half as many weights and meets
+    # every edge in the same order, so the tree is the same
+    T = minimum_spanning_tree(sp.triu(G, format="csr"))
     T = T.maximum(T.T)
     n_comp, labels = connected_components(T, directed=False)
     # parent of every point in a breadth-first tree of its component (roots: themselves),

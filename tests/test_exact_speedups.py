@@ -1,5 +1,4 @@
-"""The pose search's samples, found with a k-d tree (issue 23): the same numbers as by
-definition.
+"""Faster paths that must give the same numbers as the slower ones (issue 23).
 
 :func:`qifreport.registration.descriptors.farthest_points` updates only the points within
 the current covering radius of each new sample. The reference here measures every point at
@@ -7,14 +6,18 @@ every step, as the definition does; the two must agree index for index, and a pr
 longer run must be the shorter run (``prepare_model`` takes its keypoints and its coarse
 vertices from one run). :func:`~qifreport.registration.descriptors.geodesic_balls` with the
 nodes' tree runs Dijkstra on the nodes near each group of sources; its balls must equal the
-whole graph's, entry for entry.
+whole graph's, entry for entry. The scan normals' spanning tree is built from each edge
+once (the upper triangle of the symmetric graph): Kruskal's stable order meets the edges in
+the same order, so the tree must be the one of the whole matrix, also where weights tie.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 import trimesh
+from scipy.sparse.csgraph import minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from qifreport.registration.descriptors import (
@@ -82,3 +85,20 @@ def test_geodesic_balls_near_the_sources_equal_the_whole_graphs(graph):
         assert len(whole.rows) > 30 * len(sources)
         for name in ("sources", "rows", "cols", "g2"):
             assert np.array_equal(getattr(near, name), getattr(whole, name)), name
+
+
+@pytest.mark.parametrize("levels", [3, 1000])  # many ties, few
+def test_spanning_tree_of_the_upper_triangle_is_the_whole_graphs(levels):
+    rng = np.random.default_rng(levels)
+    n = 3000
+    i, j = rng.integers(0, n, (2, 6 * n))
+    w = 1.0 + rng.integers(0, levels, len(i)) / levels
+    G = sp.coo_matrix((w, (i, j)), shape=(n, n)).tocsr()
+    G = G.maximum(G.T)
+    G.setdiag(0)
+    G.eliminate_zeros()
+    whole = minimum_spanning_tree(G)
+    upper = minimum_spanning_tree(sp.triu(G, format="csr"))
+    assert whole.nnz > n // 2
+    assert (whole != upper).nnz == 0
+    assert np.array_equal(whole.indices, upper.indices)
