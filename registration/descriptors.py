@@ -54,6 +54,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
+from .arrays import unique_sorted
 from .curvature import CurvatureFields, shape_fields
 from .mesh import edges
 
@@ -277,7 +278,7 @@ def geodesic_balls(
         else:
             # a hair wider than the limit, for the rounding of the edge lengths
             near = tree.query_ball_point(tree.data[src], radius * (1.0 + 1e-9) + 1e-12)
-            nodes = np.unique(np.fromiter(chain.from_iterable(near), dtype=np.int64))
+            nodes = unique_sorted(np.fromiter(chain.from_iterable(near), dtype=np.int64))
             Dg = dijkstra(
                 G[nodes][:, nodes],
                 directed=False,
