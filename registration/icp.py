@@ -189,7 +189,8 @@ def rigid_icp(
     # for the points whose nearest vertex may have changed (the same answers, exactly)
     nearest = TrackedNearest(tree, V)
     for it in range(1, max_iter + 1):  # noqa: B007 - `it` is reported after the loop
-        X = P @ R.T + t
+        X = P @ R.T
+        X += t  # in place: the same sums, without a second (m, 3) temporary
         dist, idx = nearest.query(X)
         n = N[idx]
         r = np.einsum("ij,ij->i", X - V[idx], n)  # signed point-to-plane residual

@@ -48,9 +48,11 @@ class TrackedNearest:
         self.V = np.asarray(V, dtype=np.float64)
         self.k = min(int(k), len(self.V))
         self.queried = 0
-        self._anchor = np.empty((0, 3))
-        self._cand = np.empty((0, self.k), dtype=np.int64)
-        self._coords = np.empty((3, 0, self.k))  # the candidates' x, y, z: (3, m, k)
+        self._anchor = np.empty((3, 0))  # where each point was last looked up: x, y, z rows
+        # candidate j of every point: its index (k, m) and x, y, z (3, k, m), each row a
+        # packed vector, so the check runs on whole (m,) vectors
+        self._cand = np.empty((self.k, 0), dtype=np.int64)
+        self._coords = np.empty((3, self.k, 0))
         self._reach = np.empty(0)
 
     def query(self, X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -61,21 +63,32 @@ class TrackedNearest:
         """
         X = np.asarray(X, dtype=np.float64)
         m = len(X)
-        if len(self._anchor) != m:
-            self._anchor = np.empty((m, 3))
-            self._cand = np.empty((m, self.k), dtype=np.int64)
-            self._coords = np.empty((3, m, self.k))
+        if self._anchor.shape[1] != m:
+            self._anchor = np.empty((3, m))
+            self._cand = np.empty((self.k, m), dtype=np.int64)
+            self._coords = np.empty((3, self.k, m))
             self._reach = np.empty(m)
             return self._requery(X, np.arange(m), np.empty(m), np.empty(m, dtype=np.int64))
         C = self._coords
-        D2 = (C[0] - X[:, :1]) ** 2
-        D2 += (C[1] - X[:, 1:2]) ** 2
-        D2 += (C[2] - X[:, 2:]) ** 2
-        j = D2.argmin(axis=1)[:, None]
-        dist = np.sqrt(np.take_along_axis(D2, j, axis=1)[:, 0])
-        idx = np.take_along_axis(self._cand, j, axis=1)[:, 0]
-        step = X - self._anchor
-        moved = np.sqrt(np.einsum("ij,ij->i", step, step))
+        x, y, z = (np.ascontiguousarray(X[:, a]) for a in range(3))
+        # the closest candidate, the first of equals (as argmin)
+        best = idx = None
+        for j in range(self.k):
+            d2 = (C[0, j] - x) ** 2
+            d2 += (C[1, j] - y) ** 2
+            d2 += (C[2, j] - z) ** 2
+            if best is None:
+                best, idx = d2, self._cand[0].copy()
+            else:
+                closer = d2 < best
+                np.copyto(best, d2, where=closer)
+                np.copyto(idx, self._cand[j], where=closer)
+        dist = np.sqrt(best)
+        A = self._anchor
+        moved = (x - A[0]) ** 2
+        moved += (y - A[1]) ** 2
+        moved += (z - A[2]) ** 2
+        np.sqrt(moved, out=moved)
         # every vertex outside the candidates lies at least reach - moved from the point
         todo = np.flatnonzero(~(dist < self._reach - moved))
         return self._requery(X, todo, dist, idx)
@@ -87,9 +100,9 @@ class TrackedNearest:
         if len(todo):
             d, i = self.tree.query(X[todo], k=self.k, workers=workers_for(len(todo)))
             d, i = d.reshape(len(todo), self.k), i.reshape(len(todo), self.k)  # k = 1: 1-D
-            self._anchor[todo] = X[todo]
-            self._cand[todo] = i
-            self._coords[:, todo] = np.moveaxis(self.V[i], 2, 0)
+            self._anchor[:, todo] = X[todo].T
+            self._cand[:, todo] = i.T
+            self._coords[:, :, todo] = np.moveaxis(self.V[i], (2, 1), (0, 1))
             self._reach[todo] = d[:, -1]
             dist[todo] = d[:, 0]
             idx[todo] = i[:, 0]
