@@ -38,6 +38,8 @@ def corner_normals_exact(
     V : (n, 3) mm.  F : (f, 3) outward triangles.  face_id : (f,) face of each triangle.
     """
     from OCP.BRep import BRep_Tool
+    from OCP.GeomAbs import GeomAbs_Plane
+    from OCP.GeomAdaptor import GeomAdaptor_Surface
     from OCP.GeomLProp import GeomLProp_SLProps
     from OCP.gp import gp_Pnt
     from OCP.ShapeAnalysis import ShapeAnalysis_Surface
@@ -61,12 +63,17 @@ def corner_normals_exact(
         surf = BRep_Tool.Surface_s(face)
         sas = ShapeAnalysis_Surface(surf)
         sign = -1.0 if face.Orientation() == TopAbs_REVERSED else 1.0
-        for i in group:
+        # a plane's normal is the same at every (u, v) (the cross product of its constant
+        # axes): evaluated once, at the face's first corner
+        planar = GeomAdaptor_Surface(surf).GetType() == GeomAbs_Plane
+        for i in group[:1] if planar else group:
             uv = sas.ValueOfUV(gp_Pnt(*V[pv[i]]), 1e-7)
             props = GeomLProp_SLProps(surf, uv.X(), uv.Y(), 1, 1e-9)
             if props.IsNormalDefined():
                 n = props.Normal()
                 N[i] = (sign * n.X(), sign * n.Y(), sign * n.Z())
+        if planar:
+            N[group] = N[group[0]]
     out[:] = N[inverse].reshape(len(F), 3, 3)
     # the side of the triangle's own (outward) normal: a face whose orientation flag does
     # not match its surface's (a sewing artefact) still gets outward corners
