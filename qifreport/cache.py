@@ -418,7 +418,8 @@ def build_state(
     basis for GB-CICP; the pose search builds its model itself if the scan needs it).
     ``lazy_basis``: leave out the bending basis, the costliest part (an inspection that
     judges the free state first needs it only when the free state does not conform; it is
-    then built by the fixture and stored by :func:`store_basis`).
+    then built by the fixture, and a cache entry's stored by :func:`store_basis`), with or
+    without ``complete``.
     """
     t0 = time.perf_counter()
     nom = load_nominal(
@@ -440,7 +441,10 @@ def build_state(
         prepared = prepare_part(nom.V, nom.F, params, basis=not lazy_basis)
     else:
         basis = (
-            params.method == "gbcicp" and not params.rigid_only and params.gbcicp.solver == "modal"
+            params.method == "gbcicp"
+            and not params.rigid_only
+            and params.gbcicp.solver == "modal"
+            and not lazy_basis
         )
         prepared = prepare_part(nom.V, nom.F, params, basis=basis, model=False)
     return PartState(
@@ -579,8 +583,9 @@ def part_state(
     cache_dir : cache directory, None to neither read nor write one. A directory that fails
         :func:`cache_secret` is not used either (one warning; status ``"refused"``).
     rebuild : ignore an existing entry and build a fresh one.
-    lazy_basis : a built entry leaves out the bending basis (:func:`build_state`); the
-        caller stores it once a fixture has built it (:func:`store_basis`).
+    lazy_basis : a built state leaves out the bending basis (:func:`build_state`): the
+        fixture builds it if the free state does not conform, beside the free state's
+        judgement; with a cache the caller stores it then (:func:`store_basis`).
 
     Raises
     ------
@@ -592,7 +597,9 @@ def part_state(
     material = key_material(digest, options, params)
     key = cache_key(material)
     if cache_dir is None:  # one inspection: build only what it needs
-        state = build_state(nominal, options, params, digest, key, complete=False)
+        state = build_state(
+            nominal, options, params, digest, key, complete=False, lazy_basis=lazy_basis
+        )
         return state, CacheOutcome(
             "off",
             None,
@@ -604,7 +611,9 @@ def part_state(
         secret = cache_secret(cache_dir)
     except UntrustedCache as exc:  # never read nor write a directory others could write
         log.warning("%s: the part is prepared without the cache", exc)
-        state = build_state(nominal, options, params, digest, key, complete=False)
+        state = build_state(
+            nominal, options, params, digest, key, complete=False, lazy_basis=lazy_basis
+        )
         return state, CacheOutcome(
             "refused",
             None,

@@ -230,3 +230,16 @@ def test_without_cache_only_what_the_inspection_needs(built):
     assert outcome.status == "off" and outcome.path is None
     assert state.prepared.basis is None and state.prepared.model is None
     assert state.prepared.ops.Q.shape == (len(state.nominal.V),) * 2
+
+
+def test_without_cache_the_basis_waits_for_a_fixture(built):
+    """``--no-cache`` as the command runs it (the free state first): the bending basis is left
+    to the virtual fixture, which builds it only if the free state does not conform (beside
+    its judgement, on a second CPU); a caller that asks for it up front gets the same modes
+    as a cache entry holds."""
+    nominal, _, cached, _ = built
+    lazy, outcome = part_state(nominal, OPTS, InspectionParams(), None, lazy_basis=True)
+    assert outcome.status == "off" and lazy.prepared.basis is None
+    assert "basis" not in outcome.timings
+    eager, _ = part_state(nominal, OPTS, InspectionParams(), None)
+    np.testing.assert_array_equal(eager.prepared.basis.Phi, cached.prepared.basis.Phi)
