@@ -617,12 +617,12 @@ def _strip_edges(
     share = np.zeros(km)
     slant = np.full(km, np.inf)
     reach = float(np.sqrt(radius**2 + max_gap**2 + window**2))
-    hits = tree.query_ball_point(X, r=reach, workers=-1)
-    nh = np.fromiter((len(h) for h in hits), dtype=np.int64, count=km)
-    if nh.sum() == 0:
+    # every (rim point, scan point) pair within reach, as flat arrays from one dual-tree
+    # search (their order does not matter: each rim point's values are sorted or counted)
+    pairs = cKDTree(X).sparse_distance_matrix(tree, reach, output_type="ndarray")
+    if len(pairs) == 0:
         return e, n2, share, slant
-    grp = np.repeat(np.arange(km), nh)
-    idx = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits if len(h)])
+    grp, idx = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
     Q = P[idx] - X[grp]
     along = np.einsum("ij,ij->i", Q, T[grp])
     u = np.einsum("ij,ij->i", Q, B[grp])
