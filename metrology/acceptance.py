@@ -398,6 +398,16 @@ def evaluate(
     nominal_area = float(A.sum())
     coverage = scored_area / nominal_area if nominal_area > 0 else math.nan
     adj = adjacency(F, len(V))  # one adjacency for the measured values and both guard bands
+    u_stats = (math.nan, math.nan)
+    U = reduced = None
+    if uncertainty is not None and scored_area > 0:
+        U = np.nan_to_num(_per_vertex(uncertainty, len(V), "uncertainty"), nan=0.0)
+        Us = U[scored]
+        u_stats = (float(np.median(Us)), float(Us.max()))
+        U = U * (0.5 * PROOF_COVERAGE)  # the proofs' band (decision.py)
+        # the band reduced first: its scan points out of tolerance hold those of the
+        # measured and the enlarged band, whose point regions then reuse its links
+        reduced = _criteria(V, adj, dev, tol - U, A, c, scored_area, min_fraction, points, -1.0)
     frac, area_ok, regions, largest, largest_v = _criteria(
         V, adj, dev, tol, A, c, scored_area, min_fraction, points, 0.0
     )
@@ -420,16 +430,9 @@ def evaluate(
         float(tolerance) if np.ndim(tolerance) == 0 else np.asarray(tolerance, dtype=float)
     )
     proven_in = proven_out = None
-    u_stats = (math.nan, math.nan)
     uncertain: list[str] = []
-    if uncertainty is not None and scored_area > 0:
-        U = np.nan_to_num(_per_vertex(uncertainty, len(V), "uncertainty"), nan=0.0)
-        Us = U[scored]
-        u_stats = (float(np.median(Us)), float(Us.max()))
-        U = U * (0.5 * PROOF_COVERAGE)  # the proofs' band (decision.py)
-        frac_in, area_in, _, largest_in, largest_in_v = _criteria(
-            V, adj, dev, tol - U, A, c, scored_area, min_fraction, points, -1.0
-        )
+    if U is not None:
+        frac_in, area_in, _, largest_in, largest_in_v = reduced
         proven_in = bool(area_in and largest_in <= max_region_area)
         proven_in_v = bool(area_in and largest_in_v <= max_region_area)
         _, area_out, _, largest_out, largest_out_v = _criteria(

@@ -76,6 +76,9 @@ class ScanSamples:
     spacing: float
     tree: cKDTree
     _area: np.ndarray | None = None
+    #: the links of the last point set grouped: (distance, its points, the pairs as
+    #: positions in it, each scan point's position in it or -1)
+    _links: tuple | None = None
 
     def area(self, idx: np.ndarray) -> np.ndarray:
         """(len(idx),) area of the points ``idx``, mm^2 (:func:`point_areas`), each
@@ -86,6 +89,34 @@ class ScanSamples:
         if len(todo):
             self._area[todo] = point_areas(self.tree, self.P[todo], self.spacing)
         return self._area[idx]
+
+    def groups(self, sel: np.ndarray, distance: float) -> np.ndarray:
+        """(len(sel),) the connected group of each point ``sel`` (distinct indices of
+        ``P``): :func:`linked_groups` of ``P[sel]``. The region criterion groups nested
+        sets of points (the band reduced, as measured, enlarged); the pairs of a set found
+        before are reused for its subsets (the graph they induce is the same, and so are
+        the groups and their numbers)."""
+        sel = np.asarray(sel, dtype=np.int64)
+        if self._links is not None and self._links[0] == distance:
+            _, members, a, b, where = self._links
+            pos = where[sel]
+            if (pos >= 0).all():
+                local = np.full(len(members), -1, dtype=np.int64)
+                local[pos] = np.arange(len(sel))
+                a, b = local[a], local[b]
+                keep = (a >= 0) & (b >= 0)
+                return _components(len(sel), a[keep], b[keep])
+        pairs = cKDTree(self.P[sel]).query_pairs(distance, output_type="ndarray")
+        where = np.full(len(self.P), -1, dtype=np.int64)
+        where[sel] = np.arange(len(sel))
+        self._links = (distance, sel, pairs[:, 0], pairs[:, 1], where)
+        return _components(len(sel), pairs[:, 0], pairs[:, 1])
+
+
+def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n,) the connected component of each of ``n`` nodes joined by the pairs ``(a, b)``."""
+    G = sp.coo_matrix((np.ones(len(a)), (a, b)), (n, n))
+    return connected_components(G, directed=False)[1]
 
 
 def point_areas(tree: cKDTree, Q: np.ndarray, spacing: float) -> np.ndarray:
@@ -101,8 +132,7 @@ def linked_groups(Q: np.ndarray, distance: float) -> np.ndarray:
     """(q,) the connected group of each point of ``Q`` (q, 3): points closer than
     ``distance`` (mm) are linked."""
     pairs = cKDTree(Q).query_pairs(distance, output_type="ndarray")
-    G = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), (len(Q),) * 2)
-    return connected_components(G, directed=False)[1]
+    return _components(len(Q), pairs[:, 0], pairs[:, 1])
 
 
 @dataclass
@@ -140,7 +170,7 @@ class SurfacePoints:
         if len(sel) == 0:
             return []
         Q = s.P[sel]
-        label = linked_groups(Q, LINK * s.spacing)
+        label = s.groups(sel, LINK * s.spacing)
         a = s.area(sel)
         d = val[out]
         c = self.center[out]

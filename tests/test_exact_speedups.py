@@ -102,3 +102,31 @@ def test_spanning_tree_of_the_upper_triangle_is_the_whole_graphs(levels):
     assert whole.nnz > n // 2
     assert (whole != upper).nnz == 0
     assert np.array_equal(whole.indices, upper.indices)
+
+
+def test_point_groups_of_nested_sets_reuse_the_links_and_equal_a_fresh_grouping():
+    from qifreport.metrology.point_regions import ScanSamples, linked_groups
+
+    rng = np.random.default_rng(5)
+    P = np.c_[rng.uniform(0, 100, (20_000, 2)), rng.normal(0, 0.01, 20_000)]
+    s = ScanSamples(
+        P=P,
+        value=np.zeros(len(P)),
+        U=np.zeros(len(P)),
+        vertex=np.zeros(len(P), dtype=np.int64),
+        spacing=0.7,
+        tree=cKDTree(P),
+    )
+    score = rng.uniform(0, 1, len(P))
+    wide = np.flatnonzero(score > 0.3)  # the band reduced: the most points out
+    asked = []
+    for sel in (wide, np.flatnonzero(score > 0.5), np.flatnonzero(score > 0.8), wide[::-1]):
+        got = s.groups(sel, 0.45)
+        asked.append(s._links[1] is wide)
+        ref = linked_groups(P[sel], 0.45)
+        assert np.array_equal(got, ref)
+        assert len(np.unique(ref)) > 10  # many groups: a test of the numbering too
+    assert asked == [True, True, True, True]  # the subsets (and a reordering) reused it
+    other = np.flatnonzero(score < 0.2)  # not a subset: grouped afresh
+    assert np.array_equal(s.groups(other, 0.45), linked_groups(P[other], 0.45))
+    assert s._links[1] is not wide
