@@ -37,6 +37,7 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from qifreport.registration.arrays import unique_rows
 from qifreport.registration.mesh import adjacency, vertex_areas
 
 from .decision import PROOF_COVERAGE, decide
@@ -584,7 +585,7 @@ def scan_area(P: np.ndarray, k: int = 10, probes: int = 64) -> float:
     """
     P = np.asarray(P, dtype=np.float64).reshape(-1, 3)
     P = P[np.isfinite(P).all(axis=1)]
-    P = np.unique(P, axis=0)
+    P = unique_rows(P)
     k = int(k)
     if k < 3:
         raise ValueError("k must be at least 3")
@@ -616,7 +617,10 @@ def scan_area(P: np.ndarray, k: int = 10, probes: int = 64) -> float:
         cos, sin = np.cos(phi), np.sin(phi)
         rot = np.stack([np.stack([cos, -sin], -1), np.stack([sin, cos], -1)], -2)
         u = np.matmul(disk, rot.transpose(0, 2, 1)) * r[:, None, None]  # (c, M, 2) probes
-        inside = np.all(np.matmul(u, q.transpose(0, 2, 1)) < half[:, None, :], axis=2)
+        below = np.matmul(u, q.transpose(0, 2, 1)) < half[:, None, :]  # (c, M, k)
+        inside = below[:, :, 0].copy()  # every neighbour's half-plane: an AND over k
+        for j in range(1, k):  # (np.all along the short last axis is ~3x slower)
+            inside &= below[:, :, j]
         cell = inside.mean(axis=1) * math.pi * r * r / (1.0 + coincident.sum(axis=1))
         total += float(cell.sum())
     return total

@@ -4,13 +4,15 @@
 path, which is ~13x slower than a sort on a million distinct keys (0.87 s against 0.065 s:
 the edges of a 400k-triangle mesh, once per vertex adjacency). :func:`unique_sorted` is the
 sort, for integer arrays; anything else goes to ``np.unique`` (NaN handling included).
+:func:`unique_rows` is ``np.unique(a, axis=0)`` of finite rows by one ``lexsort``, about
+twice as fast.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["unique_sorted"]
+__all__ = ["unique_rows", "unique_sorted"]
 
 
 def unique_sorted(a: np.ndarray) -> np.ndarray:
@@ -31,3 +33,24 @@ def unique_sorted(a: np.ndarray) -> np.ndarray:
     if len(s) < 2:
         return s
     return s[np.r_[True, s[1:] != s[:-1]]]
+
+
+def unique_rows(a: np.ndarray) -> np.ndarray:
+    """The distinct rows of the finite 2-D array ``a`` (m, d), sorted lexicographically:
+    ``np.unique(a, axis=0)`` by one ``np.lexsort``.
+
+    Parameters
+    ----------
+    a : (m, d) finite numbers (rows equal in value are one row: ``-0.0`` is ``0.0``).
+
+    Returns
+    -------
+    (k, d) the distinct rows, first column first in the order.
+    """
+    a = np.asarray(a)
+    if a.ndim != 2:
+        raise ValueError(f"unique_rows takes a 2-D array, got shape {a.shape}")
+    if len(a) < 2:
+        return a.copy()
+    s = a[np.lexsort(a.T[::-1])]
+    return s[np.r_[True, np.any(s[1:] != s[:-1], axis=1)]]

@@ -130,3 +130,14 @@ def test_point_groups_of_nested_sets_reuse_the_links_and_equal_a_fresh_grouping(
     other = np.flatnonzero(score < 0.2)  # not a subset: grouped afresh
     assert np.array_equal(s.groups(other, 0.45), linked_groups(P[other], 0.45))
     assert s._links[1] is not wide
+
+
+def test_unique_rows_are_numpys():
+    from qifreport.registration.arrays import unique_rows
+
+    rng = np.random.default_rng(2)
+    a = np.round(rng.normal(size=(50_000, 3)), 1)  # many equal rows and equal columns
+    a[::7, 2] = -0.0
+    np.testing.assert_array_equal(unique_rows(a), np.unique(a, axis=0))
+    assert len(unique_rows(a)) < len(a)
+    np.testing.assert_array_equal(unique_rows(a[:1]), a[:1])
