@@ -164,8 +164,10 @@ def rasterize(V: np.ndarray, F: np.ndarray, direction: np.ndarray, pixel: float)
     width = int(np.floor(grid[:, 0].max())) + 2
 
     T = grid[F]  # (f, 3, 2)
-    lo = np.ceil(T.min(axis=1)).astype(np.int64)
-    hi = np.floor(T.max(axis=1)).astype(np.int64)
+    # the corners' least and greatest (x, y): pairwise, the same numbers as T.min(axis=1)
+    # and T.max(axis=1), several times faster than a reduction along a 3-long axis
+    lo = np.ceil(np.minimum(np.minimum(T[:, 0], T[:, 1]), T[:, 2])).astype(np.int64)
+    hi = np.floor(np.maximum(np.maximum(T[:, 0], T[:, 1]), T[:, 2])).astype(np.int64)
     span = np.maximum(hi - lo + 1, 0)
     count = span[:, 0] * span[:, 1]
     d1 = T[:, 1] - T[:, 0]
