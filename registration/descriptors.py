@@ -129,6 +129,8 @@ def farthest_points(
     n = len(X)
     if k >= n:
         return np.arange(n, dtype=np.int64)
+    if k <= 0:
+        return np.empty(0, dtype=np.int64)
     rng = np.random.default_rng(seed)
     out = np.empty(k, dtype=np.int64)
     out[0] = rng.integers(n)

@@ -70,6 +70,9 @@ def test_a_shorter_run_is_a_prefix_and_small_clouds_are_whole():
     long = farthest_points(X, 3000)
     assert np.array_equal(farthest_points(X, 800), long[:800])
     assert np.array_equal(farthest_points(X[:100], 100), np.arange(100))
+    # a one-vertex cloud: prepare_model asks for min(k, n - 1) = 0 samples, then all of it
+    assert len(farthest_points(X[:1], 0)) == 0
+    assert np.array_equal(farthest_points(X[:1], 2000), [0])
 
 
 @pytest.mark.parametrize("graph", ["mesh", "knn"])
