@@ -125,20 +125,23 @@ class TreePeak:
         return pids
 
     @staticmethod
-    def _kib(pid: int, key: str) -> int:
+    def _pss_rss(pid: int) -> tuple[int, int]:
+        """(Pss, Rss) of one process, bytes, from one read of its ``smaps_rollup`` (the
+        kernel walks the page tables for each read); (0, 0) once it has gone."""
+        kib = {}
         try:
             for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
-                if line.startswith(key):
-                    return int(line.split()[1])
+                key, _, rest = line.partition(":")
+                if key in ("Pss", "Rss"):
+                    kib[key] = int(rest.split()[0])
         except (OSError, ValueError, IndexError):
             pass
-        return 0
+        return kib.get("Pss", 0) * 1024, kib.get("Rss", 0) * 1024
 
     def _run(self) -> None:
         while not self._done.wait(self.interval):
-            pids = self._tree(self.pid)
-            pss = sum(self._kib(p, "Pss:") for p in pids) * 1024
-            rss = sum(self._kib(p, "Rss:") for p in pids) * 1024
+            sizes = [self._pss_rss(p) for p in self._tree(self.pid)]
+            pss, rss = sum(s[0] for s in sizes), sum(s[1] for s in sizes)
             self.peak, self.peak_rss = max(self.peak, pss), max(self.peak_rss, rss)
 
     def stop(self) -> None:
