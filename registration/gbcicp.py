@@ -33,14 +33,14 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from inspect import signature
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 from threadpoolctl import ThreadpoolController
 
+from .block_lanczos import lowest_modes
 from .deformable import DeformResult, Match, ScanMatcher, coverage_radius, orient_scan_normals
 from .icp import robust_scale
 from .linalg import SPDSolver
@@ -171,9 +171,9 @@ class BendingBasis:
 #: function of the operators alone, bit-identical from one build to the next
 BASIS_SEED = 20240607
 
-# recent scipy draws ARPACK's restart vectors from a numpy generator (``rng=``, else seeded
-# from the OS); older releases run the Fortran ARPACK, whose own generator has a fixed seed
-_EIGSH_TAKES_RNG = "rng" in signature(spla.eigsh).parameters
+#: vectors per solve of :func:`bending_basis`'s block Lanczos: a sparse triangular sweep of
+#: ten right-hand sides costs about 2.5 single sweeps
+BASIS_BLOCK = 10
 
 
 def bending_basis(
@@ -185,27 +185,30 @@ def bending_basis(
 ) -> BendingBasis:
     """The ``k`` lowest modes of the generalized problem ``Q phi = mu M phi``.
 
-    Shift-invert Lanczos (``scipy.sparse.linalg.eigsh``) around a small negative shift, so
-    the singular operator (its null space holds the affine fields) factorises; with the
-    CHOLMOD accelerator the shifted operator is factorised by CHOLMOD.
+    Block shift-invert Lanczos (:func:`~qifreport.registration.block_lanczos.lowest_modes`)
+    around a small negative shift, so the singular operator (its null space holds the affine
+    fields) factorises: each solve takes a block of :data:`BASIS_BLOCK` vectors through the
+    factorisation (CHOLMOD with the accelerator), and the Ritz pairs meet ARPACK's criterion
+    ``||OP x - theta x|| <= 0.01 tol |theta|``. A part too small for a Krylov basis (``n`` at
+    most ``4 (k + block)``) is solved densely (LAPACK).
 
-    Deterministic: the Lanczos start vector and ARPACK's restarts come from a generator seeded
-    with :data:`BASIS_SEED`, and every choice an eigen-decomposition leaves open is fixed by a
-    convention (:func:`canonical_modes`): the sign of each mode, and the basis of every
-    cluster of numerically equal eigenvalues (the null space among them). Two builds of one
-    nominal give bit-identical arrays.
+    Deterministic: the start block comes from a generator seeded with :data:`BASIS_SEED`,
+    and every choice an eigen-decomposition leaves open is fixed by a convention
+    (:func:`canonical_modes`): the sign of each mode, and the basis of every cluster of
+    numerically equal eigenvalues (the null space among them). Two builds of one nominal
+    give bit-identical arrays.
 
     Parameters
     ----------
-    ops : operators of the nominal (``Q`` 1/mm^2, ``M`` mm^2).
+    ops : operators of the nominal (``Q`` 1/mm^2, ``M`` mm^2, diagonal).
     k : number of modes (capped at ``n - 2``).
-    tol : relative accuracy of the eigenvalues (``eigsh``); the modes are then orthonormal
-        to round-off and ``Phi^T Q Phi`` diagonal to ~1e-15.
+    tol : relative accuracy of the eigenvalues; the modes are then orthonormal to
+        round-off and ``Phi^T Q Phi`` diagonal to ~1e-15.
     solver : the sparse factorisation of the shifted operator (default
         :class:`~qifreport.registration.linalg.SPDSolver` without positions; give it the
         vertices, ``SPDSolver(points=V)``, for SuperLU's nested-dissection order).
-    check : called before every solve of the Lanczos iteration; an exception it raises
-        abandons the basis (a caller that learns it no longer needs it).
+    check : called before every block solve; an exception it raises abandons the basis (a
+        caller that learns it no longer needs it).
     """
     t0 = time.perf_counter()
     n = ops.Q.shape[0]
@@ -214,29 +217,33 @@ def bending_basis(
     # eigenvalue of the k-th mode of a plate of this area, ~ (pi sqrt(k / area))^4: shift
     # well below it, so the modes nearest the shift are the lowest ones
     shift = -1e-3 * (np.pi * np.sqrt(k / max(area, 1e-300))) ** 4
-    A = (ops.Q - shift * ops.M).tocsc()
-    # the shifted operator is SPD: a Cholesky (CHOLMOD) or a symmetric-mode SuperLU
-    # factorisation is cheaper than the general LU eigsh would otherwise make
-    fac = (solver or SPDSolver()).factor(A)
-
-    def solve(b: np.ndarray) -> np.ndarray:
-        if check is not None:
-            check()
-        return fac(b)
-
-    opinv = spla.LinearOperator(A.shape, matvec=solve, dtype=np.float64)
-    rng = np.random.default_rng(BASIS_SEED)
-    # ARPACK's own default start, uniform on [-1, 1], but drawn from the seeded generator
-    v0 = rng.uniform(-1.0, 1.0, n)
-    restarts = {"rng": rng} if _EIGSH_TAKES_RNG else {}
-    # one thread for every BLAS and OpenMP pool: ARPACK's steps are vector operations and
-    # one-vector solves, which a second thread does not speed up, and whose spinning waits
-    # take the core from other work (beside another busy process, 48 s on the fandisk with
-    # two threads, 4.7 s with one); the command line sets the same for the whole run
+    mass = np.asarray(ops.M.diagonal(), dtype=np.float64)
+    # one thread for every BLAS and OpenMP pool: the basis is built beside other work (the
+    # free state's judgement), whose core a second thread's spinning waits would take
+    # (beside another busy process, 48 s on the fandisk with two threads, 4.7 s with one);
+    # the command line sets the same for the whole run
     with ThreadpoolController().limit(limits=1):
-        mu, Phi = spla.eigsh(
-            ops.Q, k=k, M=ops.M, sigma=shift, which="LM", OPinv=opinv, tol=tol, v0=v0, **restarts
-        )
+        if n <= 4 * (k + BASIS_BLOCK):
+            if check is not None:
+                check()
+            mu, Phi = sla.eigh(ops.Q.toarray(), np.diag(mass), subset_by_index=(0, k - 1))
+        else:
+            A = (ops.Q - shift * ops.M).tocsc()
+            # the shifted operator is SPD: a Cholesky (CHOLMOD) or a symmetric-mode SuperLU
+            # factorisation
+            fac = (solver or SPDSolver()).factor(A)
+
+            def solve(B: np.ndarray) -> np.ndarray:
+                if check is not None:
+                    check()
+                return fac(B)
+
+            rng = np.random.default_rng(BASIS_SEED)
+            # Ritz residuals 100 times below the eigenvalue accuracy: the modes then agree
+            # with fully converged ones to ~1e-9 (ARPACK, which always ran its whole Lanczos
+            # basis, over-converged as much at tol)
+            found = lowest_modes(solve, mass, k, shift, rng, tol=1e-2 * tol, block=BASIS_BLOCK)
+            mu, Phi = found.mu, found.Phi
     order = np.argsort(mu, kind="stable")
     mu, Phi = canonical_modes(mu[order], Phi[:, order], ops.area, tol=tol)
     return BendingBasis(

@@ -1,0 +1,161 @@
+"""Lowest eigenpairs of ``Q phi = mu M phi`` (``M`` diagonal) by block shift-invert Lanczos.
+
+A block of ``b`` vectors goes through each solve with the shifted operator's factorisation:
+a sparse triangular sweep over ``b`` right-hand sides costs a few single sweeps, not ``b``
+(on a 201k-vertex part, 10 columns cost ~2.4 single solves, 0.03 s a column against 0.12 s
+alone). The Krylov basis is kept and re-orthogonalised in full (two block Gram-Schmidt
+sweeps), so its Rayleigh quotient is the exact projection and no restart is needed: the
+subspace grows until every wanted Ritz pair meets ARPACK's own criterion,
+``||OP x - theta x|| <= tol |theta|`` in the ``M`` norm.
+
+In the coordinates ``z = M^(1/2) phi`` the operator ``S = M^(1/2) (Q - sigma M)^-1 M^(1/2)``
+is symmetric; its largest eigenvalues ``theta = 1 / (mu - sigma)`` are the wanted modes.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+log = logging.getLogger(__name__)
+
+__all__ = ["LanczosResult", "lowest_modes"]
+
+
+@dataclass
+class LanczosResult:
+    """The ``k`` lowest eigenpairs of ``Q phi = mu M phi``.
+
+    Attributes
+    ----------
+    mu : (k,) eigenvalues, ascending (the units of ``Q`` over those of ``M``).
+    Phi : (n, k) eigenvectors, M-orthonormal.
+    solves : right-hand sides solved (columns, all blocks together).
+    dimension : size of the Krylov basis at convergence.
+    converged : every wanted pair met the tolerance.
+    """
+
+    mu: np.ndarray
+    Phi: np.ndarray
+    solves: int
+    dimension: int
+    converged: bool
+
+
+def lowest_modes(
+    solve: Callable[[np.ndarray], np.ndarray],
+    mass: np.ndarray,
+    k: int,
+    sigma: float,
+    rng: np.random.Generator,
+    tol: float = 1e-6,
+    block: int = 10,
+    max_dimension: int | None = None,
+) -> LanczosResult:
+    """The ``k`` eigenpairs of ``Q phi = mu M phi`` nearest above the shift ``sigma``.
+
+    Parameters
+    ----------
+    solve : ``X -> (Q - sigma M)^-1 X`` for (n, b) blocks (a factorisation's solve).
+    mass : (n,) the diagonal of ``M`` (positive).
+    k : number of pairs wanted (``k + block <= n``).
+    sigma : the shift, below the lowest eigenvalue (``Q - sigma M`` positive definite).
+    rng : generator of the start block (standard normal); seeded, the result is
+        deterministic.
+    tol : relative accuracy of each Ritz value ``theta = 1 / (mu - sigma)``: its residual
+        ``||S z - theta z||`` at most ``tol theta`` (ARPACK's criterion).
+    block : columns per solve.
+    max_dimension : largest Krylov basis (default ``min(n, 4 k + 4 block)``); without
+        convergence by then, the pairs are returned with ``converged=False``.
+
+    Returns
+    -------
+    LanczosResult
+    """
+    mass = np.asarray(mass, dtype=np.float64)
+    n = len(mass)
+    if not np.all(mass > 0):
+        raise ValueError("the mass matrix must be positive definite")
+    b = int(max(1, min(block, n)))
+    if k < 1 or k + b > n:
+        raise ValueError(f"{k} modes with blocks of {b} need more than {n} unknowns")
+    cap = int(min(n, max_dimension or 4 * k + 4 * b))
+    cap -= cap % b
+    if cap < k + b:
+        raise ValueError(f"a Krylov basis of {cap} cannot hold {k} modes and a block of {b}")
+    root = np.sqrt(mass)
+
+    def op(Z: np.ndarray) -> np.ndarray:
+        """``S`` applied to the rows of ``Z`` (b, n): the images as rows, contiguous."""
+        return np.ascontiguousarray((root[:, None] * solve(root[:, None] * Z.T)).T)
+
+    # The orthonormal Krylov basis in the z coordinates, one vector per row, and the block
+    # being orthogonalised as rows too: each block product is then a GEMM of contiguous
+    # rows, ~35 % faster than on columns (they read the whole basis, memory-bound).
+    Kt = np.empty((cap, n))
+    H = np.zeros((cap, cap))  # its Rayleigh quotient K^T S K
+    X, _ = np.linalg.qr(rng.standard_normal((n, b)))
+    Kt[:b] = X.T
+    d, solves = b, 0
+    converged = False
+
+    def ritz(d: int) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k`` Ritz pairs of the basis' first ``d`` vectors with the largest theta
+        (the lowest mu), descending."""
+        theta, Y = sla.eigh(0.5 * (H[:d, :d] + H[:d, :d].T))
+        return theta[::-1][:k], Y[:, ::-1][:, :k]
+
+    while True:
+        j = d - b  # the newest block: rows j..d
+        W = op(Kt[j:d])
+        solves += b
+        size = float(np.sqrt(np.einsum("ij,ij->i", W, W).max()))  # the images' largest norm
+        # two sweeps of block Gram-Schmidt against the whole basis (full re-orthogonalisation)
+        C = W @ Kt[:d].T
+        W -= C @ Kt[:d]
+        C2 = W @ Kt[:d].T
+        W -= C2 @ Kt[:d]
+        C += C2
+        H[j:d, :d] = C  # block row j of K^T S K, and by symmetry its block column
+        H[:d, j:d] = C.T
+        # the next block: the remainder, orthonormalised; a row that vanished (the Krylov
+        # space closed on an invariant subspace) is replaced by a fresh direction
+        Qn, R = np.linalg.qr(W.T)
+        scale = np.abs(np.diag(R))
+        weak = scale <= 1e-10 * max(size, 1e-300)
+        # where the space closed, its Ritz pairs are exact but may miss a multiple
+        # eigenvalue's other directions: no convergence is declared until they had a chance
+        if d >= k + b and not weak.any():
+            theta, Y = ritz(d)
+            # S (K y) - theta (K y) = W^T y_last: the residual of each Ritz pair, its norm
+            # from the (b, b) Gram matrix of W
+            Yl = Y[j:d]
+            res = np.sqrt(np.maximum(np.einsum("ij,ij->j", Yl, (W @ W.T) @ Yl), 0.0))
+            if np.all(res <= tol * np.abs(theta)):
+                converged = True
+                break
+        if d + b > cap:
+            break
+        if weak.any():
+            Ft = rng.standard_normal((int(weak.sum()), n))
+            for _ in range(2):
+                Ft -= (Ft @ Kt[:d].T) @ Kt[:d]
+                Ft -= (Ft @ Qn[:, ~weak]) @ Qn[:, ~weak].T
+            Fq, _ = np.linalg.qr(Ft.T)
+            Qn[:, weak] = Fq
+        Kt[d : d + b] = Qn.T
+        d += b
+    if not converged:
+        theta, Y = ritz(d)
+        log.warning("block Lanczos: %d modes not converged in a basis of %d", k, d)
+    # the modes as rows, the basis then released before they are scaled and transposed
+    Zt = Y.T @ Kt[:d]
+    del Kt
+    Zt /= root
+    return LanczosResult(
+        mu=sigma + 1.0 / theta, Phi=Zt.T, solves=solves, dimension=d, converged=converged
+    )
