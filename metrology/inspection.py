@@ -943,6 +943,11 @@ def inspect(
     args = (reg, None, params, dict(timings))
     if executor is None:
         free = _judge(*args, check_part=False, **judge)
+    elif not _fixture_likely(rigid, zones):
+        # a seat well inside the tightest zone (a stiff part): its free state will most
+        # likely stand, so no fixture is started beside it (its work would be wasted, and
+        # would take a core from the judgement); judged here, its own steps beside it
+        free = _judge(*args, check_part=False, executor=executor, **judge)
     else:  # judged beside the virtual fixture, which is given up when the free state stands
         pending = executor.submit(_judge, *args, check_part=False, **judge)
         stood = _StoodCheck(pending)
@@ -975,7 +980,22 @@ def inspect(
     if decided is not None:
         return decided
     timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
-    return _fixtured(reg, free, params, prepared, zones, basis, progress, timings, judge, None)
+    return _fixtured(reg, free, params, prepared, zones, basis, progress, timings, judge, executor)
+
+
+#: the rigid seat's robust residual scale, in units of the tightest zone's half-width, from
+#: which the virtual fixture is started beside the free state's judgement (the compliant
+#: sample parts seat at 2.5-7.8, the NIST machined parts at ~0.5)
+FIXTURE_LIKELY = 0.25
+
+
+def _fixture_likely(rigid: RigidResult, zones: list[ToleranceZone]) -> bool:
+    """Whether the rigid seat leaves the part so far from its drawing shape that its free
+    state will likely not conform: four robust residual scales reach the tightest zone's
+    half-width. Only the schedule depends on it (whether the fixture starts beside the
+    free state's judgement, or after it when it does not stand), never the result."""
+    tightest = min(z.half_width for z in zones)
+    return rigid.scale >= FIXTURE_LIKELY * tightest
 
 
 def _modal(params: InspectionParams) -> bool:

@@ -173,16 +173,28 @@ def shell_scan(V, F, lift: float, seed: int = 3) -> np.ndarray:
     return P + (lift * x * y + rng.normal(0.0, 0.01, len(P)))[:, None] * n
 
 
+@pytest.mark.parametrize("always_beside", [False, True])
 @pytest.mark.parametrize("lift, stands", [(0.0, True), (3.0, False)])
-def test_the_inspection_beside_the_fixture_is_the_sequential_one(lift, stands, caplog):
+def test_the_inspection_beside_the_fixture_is_the_sequential_one(
+    lift, stands, always_beside, caplog, monkeypatch
+):
+    """The inspection with children gives the sequential one's result, whether the fixture
+    starts beside the free state's judgement (the lifted part, seated far outside its zone;
+    every part with ``always_beside``, where the flat part's fixture is given up when its
+    free state stands) or after it."""
+    import qifreport.metrology.inspection as inspection
+
     V, F = thin_shell(spacing=3.0)
     P = shell_scan(V, F, lift)
     params = InspectionParams(tolerance=0.3, prealign="never")
     alone = inspect(V, F, P, params)
+    if always_beside:
+        monkeypatch.setattr(inspection, "FIXTURE_LIKELY", 0.0)
     with caplog.at_level(logging.INFO, logger="qifreport.forked"):
         beside = inspect(V, F, P, params, executor=ForkExecutor())
     assert not caplog.records  # the children answered: nothing was computed again here
-    assert "free state (waited)" in beside.timings
+    # started beside it, the fixture waits for the free state's result when it needs it
+    assert ("free state (waited)" in beside.timings) == (always_beside or not stands)
     assert ("free state" in alone.timings) != stands
     assert (alone.fit is None) == stands, alone.fixture_decision
     assert beside.verdict == alone.verdict
@@ -232,9 +244,10 @@ def test_the_command_with_and_without_its_children_writes_the_same(tmp_path):
 
 
 def test_a_free_state_that_stands_does_not_wait_for_the_bending_basis(tmp_path):
-    """A new part's bending basis (a fixture's costliest step) is built beside its free
-    state and given up when the free state stands: the new cache entry has none, as when
-    the command runs on one CPU; the part's first fixtured scan builds it."""
+    """A new part's bending basis (a fixture's costliest step) is not built for a free state
+    that stands (this scan seats well inside the zone, so the fixture does not even start
+    beside it): the new cache entry has none, as when the command runs on one CPU; the
+    part's first fixtured scan builds it."""
     import json
     import subprocess
     import sys
