@@ -77,3 +77,21 @@ def test_lowest_modes_refuses_a_singular_mass():
         lowest_modes(
             lambda X: X, np.r_[1.0, 0.0, 1.0] * np.ones(3), 1, -1.0, np.random.default_rng(0)
         )
+
+
+def test_a_small_part_is_solved_densely_with_the_same_modes():
+    """Below 4 (k + block) unknowns the basis comes from LAPACK: the same modes as the block
+    Lanczos gives the same problem (the generalized one, with the mass)."""
+    V, F = thin_shell(spacing=12.0)
+    ops = bending_operator(V, F, "hessian")
+    k = 30
+    assert len(V) <= 4 * (k + BASIS_BLOCK)
+    calls = []
+    B = bending_basis(ops, k, check=lambda: calls.append(1))
+    assert len(calls) == 1  # asked once, before the decomposition
+    shift = -1e-3 * float(B.mu[-1])
+    solve = SPDSolver("superlu").factor((ops.Q - shift * ops.M).tocsc())
+    r = lowest_modes(solve, ops.area, k, shift, np.random.default_rng(0), tol=1e-12, block=5)
+    mu, Phi = canonical_modes(r.mu, r.Phi, ops.area)
+    np.testing.assert_allclose(B.mu, mu, rtol=1e-9, atol=1e-12 * float(mu[-1]))
+    np.testing.assert_allclose(B.Phi, Phi, rtol=0, atol=1e-8 * np.abs(Phi).max())
