@@ -951,12 +951,15 @@ def inspect(
     else:  # judged beside the virtual fixture, which is given up when the free state stands
         pending = executor.submit(_judge, *args, check_part=False, **judge)
         stood = _StoodCheck(pending)
+        # one factorisation for the basis and the fixture: their matrices share a pattern,
+        # so the symbolic analysis is made once
+        solver = SPDSolver(points=V)
         try:
             if basis is None and _modal(params):
                 # a new part's bending basis (a fixture's costliest step), built here and
                 # given up between two of its solves once the free state stands
                 t_basis = time.perf_counter()
-                basis = _bending_basis(prepared.ops, params, V, stood)
+                basis = _bending_basis(prepared.ops, params, solver, stood)
                 timings["bending basis"] = time.perf_counter() - t_basis
 
             def watched(k: int) -> None:  # between two fixture iterations, likewise
@@ -965,7 +968,17 @@ def inspect(
                     progress(k)
 
             return _fixtured(
-                reg, pending, params, prepared, zones, basis, watched, timings, judge, executor
+                reg,
+                pending,
+                params,
+                prepared,
+                zones,
+                basis,
+                watched,
+                timings,
+                judge,
+                executor,
+                solver=solver,
             )
         except _FreeStateStood:  # its fixture_decision is set (_free_state_stands)
             free = pending.result()
@@ -1012,10 +1025,11 @@ def _modal(params: InspectionParams) -> bool:
     return params.method == "gbcicp" and g.solver == "modal" and g.lambda0 is None
 
 
-def _bending_basis(ops, params: InspectionParams, V: np.ndarray, check) -> BendingBasis:
+def _bending_basis(ops, params: InspectionParams, solver: SPDSolver, check) -> BendingBasis:
     """The part's bending basis as the virtual fixture builds it when it has none
-    (:func:`qifreport.registration.gbcicp.bending_basis`; ``check`` before every solve)."""
-    return bending_basis(ops, params.gbcicp.modes, solver=SPDSolver(points=V), check=check)
+    (:func:`qifreport.registration.gbcicp.bending_basis`; ``check`` before every solve),
+    factorised by the fixture's own ``solver``."""
+    return bending_basis(ops, params.gbcicp.modes, solver=solver, check=check)
 
 
 class _FreeStateStood(Exception):
@@ -1098,16 +1112,17 @@ def _fixtured(
     timings: dict[str, float],
     judge: dict,
     executor,
+    solver: SPDSolver | None = None,
 ) -> InspectionResult:
     """The virtual fixture and the judgement of the part as it holds it (``executor``: as
-    :func:`inspect`'s).
+    :func:`inspect`'s; ``solver``: GB-CICP's factorisation, :func:`_virtual_fixture`).
 
     ``free``: the free state's judgement that did not stand, None (``always_fixture``), or
     its pending result (``executor.submit``): then it is taken when needed, and
     :class:`_FreeStateStood` raised when it decides the inspection
     (:func:`_free_state_stands`)."""
     t0 = time.perf_counter()
-    fit = _virtual_fixture(reg, params, prepared, zones, basis, progress)
+    fit = _virtual_fixture(reg, params, prepared, zones, basis, progress, solver)
     timings[params.method] = time.perf_counter() - t0
     if _pending(free) and any(z.free_state for z in judge["bands"].zones):
         free = _take(free, timings)  # the free-state zones take its deviation (below)
@@ -1147,8 +1162,10 @@ def _virtual_fixture(
     zones: list[ToleranceZone],
     basis: BendingBasis | None,
     progress,
+    solver: SPDSolver | None = None,
 ) -> DeformResult:
-    """The free virtual fixture (``params.method``) on the rigidly seated scan."""
+    """The free virtual fixture (``params.method``) on the rigidly seated scan (``solver``:
+    GB-CICP's factorisation, one that built the bending basis; a new one if None)."""
     near_crease, near_rim = prepared.near_crease, prepared.near_rim
     flaggable = ~near_rim if near_crease is None else ~(near_rim | near_crease)
     # the two-pass guard counts no residual under a quarter of the tightest half-width
@@ -1166,6 +1183,7 @@ def _virtual_fixture(
         progress=progress,
         basis=basis,
         flaggable=flaggable,
+        solver=solver,
     )
 
 

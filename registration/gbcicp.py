@@ -430,7 +430,9 @@ def gbcicp(
         lam_refit = p.band_limit_refit**4
     if modal:
         if basis is None or basis.Phi.shape[0] != n or basis.energy != ops.energy:
-            basis = bending_basis(ops, p.modes, solver=SPDSolver(points=V0))
+            # the fit's own solver: the shifted operator and the full steps' matrices share
+            # one sparsity pattern, so its symbolic analysis serves both
+            basis = bending_basis(ops, p.modes, solver=solver)
         stride = max(1, int(np.ceil(n / max(p.modal_rows, 1))))
         rows = np.arange(0, n, stride)
         Phi_r = basis.Phi[rows]

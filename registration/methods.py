@@ -53,6 +53,7 @@ def deform(
     progress: Callable[[int], Any] | None = None,
     basis: Any = None,
     flaggable: np.ndarray | None = None,
+    solver: Any = None,
 ) -> DeformResult:
     """Register the rigidly aligned nominal ``V0`` (n, 3) mm onto the scan ``P`` (m, 3) mm.
 
@@ -71,6 +72,9 @@ def deform(
         precomputation, reused across scans); ignored by the other methods.
     flaggable : (n,) bool, vertices GB-CICP may flag as defect candidates (its multi-pass
         scheme); ignored by the other methods, which flag nothing.
+    solver : the :class:`qifreport.registration.linalg.SPDSolver` GB-CICP factorises with (one
+        that factorised the part's bending basis keeps its symbolic analysis: the matrices
+        share their pattern); ignored by the other methods.
     """
     fn = method_function(method)
     kw: dict[str, Any] = dict(
@@ -81,4 +85,5 @@ def deform(
     if method == "gbcicp":
         kw["basis"] = basis
         kw["flaggable"] = flaggable
+        kw["solver"] = solver
     return fn(V0, F, ops, P, **kw)
