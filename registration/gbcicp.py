@@ -202,8 +202,9 @@ def bending_basis(
     ----------
     ops : operators of the nominal (``Q`` 1/mm^2, ``M`` mm^2, diagonal).
     k : number of modes (capped at ``n - 2``).
-    tol : relative accuracy of the eigenvalues; the modes are then orthonormal to
-        round-off and ``Phi^T Q Phi`` diagonal to ~1e-15.
+    tol : relative accuracy of the eigenvalues; the modes are then M-orthonormal to
+        round-off and ``Phi^T Q Phi`` diagonal to ~1e-10 of the largest eigenvalue
+        (measured on shells of 550 to 19,000 vertices).
     solver : the sparse factorisation of the shifted operator (default
         :class:`~qifreport.registration.linalg.SPDSolver` without positions; give it the
         vertices, ``SPDSolver(points=V)``, for SuperLU's nested-dissection order).
