@@ -95,3 +95,23 @@ def test_a_small_part_is_solved_densely_with_the_same_modes():
     mu, Phi = canonical_modes(r.mu, r.Phi, ops.area)
     np.testing.assert_allclose(B.mu, mu, rtol=1e-9, atol=1e-12 * float(mu[-1]))
     np.testing.assert_allclose(B.Phi, Phi, rtol=0, atol=1e-8 * np.abs(Phi).max())
+
+
+def test_a_part_in_more_pieces_than_a_block_finds_every_null_mode(caplog):
+    """Twelve separate shells: the Laplacian energy's null space has twelve directions (a
+    constant per piece), more than a block of ten. The basis converges and holds all
+    twelve, with the dense decomposition's eigenvalues."""
+    import logging
+
+    V0, F0 = thin_shell(spacing=12.0)
+    pieces, k = 12, 24
+    V = np.vstack([V0 + [300.0 * i, 0.0, 0.0] for i in range(pieces)])
+    F = np.vstack([F0 + len(V0) * i for i in range(pieces)])
+    ops = bending_operator(V, F, "laplacian")
+    assert len(V) > 4 * (k + BASIS_BLOCK)
+    with caplog.at_level(logging.WARNING, logger="qifreport.registration.block_lanczos"):
+        B = bending_basis(ops, k, solver=SPDSolver(points=V))
+    assert not caplog.records, [r.getMessage() for r in caplog.records]
+    mu, _ = dense_modes(ops, k)
+    assert int((B.mu == 0).sum()) == int((mu == 0).sum()) == pieces
+    np.testing.assert_allclose(B.mu, mu, rtol=1e-9, atol=1e-12 * float(mu[-1]))
