@@ -959,7 +959,7 @@ def inspect(
                 # a new part's bending basis (a fixture's costliest step), built here and
                 # given up between two of its solves once the free state stands
                 t_basis = time.perf_counter()
-                basis = _bending_basis(prepared.ops, params, solver, stood)
+                basis = bending_basis(prepared.ops, params.gbcicp.modes, solver=solver, check=stood)
                 timings["bending basis"] = time.perf_counter() - t_basis
 
             def watched(k: int) -> None:  # between two fixture iterations, likewise
@@ -1023,13 +1023,6 @@ def _modal(params: InspectionParams) -> bool:
     (GB-CICP's modal solver)."""
     g = params.gbcicp
     return params.method == "gbcicp" and g.solver == "modal" and g.lambda0 is None
-
-
-def _bending_basis(ops, params: InspectionParams, solver: SPDSolver, check) -> BendingBasis:
-    """The part's bending basis as the virtual fixture builds it when it has none
-    (:func:`qifreport.registration.gbcicp.bending_basis`; ``check`` before every solve),
-    factorised by the fixture's own ``solver``."""
-    return bending_basis(ops, params.gbcicp.modes, solver=solver, check=check)
 
 
 class _FreeStateStood(Exception):
