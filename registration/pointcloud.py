@@ -672,7 +672,7 @@ def pca_normals(P: np.ndarray, k: int = 12, tree: cKDTree | None = None) -> np.n
     tree = tree or cKDTree(P)
     k = min(k, len(P))
     _, idx = tree.query(P, k=k, workers=-1)
-    Q = P[idx]
+    Q = np.take(P, idx, axis=0)  # (np.take: 3-wide rows ~4x faster than P[idx])
     X = Q - Q.mean(axis=1, keepdims=True)
     C = np.einsum("mki,mkj->mij", X, X)
     _, vecs = np.linalg.eigh(C)
@@ -800,12 +800,12 @@ def orient_normals_consistent(
     _, nb = tree.query(P, k=k + 1, workers=-1)
     i = np.repeat(np.arange(m), k)
     j = nb[:, 1:].ravel()
-    d = P[j] - P[i]
+    # rows gathered by np.take: NumPy's fancy indexing of 3-wide rows is ~4x slower
+    Ni, Nj = np.take(Ns, i, axis=0), np.take(Ns, j, axis=0)
+    d = np.take(P, j, axis=0) - np.take(P, i, axis=0)
     L = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
-    off = np.maximum(
-        np.abs(np.einsum("ij,ij->i", d, Ns[i])), np.abs(np.einsum("ij,ij->i", d, Ns[j]))
-    )
-    par = np.abs(np.einsum("ij,ij->i", Ns[i], Ns[j]))
+    off = np.maximum(np.abs(np.einsum("ij,ij->i", d, Ni)), np.abs(np.einsum("ij,ij->i", d, Nj)))
+    par = np.abs(np.einsum("ij,ij->i", Ni, Nj))
     keep = (off < TANGENT_EDGE * L) & (par > TANGENT_PARALLEL)
     beside = (off < STACKED * L) & (par > 0.7)  # not across a wall, nor a sharp crease
     pi, pj = i[beside], j[beside]
