@@ -16,6 +16,7 @@ import functools
 import logging
 import time
 from dataclasses import asdict, dataclass, field, is_dataclass, replace
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -111,11 +112,13 @@ __all__ = [
     "RESTRAINED",
     "InspectionParams",
     "InspectionResult",
+    "ScanMeasures",
     "ZoneResult",
     "check_same_part",
     "check_units",
     "inspect",
     "method_label",
+    "start_scan_measures",
 ]
 
 log = logging.getLogger(__name__)
@@ -778,6 +781,53 @@ def vertex_deviation(
     )
 
 
+@dataclass
+class ScanMeasures:
+    """The scan's own normals and the area it covers, under way (:func:`start_scan_measures`).
+
+    Attributes
+    ----------
+    P : (m, 3) the scan points they are measured on, mm (the very array later inspected).
+    normals : pending ``(Ns, sheets)`` of
+        :func:`~qifreport.registration.pointcloud.oriented_normals` (``result()``).
+    area : pending covered area, mm^2, of :func:`~qifreport.metrology.acceptance.scan_area`;
+        None: not started yet (:func:`inspect` starts it).
+    """
+
+    P: np.ndarray
+    normals: Any
+    area: Any = None
+
+    def cancel(self) -> None:
+        """Stop whatever of them is still running (a result taken already is kept)."""
+        self.normals.cancel()
+        if self.area is not None:
+            self.area.cancel()
+
+
+def start_scan_measures(
+    P: np.ndarray, params: InspectionParams, executor=None, *, area: bool = True
+) -> ScanMeasures:
+    """Start measuring the scan's own normals and covered area (for :func:`inspect`).
+
+    The normals (oriented consistently per connected sheet once; the inspection only chooses
+    each sheet's side against its nominal) and the area do not depend on where the scan
+    lies: they are measured on the points as read and turned with the scan. So they can run
+    before the scan is seated, even while the part is still being prepared: on ``executor``
+    (as :func:`inspect`'s) beside it, else when their results are asked for.
+
+    Parameters
+    ----------
+    P : (m, 3) the scan points the inspection will be given, mm.
+    params : the inspection's parameters (the normals' neighbourhood).
+    executor : where they run; default: in this process, when asked for.
+    area : start the area too (else :func:`inspect` starts it).
+    """
+    normals = _submit(executor, oriented_normals, P, params.gbcicp.scan_normal_k)
+    pending = _submit(executor, scan_area, P) if area else None
+    return ScanMeasures(P=P, normals=normals, area=pending)
+
+
 def inspect(
     V: np.ndarray,
     F: np.ndarray,
@@ -796,6 +846,7 @@ def inspect(
     restraint: RestraintBasis | None = None,
     plan: CharacteristicPlan | None = None,
     executor=None,
+    measures: ScanMeasures | None = None,
 ) -> InspectionResult:
     """Inspect the scan ``P`` against the nominal ``(V, F)``.
 
@@ -841,6 +892,9 @@ def inspect(
         (beside the pose), the free-state judgement (beside the virtual fixture, which is
         given up once the free state stands) and the fixtured part's trim edges. The
         outcome is the sequential one. Default: sequential.
+    measures : the scan's normals and area started already on these very points
+        (:func:`start_scan_measures`, e.g. beside the part's preparation); default: started
+        here, on ``executor``. The inspection takes them, or stops them when it fails.
 
     Raises
     ------
@@ -848,26 +902,32 @@ def inspect(
         Wrong units, or a scan that does not overlap the nominal after rigid alignment;
         :class:`qifreport.registration.prealign.PoseNotEstablished` when no pose can be established.
     """
-    if params.method not in METHODS:
-        raise ValueError(f"unknown method {params.method!r} (one of {', '.join(METHODS)})")
-    timings: dict[str, float] = {}
-    t0 = time.perf_counter()
-    check_units(V, P, scan_units)
-    if prepared is None:
-        prepared = prepare_part(V, F, params, basis=False, model=False)
-    else:
-        prepared.check(V, F, params)
-        if basis is None:
-            basis = prepared.basis
-    energy, ops = prepared.energy, prepared.ops
-    timings["operators"] = time.perf_counter() - t0
-
-    # the scan's own normals (oriented consistently per connected sheet once; each use below
-    # only chooses the sheets' sides against its own nominal) and the area it covers do not
-    # depend on where it lies: measured on the points as read, beside the pose search and
-    # the rigid fit when there is an executor, and turned with the scan
-    normals = _submit(executor, oriented_normals, P, params.gbcicp.scan_normal_k)
-    area = _submit(executor, scan_area, P)
+    if measures is not None and measures.P is not P:
+        measures.cancel()
+        raise ValueError("the scan measures were started on other points than these")
+    try:
+        if params.method not in METHODS:
+            raise ValueError(f"unknown method {params.method!r} (one of {', '.join(METHODS)})")
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        check_units(V, P, scan_units)
+        if prepared is None:
+            prepared = prepare_part(V, F, params, basis=False, model=False)
+        else:
+            prepared.check(V, F, params)
+            if basis is None:
+                basis = prepared.basis
+        energy, ops = prepared.energy, prepared.ops
+        timings["operators"] = time.perf_counter() - t0
+    except BaseException:
+        if measures is not None:
+            measures.cancel()
+        raise
+    if measures is None:
+        measures = start_scan_measures(P, params, executor)
+    elif measures.area is None:
+        measures.area = _submit(executor, scan_area, P)
+    normals, area = measures.normals, measures.area
     try:
         t0 = time.perf_counter()
         seat = seat_scan(V, F, P, mode=params.prealign, model=prepared.model)

@@ -59,6 +59,7 @@ import secrets
 import stat
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
@@ -410,6 +411,7 @@ def build_state(
     key: str = "",
     complete: bool = True,
     lazy_basis: bool = False,
+    on_nominal: Callable[[Nominal], None] | None = None,
 ) -> PartState:
     """Read the nominal and prepare it.
 
@@ -419,7 +421,8 @@ def build_state(
     ``lazy_basis``: leave out the bending basis, the costliest part (an inspection that
     judges the free state first needs it only when the free state does not conform; it is
     then built by the fixture, and a cache entry's stored by :func:`store_basis`), with or
-    without ``complete``.
+    without ``complete``. ``on_nominal``: called with the nominal once it is read, before
+    it is prepared (:func:`part_state`).
     """
     t0 = time.perf_counter()
     nom = load_nominal(
@@ -437,6 +440,8 @@ def build_state(
         solid = None if nom.solid_mesh is None else (nom.solid_mesh.X, nom.solid_mesh.T)
         restraint = build_restraint(nom.V, nom.F, options.restraint, solid=solid)
         nom.solid_mesh = None  # in the basis now: not kept in the cache entry
+    if on_nominal is not None:
+        on_nominal(nom)
     if complete:
         prepared = prepare_part(nom.V, nom.F, params, basis=not lazy_basis)
     else:
@@ -572,6 +577,7 @@ def part_state(
     *,
     rebuild: bool = False,
     lazy_basis: bool = False,
+    on_nominal: Callable[[Nominal], None] | None = None,
 ) -> tuple[PartState, CacheOutcome]:
     """The prepared state of ``nominal``: loaded from ``cache_dir`` when a trusted entry
     exists, else built (and stored there).
@@ -586,6 +592,10 @@ def part_state(
     lazy_basis : a built state leaves out the bending basis (:func:`build_state`): the
         fixture builds it if the free state does not conform, beside the free state's
         judgement; with a cache the caller stores it then (:func:`store_basis`).
+    on_nominal : called once with the nominal (:class:`qifreport.nominal.Nominal`) as soon
+        as it is known: when a state is built, after reading it and before preparing it (the
+        costly part), so that work needing only the mesh can start beside the preparation
+        (the command line's scan measures); on a cache hit, once the entry is loaded.
 
     Raises
     ------
@@ -598,7 +608,14 @@ def part_state(
     key = cache_key(material)
     if cache_dir is None:  # one inspection: build only what it needs
         state = build_state(
-            nominal, options, params, digest, key, complete=False, lazy_basis=lazy_basis
+            nominal,
+            options,
+            params,
+            digest,
+            key,
+            complete=False,
+            lazy_basis=lazy_basis,
+            on_nominal=on_nominal,
         )
         return state, CacheOutcome(
             "off",
@@ -612,7 +629,14 @@ def part_state(
     except UntrustedCache as exc:  # never read nor write a directory others could write
         log.warning("%s: the part is prepared without the cache", exc)
         state = build_state(
-            nominal, options, params, digest, key, complete=False, lazy_basis=lazy_basis
+            nominal,
+            options,
+            params,
+            digest,
+            key,
+            complete=False,
+            lazy_basis=lazy_basis,
+            on_nominal=on_nominal,
         )
         return state, CacheOutcome(
             "refused",
@@ -631,13 +655,18 @@ def part_state(
             if state.restraint is not None and options.restraint is not None:
                 with_limits(state.restraint, options.restraint)
             log.info("part state loaded from %s", path)
-            return state, CacheOutcome("hit", path, time.perf_counter() - t0, state.build_seconds)
+            outcome = CacheOutcome("hit", path, time.perf_counter() - t0, state.build_seconds)
+            if on_nominal is not None:
+                on_nominal(state.nominal)
+            return state, outcome
         except CorruptEntry as exc:
             reason = str(exc)
             log.warning("cache entry %s refused (%s): rebuilding it", path, reason)
     elif rebuild and exists:
         reason = "rebuild asked for"
-    state = build_state(nominal, options, params, digest, key, lazy_basis=lazy_basis)
+    state = build_state(
+        nominal, options, params, digest, key, lazy_basis=lazy_basis, on_nominal=on_nominal
+    )
     try:
         save_entry(path, state, material, secret)
     except OSError as exc:  # a read-only cache must not stop an inspection

@@ -39,7 +39,9 @@ from qifreport.metrology.inspection import (
     FREE_STATE_UNCERTAIN,
     InspectionParams,
     InspectionResult,
+    ScanMeasures,
     inspect,
+    start_scan_measures,
 )
 from qifreport.metrology.params import method_label
 from qifreport.metrology.repeatability import KEEP_FRACTION, resample_mask
@@ -469,10 +471,12 @@ def inspect_state(
     bar=None,
     prof: Profiler | None = None,
     executor=None,
+    measures: ScanMeasures | None = None,
 ) -> InspectionResult:
     """Inspect the scan points ``P`` (mm) against a prepared part, with the job's options
     (the repeatability runs included); ``executor``: where side work of the inspection runs
-    beside its main line (:func:`qifreport.metrology.inspection.inspect`)."""
+    beside its main line, ``measures``: the scan's normals and area started already on
+    ``P`` (:func:`qifreport.metrology.inspection.inspect`)."""
     o = job.options
     params = o.inspection_params()
     if state.restraint is not None:
@@ -494,6 +498,7 @@ def inspect_state(
         solid=bool(nom.info.get("solids")),
         restraint=state.restraint,
         executor=executor,
+        measures=measures,
     )
     if o.seeds > 1:
         with _stage(prof, f"repeatability ({o.seeds} resamplings)"):
@@ -696,25 +701,43 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
         P, n_read = read_scan(job.scan, units=o.scan_units)
     nominal_options, params = o.nominal_options(job.nominal), o.inspection_params()
-    with _stage(prof, "prepare part (cache)"):
-        # the free state is judged first: a part that conforms needs no bending basis, so a
-        # new entry leaves it out and the first fixtured inspection stores it
-        state, cache = part_state(
-            job.nominal,
-            nominal_options,
-            params,
-            o.cache_dir,
-            lazy_basis=not o.always_fixture,
-        )
-    log.info("%s", cache.describe())
-    with _stage(prof, "thin scan"):
-        P, scan_report = scan_input(P, n_read, state.nominal, job.scan.name)
-    t_inspect = time.perf_counter()
-    # one command, one scan: a second CPU judges the free state beside the fixture and
-    # renders the reports beside the QIF (a batch's processes fill the CPUs already)
+    # one command, one scan: a second CPU measures the scan beside the part's preparation,
+    # judges the free state beside the fixture and renders the reports beside the QIF (a
+    # batch's processes fill the CPUs already)
     beside = None if o.one_process else fork_executor()
+    scan: dict = {}
+
+    def nominal_read(nom: Nominal) -> None:
+        # the scan's own normals and area need only its points, thinned to the nominal's
+        # grid: started as soon as the mesh is known, beside the preparation of a new part
+        # (one CPU's work) and then beside the pose search
+        with _stage(prof, "thin scan"):
+            scan["P"], scan["report"] = scan_input(P, n_read, nom, job.scan.name)
+        scan["measures"] = start_scan_measures(scan["P"], params, beside, area=False)
+
+    try:
+        with _stage(prof, "prepare part (cache)"):
+            # the free state is judged first: a part that conforms needs no bending basis,
+            # so a new entry leaves it out and the first fixtured inspection stores it
+            state, cache = part_state(
+                job.nominal,
+                nominal_options,
+                params,
+                o.cache_dir,
+                lazy_basis=not o.always_fixture,
+                on_nominal=nominal_read,
+            )
+    except BaseException:
+        if "measures" in scan:
+            scan["measures"].cancel()
+        raise
+    log.info("%s", cache.describe())
+    P, scan_report = scan["P"], scan["report"]
+    t_inspect = time.perf_counter()
     with progress_bar("virtual fixturing", enabled=progress) as bar:
-        res = inspect_state(P, state, job, bar=bar, prof=prof, executor=beside)
+        res = inspect_state(
+            P, state, job, bar=bar, prof=prof, executor=beside, measures=scan["measures"]
+        )
     if prof is not None:
         prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
     if res.fit is not None:

@@ -79,6 +79,33 @@ def test_key_covers_content_settings_and_versions(built, tmp_path):
     assert cache_key(key_material(sha256(other), OPTS, InspectionParams())) == state.key
 
 
+def test_the_nominal_is_handed_over_before_the_part_is_prepared(built, tmp_path, monkeypatch):
+    """``part_state`` gives the nominal to ``on_nominal`` once: before the costly preparation
+    when it builds the state (without a cache and into one), and once on a cache hit (the
+    command line starts the scan's normals there, beside the preparation)."""
+    import qifreport.cache as cache
+
+    nominal = built[0]
+    events = []
+    real = cache.prepare_part
+
+    def preparing(*args, **kwargs):
+        events.append("prepare")
+        return real(*args, **kwargs)
+
+    def seen(nom):
+        events.append(("nominal", len(nom.V)))
+
+    monkeypatch.setattr(cache, "prepare_part", preparing)
+    n = len(built[2].nominal.V)
+    part_state(nominal, OPTS, InspectionParams(), None, on_nominal=seen)
+    assert events == [("nominal", n), "prepare"]
+    for expected in ([("nominal", n), "prepare"], [("nominal", n)]):  # built, then a hit
+        events.clear()
+        _, outcome = part_state(nominal, OPTS, InspectionParams(), tmp_path, on_nominal=seen)
+        assert events == expected, outcome.status
+
+
 @pytest.mark.parametrize("damage", ["flip", "truncate", "header", "foreign"])
 def test_damaged_entry_is_refused_and_rebuilt(built, tmp_path, damage):
     nominal, d, state, first = built

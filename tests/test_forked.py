@@ -22,7 +22,7 @@ import pytest
 
 from qifreport.atomic_io import atomic_write_many
 from qifreport.forked import ForkExecutor, fork_executor
-from qifreport.metrology.inspection import inspect
+from qifreport.metrology.inspection import inspect, start_scan_measures
 from qifreport.metrology.params import InspectionParams
 from qifreport.profile import peak_rss_bytes
 from qifreport.registration.mesh import vertex_normals
@@ -207,6 +207,58 @@ def test_the_inspection_beside_the_fixture_is_the_sequential_one(
     assert x.keys() == y.keys()
     differ = [k for k in x if not np.array_equal(x[k], y[k], equal_nan=True)]
     assert not differ, differ[:10]
+
+
+def test_scan_measures_started_before_the_inspection_give_the_same_result():
+    """The scan's normals started before the inspection (as the command line starts them,
+    beside the part's preparation, the area left for the inspection to start beside the
+    pose) give the inspection it makes on its own, every number equal; measures started on
+    other points are refused (and stopped)."""
+    V, F = thin_shell(spacing=3.0)
+    P = shell_scan(V, F, 3.0)
+    params = InspectionParams(tolerance=0.3, prealign="never")
+    alone = inspect(V, F, P, params)
+    ex = ForkExecutor()
+    measures = start_scan_measures(P, params, ex, area=False)
+    assert measures.area is None
+    early = inspect(V, F, P, params, executor=ex, measures=measures)
+    assert measures.area is not None  # the inspection started it
+    x, y = flatten(alone), flatten(early)
+    assert x.keys() == y.keys()
+    differ = [k for k in x if not np.array_equal(x[k], y[k], equal_nan=True)]
+    assert not differ, differ[:10]
+    other = start_scan_measures(P, params, ex)
+    with pytest.raises(ValueError, match="other points"):
+        inspect(V, F, P.copy(), params, executor=ex, measures=other)
+    with pytest.raises(ChildProcessError):
+        os.waitpid(other.normals._pid, os.WNOHANG)  # stopped and reaped
+
+
+def test_a_part_that_cannot_be_prepared_leaves_no_scan_child_behind(tmp_path, monkeypatch):
+    """The command starts the scan's normals once the nominal is read, beside its
+    preparation; when the preparation fails, that child is stopped at once (not left to
+    finish, nor to the garbage collector: the traceback keeps the run's frames alive)."""
+    import qifreport.cache as cache
+    from qifreport.options import InspectJob, InspectOptions
+    from qifreport.pipeline import run_job
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("preparation failed")
+
+    monkeypatch.setattr(cache, "prepare_part", broken)
+    samples = Path(__file__).resolve().parents[1] / "samples"
+    job = InspectJob(
+        nominal=samples / "shell_nominal.ply",
+        scan=samples / "shell_scan_defect.ply",
+        out=tmp_path,
+        options=InspectOptions(tolerance=0.5, cache_dir=None),
+    )
+    with pytest.raises(RuntimeError, match="preparation failed") as failed:
+        run_job(job, progress=False)
+    assert failed.traceback  # the frames (and the pending child's handle) are still alive
+    with pytest.raises(ChildProcessError):
+        os.waitpid(-1, os.WNOHANG)  # no child of this process is left, running or not
+    assert not [p for p in tmp_path.rglob("*") if p.suffix in (".qif", ".pdf")]  # nothing written
 
 
 def test_the_command_with_and_without_its_children_writes_the_same(tmp_path):
