@@ -24,7 +24,7 @@ from trimesh.triangles import points_to_barycentric
 
 from qifreport.errors import InputError
 from qifreport.registration.deformable import DeformResult, orient_scan_normals
-from qifreport.registration.gbcicp import BendingBasis, bending_basis
+from qifreport.registration.gbcicp import BendingBasis, bending_basis, part_solver
 from qifreport.registration.icp import (
     RigidResult,
     rigid_icp,
@@ -1012,8 +1012,9 @@ def inspect(
         pending = executor.submit(_judge, *args, check_part=False, **judge)
         stood = _StoodCheck(pending)
         # one factorisation for the basis and the fixture: their matrices share a pattern,
-        # so the symbolic analysis is made once
-        solver = SPDSolver(points=V)
+        # so the symbolic analysis is made once (and never again for the part: the basis
+        # keeps its fill-reducing order)
+        solver = part_solver(V, basis)
         try:
             if basis is None and _modal(params):
                 # a new part's bending basis (a fixture's costliest step), built here and

@@ -64,9 +64,12 @@ class SPDSolver:
     points : (n, d) positions of the unknowns (mm), optional. With SuperLU, the first matrix's
         pattern and these positions give a nested-dissection order, kept for the sequence
         (CHOLMOD orders by itself).
-    order : (n,) a fill-reducing permutation of the unknowns for SuperLU, instead of
-        ``points`` (e.g. a block order keeping each vertex's unknowns together). With
-        neither, SuperLU's own minimum-degree order is used.
+    order : (n,) a fill-reducing permutation of the unknowns, instead of finding one: for
+        SuperLU instead of ``points`` (e.g. a block order keeping each vertex's unknowns
+        together; with neither, SuperLU's own minimum-degree order is used); for CHOLMOD
+        instead of its analysis' ordering (AMD or METIS: 1.5 s of METIS on a 201k-vertex
+        part). An earlier solver's :attr:`order` for the same pattern gives its very
+        factors: the same solutions, bit for bit.
     """
 
     def __init__(
@@ -108,11 +111,25 @@ class SPDSolver:
             self._pools = ThreadpoolController()
         return self._pools.limit(limits=1)
 
+    @property
+    def order(self) -> np.ndarray | None:
+        """(n,) the fill-reducing permutation the factorisations use, once the first one is
+        made (None before, and for SuperLU's own minimum-degree order): CHOLMOD's choice, or
+        the one given. Another solver of the same pattern and backend given it
+        (``SPDSolver(order=...)``) skips the search and factorises exactly as this one."""
+        if self._perm is not None:
+            return self._perm
+        if self.backend == "cholmod" and self._symbolic is not None:
+            return np.asarray(self._symbolic.P(), dtype=np.int64)
+        return None
+
     def factor(self, A: sp.spmatrix) -> Callable[[np.ndarray], np.ndarray]:
         """Factorise ``A`` (symmetric positive definite) and return ``solve(b)`` for (n,) or
         (n, k) ``b``."""
         A = sp.csc_matrix(A)
         if self.backend == "cholmod":
+            if self._perm is not None:
+                return self._factor_cholmod_ordered(A)
             with self._one_thread():
                 if self._symbolic is None:
                     self._symbolic = _cholmod_analyze(A)
@@ -147,5 +164,25 @@ class SPDSolver:
 
         def solve(b: np.ndarray) -> np.ndarray:
             return lu.solve(np.ascontiguousarray(b[p]))[inv]
+
+        return solve
+
+    def _factor_cholmod_ordered(self, A: sp.csc_matrix) -> Callable[[np.ndarray], np.ndarray]:
+        """CHOLMOD on ``A`` reordered by the given permutation, analysed in that (natural)
+        order: the factors CHOLMOD makes of ``A`` when its own analysis chose this order (its
+        postorder included), so the same solutions, without the search (METIS: 1.5 s on
+        201k unknowns, against 0.1 s)."""
+        p, inv = self._perm, self._inv
+        if len(p) != A.shape[0]:
+            raise ValueError(f"an order of {len(p)} for a {A.shape[0]}-unknown system")
+        Ap = sp.csc_matrix(A[p][:, p])
+        with self._one_thread():
+            if self._symbolic is None:
+                self._symbolic = _cholmod_analyze(Ap, ordering_method="natural")
+            f = self._symbolic.cholesky(Ap)
+
+        def solve(b: np.ndarray) -> np.ndarray:
+            with self._one_thread():
+                return np.take(f(np.take(b, p, axis=0)), inv, axis=0)
 
         return solve

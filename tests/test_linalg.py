@@ -86,6 +86,55 @@ def test_superlu_orders_and_cholmod_solve_alike(shell_system):
     _need_cholmod()
 
 
+@pytest.mark.parametrize("backend", ["cholmod", "superlu"])
+def test_a_solver_given_an_earlier_ones_order_factorises_exactly_as_it(shell_system, backend):
+    """The order a solver found (CHOLMOD's analysis, SuperLU's nested dissection) given to
+    another of the same pattern: its factors are the first one's, every solution bit for bit
+    (so a part's warm inspections equal its cold one), for one matrix and the next of the
+    sequence; a wrong order (the reverse) solves as well but not bit for bit."""
+    if backend == "cholmod":
+        _need_cholmod()
+    V, _, ops, A = shell_system
+    A2 = (sp.diags(ops.area) + 0.1 * ops.Q + 1e-9 * ops.M).tocsc()  # the same pattern
+    b = np.random.default_rng(1).normal(size=(len(V), 10))
+    first = SPDSolver(backend, points=V)
+    assert first.order is None  # nothing analysed yet
+    x = [first.factor(M)(b) for M in (A, A2)]
+    order = first.order
+    assert np.array_equal(np.sort(order), np.arange(len(V)))
+    if backend == "cholmod":
+        assert not np.array_equal(order, np.arange(len(V)))  # a fill-reducing one
+    again = SPDSolver(backend, points=V, order=order)
+    y = [again.factor(M)(b) for M in (A, A2)]
+    assert np.array_equal(again.order, order)
+    assert all(np.array_equal(u, v) for u, v in zip(x, y, strict=True))
+    assert np.array_equal(again.factor(A)(b[:, 0]), first.factor(A)(b[:, 0]))  # one vector
+    other = SPDSolver(backend, order=order[::-1].copy()).factor(A)(b)
+    assert np.abs(other - x[0]).max() < 1e-8 * np.abs(x[0]).max()
+    with pytest.raises(ValueError, match="order"):
+        SPDSolver(backend, order=np.arange(len(V) - 1)).factor(A)  # another system's
+
+
+def test_the_bending_basis_keeps_its_order_for_the_parts_later_solvers(shell):
+    """The basis records the fill-reducing order of its factorisation and the backend; the
+    part's solver (:func:`part_solver`) takes it with the same backend, and not with the
+    other one, nor for another mesh."""
+    from qifreport.registration.gbcicp import part_solver
+
+    V, F = shell
+    ops = bending_operator(V, F, "hessian")
+    solver = SPDSolver(points=V)
+    basis = bending_basis(ops, 20, solver=solver)
+    assert basis.order_backend == solver.backend
+    assert np.array_equal(basis.order, solver.order)
+    assert np.array_equal(part_solver(V, basis).order, basis.order)  # before any factor
+    assert part_solver(V, None).order is None
+    other = "superlu" if solver.backend == "cholmod" else "cholmod"
+    foreign = type(basis)(**{**vars(basis), "order_backend": other})
+    assert part_solver(V, foreign).order is None
+    assert part_solver(V[:-1], basis).order is None
+
+
 def test_backend_choice_follows_the_environment(monkeypatch):
     monkeypatch.setenv(BACKEND_ENV, "superlu")
     assert default_backend() == "superlu" and SPDSolver().backend == "superlu"
