@@ -672,11 +672,21 @@ def pca_normals(P: np.ndarray, k: int = 12, tree: cKDTree | None = None) -> np.n
     tree = tree or cKDTree(P)
     k = min(k, len(P))
     _, idx = tree.query(P, k=k, workers=-1)
-    Q = np.take(P, idx, axis=0)  # (np.take: 3-wide rows ~4x faster than P[idx])
-    X = Q - Q.mean(axis=1, keepdims=True)
-    C = np.einsum("mki,mkj->mij", X, X)
-    _, vecs = np.linalg.eigh(C)
-    return vecs[:, :, 0]
+    N = np.empty((len(P), 3))
+    # in blocks of points: each point's neighbourhood is its own, and a (m, k, 3) copy of
+    # 400k points' neighbourhoods would hold 115 MB twice over
+    for s in range(0, len(P), _PCA_BLOCK):
+        Q = np.take(P, idx[s : s + _PCA_BLOCK], axis=0)  # (np.take: ~4x faster than P[idx])
+        Q -= Q.mean(axis=1, keepdims=True)
+        _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", Q, Q))
+        N[s : s + _PCA_BLOCK] = vecs[:, :, 0]
+    return N
+
+
+#: points per block of :func:`pca_normals`, neighbour pairs per block of
+#: :func:`orient_normals_consistent`
+_PCA_BLOCK = 32_768
+_PAIR_BLOCK = 1 << 20
 
 
 def median_spacing(P: np.ndarray, tree: cKDTree | None = None, probes: int | None = None) -> float:
@@ -797,25 +807,38 @@ def orient_normals_consistent(
     m = len(P)
     tree = tree or cKDTree(P)
     k = min(k, m - 1)
-    _, nb = tree.query(P, k=k + 1, workers=-1)
+    # (the arrays of every pair, 35 MB each for 400k points, are dropped once used: on a
+    # large scan this runs beside the part's preparation, and the two peaks add up)
+    nb = tree.query(P, k=k + 1, workers=-1)[1]
     i = np.repeat(np.arange(m), k)
     j = nb[:, 1:].ravel()
-    # rows gathered by np.take: NumPy's fancy indexing of 3-wide rows is ~4x slower
-    Ni, Nj = np.take(Ns, i, axis=0), np.take(Ns, j, axis=0)
-    d = np.take(P, j, axis=0) - np.take(P, i, axis=0)
-    L = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
-    off = np.maximum(np.abs(np.einsum("ij,ij->i", d, Ni)), np.abs(np.einsum("ij,ij->i", d, Nj)))
-    par = np.abs(np.einsum("ij,ij->i", Ni, Nj))
+    del nb
+    L, off, par = (np.empty(len(i)) for _ in range(3))
+    # the pairs in blocks (their (E, 3) offsets and normals, 105 MB each for 400k points, are
+    # not all held at once); rows gathered by np.take: fancy indexing of 3-wide rows is ~4x
+    # slower
+    for s in range(0, len(i), _PAIR_BLOCK):
+        b = slice(s, s + _PAIR_BLOCK)
+        Ni, Nj = np.take(Ns, i[b], axis=0), np.take(Ns, j[b], axis=0)
+        d = np.take(P, j[b], axis=0) - np.take(P, i[b], axis=0)
+        L[b] = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+        off[b] = np.maximum(
+            np.abs(np.einsum("ij,ij->i", d, Ni)), np.abs(np.einsum("ij,ij->i", d, Nj))
+        )
+        par[b] = np.abs(np.einsum("ij,ij->i", Ni, Nj))
     keep = (off < TANGENT_EDGE * L) & (par > TANGENT_PARALLEL)
     beside = (off < STACKED * L) & (par > 0.7)  # not across a wall, nor a sharp crease
     pi, pj = i[beside], j[beside]
     i, j = i[keep], j[keep]
     w = 1.0 - par[keep] + 1e-6
+    del L, off, par, keep, beside
     G = coo_matrix((w, (i, j)), shape=(m, m)).tocsr()
+    del i, j, w
     G = G.maximum(G.T)
     # each edge once (the upper triangle): Kruskal sorts half as many weights and meets
     # every edge in the same order, so the tree is the same
     T = minimum_spanning_tree(sp.triu(G, format="csr"))
+    del G
     T = T.maximum(T.T)
     n_comp, labels = connected_components(T, directed=False)
     # parent of every point in a breadth-first tree of its component (roots: themselves),
