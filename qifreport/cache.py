@@ -606,8 +606,9 @@ def part_state(
     digest = sha256(nominal)
     material = key_material(digest, options, params)
     key = cache_key(material)
-    if cache_dir is None:  # one inspection: build only what it needs
-        state = build_state(
+
+    def for_one_inspection() -> PartState:  # without a cache: only what it needs
+        return build_state(
             nominal,
             options,
             params,
@@ -617,6 +618,9 @@ def part_state(
             lazy_basis=lazy_basis,
             on_nominal=on_nominal,
         )
+
+    if cache_dir is None:
+        state = for_one_inspection()
         return state, CacheOutcome(
             "off",
             None,
@@ -628,16 +632,7 @@ def part_state(
         secret = cache_secret(cache_dir)
     except UntrustedCache as exc:  # never read nor write a directory others could write
         log.warning("%s: the part is prepared without the cache", exc)
-        state = build_state(
-            nominal,
-            options,
-            params,
-            digest,
-            key,
-            complete=False,
-            lazy_basis=lazy_basis,
-            on_nominal=on_nominal,
-        )
+        state = for_one_inspection()
         return state, CacheOutcome(
             "refused",
             None,
