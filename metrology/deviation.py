@@ -377,19 +377,26 @@ def nominal_referenced(
     min_points = max(int(min_points), 1)
 
     reach = radius if max_distance is None else float(np.hypot(radius, max_distance))
-    hits = cKDTree(P).query_ball_point(V, r=reach, workers=-1)
-    cnt = np.fromiter((len(h) for h in hits), dtype=np.int64, count=n)
-    cand = np.flatnonzero(cnt >= min_points)
-    if len(cand) == 0:
+    # every (vertex, point) pair within reach, from one dual-tree search, in the order of a
+    # ball query per vertex (vertex by vertex, each one's points ascending: the same sums
+    # below) without its list of lists (0.35 s of Python on 201k vertices)
+    pairs = cKDTree(V).sparse_distance_matrix(cKDTree(P), reach, output_type="ndarray")
+    cnt = np.bincount(pairs["i"], minlength=n)
+    kept = (cnt >= min_points)[pairs["i"]]
+    if not kept.any():
         return (dev, h) if variance else dev
-    idx = np.concatenate([np.asarray(hits[i], dtype=np.int64) for i in cand])
-    vrt = np.repeat(cand, cnt[cand])
+    m = len(P)
+    vrt, idx = np.divmod(np.sort(pairs["i"][kept].astype(np.int64) * m + pairs["j"][kept]), m)
+    # rows gathered by np.take: NumPy's fancy indexing of 3-wide rows is ~4x slower
     if Ns is not None:  # only points of a surface facing the vertex's side
-        facing = np.einsum("ij,ij->i", Ns[idx], N[vrt]) > _MIN_FACING_COS
+        Ni, Nv = np.take(Ns, idx, axis=0), np.take(N, vrt, axis=0)
+        facing = np.einsum("ij,ij->i", Ni, Nv) > _MIN_FACING_COS
+        del Ni, Nv
         idx, vrt = idx[facing], vrt[facing]
-    Q = P[idx] - V[vrt]  # local coordinates about the vertex: well conditioned
+    Q = np.take(P, idx, axis=0)
+    Q -= np.take(V, vrt, axis=0)  # local coordinates about the vertex: well conditioned
     if max_distance is not None:  # cylinder about the normal line
-        along = np.einsum("ij,ij->i", Q, N[vrt])
+        along = np.einsum("ij,ij->i", Q, np.take(N, vrt, axis=0))
         lateral2 = np.einsum("ij,ij->i", Q, Q) - along**2
         keep = (np.abs(along) <= max_distance) & (lateral2 <= radius**2)
         Q, vrt = Q[keep], vrt[keep]
@@ -400,7 +407,7 @@ def nominal_referenced(
         return np.bincount(row, weights=w, minlength=len(vid))
 
     c = np.stack([_sum(Q[:, a]) for a in range(3)], axis=1) / counts[:, None]
-    R = Q - c[row]
+    R = Q - np.take(c, row, axis=0)
     cov = np.empty((len(vid), 3, 3))
     for a in range(3):
         for b in range(a, 3):
