@@ -708,9 +708,10 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     scan: dict = {}
 
     def nominal_read(nom: Nominal) -> None:
-        # the scan's own normals and area need only its points, thinned to the nominal's
-        # grid: started as soon as the mesh is known, beside the preparation of a new part
-        # (one CPU's work) and then beside the pose search
+        # the scan's own normals need only its points, thinned to the nominal's grid: they
+        # start as soon as the mesh is known, beside the preparation of a new part (one
+        # CPU's work); its area waits for the pose search (both beside the preparation
+        # slowed it by half)
         with _stage(prof, "thin scan"):
             scan["P"], scan["report"] = scan_input(P, n_read, nom, job.scan.name)
         scan["measures"] = start_scan_measures(scan["P"], params, beside, area=False)
