@@ -288,6 +288,18 @@ def data_referenced(V: np.ndarray, F: np.ndarray, P: np.ndarray) -> np.ndarray:
     return closest_points(V, F, P)[2]
 
 
+def _ball_pairs(
+    X: np.ndarray, tree: cKDTree, radius: float, min_points: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every pair ``(i, j)`` of a point ``X[i]`` (k, 3) mm and a point ``j`` of ``tree`` within
+    ``radius`` (mm) of it, for the points ``X[i]`` that have at least ``min_points`` such
+    partners: two (p,) int64 arrays, as one dual-tree search lists them (no list per point)."""
+    pairs = cKDTree(X).sparse_distance_matrix(tree, radius, output_type="ndarray")
+    i, j = pairs["i"], pairs["j"]
+    enough = (np.bincount(i, minlength=len(X)) >= min_points)[i]
+    return i[enough].astype(np.int64), j[enough].astype(np.int64)
+
+
 def nominal_referenced(
     V: np.ndarray,
     F: np.ndarray,
@@ -377,16 +389,13 @@ def nominal_referenced(
     min_points = max(int(min_points), 1)
 
     reach = radius if max_distance is None else float(np.hypot(radius, max_distance))
-    # every (vertex, point) pair within reach, from one dual-tree search, in the order of a
-    # ball query per vertex (vertex by vertex, each one's points ascending: the same sums
-    # below) without its list of lists (0.35 s of Python on 201k vertices)
-    pairs = cKDTree(V).sparse_distance_matrix(cKDTree(P), reach, output_type="ndarray")
-    cnt = np.bincount(pairs["i"], minlength=n)
-    kept = (cnt >= min_points)[pairs["i"]]
-    if not kept.any():
+    # every (vertex, point) pair within reach, in the order of a ball query per vertex
+    # (vertex by vertex, each one's points ascending: the same sums below) without its list
+    # of lists (0.35 s of Python on 201k vertices)
+    vrt, idx = _ball_pairs(V, cKDTree(P), reach, min_points)
+    if len(vrt) == 0:
         return (dev, h) if variance else dev
-    m = len(P)
-    vrt, idx = np.divmod(np.sort(pairs["i"][kept].astype(np.int64) * m + pairs["j"][kept]), m)
+    vrt, idx = np.divmod(np.sort(vrt * len(P) + idx), len(P))
     # rows gathered by np.take: NumPy's fancy indexing of 3-wide rows is ~4x slower
     if Ns is not None:  # only points of a surface facing the vertex's side
         Ni, Nv = np.take(Ns, idx, axis=0), np.take(N, vrt, axis=0)
@@ -705,14 +714,12 @@ def _residual_fit(
     residuals of their fits and those residuals' degrees of freedom)."""
     n = len(V)
     none = (np.empty(0, dtype=np.int64),) + (np.empty(0),) * 4
-    # every (vertex, point) pair within the ball, as flat arrays from one dual-tree search
-    pairs = cKDTree(V[verts]).sparse_distance_matrix(tree, radius, output_type="ndarray")
-    pi, pj = pairs["i"], pairs["j"]
-    enough = (np.bincount(pi, minlength=len(verts)) >= min_points)[pi]
-    if not enough.any():
+    # every (vertex, point) pair within the ball, of the vertices with enough points
+    pi, pj = _ball_pairs(V[verts], tree, radius, min_points)
+    if len(pi) == 0:
         return none
-    idx = sel[pj[enough]]
-    vrt = verts[pi[enough]]
+    idx = sel[pj]
+    vrt = verts[pi]
     pl = point_label[idx]
     key = vrt * m + np.maximum(pl, 0)
     # (vertex, face) pairs looked up in a table of them where it is small, else by bisection
