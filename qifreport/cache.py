@@ -115,7 +115,9 @@ log = logging.getLogger(__name__)
 #: 11: STEP nominals carry their faces' STEP entity ids (Nominal.face_step_ids)
 #: 12: dimensions of a thread known (CharacteristicSpec.thread); datum target areas sized
 #: 13: geodesic balls pickled compactly (rows as counts, cols narrow: issue 23)
-CACHE_FORMAT = 13
+#: 14: the bending basis keeps METIS's order with CHOLMOD (its default chose AMD on most
+#:    parts): an entry of 13 would go on factorising in AMD's order
+CACHE_FORMAT = 14
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"

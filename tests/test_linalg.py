@@ -115,6 +115,27 @@ def test_a_solver_given_an_earlier_ones_order_factorises_exactly_as_it(shell_sys
         SPDSolver(backend, order=np.arange(len(V) - 1)).factor(A)  # another system's
 
 
+def test_cholmod_orders_a_meshs_system_by_metis(shell_system):
+    """Given the unknowns' positions (a mesh's system), CHOLMOD's analysis takes METIS's
+    nested dissection, which fills less than its default choice on a bending system; without
+    them, its default. Measured on the fandisk: 3.53M against 4.65M nonzeros in ``L``."""
+    _need_cholmod()
+    from sksparse.cholmod import analyze
+
+    V, _, _, A = shell_system
+    mesh = SPDSolver("cholmod", points=V)
+    mesh.factor(A)
+    plain = SPDSolver("cholmod")
+    plain.factor(A)
+    metis = analyze(A, ordering_method="metis")
+    default = analyze(A)
+    assert np.array_equal(mesh.order, metis.P())
+    assert np.array_equal(plain.order, default.P())
+    assert not np.array_equal(mesh.order, plain.order)
+    fill = {k: f.cholesky(A).L().nnz for k, f in (("metis", metis), ("default", default))}
+    assert fill["metis"] < 0.95 * fill["default"], fill
+
+
 def test_the_bending_basis_keeps_its_order_for_the_parts_later_solvers(shell):
     """The basis records the fill-reducing order of its factorisation and the backend; the
     part's solver (:func:`part_solver`) takes it with the same backend, and not with the
