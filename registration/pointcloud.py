@@ -676,7 +676,7 @@ def pca_normals(P: np.ndarray, k: int = 12, tree: cKDTree | None = None) -> np.n
     # in blocks of points: each point's neighbourhood is its own, and a (m, k, 3) copy of
     # 400k points' neighbourhoods would hold 115 MB twice over
     for s in range(0, len(P), _PCA_BLOCK):
-        Q = np.take(P, idx[s : s + _PCA_BLOCK], axis=0)  # (np.take: ~4x faster than P[idx])
+        Q = np.take(P, idx[s : s + _PCA_BLOCK], axis=0)  # (np.take: registration.arrays)
         Q -= Q.mean(axis=1, keepdims=True)
         _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", Q, Q))
         N[s : s + _PCA_BLOCK] = vecs[:, :, 0]
@@ -815,8 +815,7 @@ def orient_normals_consistent(
     del nb
     L, off, par = (np.empty(len(i)) for _ in range(3))
     # the pairs in blocks (their (E, 3) offsets and normals, 105 MB each for 400k points, are
-    # not all held at once); rows gathered by np.take: fancy indexing of 3-wide rows is ~4x
-    # slower
+    # not all held at once); rows gathered by np.take (qifreport.registration.arrays)
     for s in range(0, len(i), _PAIR_BLOCK):
         b = slice(s, s + _PAIR_BLOCK)
         Ni, Nj = np.take(Ns, i[b], axis=0), np.take(Ns, j[b], axis=0)
