@@ -37,6 +37,7 @@ from qifreport.registration.mesh import (
     median_edge_length,
     vertex_normals,
 )
+from qifreport.registration.nearest import ball_pairs
 from qifreport.registration.pointcloud import median_spacing
 
 from .groups import sort_within_groups
@@ -288,18 +289,6 @@ def data_referenced(V: np.ndarray, F: np.ndarray, P: np.ndarray) -> np.ndarray:
     return closest_points(V, F, P)[2]
 
 
-def _ball_pairs(
-    X: np.ndarray, tree: cKDTree, radius: float, min_points: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Every pair ``(i, j)`` of a point ``X[i]`` (k, 3) mm and a point ``j`` of ``tree`` within
-    ``radius`` (mm) of it, for the points ``X[i]`` that have at least ``min_points`` such
-    partners: two (p,) int64 arrays, as one dual-tree search lists them (no list per point)."""
-    pairs = cKDTree(X).sparse_distance_matrix(tree, radius, output_type="ndarray")
-    i, j = pairs["i"], pairs["j"]
-    enough = (np.bincount(i, minlength=len(X)) >= min_points)[i]
-    return i[enough].astype(np.int64), j[enough].astype(np.int64)
-
-
 def nominal_referenced(
     V: np.ndarray,
     F: np.ndarray,
@@ -392,7 +381,7 @@ def nominal_referenced(
     # every (vertex, point) pair within reach, in the order of a ball query per vertex
     # (vertex by vertex, each one's points ascending: the same sums below) without its list
     # of lists (0.35 s of Python on 201k vertices)
-    vrt, idx = _ball_pairs(V, cKDTree(P), reach, min_points)
+    vrt, idx = ball_pairs(V, cKDTree(P), reach, min_points)
     if len(vrt) == 0:
         return (dev, h) if variance else dev
     vrt, idx = np.divmod(np.sort(vrt * len(P) + idx), len(P))
@@ -715,7 +704,7 @@ def _residual_fit(
     n = len(V)
     none = (np.empty(0, dtype=np.int64),) + (np.empty(0),) * 4
     # every (vertex, point) pair within the ball, of the vertices with enough points
-    pi, pj = _ball_pairs(V[verts], tree, radius, min_points)
+    pi, pj = ball_pairs(V[verts], tree, radius, min_points)
     if len(pi) == 0:
         return none
     idx = sel[pj]

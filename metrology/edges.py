@@ -81,6 +81,7 @@ from qifreport.registration.mesh import (
     median_edge_length,
     vertex_normals,
 )
+from qifreport.registration.nearest import ball_pairs
 from qifreport.registration.pointcloud import pca_normals
 
 from .deviation import closest_points
@@ -619,10 +620,9 @@ def _strip_edges(
     reach = float(np.sqrt(radius**2 + max_gap**2 + window**2))
     # every (rim point, scan point) pair within reach, as flat arrays from one dual-tree
     # search (their order does not matter: each rim point's values are sorted or counted)
-    pairs = cKDTree(X).sparse_distance_matrix(tree, reach, output_type="ndarray")
-    if len(pairs) == 0:
+    grp, idx = ball_pairs(X, tree, reach)
+    if len(grp) == 0:
         return e, n2, share, slant
-    grp, idx = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
     # rows gathered by np.take (qifreport.registration.arrays)
     Q = np.take(P, idx, axis=0) - np.take(X, grp, axis=0)
     along = np.einsum("ij,ij->i", Q, np.take(T, grp, axis=0))

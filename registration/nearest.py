@@ -8,6 +8,9 @@ from its anchor has every other vertex at least ``r_k - delta`` away (triangle i
 so the closest of its ``k`` candidates is *the* nearest vertex whenever it is closer than
 that; only the points this does not certify go back to the tree. The answers are the tree's
 own, exactly (distance ties aside, which the tree breaks arbitrarily too).
+
+:func:`ball_pairs` lists every pair of a point and a tree's point within a radius as two flat
+arrays, from one dual-tree search: no list per point.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["PARALLEL_MIN", "TrackedNearest", "workers_for"]
+__all__ = ["PARALLEL_MIN", "TrackedNearest", "ball_pairs", "workers_for"]
 
 #: points from which a query runs on every core
 PARALLEL_MIN = 4096
@@ -26,6 +29,29 @@ def workers_for(n: int) -> int:
     one thread below :data:`PARALLEL_MIN` (starting the threads costs more than a few
     thousand points' search; the answers are the same)."""
     return -1 if n >= PARALLEL_MIN else 1
+
+
+def ball_pairs(
+    X: np.ndarray, tree: cKDTree, radius: float, min_points: int = 1
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every pair ``(i, j)`` of a point ``X[i]`` and a point ``j`` of ``tree`` within
+    ``radius`` of it, for the points ``X[i]`` that have at least ``min_points`` such partners.
+
+    One dual-tree search (``cKDTree.sparse_distance_matrix``), in its order.
+
+    Parameters
+    ----------
+    X : (k, 3) points, mm.  tree : ``cKDTree`` of the other points.  radius : mm.
+    min_points : fewest partners a point of ``X`` needs for its pairs to be listed.
+
+    Returns
+    -------
+    i, j : (p,) int64 indices into ``X`` and into the tree's points.
+    """
+    pairs = cKDTree(X).sparse_distance_matrix(tree, radius, output_type="ndarray")
+    i, j = pairs["i"], pairs["j"]
+    enough = (np.bincount(i, minlength=len(X)) >= min_points)[i]
+    return i[enough].astype(np.int64), j[enough].astype(np.int64)
 
 
 class TrackedNearest:
