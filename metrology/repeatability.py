@@ -42,7 +42,7 @@ resampling. The price is one inspection more than ``N``.
 
 The functions work on plain arrays (vertex indices, signed out-of-tolerance maps);
 :func:`apply` is the glue that reads them from
-:class:`qifreport.metrology.inspection.InspectionResult` objects (duck-typed, to keep this module
+:class:`qifreport.metrology.results.InspectionResult` objects (duck-typed, to keep this module
 free of the inspection module).
 """
 
@@ -383,7 +383,7 @@ def apply(
 
     Parameters
     ----------
-    res : the reported run (:class:`qifreport.metrology.inspection.InspectionResult` of the full
+    res : the reported run (:class:`qifreport.metrology.results.InspectionResult` of the full
         scan). Its ``acceptance`` and each zone's ``acceptance`` are replaced by
         :func:`restrict_acceptance` of their persistent regions, and ``res.repeatability`` is set
         (so its trust warnings include the resampled runs').

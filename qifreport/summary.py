@@ -1,6 +1,6 @@
 """The versioned JSON Schema of the ``qifreport --json`` summary, and its validation.
 
-The summary document (:meth:`qifreport.metrology.inspection.InspectionResult.to_dict` plus the keys
+The summary document (:meth:`qifreport.metrology.results.InspectionResult.to_dict` plus the keys
 :mod:`qifreport.pipeline` adds) carries ``"schema": "qifreport-summary/1"``
 (:data:`SUMMARY_SCHEMA_VERSION`); its structure is the JSON Schema (draft 2020-12)
 ``schemas/summary-1.schema.json``.
