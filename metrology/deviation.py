@@ -301,6 +301,7 @@ def nominal_referenced(
     max_distance: float | None = None,
     scan_normals: np.ndarray | None = None,
     variance: bool = False,
+    tree: cKDTree | None = None,
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Signed deviation (n,) mm of every nominal vertex along its normal to the local scan.
 
@@ -344,6 +345,7 @@ def nominal_referenced(
         This keeps the back skin and the edge faces of a thin wall, closer to the front's
         measurements than ``radius``, from being scored against them.
     variance : also return each deviation's variance (see Returns).
+    tree : ``cKDTree(P)`` when at hand (built here otherwise: 0.14 s on 400k points).
 
     Returns
     -------
@@ -381,7 +383,7 @@ def nominal_referenced(
     # every (vertex, point) pair within reach, in the order of a ball query per vertex
     # (vertex by vertex, each one's points ascending: the same sums below) without its list
     # of lists (0.35 s of Python on 201k vertices)
-    vrt, idx = ball_pairs(V, cKDTree(P), reach, min_points)
+    vrt, idx = ball_pairs(V, cKDTree(P) if tree is None else tree, reach, min_points)
     if len(vrt) == 0:
         return (dev, h) if variance else dev
     vrt, idx = np.divmod(np.sort(vrt * len(P) + idx), len(P))

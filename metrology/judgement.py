@@ -118,6 +118,7 @@ def vertex_deviation(
     scan_normals: np.ndarray | None = None,
     residual: np.ndarray | None = None,
     brep_normals: np.ndarray | None = None,
+    tree: cKDTree | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Nominal-referenced deviation (n,) mm of every vertex of ``(V, F)`` from scan ``P``,
     and its variance (n,) mm^2 from the scan points' scatter about the local fit (for
@@ -133,11 +134,12 @@ def vertex_deviation(
     :func:`~qifreport.metrology.deviation.nominal_referenced`. ``residual`` (m,): those
     signed distances to the surface, when the caller has them (:func:`surface_distance`).
     ``brep_normals`` (f, 3, 3): the surface's normals at the triangle corners for
-    :func:`surface_distance` (the B-rep's, :mod:`qifreport.step.normals`).
+    :func:`surface_distance` (the B-rep's, :mod:`qifreport.step.normals`). ``tree``:
+    ``cKDTree(P)`` when at hand (the plane fit searches the scan).
     """
     if face_id is None:  # a mesh nominal: the local plane fit (no faces to keep apart)
         return nominal_referenced(
-            V, F, P, normals=normals, scan_normals=scan_normals, variance=True
+            V, F, P, normals=normals, scan_normals=scan_normals, variance=True, tree=tree
         )
     C, cface, pdev = closest_points(V, F, P) if closest is None else closest
     if residual is None:
@@ -290,6 +292,7 @@ def judge(
         closest=(C, cface, pdev),
         scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg, sheets=sheets),
         residual=pdev if face_id is not None else None,
+        tree=reg.scan_tree,
     )
     dev_free = var_free = None
     held = fit is not None or free is not None
@@ -308,6 +311,7 @@ def judge(
                     fr.P, fr.scan_normals, V, ops.normals, sheets=fr.sheets
                 ),
                 brep_normals=brep_normals,
+                tree=fr.scan_tree,
             )
         )
     hygiene = replace(prepared.hygiene)  # a copy: the rim band is this inspection's

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as triangle_closest_point
 
 from qifreport.metrology.acceptance import (
@@ -168,6 +169,12 @@ def test_nominal_referenced_offset_plane_and_unscored():
     # reversed winding flips the outward normal and so the sign
     dev_rev = nominal_referenced(V, F[:, ::-1], P)
     assert np.abs(dev_rev[inner] + 0.3).max() < 0.01
+    # the scan's own tree, given (the inspection's, built once): the same field, bit for
+    # bit, and it is the tree that is searched (one of the scan moved 1 m away: no partner)
+    both = nominal_referenced(V, F, P, variance=True)
+    given = nominal_referenced(V, F, P, variance=True, tree=cKDTree(P))
+    assert all(np.array_equal(u, v, equal_nan=True) for u, v in zip(both, given, strict=True))
+    assert np.isnan(nominal_referenced(V, F, P, tree=cKDTree(P + [1000.0, 0.0, 0.0]))).all()
 
 
 def test_nominal_referenced_intersects_tilted_plane():
