@@ -100,9 +100,8 @@ def configs(args) -> dict[str, Config]:
         ),
         "multi": Config(
             "multi",
-            f"multi-pass (<= {args.passes}, polish {args.polish}): modal first pass and refits, "
-            "then the band limit l2",
-            GBCICPParams(passes=args.passes, polish=args.polish),
+            f"multi-pass (<= {args.passes}): modal first pass and refits, then the band limit l2",
+            GBCICPParams(passes=args.passes),
             2,
         ),
         "matched": Config(
@@ -165,12 +164,6 @@ def main() -> None:
     )
     ap.add_argument(
         "--passes", type=int, default=GBCICPParams().passes, help="passes of the multi-pass scheme"
-    )
-    ap.add_argument(
-        "--polish",
-        choices=("every", "last"),
-        default=GBCICPParams().polish,
-        help="the multi-pass scheme's passes closed at full resolution (GBCICPParams.polish)",
     )
     ap.add_argument(
         "--offset",

@@ -110,16 +110,6 @@ class GBCICPParams:
     polish_iter : full-resolution iterations closing each modal pass (at least one; at
         ``band_limit``, or at ``band_limit_refit`` with the held-out measurement withheld in
         a refit).
-    polish : which modal passes close with the full-resolution iterations: ``"every"``
-        (default) each pass, whose flags are then judged on that residual; ``"last"`` only
-        the pass kept, the others flagging on the basis' own fit matched at every vertex.
-        ``"last"`` makes one sparse factorisation instead of one per pass. Measured (issue
-        23's eighth step): on the fandisk of ``bench/compare.py`` 0.91 -> 0.56 s at RMS /
-        max / P95 0.0660 / 1.119 / 0.0279 -> 0.0659 / 1.119 / 0.0278 mm; on Table 3's grid
-        (``bench/detectability.py --polish last``) the same 11 of 12 cells detected, with
-        higher recovery in 10 of 12 (wide defects most: 16.9 -> 36.3 % at a = 0.6 mm,
-        sigma = 12 mm) and the noise floor 0.0216 -> 0.0207 mm. Not the default: it
-        changes the fit, and the product's figures with it.
     signed_compat : orient the scan normals (consistently per connected sheet, the side of
         each sheet by a vote against the posed nominal's normals) and use the *signed*
         normal compatibility ``n . n_scan``: a vertex whose normal faces away from the
@@ -151,7 +141,6 @@ class GBCICPParams:
     modal_rows: int = 4000
     modal_anneal: float = 0.5
     polish_iter: int = 1
-    polish: str = "every"
 
 
 GBCICPResult = DeformResult  # the shared result of every deformable method
@@ -566,24 +555,9 @@ def gbcicp(
     # full: the paper's schedule, every iteration a full-resolution solve.
     C = np.zeros((basis.Phi.shape[1], 3)) if modal else None
     lam_from = lam_first
-    last_only = modal and p.polish == "last"
-
-    def in_basis(C, hold, pass_no):
-        """The pass' fit in the basis, matched at every vertex, with its robust weights (the
-        first pass's Welsch width at its graduated start, as after a polish at l1)."""
-        e_b = basis.Phi @ C
-        m_b = match(V0 + e_b)
-        width0 = 0.0
-        if pass_no == 1 and m_b.covered.any():
-            width0 = float(np.percentile(np.abs(m_b.r[m_b.covered]), 99))
-        w_b, scale_b = _weights(m_b, p, hold, width0)
-        return e_b, m_b, w_b, scale_b
 
     def first_pass():
         nonlocal C
-        if last_only:
-            C = modal_pass(lam_start, lam_first, hold, C, 1)
-            return in_basis(C, hold, 1)
         if modal:
             C = modal_pass(lam_start, lam_first, hold, C, 1)
             return run_pass(
@@ -593,9 +567,6 @@ def gbcicp(
 
     def refit(e, hold, pass_no):
         nonlocal C, lam_from
-        if last_only:
-            C = modal_pass(lam_first, lam_first, hold, C, pass_no)
-            return in_basis(C, hold, pass_no)
         if modal:
             C = modal_pass(lam_first, lam_first, hold, C, pass_no)
             return run_pass(
@@ -636,11 +607,6 @@ def gbcicp(
                 if np.array_equal(new, flagged):
                     break
                 flagged, n_flagged = new, n_new
-    if last_only:  # the pass kept, closed at full resolution; its flags judged there
-        kept = 1 if fallback else passes
-        lam_end = lam_first if kept == 1 else lam_refit
-        e, m, w, scale = run_pass(e, lam_end, lam_end, hold, kept, iters=max(p.polish_iter, 1))
-        flagged = _flag(m, p, scale, flaggable)
     if fallback:
         log.warning(
             "GB-CICP: %.1f %% of covered vertices flagged in pass %d (> %.0f %%): fit "
@@ -689,8 +655,6 @@ def resolve_params(p: GBCICPParams, V0: np.ndarray, F: np.ndarray, P: np.ndarray
     q = GBCICPParams(**vars(p))
     if q.solver not in ("modal", "full"):
         raise ValueError(f"unknown GB-CICP solver {q.solver!r} (modal or full)")
-    if q.polish not in ("every", "last"):
-        raise ValueError(f"unknown GB-CICP polish {q.polish!r} (every or last)")
     if q.lambda0 is not None:
         q.solver = "full"  # the paper's parametrisation anneals full-resolution solves
     if q.coverage_radius is None:

@@ -71,50 +71,6 @@ def test_gbcicp_removes_compliance(shell_case, solver):
         assert sum(h["pass_no"] == 1 for h in fit.history) <= 25
 
 
-@pytest.mark.slow
-def test_gbcicp_polished_in_the_last_pass_only(shell_case_defect):
-    """``polish="last"``: the passes iterate in the basis, only the kept one closes at full
-    resolution, so one sparse factorisation instead of one per pass; the bump is still found
-    (flagged and held out by the refits) and the compliance removed as well."""
-    from qifreport.registration.gbcicp import bending_basis
-    from qifreport.registration.linalg import SPDSolver
-
-    class Counting(SPDSolver):
-        factors = 0
-
-        def factor(self, A):
-            Counting.factors += 1
-            return super().factor(A)
-
-    c = shell_case_defect
-    ops = bending_operator(c.V, c.F, "hessian")
-    rigid = rigid_icp(c.V, ops.normals, c.P)
-    Pm = rigid.apply(c.P)
-    V_true = c.V_true @ rigid.R.T + rigid.t
-    basis = bending_basis(ops, 100, solver=SPDSolver(points=c.V))
-    fits, factors = {}, {}
-    for polish in ("every", "last"):
-        Counting.factors = 0
-        solver = Counting(points=c.V)
-        fits[polish] = gbcicp(
-            c.V, c.F, ops, Pm, GBCICPParams(polish=polish), solver=solver, basis=basis
-        )
-        factors[polish] = Counting.factors
-    every, last = fits["every"], fits["last"]
-    assert every.passes >= 2 and last.passes >= 2  # the bump is flagged and refit either way
-    assert factors == {"every": every.passes, "last": 1}, factors
-    assert last.flagged[c.defect_vertex] and last.held_out[c.defect_vertex]
-    S = c.measured_vertices()
-    far = np.linalg.norm(c.V - c.V[c.defect_vertex], axis=1) > 30.0  # away from the bump
-    rms = {
-        k: np.sqrt(np.mean(inspection_error(f.V, V_true, c.F)[S][far[S]] ** 2))
-        for k, f in fits.items()
-    }
-    assert rms["last"] < 1.2 * rms["every"] + 0.005, rms
-    with pytest.raises(ValueError, match="polish"):
-        gbcicp(c.V, c.F, ops, Pm, GBCICPParams(polish="first"), basis=basis)
-
-
 def test_bending_basis_is_m_orthonormal_and_diagonalises_q(shell):
     """The per-part modes: Phi^T M Phi = I, Phi^T Q Phi = diag(mu), mu ascending from the
     affine null space (0) upwards."""
