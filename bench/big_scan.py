@@ -35,7 +35,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from qifreport.registration.mesh import load_mesh
-from qifreport.registration.pointcloud import load_scan, pca_normals, read_scan, unique_points
+from qifreport.registration.normals import pca_normals
+from qifreport.registration.pointcloud import load_scan, read_scan, unique_points
 from qifreport.registration.thinning import nominal_spacing, thin_scan
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -51,7 +51,7 @@ from qifreport.registration.mesh import (
     boundary_vertices,
     bounding_diagonal,
 )
-from qifreport.registration.pointcloud import orient_normals_consistent, pca_normals
+from qifreport.registration.normals import orient_normals_consistent, pca_normals
 from qifreport.simulate.cases import inspection_error, make_case
 from qifreport.simulate.scanner import ScanSpec
 from qifreport.simulate.shapes import fandisk, housing

@@ -82,7 +82,7 @@ from qifreport.registration.mesh import (
     vertex_normals,
 )
 from qifreport.registration.nearest import ball_pairs
-from qifreport.registration.pointcloud import pca_normals
+from qifreport.registration.normals import pca_normals
 
 from .deviation import closest_points
 from .groups import sort_within_groups

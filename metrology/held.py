@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from qifreport.registration.deformable import orient_scan_normals
 from qifreport.registration.icp import robust_scale, tukey_rho, tukey_weights
 from qifreport.registration.mesh import face_normals
-from qifreport.registration.pointcloud import orient_normals_consistent, pca_normals
+from qifreport.registration.normals import orient_normals_consistent, pca_normals
 from qifreport.registration.restrained import (
     FACING_ANGLE,
     Restraint,
@@ -147,7 +147,7 @@ def hold_scan(
     V : (n, 3) nominal vertices, mm (the restraint basis's mesh).  F : (f, 3).
     P : (m, 3) the rigidly seated free-state scan, mm.
     scan_normals, sheets : its PCA normals and sheets
-        (:func:`qifreport.registration.pointcloud.orient_normals_consistent`).
+        (:func:`qifreport.registration.normals.orient_normals_consistent`).
     restraint : the part's restraint basis.  normals : (n, 3) unit vertex normals.
     free_fit : the free virtual fixture's registered vertices (n, 3), mm, when asked.
     face_id : (f,) B-rep face of each triangle (a STEP nominal).

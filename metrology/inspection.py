@@ -31,7 +31,7 @@ from qifreport.registration.icp import RigidResult, rigid_icp
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import bounding_diagonal
 from qifreport.registration.methods import METHODS, deform
-from qifreport.registration.pointcloud import oriented_normals
+from qifreport.registration.normals import oriented_normals
 from qifreport.registration.prealign import seat_scan
 from qifreport.registration.restrained import RestraintBasis
 
@@ -120,7 +120,7 @@ class ScanMeasures:
     ----------
     P : (m, 3) the scan points they are measured on, mm (the very array later inspected).
     normals : pending ``(Ns, sheets)`` of
-        :func:`~qifreport.registration.pointcloud.oriented_normals` (``result()``).
+        :func:`~qifreport.registration.normals.oriented_normals` (``result()``).
     area : pending covered area, mm^2, of :func:`~qifreport.metrology.acceptance.scan_area`;
         None: not started yet (:func:`inspect` starts it).
     """

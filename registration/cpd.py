@@ -36,7 +36,7 @@ import scipy.linalg as sla
 
 from .deformable import DeformResult, coverage_radius, finish, scan_matcher
 from .mesh import MeshOperators, bounding_diagonal
-from .pointcloud import pca_normals
+from .normals import pca_normals
 
 __all__ = [
     "cpd",

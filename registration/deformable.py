@@ -20,7 +20,8 @@ from scipy.spatial import cKDTree
 from .icp import robust_scale
 from .mesh import MeshOperators, median_edge_length
 from .nearest import workers_for
-from .pointcloud import SIDE_KNOWN, median_spacing, orient_normals_consistent, pca_normals
+from .normals import SIDE_KNOWN, orient_normals_consistent, pca_normals
+from .pointcloud import median_spacing
 
 __all__ = [
     "coverage_radius",
@@ -227,7 +228,7 @@ def orient_scan_normals(
     """Outward scan normals: consistent per connected sheet of the scan, each sheet's side
     chosen by a vote of its points against the nearest vertex normal of the posed nominal,
     unless the scan showed it (a wall's two skins, label
-    :data:`qifreport.registration.pointcloud.SIDE_KNOWN`).
+    :data:`qifreport.registration.normals.SIDE_KNOWN`).
 
     A vote rather than a per-point test, because where the free-state deflection exceeds
     half the wall of a thin solid the nearest nominal vertex lies on the other skin.
@@ -238,7 +239,7 @@ def orient_scan_normals(
     V, N : (n, 3) posed nominal vertices (mm) and their unit normals.
     k : neighbours of the propagation graph.
     sheets : (m,) sheet label of each point when ``Ns`` is already consistent within each
-        sheet (:func:`qifreport.registration.pointcloud.orient_normals_consistent`): only the
+        sheet (:func:`qifreport.registration.normals.orient_normals_consistent`): only the
         vote is made, so one propagation serves several nominals.
     """
 

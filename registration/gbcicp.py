@@ -45,7 +45,7 @@ from .deformable import DeformResult, Match, ScanMatcher, coverage_radius, orien
 from .icp import robust_scale
 from .linalg import SPDSolver
 from .mesh import MeshOperators, bounding_diagonal
-from .pointcloud import pca_normals
+from .normals import pca_normals
 
 __all__ = [
     "BASIS_SEED",
@@ -419,7 +419,7 @@ def gbcicp(
     params : :class:`GBCICPParams` (defaults resolved from the part size and mesh).
     scan_normals : (m, 3) PCA normals of the scan (computed if omitted).
     scan_sheets : (m,) sheet labels when ``scan_normals`` are already oriented consistently
-        per sheet (:func:`qifreport.registration.pointcloud.orient_normals_consistent`); the
+        per sheet (:func:`qifreport.registration.normals.orient_normals_consistent`); the
         propagation is then not repeated.
     solver : sparse SPD solver (CHOLMOD if available, else SuperLU).
     progress : optional callable ``progress(n_iterations)`` for a progress bar.

@@ -64,7 +64,7 @@ def deform(
     params : the method's own parameter dataclass (defaults when None).
     scan_normals, scan_sheets : PCA scan normals (m, 3), consistently oriented per sheet,
         and their sheet labels
-        (see :func:`qifreport.registration.pointcloud.orient_normals_consistent`).
+        (see :func:`qifreport.registration.normals.orient_normals_consistent`).
     clamps : (k,) vertex indices of the clamps (RBF-FEM's driving points; default: the
         corners of the part's principal rectangle). Ignored by the other methods.
     progress : optional ``progress(n_iterations)`` callback.

@@ -59,8 +59,8 @@ from .deformable import DeformResult, ScanMatcher, coverage_radius, finish, scan
 from .icp import robust_scale
 from .linalg import SPDSolver, default_backend
 from .mesh import MeshOperators, adjacency, bounding_diagonal, edges, vertex_normals
+from .normals import pca_normals
 from .ordering import nested_dissection
-from .pointcloud import pca_normals
 
 __all__ = [
     "nicp",

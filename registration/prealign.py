@@ -264,7 +264,7 @@ def already_in_frame(
     elif F is not None:
         N = vertex_normals(V, np.asarray(F, dtype=np.int64))
     else:
-        from .pointcloud import pca_normals
+        from .normals import pca_normals
 
         N = pca_normals(V, tree=tree)
     r = rigid_icp(V, N, S, tree=tree)

@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 from .arrays import unique_sorted
 from .deformable import DeformResult, coverage_radius, finish, scan_matcher
 from .mesh import MeshOperators
-from .pointcloud import pca_normals
+from .normals import pca_normals
 
 __all__ = [
     "clamp_targets",

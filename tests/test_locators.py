@@ -9,7 +9,7 @@ import trimesh
 
 from qifreport.metrology.locators import patch_offset
 from qifreport.registration.mesh import face_normals
-from qifreport.registration.pointcloud import pca_normals
+from qifreport.registration.normals import pca_normals
 
 WALL = 1.8  # mm: a panel's end face
 

@@ -8,7 +8,7 @@ import pytest
 
 from qifreport.registration.deformable import orient_scan_normals
 from qifreport.registration.mesh import vertex_normals
-from qifreport.registration.pointcloud import (
+from qifreport.registration.normals import (
     SIDE_KNOWN,
     orient_normals_consistent,
     pca_normals,

@@ -1,0 +1,250 @@
+"""Normals of a scan's points: local PCA, and one consistent side per sheet of the scan.
+
+:func:`pca_normals` estimates each point's normal from its ``k`` nearest neighbours (the sign
+arbitrary); :func:`orient_normals_consistent` signs them consistently along each connected
+sheet of the scan (a minimum spanning tree over pairs on one smooth skin, Hoppe et al. 1992)
+and outward where the scan shows a thin wall's other skin behind a point
+(:func:`wall_sides`); :func:`oriented_normals` is both, as the inspection measures them
+beside the pose search.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "SIDE_KNOWN",
+    "STACKED",
+    "TANGENT_EDGE",
+    "TANGENT_PARALLEL",
+    "WALL_AGREEMENT",
+    "WALL_CONE",
+    "WALL_MIN_POINTS",
+    "WALL_PARALLEL",
+    "WALL_PROBES",
+    "WALL_SAMPLE",
+    "orient_normals_consistent",
+    "oriented_normals",
+    "pca_normals",
+    "wall_sides",
+]
+
+
+def pca_normals(P: np.ndarray, k: int = 12, tree: cKDTree | None = None) -> np.ndarray:
+    """Unit normals (m, 3) of the scan from the PCA of each point's ``k`` nearest neighbours.
+
+    The sign is arbitrary (a one-sided scan has no inside); use ``|n . n_scan|``.
+    """
+    tree = tree or cKDTree(P)
+    k = min(k, len(P))
+    _, idx = tree.query(P, k=k, workers=-1)
+    N = np.empty((len(P), 3))
+    # in blocks of points: each point's neighbourhood is its own, and a (m, k, 3) copy of
+    # 400k points' neighbourhoods would hold 115 MB twice over
+    for s in range(0, len(P), _PCA_BLOCK):
+        Q = np.take(P, idx[s : s + _PCA_BLOCK], axis=0)  # (np.take: registration.arrays)
+        Q -= Q.mean(axis=1, keepdims=True)
+        _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", Q, Q))
+        N[s : s + _PCA_BLOCK] = vecs[:, :, 0]
+    return N
+
+
+#: points per block of :func:`pca_normals`, neighbour pairs per block of
+#: :func:`orient_normals_consistent`
+_PCA_BLOCK = 32_768
+_PAIR_BLOCK = 1 << 20
+
+
+#: a neighbour the side is carried to lies within asin(0.2) = 11.5 deg of both points'
+#: tangent planes, their normals within acos(0.95) = 18 deg of each other: the same skin
+#: (a looser graph carried the side across a thin wall's rim and sharp bends: on a 1.2 mm
+#: steel bracket scanned from both sides half the points faced inwards)
+TANGENT_EDGE = 0.2
+TANGENT_PARALLEL = 0.95
+#: a wall's other skin is looked for along each normal at these distances, mm (walls of
+#: sheet metal and moulded plastic, 0.3-4.5 mm), within this share of the distance (or 0.75
+#: of the point spacing there) of the probe, its normal within acos(0.9) of the point's
+WALL_PROBES = (0.3, 0.45, 0.7, 1.0, 1.5, 2.2, 3.2, 4.5)
+WALL_CONE = 0.4
+WALL_PARALLEL = 0.9
+#: a sheet's side is the scan's own when this many of its (sampled) points see a wall
+#: behind them and this share of those agree on the side
+WALL_MIN_POINTS = 10
+WALL_AGREEMENT = 0.9
+#: points looked from (every m // WALL_SAMPLE-th), each voting for its sheet
+WALL_SAMPLE = 30_000
+#: a neighbour lies across a wall (stacked) when its offset along either normal exceeds
+#: this share of its distance (acos(0.7) = 46 deg of the normal), beside a point else
+STACKED = 0.7
+#: the sheet label of points whose side the scan itself decided (see
+#: :func:`orient_normals_consistent`): no vote against a nominal changes it
+SIDE_KNOWN = -1
+
+
+def wall_sides(
+    P: np.ndarray,
+    Ns: np.ndarray,
+    at: np.ndarray | None = None,
+    tree: cKDTree | None = None,
+) -> np.ndarray:
+    """(a,) +1 where another skin of the scan lies behind a point along its normal (a thin
+    wall's: the normal points outwards), -1 where it lies in front, 0 where neither or both.
+
+    The nearest scan point to ``P + a n`` for each probe distance ``a``
+    (:data:`WALL_PROBES`, mm) counts if it lies within :data:`WALL_CONE` ``a`` of the
+    probe (or 0.75 x the point's spacing, when larger), stacked along the normal and with
+    a parallel normal: the first such distance on each side is where the other skin is.
+
+    Parameters
+    ----------
+    P : (m, 3) scan points, mm.  Ns : (m, 3) their unit normals.
+    at : (a,) indices of the points looked from (default: all).  tree : ``cKDTree(P)``.
+    """
+    tree = tree or cKDTree(P)
+    at = np.arange(len(P)) if at is None else np.asarray(at)
+    X0, N0 = P[at], Ns[at]
+    d1, _ = tree.query(X0, k=2, workers=-1)
+    reach = 0.75 * d1[:, 1]
+    hit = np.full((2, len(at)), np.inf)
+    for side, sgn in enumerate((1.0, -1.0)):
+        for a in WALL_PROBES:
+            idx = np.flatnonzero(np.isinf(hit[side]))
+            if not len(idx):
+                break
+            cone = np.maximum(WALL_CONE * a, reach[idx])
+            # a bounded search (most probes of a single skin find nothing near): the same
+            # nearest point wherever one lies within the cone, index len(P) where none does
+            dist, j = tree.query(
+                X0[idx] + sgn * a * N0[idx], distance_upper_bound=float(cone.max()), workers=-1
+            )
+            found = dist < cone
+            idx, j, dist = idx[found], j[found], dist[found]
+            d = P[j] - X0[idx]
+            ok = np.abs(np.einsum("ij,ij->i", N0[idx], Ns[j])) > WALL_PARALLEL
+            ok &= np.abs(np.einsum("ij,ij->i", d, N0[idx])) > STACKED * np.linalg.norm(d, axis=1)
+            hit[side, idx[ok]] = a
+    front, behind = hit
+    out = np.zeros(len(at), dtype=np.int8)
+    out[behind < front] = 1
+    out[front < behind] = -1
+    return out
+
+
+def orient_normals_consistent(
+    P: np.ndarray, Ns: np.ndarray, k: int = 10, tree: cKDTree | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Give unsigned normals (m, 3) one consistent side per connected sheet of the scan,
+    and the outward side where the scan shows it.
+
+    The sign is propagated along a minimum spanning tree of the k-NN graph weighted by
+    ``1 - |n_i . n_j|`` (Hoppe et al. 1992), over the pairs that lie on one smooth skin
+    (:data:`TANGENT_EDGE`, :data:`TANGENT_PARALLEL`): each point takes the side of its
+    parent. Where a sheet's points see another skin behind them (:func:`wall_sides`: a
+    thin wall scanned from both sides) its side is outward, away from that skin, and its
+    label is :data:`SIDE_KNOWN`. The side of every other sheet is arbitrary: the caller
+    chooses it (e.g. by a vote against a posed nominal,
+    :func:`qifreport.registration.deformable.orient_scan_normals`): on a wall deflected by
+    more than half its thickness the nearest nominal skin is the other one, so the scan's
+    own evidence comes first.
+
+    Returns
+    -------
+    normals : (m, 3) unit normals, consistently signed within each sheet.
+    labels : (m,) int sheet label of each point (>= 0), or :data:`SIDE_KNOWN`.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import (
+        breadth_first_order,
+        connected_components,
+        minimum_spanning_tree,
+    )
+
+    m = len(P)
+    tree = tree or cKDTree(P)
+    k = min(k, m - 1)
+    # (the arrays of every pair, 35 MB each for 400k points, are dropped once used: on a
+    # large scan this runs beside the part's preparation, and the two peaks add up)
+    nb = tree.query(P, k=k + 1, workers=-1)[1]
+    i = np.repeat(np.arange(m), k)
+    j = nb[:, 1:].ravel()
+    del nb
+    L, off, par = (np.empty(len(i)) for _ in range(3))
+    # the pairs in blocks (their (E, 3) offsets and normals, 105 MB each for 400k points, are
+    # not all held at once); rows gathered by np.take (qifreport.registration.arrays)
+    for s in range(0, len(i), _PAIR_BLOCK):
+        b = slice(s, s + _PAIR_BLOCK)
+        Ni, Nj = np.take(Ns, i[b], axis=0), np.take(Ns, j[b], axis=0)
+        d = np.take(P, j[b], axis=0) - np.take(P, i[b], axis=0)
+        L[b] = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+        off[b] = np.maximum(
+            np.abs(np.einsum("ij,ij->i", d, Ni)), np.abs(np.einsum("ij,ij->i", d, Nj))
+        )
+        par[b] = np.abs(np.einsum("ij,ij->i", Ni, Nj))
+    keep = (off < TANGENT_EDGE * L) & (par > TANGENT_PARALLEL)
+    beside = (off < STACKED * L) & (par > 0.7)  # not across a wall, nor a sharp crease
+    pi, pj = i[beside], j[beside]
+    i, j = i[keep], j[keep]
+    w = 1.0 - par[keep] + 1e-6
+    del L, off, par, keep, beside
+    G = coo_matrix((w, (i, j)), shape=(m, m)).tocsr()
+    del i, j, w
+    G = G.maximum(G.T)
+    # each edge once (the upper triangle): Kruskal sorts half as many weights and meets
+    # every edge in the same order, so the tree is the same
+    T = minimum_spanning_tree(sp.triu(G, format="csr"))
+    del G
+    T = T.maximum(T.T)
+    n_comp, labels = connected_components(T, directed=False)
+    # parent of every point in a breadth-first tree of its component (roots: themselves),
+    # one search from a hub joined to each component's first point
+    roots = np.unique(labels, return_index=True)[1]
+    hub = coo_matrix((np.ones(len(roots)), (np.full(len(roots), m), roots)), shape=(m + 1, m + 1))
+    T = (sp.block_diag((T, sp.csr_matrix((1, 1)))) + hub).tocsr()
+    _, pred = breadth_first_order(T, m, directed=False)
+    pred = pred[:m].copy()
+    pred[roots] = roots
+    # a point's side relative to its root is the product of the edge signs along its tree
+    # path: pointer doubling, log2(depth) vectorised steps
+    flip = np.where(np.einsum("ij,ij->i", Ns, Ns[pred]) < 0, -1.0, 1.0)
+    up = pred.copy()
+    while np.any(up != up[up]):
+        flip *= flip[up]
+        up = up[up]
+    flip *= flip[up]  # the roots' own sign, +1
+    out = Ns * flip[:, None]
+    # the sheets whose points see the wall's other skin: outward, away from it
+    # (a sample: its points vote for their sheets)
+    probe = np.arange(0, m, max(1, m // WALL_SAMPLE))
+    sides = np.zeros(m, dtype=np.int8)
+    sides[probe] = wall_sides(P, out, probe, tree)
+    pos = np.bincount(labels, weights=sides > 0, minlength=n_comp)
+    neg = np.bincount(labels, weights=sides < 0, minlength=n_comp)
+    seen = pos + neg
+    known = (seen >= WALL_MIN_POINTS) & (np.maximum(pos, neg) >= WALL_AGREEMENT * seen)
+    inward = known & (neg > pos)
+    out[inward[labels]] *= -1.0
+    # the scraps between them (points at creases and rims, whose PCA normals no tangent
+    # pair joins) take their known neighbours' side, not across a wall; once (a second
+    # round, from scraps to scraps, turned more of the bracket's points inwards than right)
+    ask = ~known[labels[pi]] & known[labels[pj]]
+    agree = np.sign(np.einsum("ij,ij->i", out[pi[ask]], out[pj[ask]]))
+    votes = np.bincount(labels[pi[ask]], weights=agree, minlength=n_comp)
+    out[(votes < 0)[labels]] *= -1.0
+    known |= votes != 0
+    labels = np.where(known[labels], SIDE_KNOWN, labels)
+    return out, labels
+
+
+def oriented_normals(P: np.ndarray, k: int = 12) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals (m, 3) of the scan points ``P`` (m, 3), mm, from the PCA of their ``k``
+    nearest neighbours (:func:`pca_normals`), signed consistently per connected sheet, and
+    each point's sheet label (:func:`orient_normals_consistent`).
+
+    Both depend only on the points' relative positions: a rigid motion of the scan turns
+    the normals with it and keeps the labels, so they can be measured before the scan is
+    placed.
+    """
+    tree = cKDTree(P)
+    return orient_normals_consistent(P, pca_normals(P, k, tree=tree), tree=tree)
