@@ -43,7 +43,7 @@ from threadpoolctl import ThreadpoolController
 from .block_lanczos import lowest_modes
 from .deformable import DeformResult, Match, ScanMatcher, coverage_radius, orient_scan_normals
 from .icp import robust_scale
-from .linalg import SPDSolver
+from .linalg import SPDSolver, default_backend
 from .mesh import MeshOperators, bounding_diagonal
 from .normals import pca_normals
 
@@ -175,20 +175,18 @@ class BendingBasis:
 
 def part_solver(V: np.ndarray, basis: BendingBasis | None = None) -> SPDSolver:
     """The sparse solver for the bending systems of the part with vertices ``V`` (n, 3) mm
-    (GB-CICP's full steps, the basis' shifted operator): SuperLU orders them by nested
-    dissection of ``V``, CHOLMOD by its own analysis, unless the part's ``basis`` carries
-    the order its own factorisation found with this backend. Then that order is taken as
-    is: the same factors, bit for bit, without the search (CHOLMOD's METIS on the 201k
-    vertices of ``bench/scale.py``: 1.5 s, against 0.1 s)."""
-    solver = SPDSolver(points=V)
-    if (
+    (GB-CICP's full steps, the basis' shifted operator): a nested dissection orders them
+    (SuperLU's of ``V``, CHOLMOD's METIS), unless the part's ``basis`` carries the order its
+    own factorisation found with this backend. Then that order is taken as is: the same
+    factors, bit for bit, without the search (METIS on the 201k vertices of
+    ``bench/scale.py``: 1.5 s, against 0.1 s)."""
+    known = (
         basis is not None
         and basis.order is not None
-        and basis.order_backend == solver.backend
+        and basis.order_backend == default_backend()
         and len(basis.order) == len(V)
-    ):
-        return SPDSolver(points=V, order=basis.order)
-    return solver
+    )
+    return SPDSolver(points=V, order=basis.order if known else None)
 
 
 #: seed of every pseudo-random vector of :func:`bending_basis` (start vector, restarts and

@@ -167,11 +167,9 @@ class SPDSolver:
                 options={"SymmetricMode": True},
             )
             return lu.solve
-        if len(self._perm) != A.shape[0]:
-            raise ValueError(f"an order of {len(self._perm)} for a {A.shape[0]}-unknown system")
         p, inv = self._perm, self._inv
         lu = spla.splu(
-            sp.csc_matrix(A[p][:, p]),
+            self._reordered(A),
             permc_spec="NATURAL",
             diag_pivot_thresh=0.0,
             options={"SymmetricMode": True},
@@ -181,6 +179,14 @@ class SPDSolver:
             return lu.solve(np.ascontiguousarray(b[p]))[inv]
 
         return solve
+
+    def _reordered(self, A: sp.csc_matrix) -> sp.csc_matrix:
+        """``A`` with its rows and columns in the solver's order (``ValueError`` for an order
+        of another size)."""
+        p = self._perm
+        if len(p) != A.shape[0]:
+            raise ValueError(f"an order of {len(p)} for a {A.shape[0]}-unknown system")
+        return sp.csc_matrix(A[p][:, p])
 
     def _analyze(self, A: sp.csc_matrix):
         """CHOLMOD's symbolic analysis of ``A``: METIS's order for a mesh's system (given
@@ -200,9 +206,7 @@ class SPDSolver:
         postorder included), so the same solutions, without the search (METIS: 1.5 s on
         201k unknowns, against 0.1 s)."""
         p, inv = self._perm, self._inv
-        if len(p) != A.shape[0]:
-            raise ValueError(f"an order of {len(p)} for a {A.shape[0]}-unknown system")
-        Ap = sp.csc_matrix(A[p][:, p])
+        Ap = self._reordered(A)
         with self._one_thread():
             if self._symbolic is None:
                 self._symbolic = _cholmod_analyze(Ap, ordering_method="natural")
