@@ -1,4 +1,4 @@
-"""How much of each NIST drawing qifreport measures (issue 22): per shared NIST AP242 model,
+"""How much of each NIST drawing qifreport measures: per shared NIST AP242 model,
 its PMI items (geometric tolerances other than surface profiles, and dimensions), how many
 are measured on the perfect part (every vertex at zero deviation and a full-coverage sample
 of the exact B-rep as its scan points, so what is counted is what the part's geometry and the

@@ -11,7 +11,7 @@ mm), wall time (median of ``--repeats`` runs, s; the method call only -- the rig
 "rigid" -- with what depends only on the nominal built once per part: the mesh operators and
 GB-CICP's bending basis, whose time is the ``prepare_s`` column; the scan normals are
 estimated once per scan and given to every method, as the product does), and the paper's
-figures beside ours (Table 2 fandisk, Table 1 controller ~ our housing, Table 5 seconds,
+figures beside ours (Table 2 fandisk, Table 1 controller ~ our housing, Table 5 times in seconds,
 Section 8.1 scan-to-model residuals; biharmonic rows only, the paper's generator).
 
 Parts: the fandisk (100 mm diagonal, subdivided once, 2 views, 3 mm clamp dropouts) and the
@@ -67,7 +67,7 @@ PEER_STEPS = {
     "default": None,
     "reduced": [[0.01, 10, 0.5, 3], [0.02, 5, 0.5, 3], [0.01, 0, 0.0, 3]],
 }
-# paper: (RMS, max, P95) of Table 2 (fandisk) / Table 1 (controller), Table 5 seconds (CPU),
+# paper: (RMS, max, P95) of Table 2 (fandisk) / Table 1 (controller), Table 5 CPU times,
 # Section 8.1 scan-to-model residual (fandisk), mm / s
 _T2 = {
     "rigid": (1.41, np.nan, np.nan),

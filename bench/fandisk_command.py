@@ -13,7 +13,7 @@ measured vertices (RMS, P95, max; mm), as ``bench/compare.py`` scores it.
 
     python bench/fandisk_command.py [--runs 3] [--seed 0]
 
-Target (issue 23): the whole command <= 3 units at <= 0.03 mm recovery (P95). The
+Target: the whole command <= 3 units at <= 0.03 mm recovery (P95). The
 ``default`` column divides by scipy's default ``splu`` (COLAMD, no symmetric mode: about
 twice as slow, so half the units); the target is judged on the product's options.
 """

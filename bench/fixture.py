@@ -1,4 +1,4 @@
-"""Fixture equivalence (issue 21): does the restrained virtual fixture give the decision a
+"""Fixture equivalence: does the restrained virtual fixture give the decision a
 physical fixture gives, on free states and defects made by physics, not by our prior?
 
 For each part, randomised cases: a free (stress-free) shape made of the lowest elastic

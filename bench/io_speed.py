@@ -11,7 +11,7 @@ what they compute, this script how long they take; medians of ``--runs``).
 
 Each row is printed beside a unit measured in the same run: one ``numpy.linalg.svd`` of a
 600 x 600 matrix, so that the ratio column is comparable across machines. The former test
-bounds (2.0 s, 3.0 s, 2.0 s per view, 10 s) are printed beside them.
+bounds are printed beside them.
 
     python bench/io_speed.py [--runs 5]
 """

@@ -1,4 +1,4 @@
-"""Mesh quality of the two B-rep meshers (issue 20, item 1): BRepMesh + long-edge bisection
+"""Mesh quality of the two B-rep meshers: BRepMesh + long-edge bisection
 (:func:`qifreport.step.tessellate.tessellate`, today's default) against gmsh
 (:func:`qifreport.step.gmsh_mesh.gmsh_tessellate`), on ``samples/panel.step`` and every
 NIST file in ``../shared/step/nist``.

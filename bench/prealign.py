@@ -18,7 +18,7 @@ A deformed part has no exact rigid answer: the rigid refinement started *at the 
 truth* already ends ~1.5 degrees / 4.4 mm (fandisk) from it, the compromise the deformable
 stage later removes. So three success levels are printed:
 
-* ``ok_truth``: the issue's bound against the generator frame (rotation < 1 degree and
+* ``ok_truth``: the success bound against the generator frame (rotation < 1 degree and
   displacement of the scan centroid < 0.5 % of the diagonal);
 * ``ok_ref``: the same bound against the *reference*, the same final refinement
   (:func:`qifreport.registration.prealign.refine_pose`) started at the ground truth -- the success

@@ -1,4 +1,4 @@
-"""Restrained against free: what holding the part at its clamps costs (issue 21's time bar:
+"""Restrained against free: what holding the part at its clamps costs (the bar:
 a restrained inspection of the panel with a warm cache costs no more than the free one).
 
 The whole command as a user runs it (QIF + PDF), the sample panel's warped scan, each

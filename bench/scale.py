@@ -1,4 +1,4 @@
-"""Scale run (issue 7): a 600 mm part, a ~200k-vertex nominal and a ~400k-point scan.
+"""Scale run: a 600 mm part, a ~200k-vertex nominal and a ~400k-point scan.
 
 The thin shell (:func:`qifreport.simulate.shapes.thin_shell`) scaled to 600 mm and meshed
 at ~200k vertices, deformed by the analytic free state to about the paper's real-part

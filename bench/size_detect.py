@@ -1,4 +1,4 @@
-"""Size detection (issue 19, item 3): the trim-edge size rule on the simulated shell.
+"""Size detection: the trim-edge size rule on the simulated shell.
 
 The 170 x 110 mm thin shell (:func:`qifreport.simulate.shapes.thin_shell`) in its analytic
 free state (:func:`qifreport.simulate.cases.make_case`, amplitudes 1 % and 2 % of the

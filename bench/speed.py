@@ -1,16 +1,16 @@
-"""The whole command on the sample panel, as a user runs it (issue 23): warm and cold cache.
+"""The whole command on the sample panel, as a user runs it: warm and cold cache.
 
 ``qifreport samples/panel.step samples/panel_scan.ply --profile`` (QIF + PDF written and
 validated) is run ``--runs`` times with an empty per-part cache (cold: the part is read,
 meshed and prepared) and ``--runs`` times with that cache filled (warm). Printed: the median
 wall time of each, the median of every stage of ``--profile``, the peak resident memory, the
 cache entry's size, and a machine unit measured in the same run (one k-d tree query of the
-scan's points against the nominal's vertices, the physical floor the issue names), so a
+scan's points against the nominal's vertices, the physical floor of the command), so a
 figure can be read as a ratio on another machine.
 
     python bench/speed.py [--runs 3] [--scan samples/panel_scan.ply]
 
-Targets (issue 23): warm <= 2.0 s, cold <= 8 s, cache entry <= 30 MiB.
+The targets (warm, cold, the cache entry's size) are in ``docs/benchmarks.md``.
 """
 
 from __future__ import annotations

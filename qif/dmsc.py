@@ -74,7 +74,7 @@ __all__ = [
     "dmsc_findings",
 ]
 
-#: the time limit of one DMSC run, seconds (the corpus takes 0.05 s a file; about 0.3 s/MB)
+#: the time limit of one DMSC run, seconds (far above what a document of the corpus takes)
 DMSC_TIMEOUT_S = 300.0
 #: the most bytes one DMSC run reads of linked documents, all of them together (200 MiB)
 LINKED_BYTES_BUDGET = 2 * MAX_DOCUMENT_BYTES

@@ -2,7 +2,7 @@
 
 The same XSDs as :mod:`.lxml_validator`, checked by an independent implementation, identity
 constraints included (:func:`validate_xmlschema`). The schema is loaded once per process and
-schema folder (:func:`xmlschema_schema`, 5-10 s), the remote xmldsig import mapped to a
+schema folder (:func:`xmlschema_schema`, a costly load), the remote xmldsig import mapped to a
 local copy (:func:`qifreport.qif.xsd.dsig_path`).
 
 Workarounds, both for defects of xmlschema:
@@ -65,7 +65,7 @@ log = logging.getLogger("qifreport.validate")
 
 @functools.lru_cache(maxsize=4)
 def xmlschema_schema(sd: Path, register_substitutes: bool = True) -> Any:
-    """The QIF schema as an ``xmlschema.XMLSchema10`` (5-10 s the first time).
+    """The QIF schema as an ``xmlschema.XMLSchema10`` (loaded once: a costly build).
 
     Parameters
     ----------

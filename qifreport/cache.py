@@ -100,23 +100,8 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: version of the entry layout; bump it whenever :class:`PartState` or anything it holds
-#: changes shape
-#: 2: module paths under the one import root qifreport.* (pickles name them)
-#: 3: the header carries an HMAC-SHA256 under the per-user secret ``<cache>/.key``
-#: 4: zones carry ``min_coverage``; mesh nominals are stored with consistent winding; a
-#:    whole-part PMI profile is the general zone (entries of 3 hold the old zones)
-#: 5: STEP nominals meshed by gmsh by default (the key names the mesher)
-#: 6: vertex deviations from the scan points' own residuals (the prepared bands are kept)
-#: 7: supplemental faces (in no solid) left out of the mesh; zones carry their footprints
-#: 8: STEP nominals carry the B-rep's corner normals (Nominal.brep_normals)
-#: 10: STEP nominals carry their feature characteristics and datums (Nominal.plan); no
-#:    feature tolerance or dimension is a not-evaluated zone
-#: 11: STEP nominals carry their faces' STEP entity ids (Nominal.face_step_ids)
-#: 12: dimensions of a thread known (CharacteristicSpec.thread); datum target areas sized
-#: 13: geodesic balls pickled compactly (rows as counts, cols narrow: issue 23)
-#: 14: the bending basis keeps METIS's order with CHOLMOD (its default chose AMD on most
-#:    parts): an entry of 13 would go on factorising in AMD's order
+#: version of the entry layout, part of every key: an entry written by another layout of
+#: :class:`PartState` (or of anything it holds) is never read; bump it when that changes
 CACHE_FORMAT = 14
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes

@@ -2,10 +2,10 @@
 
 A block of ``b`` vectors goes through each solve with the shifted operator's factorisation:
 a sparse triangular sweep over ``b`` right-hand sides costs a few single sweeps, not ``b``
-(on the 201k-vertex part of ``bench/scale.py``, a block of 10 takes 0.15 s with CHOLMOD,
-about 2.5 single solves). The Krylov basis is kept and re-orthogonalised in full (two
-block Gram-Schmidt sweeps), so its Rayleigh quotient is the exact projection and no restart
-is needed: the subspace grows until every wanted Ritz pair meets ARPACK's own criterion,
+(a block of 10 about 2.5 single solves on large parts; ``docs/benchmarks.md``). The Krylov
+basis is kept and re-orthogonalised in full (two block Gram-Schmidt sweeps), so its Rayleigh
+quotient is the exact projection and no restart is needed: the subspace grows until every
+wanted Ritz pair meets ARPACK's own criterion,
 ``||OP x - theta x|| <= tol |theta|`` in the ``M`` norm.
 
 In the coordinates ``z = M^(1/2) phi`` the operator ``S = M^(1/2) (Q - sigma M)^-1 M^(1/2)``

@@ -223,7 +223,7 @@ class GeodesicBalls:
     radius: float
 
     def __getstate__(self) -> dict:
-        """Pickled compactly (the per-part cache, issue 23): ``rows`` (sorted, as built) as
+        """Pickled compactly (the per-part cache): ``rows`` (sorted, as built) as
         the count of each source's entries, ``cols`` in the narrowest unsigned integer type
         that holds them; :meth:`__setstate__` restores the same arrays exactly."""
         state = dict(self.__dict__)

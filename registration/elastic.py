@@ -2,7 +2,7 @@
 
 A compliant part has no single shape until it is clamped (ISO 10579; ASME Y14.5 restraint
 notes): what it does between its clamps is decided by its elasticity. This module holds
-that elasticity for the fixture (issue 21): a tetrahedral mesh of the part's solid (a STEP
+that elasticity for the fixture: a tetrahedral mesh of the part's solid (a STEP
 part's from gmsh, :func:`qifreport.step.gmsh_mesh.gmsh_solid_mesh`; a sheet's mid-surface
 thickened, :mod:`qifreport.registration.sheet_solid`), quadratic tetrahedra (a thin wall in
 bending does not lock: the displacement is quadratic through each element), assembled and

@@ -92,7 +92,7 @@ class GBCICPParams:
         tolerance is no defect the verdict could turn on; on a stiff part measured almost
         perfectly the robust scale is the scanner's noise (microns), and ``flag_k`` scales of
         it flag the chord and normal-estimation error of every small radius, which is no
-        sign of a fit gone wrong (issue 20). The flags themselves, and so the hold-outs
+        sign of a fit gone wrong. The flags themselves, and so the hold-outs
         around a defect's shoulders, do not depend on it.
     holdout_factor : withhold measurement within this many coverage radii of a flagged vertex.
     max_flagged_fraction : fall back to the single-pass result above this fraction (0.2).
@@ -178,8 +178,8 @@ def part_solver(V: np.ndarray, basis: BendingBasis | None = None) -> SPDSolver:
     (GB-CICP's full steps, the basis' shifted operator): a nested dissection orders them
     (SuperLU's of ``V``, CHOLMOD's METIS), unless the part's ``basis`` carries the order its
     own factorisation found with this backend. Then that order is taken as is: the same
-    factors, bit for bit, without the search (METIS on the 201k vertices of
-    ``bench/scale.py``: 1.5 s, against 0.1 s)."""
+    factors, bit for bit, without the search (on a large part the search costs far more
+    than the analysis in a given order)."""
     known = (
         basis is not None
         and basis.order is not None
@@ -244,8 +244,8 @@ def bending_basis(
     mass = np.asarray(ops.M.diagonal(), dtype=np.float64)
     # one thread for every BLAS and OpenMP pool: the basis is built beside other work (the
     # free state's judgement), whose core a second thread's spinning waits would take
-    # (beside another busy process, 48 s on the fandisk with two threads, 4.7 s with one);
-    # the command line sets the same for the whole run
+    # (beside another busy process, many times slower with two threads than with one); the
+    # command line sets the same for the whole run
     with ThreadpoolController().limit(limits=1):
         if n <= 4 * (k + BASIS_BLOCK):
             if check is not None:

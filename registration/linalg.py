@@ -44,11 +44,10 @@ log = logging.getLogger(__name__)
 BACKEND_ENV = "QIFREPORT_SPARSE"
 
 #: CHOLMOD's ordering of a mesh's system (a solver given the unknowns' ``points``). Its
-#: default takes AMD unless AMD's fill is large, and so AMD on the fandisk's bending system
-#: (28,910 vertices): 4.65M nonzeros in ``L``, a numeric factorisation of 0.25 CPU-s.
-#: METIS's nested dissection: 3.53M and 0.17 CPU-s, for 0.19 s of analysis, once per part
-#: (the basis keeps the order). On the 201k vertices of ``bench/scale.py`` the default
-#: takes METIS already.
+#: default takes AMD unless AMD's fill is large, and so AMD on the fandisk's bending system,
+#: where METIS's nested dissection fills a quarter less and factorises faster, for an
+#: analysis paid once per part (the basis keeps the order); on the large sheet of
+#: ``bench/scale.py`` the default takes METIS already (``python bench/factorisation.py``).
 CHOLMOD_MESH_ORDERING = "metis"
 
 
@@ -82,7 +81,7 @@ class SPDSolver:
     order : (n,) a fill-reducing permutation of the unknowns, instead of finding one: for
         SuperLU instead of ``points`` (e.g. a block order keeping each vertex's unknowns
         together; with neither, SuperLU's own minimum-degree order is used); for CHOLMOD
-        instead of its analysis' ordering (AMD or METIS: 1.5 s of METIS on a 201k-vertex
+        instead of its analysis' ordering (AMD or METIS, whose search is costly on a large
         part). An earlier solver's :attr:`order` for the same pattern gives its very
         factors: the same solutions, bit for bit.
     """
@@ -117,11 +116,11 @@ class SPDSolver:
         """CHOLMOD's BLAS (the system's OpenBLAS) and OpenMP on one thread for the call.
 
         A solve of one vector is a pair of triangular sweeps: a second BLAS thread gains
-        nothing, and its spinning wait takes the core from other work. Beside another busy
-        process, the fandisk's bending basis (202 solves) took 48 s with every pool at two
-        threads, 10 s with CHOLMOD's at one (4.7 s with all at one, as
-        :func:`~qifreport.registration.gbcicp.bending_basis` and the command line set); a
-        large factorisation is ~8 % slower on one thread."""
+        nothing, and its spinning wait takes the core from other work: beside another busy
+        process, the fandisk's bending basis (202 solves) is several times slower with every
+        pool at two threads than with CHOLMOD's at one, and fastest with all at one, as
+        :func:`~qifreport.registration.gbcicp.bending_basis` and the command line set; a
+        large factorisation is only slightly slower on one thread."""
         if self._pools is None:
             self._pools = ThreadpoolController()
         return self._pools.limit(limits=1)
@@ -203,8 +202,8 @@ class SPDSolver:
     def _factor_cholmod_ordered(self, A: sp.csc_matrix) -> Callable[[np.ndarray], np.ndarray]:
         """CHOLMOD on ``A`` reordered by the given permutation, analysed in that (natural)
         order: the factors CHOLMOD makes of ``A`` when its own analysis chose this order (its
-        postorder included), so the same solutions, without the search (METIS: 1.5 s on
-        201k unknowns, against 0.1 s)."""
+        postorder included), so the same solutions, without the search (METIS's, costly on a
+        large part)."""
         p, inv = self._perm, self._inv
         Ap = self._reordered(A)
         with self._one_thread():

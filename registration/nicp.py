@@ -18,8 +18,8 @@ of ``D^T W_D D`` is fixed, so per iteration only the values are refilled (a vect
 The matrix is factorised once per stiffness level (CHOLMOD reusing its symbolic analysis when
 installed, else SuperLU in a block nested-dissection order); the further iterations of a
 level, where only a few gate weights differ, solve the exact system by conjugate gradients
-preconditioned with that factor (4-11 CG iterations on the fandisk, against 8-15 s for a
-SuperLU factorisation of the 115,640 unknowns).
+preconditioned with that factor (a few CG iterations on the fandisk, far cheaper than a
+SuperLU factorisation of its 115,640 unknowns).
 
 Choices stated:
 

@@ -8,11 +8,10 @@ separator is read off the matrix's own graph: the points of one half coupled to 
 With the graph of a wide stencil (the Hessian bending energy couples 2-rings) the separator
 is as wide as the stencil, as it must be for the halves to decouple.
 
-Measured (SuperLU in symmetric mode on GB-CICP's full-step matrix, CPU seconds of one
-factorisation; ``python bench/factorisation.py``): on the 28,910-vertex fandisk the
-same time as SuperLU's minimum-degree order (0.48 s against 0.46-0.53 s, 9.5M against 8.7M
-nonzeros in the factors); on the 201k-vertex sheet of ``bench/scale.py`` 2.1x faster
-(2.8 s against 5.9 s; 58M against 84M nonzeros), the order itself 1.3 s.
+Against SuperLU's minimum-degree order (SuperLU in symmetric mode on GB-CICP's full-step
+matrix; ``python bench/factorisation.py``, figures in ``docs/benchmarks.md``): about the
+same factorisation on the 28,910-vertex fandisk, about half of it on the 201k-vertex sheet
+of ``bench/scale.py``, with fewer nonzeros in the factors.
 """
 
 from __future__ import annotations

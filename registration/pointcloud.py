@@ -610,8 +610,7 @@ def unique_points(P: np.ndarray) -> tuple[np.ndarray, int]:
     Two points are duplicates when their coordinates are equal (``-0.0 == 0.0``). Each row is
     hashed to 64 bits; a sort of the hashes finds the candidates (no duplicate: done, one
     ``np.sort``); equal hashes are confirmed on the coordinates, and a hash collision between
-    distinct points (odds ~ m^2 / 2^65) falls back to an exact row sort. O(m log m); about
-    2 s for 10 M points.
+    distinct points (odds ~ m^2 / 2^65) falls back to an exact row sort. O(m log m).
 
     Parameters
     ----------

@@ -301,7 +301,7 @@ def prealign(
     seed : seed of keypoint sampling, RANSAC and the random restarts.
     params : settings (:class:`PrealignParams`).
     model : :func:`prepare_model` of ``(V, F)``, to reuse across scans of one part (the model
-        side costs ~2 s on a 29k-vertex mesh); its ``params`` are used unless ``params`` is
+        side is the costlier half); its ``params`` are used unless ``params`` is
         given (the model-side settings -- scales, keypoints -- are always the model's).
 
     Returns

@@ -1,6 +1,6 @@
 """A registration-quality surface mesh of a B-rep through gmsh, with per-triangle face ids.
 
-The alternative to :func:`qifreport.step.tessellate.tessellate` (issue 20, item 1): the same
+The alternative to :func:`qifreport.step.tessellate.tessellate` : the same
 result type (:class:`~qifreport.step.tessellate.FaceMesh`), so a caller switches by calling
 :func:`gmsh_tessellate` instead. gmsh meshes every B-rep surface with isotropic, good-quality
 triangles (Frontal-Delaunay in the surface's parameter plane) on a conforming discretisation

@@ -44,9 +44,9 @@ from the sender tells it apart. Part 21 edition 3 external references (a REFEREN
 are not supported: ids defined there count as missing.
 
 Cost: the checks are passes over the record text (no record is parsed but the last one and
-a few whose type is asked); on the 16,954 records of ``nist_ftc_06``, about 0.07-0.08 s
-(a regular-expression pass for the references, substring scans for solids and
-representations), against about 0.3 s to split the file and 1.5-3 s for the whole read.
+a few whose type is asked: a regular-expression pass for the references, substring scans for
+solids and representations), a small part of what splitting the file, let alone reading it,
+costs.
 """
 
 from __future__ import annotations

@@ -632,7 +632,7 @@ class P21Model:
         Notes
         -----
         One regular-expression pass over all record text answers the usual case (nothing
-        missing, about 0.05 s for 17,000 records); only then is the index of
+        missing); only then is the index of
         :meth:`referrers` built, to name the referencing records.
         """
         raw = self.raw

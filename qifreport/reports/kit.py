@@ -152,7 +152,7 @@ def join_names(names: list[str], limit: int = 4) -> str:
 
 
 def _matplotlib_fonts() -> Path:
-    """matplotlib's bundled TrueType folder, found without importing matplotlib (0.1-0.2 s)."""
+    """matplotlib's bundled TrueType folder, found without importing matplotlib (a slow import)."""
     import importlib.util
 
     spec = importlib.util.find_spec("matplotlib")

@@ -8,7 +8,7 @@ nodes, interpolated with the hit's barycentric coordinates), so the points lie o
 surface to the surface evaluator's precision, not to a chord height. Range noise is added
 along the view direction.
 
-Used by the tests and benchmarks of real CAD nominals (issue 20, item 6): a part's own
+Used by the tests and benchmarks of real CAD nominals: a part's own
 perfect scan must PASS, and a bump on a toleranced face must FAIL that tolerance.
 """
 

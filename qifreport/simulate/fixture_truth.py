@@ -1,4 +1,4 @@
-"""The simulated physical fixture: what a fixtured CMM would measure (issue 21's truth).
+"""The simulated physical fixture: what a fixtured CMM measures, the restrained fixture's truth.
 
 A compliant part's free state is its stress-free shape, which is not the nominal: it was
 warped when it cooled (the lowest elastic modes at bounded energy, the paper's stated

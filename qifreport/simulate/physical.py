@@ -1,4 +1,4 @@
-"""Free states made by the part's own elasticity (issue 21's physical simulator).
+"""Free states made by the part's own elasticity (the physical simulator).
 
 A compliant part's free state is what its elasticity makes of the loads it saw: it lay on
 supports under gravity, its clamp points were pushed while it cooled or was handled. Such
