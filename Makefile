@@ -25,7 +25,7 @@ $(VENV)/.installed: pyproject.toml
 
 # the package's bytecode, written at every install (only what changed): its modules are then
 # read, not compiled, by every command, even where the environment forbids writing bytecode
-# (PYTHONDONTWRITEBYTECODE, as in many containers): 0.2-0.4 s of each command's start-up
+# (PYTHONDONTWRITEBYTECODE, as in many containers)
 install: $(VENV)/.installed
 	@$(PY) -m compileall -q -j 0 step registration metrology qif qifreport >/dev/null
 
