@@ -248,9 +248,43 @@ def bending_basis(
     # well below it, so the modes nearest the shift are the lowest ones
     shift = -1e-3 * (np.pi * np.sqrt(k / max(area, 1e-300))) ** 4
     mass = np.asarray(ops.M.diagonal(), dtype=np.float64)
+    mu, Phi, solver = _eigenpairs(ops, k, tol, shift, mass, solver, check)
+    order = np.argsort(mu, kind="stable")
+    mu, Phi = canonical_modes(mu[order], Phi[:, order], ops.area, tol=tol)
+    sparse = solver is not None and solver.order is not None
+    return BendingBasis(
+        Phi=np.ascontiguousarray(Phi),
+        mu=mu,
+        energy=ops.energy,
+        seconds=time.perf_counter() - t0,
+        order=solver.order if sparse else None,
+        order_backend=solver.backend if sparse else None,
+    )
+
+
+def _eigenpairs(
+    ops: MeshOperators,
+    k: int,
+    tol: float,
+    shift: float,
+    mass: np.ndarray,
+    solver: SPDSolver | None,
+    check: Callable[[], None] | None,
+) -> tuple[np.ndarray, np.ndarray, SPDSolver | None]:
+    """The ``k`` lowest pairs of ``Q phi = mu M phi`` for :func:`bending_basis` (arguments
+    as there; ``shift`` below the lowest eigenvalue, 1/mm^4, ``mass`` (n,) the diagonal of
+    ``M``, mm^2): densely for a small part, else by block shift-invert Lanczos.
+
+    Returns
+    -------
+    mu : (k,) eigenvalues, 1/mm^4 (unsorted).  Phi : (n, k) M-orthonormal modes.
+    solver : the sparse solver that factorised the shifted operator (None when dense and
+        none was given).
+    """
+    n = ops.Q.shape[0]
     # one thread for every BLAS and OpenMP pool: the basis is built beside other work (the
     # free state's judgement), whose core a second thread's spinning waits would take
-    # (beside another busy process, 48 s on the fandisk with two threads, 4.7 s with one);
+    # (beside another busy process, two threads took ten times as long as one on the fandisk);
     # the command line sets the same for the whole run
     with ThreadpoolController().limit(limits=1):
         if n <= 4 * (k + BASIS_BLOCK):
@@ -275,17 +309,7 @@ def bending_basis(
             # basis, over-converged as much at tol)
             found = lowest_modes(solve, mass, k, shift, rng, tol=1e-2 * tol, block=BASIS_BLOCK)
             mu, Phi = found.mu, found.Phi
-    order = np.argsort(mu, kind="stable")
-    mu, Phi = canonical_modes(mu[order], Phi[:, order], ops.area, tol=tol)
-    sparse = solver is not None and solver.order is not None
-    return BendingBasis(
-        Phi=np.ascontiguousarray(Phi),
-        mu=mu,
-        energy=ops.energy,
-        seconds=time.perf_counter() - t0,
-        order=solver.order if sparse else None,
-        order_backend=solver.backend if sparse else None,
-    )
+    return mu, Phi, solver
 
 
 def canonical_modes(

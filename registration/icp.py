@@ -138,6 +138,33 @@ class RigidResult:
         return P @ self.R.T + self.t
 
 
+def _rigid_step(
+    X: np.ndarray,
+    V: np.ndarray,
+    idx: np.ndarray,
+    n: np.ndarray,
+    r: np.ndarray,
+    w: np.ndarray,
+    step: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One pose update of :func:`rigid_icp` for the posed scan points ``X`` (m, 3) mm,
+    their nearest vertices ``idx`` (m,) of ``V`` with normals ``n`` (m, 3), signed
+    point-to-plane residuals ``r`` (m,) mm and weights ``w`` (m,): the weighted Kabsch fit
+    to the tangent-plane projections (``step="kabsch"``) or a Gauss-Newton point-to-plane
+    step. Returns the incremental rotation (3, 3) and translation (3,) mm."""
+    targets = X - r[:, None] * n
+    if step == "kabsch":
+        return kabsch(X, targets, w)
+    return point_to_plane_step(X, np.take(V, idx, axis=0), n, w)
+
+
+def _small_step(dR: np.ndarray, dt: np.ndarray, tol: float, diag: float) -> bool:
+    """Whether the update ``(dR, dt)`` turns less than ``tol`` radians and moves less than
+    ``tol`` model diagonals (``diag`` mm): the ICP has converged."""
+    angle = np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))
+    return bool(angle < tol and np.linalg.norm(dt) < tol * diag)
+
+
 def rigid_icp(
     V: np.ndarray,
     N: np.ndarray,
@@ -200,15 +227,9 @@ def rigid_icp(
         scale = max(robust_scale(r[near]), 1e-9 * diag)
         w = tukey_weights(r, scale) * near
         history.append(float(np.sqrt(np.sum(w * r**2) / max(w.sum(), 1e-300))))
-        targets = X - r[:, None] * n
-        if step == "kabsch":
-            dR, dt = kabsch(X, targets, w)
-
-        else:
-            dR, dt = point_to_plane_step(X, np.take(V, idx, axis=0), n, w)
+        dR, dt = _rigid_step(X, V, idx, n, r, w, step)
         R, t = dR @ R, dR @ t + dt
-        angle = np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))
-        if angle < tol and np.linalg.norm(dt) < tol * diag:
+        if _small_step(dR, dt, tol, diag):
             converged = True
             break
     rms = history[-1] if history else float("nan")

@@ -99,7 +99,13 @@ from .mesh import bounding_diagonal, vertex_normals, wall_thickness
 from .pointcloud import validate_scan
 from .pose_fit import PoseFit, refine_pose, score_pose
 from .pose_geometry import pose_distance, rotation_angle_deg
-from .pose_model import PrealignParams, PreparedModel, prepare_model, prepare_scan
+from .pose_model import (
+    PrealignParams,
+    PreparedModel,
+    PreparedScan,
+    prepare_model,
+    prepare_scan,
+)
 from .pose_starts import descriptor_hypotheses, initial_starts
 
 __all__ = [
@@ -283,6 +289,45 @@ def already_in_frame(
     return bool(ok)
 
 
+def _model_of(
+    V: np.ndarray, F: np.ndarray, p: PrealignParams, seed: int, model: PreparedModel | None
+) -> PreparedModel:
+    """The prepared model of the nominal ``(V, F)``: ``model`` when given (ValueError when
+    it was prepared for another mesh), else prepared here with the settings ``p``."""
+    if model is None:
+        return prepare_model(V, F, p, seed=seed)
+    if np.shape(V) != model.V.shape:
+        raise ValueError("model was prepared for another mesh (vertex count differs)")
+    return model
+
+
+def _descriptor_step(
+    model: PreparedModel,
+    scan: PreparedScan,
+    S: np.ndarray,
+    tau: float,
+    p: PrealignParams,
+    rng: np.random.Generator,
+) -> tuple[list, int, int]:
+    """Steps 1-4 of the search on the prepared sides: the descriptor matches and the RANSAC
+    hypotheses scored on the scan sample ``S`` (s, 3) mm under the gate ``tau`` (mm).
+
+    Returns
+    -------
+    hyps : the hypotheses, best first.  n_matches : descriptor matches.
+    best_ransac : inliers of the best hypothesis (0 without one).
+    """
+    hyps, n_matches = descriptor_hypotheses(model, scan, S, tau, p, rng)
+    log.debug(
+        "descriptor matches %d, %d RANSAC hypotheses; best sample cost %.3f",
+        n_matches,
+        len(hyps),
+        hyps[0][0].cost if hyps else 1.0,
+    )
+    best_ransac = hyps[0][3] if hyps else 0
+    return hyps, n_matches, best_ransac
+
+
 def _search_basins(
     model: PreparedModel,
     P: np.ndarray,
@@ -419,22 +464,12 @@ def prealign(
     t_start = time.perf_counter()
     p = params or (model.params if model is not None else PrealignParams())
     P = validate_scan(P)
-    if model is None:
-        model = prepare_model(V, F, p, seed=seed)
-    elif np.shape(V) != model.V.shape:
-        raise ValueError("model was prepared for another mesh (vertex count differs)")
+    model = _model_of(V, F, p, seed, model)
     rng = np.random.default_rng(seed)
     tau = p.gate * model.diag
     scan = prepare_scan(P, model, seed)
     S = P[rng.choice(len(P), size=min(p.sample_points, len(P)), replace=False)]
-    hyps, n_matches = descriptor_hypotheses(model, scan, S, tau, p, rng)
-    log.debug(
-        "descriptor matches %d, %d RANSAC hypotheses; best sample cost %.3f",
-        n_matches,
-        len(hyps),
-        hyps[0][0].cost if hyps else 1.0,
-    )
-    best_ransac = hyps[0][3] if hyps else 0
+    hyps, n_matches, best_ransac = _descriptor_step(model, scan, S, tau, p, rng)
     n_starts, n_screened, finals, others, rigid = _search_basins(
         model, P, S, hyps, tau, p, rng, seed
     )
