@@ -635,6 +635,66 @@ def _refused_findings(run: _Run, work: etree._ElementTree, path: Path) -> list[F
     return out
 
 
+def _format_finding(rule: str, message: str) -> Finding:
+    """A ``CheckFormat`` error of the run itself (no line): timeout, XSLT error, no report."""
+    return Finding("dmsc", None, rule, message, "CheckFormat")
+
+
+def _backslash_uris(tree: etree._ElementTree) -> tuple[etree._ElementTree, list[Finding]]:
+    """The document the checks run on and an ``external-URI`` finding per ``URI`` with
+    Windows separators: when there is one, a copy of ``tree`` (the base URL and the line
+    numbers kept) with them turned into ``/`` (libxslt aborts on them), else ``tree``."""
+    extra: list[Finding] = []
+    bad = [
+        u
+        for u in tree.getroot().iterfind(
+            f"{{{QIF_NS}}}ExternalQIFReferences/{{{QIF_NS}}}ExternalQIFDocument/{{{QIF_NS}}}URI"
+        )
+        if "\\" in (u.text or "")
+    ]
+    if not bad:
+        return tree, extra
+    work = copy.deepcopy(tree)  # keeps the base URL and the line numbers
+    for uri_el in work.getroot().iter(f"{{{QIF_NS}}}URI"):
+        text = (uri_el.text or "").strip()
+        if "\\" in text:
+            uri_el.text = text.replace("\\", "/")
+            extra.append(
+                Finding(
+                    "dmsc",
+                    uri_el.sourceline,
+                    "external-URI",
+                    f"URI '{text}' is not a valid URI reference (backslash): an XSLT processor "
+                    f"cannot load it (libxslt aborts); checked as '{uri_el.text}'",
+                    "CheckFormat",
+                )
+            )
+    return work, extra
+
+
+def _fixed_findings(run: _Run, path: Path) -> list[Finding]:
+    """A ``CheckDocuments`` warning per URI with Windows separators the resolver fixed in a
+    linked document (its file named relative to the checked document ``path``)."""
+    out: list[Finding] = []
+    for p, line, old, new in dict.fromkeys(run.fixed):
+        try:
+            shown = os.path.relpath(p, path.parent)
+        except ValueError:
+            shown = str(p)
+        out.append(
+            Finding(
+                "dmsc",
+                None,
+                "CheckFormat:external-URI",
+                f"in linked document {shown} line {line}: URI '{old}' is not a valid URI reference "
+                f"(backslash); checked as '{new}'",
+                "CheckDocuments",
+                "warning",
+            )
+        )
+    return out
+
+
 def dmsc_findings(
     tree: etree._ElementTree, path: Path, cd: Path, *, timeout: float = DMSC_TIMEOUT_S
 ) -> list[Finding]:
@@ -659,42 +719,14 @@ def dmsc_findings(
     if not timeout > 0:
         raise ValueError(f"timeout must be positive, not {timeout!r}")
     checks = _dmsc_xslt(cd)
-    extra: list[Finding] = []
-    work = tree
-    bad = [
-        u
-        for u in tree.getroot().iterfind(
-            f"{{{QIF_NS}}}ExternalQIFReferences/{{{QIF_NS}}}ExternalQIFDocument/{{{QIF_NS}}}URI"
-        )
-        if "\\" in (u.text or "")
-    ]
-    if bad:
-        work = copy.deepcopy(tree)  # keeps the base URL and the line numbers
-        for uri_el in work.getroot().iter(f"{{{QIF_NS}}}URI"):
-            text = (uri_el.text or "").strip()
-            if "\\" in text:
-                uri_el.text = text.replace("\\", "/")
-                extra.append(
-                    Finding(
-                        "dmsc",
-                        uri_el.sourceline,
-                        "external-URI",
-                        f"URI '{text}' is not a valid URI reference (backslash): an XSLT processor "
-                        f"cannot load it (libxslt aborts); checked as '{uri_el.text}'",
-                        "CheckFormat",
-                    )
-                )
+    work, extra = _backslash_uris(tree)
     run = _Run(roots=_roots(tree, path), deadline=time.monotonic() + timeout)
     box = _transform(checks, work, run, timeout)
     if box is None or isinstance(box.get("error"), _Timeout):
         return [
             *extra,
-            Finding(
-                "dmsc",
-                None,
-                "timeout",
-                f"the DMSC checks did not finish within {timeout:g} s; not checked",
-                "CheckFormat",
+            _format_finding(
+                "timeout", f"the DMSC checks did not finish within {timeout:g} s; not checked"
             ),
         ]
     refused = _refused_findings(run, work, path)
@@ -703,45 +735,21 @@ def dmsc_findings(
         detail = "; ".join(dict.fromkeys(box.get("log", []))) or str(exc)
         return [
             *extra,
-            Finding(
-                "dmsc",
-                None,
-                "xslt-error",
-                f"the DMSC checks could not run: {detail}",
-                "CheckFormat",
-            ),
+            _format_finding("xslt-error", f"the DMSC checks could not run: {detail}"),
             *refused,
         ]
     if exc is not None:
         raise exc
     result = box["result"]
-    for p, line, old, new in dict.fromkeys(run.fixed):
-        try:
-            shown = os.path.relpath(p, path.parent)
-        except ValueError:
-            shown = str(p)
-        extra.append(
-            Finding(
-                "dmsc",
-                None,
-                "CheckFormat:external-URI",
-                f"in linked document {shown} line {line}: URI '{old}' is not a valid URI reference "
-                f"(backslash); checked as '{new}'",
-                "CheckDocuments",
-                "warning",
-            )
-        )
+    extra.extend(_fixed_findings(run, path))
     report = result.getroot()
     if report is None or report.tag != "CheckReport":
         return [
             *extra,
-            Finding(
-                "dmsc",
-                None,
+            _format_finding(
                 "no-report",
                 "Check.xsl produced no CheckReport (is the root element "
                 "QIFDocument in the QIF 3.0 namespace?)",
-                "CheckFormat",
             ),
             *refused,
         ]

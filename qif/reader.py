@@ -243,6 +243,75 @@ def acceptance_from_attributes(
     )
 
 
+def _datum_labels(root: etree._Element, by_id: dict) -> dict[str, list[str]]:
+    """The datum labels of each datum reference frame of the document ``root``, by its id
+    (``by_id``: the document's elements by id)."""
+    drf_labels: dict[str, list[str]] = {}
+    for drf in root.iterfind(f"{_Q}DatumReferenceFrames/{_Q}DatumReferenceFrame"):
+        labels = []
+        for d in drf.iterfind(f"{_Q}Datums/{_Q}Datum"):
+            did = child_text(d, "q:SimpleDatum/q:DatumDefinitionId")
+            lab = child_text(by_id.get(did), "q:DatumLabel") if did else None
+            if lab:
+                labels.append(lab)
+        drf_labels[drf.get("id")] = labels
+    return drf_labels
+
+
+def _characteristic(
+    m: etree._Element, by_id: dict, drf_labels: dict[str, list[str]], ours: bool
+) -> CharacteristicResult:
+    """The characteristic measurement ``m`` with its item, nominal and definition (found in
+    ``by_id``) and its datum labels; with qifreport's statistics and acceptance when the
+    document is ``ours``."""
+    tag = etree.QName(m).localname
+    kind = tag.removesuffix("CharacteristicMeasurement")
+    item = by_id.get(child_text(m, "q:CharacteristicItemId"))
+    nominal = by_id.get(child_text(item, "q:CharacteristicNominalId")) if item is not None else None
+    definition = (
+        by_id.get(child_text(nominal, "q:CharacteristicDefinitionId"))
+        if nominal is not None
+        else None
+    )
+    status = child_text(m, "q:Status/q:CharacteristicStatusEnum") or child_text(
+        m, "q:Status/q:OtherCharacteristicStatus"
+    )
+    attrs = read_attributes(m)
+    tol = _num(child_text(definition, "q:ToleranceValue"))
+    c = CharacteristicResult(
+        kind=kind,
+        id=m.get("id"),
+        name=child_text(item, "q:Name") or child_text(definition, "q:Name"),
+        designator=child_text(item, "q:CharacteristicDesignator/q:Designator"),
+        status=status,
+        value=_num(child_text(m, "q:Value")),
+        worst_positive=_num(child_text(m, "q:WorstPositiveDeviation")),
+        worst_negative=_num(child_text(m, "q:WorstNegativeDeviation")),
+        tolerance=tol,
+        unequally_disposed=_num(child_text(definition, "q:UnequallyDisposedZone")),
+        description=child_text(definition, "q:Description"),
+        datum_labels=drf_labels.get(child_text(definition, "q:DatumReferenceFrameId"), []),
+        attributes=attrs,
+    )
+    if ours:
+        da = read_attributes(definition)
+        half = None
+        if "lower_mm" in da and "upper_mm" in da:
+            half = 0.5 * (da["upper_mm"] - da["lower_mm"])
+        c.stats = stats_from_attributes(attrs)
+        c.acceptance = acceptance_from_attributes(attrs, half)
+    return c
+
+
+def _software_version(root: etree._Element) -> str | None:
+    """The version of qifreport among the document's software definitions (the last), if any."""
+    sw_version = None
+    for sw in root.iterfind(f"{_Q}SoftwareDefinitions/{_Q}Software"):
+        if child_text(sw, "q:ApplicationName") == "qifreport":
+            sw_version = child_text(sw, "q:Version")
+    return sw_version
+
+
 def read_results(path: Path | str) -> QIFResults:
     """Read a QIF 3.0 results document (ours or another application's).
 
@@ -260,69 +329,16 @@ def read_results(path: Path | str) -> QIFResults:
     if mr is None:
         raise ValueError(f"{path.name}: no MeasurementResults (not a results document)")
 
-    drf_labels: dict[str, list[str]] = {}
-    for drf in root.iterfind(f"{_Q}DatumReferenceFrames/{_Q}DatumReferenceFrame"):
-        labels = []
-        for d in drf.iterfind(f"{_Q}Datums/{_Q}Datum"):
-            did = child_text(d, "q:SimpleDatum/q:DatumDefinitionId")
-            lab = child_text(by_id.get(did), "q:DatumLabel") if did else None
-            if lab:
-                labels.append(lab)
-        drf_labels[drf.get("id")] = labels
-
+    drf_labels = _datum_labels(root, by_id)
     ours = child_text(root, "q:Header/q:Application/q:Name") == "qifreport"
-    chars = []
     cms = mr.find(f"{_Q}MeasuredCharacteristics/{_Q}CharacteristicMeasurements")
-    for m in cms if cms is not None else []:
-        tag = etree.QName(m).localname
-        kind = tag.removesuffix("CharacteristicMeasurement")
-        item = by_id.get(child_text(m, "q:CharacteristicItemId"))
-        nominal = (
-            by_id.get(child_text(item, "q:CharacteristicNominalId")) if item is not None else None
-        )
-        definition = (
-            by_id.get(child_text(nominal, "q:CharacteristicDefinitionId"))
-            if nominal is not None
-            else None
-        )
-        status = child_text(m, "q:Status/q:CharacteristicStatusEnum") or child_text(
-            m, "q:Status/q:OtherCharacteristicStatus"
-        )
-        attrs = read_attributes(m)
-        tol = _num(child_text(definition, "q:ToleranceValue"))
-        c = CharacteristicResult(
-            kind=kind,
-            id=m.get("id"),
-            name=child_text(item, "q:Name") or child_text(definition, "q:Name"),
-            designator=child_text(item, "q:CharacteristicDesignator/q:Designator"),
-            status=status,
-            value=_num(child_text(m, "q:Value")),
-            worst_positive=_num(child_text(m, "q:WorstPositiveDeviation")),
-            worst_negative=_num(child_text(m, "q:WorstNegativeDeviation")),
-            tolerance=tol,
-            unequally_disposed=_num(child_text(definition, "q:UnequallyDisposedZone")),
-            description=child_text(definition, "q:Description"),
-            datum_labels=drf_labels.get(child_text(definition, "q:DatumReferenceFrameId"), []),
-            attributes=attrs,
-        )
-        if ours:
-            da = read_attributes(definition)
-            half = None
-            if "lower_mm" in da and "upper_mm" in da:
-                half = 0.5 * (da["upper_mm"] - da["lower_mm"])
-            c.stats = stats_from_attributes(attrs)
-            c.acceptance = acceptance_from_attributes(attrs, half)
-        chars.append(c)
+    chars = [_characteristic(m, by_id, drf_labels, ours) for m in (cms if cms is not None else [])]
 
     attrs = read_attributes(mr)
     inputs = [
         (child_text(r, "q:URI") or "", child_text(r, "q:Description") or "")
         for r in mr.iterfind(f"{_Q}ExternalFileReferences/{_Q}ExternalFileReference")
     ]
-    sw_version = None
-    for sw in root.iterfind(f"{_Q}SoftwareDefinitions/{_Q}Software"):
-        if child_text(sw, "q:ApplicationName") == "qifreport":
-            sw_version = child_text(sw, "q:Version")
     trace = mr.find(f"{_Q}InspectionTraceability")
     actual = root.find(
         f"{_Q}Results/{_Q}ActualComponentSets/{_Q}ActualComponentSet/{_Q}ActualComponent"
@@ -332,7 +348,7 @@ def read_results(path: Path | str) -> QIFResults:
         version=root.get("versionQIF"),
         qpid=child_text(root, "q:QPId"),
         application=child_text(root, "q:Header/q:Application/q:Name"),
-        software_version=sw_version,
+        software_version=_software_version(root),
         status=(
             child_text(mr, "q:InspectionStatus/q:InspectionStatusEnum")
             or child_text(mr, "q:InspectionStatus/q:OtherInspectionStatus")

@@ -43,9 +43,10 @@ from qifreport.registration.methods import METHODS
 from qifreport.restraint import DEFAULT_PAD_RADIUS
 
 from .cache import default_cache_dir, part_state, sha256
+from .console import summary
 from .jsonio import json_default
 from .options import InspectJob, InspectOptions
-from .pipeline import EXIT_ERROR, run_job, summary
+from .pipeline import EXIT_ERROR, run_job
 from .profile import Profiler
 
 __all__ = ["SUBCOMMANDS", "build_parser", "inspect_options", "main"]

@@ -10,6 +10,8 @@ missing); ``<stem>.pdf``, the one-page conformance report; with ``html`` the int
 deviation map ``<stem>.html`` (:mod:`qifreport.reports.html`); with ``json`` the summary
 ``<stem>.json`` (``schemas/summary-1.schema.json``); with ``export_mesh`` the registered
 nominal as PLY with a per-vertex ``deviation``.
+
+The text the command prints on stdout (the summary) is :mod:`qifreport.console`'s.
 """
 
 from __future__ import annotations
@@ -31,24 +33,18 @@ import numpy as np
 from qifreport import __version__
 from qifreport.atomic_io import atomic_write_many, output_lock, remove_stale_temps
 from qifreport.errors import InputError
-from qifreport.metrology.acceptance import Acceptance
 from qifreport.metrology.bands import ToleranceZone
 from qifreport.metrology.inspection import (
-    FREE_STATE_CONFORMS,
-    FREE_STATE_LOCAL_DEFECTS,
-    FREE_STATE_UNCERTAIN,
     InspectionParams,
     InspectionResult,
     ScanMeasures,
     inspect,
     start_scan_measures,
 )
-from qifreport.metrology.params import method_label
 from qifreport.metrology.repeatability import KEEP_FRACTION, resample_mask
 from qifreport.metrology.repeatability import apply as apply_repeatability
 from qifreport.registration.linalg import default_backend
 from qifreport.registration.pointcloud import read_scan
-from qifreport.registration.restrained import Restraint
 from qifreport.registration.thinning import ThinningReport, nominal_spacing, thin_scan
 
 from .cache import CacheOutcome, PartState, part_state, sha256, store_basis
@@ -74,7 +70,6 @@ __all__ = [
     "resampled_runs",
     "run_job",
     "scan_input",
-    "summary",
     "write_ply_with_scalar",
 ]
 
@@ -111,166 +106,6 @@ def write_ply_with_scalar(
         fh.write(header.encode("ascii"))
         fh.write(vert.tobytes())
         fh.write(face.tobytes())
-
-
-def decision_text(a: Acceptance) -> str:
-    """The decision rule of an :class:`~qifreport.metrology.acceptance.Acceptance` and the
-    expanded uncertainty it weighed, for the reports."""
-    if a.proven_in is None:
-        return f"{a.decision_rule} (no uncertainty weighed)"
-    med, top = a.uncertainty_mm
-    return (
-        f"{a.decision_rule}, expanded uncertainty U (k = 2) median {med:.4f} mm, max {top:.4f} mm"
-    )
-
-
-def summary(res: InspectionResult) -> str:
-    """A short human-readable summary of the inspection."""
-    a, s = res.acceptance, res.vertex_stats
-    lines = [
-        f"verdict: {res.verdict}",
-        f"registration: {fixture_text(res)}",
-        f"deviation (area-weighted, {s.n} scored vertices): RMS {s.rms:.3f}  max {s.max_abs:.3f}"
-        f"  P95 {s.p95:.3f}  P99.9 {s.p999:.3f}  mean {s.mean:+.3f} mm",
-        f"area criterion: {100 * a.in_tolerance_fraction:.2f} % in tolerance "
-        f"(>= {100 * a.min_fraction:.0f} %) {'ok' if a.area_ok else 'FAILED'}",
-        f"region criterion: largest out-of-tolerance region {a.largest_region_area:.1f} mm^2 "
-        f"(<= {a.max_region_area:g} mm^2) {'ok' if a.region_ok else 'FAILED'}; "
-        f"{len(a.regions)} region(s)",
-        f"decision rule: {decision_text(a)}",
-        f"coverage: {100 * a.coverage:.1f} % of the nominal area scored"
-        + (
-            f" ({res.edge_excluded_area:.0f} mm^2 along sharp creases not scored)"
-            if res.edge_excluded_area > 0
-            else ""
-        ),
-    ]
-    if res.prealign is not None and res.prealign.method != "identity":
-        lines.append(res.prealign.summary())
-    for r in a.regions[:5]:
-        c = r.centroid
-        lines.append(
-            f"  region {r.area:7.1f} mm^2  peak {r.peak:+.3f} mm"
-            f"  at ({c[0]:.1f}, {c[1]:.1f}, {c[2]:.1f})"
-        )
-    lines.append("tolerances (each toleranced surface on its own faces):")
-    for z in res.zones:
-        za, zs = z.acceptance, z.stats
-        cov = "" if z.coverage is None else f", {100 * z.coverage.coverage:.0f} % scored"
-        lines.append(
-            f"  {z.zone.key:8s} {z.status:12s}  {z.zone.describe()}: "
-            f"{100 * za.in_tolerance_fraction:.1f} % in band, largest region "
-            f"{za.largest_region_area:.1f} mm^2, max |dev| {zs.max_abs:.3f} mm{cov}"
-            + ("" if z.fixtured else " (free state)")
-        )
-    if res.not_evaluated:
-        lines.append(
-            f"  {len(res.not_evaluated)} PMI item(s) listed, not scored "
-            "(see the JSON 'not_evaluated')"
-        )
-    if res.characteristics:
-        lines.append("feature characteristics (the drawing's form, orientation, location, size):")
-        for c in res.characteristics[:12]:
-            sp = c.spec
-            kind = sp.kind if sp.kind != "dimension" else sp.dim_type or "dimension"
-            frame = f" |{'|'.join(sp.datums)}|" if sp.datums else ""
-            value = "-" if c.value is None else f"{c.value:.4f}"
-            tail = c.reason if c.status in ("NOT_MEASURED", "FAIL") else f"limit {sp.limits_text()}"
-            lines.append(f"  {sp.key:8s} {c.status:13s} {kind}{frame} {value}: {tail}")
-        if len(res.characteristics) > 12:
-            lines.append(f"  ... {len(res.characteristics) - 12} more (see the JSON/QIF)")
-    h = res.hygiene
-    if h is not None and (
-        h.boundary_edges or h.non_manifold_edges or h.degenerate_faces or h.duplicate_faces
-    ):
-        lines.append(f"nominal: {h.describe()}")
-    if res.added is not None:
-        a = res.added
-        lines.append(
-            f"added material (data-referenced, scan points): P99.9 signed "
-            f"{a.p999_signed:+.3f} mm, {100 * a.frac_above:.3f} % beyond "
-            f"+{a.threshold:g} mm; {a.describe()}"
-            + ("" if a.passed else " FAILED")
-            + ("" if a.fail_on or not a.found else " (reported, not judged)")
-        )
-    if res.repeatability is not None:
-        lines.append(res.repeatability.describe())
-    if res.edges is not None and res.edges.status == "measured":
-        lines.append(res.edges.reasons()[0])
-    if res.size is not None:
-        lines += res.size.reasons()[:1]
-    lines += [f"warning: {w}" for w in res.trust_warnings()]
-    lines += [f"not measured: {w}" for w in res.not_measured()]
-    lines += [f"note: {w}" for w in res.coverage_notes()]
-    lines += [f"relaxed guard: {w}" for w in res.relaxed_guards()]
-    return "\n".join(lines)
-
-
-def restraint_text(r: Restraint) -> str:
-    """The restrained condition in one paragraph: the clamps, the model, the forces."""
-    m = r.model_info
-    mat = m.get("material")
-    material = (
-        "material not stated: forces not known"
-        if mat is None
-        else f"{mat['name']}, E {mat['E_MPa']:g} MPa, nu {mat['nu']:g}"
-    )
-    g = m.get("gravity")
-    weight = "" if g is None else f", under its own weight along ({g[0]:g}, {g[1]:g}, {g[2]:g})"
-    lines = [
-        f"restrained (ISO 10579): held at {len(r.clamps)} clamps ({m.get('clamps_source', '')}) "
-        f"by the part's elastic model ({m.get('model', '')}; {material}){weight}, judged as "
-        "held (no virtual fixture)"
-    ]
-    src = r.offset_sources or [""] * len(r.clamps)
-    for c, off, f, s in zip(r.clamps, r.offsets, r.force, src, strict=True):
-        force = f"{f:.3g} N" if r.forces_known else "force not known"
-        limit = "" if c.max_force is None else f" (limit {c.max_force:g} N)"
-        over = " OVER LIMIT" if c.name in r.over_limit else ""
-        seen = "" if s in ("", "scan") else f" [{s}]"
-        lines.append(
-            f"  clamp {c.name:<6} {c.directions:<3} offset {off:+.3f} mm{seen}  "
-            f"{force}{limit}{over}"
-        )
-    if r.forces_known:
-        lines.append(f"  total clamp force {r.total_force:.3g} N")
-    return "\n".join(lines)
-
-
-def fixture_text(res: InspectionResult) -> str:
-    """How the virtual fixture was made, for the summary."""
-    if res.restraint is not None:
-        return restraint_text(res.restraint)
-    if res.fit is None:
-        if res.fixture_decision == FREE_STATE_UNCERTAIN:
-            return (
-                f"rigid ICP (robust residual {res.rigid.scale:.3f} mm); nothing of the free "
-                "state is proven out of tolerance (it lies on a zone limit within the "
-                "measurement uncertainty), so no virtual fixture was applied"
-            )
-        if res.fixture_decision == FREE_STATE_CONFORMS:
-            return (
-                f"rigid ICP (robust residual {res.rigid.scale:.3f} mm); the free state "
-                "conforms, so no virtual fixture was needed (ISO 10579 restraint brings a "
-                "part to its drawing shape; this one is there without it)"
-            )
-        if res.fixture_decision == FREE_STATE_LOCAL_DEFECTS:
-            return (
-                f"rigid ICP (robust residual {res.rigid.scale:.3f} mm); the free state "
-                "conforms on the nominal's vertices and fails only on regions of the scan "
-                "points narrower than the mesh: no fixture bends such a defect out of a "
-                "part, so none was applied"
-            )
-        return "rigid ICP only (no virtual fixture)"
-    fit = res.fit
-    text = (
-        f"rigid ICP + virtual fixture {method_label(fit.method)} ({fit.iterations} "
-        f"iterations, robust residual {fit.scale:.3f} mm, "
-        f"largest displacement {fit.max_displacement:.3f} mm)"
-    )
-    if res.free_state is not None:
-        text += f"; free state judged first: {res.free_state}"
-    return text
 
 
 def exit_code(res: InspectionResult) -> int:
@@ -506,6 +341,72 @@ def inspect_state(
     return res
 
 
+def _provenance(
+    nom: Nominal,
+    job: InspectJob,
+    digests: dict[str, str],
+    started: datetime,
+    finished: datetime,
+):
+    """The QIF and report header of one inspection
+    (:class:`qifreport.qif.writer.Provenance`): the inputs and their SHA-256 ``digests``,
+    the part's datums and STEP ids, the job's people and serial number, when it ran."""
+    from qifreport.qif.writer import Provenance
+
+    o = job.options
+    return Provenance(
+        part_name=job.nominal.stem,
+        nominal_path=str(job.nominal),
+        scan_path=str(job.scan),
+        nominal_sha256=digests["nominal"],
+        scan_sha256=digests["scan"],
+        started=started,
+        finished=finished,
+        datums=nom.datums,
+        nominal_info=nom.info,
+        face_step_ids=nom.face_step_ids,
+        author=o.author,
+        organization=o.organization,
+        operator=o.operator,
+        serial_number=job.serial,
+    )
+
+
+def _json_writer(
+    res: InspectionResult,
+    nom: Nominal,
+    job: InspectJob,
+    digests: dict[str, str],
+    scan_report: ThinningReport | None,
+    qif_state: dict | None,
+) -> Writer:
+    """The writer of the JSON summary (``schemas/summary-1.schema.json``): the inspection's
+    :meth:`~qifreport.metrology.results.InspectionResult.to_dict` with the software, the
+    nominal, the inputs and their ``digests``, the ``scan_report`` and the QIF's
+    ``qif_state`` (filled by the QIF writer, which runs first)."""
+    doc = res.to_dict()
+    doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}
+    doc["software"] = {
+        "name": "qifreport",
+        "version": __version__,
+        "sparse_solver": default_backend(),
+    }
+    doc["nominal"] = nom.info
+    doc["inputs"] = {
+        "nominal": {"path": str(job.nominal), "sha256": digests["nominal"]},
+        "scan": {"path": str(job.scan), "sha256": digests["scan"]},
+    }
+    if scan_report is not None:
+        doc["scan_input"] = scan_report.to_dict()
+
+    def write_json(p: Path) -> None:  # runs after the QIF writer: its state is known
+        if qif_state is not None:
+            doc["qif"] = qif_state
+        p.write_text(json.dumps(finite(doc), indent=2, default=json_default, allow_nan=False))
+
+    return write_json
+
+
 def output_writers(
     res: InspectionResult,
     nom: Nominal,
@@ -531,24 +432,7 @@ def output_writers(
     qif_state = None
     prov = None
     if not (o.no_qif and o.no_pdf) or o.html:
-        from qifreport.qif.writer import Provenance
-
-        prov = Provenance(
-            part_name=job.nominal.stem,
-            nominal_path=str(job.nominal),
-            scan_path=str(job.scan),
-            nominal_sha256=digests["nominal"],
-            scan_sha256=digests["scan"],
-            started=started,
-            finished=finished,
-            datums=nom.datums,
-            nominal_info=nom.info,
-            face_step_ids=nom.face_step_ids,
-            author=o.author,
-            organization=o.organization,
-            operator=o.operator,
-            serial_number=job.serial,
-        )
+        prov = _provenance(nom, job, digests, started, finished)
     if not o.no_qif:
         from qifreport.qif.writer import build_qif
 
@@ -569,27 +453,9 @@ def output_writers(
 
         outputs.append((paths["html"], lambda p: write_html(p, res, prov, face_id=nom.face_id)))
     if job.json:
-        doc = res.to_dict()
-        doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}
-        doc["software"] = {
-            "name": "qifreport",
-            "version": __version__,
-            "sparse_solver": default_backend(),
-        }
-        doc["nominal"] = nom.info
-        doc["inputs"] = {
-            "nominal": {"path": str(job.nominal), "sha256": digests["nominal"]},
-            "scan": {"path": str(job.scan), "sha256": digests["scan"]},
-        }
-        if scan_report is not None:
-            doc["scan_input"] = scan_report.to_dict()
-
-        def write_json(p: Path) -> None:  # runs after the QIF writer: its state is known
-            if qif_state is not None:
-                doc["qif"] = qif_state
-            p.write_text(json.dumps(finite(doc), indent=2, default=json_default, allow_nan=False))
-
-        outputs.append((paths["json"], write_json))
+        outputs.append(
+            (paths["json"], _json_writer(res, nom, job, digests, scan_report, qif_state))
+        )
     if "mesh" in paths:
         outputs.append(
             (

@@ -46,6 +46,95 @@ class LanczosResult:
     converged: bool
 
 
+def _sizes(mass: np.ndarray, k: int, block: int, max_dimension: int | None) -> tuple[int, int]:
+    """The block size and the Krylov basis' largest size (a multiple of it) for ``k`` modes
+    of the (n,) positive ``mass`` (arguments as :func:`lowest_modes`); ValueError when they
+    do not fit."""
+    n = len(mass)
+    if not np.all(mass > 0):
+        raise ValueError("the mass matrix must be positive definite")
+    b = int(max(1, min(block, n)))
+    if k < 1 or k + b > n:
+        raise ValueError(f"{k} modes with blocks of {b} need more than {n} unknowns")
+    cap = int(min(n, max_dimension or 4 * k + 8 * b))
+    cap -= cap % b
+    if cap < k + b:
+        raise ValueError(f"a Krylov basis of {cap} cannot hold {k} modes and a block of {b}")
+    return b, cap
+
+
+def _ritz(H: np.ndarray, d: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` Ritz pairs of the basis' first ``d`` vectors (Rayleigh quotient ``H``,
+    at least (d, d)) with the largest theta (the lowest mu), descending: (k,) values and
+    (d, k) coordinates in the basis."""
+    theta, Y = sla.eigh(0.5 * (H[:d, :d] + H[:d, :d].T))
+    return theta[::-1][:k], Y[:, ::-1][:, :k]
+
+
+def _orthogonalise(W: np.ndarray, Kt: np.ndarray, d: int) -> np.ndarray:
+    """Two sweeps of block Gram-Schmidt of the rows of ``W`` (b, n), in place, against the
+    basis' first ``d`` rows of ``Kt`` (full re-orthogonalisation). Returns the (b, d)
+    projections removed: block row of ``K^T S K`` when ``W`` holds the images ``S K``."""
+    C = W @ Kt[:d].T
+    W -= C @ Kt[:d]
+    C2 = W @ Kt[:d].T
+    W -= C2 @ Kt[:d]
+    C += C2
+    return C
+
+
+def _next_block(
+    W: np.ndarray, Kt: np.ndarray, H: np.ndarray, j: int, d: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Take the images ``W`` (b, n) of the newest block (basis rows ``j..d`` of ``Kt``)
+    into the Rayleigh quotient ``H`` (its block row and column ``j``, in place) and
+    orthogonalise them against the basis (``W`` in place).
+
+    Returns
+    -------
+    Qn : (n, b) the next block: the remainder, orthonormalised.
+    weak : (b,) bool, its columns whose remainder vanished (the Krylov space closed on an
+        invariant subspace), to be replaced by fresh directions.
+    """
+    size = float(np.sqrt(np.einsum("ij,ij->i", W, W).max()))  # the images' largest norm
+    C = _orthogonalise(W, Kt, d)
+    H[j:d, :d] = C  # block row j of K^T S K, and by symmetry its block column
+    H[:d, j:d] = C.T
+    Qn, R = np.linalg.qr(W.T)
+    scale = np.abs(np.diag(R))
+    weak = scale <= 1e-10 * max(size, 1e-300)
+    return Qn, weak
+
+
+def _converged_pairs(
+    H: np.ndarray, W: np.ndarray, j: int, d: int, k: int, tol: float
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The ``k`` Ritz pairs of the first ``d`` basis vectors (as :func:`_ritz`) if each
+    meets ``||S z - theta z|| <= tol theta``, else None; ``W`` (b, n) is the orthogonalised
+    remainder of the newest block (rows ``j..d``)."""
+    theta, Y = _ritz(H, d, k)
+    # S (K y) - theta (K y) = W^T y_last: the residual of each Ritz pair, its norm from the
+    # (b, b) Gram matrix of W
+    Yl = Y[j:d]
+    res = np.sqrt(np.maximum(np.einsum("ij,ij->j", Yl, (W @ W.T) @ Yl), 0.0))
+    return (theta, Y) if np.all(res <= tol * np.abs(theta)) else None
+
+
+def _fresh_directions(
+    Qn: np.ndarray, weak: np.ndarray, Kt: np.ndarray, d: int, rng: np.random.Generator
+) -> None:
+    """Replace the columns ``weak`` (b,) bool of the next block ``Qn`` (n, b), in place, by
+    random directions orthonormal to the basis' first ``d`` rows of ``Kt`` and to the
+    block's other columns (where the Krylov space closed on an invariant subspace)."""
+    n = Qn.shape[0]
+    Ft = rng.standard_normal((int(weak.sum()), n))
+    for _ in range(2):
+        Ft -= (Ft @ Kt[:d].T) @ Kt[:d]
+        Ft -= (Ft @ Qn[:, ~weak]) @ Qn[:, ~weak].T
+    Fq, _ = np.linalg.qr(Ft.T)
+    Qn[:, weak] = Fq
+
+
 def lowest_modes(
     solve: Callable[[np.ndarray], np.ndarray],
     mass: np.ndarray,
@@ -80,15 +169,7 @@ def lowest_modes(
     """
     mass = np.asarray(mass, dtype=np.float64)
     n = len(mass)
-    if not np.all(mass > 0):
-        raise ValueError("the mass matrix must be positive definite")
-    b = int(max(1, min(block, n)))
-    if k < 1 or k + b > n:
-        raise ValueError(f"{k} modes with blocks of {b} need more than {n} unknowns")
-    cap = int(min(n, max_dimension or 4 * k + 8 * b))
-    cap -= cap % b
-    if cap < k + b:
-        raise ValueError(f"a Krylov basis of {cap} cannot hold {k} modes and a block of {b}")
+    b, cap = _sizes(mass, k, block, max_dimension)
     root = np.sqrt(mass)
 
     def op(Z: np.ndarray) -> np.ndarray:
@@ -105,54 +186,27 @@ def lowest_modes(
     d, solves = b, 0
     converged = False
 
-    def ritz(d: int) -> tuple[np.ndarray, np.ndarray]:
-        """The ``k`` Ritz pairs of the basis' first ``d`` vectors with the largest theta
-        (the lowest mu), descending."""
-        theta, Y = sla.eigh(0.5 * (H[:d, :d] + H[:d, :d].T))
-        return theta[::-1][:k], Y[:, ::-1][:, :k]
-
     while True:
         j = d - b  # the newest block: rows j..d
         W = op(Kt[j:d])
         solves += b
-        size = float(np.sqrt(np.einsum("ij,ij->i", W, W).max()))  # the images' largest norm
-        # two sweeps of block Gram-Schmidt against the whole basis (full re-orthogonalisation)
-        C = W @ Kt[:d].T
-        W -= C @ Kt[:d]
-        C2 = W @ Kt[:d].T
-        W -= C2 @ Kt[:d]
-        C += C2
-        H[j:d, :d] = C  # block row j of K^T S K, and by symmetry its block column
-        H[:d, j:d] = C.T
-        # the next block: the remainder, orthonormalised; a row that vanished (the Krylov
-        # space closed on an invariant subspace) is replaced by a fresh direction
-        Qn, R = np.linalg.qr(W.T)
-        scale = np.abs(np.diag(R))
-        weak = scale <= 1e-10 * max(size, 1e-300)
+        Qn, weak = _next_block(W, Kt, H, j, d)
         # where the space closed, its Ritz pairs are exact but may miss a multiple
         # eigenvalue's other directions: no convergence is declared until they had a chance
         if d >= k + b and not weak.any():
-            theta, Y = ritz(d)
-            # S (K y) - theta (K y) = W^T y_last: the residual of each Ritz pair, its norm
-            # from the (b, b) Gram matrix of W
-            Yl = Y[j:d]
-            res = np.sqrt(np.maximum(np.einsum("ij,ij->j", Yl, (W @ W.T) @ Yl), 0.0))
-            if np.all(res <= tol * np.abs(theta)):
+            pairs = _converged_pairs(H, W, j, d, k, tol)
+            if pairs is not None:
+                theta, Y = pairs
                 converged = True
                 break
         if d + b > cap:
             break
         if weak.any():
-            Ft = rng.standard_normal((int(weak.sum()), n))
-            for _ in range(2):
-                Ft -= (Ft @ Kt[:d].T) @ Kt[:d]
-                Ft -= (Ft @ Qn[:, ~weak]) @ Qn[:, ~weak].T
-            Fq, _ = np.linalg.qr(Ft.T)
-            Qn[:, weak] = Fq
+            _fresh_directions(Qn, weak, Kt, d, rng)
         Kt[d : d + b] = Qn.T
         d += b
     if not converged:
-        theta, Y = ritz(d)
+        theta, Y = _ritz(H, d, k)
         log.warning("block Lanczos: %d modes not converged in a basis of %d", k, d)
     # the modes as rows, the basis then released before they are scaled and transposed
     Zt = Y.T @ Kt[:d]

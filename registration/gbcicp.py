@@ -32,7 +32,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as sla
@@ -41,7 +41,13 @@ from scipy.spatial import cKDTree
 from threadpoolctl import ThreadpoolController
 
 from .block_lanczos import lowest_modes
-from .deformable import DeformResult, Match, ScanMatcher, coverage_radius, orient_scan_normals
+from .deformable import (
+    DeformResult,
+    Match,
+    ScanMatcher,
+    coverage_radius,
+    orient_scan_normals,
+)
 from .icp import robust_scale
 from .linalg import SPDSolver, default_backend
 from .mesh import MeshOperators, bounding_diagonal
@@ -242,6 +248,40 @@ def bending_basis(
     # well below it, so the modes nearest the shift are the lowest ones
     shift = -1e-3 * (np.pi * np.sqrt(k / max(area, 1e-300))) ** 4
     mass = np.asarray(ops.M.diagonal(), dtype=np.float64)
+    mu, Phi, solver = _eigenpairs(ops, k, tol, shift, mass, solver, check)
+    order = np.argsort(mu, kind="stable")
+    mu, Phi = canonical_modes(mu[order], Phi[:, order], ops.area, tol=tol)
+    sparse = solver is not None and solver.order is not None
+    return BendingBasis(
+        Phi=np.ascontiguousarray(Phi),
+        mu=mu,
+        energy=ops.energy,
+        seconds=time.perf_counter() - t0,
+        order=solver.order if sparse else None,
+        order_backend=solver.backend if sparse else None,
+    )
+
+
+def _eigenpairs(
+    ops: MeshOperators,
+    k: int,
+    tol: float,
+    shift: float,
+    mass: np.ndarray,
+    solver: SPDSolver | None,
+    check: Callable[[], None] | None,
+) -> tuple[np.ndarray, np.ndarray, SPDSolver | None]:
+    """The ``k`` lowest pairs of ``Q phi = mu M phi`` for :func:`bending_basis` (arguments
+    as there; ``shift`` below the lowest eigenvalue, 1/mm^4, ``mass`` (n,) the diagonal of
+    ``M``, mm^2): densely for a small part, else by block shift-invert Lanczos.
+
+    Returns
+    -------
+    mu : (k,) eigenvalues, 1/mm^4 (unsorted).  Phi : (n, k) M-orthonormal modes.
+    solver : the sparse solver that factorised the shifted operator (None when dense and
+        none was given).
+    """
+    n = ops.Q.shape[0]
     # one thread for every BLAS and OpenMP pool: the basis is built beside other work (the
     # free state's judgement), whose core a second thread's spinning waits would take
     # (beside another busy process, many times slower with two threads than with one); the
@@ -269,17 +309,7 @@ def bending_basis(
             # basis, over-converged as much at tol)
             found = lowest_modes(solve, mass, k, shift, rng, tol=1e-2 * tol, block=BASIS_BLOCK)
             mu, Phi = found.mu, found.Phi
-    order = np.argsort(mu, kind="stable")
-    mu, Phi = canonical_modes(mu[order], Phi[:, order], ops.area, tol=tol)
-    sparse = solver is not None and solver.order is not None
-    return BendingBasis(
-        Phi=np.ascontiguousarray(Phi),
-        mu=mu,
-        energy=ops.energy,
-        seconds=time.perf_counter() - t0,
-        order=solver.order if sparse else None,
-        order_backend=solver.backend if sparse else None,
-    )
+    return mu, Phi, solver
 
 
 def canonical_modes(
@@ -392,6 +422,347 @@ def _anneal(
     return max(lam * factor, lam_to), settle, False
 
 
+@dataclass
+class _Fit:
+    """One GB-CICP fit: its fixed setup and the state its passes share.
+
+    Attributes
+    ----------
+    p : the resolved parameters.
+    V0 : (n, 3) posed nominal vertices, mm.
+    match : the scan matcher (nearest scan point, normal residual mm, coverage).
+    Q : (n, n) sparse bending operator.
+    solver : the sparse SPD solver of the full-resolution steps.
+    data_scale : (n,) data weight per vertex: its area (mm^2), or ones with ``lambda0``.
+    lam_start, lam_first, lam_refit : stiffness at the start, at the end of the first pass
+        and in the refit passes (mm^4 with the band-limit parametrisation).
+    eps : (n, n) sparse mass regularisation added to every full-resolution system.
+    modal : whether the passes iterate in the bending basis.
+    basis : the bending basis (modal solver), else the one passed in or None.
+    rows : (r,) vertices sampled by the modal iterations, every ``stride``-th (modal).
+    stride : sampling step of ``rows``.
+    Phi_r : (r, k) the basis at ``rows`` (modal).
+    progress : optional ``progress(n_iterations)`` callback.
+    history : one dict per iteration (pass_no, lam, rms mm, delta mm, scale mm).
+    C : (k, 3) modal coefficients, warm-started from pass to pass (modal), else None.
+    lam_from : stiffness the next full-resolution refit starts from.
+    """
+
+    p: GBCICPParams
+    V0: np.ndarray
+    match: ScanMatcher
+    Q: sp.spmatrix
+    solver: SPDSolver
+    data_scale: np.ndarray
+    lam_start: float
+    lam_first: float
+    lam_refit: float
+    eps: sp.spmatrix
+    modal: bool
+    basis: BendingBasis | None
+    rows: np.ndarray | None = None
+    stride: int = 1
+    Phi_r: np.ndarray | None = None
+    progress: Callable[[int], object] | None = None
+    history: list[dict] = field(default_factory=list)
+    C: np.ndarray | None = None
+    lam_from: float = 0.0
+
+    def record(self, pass_no: int, lam: float, m: Match, delta: float, scale: float, hold):
+        """Append one iteration to :attr:`history` (``hold`` (n,) or (r,) bool: the
+        held-out vertices, left out of the RMS) and tick the progress callback."""
+        fitted = m.covered & ~hold
+        rms = float(np.sqrt(np.mean(m.r[fitted] ** 2))) if fitted.any() else np.nan
+        self.history.append(dict(pass_no=pass_no, lam=lam, rms=rms, delta=delta, scale=scale))
+        if self.progress is not None:
+            self.progress(1)
+
+    def full_step(self, lam: float, w: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """One full-resolution solve of ``(A W + lam Q) e = A W (T - V0)``: the (n, 3)
+        displacement (mm) for the weights ``w`` (n,) and the targets ``target`` (n, 3) mm."""
+        Aw = self.data_scale * w
+        solve = self.solver.factor((sp.diags(Aw) + lam * self.Q + self.eps).tocsc())
+        return solve(Aw[:, None] * (target - self.V0))
+
+    def run_pass(
+        self,
+        e: np.ndarray,
+        lam_from: float,
+        lam_to: float,
+        hold: np.ndarray,
+        pass_no: int,
+        iters: int | None = None,
+    ) -> tuple[np.ndarray, Match, np.ndarray, float]:
+        """Anneal lambda from ``lam_from`` to ``lam_to`` with full-resolution solves,
+        starting from the displacement ``e`` (n, 3) mm, the vertices ``hold`` (n,) bool
+        withheld; at most ``iters`` iterations (default the schedule's cap).
+
+        Returns
+        -------
+        e, m, w, scale : the displacement (n, 3) mm, its match, the data weights (n,) and
+            the robust scale (mm) of the last iteration.
+        """
+        p = self.p
+        lam = lam_from
+        settle = 0
+        m = self.match(self.V0 + e)
+        # graduated non-convexity in the first pass: the Welsch width starts at the largest
+        # residual and shrinks with the smoothing length, so compliance the rigid pose left
+        # (millimetres) is followed before the robust weights start rejecting outliers
+        width0 = float(np.percentile(np.abs(m.r[m.covered]), 99)) if pass_no == 1 else 0.0
+
+        def floor(lam):
+            return width0 * (lam / lam_from) ** 0.25
+
+        w, scale = _weights(m, p, hold, floor(lam))
+        cap = p.max_iter + p.settle_iter if iters is None else iters
+        for _ in range(cap):
+            e_new = self.full_step(lam, w, m.target)
+            delta = float(np.abs(e_new - e).max())
+            e = e_new
+            m = self.match(self.V0 + e)
+            w, scale = _weights(m, p, hold, floor(max(lam * p.anneal, lam_to)))
+            self.record(pass_no, lam, m, delta, scale, hold)
+            lam, settle, done = _anneal(lam, lam_to, p.anneal, settle, delta, p)
+            if done:
+                break
+        return e, m, w, scale
+
+    def modal_pass(
+        self, lam_from: float, lam_to: float, hold: np.ndarray, C: np.ndarray, pass_no: int
+    ) -> np.ndarray:
+        """Iterate in the bending basis: ``e = Phi C`` with
+        ``(Phi^T A W Phi + lam diag(mu)) C = Phi^T A W (T - V0)`` on the sampled rows,
+        lambda annealed from ``lam_from`` to ``lam_to``, starting from ``C`` (k, 3) and
+        withholding ``hold`` (n,) bool. Returns the final coefficients (k, 3)."""
+        p, rows, Phi_r, V0 = self.p, self.rows, self.Phi_r, self.V0
+        m = self.match(V0[rows] + Phi_r @ C, rows)
+        hold_r = hold[rows]
+        width0 = 0.0
+        if pass_no == 1 and m.covered.any():
+            width0 = float(np.percentile(np.abs(m.r[m.covered]), 99))
+        A_r = self.data_scale[rows] * self.stride
+        lam = lam_from
+        e_r = Phi_r @ C
+        settle = 0
+        for _ in range(p.max_iter + p.settle_iter):
+            w, scale = _weights(m, p, hold_r, width0 * (lam / lam_from) ** 0.25)
+            aw = A_r * w
+            use = aw > 0
+            Pu = Phi_r[use]
+            G = Pu.T @ (aw[use, None] * Pu)
+            G[np.diag_indices_from(G)] += lam * self.basis.mu + 1e-12 * max(np.trace(G), 1e-300)
+            C = np.linalg.solve(G, Pu.T @ (aw[use, None] * (m.target[use] - V0[rows][use])))
+            e_new = Phi_r @ C
+            delta = float(np.abs(e_new - e_r).max())
+            e_r = e_new
+            m = self.match(V0[rows] + e_r, rows)
+            self.record(pass_no, lam, m, delta, scale, hold_r)
+            lam, settle, done = _anneal(lam, lam_to, p.modal_anneal, settle, delta, p)
+            if done:
+                break
+        return C
+
+    def first_pass(self) -> tuple[np.ndarray, Match, np.ndarray, float]:
+        """The first pass from the rigid pose, nothing withheld (as :meth:`run_pass`).
+
+        Modal: the basis' iterations (warm-starting :attr:`C`), then the full-resolution
+        polish at the band limit; full: the paper's schedule."""
+        n = len(self.V0)
+        hold = np.zeros(n, dtype=bool)
+        p = self.p
+        if self.modal:
+            self.C = self.modal_pass(self.lam_start, self.lam_first, hold, self.C, 1)
+            return self.run_pass(
+                self.basis.Phi @ self.C,
+                self.lam_first,
+                self.lam_first,
+                hold,
+                1,
+                iters=max(p.polish_iter, 1),
+            )
+        return self.run_pass(np.zeros((n, 3)), self.lam_start, self.lam_first, hold, 1)
+
+    def refit(
+        self, e: np.ndarray, hold: np.ndarray, pass_no: int
+    ) -> tuple[np.ndarray, Match, np.ndarray, float]:
+        """A refit pass from the displacement ``e`` (n, 3) mm with ``hold`` (n,) bool
+        withheld, at the refit band limit (as :meth:`run_pass`)."""
+        if self.modal:
+            self.C = self.modal_pass(self.lam_first, self.lam_first, hold, self.C, pass_no)
+            return self.run_pass(
+                self.basis.Phi @ self.C,
+                self.lam_refit,
+                self.lam_refit,
+                hold,
+                pass_no,
+                iters=max(self.p.polish_iter, 1),
+            )
+        out = self.run_pass(e, self.lam_from, self.lam_refit, hold, pass_no)
+        self.lam_from = self.lam_refit
+        return out
+
+
+def _bounded_matcher(
+    V0: np.ndarray, normals: np.ndarray, P: np.ndarray, Ns: np.ndarray, p: GBCICPParams
+) -> ScanMatcher:
+    """The matcher of the nominal's vertices ``V0`` (n, 3) mm with normals ``normals``
+    (n, 3) onto the scan ``P`` (m, 3) mm with normals ``Ns`` (m, 3), its nearest-point
+    search bounded (the unseen side of a part is expensive to match): well beyond the
+    coverage radius and the largest normal residual the rigid pose left, mm."""
+    n = len(V0)
+    match = ScanMatcher(
+        P, Ns, normals, p.coverage_radius, signed=p.signed_compat, gate=p.normal_gate
+    )
+    probe = np.arange(0, n, max(1, n // 4000))
+    m0 = match(V0[probe], probe)
+    r0 = np.abs(m0.r[m0.covered])
+    match.max_distance = max(
+        4.0 * p.coverage_radius,
+        2.0 * float(np.percentile(r0, 99)) + p.coverage_radius if len(r0) else 0.0,
+    )
+    return match
+
+
+def _prepare(
+    V0: np.ndarray,
+    F: np.ndarray,
+    ops: MeshOperators,
+    P: np.ndarray,
+    params: GBCICPParams | None,
+    scan_normals: np.ndarray | None,
+    scan_sheets: np.ndarray | None,
+    solver: SPDSolver | None,
+    basis: BendingBasis | None,
+) -> _Fit:
+    """Set up a GB-CICP fit (arguments as :func:`gbcicp`): the resolved parameters, the
+    bounded scan matcher, the stiffness schedule and, for the modal solver, the bending
+    basis and its sampled rows."""
+    p = resolve_params(params or GBCICPParams(), V0, F, P)
+    solver = solver or part_solver(V0, basis)
+    n = len(V0)
+    Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
+    if p.signed_compat:
+        Ns = orient_scan_normals(P, Ns, V0, ops.normals, sheets=scan_sheets)
+    match = _bounded_matcher(V0, ops.normals, P, Ns, p)
+    Q = ops.Q
+    modal = p.solver == "modal"
+    if p.lambda0 is not None:
+        data_scale = np.ones(n)
+        lam_start = p.lambda0 / float(Q.diagonal().mean())
+        lam_first = lam_start * p.anneal ** (p.max_iter - 1)
+        lam_refit = lam_first * p.anneal**2
+    else:
+        data_scale = ops.area
+        lam_start = p.band_limit_start**4
+        lam_first = p.band_limit**4
+        lam_refit = p.band_limit_refit**4
+    rows, stride, Phi_r = None, 1, None
+    if modal:
+        if basis is None or basis.Phi.shape[0] != n or basis.energy != ops.energy:
+            # the fit's own solver: the shifted operator and the full steps' matrices share
+            # one sparsity pattern, so its symbolic analysis serves both
+            basis = bending_basis(ops, p.modes, solver=solver)
+        stride = max(1, int(np.ceil(n / max(p.modal_rows, 1))))
+        rows = np.arange(0, n, stride)
+        Phi_r = basis.Phi[rows]
+    # a whisper of mass regularisation keeps the system definite where no data reaches
+    eps = 1e-9 * lam_first * (ops.M if p.lambda0 is None else sp.eye(n))
+    return _Fit(
+        p=p,
+        V0=V0,
+        match=match,
+        Q=Q,
+        solver=solver,
+        data_scale=data_scale,
+        lam_start=lam_start,
+        lam_first=lam_first,
+        lam_refit=lam_refit,
+        eps=eps,
+        modal=modal,
+        basis=basis,
+        rows=rows,
+        stride=stride,
+        Phi_r=Phi_r,
+        C=np.zeros((basis.Phi.shape[1], 3)) if modal else None,
+        lam_from=lam_first,
+    )
+
+
+@dataclass
+class _Passes:
+    """The outcome of the band-limited passes of :func:`_band_limited_passes`.
+
+    Attributes
+    ----------
+    e : (n, 3) the kept displacement, mm; ``m``, ``w``, ``scale`` its match, data weights
+        (n,) and robust scale (mm).
+    flagged : (n,) bool, the defect candidates; ``hold`` (n,) bool the withheld vertices.
+    passes : passes run; ``fallback`` whether the single-pass result was kept.
+    flagged_fraction : flagged (counted) over covered vertices after the first pass.
+    guard : (flagged fraction that fired the guard, its pass), (nan, 0) if it did not.
+    """
+
+    e: np.ndarray
+    m: Match
+    w: np.ndarray
+    scale: float
+    flagged: np.ndarray
+    hold: np.ndarray
+    passes: int
+    fallback: bool
+    flagged_fraction: float
+    guard: tuple[float, int]
+
+
+def _counted(flags: np.ndarray, m: Match, p: GBCICPParams) -> int:
+    """The flags (n,) bool the guard counts: those whose residual exceeds ``p.guard_floor``."""
+    return int((flags & (np.abs(m.r) > p.guard_floor)).sum())
+
+
+def _band_limited_passes(fit: _Fit, flaggable: np.ndarray | None) -> _Passes:
+    """The first pass, then refits with the flagged vertices' surroundings withheld until
+    the flags stop changing (at most ``p.passes``); the single-pass result is kept when
+    the flagged fraction exceeds ``p.max_flagged_fraction`` (the guard)."""
+    p, n = fit.p, len(fit.V0)
+    hold = np.zeros(n, dtype=bool)
+    passes, fallback = 1, False
+    guard = (float("nan"), 0)  # (flagged fraction that fired the guard, its pass)
+    # modal: each pass iterates in the bending basis (warm-started, the held-out measurement
+    # withheld), then solves at full resolution at the band limit; the flags are judged on
+    # that full-resolution residual (the basis alone leaves fine compliance that the flag
+    # test would take for defects, and the hold-outs would feed on it).
+    # full: the paper's schedule, every iteration a full-resolution solve.
+    e, m, w, scale = fit.first_pass()
+    flagged = _flag(m, p, scale, flaggable)
+    n_cov = max(int(m.covered.sum()), 1)
+    n_flagged = _counted(flagged, m, p)
+    flagged_fraction = n_flagged / n_cov
+    single = (e, m, w, scale)
+    if p.passes > 1 and flagged.any():
+        if flagged_fraction > p.max_flagged_fraction:
+            fallback, guard = True, (flagged_fraction, 1)
+        else:
+            for pass_no in range(2, p.passes + 1):
+                hold = _holdout(fit.V0 + e, flagged, p.coverage_radius * p.holdout_factor)
+                e, m, w, scale = fit.refit(e, hold, pass_no)
+                passes = pass_no
+                # re-evaluate every flag against the refit: a defect the fit never saw keeps
+                # its residual; compliance the first pass could not follow has been fit
+                new = _flag(m, p, scale, flaggable)
+                n_new = _counted(new, m, p)
+                frac = max(n_flagged, n_new) / n_cov
+                if frac > p.max_flagged_fraction:
+                    fallback, guard = True, (frac, pass_no)
+                    e, m, w, scale = single
+                    hold = np.zeros(n, dtype=bool)
+                    break
+                if np.array_equal(new, flagged):
+                    break
+                flagged, n_flagged = new, n_new
+    return _Passes(e, m, w, scale, flagged, hold, passes, fallback, flagged_fraction, guard)
+
+
 def gbcicp(
     V0: np.ndarray,
     F: np.ndarray,
@@ -429,211 +800,39 @@ def gbcicp(
         holding out the measurement around every edge would starve the refit.
     """
     t_start = time.perf_counter()
-    p = resolve_params(params or GBCICPParams(), V0, F, P)
-    solver = solver or part_solver(V0, basis)
-    n = len(V0)
-    Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
-    if p.signed_compat:
-        Ns = orient_scan_normals(P, Ns, V0, ops.normals, sheets=scan_sheets)
-    match = ScanMatcher(
-        P, Ns, ops.normals, p.coverage_radius, signed=p.signed_compat, gate=p.normal_gate
-    )
-    # bound the nearest-point search (the unseen side of a part is expensive to match):
-    # well beyond the coverage radius and the largest normal residual the rigid pose left
-    probe = np.arange(0, n, max(1, n // 4000))
-    m0 = match(V0[probe], probe)
-    r0 = np.abs(m0.r[m0.covered])
-    match.max_distance = max(
-        4.0 * p.coverage_radius,
-        2.0 * float(np.percentile(r0, 99)) + p.coverage_radius if len(r0) else 0.0,
-    )
-    Q = ops.Q
-    modal = p.solver == "modal"
-    if p.lambda0 is not None:
-        data_scale = np.ones(n)
-        lam_start = p.lambda0 / float(Q.diagonal().mean())
-        lam_first = lam_start * p.anneal ** (p.max_iter - 1)
-        lam_refit = lam_first * p.anneal**2
-    else:
-        data_scale = ops.area
-        lam_start = p.band_limit_start**4
-        lam_first = p.band_limit**4
-        lam_refit = p.band_limit_refit**4
-    if modal:
-        if basis is None or basis.Phi.shape[0] != n or basis.energy != ops.energy:
-            # the fit's own solver: the shifted operator and the full steps' matrices share
-            # one sparsity pattern, so its symbolic analysis serves both
-            basis = bending_basis(ops, p.modes, solver=solver)
-        stride = max(1, int(np.ceil(n / max(p.modal_rows, 1))))
-        rows = np.arange(0, n, stride)
-        Phi_r = basis.Phi[rows]
-    # a whisper of mass regularisation keeps the system definite where no data reaches
-    eps = 1e-9 * lam_first * (ops.M if p.lambda0 is None else sp.eye(n))
-
-    history: list[dict] = []
-    e = np.zeros((n, 3))
-    hold = np.zeros(n, dtype=bool)
-
-    def record(pass_no, lam, m, delta, scale, hold):
-        fitted = m.covered & ~hold
-        rms = float(np.sqrt(np.mean(m.r[fitted] ** 2))) if fitted.any() else np.nan
-        history.append(dict(pass_no=pass_no, lam=lam, rms=rms, delta=delta, scale=scale))
-        if progress is not None:
-            progress(1)
-
-    def full_step(lam, w, target):
-        """One full-resolution solve of (A W + lam Q) e = A W (T - V0)."""
-        Aw = data_scale * w
-        solve = solver.factor((sp.diags(Aw) + lam * Q + eps).tocsc())
-        return solve(Aw[:, None] * (target - V0))
-
-    def run_pass(e, lam_from, lam_to, hold, pass_no, iters=None):
-        """Anneal lam from lam_from to lam_to with full-resolution solves."""
-        lam = lam_from
-        settle = 0
-        m = match(V0 + e)
-        # graduated non-convexity in the first pass: the Welsch width starts at the largest
-        # residual and shrinks with the smoothing length, so compliance the rigid pose left
-        # (millimetres) is followed before the robust weights start rejecting outliers
-        width0 = float(np.percentile(np.abs(m.r[m.covered]), 99)) if pass_no == 1 else 0.0
-
-        def floor(lam):
-            return width0 * (lam / lam_from) ** 0.25
-
-        w, scale = _weights(m, p, hold, floor(lam))
-        cap = p.max_iter + p.settle_iter if iters is None else iters
-        for _ in range(cap):
-            e_new = full_step(lam, w, m.target)
-            delta = float(np.abs(e_new - e).max())
-            e = e_new
-            m = match(V0 + e)
-            w, scale = _weights(m, p, hold, floor(max(lam * p.anneal, lam_to)))
-            record(pass_no, lam, m, delta, scale, hold)
-            lam, settle, done = _anneal(lam, lam_to, p.anneal, settle, delta, p)
-            if done:
-                break
-        return e, m, w, scale
-
-    def modal_pass(lam_from, lam_to, hold, C, pass_no):
-        """Iterate in the bending basis: e = Phi C with
-        (Phi^T A W Phi + lam diag(mu)) C = Phi^T A W (T - V0), on the sampled rows."""
-        m = match(V0[rows] + Phi_r @ C, rows)
-        hold_r = hold[rows]
-        width0 = 0.0
-        if pass_no == 1 and m.covered.any():
-            width0 = float(np.percentile(np.abs(m.r[m.covered]), 99))
-        A_r = data_scale[rows] * stride
-        lam = lam_from
-        e_r = Phi_r @ C
-        settle = 0
-        for _ in range(p.max_iter + p.settle_iter):
-            w, scale = _weights(m, p, hold_r, width0 * (lam / lam_from) ** 0.25)
-            aw = A_r * w
-            use = aw > 0
-            Pu = Phi_r[use]
-            G = Pu.T @ (aw[use, None] * Pu)
-            G[np.diag_indices_from(G)] += lam * basis.mu + 1e-12 * max(np.trace(G), 1e-300)
-            C = np.linalg.solve(G, Pu.T @ (aw[use, None] * (m.target[use] - V0[rows][use])))
-            e_new = Phi_r @ C
-            delta = float(np.abs(e_new - e_r).max())
-            e_r = e_new
-            m = match(V0[rows] + e_r, rows)
-            record(pass_no, lam, m, delta, scale, hold_r)
-            lam, settle, done = _anneal(lam, lam_to, p.modal_anneal, settle, delta, p)
-            if done:
-                break
-        return C
-
-    passes, fallback = 1, False
-    guard = (float("nan"), 0)  # (flagged fraction that fired the guard, its pass)
-    # modal: each pass iterates in the bending basis (warm-started, the held-out measurement
-    # withheld), then solves at full resolution at the band limit; the flags are judged on
-    # that full-resolution residual (the basis alone leaves fine compliance that the flag
-    # test would take for defects, and the hold-outs would feed on it).
-    # full: the paper's schedule, every iteration a full-resolution solve.
-    C = np.zeros((basis.Phi.shape[1], 3)) if modal else None
-    lam_from = lam_first
-
-    def first_pass():
-        nonlocal C
-        if modal:
-            C = modal_pass(lam_start, lam_first, hold, C, 1)
-            return run_pass(
-                basis.Phi @ C, lam_first, lam_first, hold, 1, iters=max(p.polish_iter, 1)
-            )
-        return run_pass(e, lam_start, lam_first, hold, 1)
-
-    def refit(e, hold, pass_no):
-        nonlocal C, lam_from
-        if modal:
-            C = modal_pass(lam_first, lam_first, hold, C, pass_no)
-            return run_pass(
-                basis.Phi @ C, lam_refit, lam_refit, hold, pass_no, iters=max(p.polish_iter, 1)
-            )
-        out = run_pass(e, lam_from, lam_refit, hold, pass_no)
-        lam_from = lam_refit
-        return out
-
-    e, m, w, scale = first_pass()
-    flagged = _flag(m, p, scale, flaggable)
-    n_cov = max(int(m.covered.sum()), 1)
-
-    def counted(flags: np.ndarray, m: Match) -> int:  # the flags the guard counts
-        return int((flags & (np.abs(m.r) > p.guard_floor)).sum())
-
-    n_flagged = counted(flagged, m)
-    flagged_fraction = n_flagged / n_cov
-    single = (e, m, w, scale)
-    if p.passes > 1 and flagged.any():
-        if flagged_fraction > p.max_flagged_fraction:
-            fallback, guard = True, (flagged_fraction, 1)
-        else:
-            for pass_no in range(2, p.passes + 1):
-                hold = _holdout(V0 + e, flagged, p.coverage_radius * p.holdout_factor)
-                e, m, w, scale = refit(e, hold, pass_no)
-                passes = pass_no
-                # re-evaluate every flag against the refit: a defect the fit never saw keeps
-                # its residual; compliance the first pass could not follow has been fit
-                new = _flag(m, p, scale, flaggable)
-                n_new = counted(new, m)
-                frac = max(n_flagged, n_new) / n_cov
-                if frac > p.max_flagged_fraction:
-                    fallback, guard = True, (frac, pass_no)
-                    e, m, w, scale = single
-                    hold = np.zeros(n, dtype=bool)
-                    break
-                if np.array_equal(new, flagged):
-                    break
-                flagged, n_flagged = new, n_new
-    if fallback:
+    fit = _prepare(V0, F, ops, P, params, scan_normals, scan_sheets, solver, basis)
+    fit.progress = progress
+    out = _band_limited_passes(fit, flaggable)
+    p, m = fit.p, out.m
+    if out.fallback:
         log.warning(
             "GB-CICP: %.1f %% of covered vertices flagged in pass %d (> %.0f %%): fit "
             "suspect, keeping the single-pass result",
-            100 * guard[0],
-            guard[1],
+            100 * out.guard[0],
+            out.guard[1],
             100 * p.max_flagged_fraction,
         )
     residual = np.where(m.covered, m.r, np.nan)
     return GBCICPResult(
-        V=V0 + e,
-        e=e,
+        V=V0 + out.e,
+        e=out.e,
         residual=residual,
         covered=m.covered,
-        flagged=flagged,
-        held_out=hold,
-        weights=w,
-        scale=scale,
-        passes=passes,
-        fallback=fallback,
-        flagged_fraction=flagged_fraction,
-        guard_fraction=float(guard[0]),
-        guard_pass=int(guard[1]),
-        iterations=len(history),
+        flagged=out.flagged,
+        held_out=out.hold,
+        weights=out.w,
+        scale=out.scale,
+        passes=out.passes,
+        fallback=out.fallback,
+        flagged_fraction=out.flagged_fraction,
+        guard_fraction=float(out.guard[0]),
+        guard_pass=int(out.guard[1]),
+        iterations=len(fit.history),
         seconds=time.perf_counter() - t_start,
         params=p,
-        history=history,
+        history=fit.history,
         method="gbcicp",
-        basis=basis if modal else None,
+        basis=fit.basis if fit.modal else None,
     )
 
 

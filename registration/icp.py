@@ -138,6 +138,33 @@ class RigidResult:
         return P @ self.R.T + self.t
 
 
+def _rigid_step(
+    X: np.ndarray,
+    V: np.ndarray,
+    idx: np.ndarray,
+    n: np.ndarray,
+    r: np.ndarray,
+    w: np.ndarray,
+    step: str,
+) -> tuple[np.ndarray, np.ndarray]:
+    """One pose update of :func:`rigid_icp` for the posed scan points ``X`` (m, 3) mm,
+    their nearest vertices ``idx`` (m,) of ``V`` with normals ``n`` (m, 3), signed
+    point-to-plane residuals ``r`` (m,) mm and weights ``w`` (m,): the weighted Kabsch fit
+    to the tangent-plane projections (``step="kabsch"``) or a Gauss-Newton point-to-plane
+    step. Returns the incremental rotation (3, 3) and translation (3,) mm."""
+    targets = X - r[:, None] * n
+    if step == "kabsch":
+        return kabsch(X, targets, w)
+    return point_to_plane_step(X, np.take(V, idx, axis=0), n, w)
+
+
+def _small_step(dR: np.ndarray, dt: np.ndarray, tol: float, diag: float) -> bool:
+    """Whether the update ``(dR, dt)`` turns less than ``tol`` radians and moves less than
+    ``tol`` model diagonals (``diag`` mm): the ICP has converged."""
+    angle = np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))
+    return bool(angle < tol and np.linalg.norm(dt) < tol * diag)
+
+
 def rigid_icp(
     V: np.ndarray,
     N: np.ndarray,
@@ -200,15 +227,9 @@ def rigid_icp(
         scale = max(robust_scale(r[near]), 1e-9 * diag)
         w = tukey_weights(r, scale) * near
         history.append(float(np.sqrt(np.sum(w * r**2) / max(w.sum(), 1e-300))))
-        targets = X - r[:, None] * n
-        if step == "kabsch":
-            dR, dt = kabsch(X, targets, w)
-
-        else:
-            dR, dt = point_to_plane_step(X, np.take(V, idx, axis=0), n, w)
+        dR, dt = _rigid_step(X, V, idx, n, r, w, step)
         R, t = dR @ R, dR @ t + dt
-        angle = np.arccos(np.clip((np.trace(dR) - 1.0) / 2.0, -1.0, 1.0))
-        if angle < tol and np.linalg.norm(dt) < tol * diag:
+        if _small_step(dR, dt, tol, diag):
             converged = True
             break
     rms = history[-1] if history else float("nan")
@@ -241,6 +262,184 @@ def tukey_rho(r: np.ndarray, scale: float) -> np.ndarray:
     c = TUKEY_C * scale
     u = np.minimum(np.abs(r) / c, 1.0)
     return c**2 / 6.0 * (1.0 - (1.0 - u**2) ** 3)
+
+
+@dataclass
+class _BlendedCost:
+    """The robust rigid cost of :func:`converged_rigid_fit`, evaluated at a pose.
+
+    Attributes
+    ----------
+    V : (n, 3) model vertices, mm.  N : (n, 3) unit vertex normals.
+    P : (m, 3) scan points, mm.  tree : ``cKDTree(V)``.
+    k : vertices blended per point.  diag : model diagonal, mm.
+    scale : fixed Tukey scale, mm.  max_distance : farther points cost ``outside``, mm.
+    outside : the saturated Tukey loss at ``scale``, mm^2.
+    on_edge : (n,) bool, vertices on an open boundary.
+    """
+
+    V: np.ndarray
+    N: np.ndarray
+    P: np.ndarray
+    tree: cKDTree
+    k: int
+    diag: float
+    scale: float
+    max_distance: float
+    outside: float
+    on_edge: np.ndarray
+
+    def __call__(self, R: np.ndarray, t: np.ndarray) -> tuple:
+        """The cost of the pose ``(R, t)`` (scan -> model, mm) and what its step needs.
+
+        Returns
+        -------
+        E : the cost, mm^2.  X : (m, 3) posed scan points, mm.
+        n : (m, 3) blended unit normals.  r : (m,) blended point-to-plane residuals, mm.
+        u : (m, 3) unit tangential offset directions.  b : (m,) tangential offsets beyond
+            an open boundary, mm (0 elsewhere).  near : (m,) bool, points within
+            ``max_distance`` of the model.
+        """
+        V, N, diag, scale = self.V, self.N, self.diag, self.scale
+        X = self.P @ R.T + t
+        d, idx = self.tree.query(X, k=self.k, workers=-1)
+        d, idx = d.reshape(len(X), -1), idx.reshape(len(X), -1)
+        wk = 1.0 / np.maximum(d, 1e-9 * diag) ** 2
+        wk /= wk.sum(axis=1, keepdims=True)
+        Nk = N[idx]
+        n = np.einsum("ik,ikj->ij", wk, Nk)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        r = np.einsum("ik,ik->i", wk, np.einsum("ikj,ikj->ik", X[:, None, :] - V[idx], Nk))
+        # beyond an open boundary: the tangential offset from the nearest (boundary) vertex
+        D = X - V[idx[:, 0]]
+        tang = D - np.einsum("ij,ij->i", D, n)[:, None] * n
+        b = np.linalg.norm(tang, axis=1)
+        u = tang / np.maximum(b, 1e-300)[:, None]
+        b = np.where(self.on_edge[idx[:, 0]], b, 0.0)
+        near = d[:, 0] < self.max_distance
+        E = float(np.sum(np.where(near, tukey_rho(r, scale) + tukey_rho(b, scale), self.outside)))
+        return E, X, n, r, u, b, near
+
+
+def _normal_equations(
+    X: np.ndarray,
+    n: np.ndarray,
+    r: np.ndarray,
+    u: np.ndarray,
+    b: np.ndarray,
+    w: np.ndarray,
+    wb: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The Gauss-Newton system of one rigid step about the centroid of ``X`` (m, 3) mm:
+    the residuals ``r`` along the normals ``n`` weighted by ``w``, the boundary offsets
+    ``b`` along ``u`` by ``wb`` (all (m,) or (m, 3)).
+
+    Returns
+    -------
+    c : (3,) centroid, mm.  A : (6, 6) normal matrix.  g : (6,) right-hand side (rotation
+        vector, radians, then translation, mm).
+    """
+    c = X.mean(axis=0)
+    J = np.hstack([np.cross(X - c, n), n])
+    Jb = np.hstack([np.cross(X - c, u), u])
+    A = (J * w[:, None]).T @ J + (Jb * wb[:, None]).T @ Jb
+    g = -(J * w[:, None]).T @ r - (Jb * wb[:, None]).T @ b
+    return c, A, g
+
+
+def _damped_step(
+    evaluate: _BlendedCost,
+    A: np.ndarray,
+    g: np.ndarray,
+    c: np.ndarray,
+    R: np.ndarray,
+    t: np.ndarray,
+    E: float,
+    lam: float,
+) -> tuple[np.ndarray, np.ndarray, tuple, float] | None:
+    """A Levenberg-Marquardt step from the pose ``(R, t)`` of cost ``E`` (mm^2): the
+    damping ``lam`` grows fourfold until the step does not increase the cost (at most 30
+    times). Returns the new pose, its evaluation and the damping that made it, or None when
+    no damping decreases the cost."""
+    for _ in range(30):
+        x = np.linalg.solve(A + lam * np.diag(np.diag(A)) + 1e-12 * np.trace(A) * np.eye(6), g)
+        dR = _rodrigues(x[:3])
+        R2, t2 = dR @ R, dR @ t + (c - dR @ c + x[3:])
+        trial = evaluate(R2, t2)
+        if trial[0] <= E:
+            return R2, t2, trial, lam
+        lam *= 4.0
+    return None
+
+
+def _blended_cost(
+    V: np.ndarray,
+    N: np.ndarray,
+    P: np.ndarray,
+    boundary: np.ndarray | None,
+    scale: float | None,
+    max_distance: float | None,
+    k: int,
+    tree: cKDTree | None,
+) -> _BlendedCost:
+    """The cost of :func:`converged_rigid_fit` (arguments as there), its defaults resolved
+    from the model diagonal."""
+    tree = tree or cKDTree(V)
+    diag = float(np.linalg.norm(V.max(0) - V.min(0)))
+    scale = 0.01 * diag if scale is None else float(scale)
+    max_distance = 0.05 * diag if max_distance is None else float(max_distance)
+    return _BlendedCost(
+        V=V,
+        N=N,
+        P=P,
+        tree=tree,
+        k=k,
+        diag=diag,
+        scale=scale,
+        max_distance=max_distance,
+        outside=float(tukey_rho(np.array([np.inf]), scale)[0]),
+        on_edge=np.zeros(len(V), dtype=bool) if boundary is None else np.asarray(boundary, bool),
+    )
+
+
+def _minimise(
+    evaluate: _BlendedCost, R0: np.ndarray, t0: np.ndarray, max_iter: int, rtol: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, bool, list[float]]:
+    """Levenberg-Marquardt on the cost ``evaluate`` from the pose ``(R0, t0)`` (scan ->
+    model, mm): at most ``max_iter`` accepted steps, until the relative decrease falls below
+    ``rtol`` or no damping decreases the cost.
+
+    Returns
+    -------
+    R, t : the pose.  r : (m,) its blended residuals, mm.  near : (m,) bool, the points
+        within the cost's ``max_distance``.  it : steps taken.  converged : whether a
+        minimum was reached.  history : the weighted RMS residual (mm) at each step.
+    """
+    scale = evaluate.scale
+    R = np.asarray(R0, dtype=float)
+    t = np.asarray(t0, dtype=float)
+    E, X, n, r, u, b, near = evaluate(R, t)
+    lam, history, converged, it = 1e-4, [], False, 0
+    for it in range(1, max_iter + 1):  # noqa: B007 - reported
+        w = tukey_weights(r, scale) * near
+        wb = tukey_weights(b, scale) * near * (b > 0)
+        history.append(float(np.sqrt(np.sum(w * r**2) / max(w.sum(), 1e-300))))
+        c, A, g = _normal_equations(X, n, r, u, b, w, wb)
+        if np.trace(A) <= 0:
+            break
+        step = _damped_step(evaluate, A, g, c, R, t, E, lam)
+        if step is None:  # no damping decreases E: at the minimum to numerical precision
+            converged = True
+            break
+        R2, t2, trial, lam = step
+        lam = max(lam / 4.0, 1e-8)
+        decrease = (E - trial[0]) / max(E, 1e-300)
+        R, t = R2, t2
+        E, X, n, r, u, b, near = trial
+        if decrease < rtol:
+            converged = True
+            break
+    return R, t, r, near, it, converged, history
 
 
 def converged_rigid_fit(
@@ -294,66 +493,9 @@ def converged_rigid_fit(
     -------
     RigidResult (``scale`` the fixed scale; ``history`` the RMS residual per accepted step).
     """
-    tree = tree or cKDTree(V)
-    diag = float(np.linalg.norm(V.max(0) - V.min(0)))
-    scale = 0.01 * diag if scale is None else float(scale)
-    max_distance = 0.05 * diag if max_distance is None else float(max_distance)
-    outside = float(tukey_rho(np.array([np.inf]), scale)[0])
-    on_edge = np.zeros(len(V), dtype=bool) if boundary is None else np.asarray(boundary, bool)
-
-    def evaluate(R: np.ndarray, t: np.ndarray):
-        X = P @ R.T + t
-        d, idx = tree.query(X, k=k, workers=-1)
-        d, idx = d.reshape(len(X), -1), idx.reshape(len(X), -1)
-        wk = 1.0 / np.maximum(d, 1e-9 * diag) ** 2
-        wk /= wk.sum(axis=1, keepdims=True)
-        Nk = N[idx]
-        n = np.einsum("ik,ikj->ij", wk, Nk)
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        r = np.einsum("ik,ik->i", wk, np.einsum("ikj,ikj->ik", X[:, None, :] - V[idx], Nk))
-        # beyond an open boundary: the tangential offset from the nearest (boundary) vertex
-        D = X - V[idx[:, 0]]
-        tang = D - np.einsum("ij,ij->i", D, n)[:, None] * n
-        b = np.linalg.norm(tang, axis=1)
-        u = tang / np.maximum(b, 1e-300)[:, None]
-        b = np.where(on_edge[idx[:, 0]], b, 0.0)
-        near = d[:, 0] < max_distance
-        E = float(np.sum(np.where(near, tukey_rho(r, scale) + tukey_rho(b, scale), outside)))
-        return E, X, n, r, u, b, near
-
-    R = np.asarray(R0, dtype=float)
-    t = np.asarray(t0, dtype=float)
-    E, X, n, r, u, b, near = evaluate(R, t)
-    lam, history, converged, it = 1e-4, [], False, 0
-    for it in range(1, max_iter + 1):  # noqa: B007 - reported
-        w = tukey_weights(r, scale) * near
-        wb = tukey_weights(b, scale) * near * (b > 0)
-        history.append(float(np.sqrt(np.sum(w * r**2) / max(w.sum(), 1e-300))))
-        c = X.mean(axis=0)
-        J = np.hstack([np.cross(X - c, n), n])
-        Jb = np.hstack([np.cross(X - c, u), u])
-        A = (J * w[:, None]).T @ J + (Jb * wb[:, None]).T @ Jb
-        g = -(J * w[:, None]).T @ r - (Jb * wb[:, None]).T @ b
-        if np.trace(A) <= 0:
-            break
-        for _ in range(30):
-            x = np.linalg.solve(A + lam * np.diag(np.diag(A)) + 1e-12 * np.trace(A) * np.eye(6), g)
-            dR = _rodrigues(x[:3])
-            R2, t2 = dR @ R, dR @ t + (c - dR @ c + x[3:])
-            trial = evaluate(R2, t2)
-            if trial[0] <= E:
-                break
-            lam *= 4.0
-        else:  # no damping decreases E: at the minimum to numerical precision
-            converged = True
-            break
-        lam = max(lam / 4.0, 1e-8)
-        decrease = (E - trial[0]) / max(E, 1e-300)
-        R, t = R2, t2
-        E, X, n, r, u, b, near = trial
-        if decrease < rtol:
-            converged = True
-            break
+    evaluate = _blended_cost(V, N, P, boundary, scale, max_distance, k, tree)
+    scale = evaluate.scale
+    R, t, r, near, it, converged, history = _minimise(evaluate, R0, t0, max_iter, rtol)
     w = tukey_weights(r, scale) * near
     rms = float(np.sqrt(np.sum(w * r**2) / max(w.sum(), 1e-300)))
     log.debug("converged rigid fit: %d steps, rms %.4f mm", it, rms)

@@ -55,7 +55,14 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from .deformable import DeformResult, ScanMatcher, coverage_radius, finish, scan_matcher
+from .deformable import (
+    DeformResult,
+    Match,
+    ScanMatcher,
+    coverage_radius,
+    finish,
+    scan_matcher,
+)
 from .icp import robust_scale
 from .linalg import SPDSolver, default_backend
 from .mesh import MeshOperators, adjacency, bounding_diagonal, edges, vertex_normals
@@ -238,6 +245,110 @@ def _pcg(
     return X, max_iter
 
 
+def _matchers(
+    V0: np.ndarray,
+    F: np.ndarray,
+    ops: MeshOperators,
+    P: np.ndarray,
+    Ns: np.ndarray,
+    scan_sheets: np.ndarray | None,
+    p: NICPParams,
+) -> tuple[ScanMatcher, ScanMatcher]:
+    """The iterations' scan matcher (its vertex normals may be updated as the mesh deforms)
+    and the final one, on the nominal's normals (arguments as :func:`nicp`)."""
+    match = scan_matcher(
+        V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius, gate=p.normal_gate
+    )
+    final = ScanMatcher(
+        match.P,
+        match.Ns,
+        ops.normals,
+        match.radius,
+        signed=match.signed,
+        gate=match.gate,
+        tree=match.tree,
+    )
+    return match, final
+
+
+def _gate_weights(m: Match, p: NICPParams) -> tuple[np.ndarray, float]:
+    """The data weights (n,) of one iteration, 1 where the vertex is covered, its normal
+    compatible and its residual within the gate, else 0; and the gate (mm): ``gate_k``
+    robust scales, at least ``gate_floor``."""
+    ok = m.covered & (m.compat >= p.normal_gate)
+    scale = robust_scale(m.r[ok]) if ok.any() else 0.0
+    gate = max(p.gate_k * scale, p.gate_floor)
+    w = (ok & (np.abs(m.r) <= gate)).astype(float)
+    return w, gate
+
+
+@dataclass
+class _LevelSolve:
+    """The solves of the NICP systems: one factorisation per stiffness level, reused.
+
+    Attributes
+    ----------
+    solver : the sparse SPD solver.
+    cg_rtol : relative residual of the preconditioned CG.
+    X : (4n, 3) the latest solution (the affine transforms, normalised part).
+    alpha : the stiffness of the current factor (None before the first).
+    w : (n,) the data weights of the current factor.
+    solve : the current factor's solve.
+    """
+
+    solver: SPDSolver
+    cg_rtol: float
+    X: np.ndarray
+    alpha: float | None = None
+    w: np.ndarray | None = None
+    solve: Callable[[np.ndarray], np.ndarray] | None = None
+
+    def __call__(self, A: sp.csc_matrix, b: np.ndarray, alpha: float, w: np.ndarray) -> int:
+        """Solve ``A X = b`` (4n, 3) into :attr:`X` for the stiffness ``alpha`` and the data
+        weights ``w`` (n,); returns the CG iterations (0 for a direct solve)."""
+        if alpha != self.alpha:  # one factorisation per level
+            self.solve = self.solver.factor(A)
+            self.alpha, self.w = alpha, w
+            self.X = self.solve(b)
+            return 0
+        if np.array_equal(w, self.w):  # same matrix: the factor is exact
+            self.X = self.solve(b)
+            return 0
+        # a few gate weights changed: CG preconditioned by the level's factor
+        self.X, n_cg = _pcg(A, b, self.solve, self.X, self.cg_rtol)
+        return n_cg
+
+
+def _iteration_record(
+    level: int,
+    alpha: float,
+    m: Match,
+    w: np.ndarray,
+    gate: float,
+    n_cg: int,
+    V: np.ndarray,
+    V_new: np.ndarray,
+) -> dict:
+    """One iteration's entry of the NICP history: the step from ``V`` to ``V_new`` (n, 3)
+    mm with the match ``m`` and data weights ``w`` (n,) that made it (keys as in
+    :func:`nicp`'s Returns)."""
+    used = w > 0
+    step = np.abs(V_new - V)
+    delta = float(step.max())
+    delta_data = float(step[used].max()) if used.any() else delta
+    rms = float(np.sqrt(np.mean(m.r[used] ** 2))) if used.any() else float("nan")
+    return dict(
+        level=level,
+        alpha=float(alpha),
+        rms=rms,
+        delta=delta,
+        delta_data=delta_data,
+        used=float(used.mean()),
+        gate=gate,
+        cg=n_cg,
+    )
+
+
 def nicp(
     V0: np.ndarray,
     F: np.ndarray,
@@ -271,18 +382,7 @@ def nicp(
     t0 = time.perf_counter()
     p = _resolve(params or NICPParams(), V0, F, ops, P)
     Ns = scan_normals if scan_normals is not None else pca_normals(P, p.scan_normal_k)
-    match = scan_matcher(
-        V0, F, ops, P, Ns, scan_sheets, radius=p.coverage_radius, gate=p.normal_gate
-    )
-    final = ScanMatcher(
-        match.P,
-        match.Ns,
-        ops.normals,
-        match.radius,
-        signed=match.signed,
-        gate=match.gate,
-        tree=match.tree,
-    )
+    match, final = _matchers(V0, F, ops, P, Ns, scan_sheets, p)
     c = V0.mean(axis=0)
     s = bounding_diagonal(V0)
     H = np.c_[(V0 - c) / s, np.ones(len(V0))]
@@ -296,54 +396,24 @@ def nicp(
 
     V = V0.copy()
     history: list[dict] = []
-    factor_alpha = None
-    factor_w = None
-    solve = None
-    X = system.X_id
+    level_solve = _LevelSolve(solver, p.cg_rtol, system.X_id)
     for level, alpha in enumerate(alphas):
         for _ in range(p.inner_iter):
             if p.update_normals:
                 match.N = vertex_normals(V, F)
             m = match(V)
-            ok = m.covered & (m.compat >= p.normal_gate)
-            scale = robust_scale(m.r[ok]) if ok.any() else 0.0
-            gate = max(p.gate_k * scale, p.gate_floor)
-            w = (ok & (np.abs(m.r) <= gate)).astype(float)
+            w, gate = _gate_weights(m, p)
             A = system.matrix(alpha, w, eps)
             U = m.target if p.targets == "plane" else match.P[m.j]
             b = system.rhs(w, (U - c) / s, eps)
-            if alpha != factor_alpha:  # one factorisation per level
-                solve = solver.factor(A)
-                factor_alpha, factor_w = alpha, w
-                X = solve(b)
-                n_cg = 0
-            elif np.array_equal(w, factor_w):  # same matrix: the factor is exact
-                X = solve(b)
-                n_cg = 0
-            else:  # a few gate weights changed: CG preconditioned by the level's factor
-                X, n_cg = _pcg(A, b, solve, X, p.cg_rtol)
-            V_new = c + s * system.apply(np.asarray(X))
-            used = w > 0
-            step = np.abs(V_new - V)
-            delta = float(step.max())
-            delta_data = float(step[used].max()) if used.any() else delta
+            n_cg = level_solve(A, b, alpha, w)
+            V_new = c + s * system.apply(np.asarray(level_solve.X))
+            record = _iteration_record(level, alpha, m, w, gate, n_cg, V, V_new)
             V = V_new
-            rms = float(np.sqrt(np.mean(m.r[used] ** 2))) if used.any() else float("nan")
-            history.append(
-                dict(
-                    level=level,
-                    alpha=float(alpha),
-                    rms=rms,
-                    delta=delta,
-                    delta_data=delta_data,
-                    used=float(used.mean()),
-                    gate=gate,
-                    cg=n_cg,
-                )
-            )
+            history.append(record)
             if progress is not None:
                 progress(1)
-            if delta_data < p.tol:
+            if record["delta_data"] < p.tol:
                 break
     log.debug("NICP: %d iterations over %d levels", len(history), p.levels)
     return finish("nicp", V0, V, final, p, len(history), time.perf_counter() - t0, history)

@@ -131,39 +131,19 @@ def wall_sides(
     return out
 
 
-def orient_normals_consistent(
-    P: np.ndarray, Ns: np.ndarray, k: int = 10, tree: cKDTree | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Give unsigned normals (m, 3) one consistent side per connected sheet of the scan,
-    and the outward side where the scan shows it.
-
-    The sign is propagated along a minimum spanning tree of the k-NN graph weighted by
-    ``1 - |n_i . n_j|`` (Hoppe et al. 1992), over the pairs that lie on one smooth skin
-    (:data:`TANGENT_EDGE`, :data:`TANGENT_PARALLEL`): each point takes the side of its
-    parent. Where a sheet's points see another skin behind them (:func:`wall_sides`: a
-    thin wall scanned from both sides) its side is outward, away from that skin, and its
-    label is :data:`SIDE_KNOWN`. The side of every other sheet is arbitrary: the caller
-    chooses it (e.g. by a vote against a posed nominal,
-    :func:`qifreport.registration.deformable.orient_scan_normals`): on a wall deflected by
-    more than half its thickness the nearest nominal skin is the other one, so the scan's
-    own evidence comes first.
+def _tangent_graph(P: np.ndarray, Ns: np.ndarray, k: int, tree: cKDTree) -> tuple:
+    """The graph along which :func:`orient_normals_consistent` propagates the sign of the
+    unsigned normals ``Ns`` (m, 3) of the scan ``P`` (m, 3) mm, from its ``k``-NN pairs.
 
     Returns
     -------
-    normals : (m, 3) unit normals, consistently signed within each sheet.
-    labels : (m,) int sheet label of each point (>= 0), or :data:`SIDE_KNOWN`.
+    G : (m, m) symmetric sparse CSR, the pairs on one smooth skin (:data:`TANGENT_EDGE`,
+        :data:`TANGENT_PARALLEL`) weighted ``1 - |n_i . n_j|`` (+1e-6).
+    pi, pj : (e,) the pairs side by side: not across a wall, nor a sharp crease.
     """
-    import scipy.sparse as sp
     from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import (
-        breadth_first_order,
-        connected_components,
-        minimum_spanning_tree,
-    )
 
     m = len(P)
-    tree = tree or cKDTree(P)
-    k = min(k, m - 1)
     # (the arrays of every pair, 35 MB each for 400k points, are dropped once used: on a
     # large scan this runs beside the part's preparation, and the two peaks add up)
     nb = tree.query(P, k=k + 1, workers=-1)[1]
@@ -190,11 +170,34 @@ def orient_normals_consistent(
     del L, off, par, keep, beside
     G = coo_matrix((w, (i, j)), shape=(m, m)).tocsr()
     del i, j, w
-    G = G.maximum(G.T)
+    return G.maximum(G.T), pi, pj
+
+
+def _spanning_tree(G):
+    """The minimum spanning forest of the symmetric sparse graph ``G`` (m, m), each edge
+    once (upper triangular, sparse)."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import minimum_spanning_tree
+
     # each edge once (the upper triangle): Kruskal sorts half as many weights and meets
     # every edge in the same order, so the tree is the same
-    T = minimum_spanning_tree(sp.triu(G, format="csr"))
-    del G
+    return minimum_spanning_tree(sp.triu(G, format="csr"))
+
+
+def _tree_parents(T, m: int) -> tuple[int, np.ndarray, np.ndarray]:
+    """The components of the spanning forest ``T`` (m, m, sparse, each edge once) and a
+    breadth-first tree of each.
+
+    Returns
+    -------
+    n_comp : number of connected components (sheets).
+    labels : (m,) component of each point.
+    pred : (m,) parent of each point (the roots, each component's first point, their own).
+    """
+    import scipy.sparse as sp
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
     T = T.maximum(T.T)
     n_comp, labels = connected_components(T, directed=False)
     # parent of every point in a breadth-first tree of its component (roots: themselves),
@@ -205,17 +208,30 @@ def orient_normals_consistent(
     _, pred = breadth_first_order(T, m, directed=False)
     pred = pred[:m].copy()
     pred[roots] = roots
-    # a point's side relative to its root is the product of the edge signs along its tree
-    # path: pointer doubling, log2(depth) vectorised steps
+    return n_comp, labels, pred
+
+
+def _path_signs(Ns: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """The sign (m,) that turns each normal of ``Ns`` (m, 3) to its tree root's side: the
+    product of the edge signs along its path to the root (``pred`` (m,) the parents),
+    by pointer doubling, log2(depth) vectorised steps."""
     flip = np.where(np.einsum("ij,ij->i", Ns, Ns[pred]) < 0, -1.0, 1.0)
     up = pred.copy()
     while np.any(up != up[up]):
         flip *= flip[up]
         up = up[up]
     flip *= flip[up]  # the roots' own sign, +1
-    out = Ns * flip[:, None]
-    # the sheets whose points see the wall's other skin: outward, away from it
-    # (a sample: its points vote for their sheets)
+    return flip
+
+
+def _outward_sheets(
+    P: np.ndarray, out: np.ndarray, labels: np.ndarray, n_comp: int, tree: cKDTree
+) -> np.ndarray:
+    """Turn outward, in place, the sheets of the consistently signed normals ``out`` (m, 3)
+    whose points see the wall's other skin (:func:`wall_sides` on a sample: its points
+    vote for their sheets, ``labels`` (m,)). Returns (n_comp,) bool, the sheets whose side
+    the vote decided."""
+    m = len(P)
     probe = np.arange(0, m, max(1, m // WALL_SAMPLE))
     sides = np.zeros(m, dtype=np.int8)
     sides[probe] = wall_sides(P, out, probe, tree)
@@ -225,6 +241,40 @@ def orient_normals_consistent(
     known = (seen >= WALL_MIN_POINTS) & (np.maximum(pos, neg) >= WALL_AGREEMENT * seen)
     inward = known & (neg > pos)
     out[inward[labels]] *= -1.0
+    return known
+
+
+def orient_normals_consistent(
+    P: np.ndarray, Ns: np.ndarray, k: int = 10, tree: cKDTree | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Give unsigned normals (m, 3) one consistent side per connected sheet of the scan,
+    and the outward side where the scan shows it.
+
+    The sign is propagated along a minimum spanning tree of the k-NN graph weighted by
+    ``1 - |n_i . n_j|`` (Hoppe et al. 1992), over the pairs that lie on one smooth skin
+    (:data:`TANGENT_EDGE`, :data:`TANGENT_PARALLEL`): each point takes the side of its
+    parent. Where a sheet's points see another skin behind them (:func:`wall_sides`: a
+    thin wall scanned from both sides) its side is outward, away from that skin, and its
+    label is :data:`SIDE_KNOWN`. The side of every other sheet is arbitrary: the caller
+    chooses it (e.g. by a vote against a posed nominal,
+    :func:`qifreport.registration.deformable.orient_scan_normals`): on a wall deflected by
+    more than half its thickness the nearest nominal skin is the other one, so the scan's
+    own evidence comes first.
+
+    Returns
+    -------
+    normals : (m, 3) unit normals, consistently signed within each sheet.
+    labels : (m,) int sheet label of each point (>= 0), or :data:`SIDE_KNOWN`.
+    """
+    m = len(P)
+    tree = tree or cKDTree(P)
+    G, pi, pj = _tangent_graph(P, Ns, min(k, m - 1), tree)
+    T = _spanning_tree(G)
+    del G
+    n_comp, labels, pred = _tree_parents(T, m)
+    del T
+    out = Ns * _path_signs(Ns, pred)[:, None]
+    known = _outward_sheets(P, out, labels, n_comp, tree)
     # the scraps between them (points at creases and rims, whose PCA normals no tangent
     # pair joins) take their known neighbours' side, not across a wall; once (a second
     # round, from scraps to scraps, turned more of the bracket's points inwards than right)

@@ -99,7 +99,13 @@ from .mesh import bounding_diagonal, vertex_normals, wall_thickness
 from .pointcloud import validate_scan
 from .pose_fit import PoseFit, refine_pose, score_pose
 from .pose_geometry import pose_distance, rotation_angle_deg
-from .pose_model import PrealignParams, PreparedModel, prepare_model, prepare_scan
+from .pose_model import (
+    PrealignParams,
+    PreparedModel,
+    PreparedScan,
+    prepare_model,
+    prepare_scan,
+)
 from .pose_starts import descriptor_hypotheses, initial_starts
 
 __all__ = [
@@ -283,6 +289,145 @@ def already_in_frame(
     return bool(ok)
 
 
+def _model_of(
+    V: np.ndarray, F: np.ndarray, p: PrealignParams, seed: int, model: PreparedModel | None
+) -> PreparedModel:
+    """The prepared model of the nominal ``(V, F)``: ``model`` when given (ValueError when
+    it was prepared for another mesh), else prepared here with the settings ``p``."""
+    if model is None:
+        return prepare_model(V, F, p, seed=seed)
+    if np.shape(V) != model.V.shape:
+        raise ValueError("model was prepared for another mesh (vertex count differs)")
+    return model
+
+
+def _descriptor_step(
+    model: PreparedModel,
+    scan: PreparedScan,
+    S: np.ndarray,
+    tau: float,
+    p: PrealignParams,
+    rng: np.random.Generator,
+) -> tuple[list, int, int]:
+    """Steps 1-4 of the search on the prepared sides: the descriptor matches and the RANSAC
+    hypotheses scored on the scan sample ``S`` (s, 3) mm under the gate ``tau`` (mm).
+
+    Returns
+    -------
+    hyps : the hypotheses, best first.  n_matches : descriptor matches.
+    best_ransac : inliers of the best hypothesis (0 without one).
+    """
+    hyps, n_matches = descriptor_hypotheses(model, scan, S, tau, p, rng)
+    log.debug(
+        "descriptor matches %d, %d RANSAC hypotheses; best sample cost %.3f",
+        n_matches,
+        len(hyps),
+        hyps[0][0].cost if hyps else 1.0,
+    )
+    best_ransac = hyps[0][3] if hyps else 0
+    return hyps, n_matches, best_ransac
+
+
+def _search_basins(
+    model: PreparedModel,
+    P: np.ndarray,
+    S: np.ndarray,
+    hyps: list,
+    tau: float,
+    p: PrealignParams,
+    rng: np.random.Generator,
+    seed: int,
+) -> tuple[int, int, list[Candidate], list[Candidate], RigidResult | None]:
+    """Steps 5 and 6 of the search: the starts (the descriptor hypotheses ``hyps``,
+    principal-axis and random rotations), screened and refined on the scan sample ``S``
+    (s, 3) mm, grouped into basins under the gate ``tau`` (mm); the best basin and its close
+    rivals refined on all scan points ``P`` (m, 3) mm.
+
+    Returns
+    -------
+    n_starts : starts kept by the screening.
+    n_screened : starts screened.
+    finals, others : the refined basins (best first) and the rest.
+    rigid : the robust rigid fit of the best basin (None when none was refined).
+    """
+    # starts: descriptor hypotheses, principal-axis hypotheses, random rotations
+    starts = initial_starts(model, P, hyps, p, rng)
+    # screening: a few iterations on a small sample, the most promising starts go on
+    n_screened = len(starts)
+    starts = screen_starts(model, S, starts, tau, p)
+    coarse = coarse_fits(model, S, starts, tau, p)
+    # group into basins: poses that place the scan within the gate of each other
+    basins = group_basins(coarse, S, tau, p)
+    # robust refinement of the best basin and of rivals whose coarse cost is close
+    finals, others, rigid = refine_basins(model, P, S, basins, tau, p, seed)
+    return len(starts), n_screened, finals, others, rigid
+
+
+def _check_accepted(
+    best: Candidate,
+    n_points: int,
+    n_starts: int,
+    tau: float,
+    p: PrealignParams,
+    n_matches: int,
+    best_ransac: int,
+) -> None:
+    """The acceptance rule: raise :class:`PoseNotEstablished` unless the best basin seats
+    ``min_inlier_fraction`` of the ``n_points`` scan points within the gate ``tau`` (mm)
+    and ``min_agreement`` of the ``n_starts`` starts reach it. ``n_matches`` and
+    ``best_ransac`` (descriptor matches, inliers of the best RANSAC hypothesis) go into
+    the message."""
+    if best.inlier_fraction < p.min_inlier_fraction:
+        raise PoseNotEstablished(
+            f"no pose seats the scan on the nominal: best {best.inlier_fraction:.1%} of "
+            f"{n_points} scan points within {tau:.2f} mm (need {p.min_inlier_fraction:.0%}), "
+            f"rms {best.rms:.3f} mm, {n_matches} descriptor matches, best RANSAC "
+            f"{best_ransac} inliers; the scan does not overlap this part"
+        )
+    if best.support < p.min_agreement:
+        raise PoseNotEstablished(
+            f"pose not confirmed: only {best.support} of {n_starts} starts reach the best "
+            f"basin ({best.inlier_fraction:.1%} within {tau:.2f} mm, rms {best.rms:.3f} mm; "
+            f"need {p.min_agreement}); the restarts disagree"
+        )
+
+
+def _scanned_wall(
+    model: PreparedModel, S: np.ndarray, best: Candidate, tau: float, p: PrealignParams
+) -> float:
+    """The median wall thickness (mm) of the model where the posed scan sample ``S``
+    (s, 3) mm lands; with ``p.refuse_thin_wall``, :class:`PoseNotEstablished` when it is
+    thinner than the gate ``tau`` (mm): a one-sided scan then fits either skin."""
+    at = unique_sorted(model.tree.query(S @ best.R.T + best.t)[1])
+    th = wall_thickness(model.V, model.N, at, radius=tau, tree=model.tree)
+    wall = float(np.median(th))
+    if p.refuse_thin_wall and wall < tau:
+        raise PoseNotEstablished(
+            f"the scan lies on a {wall:.2f} mm wall (median), thinner than the "
+            f"{tau:.2f} mm pose gate: a one-sided scan fits either skin and the search cannot "
+            "tell which side was scanned; deliver the scan in the part frame (--prealign "
+            "never)"
+        )
+    return wall
+
+
+def _warn_ambiguous(b: Candidate, best: Candidate, S: np.ndarray, tau: float) -> None:
+    """Log that the rival basin ``b`` fits the scan sample ``S`` (s, 3) mm about as well
+    as ``best`` (its rotation, deg, and translation, mm, from the winner; gate ``tau`` mm)."""
+    dd, dt = pose_distance(b.R, b.t, best.R, best.t, S.mean(axis=0))
+    log.warning(
+        "ambiguous pose: a rival basin %.1f deg / %.1f mm away fits as well "
+        "(%.1f%% vs %.1f%% within %.2f mm, rms %.3f vs %.3f mm): symmetric part?",
+        dd,
+        dt,
+        100 * b.inlier_fraction,
+        100 * best.inlier_fraction,
+        tau,
+        b.rms,
+        best.rms,
+    )
+
+
 def prealign(
     V: np.ndarray,
     F: np.ndarray,
@@ -319,74 +464,23 @@ def prealign(
     t_start = time.perf_counter()
     p = params or (model.params if model is not None else PrealignParams())
     P = validate_scan(P)
-    if model is None:
-        model = prepare_model(V, F, p, seed=seed)
-    elif np.shape(V) != model.V.shape:
-        raise ValueError("model was prepared for another mesh (vertex count differs)")
+    model = _model_of(V, F, p, seed, model)
     rng = np.random.default_rng(seed)
     tau = p.gate * model.diag
     scan = prepare_scan(P, model, seed)
     S = P[rng.choice(len(P), size=min(p.sample_points, len(P)), replace=False)]
-    hyps, n_matches = descriptor_hypotheses(model, scan, S, tau, p, rng)
-    log.debug(
-        "descriptor matches %d, %d RANSAC hypotheses; best sample cost %.3f",
-        n_matches,
-        len(hyps),
-        hyps[0][0].cost if hyps else 1.0,
+    hyps, n_matches, best_ransac = _descriptor_step(model, scan, S, tau, p, rng)
+    n_starts, n_screened, finals, others, rigid = _search_basins(
+        model, P, S, hyps, tau, p, rng, seed
     )
-    best_ransac = hyps[0][3] if hyps else 0
-
-    # starts: descriptor hypotheses, principal-axis hypotheses, random rotations
-    starts = initial_starts(model, P, hyps, p, rng)
-    # screening: a few iterations on a small sample, the most promising starts go on
-    n_screened = len(starts)
-    starts = screen_starts(model, S, starts, tau, p)
-    coarse = coarse_fits(model, S, starts, tau, p)
-    # group into basins: poses that place the scan within the gate of each other
-    basins = group_basins(coarse, S, tau, p)
-    # robust refinement of the best basin and of rivals whose coarse cost is close
-    finals, others, rigid = refine_basins(model, P, S, basins, tau, p, seed)
     best = finals[0]
     rivals = [b for b in finals[1:] if b.cost <= best.cost * (1.0 + p.ambiguity_margin) + 1e-3]
     seconds = time.perf_counter() - t_start
     inliers = int(round(best.inlier_fraction * len(P)))
-    if best.inlier_fraction < p.min_inlier_fraction:
-        raise PoseNotEstablished(
-            f"no pose seats the scan on the nominal: best {best.inlier_fraction:.1%} of "
-            f"{len(P)} scan points within {tau:.2f} mm (need {p.min_inlier_fraction:.0%}), "
-            f"rms {best.rms:.3f} mm, {n_matches} descriptor matches, best RANSAC "
-            f"{best_ransac} inliers; the scan does not overlap this part"
-        )
-    if best.support < p.min_agreement:
-        raise PoseNotEstablished(
-            f"pose not confirmed: only {best.support} of {len(starts)} starts reach the best "
-            f"basin ({best.inlier_fraction:.1%} within {tau:.2f} mm, rms {best.rms:.3f} mm; "
-            f"need {p.min_agreement}); the restarts disagree"
-        )
-    at = unique_sorted(model.tree.query(S @ best.R.T + best.t)[1])
-    th = wall_thickness(model.V, model.N, at, radius=tau, tree=model.tree)
-    wall = float(np.median(th))
-    if p.refuse_thin_wall and wall < tau:
-        raise PoseNotEstablished(
-            f"the scan lies on a {wall:.2f} mm wall (median), thinner than the "
-            f"{tau:.2f} mm pose gate: a one-sided scan fits either skin and the search cannot "
-            "tell which side was scanned; deliver the scan in the part frame (--prealign "
-            "never)"
-        )
+    _check_accepted(best, len(P), n_starts, tau, p, n_matches, best_ransac)
+    wall = _scanned_wall(model, S, best, tau, p)
     if rivals:
-        b = rivals[0]
-        dd, dt = pose_distance(b.R, b.t, best.R, best.t, S.mean(axis=0))
-        log.warning(
-            "ambiguous pose: a rival basin %.1f deg / %.1f mm away fits as well "
-            "(%.1f%% vs %.1f%% within %.2f mm, rms %.3f vs %.3f mm): symmetric part?",
-            dd,
-            dt,
-            100 * b.inlier_fraction,
-            100 * best.inlier_fraction,
-            tau,
-            b.rms,
-            best.rms,
-        )
+        _warn_ambiguous(rivals[0], best, S, tau)
     method = "descriptor" if "descriptor" in best.sources else "restart"
     res = PrealignResult(
         R=best.R,
@@ -395,7 +489,7 @@ def prealign(
         inliers=inliers,
         inlier_fraction=best.inlier_fraction,
         restart_agreement=best.support,
-        n_starts=len(starts),
+        n_starts=n_starts,
         n_screened=n_screened,
         matches=n_matches,
         ransac_inliers=best_ransac,
