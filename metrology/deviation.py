@@ -22,6 +22,7 @@ All arrays are plain numpy: ``V`` (n, 3) float64 mm, ``F`` (f, 3) int64, ``P`` (
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import igl
 import numpy as np
@@ -378,14 +379,44 @@ def nominal_referenced(
     if not radius > 0:
         raise ValueError(f"radius must be positive, got {radius}")
     min_points = max(int(min_points), 1)
+    vrt, Q = _neighbourhoods(V, N, P, Ns, radius, max_distance, min_points, tree)
+    if len(vrt) == 0:
+        return (dev, h) if variance else dev
+    fit = _LocalPlanes.fitted(vrt, Q, N)
+    t = np.einsum("ij,ij->i", fit.c, fit.nv)  # fallback: centroid offset along the normal
+    t[fit.ok] = fit.c_m[fit.ok] / fit.cos[fit.ok]
+    enough = fit.counts >= min_points
+    if max_centroid_offset is not None:
+        c_n = np.einsum("ij,ij->i", fit.c, fit.nv)
+        offset = np.linalg.norm(fit.c - c_n[:, None] * fit.nv, axis=1)  # to normal line
+        enough &= offset <= float(max_centroid_offset) * radius
+    dev[fit.vid[enough]] = t[enough]
+    if not variance:
+        return dev
+    return dev, fit.variance(enough, n)
 
+
+def _neighbourhoods(
+    V: np.ndarray,
+    N: np.ndarray,
+    P: np.ndarray,
+    Ns: np.ndarray | None,
+    radius: float,
+    max_distance: float | None,
+    min_points: int,
+    tree: cKDTree | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`nominal_referenced`'s (vertex, point) pairs: each pair's vertex (k,) and the
+    point in local coordinates about it (k, 3), mm, vertex by vertex (each one's points
+    ascending), only points facing the vertex's side (``Ns``), within the ball or the
+    cylinder (``max_distance``)."""
     reach = radius if max_distance is None else float(np.hypot(radius, max_distance))
     # every (vertex, point) pair within reach, in the order of a ball query per vertex
     # (vertex by vertex, each one's points ascending: the same sums below) without its list
-    # of lists (0.35 s of Python on 201k vertices)
+    # of lists
     vrt, idx = ball_pairs(V, cKDTree(P) if tree is None else tree, reach, min_points)
     if len(vrt) == 0:
-        return (dev, h) if variance else dev
+        return vrt, np.empty((0, 3))
     vrt, idx = np.divmod(np.sort(vrt * len(P) + idx), len(P))
     # rows gathered by np.take (qifreport.registration.arrays)
     if Ns is not None:  # only points of a surface facing the vertex's side
@@ -400,50 +431,87 @@ def nominal_referenced(
         lateral2 = np.einsum("ij,ij->i", Q, Q) - along**2
         keep = (np.abs(along) <= max_distance) & (lateral2 <= radius**2)
         Q, vrt = Q[keep], vrt[keep]
-    vid, row, counts = np.unique(vrt, return_inverse=True, return_counts=True)
-    enough = counts >= min_points
+    return vrt, Q
 
-    def _sum(w: np.ndarray) -> np.ndarray:
-        return np.bincount(row, weights=w, minlength=len(vid))
 
-    c = np.stack([_sum(Q[:, a]) for a in range(3)], axis=1) / counts[:, None]
-    R = Q - np.take(c, row, axis=0)
-    cov = np.empty((len(vid), 3, 3))
-    for a in range(3):
-        for b in range(a, 3):
-            cov[:, a, b] = cov[:, b, a] = _sum(R[:, a] * R[:, b]) / counts
-    evals, evecs = np.linalg.eigh(cov)
-    m_plane = evecs[:, :, 0]  # eigenvector of the smallest eigenvalue
-    nv = N[vid]
-    cos = np.einsum("ij,ij->i", nv, m_plane)
-    c_m = np.einsum("ij,ij->i", c, m_plane)
-    # the plane's tilt is only defined if the points spread in two directions well above
-    # the scatter about the plane (a collinear sliver can be rotated freely about its line)
-    planar = evals[:, 1] > _MIN_SPREAD_RATIO * np.maximum(evals[:, 0], 1e-300)
-    ok = (np.abs(cos) >= _MIN_PLANE_COS) & planar
-    t = np.einsum("ij,ij->i", c, nv)  # fallback: centroid offset along the normal
-    t[ok] = c_m[ok] / cos[ok]
-    if max_centroid_offset is not None:
-        c_n = np.einsum("ij,ij->i", c, nv)
-        offset = np.linalg.norm(c - c_n[:, None] * nv, axis=1)  # centroid to normal line
-        enough &= offset <= float(max_centroid_offset) * radius
-    dev[vid[enough]] = t[enough]
-    if not variance:
-        return dev
-    # the plane's height at the vertex: its offset (variance 1/N) and its two slopes
-    # (variance 1 / (N lambda_k)) times the centroid's in-plane distance, then along n
-    lev = np.ones(len(vid))
-    for k in (1, 2):
-        ck = np.einsum("ij,ij->i", c, evecs[:, :, k])
-        lev += ck**2 / np.maximum(evals[:, k], 1e-300)
-    hv = 1.0 / counts
-    hv[ok] = lev[ok] / (counts[ok] * cos[ok] ** 2)
-    h[vid[enough]] = hv[enough]
-    sse = np.zeros(n)
-    dof = np.zeros(n)
-    sse[vid] = evals[:, 0] * counts  # the points' squared distances to their plane
-    dof[vid] = counts - 3.0
-    return dev, _pooled_variance(h, sse, dof)
+@dataclass(frozen=True)
+class _LocalPlanes:
+    """The plane fitted to each vertex's neighbourhood (:func:`nominal_referenced`): ``k``
+    vertices with points, coordinates about the vertex, mm.
+
+    Attributes
+    ----------
+    vid : (k,) the vertices.  counts : (k,) their points.  c : (k, 3) centroids.
+    evals, evecs : (k, 3), (k, 3, 3) the points' covariance, ascending.
+    nv : (k, 3) vertex normals.  cos : (k,) the plane normal's cosine to the vertex normal.
+    c_m : (k,) the centroid along the plane normal.
+    ok : (k,) bool the plane defines the deviation (tilt and spread, else the centroid).
+    """
+
+    vid: np.ndarray
+    counts: np.ndarray
+    c: np.ndarray
+    evals: np.ndarray
+    evecs: np.ndarray
+    nv: np.ndarray
+    cos: np.ndarray
+    c_m: np.ndarray
+    ok: np.ndarray
+
+    @classmethod
+    def fitted(cls, vrt: np.ndarray, Q: np.ndarray, N: np.ndarray) -> _LocalPlanes:
+        """The planes of the pairs ``vrt`` (k,), ``Q`` (k, 3) (:func:`_neighbourhoods`);
+        ``N`` (n, 3) unit vertex normals."""
+        vid, row, counts = np.unique(vrt, return_inverse=True, return_counts=True)
+
+        def _sum(w: np.ndarray) -> np.ndarray:
+            return np.bincount(row, weights=w, minlength=len(vid))
+
+        c = np.stack([_sum(Q[:, a]) for a in range(3)], axis=1) / counts[:, None]
+        R = Q - np.take(c, row, axis=0)
+        cov = np.empty((len(vid), 3, 3))
+        for a in range(3):
+            for b in range(a, 3):
+                cov[:, a, b] = cov[:, b, a] = _sum(R[:, a] * R[:, b]) / counts
+        evals, evecs = np.linalg.eigh(cov)
+        m_plane = evecs[:, :, 0]  # eigenvector of the smallest eigenvalue
+        nv = N[vid]
+        cos = np.einsum("ij,ij->i", nv, m_plane)
+        # the plane's tilt is only defined if the points spread in two directions well
+        # above the scatter about the plane (a collinear sliver can be rotated freely
+        # about its line)
+        planar = evals[:, 1] > _MIN_SPREAD_RATIO * np.maximum(evals[:, 0], 1e-300)
+        return cls(
+            vid=vid,
+            counts=counts,
+            c=c,
+            evals=evals,
+            evecs=evecs,
+            nv=nv,
+            cos=cos,
+            c_m=np.einsum("ij,ij->i", c, m_plane),
+            ok=(np.abs(cos) >= _MIN_PLANE_COS) & planar,
+        )
+
+    def variance(self, enough: np.ndarray, n: int) -> np.ndarray:
+        """(n,) the variance of each scored (``enough`` (k,)) vertex's deviation, mm^2
+        (:func:`nominal_referenced`'s Returns); NaN elsewhere."""
+        # the plane's height at the vertex: its offset (variance 1/N) and its two slopes
+        # (variance 1 / (N lambda_k)) times the centroid's in-plane distance, then along n
+        vid, counts, ok, cos = self.vid, self.counts, self.ok, self.cos
+        lev = np.ones(len(vid))
+        for k in (1, 2):
+            ck = np.einsum("ij,ij->i", self.c, self.evecs[:, :, k])
+            lev += ck**2 / np.maximum(self.evals[:, k], 1e-300)
+        hv = 1.0 / counts
+        hv[ok] = lev[ok] / (counts[ok] * cos[ok] ** 2)
+        h = np.full(n, np.nan)
+        h[vid[enough]] = hv[enough]
+        sse = np.zeros(n)
+        dof = np.zeros(n)
+        sse[vid] = self.evals[:, 0] * counts  # the points' squared distances to their plane
+        dof[vid] = counts - 3.0
+        return _pooled_variance(h, sse, dof)
 
 
 def corner_normals(V: np.ndarray, F: np.ndarray, labels: np.ndarray) -> np.ndarray:
