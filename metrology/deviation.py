@@ -383,17 +383,9 @@ def nominal_referenced(
     if len(vrt) == 0:
         return (dev, h) if variance else dev
     fit = _LocalPlanes.fitted(vrt, Q, N)
-    t = np.einsum("ij,ij->i", fit.c, fit.nv)  # fallback: centroid offset along the normal
-    t[fit.ok] = fit.c_m[fit.ok] / fit.cos[fit.ok]
-    enough = fit.counts >= min_points
-    if max_centroid_offset is not None:
-        c_n = np.einsum("ij,ij->i", fit.c, fit.nv)
-        offset = np.linalg.norm(fit.c - c_n[:, None] * fit.nv, axis=1)  # to normal line
-        enough &= offset <= float(max_centroid_offset) * radius
+    t, enough = fit.deviation(min_points, max_centroid_offset, radius)
     dev[fit.vid[enough]] = t[enough]
-    if not variance:
-        return dev
-    return dev, fit.variance(enough, n)
+    return (dev, fit.variance(enough, n)) if variance else dev
 
 
 def _neighbourhoods(
@@ -492,6 +484,22 @@ class _LocalPlanes:
             c_m=np.einsum("ij,ij->i", c, m_plane),
             ok=(np.abs(cos) >= _MIN_PLANE_COS) & planar,
         )
+
+    def deviation(
+        self, min_points: int, max_centroid_offset: float | None, radius: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(k,) each vertex's deviation, mm: where its normal line meets the plane, or the
+        centroid's offset along it (the plane too tilted, or the points collinear); and
+        (k,) bool whether it is scored: ``min_points`` points, their centroid within
+        ``max_centroid_offset x radius`` of the normal line (None: no such rule)."""
+        t = np.einsum("ij,ij->i", self.c, self.nv)  # fallback: centroid offset along normal
+        t[self.ok] = self.c_m[self.ok] / self.cos[self.ok]
+        enough = self.counts >= min_points
+        if max_centroid_offset is not None:
+            c_n = np.einsum("ij,ij->i", self.c, self.nv)
+            offset = np.linalg.norm(self.c - c_n[:, None] * self.nv, axis=1)  # to normal line
+            enough &= offset <= float(max_centroid_offset) * radius
+        return t, enough
 
     def variance(self, enough: np.ndarray, n: int) -> np.ndarray:
         """(n,) the variance of each scored (``enough`` (k,)) vertex's deviation, mm^2
@@ -750,11 +758,17 @@ def residual_referenced(
             dof[vid] = dv
     if not variance:
         return dev
-    first_face = np.full(n, -1, dtype=np.int64)  # each vertex's lowest B-rep face
+    return dev, _pooled_variance(h, sse, dof, _first_faces(own, m, n))
+
+
+def _first_faces(own: np.ndarray, m: int, n: int) -> np.ndarray:
+    """(n,) each vertex's lowest-numbered B-rep face (-1: none), from the sorted
+    (vertex, face) keys ``own`` (vertex * m + face)."""
+    first_face = np.full(n, -1, dtype=np.int64)
     vo, fo = own // m, own % m
     first = np.r_[True, vo[1:] != vo[:-1]]  # ``own`` is sorted: vertex-major
     first_face[vo[first]] = fo[first]
-    return dev, _pooled_variance(h, sse, dof, first_face)
+    return first_face
 
 
 #: vertices per call of :func:`_residual_fit` (its ball search holds every (vertex, point)
@@ -777,47 +791,10 @@ def _residual_fit(
     pi, pj = ball_pairs(V[verts], tree, radius, min_points)
     if len(pi) == 0:
         return none
-    idx = sel[pj]
-    vrt = verts[pi]
-    pl = point_label[idx]
-    key = vrt * m + np.maximum(pl, 0)
-    # (vertex, face) pairs looked up in a table of them where it is small, else by bisection
-    table = n * m <= _PAIR_TABLE_MAX
-    if table:
-        is_own = np.zeros(n * m, dtype=bool)
-        is_own[own] = True
-        keep = (pl >= 0) & is_own[key]
-    else:
-        pos = np.clip(np.searchsorted(own, key), 0, len(own) - 1)
-        keep = (pl >= 0) & (own[pos] == key)
-    idx, vrt = idx[keep], vrt[keep]
-    # a vertex on several faces (a crease) is measured only where every one of its faces
-    # was: the back skin of a sheet is not scored from its edge face's points
-    faces_of = np.bincount(own // m, minlength=n)
-    if table:
-        seen = np.zeros(n * m, dtype=bool)
-        seen[key[keep]] = True
-        seen_of = seen.reshape(n, m).sum(axis=1)
-    else:
-        seen_of = np.bincount(unique_sorted(key[keep]) // m, minlength=n)
-    whole = (seen_of == faces_of)[vrt]
-    idx, vrt = idx[whole], vrt[whole]
+    idx, vrt = _own_face_pairs(sel[pj], verts[pi], point_label, own, m, n)
     if len(idx) == 0:
         return none
-    # robust: a point whose residual is more than 5 robust sigmas from its neighbourhood's
-    # median (material the nominal does not have: a rib standing on the surface, a burr)
-    # does not count for the vertex
-    order = sort_within_groups(vrt, r[idx])
-    idx, vrt = idx[order], vrt[order]  # from here on by vertex, then by residual
-    rr = r[idx]
-    first = np.flatnonzero(np.r_[True, vrt[1:] != vrt[:-1]])
-    size = np.diff(np.r_[first, len(vrt)])
-    med = np.repeat(rr[first + size // 2], size)
-    dev_abs = np.abs(rr - med)
-    o2 = sort_within_groups(vrt, dev_abs)
-    mad = np.repeat(dev_abs[o2][first + size // 2], size)
-    keep = dev_abs <= np.maximum(5.0 * 1.4826 * mad, 1e-9)
-    idx, vrt, rr = idx[keep], vrt[keep], rr[keep]
+    idx, vrt, rr = _without_outliers(idx, vrt, r)
     # rows gathered by np.take (qifreport.registration.arrays)
     Q = np.take(P, idx, axis=0)
     Q -= np.take(V, vrt, axis=0)
@@ -861,6 +838,62 @@ def _residual_fit(
     if max_centroid_offset is not None:
         enough &= np.linalg.norm(c, axis=1) <= float(max_centroid_offset) * radius
     return vid[enough], t[enough], hv[enough], sse[enough], dof[enough]
+
+
+def _own_face_pairs(
+    idx: np.ndarray,
+    vrt: np.ndarray,
+    point_label: np.ndarray,
+    own: np.ndarray,
+    m: int,
+    n: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (point ``idx``, vertex ``vrt``) pairs whose point lies on one of the vertex's
+    own B-rep faces (``own``: sorted keys vertex * m + face; ``n`` vertices), of the
+    vertices with points on every one of their faces."""
+    pl = point_label[idx]
+    key = vrt * m + np.maximum(pl, 0)
+    # (vertex, face) pairs looked up in a table of them where it is small, else by bisection
+    table = n * m <= _PAIR_TABLE_MAX
+    if table:
+        is_own = np.zeros(n * m, dtype=bool)
+        is_own[own] = True
+        keep = (pl >= 0) & is_own[key]
+    else:
+        pos = np.clip(np.searchsorted(own, key), 0, len(own) - 1)
+        keep = (pl >= 0) & (own[pos] == key)
+    idx, vrt = idx[keep], vrt[keep]
+    # a vertex on several faces (a crease) is measured only where every one of its faces
+    # was: the back skin of a sheet is not scored from its edge face's points
+    faces_of = np.bincount(own // m, minlength=n)
+    if table:
+        seen = np.zeros(n * m, dtype=bool)
+        seen[key[keep]] = True
+        seen_of = seen.reshape(n, m).sum(axis=1)
+    else:
+        seen_of = np.bincount(unique_sorted(key[keep]) // m, minlength=n)
+    whole = (seen_of == faces_of)[vrt]
+    return idx[whole], vrt[whole]
+
+
+def _without_outliers(
+    idx: np.ndarray, vrt: np.ndarray, r: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs sorted by vertex, then by residual, without a point whose residual is more
+    than 5 robust sigmas from its neighbourhood's median (material the nominal does not
+    have: a rib standing on the surface, a burr): points, vertices, residuals (mm)."""
+    order = sort_within_groups(vrt, r[idx])
+    idx, vrt = idx[order], vrt[order]  # from here on by vertex, then by residual
+    rr = r[idx]
+    first = np.flatnonzero(np.r_[True, vrt[1:] != vrt[:-1]])
+    size = np.diff(np.r_[first, len(vrt)])
+    med = np.repeat(rr[first + size // 2], size)
+    dev_abs = np.abs(rr - med)
+    o2 = sort_within_groups(vrt, dev_abs)
+    mad = np.repeat(dev_abs[o2][first + size // 2], size)
+    keep = dev_abs <= np.maximum(5.0 * 1.4826 * mad, 1e-9)
+    idx, vrt, rr = idx[keep], vrt[keep], rr[keep]
+    return idx, vrt, rr
 
 
 def point_faces(cface: np.ndarray, face_id: np.ndarray) -> np.ndarray:
