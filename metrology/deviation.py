@@ -744,18 +744,8 @@ def residual_referenced(
     # a second, twice as wide ball for the vertices the first left unscored (surfaces seen
     # at a grazing angle, where the points are sparser than the median spacing)
     for ball in (radius, 2.0 * radius):
-        todo = np.flatnonzero(np.isnan(dev))
-        if len(todo) == 0:
+        if not _fit_unscored(args, ball, max_centroid_offset, dev, h, sse, dof):
             break
-        # in blocks of vertices: each vertex's fit is its own (the same numbers), and the
-        # (vertex, point) pairs of a large part's ball search stay a bounded size
-        for s in range(0, len(todo), _FIT_BLOCK):
-            block = todo[s : s + _FIT_BLOCK]
-            vid, t, hv, ev, dv = _residual_fit(*args, block, ball, max_centroid_offset)
-            dev[vid] = t
-            h[vid] = hv
-            sse[vid] = ev
-            dof[vid] = dv
     if not variance:
         return dev
     return dev, _pooled_variance(h, sse, dof, _first_faces(own, m, n))
@@ -838,6 +828,33 @@ def _residual_fit(
     if max_centroid_offset is not None:
         enough &= np.linalg.norm(c, axis=1) <= float(max_centroid_offset) * radius
     return vid[enough], t[enough], hv[enough], sse[enough], dof[enough]
+
+
+def _fit_unscored(
+    args: tuple,
+    ball: float,
+    max_centroid_offset: float | None,
+    dev: np.ndarray,
+    h: np.ndarray,
+    sse: np.ndarray,
+    dof: np.ndarray,
+) -> bool:
+    """:func:`_residual_fit` (``args``: its leading arguments) with the ball ``ball``, mm,
+    on the vertices ``dev`` (n,) leaves unscored (NaN), filling in ``dev``, ``h``, ``sse``
+    and ``dof`` (n,) where it scores them; False: none was left unscored."""
+    todo = np.flatnonzero(np.isnan(dev))
+    if len(todo) == 0:
+        return False
+    # in blocks of vertices: each vertex's fit is its own (the same numbers), and the
+    # (vertex, point) pairs of a large part's ball search stay a bounded size
+    for s in range(0, len(todo), _FIT_BLOCK):
+        block = todo[s : s + _FIT_BLOCK]
+        vid, t, hv, ev, dv = _residual_fit(*args, block, ball, max_centroid_offset)
+        dev[vid] = t
+        h[vid] = hv
+        sse[vid] = ev
+        dof[vid] = dv
+    return True
 
 
 def _own_face_pairs(

@@ -437,8 +437,30 @@ def seat_held(
 
     z = np.zeros(q)
     residual = linearised(z)
-    r0 = r = residual(z)
-    scale = max(robust_scale(r), 1e-3)
+    r0 = residual(z)
+    scale = max(robust_scale(r0), 1e-3)
+    z, r = _seat_rounds(linearised, residual, r0, scale, q)
+    xi = B @ z
+    log.info(
+        "restrained seat: %.3g deg, %.3g mm (%d points; residual scale %.3g mm, rms %.3g -> "
+        "%.3g mm)",
+        np.degrees(np.linalg.norm(xi[:3])),
+        np.linalg.norm(xi[3:]),
+        len(S),
+        scale,
+        float(np.sqrt(np.mean(r0**2))),
+        float(np.sqrt(np.mean(r**2))),
+    )
+    return xi
+
+
+def _seat_rounds(
+    linearised: Callable, residual: Callable, r: np.ndarray, scale: float, q: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`seat_held`'s robust Levenberg-Marquardt rounds from the free state's
+    placement (``z = 0``, (q,); ``residual`` its linearisation there, ``r`` its held
+    residual, mm; ``scale``: the Tukey scale, mm): the placement ``z`` and its residual."""
+    z = np.zeros(q)
     # a prior on the placement (Tikhonov, towards the free state's): a motion must pay for
     # itself, 1 mm of it lowering the mean square held residual by a quarter of the held
     # residual's robust variance where it stands (at least (10 um)^2). Where the held state
@@ -472,18 +494,7 @@ def seat_held(
         z, r = z + step * dz, r_new
         if step * np.linalg.norm(dz) < _SEAT_SETTLED:
             break
-    xi = B @ z
-    log.info(
-        "restrained seat: %.3g deg, %.3g mm (%d points; residual scale %.3g mm, rms %.3g -> "
-        "%.3g mm)",
-        np.degrees(np.linalg.norm(xi[:3])),
-        np.linalg.norm(xi[3:]),
-        len(S),
-        scale,
-        float(np.sqrt(np.mean(r0**2))),
-        float(np.sqrt(np.mean(r**2))),
-    )
-    return xi
+    return z, r
 
 
 def seat_motions(

@@ -271,7 +271,7 @@ def judge_as_held(
     ``zones``: the zones as given, before those covering no triangle were dropped (the
     tightest sets the fixture's guard); ``timings``: seconds per stage, added to;
     ``executor``: as :func:`inspect`'s (:func:`_free_state_beside_fixture`)."""
-    basis = ctx.basis
+    run = _Run(reg, ctx, params, zones, timings, progress, executor)
     if params.rigid_only:
         res = judge(reg, None, params, timings, ctx)
         res.fixture_decision = "rigid only"
@@ -281,18 +281,16 @@ def judge_as_held(
             raise ValueError("a restrained inspection needs the part's restraint basis")
         if len(restraint.points) != len(reg.V):
             raise ValueError("the restraint basis was built for another mesh of the part")
-        return _restrained(reg, restraint, params, timings, progress, zones, ctx)
+        return _restrained(run, restraint)
     if params.always_fixture:
-        return _fixture_and_judge(reg, ctx, params, zones, basis, progress, timings, executor)
+        return _fixture_and_judge(run, ctx.basis)
     # ISO 10579 / Y14.5: restraint is there to bring a compliant part to its drawing shape;
     # the free state (no force) is one of the states a fixture may hold it in. When it
     # conforms on its own, no restraint is needed and none is simulated: a virtual fixture
     # can then only add its own error (a stiff part moved by it).
     t0 = time.perf_counter()
     if executor is not None and _fixture_likely(reg.rigid, zones):
-        return _free_state_beside_fixture(
-            reg, ctx, params, zones, basis, progress, timings, executor
-        )
+        return _free_state_beside_fixture(run, ctx.basis)
     # a seat well inside the tightest zone (a stiff part): its free state will most likely
     # stand, so no fixture is started beside it (its work would be wasted, and would take a
     # core from the judgement); judged here, its own steps beside it
@@ -301,9 +299,21 @@ def judge_as_held(
     if decided is not None:
         return decided
     timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
-    return _fixture_and_judge(
-        reg, ctx, params, zones, basis, progress, timings, executor, free=free
-    )
+    return _fixture_and_judge(run, ctx.basis, free=free)
+
+
+@dataclass(frozen=True)
+class _Run:
+    """What the judgements of one seated scan share (:func:`judge_as_held`'s inputs):
+    ``timings`` is added to; ``progress`` and ``executor`` are :func:`inspect`'s."""
+
+    reg: Registered
+    ctx: JudgeContext
+    params: InspectionParams
+    zones: list[ToleranceZone]
+    timings: dict[str, float]
+    progress: Any = None
+    executor: Any = None
 
 
 def _checked_part(
@@ -484,41 +494,34 @@ def _free_state_stands(free: InspectionResult) -> InspectionResult | None:
 
 
 def _fixture_and_judge(
-    reg: Registered,
-    ctx: JudgeContext,
-    params: InspectionParams,
-    zones: list[ToleranceZone],
-    basis: BendingBasis | None,
-    progress,
-    timings: dict[str, float],
-    executor,
-    free: InspectionResult | None = None,
+    run: _Run, basis: BendingBasis | None, free: InspectionResult | None = None
 ) -> InspectionResult:
-    """The virtual fixture and the judgement of the part as it holds it (``executor``: as
-    :func:`inspect`'s, for the trim edges), after the free state's judgement ``free`` that
+    """The virtual fixture (in ``basis``) and the judgement of the part as it holds it
+    (``run.executor``: for the trim edges), after the free state's judgement ``free`` that
     did not stand (None: ``always_fixture``, not judged)."""
-    fit = _timed_fixture(reg, ctx, params, zones, basis, progress, timings)
-    res = judge(reg, fit, params, timings, ctx, free_deviation=_deviation(free), executor=executor)
+    fit = _timed_fixture(run, basis, run.progress)
+    res = judge(
+        run.reg,
+        fit,
+        run.params,
+        run.timings,
+        run.ctx,
+        free_deviation=_deviation(free),
+        executor=run.executor,
+    )
     return _with_free_state(res, free)
 
 
-def _free_state_beside_fixture(
-    reg: Registered,
-    ctx: JudgeContext,
-    params: InspectionParams,
-    zones: list[ToleranceZone],
-    basis: BendingBasis | None,
-    progress,
-    timings: dict[str, float],
-    executor,
-) -> InspectionResult:
-    """The schedule with a second process: the free state judged on ``executor`` beside the
-    virtual fixture, which is given up (between two of its steps, or of the bending basis's)
-    once the free state stands; the outcome is the sequential one (:func:`inspect`).
+def _free_state_beside_fixture(run: _Run, basis: BendingBasis | None) -> InspectionResult:
+    """The schedule with a second process: the free state judged on ``run.executor``
+    beside the virtual fixture, which is given up (between two of its steps, or of the
+    bending basis's) once the free state stands; the outcome is the sequential one
+    (:func:`inspect`).
 
     The only function whose steps depend on the executor: the decisions it makes are
     :func:`_free_state_stands`' and :func:`_with_free_state`'s, as in the sequential
     schedule."""
+    reg, ctx, params, timings, executor = run.reg, run.ctx, run.params, run.timings, run.executor
     pending = executor.submit(judge, reg, None, params, dict(timings), ctx, check_part=False)
     stood = _StoodCheck(pending)
     # one factorisation for the basis and the fixture: their matrices share a pattern, so
@@ -535,10 +538,10 @@ def _free_state_beside_fixture(
 
         def watched(k: int) -> None:  # between two fixture iterations, likewise
             stood()
-            if progress is not None:
-                progress(k)
+            if run.progress is not None:
+                run.progress(k)
 
-        fit = _timed_fixture(reg, ctx, params, zones, basis, watched, timings, solver)
+        fit = _timed_fixture(run, basis, watched, solver)
         # the free-state zones take its deviation; else the fixtured judgement goes first
         free = _take(pending, timings) if _free_state_zones(ctx) else None
         res = judge(
@@ -589,19 +592,14 @@ def _take(pending, timings: dict[str, float]) -> InspectionResult:
 
 
 def _timed_fixture(
-    reg: Registered,
-    ctx: JudgeContext,
-    params: InspectionParams,
-    zones: list[ToleranceZone],
-    basis: BendingBasis | None,
-    progress,
-    timings: dict[str, float],
-    solver: SPDSolver | None = None,
+    run: _Run, basis: BendingBasis | None, progress, solver: SPDSolver | None = None
 ) -> DeformResult:
-    """:func:`_virtual_fixture`, its time a stage (``timings[params.method]``)."""
+    """:func:`_virtual_fixture` of ``run``'s seated scan, its time a stage
+    (``run.timings[params.method]``)."""
     t0 = time.perf_counter()
-    fit = _virtual_fixture(reg, params, ctx.prepared, zones, basis, progress, solver)
-    timings[params.method] = time.perf_counter() - t0
+    params = run.params
+    fit = _virtual_fixture(run.reg, params, run.ctx.prepared, run.zones, basis, progress, solver)
+    run.timings[params.method] = time.perf_counter() - t0
     return fit
 
 
@@ -637,22 +635,15 @@ def _virtual_fixture(
     )
 
 
-def _restrained(
-    reg: Registered,
-    restraint: RestraintBasis,
-    params: InspectionParams,
-    timings: dict[str, float],
-    progress,
-    zones: list[ToleranceZone],
-    ctx: JudgeContext,
-) -> InspectionResult:
+def _restrained(run: _Run, restraint: RestraintBasis) -> InspectionResult:
     """Hold the rigidly seated scan at its clamps (:func:`qifreport.metrology.held.hold_scan`)
     and judge it as held; the free-state zones are judged on the free state in the held
     seat, and the hold's uncertainty enters each deviation's."""
+    reg, ctx, params, timings = run.reg, run.ctx, run.params, run.timings
     prepared = ctx.prepared
 
     def free_fit() -> np.ndarray:
-        return _virtual_fixture(reg, params, prepared, zones, ctx.basis, progress).V
+        return _virtual_fixture(reg, params, prepared, run.zones, ctx.basis, run.progress).V
 
     held = hold_scan(
         reg.V,

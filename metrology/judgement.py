@@ -24,7 +24,8 @@ a typed output a library user can run and look at one by one:
 6. :func:`located_readings` -- the deviations read in the located zones' frames
    (:class:`Readings`);
 7. :func:`acceptance_stage` -- area, region and coverage criteria on the whole part and on
-   each zone (:func:`zone_result`; :class:`Decisions`);
+   each zone (:func:`zone_result`; :class:`Decisions`), on the measuring stages' outputs
+   (:class:`Measured`);
 8. :func:`added_stage` -- added material; :func:`residual_scatter` -- the resolution;
 9. :func:`assemble_result` -- the :class:`~qifreport.metrology.results.InspectionResult`.
 """
@@ -90,6 +91,7 @@ __all__ = [
     "Deviations",
     "HeldNominal",
     "JudgeContext",
+    "Measured",
     "Readings",
     "Registered",
     "Scores",
@@ -414,6 +416,16 @@ class Readings:
     point_uncertainty: float | np.ndarray
     zone_frames: dict[int, DatumFrameResult | None]
     located: dict[int, DatumFrameResult]
+
+
+@dataclass(frozen=True)
+class Measured:
+    """The measuring stages' outputs the decisions read (:func:`acceptance_stage`)."""
+
+    nominal: HeldNominal
+    deviations: Deviations
+    scores: Scores
+    readings: Readings
 
 
 @dataclass(frozen=True)
@@ -807,69 +819,42 @@ def located_readings(
 
 
 def acceptance_stage(
-    reg: Registered,
-    nominal: HeldNominal,
-    deviations: Deviations,
-    scores: Scores,
-    readings: Readings,
-    ctx: JudgeContext,
-    params: InspectionParams,
+    reg: Registered, m: Measured, ctx: JudgeContext, params: InspectionParams
 ) -> Decisions:
     """The area, region and coverage criteria on the whole part and on each zone
-    (:class:`Decisions`), from the earlier stages' outputs.
+    (:class:`Decisions`), from the measuring stages' outputs ``m``.
 
     Beside a drawing's own tolerances, qifreport's default band is no requirement: it is
     judged where it was measured and its unmeasured patches are reported (each PMI zone
     keeps its rules).
     """
     V, F, bands, area = reg.V, reg.F, ctx.bands, ctx.prepared.ops.area
+    deviations, scores, readings = m.deviations, m.scores, m.readings
     general_half, dev_all = ctx.general_half, readings.deviation
     vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
     pstats = deviation_statistics(deviations.point, threshold=general_half)
-    acc = evaluate(
-        V,
-        F,
-        dev_all,
+    points = _surface_points(
+        scores.samples,
+        scores.points_ok,
         bands.half_width,
-        area=area,
-        min_fraction=params.min_fraction,
-        max_region_area=params.max_region_area,
-        center=bands.center,
-        uncertainty=readings.uncertainty,
-        decision_rule=params.decision_rule,
-        points=_surface_points(
-            scores.samples,
-            scores.points_ok,
-            bands.half_width,
-            readings.point_center,
-            readings.point_uncertainty,
-        ),
+        readings.point_center,
+        readings.point_uncertainty,
     )
+    acc = _acceptance(V, F, dev_all, bands, area, readings.uncertainty, points, params)
     advisory = any(z.source == "default" for z in bands.zones) and any(
         z.faces is not None for z in bands.zones
     )
     zones = [
-        zone_result(i, reg, nominal, deviations, scores, readings, ctx, params, advisory=advisory)
-        for i in range(len(bands.zones))
+        zone_result(i, reg, m, ctx, params, advisory=advisory) for i in range(len(bands.zones))
     ]
-    whole = zone_coverage(
-        V,
-        F,
-        dev_all,
-        area,
-        deviations.excluded,
-        center=bands.center,
-        half_width=bands.half_width,
-        min_coverage=params.min_coverage,
-        max_region_area=params.max_region_area,
-        max_gap_area=params.max_gap_area,
-        advisory_gaps=advisory,
+    whole = _coverage(
+        V, F, dev_all, bands, area, deviations.excluded, params.min_coverage, params, advisory
     )
     # the ceiling catches a deformable fit that met points of other features; a B-rep's free
     # state is rigid and scores each vertex from its own faces' points only, while the
     # scan-area estimate merges the two skins of a wall thinner than a point neighbourhood
     # (NIST CTC 03, 1.9 mm walls: 65 % "scanned" against 94 % scored)
-    ceiling = nominal.to_creases or coverage_ceiling_ok(
+    ceiling = m.nominal.to_creases or coverage_ceiling_ok(
         acc.coverage, reg.scan_area, acc.nominal_area
     )
     return Decisions(
@@ -885,10 +870,7 @@ def acceptance_stage(
 def zone_result(
     i: int,
     reg: Registered,
-    nominal: HeldNominal,
-    deviations: Deviations,
-    scores: Scores,
-    readings: Readings,
+    m: Measured,
     ctx: JudgeContext,
     params: InspectionParams,
     *,
@@ -900,6 +882,7 @@ def zone_result(
     coverage (``advisory``: its gaps reported, not failed, for qifreport's default band
     beside a drawing's zones)."""
     V, F, normals = reg.V, reg.F, ctx.prepared.ops.normals
+    deviations, scores, readings = m.deviations, m.scores, m.readings
     z, mask = ctx.bands.zones[i], ctx.bands.tri_masks[i]
     az = zone_vertex_areas(V, F, mask)
     use_free = z.free_state and deviations.free is not None
@@ -919,41 +902,74 @@ def zone_result(
     if not use_free:
         on_zone = scores.points_ok & mask[np.maximum(deviations.face, 0)]
         points = _surface_points(scores.samples, on_zone, z.half_width, zcenter, zpU)
-    zacc = evaluate(
-        V,
-        F[mask],
-        dz,
-        z.half_width,
-        area=az,
-        min_fraction=params.min_fraction,
-        max_region_area=params.max_region_area,
-        center=z.center,
-        uncertainty=zU,
-        decision_rule=params.decision_rule,
-        points=points,
-    )
+    zacc = _acceptance(V, F[mask], dz, z, az, zU, points, params)
     zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
-    zcov = zone_coverage(
-        V,
-        F[mask],
-        dz,
-        az,
-        deviations.excluded,
-        center=z.center,
-        half_width=z.half_width,
-        min_coverage=params.min_coverage if z.min_coverage is None else z.min_coverage,
-        max_region_area=params.max_region_area,
-        max_gap_area=params.max_gap_area,
-        advisory_gaps=advisory and z.source == "default",
-    )
+    min_coverage = params.min_coverage if z.min_coverage is None else z.min_coverage
+    advisory = advisory and z.source == "default"
+    zcov = _coverage(V, F[mask], dz, z, az, deviations.excluded, min_coverage, params, advisory)
     return ZoneResult(
         zone=z,
         stats=zstats,
         acceptance=zacc,
-        fixtured=nominal.held and not use_free,
+        fixtured=m.nominal.held and not use_free,
         deviation=dz,
         coverage=zcov,
         reading=_zone_reading(z, frame, located),
+    )
+
+
+def _acceptance(
+    V: np.ndarray,
+    F: np.ndarray,
+    dev: np.ndarray,
+    band: BandField | ToleranceZone,
+    area: np.ndarray,
+    uncertainty: np.ndarray,
+    points: SurfacePoints | None,
+    params: InspectionParams,
+) -> Acceptance:
+    """:func:`evaluate` of the surface ``F`` against ``band``'s half-width and centre, by
+    the inspection's criteria and decision rule."""
+    return evaluate(
+        V,
+        F,
+        dev,
+        band.half_width,
+        area=area,
+        min_fraction=params.min_fraction,
+        max_region_area=params.max_region_area,
+        center=band.center,
+        uncertainty=uncertainty,
+        decision_rule=params.decision_rule,
+        points=points,
+    )
+
+
+def _coverage(
+    V: np.ndarray,
+    F: np.ndarray,
+    dev: np.ndarray,
+    band: BandField | ToleranceZone,
+    area: np.ndarray,
+    excluded: np.ndarray,
+    min_coverage: float,
+    params: InspectionParams,
+    advisory: bool,
+) -> Coverage:
+    """:func:`zone_coverage` of the surface ``F`` in ``band`` with the inspection's region
+    and gap limits (``advisory``: its gaps reported only)."""
+    return zone_coverage(
+        V,
+        F,
+        dev,
+        area,
+        excluded,
+        center=band.center,
+        half_width=band.half_width,
+        min_coverage=min_coverage,
+        max_region_area=params.max_region_area,
+        max_gap_area=params.max_gap_area,
+        advisory_gaps=advisory,
     )
 
 
@@ -1144,7 +1160,8 @@ def judge(
         t_edges = time.perf_counter()
         edges, size = trim.result()
         timings["edges"] = time.perf_counter() - t_edges
-    decisions = acceptance_stage(reg, nominal, deviations, scores, readings, ctx, params)
+    measured = Measured(nominal, deviations, scores, readings)
+    decisions = acceptance_stage(reg, measured, ctx, params)
     added = added_stage(reg, deviations, scores, ctx, params)
     timings["metrology"] = time.perf_counter() - t0
     scatter = residual_scatter(
