@@ -217,13 +217,7 @@ def zone_coverage(
     adj = adjacency(F, n)
     patches = unmeasured_patches(V, F, gap, area, adj)
     g_area, g_cen = patches[0] if patches else (0.0, None)
-    reasons: list[str] = []
-    if not (total > 0 and cov >= min_coverage * (1 - 1e-12)):
-        reasons.append(
-            f"scored {100 * (cov if total > 0 else 0.0):.1f} % of the surface, below the "
-            f"{100 * min_coverage:.0f} % needed to measure it"
-            + (f" ({100 * e_area / total:.1f} % left out near creases and rims)" if e_area else "")
-        )
+    reasons = _coverage_rule(total, cov, e_area, min_coverage)
     gap_reasons, warnings = _gap_rules(
         adj, V, gap, out, excess, area, patches, max_gap_area, max_region_area, advisory_gaps
     )
@@ -247,6 +241,18 @@ def zone_coverage(
         reasons=reasons,
         warnings=warnings,
     )
+
+
+def _coverage_rule(total: float, cov: float, e_area: float, min_coverage: float) -> list[str]:
+    """The coverage rule on a surface of ``total`` mm^2 scored over the share ``cov``
+    (``e_area`` mm^2 left out by design): its reason, or none."""
+    if total > 0 and cov >= min_coverage * (1 - 1e-12):
+        return []
+    return [
+        f"scored {100 * (cov if total > 0 else 0.0):.1f} % of the surface, below the "
+        f"{100 * min_coverage:.0f} % needed to measure it"
+        + (f" ({100 * e_area / total:.1f} % left out near creases and rims)" if e_area else "")
+    ]
 
 
 def _gap_rules(

@@ -448,8 +448,8 @@ def _fixture_likely(rigid: RigidResult, zones: list[ToleranceZone]) -> bool:
     Only the schedule depends on it, never the result: whether the fixture starts beside
     the free state's judgement or after it, if it does not stand. A wrong guess costs time,
     not a verdict: a fixture started for a free state that stands wastes the CPU it took (a
-    stiff part's bending basis: 7 CPU-s on NIST FTC 08), and one not started for a free
-    state that fails waits for the judgement (0.5 s on the fandisk); hence a low bar."""
+    stiff part's bending basis, the costliest step), and one not started for a free state
+    that fails waits for the judgement, a far smaller cost; hence a low bar."""
     tightest = min(z.half_width for z in zones)
     return rigid.scale >= FIXTURE_LIKELY * tightest
 

@@ -387,11 +387,22 @@ def size_error(
         residual=residual,
         seated_segments=rim_segments(rim, seated, tol),
     )
-    if est.seen_fraction >= min_seen:  # the rule (module docstring)
-        D, U, limit = abs(kk) * half, 2.0 * sd * half, fraction * tol
-        if D > limit + U:
-            est.status = "size error"
-        elif D <= limit and U <= tol:
-            est.status = "conforming"
+    est.status = _size_rule(est, kk, fraction)
     log.info("size: %s", est.reasons()[0])
     return est
+
+
+def _size_rule(est: SizeEstimate, kk: float, fraction: float) -> str:
+    """The size rule (module docstring) on an estimate of scale ``1 + kk``: ``"size
+    error"`` beyond the limit ``fraction x tolerance`` by more than the uncertainty,
+    ``"conforming"`` within the limit with the uncertainty within the tolerance, else
+    ``"not established"`` (as with too little of the rim seen)."""
+    if est.seen_fraction < est.min_seen:
+        return "not established"
+    half, tol = est.half_extent, est.tolerance
+    D, U, limit = abs(kk) * half, 2.0 * est.scale_sd * half, fraction * tol
+    if D > limit + U:
+        return "size error"
+    if D <= limit and U <= tol:
+        return "conforming"
+    return "not established"
