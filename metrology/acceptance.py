@@ -397,90 +397,117 @@ def evaluate(
     scored = ~np.isnan(dev)
     scored_area = float(A[scored].sum())
     nominal_area = float(A.sum())
-    coverage = scored_area / nominal_area if nominal_area > 0 else math.nan
     adj = adjacency(F, len(V))  # one adjacency for the measured values and both guard bands
-    u_stats = (math.nan, math.nan)
-    U = reduced = None
-    if uncertainty is not None and scored_area > 0:
-        U = np.nan_to_num(_per_vertex(uncertainty, len(V), "uncertainty"), nan=0.0)
-        Us = U[scored]
-        u_stats = (float(np.median(Us)), float(Us.max()))
-        U = U * (0.5 * PROOF_COVERAGE)  # the proofs' band (decision.py)
-        # the band reduced first: its scan points out of tolerance hold those of the
-        # measured and the enlarged band, whose point regions then reuse its links
-        reduced = _criteria(V, adj, dev, tol - U, A, c, scored_area, min_fraction, points, -1.0)
-    frac, area_ok, regions, largest, largest_v = _criteria(
-        V, adj, dev, tol, A, c, scored_area, min_fraction, points, 0.0
-    )
+    U, u_stats = _proof_band(uncertainty, scored, scored_area)
+
+    def criteria(band: np.ndarray, widen: float) -> tuple:
+        return _criteria(V, adj, dev, band, A, c, scored_area, min_fraction, points, widen)
+
+    # the band reduced first: its scan points out of tolerance hold those of the measured
+    # and the enlarged band, whose point regions then reuse its links
+    reduced = None if U is None else criteria(tol - U, -1.0)
+    frac, area_ok, regions, largest, largest_v = criteria(tol, 0.0)
     region_ok = bool(largest <= max_region_area)
     passed = bool(area_ok and region_ok and scored_area > 0)
     passed_v = bool(area_ok and largest_v <= max_region_area and scored_area > 0)
     proven_in_v, proven_out_v = passed_v, not passed_v
-
-    reasons: list[str] = []
-    if scored_area <= 0:
-        reasons.append("no scored vertex: the scan observed none of the nominal surface")
-    else:
-        if not area_ok:
-            reasons.append(
-                f"in-tolerance area {100 * frac:.1f} % of the scored area is below "
-                f"{100 * min_fraction:.1f} %"
-            )
-        reasons += region_reasons(regions, max_region_area)
-    tol_out: float | np.ndarray = (
-        float(tolerance) if np.ndim(tolerance) == 0 else np.asarray(tolerance, dtype=float)
-    )
     proven_in = proven_out = None
     uncertain: list[str] = []
     if U is not None:
-        frac_in, area_in, _, largest_in, largest_in_v = reduced
-        proven_in = bool(area_in and largest_in <= max_region_area)
-        proven_in_v = bool(area_in and largest_in_v <= max_region_area)
-        _, area_out, _, largest_out, largest_out_v = _criteria(
-            V, adj, dev, tol + U, A, c, scored_area, min_fraction, points, 1.0
-        )
-        proven_out = not (area_out and largest_out <= max_region_area)
-        proven_out_v = not (area_out and largest_out_v <= max_region_area)
+        proven_in, proven_in_v = _within(reduced, max_region_area)
+        conforms_out, conforms_out_v = _within(criteria(tol + U, 1.0), max_region_area)
+        proven_out, proven_out_v = not conforms_out, not conforms_out_v
         if not proven_in and not proven_out:
-            why_in = []
-            if not area_in:
-                why_in.append(f"{100 * frac_in:.1f} % of the scored area in tolerance")
-            if largest_in > max_region_area:
-                why_in.append(f"a region of {largest_in:.1f} mm^2")
-            uncertain = [
-                f"within the measurement uncertainty of the zone limit (U median "
-                f"{u_stats[0]:.4f} mm, max {u_stats[1]:.4f} mm; proofs at k = "
-                f"{PROOF_COVERAGE:g}): {r}"
-                for r in why_in
-            ]
+            uncertain = _uncertain_reasons(reduced, u_stats, max_region_area)
+    rule = decision_rule if uncertainty is not None else "simple"
     return Acceptance(
-        tolerance=tol_out,
+        tolerance=float(tolerance)
+        if np.ndim(tolerance) == 0
+        else np.asarray(tolerance, dtype=float),
         min_fraction=float(min_fraction),
         max_region_area=float(max_region_area),
         scored_area=scored_area,
         nominal_area=nominal_area,
-        coverage=coverage,
+        coverage=scored_area / nominal_area if nominal_area > 0 else math.nan,
         in_tolerance_fraction=frac,
         area_ok=area_ok,
         regions=regions,
         largest_region_area=float(largest),
         region_ok=region_ok,
         passed=passed,
-        reasons=reasons,
-        decision_rule=decision_rule if uncertainty is not None else "simple",
+        reasons=_reasons(scored_area, frac, area_ok, min_fraction, regions, max_region_area),
+        decision_rule=rule,
         proven_in=proven_in,
         proven_out=proven_out,
         uncertainty_mm=u_stats,
         uncertain_reasons=uncertain,
         nominal_decision=None
         if points is None
-        else decide(
-            decision_rule if uncertainty is not None else "simple",
-            passed_v,
-            proven_in_v,
-            proven_out_v,
-        ),
+        else decide(rule, passed_v, proven_in_v, proven_out_v),
     )
+
+
+def _proof_band(
+    uncertainty, scored: np.ndarray, scored_area: float
+) -> tuple[np.ndarray | None, tuple[float, float]]:
+    """The proofs' widening of the band per vertex (n,), mm: the expanded uncertainty
+    scaled to :data:`PROOF_COVERAGE` (NaN: 0), and the uncertainty's median and largest
+    over the scored vertices; (None, NaNs) without an uncertainty or a scored vertex."""
+    if uncertainty is None or scored_area <= 0:
+        return None, (math.nan, math.nan)
+    U = np.nan_to_num(_per_vertex(uncertainty, len(scored), "uncertainty"), nan=0.0)
+    Us = U[scored]
+    u_stats = (float(np.median(Us)), float(Us.max()))
+    return U * (0.5 * PROOF_COVERAGE), u_stats  # the proofs' band (decision.py)
+
+
+def _within(criteria: tuple, max_region_area: float) -> tuple[bool, bool]:
+    """Whether a band's criteria (:func:`_criteria`) pass, with the scan points' regions
+    and on the vertices alone."""
+    _, area_ok, _, largest, largest_v = criteria
+    return (
+        bool(area_ok and largest <= max_region_area),
+        bool(area_ok and largest_v <= max_region_area),
+    )
+
+
+def _reasons(
+    scored_area: float,
+    frac: float,
+    area_ok: bool,
+    min_fraction: float,
+    regions: list[Region],
+    max_region_area: float,
+) -> list[str]:
+    """Why the part does not pass on its measured values (empty: it does)."""
+    if scored_area <= 0:
+        return ["no scored vertex: the scan observed none of the nominal surface"]
+    reasons: list[str] = []
+    if not area_ok:
+        reasons.append(
+            f"in-tolerance area {100 * frac:.1f} % of the scored area is below "
+            f"{100 * min_fraction:.1f} %"
+        )
+    return reasons + region_reasons(regions, max_region_area)
+
+
+def _uncertain_reasons(
+    reduced: tuple, u_stats: tuple[float, float], max_region_area: float
+) -> list[str]:
+    """Why neither conformance nor non-conformance is proven: what fails the band reduced
+    by the uncertainty (``reduced``: its :func:`_criteria`)."""
+    frac_in, area_in, _, largest_in, _ = reduced
+    why_in = []
+    if not area_in:
+        why_in.append(f"{100 * frac_in:.1f} % of the scored area in tolerance")
+    if largest_in > max_region_area:
+        why_in.append(f"a region of {largest_in:.1f} mm^2")
+    return [
+        f"within the measurement uncertainty of the zone limit (U median "
+        f"{u_stats[0]:.4f} mm, max {u_stats[1]:.4f} mm; proofs at k = "
+        f"{PROOF_COVERAGE:g}): {r}"
+        for r in why_in
+    ]
 
 
 def _criteria(V, adj, dev, tol, A, c, scored_area, min_fraction, points=None, widen=0.0):

@@ -276,51 +276,11 @@ def zones_from_pmi(
         for tol in pmi.tolerances:
             if tol.type not in PROFILE_TYPES:
                 continue  # a feature characteristic (:mod:`.characteristics`)
-            if tol.value is None:
-                skipped.append(
-                    NotEvaluated(
-                        tol.type,
-                        tol.name,
-                        tol.step_id,
-                        "tolerance value could not be established: " + "; ".join(tol.problems),
-                    )
-                )
-                continue
-            is_whole = bool(getattr(tol, "whole_part", False))
-            faces = sorted({face_index[s] for s in tol.face_step_ids if s in face_index})
-            if not faces and not is_whole:
-                skipped.append(
-                    NotEvaluated(
-                        tol.type, tol.name, tol.step_id, "no B-rep face could be associated"
-                    )
-                )
-                continue
-            try:
-                lo, hi = profile_band(tol.value, tol.unequal_displacement)
-            except ValueError as exc:
-                skipped.append(NotEvaluated(tol.type, tol.name, tol.step_id, str(exc)))
-                continue
-            mods = list(tol.modifiers)
-            zone = ToleranceZone(
-                key="general" if is_whole else f"T{len(zones) + 1}",
-                name=tol.name or f"#{tol.step_id}",
-                kind=tol.type,
-                width=float(tol.value),
-                lower=lo,
-                upper=hi,
-                faces=None if is_whole else np.asarray(faces, dtype=np.int64),
-                source="pmi",
-                datums=[d.label for d in sorted(tol.datums, key=lambda d: d.precedence)],
-                modifiers=mods,
-                step_id=tol.step_id,
-                free_state="free_state" in mods,
-                datum_materials=[
-                    material_boundary(d.modifiers)
-                    for d in sorted(tol.datums, key=lambda d: d.precedence)
-                ],
-                composite=composite_segment(tol, pmi.tolerances),
-            )
-            (whole if is_whole else zones).append(zone)
+            zone = _profile_zone(tol, face_index, f"T{len(zones) + 1}", pmi.tolerances)
+            if isinstance(zone, NotEvaluated):
+                skipped.append(zone)
+            else:
+                (whole if zone.faces is None else zones).append(zone)
     if whole:
         zones.append(_whole_part_zone(whole, general, skipped))
     elif general is None:
@@ -328,6 +288,48 @@ def zones_from_pmi(
     else:
         zones.append(symmetric_zone(general, "general"))
     return zones, skipped
+
+
+def _profile_zone(
+    tol, face_index: dict[int, int], key: str, tolerances: list
+) -> ToleranceZone | NotEvaluated:
+    """The zone of one surface-profile tolerance of the PMI (``key``: its key unless it is
+    the whole part's, ``"general"``), or why it is not scored (:func:`zones_from_pmi`;
+    ``tolerances``: every tolerance of the PMI, for a composite's segments)."""
+    if tol.value is None:
+        return NotEvaluated(
+            tol.type,
+            tol.name,
+            tol.step_id,
+            "tolerance value could not be established: " + "; ".join(tol.problems),
+        )
+    is_whole = bool(getattr(tol, "whole_part", False))
+    faces = sorted({face_index[s] for s in tol.face_step_ids if s in face_index})
+    if not faces and not is_whole:
+        return NotEvaluated(tol.type, tol.name, tol.step_id, "no B-rep face could be associated")
+    try:
+        lo, hi = profile_band(tol.value, tol.unequal_displacement)
+    except ValueError as exc:
+        return NotEvaluated(tol.type, tol.name, tol.step_id, str(exc))
+    mods = list(tol.modifiers)
+    return ToleranceZone(
+        key="general" if is_whole else key,
+        name=tol.name or f"#{tol.step_id}",
+        kind=tol.type,
+        width=float(tol.value),
+        lower=lo,
+        upper=hi,
+        faces=None if is_whole else np.asarray(faces, dtype=np.int64),
+        source="pmi",
+        datums=[d.label for d in sorted(tol.datums, key=lambda d: d.precedence)],
+        modifiers=mods,
+        step_id=tol.step_id,
+        free_state="free_state" in mods,
+        datum_materials=[
+            material_boundary(d.modifiers) for d in sorted(tol.datums, key=lambda d: d.precedence)
+        ],
+        composite=composite_segment(tol, tolerances),
+    )
 
 
 def _whole_part_zone(

@@ -217,14 +217,64 @@ def zone_coverage(
     adj = adjacency(F, n)
     patches = unmeasured_patches(V, F, gap, area, adj)
     g_area, g_cen = patches[0] if patches else (0.0, None)
+    reasons = _coverage_rule(total, cov, e_area, min_coverage)
+    gap_reasons, warnings = _gap_rules(
+        adj, V, gap, out, excess, area, patches, max_gap_area, max_region_area, advisory_gaps
+    )
+    reasons += gap_reasons
+    if total > 0 and e_area / total > MAX_EXCLUDED_SHARE:
+        warnings.append(
+            f"{100 * e_area / total:.1f} % of the surface lies in the bands left unscored near "
+            f"sharp creases and open rims (more than {100 * MAX_EXCLUDED_SHARE:.0f} %)"
+        )
+    return Coverage(
+        area=total,
+        scored_area=s_area,
+        excluded_area=e_area,
+        unmeasured_area=u_area,
+        coverage=cov,
+        min_coverage=float(min_coverage),
+        largest_gap_area=g_area,
+        max_gap_area=float(max_gap_area),
+        largest_gap_centroid=g_cen,
+        measured=not reasons,
+        reasons=reasons,
+        warnings=warnings,
+    )
+
+
+def _coverage_rule(total: float, cov: float, e_area: float, min_coverage: float) -> list[str]:
+    """The coverage rule on a surface of ``total`` mm^2 scored over the share ``cov``
+    (``e_area`` mm^2 left out by design): its reason, or none."""
+    if total > 0 and cov >= min_coverage * (1 - 1e-12):
+        return []
+    return [
+        f"scored {100 * (cov if total > 0 else 0.0):.1f} % of the surface, below the "
+        f"{100 * min_coverage:.0f} % needed to measure it"
+        + (f" ({100 * e_area / total:.1f} % left out near creases and rims)" if e_area else "")
+    ]
+
+
+def _gap_rules(
+    adj,
+    V: np.ndarray,
+    gap: np.ndarray,
+    out: np.ndarray,
+    excess: np.ndarray,
+    area: np.ndarray,
+    patches: list[tuple[float, np.ndarray]],
+    max_gap_area: float,
+    max_region_area: float,
+    advisory_gaps: bool,
+) -> tuple[list[str], list[str]]:
+    """The two gap rules (module docstring) on the unmeasured ``patches`` (largest first)
+    of a surface: its reasons and warnings. The largest patch beyond ``max_gap_area``, mm^2,
+    is a reason (a warning with ``advisory_gaps``); else, or with ``advisory_gaps``, a patch
+    that with the out-of-tolerance area it touches could hide a failing region
+    (:func:`_hiding_patch`) is."""
+    g_area, g_cen = patches[0] if patches else (0.0, None)
     reasons: list[str] = []
     warnings: list[str] = []
-    if not (total > 0 and cov >= min_coverage * (1 - 1e-12)):
-        reasons.append(
-            f"scored {100 * (cov if total > 0 else 0.0):.1f} % of the surface, below the "
-            f"{100 * min_coverage:.0f} % needed to measure it"
-            + (f" ({100 * e_area / total:.1f} % left out near creases and rims)" if e_area else "")
-        )
     if g_area > max_gap_area:
         x, y, z = g_cen
         text = (
@@ -246,25 +296,7 @@ def zone_coverage(
                 f"of a failing region, and the deviation around it reaches {100 * peak:.0f} % "
                 "of the half-band: it could hide one"
             )
-    if total > 0 and e_area / total > MAX_EXCLUDED_SHARE:
-        warnings.append(
-            f"{100 * e_area / total:.1f} % of the surface lies in the bands left unscored near "
-            f"sharp creases and open rims (more than {100 * MAX_EXCLUDED_SHARE:.0f} %)"
-        )
-    return Coverage(
-        area=total,
-        scored_area=s_area,
-        excluded_area=e_area,
-        unmeasured_area=u_area,
-        coverage=cov,
-        min_coverage=float(min_coverage),
-        largest_gap_area=g_area,
-        max_gap_area=float(max_gap_area),
-        largest_gap_centroid=g_cen,
-        measured=not reasons,
-        reasons=reasons,
-        warnings=warnings,
-    )
+    return reasons, warnings
 
 
 def _hiding_patch(A, V, gap, out, excess, area, max_region_area):

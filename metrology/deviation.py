@@ -22,6 +22,7 @@ All arrays are plain numpy: ``V`` (n, 3) float64 mm, ``F`` (f, 3) int64, ``P`` (
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import igl
 import numpy as np
@@ -378,14 +379,36 @@ def nominal_referenced(
     if not radius > 0:
         raise ValueError(f"radius must be positive, got {radius}")
     min_points = max(int(min_points), 1)
+    vrt, Q = _neighbourhoods(V, N, P, Ns, radius, max_distance, min_points, tree)
+    if len(vrt) == 0:
+        return (dev, h) if variance else dev
+    fit = _LocalPlanes.fitted(vrt, Q, N)
+    t, enough = fit.deviation(min_points, max_centroid_offset, radius)
+    dev[fit.vid[enough]] = t[enough]
+    return (dev, fit.variance(enough, n)) if variance else dev
 
+
+def _neighbourhoods(
+    V: np.ndarray,
+    N: np.ndarray,
+    P: np.ndarray,
+    Ns: np.ndarray | None,
+    radius: float,
+    max_distance: float | None,
+    min_points: int,
+    tree: cKDTree | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`nominal_referenced`'s (vertex, point) pairs: each pair's vertex (k,) and the
+    point in local coordinates about it (k, 3), mm, vertex by vertex (each one's points
+    ascending), only points facing the vertex's side (``Ns``), within the ball or the
+    cylinder (``max_distance``)."""
     reach = radius if max_distance is None else float(np.hypot(radius, max_distance))
     # every (vertex, point) pair within reach, in the order of a ball query per vertex
     # (vertex by vertex, each one's points ascending: the same sums below) without its list
     # of lists (costly Python objects on a large part)
     vrt, idx = ball_pairs(V, cKDTree(P) if tree is None else tree, reach, min_points)
     if len(vrt) == 0:
-        return (dev, h) if variance else dev
+        return vrt, np.empty((0, 3))
     vrt, idx = np.divmod(np.sort(vrt * len(P) + idx), len(P))
     # rows gathered by np.take (qifreport.registration.arrays)
     if Ns is not None:  # only points of a surface facing the vertex's side
@@ -400,50 +423,103 @@ def nominal_referenced(
         lateral2 = np.einsum("ij,ij->i", Q, Q) - along**2
         keep = (np.abs(along) <= max_distance) & (lateral2 <= radius**2)
         Q, vrt = Q[keep], vrt[keep]
-    vid, row, counts = np.unique(vrt, return_inverse=True, return_counts=True)
-    enough = counts >= min_points
+    return vrt, Q
 
-    def _sum(w: np.ndarray) -> np.ndarray:
-        return np.bincount(row, weights=w, minlength=len(vid))
 
-    c = np.stack([_sum(Q[:, a]) for a in range(3)], axis=1) / counts[:, None]
-    R = Q - np.take(c, row, axis=0)
-    cov = np.empty((len(vid), 3, 3))
-    for a in range(3):
-        for b in range(a, 3):
-            cov[:, a, b] = cov[:, b, a] = _sum(R[:, a] * R[:, b]) / counts
-    evals, evecs = np.linalg.eigh(cov)
-    m_plane = evecs[:, :, 0]  # eigenvector of the smallest eigenvalue
-    nv = N[vid]
-    cos = np.einsum("ij,ij->i", nv, m_plane)
-    c_m = np.einsum("ij,ij->i", c, m_plane)
-    # the plane's tilt is only defined if the points spread in two directions well above
-    # the scatter about the plane (a collinear sliver can be rotated freely about its line)
-    planar = evals[:, 1] > _MIN_SPREAD_RATIO * np.maximum(evals[:, 0], 1e-300)
-    ok = (np.abs(cos) >= _MIN_PLANE_COS) & planar
-    t = np.einsum("ij,ij->i", c, nv)  # fallback: centroid offset along the normal
-    t[ok] = c_m[ok] / cos[ok]
-    if max_centroid_offset is not None:
-        c_n = np.einsum("ij,ij->i", c, nv)
-        offset = np.linalg.norm(c - c_n[:, None] * nv, axis=1)  # centroid to normal line
-        enough &= offset <= float(max_centroid_offset) * radius
-    dev[vid[enough]] = t[enough]
-    if not variance:
-        return dev
-    # the plane's height at the vertex: its offset (variance 1/N) and its two slopes
-    # (variance 1 / (N lambda_k)) times the centroid's in-plane distance, then along n
-    lev = np.ones(len(vid))
-    for k in (1, 2):
-        ck = np.einsum("ij,ij->i", c, evecs[:, :, k])
-        lev += ck**2 / np.maximum(evals[:, k], 1e-300)
-    hv = 1.0 / counts
-    hv[ok] = lev[ok] / (counts[ok] * cos[ok] ** 2)
-    h[vid[enough]] = hv[enough]
-    sse = np.zeros(n)
-    dof = np.zeros(n)
-    sse[vid] = evals[:, 0] * counts  # the points' squared distances to their plane
-    dof[vid] = counts - 3.0
-    return dev, _pooled_variance(h, sse, dof)
+@dataclass(frozen=True)
+class _LocalPlanes:
+    """The plane fitted to each vertex's neighbourhood (:func:`nominal_referenced`): ``k``
+    vertices with points, coordinates about the vertex, mm.
+
+    Attributes
+    ----------
+    vid : (k,) the vertices.  counts : (k,) their points.  c : (k, 3) centroids.
+    evals, evecs : (k, 3), (k, 3, 3) the points' covariance, ascending.
+    nv : (k, 3) vertex normals.  cos : (k,) the plane normal's cosine to the vertex normal.
+    c_m : (k,) the centroid along the plane normal.
+    ok : (k,) bool the plane defines the deviation (tilt and spread, else the centroid).
+    """
+
+    vid: np.ndarray
+    counts: np.ndarray
+    c: np.ndarray
+    evals: np.ndarray
+    evecs: np.ndarray
+    nv: np.ndarray
+    cos: np.ndarray
+    c_m: np.ndarray
+    ok: np.ndarray
+
+    @classmethod
+    def fitted(cls, vrt: np.ndarray, Q: np.ndarray, N: np.ndarray) -> _LocalPlanes:
+        """The planes of the pairs ``vrt`` (k,), ``Q`` (k, 3) (:func:`_neighbourhoods`);
+        ``N`` (n, 3) unit vertex normals."""
+        vid, row, counts = np.unique(vrt, return_inverse=True, return_counts=True)
+
+        def _sum(w: np.ndarray) -> np.ndarray:
+            return np.bincount(row, weights=w, minlength=len(vid))
+
+        c = np.stack([_sum(Q[:, a]) for a in range(3)], axis=1) / counts[:, None]
+        R = Q - np.take(c, row, axis=0)
+        cov = np.empty((len(vid), 3, 3))
+        for a in range(3):
+            for b in range(a, 3):
+                cov[:, a, b] = cov[:, b, a] = _sum(R[:, a] * R[:, b]) / counts
+        evals, evecs = np.linalg.eigh(cov)
+        m_plane = evecs[:, :, 0]  # eigenvector of the smallest eigenvalue
+        nv = N[vid]
+        cos = np.einsum("ij,ij->i", nv, m_plane)
+        # the plane's tilt is only defined if the points spread in two directions well
+        # above the scatter about the plane (a collinear sliver can be rotated freely
+        # about its line)
+        planar = evals[:, 1] > _MIN_SPREAD_RATIO * np.maximum(evals[:, 0], 1e-300)
+        return cls(
+            vid=vid,
+            counts=counts,
+            c=c,
+            evals=evals,
+            evecs=evecs,
+            nv=nv,
+            cos=cos,
+            c_m=np.einsum("ij,ij->i", c, m_plane),
+            ok=(np.abs(cos) >= _MIN_PLANE_COS) & planar,
+        )
+
+    def deviation(
+        self, min_points: int, max_centroid_offset: float | None, radius: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(k,) each vertex's deviation, mm: where its normal line meets the plane, or the
+        centroid's offset along it (the plane too tilted, or the points collinear); and
+        (k,) bool whether it is scored: ``min_points`` points, their centroid within
+        ``max_centroid_offset x radius`` of the normal line (None: no such rule)."""
+        t = np.einsum("ij,ij->i", self.c, self.nv)  # fallback: centroid offset along normal
+        t[self.ok] = self.c_m[self.ok] / self.cos[self.ok]
+        enough = self.counts >= min_points
+        if max_centroid_offset is not None:
+            c_n = np.einsum("ij,ij->i", self.c, self.nv)
+            offset = np.linalg.norm(self.c - c_n[:, None] * self.nv, axis=1)  # to normal line
+            enough &= offset <= float(max_centroid_offset) * radius
+        return t, enough
+
+    def variance(self, enough: np.ndarray, n: int) -> np.ndarray:
+        """(n,) the variance of each scored (``enough`` (k,)) vertex's deviation, mm^2
+        (:func:`nominal_referenced`'s Returns); NaN elsewhere."""
+        # the plane's height at the vertex: its offset (variance 1/N) and its two slopes
+        # (variance 1 / (N lambda_k)) times the centroid's in-plane distance, then along n
+        vid, counts, ok, cos = self.vid, self.counts, self.ok, self.cos
+        lev = np.ones(len(vid))
+        for k in (1, 2):
+            ck = np.einsum("ij,ij->i", self.c, self.evecs[:, :, k])
+            lev += ck**2 / np.maximum(self.evals[:, k], 1e-300)
+        hv = 1.0 / counts
+        hv[ok] = lev[ok] / (counts[ok] * cos[ok] ** 2)
+        h = np.full(n, np.nan)
+        h[vid[enough]] = hv[enough]
+        sse = np.zeros(n)
+        dof = np.zeros(n)
+        sse[vid] = self.evals[:, 0] * counts  # the points' squared distances to their plane
+        dof[vid] = counts - 3.0
+        return _pooled_variance(h, sse, dof)
 
 
 def corner_normals(V: np.ndarray, F: np.ndarray, labels: np.ndarray) -> np.ndarray:
@@ -668,25 +744,21 @@ def residual_referenced(
     # a second, twice as wide ball for the vertices the first left unscored (surfaces seen
     # at a grazing angle, where the points are sparser than the median spacing)
     for ball in (radius, 2.0 * radius):
-        todo = np.flatnonzero(np.isnan(dev))
-        if len(todo) == 0:
+        if not _fit_unscored(args, ball, max_centroid_offset, dev, h, sse, dof):
             break
-        # in blocks of vertices: each vertex's fit is its own (the same numbers), and the
-        # (vertex, point) pairs of a large part's ball search stay a bounded size
-        for s in range(0, len(todo), _FIT_BLOCK):
-            block = todo[s : s + _FIT_BLOCK]
-            vid, t, hv, ev, dv = _residual_fit(*args, block, ball, max_centroid_offset)
-            dev[vid] = t
-            h[vid] = hv
-            sse[vid] = ev
-            dof[vid] = dv
     if not variance:
         return dev
-    first_face = np.full(n, -1, dtype=np.int64)  # each vertex's lowest B-rep face
+    return dev, _pooled_variance(h, sse, dof, _first_faces(own, m, n))
+
+
+def _first_faces(own: np.ndarray, m: int, n: int) -> np.ndarray:
+    """(n,) each vertex's lowest-numbered B-rep face (-1: none), from the sorted
+    (vertex, face) keys ``own`` (vertex * m + face)."""
+    first_face = np.full(n, -1, dtype=np.int64)
     vo, fo = own // m, own % m
     first = np.r_[True, vo[1:] != vo[:-1]]  # ``own`` is sorted: vertex-major
     first_face[vo[first]] = fo[first]
-    return dev, _pooled_variance(h, sse, dof, first_face)
+    return first_face
 
 
 #: vertices per call of :func:`_residual_fit` (its ball search holds every (vertex, point)
@@ -709,47 +781,10 @@ def _residual_fit(
     pi, pj = ball_pairs(V[verts], tree, radius, min_points)
     if len(pi) == 0:
         return none
-    idx = sel[pj]
-    vrt = verts[pi]
-    pl = point_label[idx]
-    key = vrt * m + np.maximum(pl, 0)
-    # (vertex, face) pairs looked up in a table of them where it is small, else by bisection
-    table = n * m <= _PAIR_TABLE_MAX
-    if table:
-        is_own = np.zeros(n * m, dtype=bool)
-        is_own[own] = True
-        keep = (pl >= 0) & is_own[key]
-    else:
-        pos = np.clip(np.searchsorted(own, key), 0, len(own) - 1)
-        keep = (pl >= 0) & (own[pos] == key)
-    idx, vrt = idx[keep], vrt[keep]
-    # a vertex on several faces (a crease) is measured only where every one of its faces
-    # was: the back skin of a sheet is not scored from its edge face's points
-    faces_of = np.bincount(own // m, minlength=n)
-    if table:
-        seen = np.zeros(n * m, dtype=bool)
-        seen[key[keep]] = True
-        seen_of = seen.reshape(n, m).sum(axis=1)
-    else:
-        seen_of = np.bincount(unique_sorted(key[keep]) // m, minlength=n)
-    whole = (seen_of == faces_of)[vrt]
-    idx, vrt = idx[whole], vrt[whole]
+    idx, vrt = _own_face_pairs(sel[pj], verts[pi], point_label, own, m, n)
     if len(idx) == 0:
         return none
-    # robust: a point whose residual is more than 5 robust sigmas from its neighbourhood's
-    # median (material the nominal does not have: a rib standing on the surface, a burr)
-    # does not count for the vertex
-    order = sort_within_groups(vrt, r[idx])
-    idx, vrt = idx[order], vrt[order]  # from here on by vertex, then by residual
-    rr = r[idx]
-    first = np.flatnonzero(np.r_[True, vrt[1:] != vrt[:-1]])
-    size = np.diff(np.r_[first, len(vrt)])
-    med = np.repeat(rr[first + size // 2], size)
-    dev_abs = np.abs(rr - med)
-    o2 = sort_within_groups(vrt, dev_abs)
-    mad = np.repeat(dev_abs[o2][first + size // 2], size)
-    keep = dev_abs <= np.maximum(5.0 * 1.4826 * mad, 1e-9)
-    idx, vrt, rr = idx[keep], vrt[keep], rr[keep]
+    idx, vrt, rr = _without_outliers(idx, vrt, r)
     # rows gathered by np.take (qifreport.registration.arrays)
     Q = np.take(P, idx, axis=0)
     Q -= np.take(V, vrt, axis=0)
@@ -793,6 +828,89 @@ def _residual_fit(
     if max_centroid_offset is not None:
         enough &= np.linalg.norm(c, axis=1) <= float(max_centroid_offset) * radius
     return vid[enough], t[enough], hv[enough], sse[enough], dof[enough]
+
+
+def _fit_unscored(
+    args: tuple,
+    ball: float,
+    max_centroid_offset: float | None,
+    dev: np.ndarray,
+    h: np.ndarray,
+    sse: np.ndarray,
+    dof: np.ndarray,
+) -> bool:
+    """:func:`_residual_fit` (``args``: its leading arguments) with the ball ``ball``, mm,
+    on the vertices ``dev`` (n,) leaves unscored (NaN), filling in ``dev``, ``h``, ``sse``
+    and ``dof`` (n,) where it scores them; False: none was left unscored."""
+    todo = np.flatnonzero(np.isnan(dev))
+    if len(todo) == 0:
+        return False
+    # in blocks of vertices: each vertex's fit is its own (the same numbers), and the
+    # (vertex, point) pairs of a large part's ball search stay a bounded size
+    for s in range(0, len(todo), _FIT_BLOCK):
+        block = todo[s : s + _FIT_BLOCK]
+        vid, t, hv, ev, dv = _residual_fit(*args, block, ball, max_centroid_offset)
+        dev[vid] = t
+        h[vid] = hv
+        sse[vid] = ev
+        dof[vid] = dv
+    return True
+
+
+def _own_face_pairs(
+    idx: np.ndarray,
+    vrt: np.ndarray,
+    point_label: np.ndarray,
+    own: np.ndarray,
+    m: int,
+    n: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The (point ``idx``, vertex ``vrt``) pairs whose point lies on one of the vertex's
+    own B-rep faces (``own``: sorted keys vertex * m + face; ``n`` vertices), of the
+    vertices with points on every one of their faces."""
+    pl = point_label[idx]
+    key = vrt * m + np.maximum(pl, 0)
+    # (vertex, face) pairs looked up in a table of them where it is small, else by bisection
+    table = n * m <= _PAIR_TABLE_MAX
+    if table:
+        is_own = np.zeros(n * m, dtype=bool)
+        is_own[own] = True
+        keep = (pl >= 0) & is_own[key]
+    else:
+        pos = np.clip(np.searchsorted(own, key), 0, len(own) - 1)
+        keep = (pl >= 0) & (own[pos] == key)
+    idx, vrt = idx[keep], vrt[keep]
+    # a vertex on several faces (a crease) is measured only where every one of its faces
+    # was: the back skin of a sheet is not scored from its edge face's points
+    faces_of = np.bincount(own // m, minlength=n)
+    if table:
+        seen = np.zeros(n * m, dtype=bool)
+        seen[key[keep]] = True
+        seen_of = seen.reshape(n, m).sum(axis=1)
+    else:
+        seen_of = np.bincount(unique_sorted(key[keep]) // m, minlength=n)
+    whole = (seen_of == faces_of)[vrt]
+    return idx[whole], vrt[whole]
+
+
+def _without_outliers(
+    idx: np.ndarray, vrt: np.ndarray, r: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs sorted by vertex, then by residual, without a point whose residual is more
+    than 5 robust sigmas from its neighbourhood's median (material the nominal does not
+    have: a rib standing on the surface, a burr): points, vertices, residuals (mm)."""
+    order = sort_within_groups(vrt, r[idx])
+    idx, vrt = idx[order], vrt[order]  # from here on by vertex, then by residual
+    rr = r[idx]
+    first = np.flatnonzero(np.r_[True, vrt[1:] != vrt[:-1]])
+    size = np.diff(np.r_[first, len(vrt)])
+    med = np.repeat(rr[first + size // 2], size)
+    dev_abs = np.abs(rr - med)
+    o2 = sort_within_groups(vrt, dev_abs)
+    mad = np.repeat(dev_abs[o2][first + size // 2], size)
+    keep = dev_abs <= np.maximum(5.0 * 1.4826 * mad, 1e-9)
+    idx, vrt, rr = idx[keep], vrt[keep], rr[keep]
+    return idx, vrt, rr
 
 
 def point_faces(cface: np.ndarray, face_id: np.ndarray) -> np.ndarray:

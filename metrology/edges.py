@@ -667,6 +667,87 @@ def _strip_edges(
     return e, n2, share, np.where(np.isfinite(slant), slant, np.inf)
 
 
+def _checked(
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    tolerance: float,
+    quantile: float,
+    radius: float | None,
+    trim_edges: str,
+    tree: cKDTree | None,
+) -> tuple[np.ndarray, cKDTree | None, float, float]:
+    """:func:`edge_deviation`'s inputs checked: the finite scan points (m', 3), their tree
+    (None: no points), the tolerance and the strip radius, mm (its default)."""
+    P = np.asarray(P, dtype=np.float64).reshape(-1, 3)
+    finite = np.isfinite(P).all(axis=1)
+    if not finite.all():
+        P, tree = P[finite], None
+    tolerance = float(tolerance)
+    if not (np.isfinite(tolerance) and tolerance > 0):
+        raise ValueError(f"edge tolerance must be positive, got {tolerance}")
+    if not 0.5 <= quantile < 1.0:
+        raise ValueError(f"quantile must lie in [0.5, 1), got {quantile}")
+    if tree is None and len(P):
+        tree = cKDTree(P)
+    if radius is None:
+        spacing = scan_spacing(P, tree) if tree is not None else float("nan")
+        radius = max(2.0 * median_edge_length(V, F), 6.0 * np.nan_to_num(spacing))
+    radius = float(radius)
+    if not radius > 0:
+        raise ValueError(f"radius must be positive, got {radius}")
+    if trim_edges not in ("auto", "rim", "crease"):
+        raise ValueError(f"trim_edges must be 'auto', 'rim' or 'crease', got {trim_edges!r}")
+    return P, tree, tolerance, radius
+
+
+def _rim_strips(
+    P: np.ndarray,
+    tree: cKDTree,
+    rim: RimFrames,
+    measured: np.ndarray,
+    radius: float,
+    max_gap: float,
+    min_points: int,
+    quantile: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The scan's edge in the strip of each ``measured`` rim vertex (k,), mm along its
+    outward direction, the strip's points (k,), and whether the edge is seen (k,) bool:
+    enough points, on both halves of the strip and agreeing (no dropout hole's boundary
+    crossing the rim), and not a strip a hole cut (:func:`_strip_edges`)."""
+    window = _CREASE_WINDOW * radius if rim.mode == "crease" else radius
+    parts = []
+    for c0 in range(0, len(measured), _CHUNK_VERTICES):
+        sl = measured[c0 : c0 + _CHUNK_VERTICES]
+        parts.append(
+            _strip_edges(
+                P,
+                tree,
+                rim.position[sl],
+                rim.tangent[sl],
+                rim.normal[sl],
+                rim.outward[sl],
+                radius,
+                window,
+                max_gap,
+                min_points,
+                quantile,
+                crease=rim.mode == "crease",
+            )
+        )
+    e, n2, share, slant = (np.concatenate(x) for x in zip(*parts, strict=True))
+    ok = (
+        np.isfinite(e)
+        & (n2 >= min_points)
+        & (share >= _MIN_SIDE_SHARE)
+        & (share <= 1.0 - _MIN_SIDE_SHARE)
+        & (slant <= _MAX_SLANT * radius)
+    )
+    if ok.any():  # a strip cut by a dropout hole holds fewer points than a full one
+        ok &= n2 >= _MIN_COUNT_SHARE * np.median(n2[ok])
+    return e, n2, ok
+
+
 def edge_deviation(
     V: np.ndarray,
     F: np.ndarray,
@@ -715,26 +796,8 @@ def edge_deviation(
     """
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
-    P = np.asarray(P, dtype=np.float64).reshape(-1, 3)
-    finite = np.isfinite(P).all(axis=1)
-    if not finite.all():
-        P, tree = P[finite], None
-    tolerance = float(tolerance)
-    if not (np.isfinite(tolerance) and tolerance > 0):
-        raise ValueError(f"edge tolerance must be positive, got {tolerance}")
-    if not 0.5 <= quantile < 1.0:
-        raise ValueError(f"quantile must lie in [0.5, 1), got {quantile}")
-    if tree is None and len(P):
-        tree = cKDTree(P)
-    if radius is None:
-        spacing = scan_spacing(P, tree) if tree is not None else float("nan")
-        radius = max(2.0 * median_edge_length(V, F), 6.0 * np.nan_to_num(spacing))
-    radius = float(radius)
-    if not radius > 0:
-        raise ValueError(f"radius must be positive, got {radius}")
+    P, tree, tolerance, radius = _checked(V, F, P, tolerance, quantile, radius, trim_edges, tree)
     max_gap = 2.5 * radius if max_gap is None else float(max_gap)
-    if trim_edges not in ("auto", "rim", "crease"):
-        raise ValueError(f"trim_edges must be 'auto', 'rim' or 'crease', got {trim_edges!r}")
     rim = rim_frames(V, F, normals=normals, radius=1.5 * radius, corner_angle=corner_angle)
     if trim_edges == "crease" or (trim_edges == "auto" and rim.empty):
         rim = crease_frames(V, F, radius, crease_angle=crease_angle, corner_angle=corner_angle)
@@ -747,37 +810,7 @@ def edge_deviation(
     measured = np.flatnonzero(~rim.corner)
     if len(P) == 0 or len(measured) == 0:
         return EdgeDeviation("not seen", rim, dev, cnt, tolerance, radius, max_gap)
-
-    window = _CREASE_WINDOW * radius if rim.mode == "crease" else radius
-    parts = []
-    for c0 in range(0, len(measured), _CHUNK_VERTICES):
-        sl = measured[c0 : c0 + _CHUNK_VERTICES]
-        parts.append(
-            _strip_edges(
-                P,
-                tree,
-                rim.position[sl],
-                rim.tangent[sl],
-                rim.normal[sl],
-                rim.outward[sl],
-                radius,
-                window,
-                max_gap,
-                min_points,
-                quantile,
-                crease=rim.mode == "crease",
-            )
-        )
-    e, n2, share, slant = (np.concatenate(x) for x in zip(*parts, strict=True))
-    ok = (
-        np.isfinite(e)
-        & (n2 >= min_points)
-        & (share >= _MIN_SIDE_SHARE)
-        & (share <= 1.0 - _MIN_SIDE_SHARE)
-        & (slant <= _MAX_SLANT * radius)
-    )
-    if ok.any():  # a strip cut by a dropout hole holds fewer points than a full one
-        ok &= n2 >= _MIN_COUNT_SHARE * np.median(n2[ok])
+    e, n2, ok = _rim_strips(P, tree, rim, measured, radius, max_gap, min_points, quantile)
     dev[measured[ok]] = e[ok]
     cnt[measured] = n2
     status = "measured" if ok.any() else "not seen"

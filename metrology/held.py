@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -43,6 +43,7 @@ __all__ = [
     "SOURCE_PATCH",
     "SOURCE_SCAN",
     "SOURCE_SEATED",
+    "ClampOffsets",
     "ClampReadings",
     "HeldScan",
     "clamp_readings",
@@ -158,10 +159,77 @@ def hold_scan(
     seconds: dict[str, float] = {}
     tree = cKDTree(V) if tree is None else tree
     tri_n = face_normals(V, F)
-    P0 = P
-    Ns_out = orient_scan_normals(P0, scan_normals, V, normals, sheets=sheets)
-    p_tree = cKDTree(P0)
-    readings = clamp_readings(P0, Ns_out, restraint, V, F, face_id, brep_normals, tree=p_tree)
+    Ns_out = orient_scan_normals(P, scan_normals, V, normals, sheets=sheets)
+    p_tree = cKDTree(P)
+    readings = clamp_readings(P, Ns_out, restraint, V, F, face_id, brep_normals, tree=p_tree)
+    _log_readings(readings, restraint)
+    offs = _locator_offsets(V, F, tri_n, P, Ns_out, restraint, readings, p_tree)
+    offs = _witnessed_offsets(offs, V, free_fit, tree, seconds)
+
+    def distances(Q: np.ndarray):
+        """Signed distances (m,) of points ``Q`` to the nominal, closest points, their
+        triangles and the nominal normals there."""
+        C, cface, pdev = closest_points(V, F, Q)
+        if face_id is not None:
+            pdev = surface_distance(V, F, C, cface, pdev, face_id, brep_normals, Q)
+        return pdev, C, cface, tri_n[cface]
+
+    t1 = time.perf_counter()
+    xi = seat_held(P, restraint, V, distances, offs.origin, offs.at, offs.read)
+    seconds["restraint seat"] = time.perf_counter() - t1
+    out = _held(V, F, P, xi, offs, normals, tri_n, normal_k)
+    seconds["restraint"] = time.perf_counter() - t0 - seconds.get("free fit", 0.0)
+    out.seconds = seconds
+    return out
+
+
+@dataclass
+class ClampOffsets:
+    """The clamps' free-state offsets as the scan gives them, and how they move with the
+    part (:func:`hold_scan`'s first steps).
+
+    Attributes
+    ----------
+    readings : the scan points under each pad (:func:`clamp_readings`).
+    restraint : the part's restraint basis.  origin : (3,) the seat's pivot, mm.
+    offsets : (c,) each clamp's offset in the free state's seat, mm (NaN: a stop the held
+        seat places, or a clamp face not seen).
+    sources : where each offset came from (:data:`SOURCE_SCAN`, ...).
+    local : (c,) a facing locator's offset from its patch, mm (NaN: none).
+    unplaced : (c,) bool the stops whose patch is not seen: the held seat places them.
+    unseen : the clamp faces the scan does not see (indices).
+    witness : (c,) their offsets from the free virtual fixture, mm (0 elsewhere).
+    read : (p,) bool per restrained direction: its drive is given by the scan.
+    """
+
+    readings: ClampReadings
+    restraint: RestraintBasis
+    origin: np.ndarray
+    offsets: np.ndarray
+    sources: list[str]
+    local: np.ndarray
+    unplaced: np.ndarray
+    unseen: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    witness: np.ndarray | None = None
+    read: np.ndarray | None = None
+
+    def at(self, xi: np.ndarray) -> np.ndarray:
+        """(c,) the clamps' offsets, mm, once the free state is moved by ``xi`` (6,)
+        (rad, mm about :attr:`origin`)."""
+        off = self.readings.offsets(*rigid_motion(xi, self.origin))
+        # an unseen clamp face's offset, and a locator's from its patch, move with the part
+        r = self.restraint
+        at = np.array([c.position for c in r.clamps], dtype=np.float64) - self.origin
+        shift = np.einsum("kd,kd->k", np.cross(xi[:3], at) + xi[3:], r.normals)
+        by_patch = np.isfinite(self.local)
+        off[self.unseen] = self.witness[self.unseen] + shift[self.unseen]
+        off[by_patch] = self.local[by_patch] + shift[by_patch]
+        off[self.unplaced] = np.nan
+        return off
+
+
+def _log_readings(readings: ClampReadings, restraint: RestraintBasis) -> None:
+    """Each clamp's readings, their median and spread, in the log."""
     for k, c in enumerate(restraint.clamps):
         vals = readings.values(k)
         log.info(
@@ -171,12 +239,24 @@ def hold_scan(
             f"{np.median(vals):+.3f}" if len(vals) else "-",
             f"{np.subtract(*np.percentile(vals, [75, 25])):.3f}" if len(vals) else "-",
         )
-    origin = V.mean(axis=0)
+
+
+def _locator_offsets(
+    V: np.ndarray,
+    F: np.ndarray,
+    tri_n: np.ndarray,
+    P: np.ndarray,
+    Ns_out: np.ndarray,
+    restraint: RestraintBasis,
+    readings: ClampReadings,
+    p_tree: cKDTree,
+) -> ClampOffsets:
+    """The clamps' offsets from the points under their pads, a locator on a face that
+    faces its axis read from its patch instead: its face and the neighbours placed together
+    (:func:`qifreport.metrology.locators.patch_offset`: proximity alone reads the
+    neighbouring faces once the free state moved a narrow face across its own width)."""
     offsets = readings.offsets()
     sources = [SOURCE_SCAN] * len(offsets)
-    # a locator on a face that faces its axis: its face and the neighbours placed together
-    # (metrology.locators: proximity alone reads the neighbouring faces once the free state
-    # moved a narrow face across its own width)
     facing = np.abs(restraint.coupling) >= np.cos(np.radians(FACING_ANGLE))
     locator = np.array([restraint.clamps[k].directions != "n" for k in restraint.owner])
     local = np.full(len(offsets), np.nan)
@@ -186,7 +266,7 @@ def hold_scan(
             V,
             F,
             tri_n,
-            P0,
+            P,
             Ns_out,
             restraint.clamps[k].position,
             restraint.normals[k],
@@ -215,11 +295,30 @@ def hold_scan(
             offsets[k] = np.nan
             unplaced[k] = True
             sources[k] = SOURCE_SEATED
-    by_patch = np.isfinite(local)
-    # the restrained directions whose drive the scan gives (the faces, the locators it
-    # shows); the seat searches the rigid motions the others hold
+    return ClampOffsets(
+        readings=readings,
+        restraint=restraint,
+        origin=V.mean(axis=0),
+        offsets=offsets,
+        sources=sources,
+        local=local,
+        unplaced=unplaced,
+    )
+
+
+def _witnessed_offsets(
+    offs: ClampOffsets,
+    V: np.ndarray,
+    free_fit: Callable[[], np.ndarray],
+    tree: cKDTree,
+    seconds: dict[str, float],
+) -> ClampOffsets:
+    """``offs`` with the restrained directions whose drive the scan gives (the faces, the
+    locators it shows; the seat searches the rigid motions the others hold) and an unseen
+    clamp face's offset from the free virtual fixture (its witness; ``seconds``: its time
+    added, "free fit")."""
+    restraint, offsets, sources = offs.restraint, offs.offsets, list(offs.sources)
     read = read_directions(restraint.clamps, restraint.owner, restraint.coupling, offsets)
-    # an unseen clamp face takes the free fixture's witness
     faces = np.array([c.directions == "n" for c in restraint.clamps], dtype=bool)
     unseen = np.flatnonzero(~np.isfinite(offsets) & faces)
     fixed = np.zeros(len(offsets))
@@ -235,44 +334,38 @@ def hold_scan(
             "clamp(s) %s not seen by the scan: offsets from the free virtual fixture",
             ", ".join(restraint.clamps[k].name for k in unseen),
         )
-    at = np.array([c.position for c in restraint.clamps], dtype=np.float64) - origin
+    return replace(offs, sources=sources, unseen=unseen, witness=fixed, read=read)
 
-    def offsets_at(xi: np.ndarray) -> np.ndarray:
-        """The clamps' offsets once the free state is moved by ``xi``."""
-        off = readings.offsets(*rigid_motion(xi, origin))
-        # an unseen clamp face's offset, and a locator's from its patch, move with the part
-        shift = np.einsum("kd,kd->k", np.cross(xi[:3], at) + xi[3:], restraint.normals)
-        off[unseen] = fixed[unseen] + shift[unseen]
-        off[by_patch] = local[by_patch] + shift[by_patch]
-        off[unplaced] = np.nan
-        return off
 
-    def distances(Q: np.ndarray):
-        """Signed distances (m,) of points ``Q`` to the nominal, closest points, their
-        triangles and the nominal normals there."""
-        C, cface, pdev = closest_points(V, F, Q)
-        if face_id is not None:
-            pdev = surface_distance(V, F, C, cface, pdev, face_id, brep_normals, Q)
-        return pdev, C, cface, tri_n[cface]
-
-    t1 = time.perf_counter()
-    xi = seat_held(P0, restraint, V, distances, origin, offsets_at, read)
-    seconds["restraint seat"] = time.perf_counter() - t1
+def _held(
+    V: np.ndarray,
+    F: np.ndarray,
+    P0: np.ndarray,
+    xi: np.ndarray,
+    offs: ClampOffsets,
+    normals: np.ndarray,
+    tri_n: np.ndarray,
+    normal_k: int,
+) -> HeldScan:
+    """The free state ``P0`` (m, 3) moved by the held seat ``xi`` (6,) and by the part's
+    elastic response to its clamps driven home, with the hold's uncertainty: the elastic
+    model's own, a share of how far it moved each vertex and point, and the placement's
+    where the seat placed the part (:func:`hold_scan`)."""
+    restraint, origin = offs.restraint, offs.origin
     R, t = rigid_motion(xi, origin)
     Pseat = P0 @ R.T + t
-    offsets = offsets_at(xi)
+    offsets = offs.at(xi)
     C, cface, _ = closest_points(V, F, Pseat)
     held = restraint.apply(offsets)
-    held.offset_sources = sources
+    held.offset_sources = offs.sources
     held.seat = xi
     moved = held.on_triangles(V, cface, C)
     Pr = Pseat + moved
     Ns, held_sheets = orient_normals_consistent(Pr, pca_normals(Pr, normal_k))
-    # the elastic model's own uncertainty, a share of how far it moved each vertex and point
     k_model = 2.0 * MODEL_UNCERTAINTY
     u_v = k_model * np.linalg.norm(held.u, axis=1)
     u_p = k_model * np.linalg.norm(moved, axis=1)
-    if np.any(xi) and np.any(~read):
+    if np.any(xi) and np.any(~offs.read):
         # a pin whose axis lies in its surface's plane cannot be read from any scan, nor
         # a stop the scan did not see: the placement along it is an estimate, which the
         # held best fit (the seat) and the free state's best fit bound, and their
@@ -280,12 +373,11 @@ def hold_scan(
         # away: on the bench's shell it read 0.10-0.14 mm rms off the physical fixture
         # where the free state's placement read 0.01, and passed parts the fixture
         # rejects).
-        stay = restraint.apply(offsets_at(np.zeros(6)))
+        stay = restraint.apply(offs.at(np.zeros(6)))
         shift_v = (V - origin) @ R.T + origin + t - V + held.u - stay.u
         shift_p = (Pseat - P0) + moved - stay.on_triangles(V, cface, C)
         u_v = np.hypot(u_v, np.abs(np.einsum("ij,ij->i", normals, shift_v)))
         u_p = np.hypot(u_p, np.abs(np.einsum("ij,ij->i", tri_n[cface], shift_p)))
-    seconds["restraint"] = time.perf_counter() - t0 - seconds.get("free fit", 0.0)
     return HeldScan(
         P_free=Pseat,
         P=Pr,
@@ -294,7 +386,6 @@ def hold_scan(
         restraint=held,
         u_vertex=u_v,
         u_point=u_p,
-        seconds=seconds,
     )
 
 
@@ -346,8 +437,30 @@ def seat_held(
 
     z = np.zeros(q)
     residual = linearised(z)
-    r0 = r = residual(z)
-    scale = max(robust_scale(r), 1e-3)
+    r0 = residual(z)
+    scale = max(robust_scale(r0), 1e-3)
+    z, r = _seat_rounds(linearised, residual, r0, scale, q)
+    xi = B @ z
+    log.info(
+        "restrained seat: %.3g deg, %.3g mm (%d points; residual scale %.3g mm, rms %.3g -> "
+        "%.3g mm)",
+        np.degrees(np.linalg.norm(xi[:3])),
+        np.linalg.norm(xi[3:]),
+        len(S),
+        scale,
+        float(np.sqrt(np.mean(r0**2))),
+        float(np.sqrt(np.mean(r**2))),
+    )
+    return xi
+
+
+def _seat_rounds(
+    linearised: Callable, residual: Callable, r: np.ndarray, scale: float, q: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`seat_held`'s robust Levenberg-Marquardt rounds from the free state's
+    placement (``z = 0``, (q,); ``residual`` its linearisation there, ``r`` its held
+    residual, mm; ``scale``: the Tukey scale, mm): the placement ``z`` and its residual."""
+    z = np.zeros(q)
     # a prior on the placement (Tikhonov, towards the free state's): a motion must pay for
     # itself, 1 mm of it lowering the mean square held residual by a quarter of the held
     # residual's robust variance where it stands (at least (10 um)^2). Where the held state
@@ -381,18 +494,7 @@ def seat_held(
         z, r = z + step * dz, r_new
         if step * np.linalg.norm(dz) < _SEAT_SETTLED:
             break
-    xi = B @ z
-    log.info(
-        "restrained seat: %.3g deg, %.3g mm (%d points; residual scale %.3g mm, rms %.3g -> "
-        "%.3g mm)",
-        np.degrees(np.linalg.norm(xi[:3])),
-        np.linalg.norm(xi[3:]),
-        len(S),
-        scale,
-        float(np.sqrt(np.mean(r0**2))),
-        float(np.sqrt(np.mean(r**2))),
-    )
-    return xi
+    return z, r
 
 
 def seat_motions(

@@ -36,11 +36,18 @@ from qifreport.registration.prealign import seat_scan
 from qifreport.registration.restrained import RestraintBasis
 
 from .acceptance import scan_area
-from .bands import DEFAULT_GENERAL_TOLERANCE, NotEvaluated, ToleranceZone, lay_bands, symmetric_zone
+from .bands import (
+    DEFAULT_GENERAL_TOLERANCE,
+    BandField,
+    NotEvaluated,
+    ToleranceZone,
+    lay_bands,
+    symmetric_zone,
+)
 from .characteristics import CharacteristicPlan
 from .deferred import submit
 from .held import hold_scan
-from .judgement import Registered, judge
+from .judgement import JudgeContext, Registered, judge
 from .params import METHOD_LABELS, InspectionParams, method_label
 from .prepared import PreparedPart, prepare_part
 from .results import (
@@ -63,8 +70,12 @@ __all__ = [
     "ScanMeasures",
     "ZoneResult",
     "check_units",
+    "default_zones",
     "inspect",
+    "judge_as_held",
+    "lay_zone_bands",
     "method_label",
+    "seat_rigidly",
     "start_scan_measures",
 ]
 
@@ -189,10 +200,11 @@ def inspect(
     params : :class:`InspectionParams`.
     progress : optional callable ``progress(k)`` advanced once per iteration of the virtual
         fixture (``params.method``).
-    face_id : (f,) B-rep face id of each triangle (STEP nominals), for face-based zones.
     zones : tolerance zones (:func:`qifreport.metrology.bands.zones_from_pmi`); default one general
         zone of half-width ``params.tolerance``. Zones that cover no triangle are dropped.
-    not_evaluated : PMI items listed in the result but not scored.
+    face_id, not_evaluated, solid, brep_normals, plan : the part's B-rep faces, PMI items not
+        scored, solidity, exact corner normals and drawing characteristics, as
+        :class:`~qifreport.metrology.judgement.JudgeContext` holds them.
     scan_units : the unit the user declared for the scan file (for the units hint only).
     basis : the nominal's GB-CICP bending basis
         (:func:`qifreport.registration.gbcicp.bending_basis`), to reuse it across scans of one part;
@@ -202,20 +214,11 @@ def inspect(
         scans of one part: operators, unscored bands, hygiene, bending basis (unless ``basis`` is
         given) and the pose search's model. ``ValueError`` if it was prepared for another mesh or
         other settings.
-    solid : the nominal is a B-rep solid (a STEP part): its trim edges, for the size check, are
-        its sharp creases, and open edges of its mesh (a B-rep's sewing gaps) are not a rim.
-    brep_normals : (f, 3, 3) the B-rep's normals at the triangle corners (a STEP nominal,
-        :func:`qifreport.step.normals.corner_normals_exact`): the scan points' distances to
-        the curved surface are read with them (NaN rows: the mesh's).
     restraint : the part's clamps and their elastic responses
         (:func:`qifreport.registration.restrained.restraint_basis` on this mesh), for
         ``params.fixture == "restrained"``: the rigidly seated scan is held at its clamps
         and judged as held (no virtual fixture, no free-state shortcut: the drawing says
         how the part is inspected).
-    plan : the drawing's feature characteristics and datums
-        (:func:`qifreport.metrology.characteristics.specs_from_pmi`; a STEP nominal with
-        ``brep_normals``): measured on the judged surface, and the profiles that name
-        datums laid in their frame.
     executor : an object whose ``submit(fn, *args, **kwargs)`` returns a future (with
         ``result()`` and ``cancel()``, and ``done()`` to give up the fixture early), e.g. a
         :class:`concurrent.futures.Executor` or the command line's forked child
@@ -233,13 +236,107 @@ def inspect(
         Wrong units, or a scan that does not overlap the nominal after rigid alignment;
         :class:`qifreport.registration.prealign.PoseNotEstablished` when no pose can be established.
     """
+    timings: dict[str, float] = {}
+    prepared, basis = _checked_part(V, F, P, params, scan_units, prepared, basis, timings, measures)
+    reg = seat_rigidly(V, F, P, params, prepared, timings, measures=measures, executor=executor)
+    zones = default_zones(params) if zones is None else zones
+    ctx = JudgeContext(
+        prepared=prepared,
+        bands=lay_zone_bands(F, len(V), face_id, zones),
+        energy=prepared.energy,
+        face_id=face_id,
+        not_evaluated=not_evaluated,
+        solid=solid,
+        basis=basis,
+        brep_normals=brep_normals,
+        plan=plan,
+    )
+    return judge_as_held(reg, ctx, params, zones, timings, progress, restraint, executor)
+
+
+def judge_as_held(
+    reg: Registered,
+    ctx: JudgeContext,
+    params: InspectionParams,
+    zones: list[ToleranceZone],
+    timings: dict[str, float],
+    progress=None,
+    restraint: RestraintBasis | None = None,
+    executor=None,
+) -> InspectionResult:
+    """The seated scan judged as the inspection's fixture policy asks (:func:`inspect`):
+    rigidly only, held at its clamps (``restraint``), always fixtured, or in its free state
+    first and fixtured only when that does not stand (:func:`_free_state_stands`).
+
+    ``zones``: the zones as given, before those covering no triangle were dropped (the
+    tightest sets the fixture's guard); ``timings``: seconds per stage, added to;
+    ``executor``: as :func:`inspect`'s (:func:`_free_state_beside_fixture`)."""
+    run = _Run(reg, ctx, params, zones, timings, progress, executor)
+    if params.rigid_only:
+        res = judge(reg, None, params, timings, ctx)
+        res.fixture_decision = "rigid only"
+        return res
+    if params.fixture == "restrained":
+        if restraint is None:
+            raise ValueError("a restrained inspection needs the part's restraint basis")
+        if len(restraint.points) != len(reg.V):
+            raise ValueError("the restraint basis was built for another mesh of the part")
+        return _restrained(run, restraint)
+    if params.always_fixture:
+        return _fixture_and_judge(run, ctx.basis)
+    # ISO 10579 / Y14.5: restraint is there to bring a compliant part to its drawing shape;
+    # the free state (no force) is one of the states a fixture may hold it in. When it
+    # conforms on its own, no restraint is needed and none is simulated: a virtual fixture
+    # can then only add its own error (a stiff part moved by it).
+    t0 = time.perf_counter()
+    if executor is not None and _fixture_likely(reg.rigid, zones):
+        return _free_state_beside_fixture(run, ctx.basis)
+    # a seat well inside the tightest zone (a stiff part): its free state will most likely
+    # stand, so no fixture is started beside it (its work would be wasted, and would take a
+    # core from the judgement); judged here, its own steps beside it
+    free = judge(reg, None, params, dict(timings), ctx, check_part=False, executor=executor)
+    decided = _free_state_stands(free)
+    if decided is not None:
+        return decided
+    timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
+    return _fixture_and_judge(run, ctx.basis, free=free)
+
+
+@dataclass(frozen=True)
+class _Run:
+    """What the judgements of one seated scan share (:func:`judge_as_held`'s inputs):
+    ``timings`` is added to; ``progress`` and ``executor`` are :func:`inspect`'s."""
+
+    reg: Registered
+    ctx: JudgeContext
+    params: InspectionParams
+    zones: list[ToleranceZone]
+    timings: dict[str, float]
+    progress: Any = None
+    executor: Any = None
+
+
+def _checked_part(
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    params: InspectionParams,
+    scan_units: str | None,
+    prepared: PreparedPart | None,
+    basis: BendingBasis | None,
+    timings: dict[str, float],
+    measures: ScanMeasures | None = None,
+) -> tuple[PreparedPart, BendingBasis | None]:
+    """The inspection's method and units checked, and the part's prepared state (made, or
+    checked against ``(V, F)`` and ``params``) with the bending basis to use; ``timings``:
+    added to ("operators"). ``measures`` (:func:`start_scan_measures`) are stopped when a
+    check fails."""
     if measures is not None and measures.P is not P:
         measures.cancel()
         raise ValueError("the scan measures were started on other points than these")
     try:
         if params.method not in METHODS:
             raise ValueError(f"unknown method {params.method!r} (one of {', '.join(METHODS)})")
-        timings: dict[str, float] = {}
         t0 = time.perf_counter()
         check_units(V, P, scan_units)
         if prepared is None:
@@ -248,12 +345,33 @@ def inspect(
             prepared.check(V, F, params)
             if basis is None:
                 basis = prepared.basis
-        energy, ops = prepared.energy, prepared.ops
         timings["operators"] = time.perf_counter() - t0
     except BaseException:
         if measures is not None:
             measures.cancel()
         raise
+    return prepared, basis
+
+
+def seat_rigidly(
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    params: InspectionParams,
+    prepared: PreparedPart,
+    timings: dict[str, float],
+    *,
+    measures: ScanMeasures | None = None,
+    executor=None,
+) -> Registered:
+    """The scan ``P`` (m, 3) seated on the nominal ``(V, F)``: the pose search, the rigid
+    fit, the overlap check, and the scan's normals (turned with it) and covered area
+    (:class:`~qifreport.metrology.judgement.Registered`).
+
+    ``measures``: the scan's normals and area started already (:func:`start_scan_measures`);
+    default: started here on ``executor``; either is stopped when the seat fails.
+    ``timings``: seconds per stage, added to. Raises :class:`InputError` when the seated
+    scan does not overlap the nominal."""
     if measures is None:
         measures = start_scan_measures(P, params, executor)
     elif measures.area is None:
@@ -265,7 +383,7 @@ def inspect(
         timings["prealign"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
-        rigid = rigid_icp(V, ops.normals, P, R0=seat.R, t0=seat.t, tree=tree)
+        rigid = rigid_icp(V, prepared.ops.normals, P, R0=seat.R, t0=seat.t, tree=tree)
         Pm = rigid.apply(P)
         timings["rigid"] = time.perf_counter() - t0
         diag = bounding_diagonal(V)
@@ -284,108 +402,34 @@ def inspect(
     finally:
         normals.cancel()
         area.cancel()
-    if zones is None:
-        tol = params.tolerance
-        zones = [
-            symmetric_zone(DEFAULT_GENERAL_TOLERANCE, "default")
-            if tol is None
-            else symmetric_zone(tol, "general")
-        ]
-    bands = lay_bands(F, len(V), face_id, zones)
-    keep = [i for i, m in enumerate(bands.tri_masks) if m.any()]
-    if len(keep) < len(zones):
-        dropped = [zones[i].key for i in range(len(zones)) if i not in keep]
-        log.info("zones covering no triangle dropped: %s", ", ".join(dropped))
-        bands = lay_bands(F, len(V), face_id, [zones[i] for i in keep])
     reg = Registered(
         V=V, F=F, P=Pm, rigid=rigid, seat=seat, scan_normals=Ns, sheets=sheets, diag=diag
     )
     reg.scan_area = area_mm2  # the cached property, known already
-    inputs = dict(
-        face_id=face_id,
-        bands=bands,
-        not_evaluated=not_evaluated,
-        prepared=prepared,
-        solid=solid,
-        energy=energy,
-        basis=basis,
-        brep_normals=brep_normals,
-        plan=plan,
-    )
-    if params.rigid_only:
-        res = judge(reg, None, params, timings, **inputs)
-        res.fixture_decision = "rigid only"
-        return res
-    if params.fixture == "restrained":
-        if restraint is None:
-            raise ValueError("a restrained inspection needs the part's restraint basis")
-        if len(restraint.points) != len(V):
-            raise ValueError("the restraint basis was built for another mesh of the part")
-        return _restrained(reg, restraint, params, timings, progress, zones, **inputs)
-    if params.always_fixture:
-        return _fixtured(
-            reg, None, params, prepared, zones, basis, progress, timings, inputs, executor
-        )
-    # ISO 10579 / Y14.5: restraint is there to bring a compliant part to its drawing shape;
-    # the free state (no force) is one of the states a fixture may hold it in. When it
-    # conforms on its own, no restraint is needed and none is simulated: a virtual fixture
-    # can then only add its own error (a stiff part moved by it).
-    t0 = time.perf_counter()
-    args = (reg, None, params, dict(timings))
-    if executor is None:
-        free = judge(*args, check_part=False, **inputs)
-    elif not _fixture_likely(rigid, zones):
-        # a seat well inside the tightest zone (a stiff part): its free state will most
-        # likely stand, so no fixture is started beside it (its work would be wasted, and
-        # would take a core from the judgement); judged here, its own steps beside it
-        free = judge(*args, check_part=False, executor=executor, **inputs)
-    else:  # judged beside the virtual fixture, which is given up when the free state stands
-        pending = executor.submit(judge, *args, check_part=False, **inputs)
-        stood = _StoodCheck(pending)
-        # one factorisation for the basis and the fixture: their matrices share a pattern,
-        # so the symbolic analysis is made once (and never again for the part: the basis
-        # keeps its fill-reducing order)
-        solver = part_solver(V, basis)
-        try:
-            if basis is None and _modal(params):
-                # a new part's bending basis (a fixture's costliest step), built here and
-                # given up between two of its solves once the free state stands
-                t_basis = time.perf_counter()
-                basis = bending_basis(prepared.ops, params.gbcicp.modes, solver=solver, check=stood)
-                timings["bending basis"] = time.perf_counter() - t_basis
+    return reg
 
-            def watched(k: int) -> None:  # between two fixture iterations, likewise
-                stood()
-                if progress is not None:
-                    progress(k)
 
-            return _fixtured(
-                reg,
-                pending,
-                params,
-                prepared,
-                zones,
-                basis,
-                watched,
-                timings,
-                inputs,
-                executor,
-                solver=solver,
-            )
-        except _FreeStateStood:  # its fixture_decision is set (_free_state_stands)
-            free = pending.result()
-            # taken when it was done already (between two fixture steps), or waited for
-            timings.setdefault("free state (waited)", 0.0)
-            # the stages this process ran beside it: their sum is the inspection's wall time
-            free.timings = dict(timings)
-            return free
-        finally:
-            pending.cancel()
-    decided = _free_state_stands(free)
-    if decided is not None:
-        return decided
-    timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
-    return _fixtured(reg, free, params, prepared, zones, basis, progress, timings, inputs, executor)
+def default_zones(params: InspectionParams) -> list[ToleranceZone]:
+    """The one general zone of an inspection without a drawing's zones: half-width
+    ``params.tolerance``, mm, or qifreport's default band when none is given."""
+    tol = params.tolerance
+    if tol is None:
+        return [symmetric_zone(DEFAULT_GENERAL_TOLERANCE, "default")]
+    return [symmetric_zone(tol, "general")]
+
+
+def lay_zone_bands(
+    F: np.ndarray, n: int, face_id: np.ndarray | None, zones: list[ToleranceZone]
+) -> BandField:
+    """The zones laid on the mesh (:func:`~qifreport.metrology.bands.lay_bands`), those
+    that cover no triangle dropped."""
+    bands = lay_bands(F, n, face_id, zones)
+    keep = [i for i, m in enumerate(bands.tri_masks) if m.any()]
+    if len(keep) < len(zones):
+        dropped = [zones[i].key for i in range(len(zones)) if i not in keep]
+        log.info("zones covering no triangle dropped: %s", ", ".join(dropped))
+        bands = lay_bands(F, n, face_id, [zones[i] for i in keep])
+    return bands
 
 
 #: the rigid seat's robust residual scale, in units of the tightest zone's half-width, from
@@ -449,47 +493,91 @@ def _free_state_stands(free: InspectionResult) -> InspectionResult | None:
     return None
 
 
-def _fixtured(
-    reg: Registered,
-    free,
-    params: InspectionParams,
-    prepared: PreparedPart,
-    zones: list[ToleranceZone],
-    basis: BendingBasis | None,
-    progress,
-    timings: dict[str, float],
-    inputs: dict,
-    executor,
-    solver: SPDSolver | None = None,
+def _fixture_and_judge(
+    run: _Run, basis: BendingBasis | None, free: InspectionResult | None = None
 ) -> InspectionResult:
-    """The virtual fixture and the judgement of the part as it holds it (``executor``: as
-    :func:`inspect`'s; ``solver``: GB-CICP's factorisation, :func:`_virtual_fixture`).
+    """The virtual fixture (in ``basis``) and the judgement of the part as it holds it
+    (``run.executor``: for the trim edges), after the free state's judgement ``free`` that
+    did not stand (None: ``always_fixture``, not judged)."""
+    fit = _timed_fixture(run, basis, run.progress)
+    res = judge(
+        run.reg,
+        fit,
+        run.params,
+        run.timings,
+        run.ctx,
+        free_deviation=_deviation(free),
+        executor=run.executor,
+    )
+    return _with_free_state(res, free)
 
-    ``free``: the free state's judgement that did not stand, None (``always_fixture``), or
-    its pending result (``executor.submit``): then it is taken when needed, and
-    :class:`_FreeStateStood` raised when it decides the inspection
-    (:func:`_free_state_stands`)."""
-    t0 = time.perf_counter()
-    fit = _virtual_fixture(reg, params, prepared, zones, basis, progress, solver)
-    timings[params.method] = time.perf_counter() - t0
-    if _pending(free) and any(z.free_state for z in inputs["bands"].zones):
-        free = _take(free, timings)  # the free-state zones take its deviation (below)
-    free_dev = None
-    if isinstance(free, InspectionResult):  # the free state, measured once
-        free_dev = (free.deviation, free.deviation_variance)
-    res = judge(reg, fit, params, timings, free_deviation=free_dev, executor=executor, **inputs)
-    if _pending(free):
-        free = _take(free, timings)
+
+def _free_state_beside_fixture(run: _Run, basis: BendingBasis | None) -> InspectionResult:
+    """The schedule with a second process: the free state judged on ``run.executor``
+    beside the virtual fixture, which is given up (between two of its steps, or of the
+    bending basis's) once the free state stands; the outcome is the sequential one
+    (:func:`inspect`).
+
+    The only function whose steps depend on the executor: the decisions it makes are
+    :func:`_free_state_stands`' and :func:`_with_free_state`'s, as in the sequential
+    schedule."""
+    reg, ctx, params, timings, executor = run.reg, run.ctx, run.params, run.timings, run.executor
+    pending = executor.submit(judge, reg, None, params, dict(timings), ctx, check_part=False)
+    stood = _StoodCheck(pending)
+    # one factorisation for the basis and the fixture: their matrices share a pattern, so
+    # the symbolic analysis is made once (and never again for the part: the basis keeps its
+    # fill-reducing order)
+    solver = part_solver(reg.V, basis)
+    try:
+        if basis is None and _modal(params):
+            # a new part's bending basis (a fixture's costliest step), built here and given
+            # up between two of its solves once the free state stands
+            t_basis = time.perf_counter()
+            basis = bending_basis(ctx.prepared.ops, params.gbcicp.modes, solver=solver, check=stood)
+            timings["bending basis"] = time.perf_counter() - t_basis
+
+        def watched(k: int) -> None:  # between two fixture iterations, likewise
+            stood()
+            if run.progress is not None:
+                run.progress(k)
+
+        fit = _timed_fixture(run, basis, watched, solver)
+        # the free-state zones take its deviation; else the fixtured judgement goes first
+        free = _take(pending, timings) if _free_state_zones(ctx) else None
+        res = judge(
+            reg, fit, params, timings, ctx, free_deviation=_deviation(free), executor=executor
+        )
+        return _with_free_state(res, _take(pending, timings) if free is None else free)
+    except _FreeStateStood:  # its fixture_decision is set (_free_state_stands)
+        free = pending.result()
+        # taken when it was done already (between two fixture steps), or waited for
+        timings.setdefault("free state (waited)", 0.0)
+        # the stages this process ran beside it: their sum is the inspection's wall time
+        free.timings = dict(timings)
+        return free
+    finally:
+        pending.cancel()
+
+
+def _free_state_zones(ctx: JudgeContext) -> bool:
+    """Whether a zone of the part is judged in its free state (a held part's too)."""
+    return any(z.free_state for z in ctx.bands.zones)
+
+
+def _deviation(free: InspectionResult | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The free state's vertex deviation and its variance, measured once (None: not
+    judged)."""
+    return None if free is None else (free.deviation, free.deviation_variance)
+
+
+def _with_free_state(res: InspectionResult, free: InspectionResult | None) -> InspectionResult:
+    """The fixtured judgement ``res`` with why it was fixtured and the free state's verdict
+    (``free``: its judgement that did not stand; None: ``always_fixture``)."""
     res.fixture_decision = "always" if free is None else "free state does not conform"
     if free is not None:
         res.free_state = free.verdict
         res.free_state_decided_by = free.decided_by()
     return res
-
-
-def _pending(free) -> bool:
-    """Whether ``free`` is a pending free-state judgement (``executor.submit``'s)."""
-    return free is not None and not isinstance(free, InspectionResult)
 
 
 def _take(pending, timings: dict[str, float]) -> InspectionResult:
@@ -501,6 +589,18 @@ def _take(pending, timings: dict[str, float]) -> InspectionResult:
     if _free_state_stands(free) is not None:
         raise _FreeStateStood
     return free
+
+
+def _timed_fixture(
+    run: _Run, basis: BendingBasis | None, progress, solver: SPDSolver | None = None
+) -> DeformResult:
+    """:func:`_virtual_fixture` of ``run``'s seated scan, its time a stage
+    (``run.timings[params.method]``)."""
+    t0 = time.perf_counter()
+    params = run.params
+    fit = _virtual_fixture(run.reg, params, run.ctx.prepared, run.zones, basis, progress, solver)
+    run.timings[params.method] = time.perf_counter() - t0
+    return fit
 
 
 def _virtual_fixture(
@@ -535,22 +635,15 @@ def _virtual_fixture(
     )
 
 
-def _restrained(
-    reg: Registered,
-    restraint: RestraintBasis,
-    params: InspectionParams,
-    timings: dict[str, float],
-    progress,
-    zones: list[ToleranceZone],
-    **inputs,
-) -> InspectionResult:
+def _restrained(run: _Run, restraint: RestraintBasis) -> InspectionResult:
     """Hold the rigidly seated scan at its clamps (:func:`qifreport.metrology.held.hold_scan`)
     and judge it as held; the free-state zones are judged on the free state in the held
     seat, and the hold's uncertainty enters each deviation's."""
-    prepared = inputs["prepared"]
+    reg, ctx, params, timings = run.reg, run.ctx, run.params, run.timings
+    prepared = ctx.prepared
 
     def free_fit() -> np.ndarray:
-        return _virtual_fixture(reg, params, prepared, zones, inputs["basis"], progress).V
+        return _virtual_fixture(reg, params, prepared, run.zones, ctx.basis, run.progress).V
 
     held = hold_scan(
         reg.V,
@@ -561,8 +654,8 @@ def _restrained(
         restraint,
         normals=prepared.ops.normals,
         free_fit=free_fit,
-        face_id=inputs["face_id"],
-        brep_normals=inputs["brep_normals"],
+        face_id=ctx.face_id,
+        brep_normals=ctx.brep_normals,
         tree=prepared.model.tree if prepared.model is not None else None,
         normal_k=params.gbcicp.scan_normal_k,
     )
@@ -574,9 +667,9 @@ def _restrained(
         None,
         params,
         timings,
+        ctx,
         free=replace(reg, P=held.P_free),
         model_uncertainty=(held.u_vertex, held.u_point),
-        **inputs,
     )
     res.restraint = held.restraint
     res.fixture_decision = RESTRAINED

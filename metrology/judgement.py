@@ -7,6 +7,27 @@ points' deviations, each tolerance zone's area and region criteria with the unce
 coverage, the trim edges and the size, added material, the drawing's feature
 characteristics in their datum frames. :func:`~qifreport.metrology.inspection.inspect`
 schedules the judgements (the free state, the fixtured part) and the fixture.
+
+What one inspection's judgements share (the prepared part, its zones, its drawing) is a
+:class:`JudgeContext`. :func:`judge` runs the stages in order, each a public function with
+a typed output a library user can run and look at one by one:
+
+1. :func:`held_nominal` -- the nominal as the fixture holds it (:class:`HeldNominal`);
+2. :func:`schedule_trim_edges` -- the trim edges and the size (:func:`trim_edge_stage`),
+   started beside the rest;
+3. :func:`deviation_stage` -- the points' and vertices' deviations, the free state's, the
+   unscored bands (:class:`Deviations`);
+4. :func:`scoring_stage` -- the judged field, the scan points that judge it, the noise and
+   the uncertainties (:class:`Scores`);
+5. :func:`characteristics_stage` -- the drawing's characteristics and the zones' datum
+   frames (:class:`Characteristics`);
+6. :func:`located_readings` -- the deviations read in the located zones' frames
+   (:class:`Readings`);
+7. :func:`acceptance_stage` -- area, region and coverage criteria on the whole part and on
+   each zone (:func:`zone_result`; :class:`Decisions`), on the measuring stages' outputs
+   (:class:`Measured`);
+8. :func:`added_stage` -- added material; :func:`residual_scatter` -- the resolution;
+9. :func:`assemble_result` -- the :class:`~qifreport.metrology.results.InspectionResult`.
 """
 
 from __future__ import annotations
@@ -27,12 +48,17 @@ from qifreport.registration.icp import RigidResult, robust_scale
 from qifreport.registration.mesh import vertex_normals
 from qifreport.registration.prealign import PrealignResult
 
-from .acceptance import coverage_ceiling_ok, evaluate, scan_area
-from .added import added_material
-from .bands import BandField, NotEvaluated, zone_vertex_areas
-from .characteristics import CharacteristicPlan, frame_of, measure_characteristics
+from .acceptance import Acceptance, coverage_ceiling_ok, evaluate, scan_area
+from .added import AddedMaterial, added_material
+from .bands import BandField, NotEvaluated, ToleranceZone, zone_vertex_areas
+from .characteristics import (
+    CharacteristicPlan,
+    CharacteristicResult,
+    frame_of,
+    measure_characteristics,
+)
 from .composite import composite_zone_frame
-from .coverage import unseen_neighbour_edges, zone_coverage
+from .coverage import Coverage, unseen_neighbour_edges, zone_coverage
 from .decision import vertex_uncertainty
 from .deferred import submit
 from .deviation import (
@@ -46,23 +72,46 @@ from .deviation import (
 )
 from .edges import EdgeDeviation, edge_deviation
 from .frames import DatumFrameResult
+from .hygiene import MeshHygiene
 from .measured_surface import MeasuredSurface
 from .params import InspectionParams
 from .point_regions import ScanSamples, SurfacePoints, scan_samples
 from .prepared import PreparedPart
-from .resolution import range_noise, resolution
+from .resolution import Resolution, range_noise, resolution
 from .results import InspectionResult, ZoneResult
 from .size import SizeEstimate, size_error
-from .statistics import deviation_statistics
+from .statistics import DeviationStats, deviation_statistics
 
 __all__ = [
     "FAR_DIAGONAL",
     "FAR_HALF_WIDTHS",
     "MAX_FAR_SHARE",
+    "Characteristics",
+    "Decisions",
+    "Deviations",
+    "HeldNominal",
+    "JudgeContext",
+    "Measured",
+    "Readings",
     "Registered",
+    "Scores",
+    "Stages",
+    "acceptance_stage",
+    "added_stage",
+    "assemble_result",
+    "characteristics_stage",
     "check_same_part",
+    "deviation_stage",
+    "free_state_deviation",
+    "held_nominal",
     "judge",
+    "located_readings",
+    "residual_scatter",
+    "schedule_trim_edges",
+    "scoring_stage",
+    "trim_edge_stage",
     "vertex_deviation",
+    "zone_result",
 ]
 
 log = logging.getLogger(__name__)
@@ -149,21 +198,6 @@ def vertex_deviation(
     )
 
 
-def _trim_edges(
-    V: np.ndarray,
-    F: np.ndarray,
-    P: np.ndarray,
-    tolerance: float,
-    normals: np.ndarray,
-    trim_edges: str,
-    tree: cKDTree,
-) -> tuple[EdgeDeviation, SizeEstimate]:
-    """The trim-edge deviation of the scan ``P`` along the nominal ``(V, F)`` as the fixture
-    holds it, and the size error read from it (:func:`edge_deviation`, :func:`size_error`)."""
-    edges = edge_deviation(V, F, P, tolerance, normals=normals, trim_edges=trim_edges, tree=tree)
-    return edges, size_error(edges)
-
-
 def _surface_points(
     samples: ScanSamples, sel: np.ndarray, half_width, center, extra_U=0.0
 ) -> SurfacePoints:
@@ -210,145 +244,429 @@ class Registered:
         return scan_area(self.P)
 
 
-def judge(
+@dataclass(frozen=True)
+class JudgeContext:
+    """What every judgement of one inspection shares besides the scan: the prepared part,
+    its tolerance zones and its drawing.
+
+    Attributes
+    ----------
+    prepared : the nominal's scan-independent state (operators, unscored bands, hygiene).
+    bands : the tolerance zones laid on the nominal (:func:`~qifreport.metrology.bands.lay_bands`).
+    energy : the bending energy of the virtual fixture (``prepared.energy``), reported.
+    face_id : (f,) B-rep face id of each triangle (a STEP nominal), for face-based zones;
+        None: a mesh nominal.
+    not_evaluated : PMI items listed in the result but not scored.
+    solid : the nominal is a B-rep solid (a STEP part): its trim edges, for the size check,
+        are its sharp creases, and open edges of its mesh (a B-rep's sewing gaps) are not a
+        rim.
+    basis : the nominal's GB-CICP bending basis, reported (a fixture's own replaces it).
+    brep_normals : (f, 3, 3) the B-rep's normals at the triangle corners (a STEP nominal,
+        :func:`qifreport.step.normals.corner_normals_exact`): the scan points' distances to
+        the curved surface are read with them (NaN rows: the mesh's).
+    plan : the drawing's feature characteristics and datums
+        (:func:`qifreport.metrology.characteristics.specs_from_pmi`; a STEP nominal with
+        ``brep_normals``): measured on the judged surface, and the profiles that name
+        datums laid in their frame; None: none.
+    """
+
+    prepared: PreparedPart
+    bands: BandField
+    energy: str
+    face_id: np.ndarray | None = None
+    not_evaluated: list[NotEvaluated] | None = None
+    solid: bool = False
+    basis: BendingBasis | None = None
+    brep_normals: np.ndarray | None = None
+    plan: CharacteristicPlan | None = None
+
+    @property
+    def general_half(self) -> float:
+        """The threshold of the whole-part tail fractions and of added material, mm: the
+        general zone's half-width, or (all faces under PMI profiles) the widest zone's:
+        "beyond every band" (per-zone fractions use their own band)."""
+        general = [z for z in self.bands.zones if z.faces is None]
+        return general[0].half_width if general else max(z.half_width for z in self.bands.zones)
+
+
+@dataclass(frozen=True)
+class HeldNominal:
+    """The nominal as the judgement holds it (:func:`held_nominal`).
+
+    Attributes
+    ----------
+    V : (n, 3) its vertices, mm: the virtual fixture's, or the nominal's (free state).
+    normals : (n, 3) unit vertex normals of ``V``.
+    corner_normals : (f, 3, 3) the B-rep's corner normals turned with each triangle the
+        fixture bent; None: a mesh nominal.
+    basis : the bending basis reported (the fixture's, else the context's).
+    held : the part is held (a virtual fixture, or clamps), not in its free state.
+    to_creases : the free state of a B-rep nominal, scored up to its creases (no crease
+        band: :func:`vertex_deviation` keeps each vertex to its own faces' points).
+    """
+
+    V: np.ndarray
+    normals: np.ndarray
+    corner_normals: np.ndarray | None
+    basis: BendingBasis | None
+    held: bool
+    to_creases: bool
+
+
+@dataclass(frozen=True)
+class Deviations:
+    """The scan's deviations from the held nominal (:func:`deviation_stage`); ``n``
+    vertices, ``m`` scan points, mm.
+
+    Attributes
+    ----------
+    closest : (m, 3) each point's closest point on the held nominal.
+    face : (m,) that point's triangle (-1: none).
+    point : (m,) each point's signed distance to the nominal surface (the curved B-rep
+        surface for a STEP nominal).
+    vertex : (n,) each vertex's nominal-referenced deviation, NaN where unscored (the rim
+        and crease bands).  variance : (n,) its variance, mm^2.
+    free, free_variance : (n,) the free state's, for the free-state zones of a held part;
+        None otherwise.
+    near_crease : (n,) bool the crease band's vertices outside the rim band (or, for a
+        B-rep's free state, the crease vertices not all of whose faces were seen); None:
+        no crease band.
+    excluded : (n,) bool every unscored band's vertices.
+    beyond_rim : (m,) bool the points beyond the rim of the held nominal.
+    hygiene : the mesh hygiene with this inspection's rim band.
+    """
+
+    closest: np.ndarray
+    face: np.ndarray
+    point: np.ndarray
+    vertex: np.ndarray
+    variance: np.ndarray
+    free: np.ndarray | None
+    free_variance: np.ndarray | None
+    near_crease: np.ndarray | None
+    excluded: np.ndarray
+    beyond_rim: np.ndarray
+    hygiene: MeshHygiene
+
+
+@dataclass(frozen=True)
+class Scores:
+    """The judged deviation field and what decides on it (:func:`scoring_stage`).
+
+    Attributes
+    ----------
+    deviation : (n,) the judged vertex deviation, mm: the held state's, the free state's
+        on the free-state zones' vertices.  variance : (n,) its variance, mm^2.
+    free_vertices : (n,) bool the vertices governed by a free-state zone; None: the free
+        state not measured.
+    labels : (m,) B-rep face of each scan point (-1: none); None: a mesh nominal.
+    samples : the scan points' local values and uncertainties.
+    points_ok : (m,) bool the points that judge the surface (nearest vertex scored there,
+        not added material).
+    noise : the scan's range noise, mm.
+    uncertainty : (n,) expanded uncertainty of ``deviation``, mm.
+    free_uncertainty : (n,) that of the free state's deviation, mm; None: not measured.
+    """
+
+    deviation: np.ndarray
+    variance: np.ndarray
+    free_vertices: np.ndarray | None
+    labels: np.ndarray | None
+    samples: ScanSamples
+    points_ok: np.ndarray
+    noise: float
+    uncertainty: np.ndarray
+    free_uncertainty: np.ndarray | None
+
+
+@dataclass(frozen=True)
+class Characteristics:
+    """The drawing's characteristics measured (:func:`characteristics_stage`).
+
+    Attributes
+    ----------
+    results : the feature characteristics, measured on the judged surface.
+    frames : the datum reference frames established.
+    zone_frames : the frame of each zone (by index in ``bands.zones``) that names datums,
+        or a composite lower segment's own placement (None: not established at all).
+    """
+
+    results: list[CharacteristicResult]
+    frames: list[DatumFrameResult]
+    zone_frames: dict[int, DatumFrameResult | None]
+
+
+@dataclass(frozen=True)
+class Readings:
+    """The deviations read where the located zones lie (:func:`located_readings`).
+
+    Attributes
+    ----------
+    deviation : (n,) the judged deviation, each located zone's vertices in its frame, mm.
+    uncertainty : (n,) its expanded uncertainty, the frame's combined in, mm.
+    point_center : the scan points' band centre: scalar or (n,) per vertex, mm.
+    point_uncertainty : 0.0, or (n,) the frames' expanded uncertainty per vertex, mm.
+    zone_frames : as :attr:`Characteristics.zone_frames`.
+    located : the established ones among them.
+    """
+
+    deviation: np.ndarray
+    uncertainty: np.ndarray
+    point_center: float | np.ndarray
+    point_uncertainty: float | np.ndarray
+    zone_frames: dict[int, DatumFrameResult | None]
+    located: dict[int, DatumFrameResult]
+
+
+@dataclass(frozen=True)
+class Measured:
+    """The measuring stages' outputs the decisions read (:func:`acceptance_stage`)."""
+
+    nominal: HeldNominal
+    deviations: Deviations
+    scores: Scores
+    readings: Readings
+
+
+@dataclass(frozen=True)
+class Decisions:
+    """The tolerance decisions on the readings (:func:`acceptance_stage`).
+
+    Attributes
+    ----------
+    vertex_stats : area-weighted statistics of the judged deviation.
+    point_stats : statistics of the scan points' deviation.
+    acceptance : area and region criteria on the whole part.
+    zones : each zone's result.
+    coverage : the whole part's measured coverage.
+    coverage_ceiling_ok : coverage does not exceed scan area / nominal area.
+    """
+
+    vertex_stats: DeviationStats
+    point_stats: DeviationStats
+    acceptance: Acceptance
+    zones: list[ZoneResult]
+    coverage: Coverage
+    coverage_ceiling_ok: bool
+
+
+def held_nominal(
     reg: Registered,
     fit: DeformResult | None,
+    ctx: JudgeContext,
     params: InspectionParams,
-    timings: dict[str, float],
     *,
-    face_id: np.ndarray | None,
-    bands: BandField,
-    not_evaluated: list[NotEvaluated] | None,
-    prepared: PreparedPart,
-    solid: bool,
-    energy: str,
-    basis: BendingBasis | None,
-    check_part: bool = True,
-    free_deviation: tuple[np.ndarray, np.ndarray] | None = None,
-    brep_normals: np.ndarray | None = None,
-    free: Registered | None = None,
-    model_uncertainty: tuple[np.ndarray, np.ndarray] | None = None,
-    plan: CharacteristicPlan | None = None,
-    executor=None,
-) -> InspectionResult:
-    """Judge the rigidly seated scan against the nominal as the fixture ``fit`` holds it
-    (``None``: the free state, the nominal where the rigid alignment put it).
+    restrained: bool = False,
+) -> HeldNominal:
+    """The nominal as the fixture ``fit`` holds it (None: where the rigid alignment put
+    it); ``restrained``: the scan ``reg`` is held at its clamps (:class:`HeldNominal`)."""
+    V_reg = reg.V if fit is None else fit.V
+    corners = ctx.brep_normals
+    if corners is not None and fit is not None:  # turned with each triangle the fit bent
+        corners = follow_triangles(corners, reg.V, V_reg, reg.F)
+    return HeldNominal(
+        V=V_reg,
+        normals=ctx.prepared.ops.normals if fit is None else vertex_normals(V_reg, reg.F),
+        corner_normals=corners,
+        basis=ctx.basis if fit is None else fit.basis,
+        held=fit is not None or restrained,
+        # the free state of a B-rep nominal is scored up to its creases: the face-aware
+        # measure (:func:`vertex_deviation`) fits each vertex to the points of its own faces
+        # and leaves a crease vertex unscored unless all its faces were seen. A fixtured
+        # nominal keeps the band: there the displacement field is least determined
+        to_creases=fit is None and ctx.face_id is not None and params.edge_band is None,
+    )
 
-    ``free_deviation``: the free state's vertex deviation and its variance when it was
-    judged already (the zones with the free-state modifier take them instead of measuring
-    again). ``free``: the free state's registration when ``reg`` holds the scan otherwise
-    (restrained): the free-state zones are judged on it. ``model_uncertainty``: expanded
-    uncertainties (mm, (n,) per vertex and (m,) per scan point) the hold adds, combined in
-    quadrature with the scanner's. ``executor``: where the trim-edge measure runs beside
-    the rest (:func:`inspect`)."""
-    V, F, Pm, rigid, diag = reg.V, reg.F, reg.P, reg.rigid, reg.diag
-    Ns, sheets = reg.scan_normals, reg.sheets
-    ops = prepared.ops
-    V_reg = V if fit is None else fit.V
-    if fit is not None:
-        basis = fit.basis
-    near_crease, near_rim, rim_band = prepared.near_crease, prepared.near_rim, prepared.rim_band
-    # the free state of a B-rep nominal is scored up to its creases: the face-aware measure
-    # (:func:`vertex_deviation`) fits each vertex to the points of its own faces and leaves
-    # a crease vertex unscored unless all its faces were seen. A fixtured nominal keeps the
-    # band: there the displacement field is least determined
-    free_brep = fit is None and face_id is not None and params.edge_band is None
-    if free_brep:
-        near_crease = None
-    t0 = time.perf_counter()
-    N_reg = ops.normals if fit is None else vertex_normals(V_reg, F)
-    # the size from the trim edges, on a fixture that moves the nominal along its normals
-    # only (GB-CICP) or not at all; the baselines move it along the surface too, and so
-    # absorb or make up a size error at the rim
-    general = [z for z in bands.zones if z.faces is None]
-    general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
-    trim = None
-    if fit is None or fit.method == "gbcicp":
-        reg.scan_tree  # noqa: B018 - built once, before a child would build its own
-        trim = submit(
-            executor,
-            _trim_edges,
-            V_reg,
-            F,
-            Pm,
-            general_half,
-            N_reg,
-            "crease" if solid else "auto",
-            reg.scan_tree,
-        )
-    # the B-rep's exact corner normals, turned with each triangle when the fixture bent it
-    cn_reg = brep_normals
-    if brep_normals is not None and fit is not None:
-        cn_reg = follow_triangles(brep_normals, V, V_reg, F)
-    C, cface, pdev = closest_points(V_reg, F, Pm)
+
+def trim_edge_stage(
+    V: np.ndarray,
+    F: np.ndarray,
+    P: np.ndarray,
+    tolerance: float,
+    normals: np.ndarray,
+    trim_edges: str,
+    tree: cKDTree,
+) -> tuple[EdgeDeviation, SizeEstimate]:
+    """The trim-edge deviation of the scan ``P`` (m, 3) along the nominal ``(V, F)`` as the
+    fixture holds it, and the size error read from it (:func:`edge_deviation`,
+    :func:`size_error`); ``tolerance``: the general half-width, mm; ``normals`` (n, 3);
+    ``trim_edges``: ``"crease"`` (a solid) or ``"auto"``; ``tree``: ``cKDTree(P)``."""
+    edges = edge_deviation(V, F, P, tolerance, normals=normals, trim_edges=trim_edges, tree=tree)
+    return edges, size_error(edges)
+
+
+def schedule_trim_edges(
+    reg: Registered, nominal: HeldNominal, ctx: JudgeContext, fit: DeformResult | None, executor
+):
+    """:func:`trim_edge_stage` started on ``executor`` (None: made when its result is asked
+    for, :func:`~qifreport.metrology.deferred.submit`), or None: no size check.
+
+    The size is read from the trim edges on a fixture that moves the nominal along its
+    normals only (GB-CICP) or not at all; the baselines move it along the surface too, and
+    so absorb or make up a size error at the rim."""
+    if fit is not None and fit.method != "gbcicp":
+        return None
+    reg.scan_tree  # noqa: B018 - built once, before a child would build its own
+    return submit(
+        executor,
+        trim_edge_stage,
+        nominal.V,
+        reg.F,
+        reg.P,
+        ctx.general_half,
+        nominal.normals,
+        "crease" if ctx.solid else "auto",
+        reg.scan_tree,
+    )
+
+
+def deviation_stage(
+    reg: Registered,
+    nominal: HeldNominal,
+    ctx: JudgeContext,
+    *,
+    free_deviation: tuple[np.ndarray, np.ndarray] | None = None,
+    free: Registered | None = None,
+) -> Deviations:
+    """The scan points' and the vertices' deviations from the held nominal, and the free
+    state's for the free-state zones of a held part, with the unscored bands left out
+    (:class:`Deviations`).
+
+    Parameters
+    ----------
+    reg : the seated scan.  nominal : :func:`held_nominal`.  ctx : the judgement's context.
+    free_deviation : the free state's (n,) vertex deviation, mm, and its variance, mm^2,
+        when it was judged already; None: measured here when needed.
+    free : the free state's registration when ``reg`` holds the scan otherwise (restrained).
+    """
+    F, Pm, face_id = reg.F, reg.P, ctx.face_id
+    C, cface, pdev = closest_points(nominal.V, F, Pm)
     if face_id is not None:  # a B-rep nominal: the points' distances to its curved surface
-        pdev = surface_distance(V_reg, F, C, cface, pdev, face_id, cn_reg, Pm)
+        pdev = surface_distance(nominal.V, F, C, cface, pdev, face_id, nominal.corner_normals, Pm)
     dev, var = vertex_deviation(
-        V_reg,
+        nominal.V,
         F,
         Pm,
-        N_reg,
+        nominal.normals,
         face_id,
         closest=(C, cface, pdev),
-        scan_normals=orient_scan_normals(Pm, Ns, V_reg, N_reg, sheets=sheets),
+        scan_normals=orient_scan_normals(
+            Pm, reg.scan_normals, nominal.V, nominal.normals, sheets=reg.sheets
+        ),
         residual=pdev if face_id is not None else None,
         tree=reg.scan_tree,
     )
     dev_free = var_free = None
-    held = fit is not None or free is not None
-    if held and any(z.free_state for z in bands.zones):
-        fr = reg if free is None else free
-        dev_free, var_free = (
-            (free_deviation[0].copy(), free_deviation[1])
-            if free_deviation is not None
-            else vertex_deviation(
-                V,
-                F,
-                fr.P,
-                ops.normals,
-                face_id,
-                scan_normals=orient_scan_normals(
-                    fr.P, fr.scan_normals, V, ops.normals, sheets=fr.sheets
-                ),
-                brep_normals=brep_normals,
-                tree=fr.scan_tree,
-            )
-        )
-    hygiene = replace(prepared.hygiene)  # a copy: the rim band is this inspection's
-    hygiene.boundary_band = rim_band
+    if nominal.held and any(z.free_state for z in ctx.bands.zones):
+        if free_deviation is not None:
+            dev_free, var_free = free_deviation[0].copy(), free_deviation[1]
+        else:
+            dev_free, var_free = free_state_deviation(reg if free is None else free, ctx)
+    dev, dev_free, near_crease, excluded = _unscored(dev, dev_free, F, nominal, ctx)
+    return Deviations(
+        closest=C,
+        face=cface,
+        point=pdev,
+        vertex=dev,
+        variance=var,
+        free=dev_free,
+        free_variance=var_free,
+        near_crease=near_crease,
+        excluded=excluded,
+        beyond_rim=beyond_rim(nominal.V, F, C, cface),
+        hygiene=_rim_hygiene(ctx.prepared),
+    )
+
+
+def free_state_deviation(free: Registered, ctx: JudgeContext) -> tuple[np.ndarray, np.ndarray]:
+    """The free state's (n,) vertex deviation, mm, and its variance, mm^2: the scan
+    ``free`` on the nominal where the rigid alignment put it (:func:`vertex_deviation`)."""
+    normals = ctx.prepared.ops.normals
+    return vertex_deviation(
+        free.V,
+        free.F,
+        free.P,
+        normals,
+        ctx.face_id,
+        scan_normals=orient_scan_normals(
+            free.P, free.scan_normals, free.V, normals, sheets=free.sheets
+        ),
+        brep_normals=ctx.brep_normals,
+        tree=free.scan_tree,
+    )
+
+
+def _unscored(
+    dev: np.ndarray,
+    dev_free: np.ndarray | None,
+    F: np.ndarray,
+    nominal: HeldNominal,
+    ctx: JudgeContext,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """``dev`` and ``dev_free`` (n,) with the rim band's and the crease band's vertices
+    unscored (NaN, copies), the crease band's vertices outside the rim band (each excluded
+    vertex is counted once, rim first; a B-rep's free state: the crease vertices not all of
+    whose faces were seen), and every excluded vertex, (n,) bool."""
+    near_rim = ctx.prepared.near_rim
+    near_crease = None if nominal.to_creases else ctx.prepared.near_crease
+    if near_crease is not None:
+        near_crease = near_crease & ~near_rim
+    unscored = near_rim if near_crease is None else near_rim | near_crease
+    dev = dev.copy()
+    dev[unscored] = np.nan
+    if dev_free is not None:
+        dev_free = dev_free.copy()
+        dev_free[unscored] = np.nan
+    if nominal.to_creases:
+        near_crease = unseen_neighbour_edges(F, ctx.face_id, dev)
+    excluded = near_rim if near_crease is None else near_rim | near_crease
+    return dev, dev_free, near_crease, excluded
+
+
+def _rim_hygiene(prepared: PreparedPart) -> MeshHygiene:
+    """The part's mesh hygiene (a copy) with this inspection's rim band."""
+    ops, near_rim = prepared.ops, prepared.near_rim
+    hygiene = replace(prepared.hygiene)
+    hygiene.boundary_band = prepared.rim_band
     hygiene.boundary_excluded_area = float(ops.area[near_rim].sum())
     hygiene.boundary_excluded_fraction = hygiene.boundary_excluded_area / max(
         float(ops.area.sum()), 1e-300
     )
-    if near_rim.any():
-        if near_crease is not None:  # each excluded vertex is counted once, rim first
-            near_crease = near_crease & ~near_rim
-        dev[near_rim] = np.nan
-        if dev_free is not None:
-            dev_free[near_rim] = np.nan
-    if near_crease is not None and near_crease.any():
-        dev[near_crease] = np.nan
-        if dev_free is not None:
-            dev_free[near_crease] = np.nan
-    if free_brep:
-        near_crease = unseen_neighbour_edges(F, face_id, dev)
-    excluded = near_rim if near_crease is None else near_rim | near_crease
-    rim = beyond_rim(V_reg, F, C, cface)
-    timings["deviation"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    area = ops.area  # barycentric vertex areas of the nominal, mm^2
-    dev_all = dev.copy()
-    var_all = var.copy()
-    if dev_free is not None:
-        free_v = np.isin(bands.governing, [i for i, z in enumerate(bands.zones) if z.free_state])
-        dev_all[free_v] = dev_free[free_v]
-        var_all[free_v] = var_free[free_v]
-    # threshold of the whole-part tail fractions (``general_half``): the general zone's
-    # half-width, or (all faces under PMI profiles) the widest zone's: "beyond every band"
-    # (per-zone fractions use their own band)
+    return hygiene
+
+
+def scoring_stage(
+    reg: Registered,
+    nominal: HeldNominal,
+    deviations: Deviations,
+    ctx: JudgeContext,
+    params: InspectionParams,
+    timings: dict[str, float],
+    model_uncertainty: tuple[np.ndarray, np.ndarray] | None = None,
+) -> Scores:
+    """The judged deviation field, the scan points that judge the surface with their local
+    values, the scan's noise, and the expanded uncertainties (:class:`Scores`).
+
+    Parameters
+    ----------
+    reg, nominal, deviations : the earlier stages'.  ctx : the judgement's context.
+    params : the inspection's parameters (the scanner's stated uncertainty, mm).
+    timings : seconds per stage, added to ("scan points", "resolution").
+    model_uncertainty : expanded uncertainties the hold adds, mm, (n,) per vertex and (m,)
+        per scan point, combined in quadrature with the scanner's; None: none.
+    """
+    d = deviations
+    dev_all, var_all = d.vertex.copy(), d.variance.copy()
+    free_v = None
+    if d.free is not None:
+        free_v = np.isin(
+            ctx.bands.governing, [i for i, z in enumerate(ctx.bands.zones) if z.free_state]
+        )
+        dev_all[free_v] = d.free[free_v]
+        var_all[free_v] = d.free_variance[free_v]
     # a STEP nominal's scan points grouped by their B-rep face: a thin wall's two skins are
     # kept apart in the noise estimate and in the points' own values
-    plabel = None if face_id is None else point_faces(cface, face_id)
+    plabel = None if ctx.face_id is None else point_faces(d.face, ctx.face_id)
     sys_vertices: float | np.ndarray = params.scanner_uncertainty
     sys_points: float | np.ndarray = params.scanner_uncertainty
     if model_uncertainty is not None:
@@ -356,13 +674,46 @@ def judge(
         sys_points = np.hypot(params.scanner_uncertainty, model_uncertainty[1])
     t_pts = time.perf_counter()
     samples = scan_samples(
-        V_reg, F, Pm, pdev, C, cface, plabel, systematic=sys_points, tree=reg.scan_tree
+        nominal.V,
+        reg.F,
+        reg.P,
+        d.point,
+        d.closest,
+        d.face,
+        plabel,
+        systematic=sys_points,
+        tree=reg.scan_tree,
     )
+    points_ok = _points_judging(samples, dev_all, free_v, ctx.general_half)
+    timings["scan points"] = time.perf_counter() - t_pts
+    t_noise = time.perf_counter()
+    noise = range_noise(reg.P, labels=plabel)
+    timings["resolution"] = time.perf_counter() - t_noise
+    return Scores(
+        deviation=dev_all,
+        variance=var_all,
+        free_vertices=free_v,
+        labels=plabel,
+        samples=samples,
+        points_ok=points_ok,
+        noise=noise,
+        # the expanded uncertainty of each vertex's deviation, for the decision rule
+        uncertainty=vertex_uncertainty(var_all, sys_vertices),
+        free_uncertainty=None
+        if d.free_variance is None
+        else vertex_uncertainty(d.free_variance, params.scanner_uncertainty),
+    )
+
+
+def _points_judging(
+    samples: ScanSamples, dev_all: np.ndarray, free_v: np.ndarray | None, general_half: float
+) -> np.ndarray:
+    """(m,) bool: the scan points that judge the surface. A point judges a surface where
+    its nearest vertex is scored there (the same crease and rim bands); the free-state
+    zones of a held judgement are the free state's (no points)."""
     pvert = samples.vertex
-    # a point judges a surface where its nearest vertex is scored there (the same crease
-    # and rim bands); the free-state zones of a fixtured judgement are the free state's
     dev_pts = np.where(pvert >= 0, dev_all[np.maximum(pvert, 0)], np.nan)
-    if dev_free is not None:
+    if free_v is not None:
         dev_pts[free_v[np.maximum(pvert, 0)]] = np.nan
     pts_ok = (pvert >= 0) & np.isfinite(dev_pts)
     # a point standing proud beyond the whole part's band is added material (a rib, a
@@ -370,242 +721,465 @@ def judge(
     # unless --fail-on-added-material), as the vertex measure's robust fit drops it too
     with np.errstate(invalid="ignore"):
         pts_ok &= ~(samples.value > general_half)
-    timings["scan points"] = time.perf_counter() - t_pts
-    t_noise = time.perf_counter()
-    noise = range_noise(Pm, labels=plabel)
-    timings["resolution"] = time.perf_counter() - t_noise
-    # the expanded uncertainty of each vertex's deviation, for the decision rule
-    U = vertex_uncertainty(var_all, sys_vertices)
-    U_free = None if var_free is None else vertex_uncertainty(var_free, params.scanner_uncertainty)
-    rule = params.decision_rule
-    U_base = U  # the vertices' own uncertainty (a located zone adds its frame's)
-    point_center, point_U = bands.center, 0.0
-    feats = frames_used = None
+    return pts_ok
+
+
+def characteristics_stage(
+    reg: Registered,
+    nominal: HeldNominal,
+    deviations: Deviations,
+    scores: Scores,
+    ctx: JudgeContext,
+    params: InspectionParams,
+    timings: dict[str, float],
+) -> Characteristics:
+    """The drawing's feature characteristics measured on the judged surface, and the frames
+    of the profiles that name datums (Y14.5-2018 11.2.1) or are a composite's lower
+    segment (:class:`Characteristics`; nothing without a plan, a B-rep nominal and its
+    corner normals). ``timings``: seconds per stage, added to ("characteristics")."""
+    plan, face_id, corners = ctx.plan, ctx.face_id, ctx.brep_normals
+    if plan is None or face_id is None or corners is None:
+        return Characteristics(results=[], frames=[], zone_frames={})
+    t_feat = time.perf_counter()
+    V, F, d = reg.V, reg.F, deviations
+    surf = _measured_surface(
+        V,
+        F,
+        nominal.V,
+        face_id,
+        corners,
+        scores.deviation,
+        scores.uncertainty,
+        reg.P,
+        d.closest,
+        d.face,
+        d.point,
+        scores.labels,
+        scores.samples.vertex,
+    )
+    free_surf = None
+    if d.free is not None and scores.free_uncertainty is not None:
+        free_surf = _measured_surface(
+            V, F, V, face_id, corners, d.free, scores.free_uncertainty, *_no_points()
+        )
+    cache: dict = {}
     zone_frames: dict[int, DatumFrameResult | None] = {}
-    if plan is not None and face_id is not None and brep_normals is not None:
-        t_feat = time.perf_counter()
-        surf = _measured_surface(
-            V, F, V_reg, face_id, brep_normals, dev_all, U, Pm, C, cface, pdev, plabel, pvert
-        )
-        free_surf = None
-        if dev_free is not None and U_free is not None:
-            free_surf = _measured_surface(
-                V, F, V, face_id, brep_normals, dev_free, U_free, *_no_points()
+    for i, z in enumerate(ctx.bands.zones):
+        if z.datums:
+            use_free = z.free_state and free_surf is not None
+            zone_frames[i] = frame_of(z.datums, plan.datums, free_surf if use_free else surf, cache)
+        if z.composite == "lower":  # its own placement, in its frame's orientation
+            zone_frames[i] = composite_zone_frame(
+                zone_frames.get(i),
+                V,
+                ctx.prepared.ops.normals,
+                scores.deviation - z.center,
+                ctx.bands.governing == i,
+                z.half_width,
             )
-        cache: dict = {}
-        # the profiles that name datums are laid in their frame (Y14.5-2018 11.2.1)
-        for i, z in enumerate(bands.zones):
-            if z.datums:
-                use_free = z.free_state and free_surf is not None
-                zone_frames[i] = frame_of(
-                    z.datums, plan.datums, free_surf if use_free else surf, cache
-                )
-            if z.composite == "lower":  # its own placement, in its frame's orientation
-                zone_frames[i] = composite_zone_frame(
-                    zone_frames.get(i),
-                    V,
-                    ops.normals,
-                    dev_all - z.center,
-                    bands.governing == i,
-                    z.half_width,
-                )
-        feats, frames_used = measure_characteristics(
-            plan.specs, plan.datums, surf, rule, free_surface=free_surf, frames=cache
-        )
-        timings["characteristics"] = time.perf_counter() - t_feat
+    feats, frames_used = measure_characteristics(
+        plan.specs, plan.datums, surf, params.decision_rule, free_surface=free_surf, frames=cache
+    )
+    timings["characteristics"] = time.perf_counter() - t_feat
+    return Characteristics(results=feats or [], frames=frames_used or [], zone_frames=zone_frames)
+
+
+def located_readings(
+    reg: Registered, scores: Scores, characteristics: Characteristics, ctx: JudgeContext
+) -> Readings:
+    """The judged deviation read in the located zones' frames (:class:`Readings`): each
+    vertex governed by a zone whose datum frame is established takes its reading in that
+    frame, and the frame's uncertainty with it; the scan points judge against their
+    vertex's band moved the other way."""
+    zone_frames = characteristics.zone_frames
     located = {i: f for i, f in zone_frames.items() if f is not None and f.established}
+    dev_all, U = scores.deviation, scores.uncertainty
+    point_center: float | np.ndarray = ctx.bands.center
+    point_U: float | np.ndarray = 0.0
     if located:
-        # each vertex governed by a located zone takes its reading in the zone's frame, and
-        # the frame's uncertainty with it
-        U = U.copy()
-        # the scan points judge against their vertex's band moved the other way
-        point_center = np.broadcast_to(bands.center, (len(V),)).astype(np.float64).copy()
+        V, normals, governing = reg.V, ctx.prepared.ops.normals, ctx.bands.governing
+        dev_all, U = dev_all.copy(), U.copy()
+        point_center = np.broadcast_to(ctx.bands.center, (len(V),)).astype(np.float64).copy()
         point_U = np.zeros(len(V))
         for i, f in located.items():
-            gv = bands.governing == i
-            shift = f.normal_shift(V[gv], ops.normals[gv])
+            gv = governing == i
+            shift = f.normal_shift(V[gv], normals[gv])
             dev_all[gv] = dev_all[gv] + shift
             point_center[gv] -= shift
-            point_U[gv] = f.shift_uncertainty(V[gv], ops.normals[gv])
-            U[gv] = np.hypot(U[gv], f.shift_uncertainty(V[gv], ops.normals[gv]))
+            point_U[gv] = f.shift_uncertainty(V[gv], normals[gv])
+            U[gv] = np.hypot(U[gv], f.shift_uncertainty(V[gv], normals[gv]))
+    return Readings(
+        deviation=dev_all,
+        uncertainty=U,
+        point_center=point_center,
+        point_uncertainty=point_U,
+        zone_frames=zone_frames,
+        located=located,
+    )
+
+
+def acceptance_stage(
+    reg: Registered, m: Measured, ctx: JudgeContext, params: InspectionParams
+) -> Decisions:
+    """The area, region and coverage criteria on the whole part and on each zone
+    (:class:`Decisions`), from the measuring stages' outputs ``m``.
+
+    Beside a drawing's own tolerances, qifreport's default band is no requirement: it is
+    judged where it was measured and its unmeasured patches are reported (each PMI zone
+    keeps its rules).
+    """
+    V, F, bands, area = reg.V, reg.F, ctx.bands, ctx.prepared.ops.area
+    deviations, scores, readings = m.deviations, m.scores, m.readings
+    general_half, dev_all = ctx.general_half, readings.deviation
+    vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
+    pstats = deviation_statistics(deviations.point, threshold=general_half)
+    points = _surface_points(
+        scores.samples,
+        scores.points_ok,
+        bands.half_width,
+        readings.point_center,
+        readings.point_uncertainty,
+    )
+    acc = _acceptance(V, F, dev_all, bands, area, readings.uncertainty, points, params)
+    advisory = any(z.source == "default" for z in bands.zones) and any(
+        z.faces is not None for z in bands.zones
+    )
+    zones = [
+        zone_result(i, reg, m, ctx, params, advisory=advisory) for i in range(len(bands.zones))
+    ]
+    whole = _coverage(
+        V, F, dev_all, bands, area, deviations.excluded, params.min_coverage, params, advisory
+    )
+    # the ceiling catches a deformable fit that met points of other features; a B-rep's free
+    # state is rigid and scores each vertex from its own faces' points only, while the
+    # scan-area estimate merges the two skins of a wall thinner than a point neighbourhood
+    # (NIST CTC 03, 1.9 mm walls: 65 % "scanned" against 94 % scored)
+    ceiling = m.nominal.to_creases or coverage_ceiling_ok(
+        acc.coverage, reg.scan_area, acc.nominal_area
+    )
+    return Decisions(
+        vertex_stats=vstats,
+        point_stats=pstats,
+        acceptance=acc,
+        zones=zones,
+        coverage=whole,
+        coverage_ceiling_ok=ceiling,
+    )
+
+
+def zone_result(
+    i: int,
+    reg: Registered,
+    m: Measured,
+    ctx: JudgeContext,
+    params: InspectionParams,
+    *,
+    advisory: bool = False,
+) -> ZoneResult:
+    """The result of zone ``i`` of ``ctx.bands``: its deviation (the free state's for a
+    free-state zone of a held part; in its datum frame when located), statistics, area and
+    region criteria (on its scan points too, unless the free state's), and measured
+    coverage (``advisory``: its gaps reported, not failed, for qifreport's default band
+    beside a drawing's zones)."""
+    V, F, normals = reg.V, reg.F, ctx.prepared.ops.normals
+    deviations, scores, readings = m.deviations, m.scores, m.readings
+    z, mask = ctx.bands.zones[i], ctx.bands.tri_masks[i]
+    az = zone_vertex_areas(V, F, mask)
+    use_free = z.free_state and deviations.free is not None
+    dz = np.where(az > 0, deviations.free if use_free else deviations.vertex, np.nan)
+    frame = readings.zone_frames.get(i)
+    located = i in readings.located
+    zU = scores.free_uncertainty if use_free else readings.uncertainty
+    zcenter, zpU = z.center, 0.0
+    if located:
+        shift = frame.normal_shift(V, normals)
+        dz = dz + shift
+        zcenter = z.center - shift
+        zpU = frame.shift_uncertainty(V, normals)
+        own_U = scores.free_uncertainty if use_free else scores.uncertainty
+        zU = np.hypot(own_U, frame.shift_uncertainty(V, normals))
+    points = None
+    if not use_free:
+        on_zone = scores.points_ok & mask[np.maximum(deviations.face, 0)]
+        points = _surface_points(scores.samples, on_zone, z.half_width, zcenter, zpU)
+    zacc = _acceptance(V, F[mask], dz, z, az, zU, points, params)
+    zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
+    min_coverage = params.min_coverage if z.min_coverage is None else z.min_coverage
+    advisory = advisory and z.source == "default"
+    zcov = _coverage(V, F[mask], dz, z, az, deviations.excluded, min_coverage, params, advisory)
+    return ZoneResult(
+        zone=z,
+        stats=zstats,
+        acceptance=zacc,
+        fixtured=m.nominal.held and not use_free,
+        deviation=dz,
+        coverage=zcov,
+        reading=_zone_reading(z, frame, located),
+    )
+
+
+def _acceptance(
+    V: np.ndarray,
+    F: np.ndarray,
+    dev: np.ndarray,
+    band: BandField | ToleranceZone,
+    area: np.ndarray,
+    uncertainty: np.ndarray,
+    points: SurfacePoints | None,
+    params: InspectionParams,
+) -> Acceptance:
+    """:func:`evaluate` of the surface ``F`` against ``band``'s half-width and centre, by
+    the inspection's criteria and decision rule."""
+    return evaluate(
+        V,
+        F,
+        dev,
+        band.half_width,
+        area=area,
+        min_fraction=params.min_fraction,
+        max_region_area=params.max_region_area,
+        center=band.center,
+        uncertainty=uncertainty,
+        decision_rule=params.decision_rule,
+        points=points,
+    )
+
+
+def _coverage(
+    V: np.ndarray,
+    F: np.ndarray,
+    dev: np.ndarray,
+    band: BandField | ToleranceZone,
+    area: np.ndarray,
+    excluded: np.ndarray,
+    min_coverage: float,
+    params: InspectionParams,
+    advisory: bool,
+) -> Coverage:
+    """:func:`zone_coverage` of the surface ``F`` in ``band`` with the inspection's region
+    and gap limits (``advisory``: its gaps reported only)."""
+    return zone_coverage(
+        V,
+        F,
+        dev,
+        area,
+        excluded,
+        center=band.center,
+        half_width=band.half_width,
+        min_coverage=min_coverage,
+        max_region_area=params.max_region_area,
+        max_gap_area=params.max_gap_area,
+        advisory_gaps=advisory,
+    )
+
+
+def _zone_reading(z: ToleranceZone, frame: DatumFrameResult | None, located: bool) -> str:
+    """How a zone's deviation was read: best fit, or in its datum frame (``located``: the
+    frame established), or a composite lower segment at its own placement."""
+    if located:
+        labels = "|".join(frame.labels)
+        if z.composite == "lower":
+            return "composite lower segment: zone placed at its minimax position" + (
+                f", orientation in |{labels}|" if frame.labels else ""
+            )
+        reading = f"datum frame |{labels}|"
+        if frame.free:
+            reading += " (best fit: " + ", ".join(frame.free) + ")"
+        return reading
+    if frame is not None:
+        return "best fit (datum frame not established: " + "; ".join(frame.problems) + ")"
+    return "best fit"
+
+
+def added_stage(
+    reg: Registered,
+    deviations: Deviations,
+    scores: Scores,
+    ctx: JudgeContext,
+    params: InspectionParams,
+) -> AddedMaterial:
+    """The added material (:func:`added_material`): scan points standing proud of the
+    nominal beyond the whole part's band; points beyond its rim are not proud of it."""
+    pdev_in = np.where(deviations.beyond_rim, np.nan, deviations.point)
+    return added_material(
+        reg.P,
+        pdev_in,
+        ctx.general_half,
+        reg.scan_area,
+        params.max_region_area,
+        fail_on=params.fail_on_added_material,
+        tree=scores.samples.tree,
+    )
+
+
+def residual_scatter(
+    reg: Registered,
+    fit: DeformResult | None,
+    deviations: Deviations,
+    scores: Scores,
+    readings: Readings,
+    zones: list[ZoneResult],
+    *,
+    restrained: bool = False,
+) -> Resolution:
+    """The measurement's resolution against each zone's width (:func:`resolution`): the
+    scan's noise and the registration's residual scatter, mm.
+
+    The scatter is the fixture's residual scale, or the rigid fit's; a scan held otherwise
+    (``restrained``) has the part's form in its deviations, not a scatter: its scatter is
+    about the measured deviation field (each point against its nearest scored vertex's
+    value: a conforming panel with 0.23 mm of form the clamps leave was "not established"
+    when the form itself was taken for scatter)."""
+    if fit is not None:
+        residual_scale = fit.scale
+    elif restrained:
+        pvert = scores.samples.vertex
+        near = np.where(pvert >= 0, readings.deviation[np.maximum(pvert, 0)], np.nan)
+        about = deviations.point - near
+        residual_scale = (
+            robust_scale(about[np.isfinite(about)]) if np.isfinite(about).any() else 0.0
+        )
+    else:
+        residual_scale = reg.rigid.scale
+    return resolution(
+        scores.noise,
+        residual_scale,
+        [(z.zone.key, float(z.zone.upper - z.zone.lower)) for z in zones],
+    )
+
+
+@dataclass(frozen=True)
+class Stages:
+    """Every stage's output of one judgement, for :func:`assemble_result`."""
+
+    nominal: HeldNominal
+    deviations: Deviations
+    scores: Scores
+    characteristics: Characteristics
+    readings: Readings
+    decisions: Decisions
+    added: AddedMaterial
+    resolution: Resolution
+    edges: EdgeDeviation | None = None
+    size: SizeEstimate | None = None
+
+
+def assemble_result(
+    reg: Registered,
+    fit: DeformResult | None,
+    params: InspectionParams,
+    ctx: JudgeContext,
+    timings: dict[str, float],
+    s: Stages,
+) -> InspectionResult:
+    """The :class:`InspectionResult` of one judgement from its stages' outputs."""
+    d, decisions, near_crease = s.deviations, s.decisions, s.deviations.near_crease
+    area = ctx.prepared.ops.area
+    return InspectionResult(
+        V=reg.V,
+        F=reg.F,
+        V_registered=s.nominal.V,
+        P=reg.P,
+        deviation=s.readings.deviation,
+        deviation_variance=s.scores.variance,
+        solid=ctx.solid,
+        point_deviation=d.point,
+        vertex_stats=decisions.vertex_stats,
+        point_stats=decisions.point_stats,
+        acceptance=decisions.acceptance,
+        rigid=reg.rigid,
+        fit=fit,
+        params=params,
+        scan_area=reg.scan_area,
+        coverage_ceiling_ok=decisions.coverage_ceiling_ok,
+        timings=timings,
+        zones=decisions.zones,
+        not_evaluated=list(ctx.not_evaluated or []),
+        bands=ctx.bands,
+        energy=ctx.energy,
+        edge_excluded_area=float(area[near_crease].sum()) if near_crease is not None else 0.0,
+        prealign=reg.seat,
+        added=s.added,
+        hygiene=d.hygiene,
+        basis=s.nominal.basis,
+        resolution=s.resolution,
+        excluded=d.excluded,
+        coverage=decisions.coverage,
+        edges=s.edges,
+        size=s.size,
+        characteristics=s.characteristics.results,
+        frames=s.characteristics.frames,
+    )
+
+
+def judge(
+    reg: Registered,
+    fit: DeformResult | None,
+    params: InspectionParams,
+    timings: dict[str, float],
+    ctx: JudgeContext,
+    *,
+    check_part: bool = True,
+    free_deviation: tuple[np.ndarray, np.ndarray] | None = None,
+    free: Registered | None = None,
+    model_uncertainty: tuple[np.ndarray, np.ndarray] | None = None,
+    executor=None,
+) -> InspectionResult:
+    """Judge the rigidly seated scan ``reg`` against the nominal as the fixture ``fit``
+    holds it (``None``: the free state, the nominal where the rigid alignment put it): the
+    stages in order, each a public function of this module.
+
+    Parameters
+    ----------
+    reg : the seated scan.  fit : the virtual fixture's result, or None.
+    params : the inspection's parameters.  ctx : what the inspection's judgements share.
+    timings : seconds per stage, added to.
+    check_part : refuse a scan that is not of this part (:func:`check_same_part`).
+    free_deviation : the free state's (n,) vertex deviation, mm, and its variance, mm^2,
+        when it was judged already (the zones with the free-state modifier take them
+        instead of measuring again).
+    free : the free state's registration when ``reg`` holds the scan otherwise
+        (restrained): the free-state zones are judged on it.
+    model_uncertainty : expanded uncertainties (mm, (n,) per vertex and (m,) per scan point)
+        the hold adds, combined in quadrature with the scanner's.
+    executor : where the trim-edge measure runs beside the rest (:func:`inspect`'s).
+    """
+    t0 = time.perf_counter()
+    nominal = held_nominal(reg, fit, ctx, params, restrained=free is not None)
+    trim = schedule_trim_edges(reg, nominal, ctx, fit, executor)
+    deviations = deviation_stage(reg, nominal, ctx, free_deviation=free_deviation, free=free)
+    timings["deviation"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    scores = scoring_stage(reg, nominal, deviations, ctx, params, timings, model_uncertainty)
+    characteristics = characteristics_stage(reg, nominal, deviations, scores, ctx, params, timings)
+    readings = located_readings(reg, scores, characteristics, ctx)
     if check_part:
-        check_same_part(pdev, general_half, diag, rigid, fit)
+        check_same_part(deviations.point, ctx.general_half, reg.diag, reg.rigid, fit)
     edges = size = None
     if trim is not None:
         t_edges = time.perf_counter()
         edges, size = trim.result()
         timings["edges"] = time.perf_counter() - t_edges
-    vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
-    pstats = deviation_statistics(pdev, threshold=general_half)
-    acc = evaluate(
-        V,
-        F,
-        dev_all,
-        bands.half_width,
-        area=area,
-        min_fraction=params.min_fraction,
-        max_region_area=params.max_region_area,
-        center=bands.center,
-        uncertainty=U,
-        decision_rule=rule,
-        points=_surface_points(samples, pts_ok, bands.half_width, point_center, point_U),
-    )
-    # beside a drawing's own tolerances, qifreport's default band is no requirement: judged
-    # where it was measured, its unmeasured patches reported (each PMI zone keeps its rules)
-    advisory = any(z.source == "default" for z in bands.zones) and any(
-        z.faces is not None for z in bands.zones
-    )
-    zone_results = []
-    for i, (z, mask) in enumerate(zip(bands.zones, bands.tri_masks, strict=True)):
-        az = zone_vertex_areas(V, F, mask)
-        use_free = z.free_state and dev_free is not None
-        dz = np.where(az > 0, dev_free if use_free else dev, np.nan)
-        reading = "best fit"
-        frame = zone_frames.get(i)
-        zU = U_free if use_free else U
-        zcenter, zpU = z.center, 0.0
-        if i in located:
-            shift = frame.normal_shift(V, ops.normals)
-            dz = dz + shift
-            zcenter = z.center - shift
-            zpU = frame.shift_uncertainty(V, ops.normals)
-            zU = np.hypot(U_free if use_free else U_base, frame.shift_uncertainty(V, ops.normals))
-            reading = f"datum frame |{'|'.join(frame.labels)}|"
-            if z.composite == "lower":
-                reading = "composite lower segment: zone placed at its minimax position" + (
-                    f", orientation in |{'|'.join(frame.labels)}|" if frame.labels else ""
-                )
-            elif frame.free:
-                reading += " (best fit: " + ", ".join(frame.free) + ")"
-        elif frame is not None:
-            reading = "best fit (datum frame not established: " + "; ".join(frame.problems) + ")"
-        zacc = evaluate(
-            V,
-            F[mask],
-            dz,
-            z.half_width,
-            area=az,
-            min_fraction=params.min_fraction,
-            max_region_area=params.max_region_area,
-            center=z.center,
-            uncertainty=zU,
-            decision_rule=rule,
-            points=None
-            if use_free
-            else _surface_points(
-                samples, pts_ok & mask[np.maximum(cface, 0)], z.half_width, zcenter, zpU
-            ),
-        )
-        zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
-        zcov = zone_coverage(
-            V,
-            F[mask],
-            dz,
-            az,
-            excluded,
-            center=z.center,
-            half_width=z.half_width,
-            min_coverage=params.min_coverage if z.min_coverage is None else z.min_coverage,
-            max_region_area=params.max_region_area,
-            max_gap_area=params.max_gap_area,
-            advisory_gaps=advisory and z.source == "default",
-        )
-        zone_results.append(
-            ZoneResult(
-                zone=z,
-                stats=zstats,
-                acceptance=zacc,
-                fixtured=held and not use_free,
-                deviation=dz,
-                coverage=zcov,
-                reading=reading,
-            )
-        )
-    whole = zone_coverage(
-        V,
-        F,
-        dev_all,
-        area,
-        excluded,
-        center=bands.center,
-        half_width=bands.half_width,
-        min_coverage=params.min_coverage,
-        max_region_area=params.max_region_area,
-        max_gap_area=params.max_gap_area,
-        advisory_gaps=advisory,
-    )
-    s_area = reg.scan_area
-    # the ceiling catches a deformable fit that met points of other features; a B-rep's free
-    # state is rigid and scores each vertex from its own faces' points only, while the
-    # scan-area estimate merges the two skins of a wall thinner than a point neighbourhood
-    # (NIST CTC 03, 1.9 mm walls: 65 % "scanned" against 94 % scored)
-    ceiling = free_brep or coverage_ceiling_ok(acc.coverage, s_area, acc.nominal_area)
-    # added material: scan points beyond the rim of the nominal are not proud of it
-    pdev_in = np.where(rim, np.nan, pdev)
-    added = added_material(
-        Pm,
-        pdev_in,
-        general_half,
-        s_area,
-        params.max_region_area,
-        fail_on=params.fail_on_added_material,
-        tree=samples.tree,
-    )
+    measured = Measured(nominal, deviations, scores, readings)
+    decisions = acceptance_stage(reg, measured, ctx, params)
+    added = added_stage(reg, deviations, scores, ctx, params)
     timings["metrology"] = time.perf_counter() - t0
-    if fit is not None:
-        residual_scale = fit.scale
-    elif free is not None:
-        # held otherwise (restrained): the held scan's deviations are the part's form, not a
-        # scatter; its scatter is about the measured deviation field (each point against
-        # its nearest scored vertex's value: a conforming panel with 0.23 mm of form the
-        # clamps leave was "not established" when the form itself was taken for scatter)
-        near = np.where(pvert >= 0, dev_all[np.maximum(pvert, 0)], np.nan)
-        about = pdev - near
-        residual_scale = (
-            robust_scale(about[np.isfinite(about)]) if np.isfinite(about).any() else 0.0
-        )
-    else:
-        residual_scale = rigid.scale
-    scatter = resolution(
-        noise,
-        residual_scale,
-        [(z.zone.key, float(z.zone.upper - z.zone.lower)) for z in zone_results],
+    scatter = residual_scatter(
+        reg, fit, deviations, scores, readings, decisions.zones, restrained=free is not None
     )
-    return InspectionResult(
-        V=V,
-        F=F,
-        V_registered=V_reg,
-        P=Pm,
-        deviation=dev_all,
-        deviation_variance=var_all,
-        solid=solid,
-        point_deviation=pdev,
-        vertex_stats=vstats,
-        point_stats=pstats,
-        acceptance=acc,
-        rigid=rigid,
-        fit=fit,
-        params=params,
-        scan_area=s_area,
-        coverage_ceiling_ok=ceiling,
-        timings=timings,
-        zones=zone_results,
-        not_evaluated=list(not_evaluated or []),
-        bands=bands,
-        energy=energy,
-        edge_excluded_area=float(area[near_crease].sum()) if near_crease is not None else 0.0,
-        prealign=reg.seat,
-        added=added,
-        hygiene=hygiene,
-        basis=basis,
-        resolution=scatter,
-        excluded=excluded,
-        coverage=whole,
-        edges=edges,
-        size=size,
-        characteristics=feats or [],
-        frames=frames_used or [],
+    stages = Stages(
+        nominal,
+        deviations,
+        scores,
+        characteristics,
+        readings,
+        decisions,
+        added,
+        scatter,
+        edges,
+        size,
     )
+    return assemble_result(reg, fit, params, ctx, timings, stages)
 
 
 def _measured_surface(

@@ -64,7 +64,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .edges import EdgeDeviation, EdgeSegment, rim_segments
+from .edges import EdgeDeviation, EdgeSegment, RimFrames, rim_segments
 from .statistics import json_float
 
 __all__ = [
@@ -251,6 +251,68 @@ def _blocks(angle: np.ndarray, n: int) -> np.ndarray:
     return lab
 
 
+def _blank(edges: EdgeDeviation, tol: float, fraction: float, min_seen: float) -> SizeEstimate:
+    """The estimate of a rim without a fit (``"no rim"``; every value NaN)."""
+    k = len(edges.rim.vertices)
+    nan3 = np.full(3, np.nan)
+    return SizeEstimate(
+        status="no rim",
+        scale=float("nan"),
+        scale_sd=float("nan"),
+        scale_axes=np.full(2, np.nan),
+        half_extent=float("nan"),
+        half_extents=np.full(2, np.nan),
+        size_deviation=float("nan"),
+        translation=nan3,
+        rotation=float("nan"),
+        residual_scale=float("nan"),
+        n_used=0,
+        seen_fraction=edges.seen_fraction,
+        tolerance=tol,
+        fraction=float(fraction),
+        min_seen=float(min_seen),
+        center=nan3,
+        axes=np.full((3, 3), np.nan),
+        seated=np.full(k, np.nan),
+        residual=np.full(k, np.nan),
+    )
+
+
+def _rim_axes(rim: RimFrames) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The rim's length-weighted centre (3,), principal axes (3, 3) (rows: longest,
+    second, normal), each rim vertex about the centre (k, 3), mm, and the fit's design
+    matrix (k, 4): each vertex's outward deviation per unit scale, translation along the
+    two in-plane axes and rotation about the normal."""
+    X, wl, B = rim.position, rim.length, rim.outward
+    c = (X * wl[:, None]).sum(axis=0) / max(float(wl.sum()), 1e-300)
+    R = X - c
+    cov = (R * wl[:, None]).T @ R
+    _, evecs = np.linalg.eigh(cov)
+    axes = evecs[:, ::-1].T  # rows u1 (longest), u2, n0
+    A = np.c_[
+        np.einsum("ij,ij->i", R, B),
+        B @ axes[0],
+        B @ axes[1],
+        np.einsum("ij,ij->i", np.cross(axes[2], R), B),
+    ]
+    return c, axes, R, A
+
+
+def _jackknife_sd(A: np.ndarray, y: np.ndarray, w: np.ndarray, angle: np.ndarray) -> float:
+    """The standard deviation of the scale (the fit's first coefficient) by the jackknife
+    over :data:`_BLOCKS` angular blocks of the seen rim (``angle`` (k,), rad); inf with
+    fewer than two blocks."""
+    lab = _blocks(angle, _BLOCKS)
+    ks = []
+    for b in range(_BLOCKS):
+        m = lab != b
+        if m.sum() >= 8:
+            ks.append(_robust_fit(A[m], y[m], w[m])[0][0])
+    ks = np.asarray(ks)
+    nb = len(ks)
+    return float(np.sqrt((nb - 1) / nb * np.sum((ks - ks.mean()) ** 2))) if nb > 1 else np.inf
+
+
 def size_error(
     edges: EdgeDeviation,
     *,
@@ -276,47 +338,12 @@ def size_error(
     tol = float(edges.tolerance if tolerance is None else tolerance)
     rim = edges.rim
     k = len(rim.vertices)
-    nan3 = np.full(3, np.nan)
-    blank = SizeEstimate(
-        status="no rim",
-        scale=float("nan"),
-        scale_sd=float("nan"),
-        scale_axes=np.full(2, np.nan),
-        half_extent=float("nan"),
-        half_extents=np.full(2, np.nan),
-        size_deviation=float("nan"),
-        translation=nan3,
-        rotation=float("nan"),
-        residual_scale=float("nan"),
-        n_used=0,
-        seen_fraction=edges.seen_fraction,
-        tolerance=tol,
-        fraction=float(fraction),
-        min_seen=float(min_seen),
-        center=nan3,
-        axes=np.full((3, 3), np.nan),
-        seated=np.full(k, np.nan),
-        residual=np.full(k, np.nan),
-    )
+    blank = _blank(edges, tol, fraction, min_seen)
     if rim.empty:
         return blank
-    X = rim.position
-    wl = rim.length
-    c = (X * wl[:, None]).sum(axis=0) / max(float(wl.sum()), 1e-300)
-    R = X - c
-    cov = (R * wl[:, None]).T @ R
-    _, evecs = np.linalg.eigh(cov)
-    axes = evecs[:, ::-1].T  # rows u1 (longest), u2, n0
-    B = rim.outward
-    r = np.einsum("ij,ij->i", R, B)
-    cols = {
-        "scale": r,
-        "t1": B @ axes[0],
-        "t2": B @ axes[1],
-        "rot": np.einsum("ij,ij->i", np.cross(axes[2], R), B),
-    }
+    c, axes, R, A = _rim_axes(rim)
     inner = ~rim.corner
-    half = float(r[inner].max()) if inner.any() else float(r.max())
+    half = float(A[inner, 0].max()) if inner.any() else float(A[:, 0].max())
     halves = np.abs(R @ axes[:2].T).max(axis=0)
     blank.status = "not established"
     blank.center, blank.axes = c, axes
@@ -326,24 +353,12 @@ def size_error(
         log.info("size: %d seen rim vertices, no fit", int(seen.sum()))
         return blank
     y = edges.deviation[seen]
-    w = wl[seen]
-    A = np.c_[cols["scale"], cols["t1"], cols["t2"], cols["rot"]]
+    w = rim.length[seen]
     x, rw = _robust_fit(A[seen], y, w)
     # anisotropic: one scale per principal axis
-    A2 = np.c_[(R @ axes[0]) * cols["t1"], (R @ axes[1]) * cols["t2"], A[:, 1:]]
+    A2 = np.c_[(R @ axes[0]) * A[:, 1], (R @ axes[1]) * A[:, 2], A[:, 1:]]
     x2, _ = _robust_fit(A2[seen], y, w)
-    # jackknife over angular blocks of the seen rim
-    ang = np.arctan2(R[seen] @ axes[1], R[seen] @ axes[0])
-    lab = _blocks(ang, _BLOCKS)
-    ks = []
-    for b in range(_BLOCKS):
-        m = lab != b
-        if m.sum() >= 8:
-            ks.append(_robust_fit(A[seen][m], y[m], w[m])[0][0])
-    ks = np.asarray(ks)
-    nb = len(ks)
-    sd = float(np.sqrt((nb - 1) / nb * np.sum((ks - ks.mean()) ** 2))) if nb > 1 else np.inf
-
+    sd = _jackknife_sd(A[seen], y, w, np.arctan2(R[seen] @ axes[1], R[seen] @ axes[0]))
     res = y - A[seen] @ x
     seated = np.full(k, np.nan)
     seated[seen] = y - A[seen][:, 1:] @ x[1:]
@@ -372,11 +387,22 @@ def size_error(
         residual=residual,
         seated_segments=rim_segments(rim, seated, tol),
     )
-    if est.seen_fraction >= min_seen:
-        D, U, limit = abs(kk) * half, 2.0 * sd * half, fraction * tol
-        if D > limit + U:
-            est.status = "size error"
-        elif D <= limit and U <= tol:
-            est.status = "conforming"
+    est.status = _size_rule(est, kk, fraction)
     log.info("size: %s", est.reasons()[0])
     return est
+
+
+def _size_rule(est: SizeEstimate, kk: float, fraction: float) -> str:
+    """The size rule (module docstring) on an estimate of scale ``1 + kk``: ``"size
+    error"`` beyond the limit ``fraction x tolerance`` by more than the uncertainty,
+    ``"conforming"`` within the limit with the uncertainty within the tolerance, else
+    ``"not established"`` (as with too little of the rim seen)."""
+    if est.seen_fraction < est.min_seen:
+        return "not established"
+    half, tol = est.half_extent, est.tolerance
+    D, U, limit = abs(kk) * half, 2.0 * est.scale_sd * half, fraction * tol
+    if D > limit + U:
+        return "size error"
+    if D <= limit and U <= tol:
+        return "conforming"
+    return "not established"
