@@ -25,6 +25,7 @@ from qifreport.registration.deformable import DeformResult, orient_scan_normals
 from qifreport.registration.gbcicp import BendingBasis
 from qifreport.registration.icp import RigidResult, robust_scale
 from qifreport.registration.mesh import vertex_normals
+from qifreport.registration.methods import method_spec
 from qifreport.registration.prealign import PrealignResult
 
 from .acceptance import coverage_ceiling_ok, evaluate, scan_area
@@ -263,7 +264,7 @@ def judge(
     general = [z for z in bands.zones if z.faces is None]
     general_half = general[0].half_width if general else max(z.half_width for z in bands.zones)
     trim = None
-    if fit is None or fit.method == "gbcicp":
+    if fit is None or method_spec(fit.method).moves_along_normals_only:
         reg.scan_tree  # noqa: B018 - built once, before a child would build its own
         trim = submit(
             executor,
