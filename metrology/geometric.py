@@ -194,21 +194,22 @@ def measure_roundness(spec, S, sample, feat, frame, sizes, surf, faces):
     o, a, _ = least_squares_cylinder(S, feat.origin, feat.direction, feat.radius)
     E = axis_frame(a)
     X = (S - o) @ E.T
+    fits = ((roundness(X[sel, :2]), sel) for sel in _sections(X[:, 2]))
+    return _worst_zone(fits, sample.U, "worst cross-section's minimum radial zone", "cross-section")
+
+
+def _worst_zone(fits, U: np.ndarray, how: str, element: str) -> tuple:
+    """The widest minimum zone of ``fits`` ((FormFit, point indices) of each cross-section
+    or line element, in order; the first of equals): a form reading with the ``U`` of its
+    points."""
     worst = None
-    for sel in _sections(X[:, 2]):
-        fit = roundness(X[sel, :2])
+    for fit, sel in fits:
         if worst is None or fit.minimum_zone > worst[0].minimum_zone:
             worst = (fit, sel)
     if worst is None:
-        raise Unmeasurable("no cross-section with enough points")
+        raise Unmeasurable(f"no {element} with enough points")
     fit, sel = worst
-    return (
-        fit.minimum_zone,
-        fit.least_squares,
-        zone_uncertainty(fit.residuals, sample.U[sel]),
-        ("worst cross-section's minimum radial zone"),
-        0.0,
-    )
+    return fit.minimum_zone, fit.least_squares, zone_uncertainty(fit.residuals, U[sel]), how, 0.0
 
 
 def measure_straightness(spec, S, sample, feat, frame, sizes, surf, faces):
@@ -249,23 +250,12 @@ def measure_straightness(spec, S, sample, feat, frame, sizes, surf, faces):
         what = "worst line element along the face's length (8 strips)"
     else:
         raise Unmeasurable("straightness of this feature")
-    worst = None
-    for g, Q in zip(groups, lines, strict=True):
-        if len(Q) < _SECTION_POINTS:
-            continue
-        fit = line_straightness(Q)
-        if worst is None or fit.minimum_zone > worst[0].minimum_zone:
-            worst = (fit, g)
-    if worst is None:
-        raise Unmeasurable("no line element with enough points")
-    fit, g = worst
-    return (
-        fit.minimum_zone,
-        fit.least_squares,
-        zone_uncertainty(fit.residuals, sample.U[g]),
-        what,
-        0.0,
+    fits = (
+        (line_straightness(Q), g)
+        for g, Q in zip(groups, lines, strict=True)
+        if len(Q) >= _SECTION_POINTS
     )
+    return _worst_zone(fits, sample.U, what, "line element")
 
 
 def measure_orientation(spec, S, sample, feat, frame, sizes, surf, faces):

@@ -538,11 +538,12 @@ def _document(
     software, units; None left out), product, features, characteristics, results and the
     statistics; ``part_ids``: the standard's, part's, component's and assembly path's ids."""
     std_id, part_id, comp_id, path_id = part_ids
+    zs = defs.sections
     part = E.Part(
         E.Header(E.Name(part_name)),
         E.UUID(qpid()),
-        id_array("FeatureNominalIds", [f.get("id") for f in defs.fnoms]),
-        id_array("CharacteristicNominalIds", [c.get("id") for c in defs.cnoms]),
+        id_array("FeatureNominalIds", zs.fnom_ids),
+        id_array("CharacteristicNominalIds", [c.get("id") for c in zs.cnoms]),
         id=part_id,
     )
     product = E.Product(
@@ -551,17 +552,7 @@ def _document(
         E.RootPart(E.Id(part_id)),
         E.AsmPaths(E.AsmPath(id_array("ComponentIds", [comp_id]), id=path_id), n="1"),
     )
-    features = E.Features(
-        E.FeatureDefinitions(*defs.fdefs, n=str(len(defs.fdefs))),
-        E.FeatureNominals(*defs.fnoms, n=str(len(defs.fnoms))),
-        E.FeatureItems(*defs.fitems, n=str(len(defs.fitems))),
-    )
-    characteristics = E.Characteristics(
-        E.FormalStandardId(std_id),
-        E.CharacteristicDefinitions(*defs.cdefs, n=str(len(defs.cdefs))),
-        E.CharacteristicNominals(*defs.cnoms, n=str(len(defs.cnoms))),
-        E.CharacteristicItems(*defs.citems, n=str(len(defs.citems))),
-    )
+    features, characteristics = zs.features(), zs.characteristics(std_id)
     result_set = E.Results(
         E.MeasurementResultsSet(*runs.mrs, n=str(len(runs.mrs))),
         E.ActualComponentSets(E.ActualComponentSet(*runs.actuals, n=str(len(runs.actuals))), n="1"),

@@ -25,8 +25,9 @@ from .batch_summary import (
     from_results,
     statistics_rule,
 )
+from .definitions import Sections, feature_definition
 from .reader import QIFResults
-from .xmlkit import NS, Attrs, E, Ids, id_array, qpid, token, xml_time
+from .xmlkit import NS, Attrs, E, Ids, id_array, token, xml_time
 
 __all__ = [
     "CHARACTERISTIC_STATUSES",
@@ -143,48 +144,31 @@ def feature_copies(
 
 @dataclass
 class Definitions:
-    """The features and characteristics of the document: per designator, one
-    ``OtherSurfaceFeature`` definition, nominal and item, its characteristic's definition,
-    nominal and item (``item_ids``: the characteristic item's id by designator)."""
+    """The features and characteristics of the document (``sections``, laid out as a results
+    document's): per designator, one ``OtherSurfaceFeature`` definition, nominal and item,
+    its characteristic's definition, nominal and item (``item_ids``: the characteristic
+    item's id by designator)."""
 
-    fdefs: list[etree._Element] = field(default_factory=list)
-    fnoms: list[etree._Element] = field(default_factory=list)
-    fitems: list[etree._Element] = field(default_factory=list)
-    cdefs: list[etree._Element] = field(default_factory=list)
-    cnoms: list[etree._Element] = field(default_factory=list)
-    citems: list[etree._Element] = field(default_factory=list)
+    sections: Sections = field(default_factory=Sections)
     item_ids: dict[str, str] = field(default_factory=dict)
 
     def add(self, key: str, obs: list[Observation], ids: Ids) -> None:
         """The feature and characteristic of designator ``key``."""
         c = obs[0].char
         profile = from_results(c.kind)
-        fd, fn, fi, cd, cn, ci = (ids() for _ in range(6))
-        self.item_ids[key] = ci
+        zs = self.sections
         fname = token(f"SURFACE_{key}".upper() if profile else f"FEATURE_{key}")
+        fn, fi, _ = feature_definition(zs, fname, Attrs(), ids)
+        cd, cn, ci = ids(), ids(), ids()
+        self.item_ids[key] = ci
         name = token(c.name or key)
-        self.fdefs.append(E.OtherSurfaceFeatureDefinition(id=fd))
-        self.fnoms.append(
-            E.OtherSurfaceFeatureNominal(
-                E.Name(fname), E.UUID(qpid()), E.FeatureDefinitionId(fd), id=fn
-            )
-        )
-        self.fitems.append(
-            E.OtherSurfaceFeatureItem(
-                E.FeatureNominalId(fn),
-                E.FeatureName(fname),
-                E.UUID(qpid()),
-                E.DeterminationMode(E.Checked(E.CheckDetails(E.Measured()))),
-                id=fi,
-            )
-        )
         if profile:
             cdef_el, cnom_el = _profile_definition(obs, name, cd, cn, fn)
         else:
             cdef_el, cnom_el = feature_copies(key, obs, cd, cn, fn)
-        self.cdefs.append(cdef_el)
-        self.cnoms.append(cnom_el)
-        self.citems.append(
+        zs.cdefs.append(cdef_el)
+        zs.cnoms.append(cnom_el)
+        zs.citems.append(
             E(
                 f"{c.kind}CharacteristicItem",
                 E.Name(name),

@@ -285,26 +285,15 @@ KINDS: dict[str, CharacteristicKind] = {
                 bonus=True,
             ),
         ),
-        CharacteristicKind(
-            "perpendicularity",
-            **_ORIENTATION,
-            step_entities=("PERPENDICULARITY_TOLERANCE",),
-            xcaf_type="Perpendicularity",
-            qif_type="Perpendicularity",
-        ),
-        CharacteristicKind(
-            "parallelism",
-            **_ORIENTATION,
-            step_entities=("PARALLELISM_TOLERANCE",),
-            xcaf_type="Parallelism",
-            qif_type="Parallelism",
-        ),
-        CharacteristicKind(
-            "angularity",
-            **_ORIENTATION,
-            step_entities=("ANGULARITY_TOLERANCE",),
-            xcaf_type="Angularity",
-            qif_type="Angularity",
+        *(
+            CharacteristicKind(
+                name,
+                **_ORIENTATION,
+                step_entities=(f"{name.upper()}_TOLERANCE",),
+                xcaf_type=name.capitalize(),
+                qif_type=name.capitalize(),
+            )
+            for name in ("perpendicularity", "parallelism", "angularity")
         ),
         CharacteristicKind(
             "circular_runout",
@@ -322,19 +311,15 @@ KINDS: dict[str, CharacteristicKind] = {
             measure=f"{_M}.geometric:measure_total_runout",
             qif_type="TotalRunout",
         ),
-        CharacteristicKind(
-            "coaxiality",
-            **_COAXIAL,
-            step_entities=("COAXIALITY_TOLERANCE",),
-            xcaf_type="Coaxiality",
-            qif_type="Coaxiality",
-        ),
-        CharacteristicKind(
-            "concentricity",
-            **_COAXIAL,
-            step_entities=("CONCENTRICITY_TOLERANCE",),
-            xcaf_type="Concentricity",
-            qif_type="Concentricity",
+        *(
+            CharacteristicKind(
+                name,
+                **_COAXIAL,
+                step_entities=(f"{name.upper()}_TOLERANCE",),
+                xcaf_type=name.capitalize(),
+                qif_type=name.capitalize(),
+            )
+            for name in ("coaxiality", "concentricity")
         ),
         CharacteristicKind(
             "symmetry",
