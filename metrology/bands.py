@@ -53,11 +53,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from qifreport.errors import InputError
+from qifreport.kinds import kind_label, lookup_kind
 from qifreport.registration.arrays import unique_sorted
 
 __all__ = [
     "DEFAULT_GENERAL_TOLERANCE",
-    "PROFILE_TYPES",
     "BandField",
     "composite_segment",
     "lay_bands",
@@ -77,8 +77,6 @@ log = logging.getLogger(__name__)
 #: tolerance covers when the command line gives none: a common title-block general
 #: profile tolerance for moulded and sheet-metal parts. Always reported as source "default".
 DEFAULT_GENERAL_TOLERANCE = 0.5
-
-PROFILE_TYPES = ("surface_profile",)
 
 
 def composite_segment(tol, tolerances) -> str:
@@ -165,7 +163,7 @@ class ToleranceZone:
         drf = "|" + "|".join(self.datums) + "|" if self.datums else ""
         src = self.source if self.step_id is None else f"{self.source} #{self.step_id}"
         return (
-            f"{self.kind.replace('_', ' ')} {self.width:g} mm {drf} "
+            f"{kind_label(self.kind)} {self.width:g} mm {drf} "
             f"[{self.lower:+g}, {self.upper:+g}] ({src})"
         ).replace("  ", " ")
 
@@ -274,7 +272,8 @@ def zones_from_pmi(
     whole: list[ToleranceZone] = []
     if pmi is not None:
         for tol in pmi.tolerances:
-            if tol.type not in PROFILE_TYPES:
+            kind = lookup_kind(tol.type)
+            if kind is None or not kind.band:
                 continue  # a feature characteristic (:mod:`.characteristics`)
             zone = _profile_zone(tol, face_index, f"T{len(zones) + 1}", pmi.tolerances)
             if isinstance(zone, NotEvaluated):

@@ -30,7 +30,7 @@ from qifreport.registration.gbcicp import BendingBasis, bending_basis, part_solv
 from qifreport.registration.icp import RigidResult, rigid_icp
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import bounding_diagonal
-from qifreport.registration.methods import METHODS, deform
+from qifreport.registration.methods import METHODS, deform, method_spec
 from qifreport.registration.normals import oriented_normals
 from qifreport.registration.prealign import seat_scan
 from qifreport.registration.restrained import RestraintBasis
@@ -48,7 +48,7 @@ from .characteristics import CharacteristicPlan
 from .deferred import submit
 from .held import hold_scan
 from .judgement import JudgeContext, Registered, judge
-from .params import METHOD_LABELS, InspectionParams, method_label
+from .params import InspectionParams, method_label
 from .prepared import PreparedPart, prepare_part
 from .results import (
     FREE_STATE_CONFORMS,
@@ -63,7 +63,6 @@ __all__ = [
     "FREE_STATE_CONFORMS",
     "FREE_STATE_LOCAL_DEFECTS",
     "FREE_STATE_UNCERTAIN",
-    "METHOD_LABELS",
     "RESTRAINED",
     "InspectionParams",
     "InspectionResult",
@@ -458,7 +457,9 @@ def _modal(params: InspectionParams) -> bool:
     """Whether the inspection's virtual fixture iterates in the part's bending basis
     (GB-CICP's modal solver)."""
     g = params.gbcicp
-    return params.method == "gbcicp" and g.solver == "modal" and g.lambda0 is None
+    return (
+        method_spec(params.method).uses_bending_basis and g.solver == "modal" and g.lambda0 is None
+    )
 
 
 class _FreeStateStood(Exception):
@@ -625,7 +626,7 @@ def _virtual_fixture(
         reg.F,
         prepared.ops,
         reg.P,
-        gb if params.method == "gbcicp" else None,
+        gb if method_spec(params.method).params_field is not None else None,
         scan_normals=reg.scan_normals,
         scan_sheets=reg.sheets,
         progress=progress,

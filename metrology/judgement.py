@@ -46,6 +46,7 @@ from qifreport.registration.deformable import DeformResult, orient_scan_normals
 from qifreport.registration.gbcicp import BendingBasis
 from qifreport.registration.icp import RigidResult, robust_scale
 from qifreport.registration.mesh import vertex_normals
+from qifreport.registration.methods import method_spec
 from qifreport.registration.prealign import PrealignResult
 
 from .acceptance import Acceptance, coverage_ceiling_ok, evaluate, scan_area
@@ -504,7 +505,7 @@ def schedule_trim_edges(
     The size is read from the trim edges on a fixture that moves the nominal along its
     normals only (GB-CICP) or not at all; the baselines move it along the surface too, and
     so absorb or make up a size error at the rim."""
-    if fit is not None and fit.method != "gbcicp":
+    if fit is not None and not method_spec(fit.method).moves_along_normals_only:
         return None
     reg.scan_tree  # noqa: B018 - built once, before a child would build its own
     return submit(

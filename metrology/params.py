@@ -1,5 +1,5 @@
-"""The parameters of one inspection (:class:`InspectionParams`) and the deformable methods'
-display names.
+"""The parameters of one inspection (:class:`InspectionParams`); the deformable methods'
+display names are the registry's (:func:`qifreport.registration.methods.method_label`).
 
 Kept apart from :mod:`qifreport.metrology.inspection` so that the per-part preparation
 (:mod:`qifreport.metrology.prepared`), which depends on a few of these parameters, needs
@@ -11,20 +11,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from qifreport.registration.gbcicp import GBCICPParams
+from qifreport.registration.methods import method_label
 
 from .acceptance import DEFAULT_MAX_REGION_AREA
 from .coverage import DEFAULT_MIN_COVERAGE
 from .decision import DEFAULT_DECISION_RULE
 
-__all__ = ["METHOD_LABELS", "InspectionParams", "method_label"]
-
-#: display name of each deformable method of :data:`qifreport.registration.methods.METHODS`
-METHOD_LABELS = {"gbcicp": "GB-CICP", "nicp": "NICP", "cpd": "CPD", "rbffem": "RBF-FEM"}
-
-
-def method_label(method: str) -> str:
-    """Display name of a deformable method (``"gbcicp"`` -> ``"GB-CICP"``)."""
-    return METHOD_LABELS.get(method, method.upper())
+__all__ = ["InspectionParams", "method_label"]
 
 
 @dataclass

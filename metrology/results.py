@@ -16,6 +16,7 @@ import numpy as np
 from qifreport.registration.deformable import DeformResult
 from qifreport.registration.gbcicp import BendingBasis
 from qifreport.registration.icp import RigidResult
+from qifreport.registration.methods import METHODS, method_spec
 from qifreport.registration.prealign import PrealignResult
 from qifreport.registration.restrained import Restraint
 
@@ -324,7 +325,11 @@ class InspectionResult:
                 f"(limit {100 * limit:.0f} %), so the "
                 "band-limited refit fell back to the single-pass fit"
             )
-        if self.fit is not None and self.fit.method == "gbcicp" and self.params.gbcicp.passes < 2:
+        if (
+            self.fit is not None
+            and method_spec(self.fit.method).flags_defects
+            and self.params.gbcicp.passes < 2
+        ):
             out.append(
                 "single-pass virtual fixture (--passes 1): the two-pass guard that keeps "
                 "a defect from being fitted away is off, so a pass is not claimed"
@@ -484,8 +489,9 @@ class InspectionResult:
         """JSON-ready summary: verdict, statistics, regions, registration and parameters."""
         fit = self.fit
         p = asdict(self.params)
-        if fit is not None and fit.method == "gbcicp":
-            p["gbcicp"] = asdict(fit.params)  # defaults resolved from the part size
+        own = None if fit is None else method_spec(fit.method).params_field
+        if own is not None:
+            p[own] = asdict(fit.params)  # defaults resolved from the part size
         return {
             "verdict": self.verdict,
             "warnings": self.trust_warnings(),
@@ -525,7 +531,12 @@ class InspectionResult:
                     "inlier_fraction": self.rigid.inlier_fraction,
                     "iterations": self.rigid.iterations,
                 },
-                "gbcicp": None if fit is None or fit.method != "gbcicp" else _fit_dict(fit),
+                # the fit under its parameters' name too (the GB-CICP record: "gbcicp")
+                **{
+                    m.params_field: _fit_dict(fit) if own == m.params_field else None
+                    for m in METHODS.values()
+                    if m.params_field is not None
+                },
                 "fit": None
                 if fit is None
                 else {

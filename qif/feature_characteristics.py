@@ -20,6 +20,7 @@ import math
 import numpy as np
 from lxml import etree
 
+from qifreport.kinds import QifRules, kind_label, lookup_kind
 from qifreport.metrology.bands import material_boundary
 from qifreport.metrology.characteristics import (
     CharacteristicResult,
@@ -31,7 +32,6 @@ from .definitions import DrfKey, Sections, drf_key, face_attrs, feature_definiti
 from .xmlkit import Attrs, E, Ids, dec, id_array, qpid, token
 
 __all__ = [
-    "QIF_TYPES",
     "characteristic_definition",
     "characteristic_measurement",
     "material_condition",
@@ -39,23 +39,6 @@ __all__ = [
     "qif_type",
 ]
 
-#: QIF characteristic type of each tolerance kind (the dimensions: :func:`_dimension_type`)
-QIF_TYPES = {
-    "flatness": "Flatness",
-    "straightness": "Straightness",
-    "roundness": "Circularity",
-    "cylindricity": "Cylindricity",
-    "perpendicularity": "Perpendicularity",
-    "parallelism": "Parallelism",
-    "angularity": "Angularity",
-    "position": "Position",
-    "coaxiality": "Coaxiality",
-    "concentricity": "Concentricity",
-    "circular_runout": "CircularRunout",
-    "total_runout": "TotalRunout",
-    "symmetry": "Symmetry",
-    "line_profile": "LineProfile",
-}
 _STATUS = {
     "PASS": "PASS",
     "FAIL": "FAIL",
@@ -63,13 +46,6 @@ _STATUS = {
     "NOT_MEASURED": "NOT_ANALYZED",
     "BASIC": "BASIC_OR_TED",
 }
-#: kinds whose definition needs a material condition / a zone shape (the schema's order)
-_MATERIAL = ("perpendicularity", "parallelism", "angularity", "position")
-_ZONE_SHAPE = ("straightness", "perpendicularity", "parallelism", "angularity", "position")
-_ZONE_SHAPE += ("coaxiality", "concentricity")
-_ORIENTATION = ("perpendicularity", "parallelism", "angularity")
-_DRF = _MATERIAL + ("coaxiality", "concentricity", "circular_runout", "total_runout", "symmetry")
-
 
 #: a composite feature control frame's segments, as the definition's attribute says them
 _COMPOSITE = {
@@ -110,9 +86,12 @@ def qif_type(s: CharacteristicSpec, direction: np.ndarray | None = None) -> str:
     known (its nominal needs a ``Vector``), is a ``UserDefinedAttribute`` (not measured)."""
     if s.kind == "dimension":
         return _dimension_type(s)
-    if s.kind == "line_profile" and direction is None:
+    kind = lookup_kind(s.kind)
+    if kind is None or kind.band or kind.qif_type is None:
         return "UserDefinedAttribute"
-    return QIF_TYPES.get(s.kind, "UserDefinedAttribute")
+    if kind.qif.section_vector and direction is None:
+        return "UserDefinedAttribute"
+    return kind.qif_type
 
 
 def material_condition(mods: list[str]) -> str:
@@ -157,34 +136,18 @@ def characteristic_definition(
     if s.free_state:
         cdef.append(E.FreeState("true"))
     if t == "UserDefinedAttribute":
-        cdef.append(E.WhatToMeasure(f"{s.kind.replace('_', ' ')} {s.limits_text()}"))
+        cdef.append(E.WhatToMeasure(f"{kind_label(s.kind)} {s.limits_text()}"))
     elif s.kind == "dimension":
         cdef += _dimension_definition(s)
     else:
-        cdef += _tolerance_value(s, t)
-        key = drf_key(s.datums, s.datum_materials)
-        if s.kind in _DRF and s.datums and key in drf_ids:
-            cdef.append(E.DatumReferenceFrameId(drf_ids[key]))
-        if s.kind in _MATERIAL:
-            cdef.append(E.MaterialCondition(material_condition(s.modifiers)))
-        if s.kind in _ZONE_SHAPE:
-            form = s.zone_form or ""
-            if "cylindrical" in form:
-                shape = E.DiametricalZone()
-            elif "spherical" in form and s.kind == "position":
-                shape = E.SphericalZone()
-            else:
-                shape = E.PlanarZone() if s.kind in _ORIENTATION else E.NonDiametricalZone()
-            cdef.append(E.ZoneShape(shape))
-        if s.kind == "line_profile":
-            cdef.append(E.OuterDisposition(dec(0.5 * (s.tolerance or 0.0))))
+        cdef += _tolerance_definition(s, drf_ids)
     zs.cdefs.append(E(f"{t}CharacteristicDefinition", *[x for x in cdef if x is not None], id=cd))
     cnom = [E.CharacteristicDefinitionId(cd), id_array("FeatureNominalIds", [fn]), E.Name(name)]
     if s.kind == "dimension" and s.nominal is not None:
         cnom.append(E.TargetValue(dec(s.nominal)))
     if t in ("DistanceBetween", "AngleBetween"):
         cnom.append(E.AnalysisMode("THREEDIMENSIONAL"))
-    if t == "LineProfile":
+    if t != "UserDefinedAttribute" and _rules(s).section_vector:
         cnom.append(E.Vector(" ".join(repr(float(x)) for x in direction)))
     zs.cnoms.append(E(f"{t}CharacteristicNominal", *cnom, id=cn))
     zs.citems.append(
@@ -229,13 +192,13 @@ def characteristic_measurement(
         meas.append(E.NonConformanceDesignator(token(c.reason or "not conforming")))
     if c.value is not None and math.isfinite(c.value):
         meas.append(E.Value(dec(c.value)))
-        if s.kind == "position" and c.bonus > 0:
+        if _rules(s).bonus and c.bonus > 0:
             meas.append(E.Bonus(dec(c.bonus)))
     return E(f"{t}CharacteristicMeasurement", *[x for x in meas if x is not None], id=ids())
 
 
 def _describe(s: CharacteristicSpec, c: CharacteristicResult | None) -> str:
-    what = s.kind.replace("_", " ") if s.kind != "dimension" else f"{s.dim_type} dimension"
+    what = kind_label(s.kind) if s.kind != "dimension" else f"{s.dim_type} dimension"
     frame = f" |{'|'.join(s.datums)}|" if s.datums else ""
     text = f"{what} {s.limits_text()}{frame} (pmi #{s.step_id})"
     if c is None:
@@ -247,12 +210,40 @@ def _describe(s: CharacteristicSpec, c: CharacteristicResult | None) -> str:
     return text
 
 
-#: characteristic types whose definition can state a per-unit-length / per-unit-area zone
-_PER_LENGTH = ("Straightness", "Circularity", "Cylindricity")
-_PER_AREA = ("Flatness", "Cylindricity")
+def _rules(s: CharacteristicSpec) -> QifRules:
+    """The QIF rules of ``s``'s kind (none for a dimension or an unregistered kind)."""
+    kind = lookup_kind(s.kind)
+    return QifRules() if kind is None else kind.qif
 
 
-def _tolerance_value(s: CharacteristicSpec, t: str) -> list[etree._Element]:
+def _tolerance_definition(
+    s: CharacteristicSpec, drf_ids: dict[DrfKey, str]
+) -> list[etree._Element]:
+    """A geometric tolerance's definition elements after its name: the tolerance value,
+    datum reference frame, material condition, zone shape and disposition its kind's QIF
+    rules (:class:`qifreport.kinds.QifRules`) ask for, in the schema's order."""
+    rules = _rules(s)
+    out = _tolerance_value(s, rules)
+    key = drf_key(s.datums, s.datum_materials)
+    if rules.datum_frame and s.datums and key in drf_ids:
+        out.append(E.DatumReferenceFrameId(drf_ids[key]))
+    if rules.material_condition:
+        out.append(E.MaterialCondition(material_condition(s.modifiers)))
+    if rules.zone_shape is not None:
+        form = s.zone_form or ""
+        if "cylindrical" in form:
+            shape = E.DiametricalZone()
+        elif "spherical" in form and rules.spherical_zone:
+            shape = E.SphericalZone()
+        else:
+            shape = E.PlanarZone() if rules.zone_shape == "planar" else E.NonDiametricalZone()
+        out.append(E.ZoneShape(shape))
+    if rules.outer_disposition:
+        out.append(E.OuterDisposition(dec(0.5 * (s.tolerance or 0.0))))
+    return out
+
+
+def _tolerance_value(s: CharacteristicSpec, rules: QifRules) -> list[etree._Element]:
     """A geometric tolerance's value: ``ToleranceValue``, or for a per-unit tolerance
     (flatness per unit area, straightness per unit length ...) its
     ``ToleranceZonePerUnitArea`` / ``ToleranceZonePerUnitLength`` where the type has one."""
@@ -260,13 +251,13 @@ def _tolerance_value(s: CharacteristicSpec, t: str) -> list[etree._Element]:
     unit = per_unit(s.unit_basis)
     if unit is not None:
         kind, nums = unit
-        if kind == "length" and t in _PER_LENGTH:
+        if kind == "length" and "length" in rules.per_unit:
             return [
                 E.ToleranceZonePerUnitLength(
                     E.ToleranceValuePerUnit(value), E.UnitLength(dec(nums[0]))
                 )
             ]
-        if kind != "length" and t in _PER_AREA:
+        if kind != "length" and "area" in rules.per_unit:
             area = (
                 E.CircularUnitArea(E.CircularUnitAreaDiameter(dec(nums[0])))
                 if kind == "circular"

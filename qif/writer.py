@@ -94,6 +94,7 @@ from qifreport.metrology.inspection import (
     InspectionResult,
     ZoneResult,
 )
+from qifreport.registration.methods import method_spec
 
 from .definitions import (
     CONFORMS,
@@ -140,7 +141,6 @@ from .xmlkit import (
 __all__ = [
     "DECIMAL_PLACES",
     "MAX_REGIONS_LISTED",
-    "METHOD_DESCRIPTIONS",
     "NS",
     "SCHEMA_LOCATION",
     "XML_DECLARATION",
@@ -156,18 +156,6 @@ __all__ = [
     "worst_deviations",
     "write_qif",
 ]
-
-#: ``Description`` of the virtual-fixture algorithm, per method (``--method``)
-METHOD_DESCRIPTIONS = {
-    "gbcicp": "GB-CICP: deformation of the nominal onto the free-state scan under a "
-    "bending-energy prior (paper Sections 4-5)",
-    "nicp": "NICP: optimal-step non-rigid ICP, deformation of the nominal onto the free-state "
-    "scan under a per-vertex affine stiffness prior (paper baseline, Section 6.3)",
-    "cpd": "CPD: coherent point drift, a Gaussian-mixture deformation of the nominal onto the "
-    "free-state scan with motion coherence (paper baseline, Section 6.2)",
-    "rbffem": "RBF-FEM: deformation of the nominal driven by its clamps with multiquadric "
-    "radial basis functions (paper baseline, Section 6.1)",
-}
 
 
 @dataclass
@@ -436,7 +424,7 @@ def _algorithm_definitions(
                 "linear elasticity of the part (quadratic tetrahedra): each clamp driven "
                 "back to nominal along its directions, the held scan judged without a fit"
                 if res.restraint is not None
-                else METHOD_DESCRIPTIONS.get(method, method)
+                else method_spec(method).qif_algorithm
             ),
             id=fit_alg_id,
         ),

@@ -70,6 +70,7 @@ import scipy
 from qifreport import __version__
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.prepared import PreparedPart, part_settings, prepare_part
+from qifreport.registration.methods import method_spec
 from qifreport.registration.restrained import RestraintBasis
 
 from .nominal import Nominal, load_nominal
@@ -433,7 +434,7 @@ def build_state(
         prepared = prepare_part(nom.V, nom.F, params, basis=not lazy_basis)
     else:
         basis = (
-            params.method == "gbcicp"
+            method_spec(params.method).uses_bending_basis
             and not params.rigid_only
             and params.gbcicp.solver == "modal"
             and not lazy_basis

@@ -30,18 +30,17 @@ from __future__ import annotations
 
 import math
 
+from qifreport.kinds import lookup_kind
+
 from .pmi import PMI
 
 __all__ = [
     "DIAGONAL_FRACTION",
-    "PROFILE_TYPES",
     "implausible_tolerances",
 ]
 
 #: default largest plausible tolerance width, as a fraction of the part's diagonal
 DIAGONAL_FRACTION = 0.10
-#: the characteristics whose zone is a band about the surface (checked against a thin wall)
-PROFILE_TYPES = ("surface_profile", "line_profile")
 
 
 def _positive(name: str, value: object) -> float:
@@ -115,7 +114,9 @@ def implausible_tolerances(
     out: list[str] = []
     for tol in pmi.tolerances:
         label = f"#{tol.step_id} {tol.type}" + (f" {tol.name!r}" if tol.name else "")
-        wall = thickness if tol.type in PROFILE_TYPES else None
+        # a profile's zone is a band about the surface: checked against a thin wall
+        kind = lookup_kind(tol.type)
+        wall = thickness if kind is not None and kind.family == "profile" else None
         for what, value in (("", tol.value), (" maximum", tol.max_value)):
             if value is None:
                 continue

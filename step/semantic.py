@@ -35,6 +35,8 @@ import time
 from collections.abc import Iterable
 from pathlib import Path
 
+from qifreport.kinds import KINDS, kind_for_step_entity, lookup_kind
+
 from .face_links import LOCATION_TYPES, SIZE_TYPES, TARGET_TYPES, FaceLinker
 from .instance_graph import enum_names, refs_of, text_of
 from .p21 import Entity, Enum, P21Model, Ref
@@ -49,27 +51,10 @@ __all__ = ["Measure", "Unit", "pmi_from_model", "read_pmi_text"]
 # vocabulary
 # --------------------------------------------------------------------------------------------
 
-#: geometric tolerance entity types -> characteristic
-GT_TYPES: dict[str, str] = {
-    "SURFACE_PROFILE_TOLERANCE": "surface_profile",
-    "LINE_PROFILE_TOLERANCE": "line_profile",
-    "FLATNESS_TOLERANCE": "flatness",
-    "STRAIGHTNESS_TOLERANCE": "straightness",
-    "ROUNDNESS_TOLERANCE": "roundness",
-    "CYLINDRICITY_TOLERANCE": "cylindricity",
-    "POSITION_TOLERANCE": "position",
-    "PERPENDICULARITY_TOLERANCE": "perpendicularity",
-    "PARALLELISM_TOLERANCE": "parallelism",
-    "ANGULARITY_TOLERANCE": "angularity",
-    "CIRCULAR_RUNOUT_TOLERANCE": "circular_runout",
-    "TOTAL_RUNOUT_TOLERANCE": "total_runout",
-    "COAXIALITY_TOLERANCE": "coaxiality",
-    "CONCENTRICITY_TOLERANCE": "concentricity",
-    "SYMMETRY_TOLERANCE": "symmetry",
-}
-#: instances of any of these are geometric tolerances (the characteristic may be missing)
-_GT_ANY = (
-    *GT_TYPES,
+#: instances of any of these (or of a registered kind's entity,
+#: :func:`qifreport.kinds.kind_for_step_entity`) are geometric tolerances (the characteristic
+#: may be missing)
+_GT_OTHER = (
     "GEOMETRIC_TOLERANCE",
     "MODIFIED_GEOMETRIC_TOLERANCE",
     "GEOMETRIC_TOLERANCE_WITH_DATUM_REFERENCE",
@@ -80,8 +65,6 @@ _GT_ANY = (
 #: representation relationships followed from a product shape to its B-rep representations
 #: (not CONSTRUCTIVE_GEOMETRY_REPRESENTATION_RELATIONSHIP: supplemental geometry)
 _SHAPE_REP_RELATIONSHIPS = ("SHAPE_REPRESENTATION_RELATIONSHIP", "REPRESENTATION_RELATIONSHIP")
-#: profiles: a profile whose shape aspect has no face link at all is a whole-part profile
-_PROFILE_TYPES = ("surface_profile", "line_profile")
 #: representation items of a PROPERTY_DEFINITION -> SHAPE_DEFINITION_REPRESENTATION face link
 #: that only place the aspect (not geometry it consists of)
 _PLACEMENT_TYPES = frozenset({"AXIS2_PLACEMENT_3D", "AXIS2_PLACEMENT_2D", "AXIS1_PLACEMENT"})
@@ -315,7 +298,7 @@ class _Reader(FaceLinker):
     # ---- geometric tolerances -----------------------------------------------------------
     def tolerances(self) -> list[GeometricTolerance]:
         ids: set[int] = set()
-        for t in _GT_ANY:
+        for t in (*(e for k in KINDS.values() for e in k.step_entities), *_GT_OTHER):
             ids.update(e.id for e in self.m.by_type(t))
         composite: dict[int, list[int]] = {}
         for rel in self.m.by_type("GEOMETRIC_TOLERANCE_RELATIONSHIP"):
@@ -340,7 +323,7 @@ class _Reader(FaceLinker):
 
     def _tolerance(self, ent: Entity) -> GeometricTolerance:
         problems: list[str] = []
-        kinds = [GT_TYPES[t] for t in ent.types if t in GT_TYPES]
+        kinds = [k.name for t in ent.types if (k := kind_for_step_entity(t)) is not None]
         gtype = kinds[0] if kinds else "unknown"
         if not kinds:
             problems.append(f"#{ent.id}: no tolerance characteristic ({', '.join(ent.types)})")
@@ -461,7 +444,9 @@ class _Reader(FaceLinker):
         """
         if tsa.has("PRODUCT_DEFINITION_SHAPE"):
             return f"toleranced shape aspect #{tsa.id} is the PRODUCT_DEFINITION_SHAPE"
-        if gtype not in _PROFILE_TYPES or faces:
+        # a profile whose shape aspect has no face link at all is a whole-part profile
+        kind = lookup_kind(gtype)
+        if kind is None or kind.family != "profile" or faces:
             return ""
         if not all("no associated geometry found" in n for n in notes):
             return ""

@@ -99,6 +99,7 @@ from OCP.XCAFDimTolObjects import (
 from OCP.XCAFDoc import XCAFDoc_Datum, XCAFDoc_DocumentTool, XCAFDoc_GeomTolerance
 
 from qifreport.atomic_io import atomic_write
+from qifreport.kinds import KINDS
 
 __all__ = [
     "DATUM_REQUIRED_TYPES",
@@ -115,42 +116,20 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 _T = XCAFDimTolObjects_GeomToleranceType
-#: Tolerance type names accepted in :class:`PMISpecTolerance` and their XDE types.
+#: Tolerance type names accepted in :class:`PMISpecTolerance` and their XDE types (the
+#: registered kinds' :attr:`~qifreport.kinds.CharacteristicKind.writer_name`).
 TOLERANCE_TYPES: dict[str, XCAFDimTolObjects_GeomToleranceType] = {
-    "angularity": _T.XCAFDimTolObjects_GeomToleranceType_Angularity,
-    "circular_runout": _T.XCAFDimTolObjects_GeomToleranceType_CircularRunout,
-    "circularity": _T.XCAFDimTolObjects_GeomToleranceType_CircularityOrRoundness,
-    "coaxiality": _T.XCAFDimTolObjects_GeomToleranceType_Coaxiality,
-    "concentricity": _T.XCAFDimTolObjects_GeomToleranceType_Concentricity,
-    "cylindricity": _T.XCAFDimTolObjects_GeomToleranceType_Cylindricity,
-    "flatness": _T.XCAFDimTolObjects_GeomToleranceType_Flatness,
-    "line_profile": _T.XCAFDimTolObjects_GeomToleranceType_ProfileOfLine,
-    "parallelism": _T.XCAFDimTolObjects_GeomToleranceType_Parallelism,
-    "perpendicularity": _T.XCAFDimTolObjects_GeomToleranceType_Perpendicularity,
-    "position": _T.XCAFDimTolObjects_GeomToleranceType_Position,
-    "straightness": _T.XCAFDimTolObjects_GeomToleranceType_Straightness,
-    "surface_profile": _T.XCAFDimTolObjects_GeomToleranceType_ProfileOfSurface,
-    "symmetry": _T.XCAFDimTolObjects_GeomToleranceType_Symmetry,
-    "total_runout": _T.XCAFDimTolObjects_GeomToleranceType_TotalRunout,
+    k.writer_name: getattr(_T, f"XCAFDimTolObjects_GeomToleranceType_{k.xcaf_type}")
+    for k in sorted(KINDS.values(), key=lambda k: k.writer_name)
+    if k.xcaf_type is not None
 }
 #: Form tolerances: never related to a datum.
-FORM_TYPES = frozenset({"flatness", "straightness", "circularity", "cylindricity"})
+FORM_TYPES = frozenset(k.writer_name for k in KINDS.values() if k.datums == "never")
 #: Orientation, runout and the older location types: need at least one datum.
-DATUM_REQUIRED_TYPES = frozenset(
-    {
-        "angularity",
-        "parallelism",
-        "perpendicularity",
-        "circular_runout",
-        "total_runout",
-        "coaxiality",
-        "concentricity",
-        "symmetry",
-    }
-)
+DATUM_REQUIRED_TYPES = frozenset(k.writer_name for k in KINDS.values() if k.datums == "required")
 
 #: Tolerance types that may be given with ``faces=[]``: a whole-part tolerance.
-WHOLE_PART_TYPES = frozenset({"surface_profile"})
+WHOLE_PART_TYPES = frozenset(k.writer_name for k in KINDS.values() if k.whole_part)
 
 #: AP242 schema selector of ``write.step.schema`` ("AP242DIS" is OCCT's name; value 5).
 _AP242_SCHEMA = ("AP242DIS", 5)

@@ -31,6 +31,7 @@ FOUNDATION = {
     "qifreport.atomic_io",
     "qifreport.jsonio",
     "qifreport.schemas",
+    "qifreport.kinds",
 }
 LIBRARY = {"qifreport.step", "qifreport.registration", "qifreport.metrology", "qifreport.qif"}
 
@@ -106,6 +107,7 @@ def test_contracts_hold(tree):
         ),
         ("qifreport/options.py", "import qifreport.nominal", "app-layers"),
         ("qifreport/errors.py", "import qifreport.step.p21", "foundation"),
+        ("qifreport/kinds.py", "import qifreport.metrology.geometric", "foundation"),
         ("qifreport/batch/plan.py", "import qifreport.batch.run", "acyclic"),
     ],
 )

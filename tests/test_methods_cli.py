@@ -137,7 +137,7 @@ def _qif_checks(path: Path, method: str) -> dict:
 
 def _require(method: str) -> None:
     """Skip while a baseline's module is not written yet; under CI (CI=true) fail instead."""
-    module = METHODS[method][0]
+    module = METHODS[method].module
     if importlib.util.find_spec(module) is None:
         msg = f"{module} (--method {method}) does not exist yet"
         if os.environ.get("CI") == "true":

@@ -18,6 +18,7 @@ import numpy as np
 
 from qifreport import __version__
 from qifreport.atomic_io import atomic_write_many
+from qifreport.kinds import kind_label
 from qifreport.metrology.characteristics import CharacteristicSpec
 
 from ..cache import PartState
@@ -157,7 +158,7 @@ def _statistics_writer(out: Path, recs: list[dict], st: PartState, part_name: st
 def _spec_description(s: CharacteristicSpec) -> str:
     """One line for a feature characteristic, e.g. ``flatness 0.2 mm (pmi #1541)``,
     ``diameter dimension 9.9 .. 10.1 mm |A|B| (pmi #77)``."""
-    what = s.kind.replace("_", " ") if s.kind != "dimension" else f"{s.dim_type} dimension"
+    what = kind_label(s.kind) if s.kind != "dimension" else f"{s.dim_type} dimension"
     frame = f" |{'|'.join(s.datums)}|" if s.datums else ""
     return f"{what} {s.limits_text()}{frame} (pmi #{s.step_id})"
 
@@ -190,7 +191,7 @@ def trend_characteristics(st: PartState, df) -> list:
         column = f"value_{s.key}_{s.unit}"
         if column not in df:  # never measured
             continue
-        quantity = s.kind.replace("_", " ") if s.kind != "dimension" else s.dim_type
+        quantity = kind_label(s.kind) if s.kind != "dimension" else s.dim_type
         if s.kind == "dimension":
             chars.append(
                 TrendCharacteristic(

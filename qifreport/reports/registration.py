@@ -16,6 +16,7 @@ import numpy as np
 
 from qifreport.metrology.held import SEEN_SOURCES
 from qifreport.metrology.inspection import InspectionResult, method_label
+from qifreport.registration.methods import method_spec
 
 from .kit import DASH, Table, finite, fmt_mm, fmt_pct
 
@@ -74,7 +75,8 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
                 f"{fit.iterations} / {fit.passes} / {'YES' if fit.fallback else 'no'}",
             ],
         ]
-        if fit.method == "gbcicp":
+        spec = method_spec(fit.method)
+        if spec.flags_defects:
             rows.append(["Flagged as defect candidates, %", fmt_pct(fit.flagged_fraction)])
         rows.append(
             [
@@ -82,7 +84,7 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
                 fmt_mm(fit.max_displacement) if len(fit.e) else DASH,
             ]
         )
-        if fit.method == "gbcicp":
+        if spec.band_limited:
             rows += [
                 [
                     "Energy; band limits l1, l2, mm",

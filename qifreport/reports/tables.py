@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+from qifreport.kinds import kind_label
 from qifreport.metrology.inspection import InspectionResult, ZoneResult
 from qifreport.qif.writer import profile_value
 
@@ -238,7 +239,7 @@ def characteristic_table(res: InspectionResult, width: float, limit: int) -> Tab
     for i in shown:
         c = chars[i]
         s = c.spec
-        what = s.kind.replace("_", " ") if s.kind != "dimension" else s.dim_type or "dimension"
+        what = kind_label(s.kind) if s.kind != "dimension" else s.dim_type or "dimension"
         if s.datums:
             what += " |" + "|".join(s.datums) + "|"
         what += f" {s.name}"
