@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from qifreport.registration.gbcicp import GBCICPParams, gbcicp
+from qifreport.registration.deformable.gbcicp import GBCICPParams, gbcicp
 from qifreport.registration.icp import rigid_icp
 from qifreport.registration.mesh import bending_operator
 from qifreport.simulate.cases import inspection_error, make_case

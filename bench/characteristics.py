@@ -31,7 +31,7 @@ def _surface(nom, step: Path):
     """The perfect part: every vertex at zero deviation, and a full-coverage sample of the
     exact B-rep (one point per (diagonal / 300)^2, as a CT scan sees a part) as its scan
     points, so a face narrower than the mesh (a thin wall's hole) is measured on them."""
-    from qifreport.metrology.measured_surface import MeasuredSurface
+    from qifreport.metrology.gdt.measured_surface import MeasuredSurface
     from qifreport.simulate.brep_scan import surface_sample
     from qifreport.step.reader import read_step
 
@@ -57,7 +57,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("files", nargs="*", type=Path)
     a = ap.parse_args()
-    from qifreport.metrology.characteristics import measure_characteristics
+    from qifreport.metrology.gdt.characteristics import measure_characteristics
     from qifreport.nominal import load_nominal
 
     files = a.files or sorted(NIST.glob("*.stp"))

@@ -4,7 +4,8 @@ For every NIST file given (default: all of ``../shared/step/nist``), a perfect s
 from the exact B-rep (:func:`qifreport.simulate.brep_scan.perfect_scan`: four planned views,
 ``--noise`` mm range noise) is inspected in the free state (rigid only, the part frame
 known). The truth of every vertex's deviation is 0, so ``dev / sqrt(var)`` should spread
-like a standard normal (:mod:`qifreport.metrology.decision`). One row per PMI zone: scored
+like a standard normal (:mod:`qifreport.metrology.acceptance.decision`). One row per PMI zone:
+scored
 vertices, median U, the spread of ``dev / sqrt(var)`` (1 when U is right; above 1 when it is
 low), the share of vertices beyond +/-2 (4.6 % for a normal), and the share *proven out* of
 the zone (beyond its band by more than U: nonzero on a perfect face only on a limit).

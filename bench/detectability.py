@@ -45,7 +45,7 @@ import numpy as np
 import pandas as pd
 
 from qifreport.metrology.inspection import InspectionParams, inspect
-from qifreport.registration.gbcicp import GBCICPParams
+from qifreport.registration.deformable.gbcicp import GBCICPParams
 from qifreport.registration.mesh import boundary_vertices, bounding_diagonal
 from qifreport.simulate.cases import defect_site, make_case
 from qifreport.simulate.deform import pca_frame

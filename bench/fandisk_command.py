@@ -35,7 +35,7 @@ import scipy.sparse.linalg as spla
 import trimesh
 from scipy.spatial import cKDTree
 
-from qifreport.registration.gbcicp import GBCICPParams, resolve_params
+from qifreport.registration.deformable.gbcicp import GBCICPParams, resolve_params
 from qifreport.registration.mesh import bending_operator, boundary_vertices, load_mesh
 from qifreport.simulate.cases import inspection_error
 

@@ -106,7 +106,7 @@ class PartSetup:
 
 
 def _clamp_normals(V, F, clamps):
-    from qifreport.metrology.deviation import closest_points
+    from qifreport.metrology.deviation.signed import closest_points
     from qifreport.registration.mesh import face_normals
 
     _, tri, _ = closest_points(V, F, np.array([c.position for c in clamps]))
@@ -122,7 +122,7 @@ def _sites(V, N, clamps, keep) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _fixture(model_X, model_T, material, clamps, normals, rng, truth: Truth, sn=None):
-    from qifreport.registration.elastic import elastic_model
+    from qifreport.registration.restraint.elastic import elastic_model
     from qifreport.simulate.fixture_truth import simulated_fixture, uneven_wall
 
     scale = uneven_wall(model_X[model_T].mean(axis=1), truth.wall_spread, 60.0, rng)
@@ -147,9 +147,9 @@ def _step_setup(
 ) -> PartSetup:
     """A STEP solid's setup: the truth's tetrahedra at 1/60 of the diagonal (the product's
     1/40), Poisson's ratio off, an uneven wall; dents where ``keep_fn(V, N)`` allows."""
-    from qifreport.registration.clamps import parse_clamps
-    from qifreport.registration.elastic import Material, material
     from qifreport.registration.mesh import vertex_normals
+    from qifreport.registration.restraint.clamps import parse_clamps
+    from qifreport.registration.restraint.elastic import Material, material
     from qifreport.restraint import boundary_normals
     from qifreport.simulate.scanner import turntable_views
     from qifreport.step.gmsh_mesh import gmsh_solid_mesh
@@ -223,9 +223,9 @@ def bracket_setup(rng: np.random.Generator, truth: Truth, out: Path, cache: Path
 
 
 def shell_setup(rng: np.random.Generator, truth: Truth, out: Path, cache: Path) -> PartSetup:
-    from qifreport.registration.elastic import MATERIALS, Material
     from qifreport.registration.mesh import load_mesh, vertex_normals
-    from qifreport.registration.sheet_solid import sheet_solid
+    from qifreport.registration.restraint.elastic import MATERIALS, Material
+    from qifreport.registration.restraint.sheet_solid import sheet_solid
     from qifreport.simulate.scanner import turntable_views
     from qifreport.simulate.shapes import rim_clamps, thin_shell
 
@@ -436,7 +436,7 @@ def truth_verdict(
     held truth's deviation along the nominal normals), the largest band exceedance (mm;
     < 0: inside every band by that much) and whether a clamp is over its limit (``limit``,
     N, replaces the stated limits when finite)."""
-    from qifreport.metrology.acceptance import evaluate
+    from qifreport.metrology.acceptance.criteria import evaluate
 
     e = np.where(scored, e, np.nan)
     acc = evaluate(

@@ -4,7 +4,8 @@ The part is the thin shell (``registration.simulate.shapes.thin_shell``) at 0.6 
 103,578 triangles, with a synthetic inspection result: a smooth in-band deviation field, a
 proud bump and a sunk dent out of a 0.3 mm band, unscanned corners and scanner dropouts;
 statistics, regions and the acceptance decision are computed by the product's own metrology
-(:mod:`qifreport.metrology.statistics`, :mod:`qifreport.metrology.acceptance`), so the page carries
+(:mod:`qifreport.metrology.acceptance.statistics`, :mod:`qifreport.metrology.acceptance.criteria`),
+so the page carries
 realistic content. No registration is run: only the report is timed. Printed: the time of each run
 split into ``layout`` (measuring the page, choosing the views), ``render`` (the map pictures, VTK
 offscreen) and ``draw`` (histogram, tables, writing the PDF), and the median of the runs. The first
@@ -24,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from qifreport.metrology.acceptance import evaluate
-from qifreport.metrology.bands import NotEvaluated, lay_bands, symmetric_zone
+from qifreport.metrology.acceptance.bands import NotEvaluated, lay_bands, symmetric_zone
+from qifreport.metrology.acceptance.criteria import evaluate
+from qifreport.metrology.acceptance.statistics import deviation_statistics
 from qifreport.metrology.inspection import InspectionParams, InspectionResult, ZoneResult
-from qifreport.metrology.statistics import deviation_statistics
 from qifreport.qif.writer import Provenance
-from qifreport.registration.gbcicp import GBCICPParams, GBCICPResult
+from qifreport.registration.deformable.gbcicp import GBCICPParams, GBCICPResult
 from qifreport.registration.icp import RigidResult
 from qifreport.registration.mesh import vertex_areas, vertex_normals
 from qifreport.reports.pdf import write_report

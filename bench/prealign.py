@@ -8,7 +8,8 @@ onto itself; bend + twist at 2 %, 4 views as the paper's controller, Section 8.2
 scan is placed at ``--poses`` uniformly random rotations and translations of up to half the
 diagonal, and seated by
 
-* ``prealign``: :func:`qifreport.registration.prealign.prealign` (descriptors + RANSAC + restarts,
+* ``prealign``: :func:`qifreport.registration.pose.prealign.prealign` (descriptors + RANSAC +
+restarts,
   ending with the robust rigid ICP), and
 * ``icp``: plain :func:`qifreport.registration.icp.rigid_icp` from the identity (the posed scan as
   delivered), and ``icp+centroid``: the same with the scan's centroid moved onto the model's
@@ -21,7 +22,8 @@ stage later removes. So three success levels are printed:
 * ``ok_truth``: the success bound against the generator frame (rotation < 1 degree and
   displacement of the scan centroid < 0.5 % of the diagonal);
 * ``ok_ref``: the same bound against the *reference*, the same final refinement
-  (:func:`qifreport.registration.prealign.refine_pose`) started at the ground truth -- the success
+  (:func:`qifreport.registration.pose.prealign.refine_pose`) started at the ground truth -- the
+  success
   criterion of the pose search;
 * ``equiv``: within 10 degrees and 5 % of the diagonal of the reference with a fit (MSAC
   cost) at most 10 % worse: an equivalent rigid pose. On smooth deformed parts the rigid
@@ -54,7 +56,7 @@ from scipy.spatial.transform import Rotation
 from qifreport.metrology.inspection import InspectionParams, inspect
 from qifreport.registration.icp import rigid_icp
 from qifreport.registration.mesh import bounding_diagonal
-from qifreport.registration.prealign import (
+from qifreport.registration.pose.prealign import (
     PoseNotEstablished,
     PrealignParams,
     pose_distance,

@@ -4,8 +4,9 @@ The 170 x 110 mm thin shell (:func:`qifreport.simulate.shapes.thin_shell`) in it
 free state (:func:`qifreport.simulate.cases.make_case`, amplitudes 1 % and 2 % of the
 diagonal), scanned (3 views, 0.02 mm noise, clamp dropout), the scan scaled about its
 centroid by ``s``; the real :func:`qifreport.metrology.inspection.inspect` runs (general
-tolerance +/-0.5 mm), then :func:`qifreport.metrology.edges.edge_deviation` on its registered
-nominal and :func:`qifreport.metrology.size.size_error`. Variants at scale 1.0 and 1.02
+tolerance +/-0.5 mm), then :func:`qifreport.metrology.deviation.edges.edge_deviation` on its
+registered
+nominal and :func:`qifreport.metrology.deviation.size.size_error`. Variants at scale 1.0 and 1.02
 (seed 1): the scan delivered in another pose (``pose``: 35 degrees and 180 mm off, seated
 by the pose search; ``nudge``: 3 degrees and 2.7 mm off, left to the rigid ICP) and a scan
 with one short edge cut off (``cut+x``: no points within 12 mm of the +x rim). Prints one
@@ -37,10 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from qifreport.metrology.edges import edge_deviation
+from qifreport.metrology.deviation.edges import edge_deviation
+from qifreport.metrology.deviation.size import size_error
 from qifreport.metrology.inspection import InspectionParams, inspect
 from qifreport.metrology.prepared import prepare_part
-from qifreport.metrology.size import size_error
 from qifreport.registration.mesh import vertex_areas
 from qifreport.simulate.cases import make_case
 from qifreport.simulate.shapes import thin_shell

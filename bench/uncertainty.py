@@ -19,7 +19,7 @@ import time
 import numpy as np
 import pandas as pd
 
-from qifreport.registration.curvature import scan_curvatures
+from qifreport.registration.pose.curvature import scan_curvatures
 from qifreport.simulate import ladder as L
 
 

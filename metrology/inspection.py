@@ -25,18 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from qifreport.errors import InputError
-from qifreport.registration.deformable import DeformResult
-from qifreport.registration.gbcicp import BendingBasis, bending_basis, part_solver
-from qifreport.registration.icp import RigidResult, rigid_icp
-from qifreport.registration.linalg import SPDSolver
-from qifreport.registration.mesh import bounding_diagonal
-from qifreport.registration.methods import METHODS, deform, method_spec
-from qifreport.registration.normals import oriented_normals
-from qifreport.registration.prealign import seat_scan
-from qifreport.registration.restrained import RestraintBasis
-
-from .acceptance import scan_area
-from .bands import (
+from qifreport.metrology.acceptance.bands import (
     DEFAULT_GENERAL_TOLERANCE,
     BandField,
     NotEvaluated,
@@ -44,9 +33,20 @@ from .bands import (
     lay_bands,
     symmetric_zone,
 )
-from .characteristics import CharacteristicPlan
+from qifreport.metrology.acceptance.criteria import scan_area
+from qifreport.metrology.gdt.characteristics import CharacteristicPlan
+from qifreport.metrology.restraint.held import hold_scan
+from qifreport.registration.deformable.gbcicp import BendingBasis, bending_basis, part_solver
+from qifreport.registration.deformable.methods import METHODS, deform, method_spec
+from qifreport.registration.deformable.result import DeformResult
+from qifreport.registration.icp import RigidResult, rigid_icp
+from qifreport.registration.linalg import SPDSolver
+from qifreport.registration.mesh import bounding_diagonal
+from qifreport.registration.normals import oriented_normals
+from qifreport.registration.pose.prealign import seat_scan
+from qifreport.registration.restraint.restrained import RestraintBasis
+
 from .deferred import submit
-from .held import hold_scan
 from .judgement import JudgeContext, Registered, judge
 from .params import InspectionParams, method_label
 from .prepared import PreparedPart, prepare_part
@@ -131,7 +131,8 @@ class ScanMeasures:
     P : (m, 3) the scan points they are measured on, mm (the very array later inspected).
     normals : pending ``(Ns, sheets)`` of
         :func:`~qifreport.registration.normals.oriented_normals` (``result()``).
-    area : pending covered area, mm^2, of :func:`~qifreport.metrology.acceptance.scan_area`;
+    area : pending covered area, mm^2, of
+    :func:`~qifreport.metrology.acceptance.criteria.scan_area`;
         None: not started yet (:func:`inspect` starts it).
     """
 
@@ -199,14 +200,16 @@ def inspect(
     params : :class:`InspectionParams`.
     progress : optional callable ``progress(k)`` advanced once per iteration of the virtual
         fixture (``params.method``).
-    zones : tolerance zones (:func:`qifreport.metrology.bands.zones_from_pmi`); default one general
+    zones : tolerance zones (:func:`qifreport.metrology.acceptance.bands.zones_from_pmi`); default
+    one general
         zone of half-width ``params.tolerance``. Zones that cover no triangle are dropped.
     face_id, not_evaluated, solid, brep_normals, plan : the part's B-rep faces, PMI items not
         scored, solidity, exact corner normals and drawing characteristics, as
         :class:`~qifreport.metrology.judgement.JudgeContext` holds them.
     scan_units : the unit the user declared for the scan file (for the units hint only).
     basis : the nominal's GB-CICP bending basis
-        (:func:`qifreport.registration.gbcicp.bending_basis`), to reuse it across scans of one part;
+        (:func:`qifreport.registration.deformable.gbcicp.bending_basis`), to reuse it across scans
+        of one part;
         computed when needed if omitted.
     prepared : the nominal's scan-independent state
         (:func:`qifreport.metrology.prepared.prepare_part` with these ``params``), to reuse across
@@ -214,7 +217,7 @@ def inspect(
         given) and the pose search's model. ``ValueError`` if it was prepared for another mesh or
         other settings.
     restraint : the part's clamps and their elastic responses
-        (:func:`qifreport.registration.restrained.restraint_basis` on this mesh), for
+        (:func:`qifreport.registration.restraint.restrained.restraint_basis` on this mesh), for
         ``params.fixture == "restrained"``: the rigidly seated scan is held at its clamps
         and judged as held (no virtual fixture, no free-state shortcut: the drawing says
         how the part is inspected).
@@ -233,7 +236,8 @@ def inspect(
     ------
     InputError
         Wrong units, or a scan that does not overlap the nominal after rigid alignment;
-        :class:`qifreport.registration.prealign.PoseNotEstablished` when no pose can be established.
+        :class:`qifreport.registration.pose.prealign.PoseNotEstablished` when no pose can be
+        established.
     """
     timings: dict[str, float] = {}
     prepared, basis = _checked_part(V, F, P, params, scan_units, prepared, basis, timings, measures)
@@ -420,7 +424,7 @@ def default_zones(params: InspectionParams) -> list[ToleranceZone]:
 def lay_zone_bands(
     F: np.ndarray, n: int, face_id: np.ndarray | None, zones: list[ToleranceZone]
 ) -> BandField:
-    """The zones laid on the mesh (:func:`~qifreport.metrology.bands.lay_bands`), those
+    """The zones laid on the mesh (:func:`~qifreport.metrology.acceptance.bands.lay_bands`), those
     that cover no triangle dropped."""
     bands = lay_bands(F, n, face_id, zones)
     keep = [i for i, m in enumerate(bands.tri_masks) if m.any()]
@@ -637,7 +641,8 @@ def _virtual_fixture(
 
 
 def _restrained(run: _Run, restraint: RestraintBasis) -> InspectionResult:
-    """Hold the rigidly seated scan at its clamps (:func:`qifreport.metrology.held.hold_scan`)
+    """Hold the rigidly seated scan at its clamps
+    (:func:`qifreport.metrology.restraint.held.hold_scan`)
     and judge it as held; the free-state zones are judged on the free state in the held
     seat, and the hold's uncertainty enters each deviation's."""
     reg, ctx, params, timings = run.reg, run.ctx, run.params, run.timings

@@ -42,27 +42,27 @@ from scipy.spatial import cKDTree
 from trimesh.triangles import points_to_barycentric
 
 from qifreport.errors import InputError
-from qifreport.registration.deformable import DeformResult, orient_scan_normals
-from qifreport.registration.gbcicp import BendingBasis
-from qifreport.registration.icp import RigidResult, robust_scale
-from qifreport.registration.mesh import vertex_normals
-from qifreport.registration.methods import method_spec
-from qifreport.registration.prealign import PrealignResult
-
-from .acceptance import Acceptance, coverage_ceiling_ok, evaluate, scan_area
-from .added import AddedMaterial, added_material
-from .bands import BandField, NotEvaluated, ToleranceZone, zone_vertex_areas
-from .characteristics import (
-    CharacteristicPlan,
-    CharacteristicResult,
-    frame_of,
-    measure_characteristics,
+from qifreport.metrology.acceptance.added import AddedMaterial, added_material
+from qifreport.metrology.acceptance.bands import (
+    BandField,
+    NotEvaluated,
+    ToleranceZone,
+    zone_vertex_areas,
 )
-from .composite import composite_zone_frame
-from .coverage import Coverage, unseen_neighbour_edges, zone_coverage
-from .decision import vertex_uncertainty
-from .deferred import submit
-from .deviation import (
+from qifreport.metrology.acceptance.coverage import Coverage, unseen_neighbour_edges, zone_coverage
+from qifreport.metrology.acceptance.criteria import (
+    Acceptance,
+    coverage_ceiling_ok,
+    evaluate,
+    scan_area,
+)
+from qifreport.metrology.acceptance.decision import vertex_uncertainty
+from qifreport.metrology.acceptance.point_regions import ScanSamples, SurfacePoints, scan_samples
+from qifreport.metrology.acceptance.resolution import Resolution, range_noise, resolution
+from qifreport.metrology.acceptance.statistics import DeviationStats, deviation_statistics
+from qifreport.metrology.deviation.edges import EdgeDeviation, edge_deviation
+from qifreport.metrology.deviation.hygiene import MeshHygiene
+from qifreport.metrology.deviation.signed import (
     beyond_rim,
     closest_points,
     follow_triangles,
@@ -71,17 +71,27 @@ from .deviation import (
     residual_referenced,
     surface_distance,
 )
-from .edges import EdgeDeviation, edge_deviation
-from .frames import DatumFrameResult
-from .hygiene import MeshHygiene
-from .measured_surface import MeasuredSurface
+from qifreport.metrology.deviation.size import SizeEstimate, size_error
+from qifreport.metrology.gdt.characteristics import (
+    CharacteristicPlan,
+    CharacteristicResult,
+    frame_of,
+    measure_characteristics,
+)
+from qifreport.metrology.gdt.composite import composite_zone_frame
+from qifreport.metrology.gdt.frames import DatumFrameResult
+from qifreport.metrology.gdt.measured_surface import MeasuredSurface
+from qifreport.registration.deformable.gbcicp import BendingBasis
+from qifreport.registration.deformable.methods import method_spec
+from qifreport.registration.deformable.result import DeformResult, orient_scan_normals
+from qifreport.registration.icp import RigidResult, robust_scale
+from qifreport.registration.mesh import vertex_normals
+from qifreport.registration.pose.prealign import PrealignResult
+
+from .deferred import submit
 from .params import InspectionParams
-from .point_regions import ScanSamples, SurfacePoints, scan_samples
 from .prepared import PreparedPart
-from .resolution import Resolution, range_noise, resolution
 from .results import InspectionResult, ZoneResult
-from .size import SizeEstimate, size_error
-from .statistics import DeviationStats, deviation_statistics
 
 __all__ = [
     "FAR_DIAGONAL",
@@ -172,16 +182,17 @@ def vertex_deviation(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Nominal-referenced deviation (n,) mm of every vertex of ``(V, F)`` from scan ``P``,
     and its variance (n,) mm^2 from the scan points' scatter about the local fit (for
-    :func:`qifreport.metrology.decision.vertex_uncertainty`).
+    :func:`qifreport.metrology.acceptance.decision.vertex_uncertainty`).
 
     Each point's signed distance to the nominal *surface* (its distance to the closest
-    triangle, ``closest`` from :func:`~qifreport.metrology.deviation.closest_points`, computed
+    triangle, ``closest`` from :func:`~qifreport.metrology.deviation.signed.closest_points`,
+    computed
     when not given, less the
-    triangle's chord height there, :func:`~qifreport.metrology.deviation.curved_offset`) is
-    fitted about each vertex by :func:`~qifreport.metrology.deviation.residual_referenced`,
+    triangle's chord height there, :func:`~qifreport.metrology.deviation.signed.curved_offset`) is
+    fitted about each vertex by :func:`~qifreport.metrology.deviation.signed.residual_referenced`,
     a vertex using only the points on its own B-rep faces (``face_id``, a STEP nominal);
     without ``face_id`` (a mesh nominal), the plane fit of
-    :func:`~qifreport.metrology.deviation.nominal_referenced`. ``residual`` (m,): those
+    :func:`~qifreport.metrology.deviation.signed.nominal_referenced`. ``residual`` (m,): those
     signed distances to the surface, when the caller has them (:func:`surface_distance`).
     ``brep_normals`` (f, 3, 3): the surface's normals at the triangle corners for
     :func:`surface_distance` (the B-rep's, :mod:`qifreport.step.normals`). ``tree``:
@@ -253,7 +264,8 @@ class JudgeContext:
     Attributes
     ----------
     prepared : the nominal's scan-independent state (operators, unscored bands, hygiene).
-    bands : the tolerance zones laid on the nominal (:func:`~qifreport.metrology.bands.lay_bands`).
+    bands : the tolerance zones laid on the nominal
+    (:func:`~qifreport.metrology.acceptance.bands.lay_bands`).
     energy : the bending energy of the virtual fixture (``prepared.energy``), reported.
     face_id : (f,) B-rep face id of each triangle (a STEP nominal), for face-based zones;
         None: a mesh nominal.
@@ -266,7 +278,7 @@ class JudgeContext:
         :func:`qifreport.step.normals.corner_normals_exact`): the scan points' distances to
         the curved surface are read with them (NaN rows: the mesh's).
     plan : the drawing's feature characteristics and datums
-        (:func:`qifreport.metrology.characteristics.specs_from_pmi`; a STEP nominal with
+        (:func:`qifreport.metrology.gdt.characteristics.specs_from_pmi`; a STEP nominal with
         ``brep_normals``): measured on the judged surface, and the profiles that name
         datums laid in their frame; None: none.
     """
@@ -1188,7 +1200,7 @@ def _measured_surface(
 ) -> MeasuredSurface:
     """The judged surface for the feature characteristics: the vertices' deviations, and
     the scan points carried back through the fixture's displacement at their closest
-    point (:class:`~qifreport.metrology.measured_surface.MeasuredSurface`)."""
+    point (:class:`~qifreport.metrology.gdt.measured_surface.MeasuredSurface`)."""
     if len(P):
         bary = points_to_barycentric(V_reg[F[cface]], C)
         u = np.einsum("ij,ijk->ik", bary, (V_reg - V)[F[cface]])

@@ -1,5 +1,5 @@
 """The parameters of one inspection (:class:`InspectionParams`); the deformable methods'
-display names are the registry's (:func:`qifreport.registration.methods.method_label`).
+display names are the registry's (:func:`qifreport.registration.deformable.methods.method_label`).
 
 Kept apart from :mod:`qifreport.metrology.inspection` so that the per-part preparation
 (:mod:`qifreport.metrology.prepared`), which depends on a few of these parameters, needs
@@ -10,12 +10,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from qifreport.registration.gbcicp import GBCICPParams
-from qifreport.registration.methods import method_label
-
-from .acceptance import DEFAULT_MAX_REGION_AREA
-from .coverage import DEFAULT_MIN_COVERAGE
-from .decision import DEFAULT_DECISION_RULE
+from qifreport.metrology.acceptance.coverage import DEFAULT_MIN_COVERAGE
+from qifreport.metrology.acceptance.criteria import DEFAULT_MAX_REGION_AREA
+from qifreport.metrology.acceptance.decision import DEFAULT_DECISION_RULE
+from qifreport.registration.deformable.gbcicp import GBCICPParams
+from qifreport.registration.deformable.methods import method_label
 
 __all__ = ["InspectionParams", "method_label"]
 
@@ -28,7 +27,8 @@ class InspectionParams:
     ----------
     tolerance : half-width of the general profile band (mm): where no other zone applies a
         vertex is in tolerance if ``|dev| <= tol``. None: the zones passed to
-        :func:`inspect` decide, with :data:`qifreport.metrology.bands.DEFAULT_GENERAL_TOLERANCE`
+        :func:`inspect` decide, with
+        :data:`qifreport.metrology.acceptance.bands.DEFAULT_GENERAL_TOLERANCE`
         where none applies.
     min_fraction : area criterion, fraction of the scored area that must be in tolerance.
     max_region_area : region criterion, largest admissible connected out-of-tolerance
@@ -45,7 +45,8 @@ class InspectionParams:
         is an artefact. None: the deviation's neighbourhood radius (1.5 median edges);
         0 scores every vertex. The excluded area is reported.
     boundary_band : vertices within this distance (mm) of an open boundary of the nominal
-        (rim, holes, unwelded seams) are not scored (:mod:`qifreport.metrology.hygiene`); None: the
+        (rim, holes, unwelded seams) are not scored (:mod:`qifreport.metrology.deviation.hygiene`);
+        None: the
         same width as ``edge_band``'s default (1.5 median edges); 0 scores the rim. The excluded
         area is reported with the mesh's defects.
     rigid_only : skip the virtual fixture (the fixtureless rigid baseline).
@@ -54,30 +55,32 @@ class InspectionParams:
         applied only when it does not conform (ISO 10579: restraint is there to bring a
         compliant part to its drawing shape; a part that conforms without it needs none).
         For comparing registration methods.
-    prealign : pose search before the rigid ICP (:func:`qifreport.registration.prealign.seat_scan`):
+    prealign : pose search before the rigid ICP
+    (:func:`qifreport.registration.pose.prealign.seat_scan`):
         ``"auto"`` (default) searches only when the scan is not already in the part frame,
         ``"always"`` always searches, ``"never"`` trusts that scan and nominal share a frame.
     fail_on_added_material : a connected scan region standing proud of the nominal beyond
         the whole-part threshold and larger than ``max_region_area`` fails the part
-        (:mod:`qifreport.metrology.added`); otherwise it is reported only.
+        (:mod:`qifreport.metrology.acceptance.added`); otherwise it is reported only.
     method : the deformable method of the virtual fixture, a key of
-        :data:`qifreport.registration.methods.METHODS`: ``"gbcicp"`` (default, paper Section 6.4) or
+        :data:`qifreport.registration.deformable.methods.METHODS`: ``"gbcicp"`` (default, paper
+        Section 6.4) or
         one of the paper's baselines ``"nicp"``, ``"cpd"``, ``"rbffem"`` (run with their own
         default parameters).
     gbcicp : parameters of the GB-CICP stage (used only with ``method="gbcicp"``; its
         ``scan_normal_k`` sets the PCA scan normals for every method).
     min_coverage : least scored share of a toleranced surface's own area for its tolerance to
-        be measured (:mod:`qifreport.metrology.coverage`); a zone may set its own.
+        be measured (:mod:`qifreport.metrology.acceptance.coverage`); a zone may set its own.
     max_gap_area : largest unmeasured patch on a toleranced surface, mm^2; None:
         ``GAP_AREA_FACTOR * max_region_area``.
     decision_rule : how the measurement uncertainty enters each decision, one of
-        :data:`qifreport.metrology.decision.DECISION_RULES` (default ``"iso14253"``: PASS
+        :data:`qifreport.metrology.acceptance.decision.DECISION_RULES` (default ``"iso14253"``: PASS
         proven, FAIL proven, otherwise not established).
     scanner_uncertainty : the scanner's own expanded uncertainty (k = 2), mm, combined in
         quadrature with each vertex's uncertainty from the range noise (0: none stated).
     fixture : ``"free"`` (default: the free state judged first, then the virtual fixture
         ``method`` when it does not conform) or ``"restrained"`` (ISO 10579: the part held
-        at its clamps by its elastic model, :mod:`qifreport.registration.restrained`; the
+        at its clamps by its elastic model, :mod:`qifreport.registration.restraint.restrained`; the
         inspection then needs the part's restraint basis).
     """
 

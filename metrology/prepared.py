@@ -21,14 +21,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from qifreport.registration.gbcicp import BendingBasis, bending_basis
+from qifreport.metrology.deviation.hygiene import MeshHygiene, mesh_hygiene
+from qifreport.metrology.deviation.unscored import unscored_bands
+from qifreport.registration.deformable.gbcicp import BendingBasis, bending_basis
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import MeshOperators, bending_operator, boundary_vertices
-from qifreport.registration.prealign import PreparedModel, prepare_model
+from qifreport.registration.pose.prealign import PreparedModel, prepare_model
 
-from .hygiene import MeshHygiene, mesh_hygiene
 from .params import InspectionParams
-from .unscored import unscored_bands
 
 __all__ = [
     "part_settings",

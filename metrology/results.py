@@ -13,26 +13,26 @@ from dataclasses import asdict, dataclass, field, is_dataclass
 
 import numpy as np
 
-from qifreport.registration.deformable import DeformResult
-from qifreport.registration.gbcicp import BendingBasis
+from qifreport.metrology.acceptance.added import AddedMaterial
+from qifreport.metrology.acceptance.bands import BandField, NotEvaluated, ToleranceZone
+from qifreport.metrology.acceptance.coverage import DEFAULT_MIN_COVERAGE, GAP_AREA_FACTOR, Coverage
+from qifreport.metrology.acceptance.criteria import DEFAULT_MAX_REGION_AREA, Acceptance
+from qifreport.metrology.acceptance.repeatability import Repeatability
+from qifreport.metrology.acceptance.resolution import Resolution
+from qifreport.metrology.acceptance.statistics import DeviationStats
+from qifreport.metrology.deviation.edges import EdgeDeviation
+from qifreport.metrology.deviation.hygiene import MeshHygiene
+from qifreport.metrology.deviation.size import SizeEstimate
+from qifreport.metrology.gdt.characteristics import CharacteristicResult
+from qifreport.metrology.gdt.frames import DatumFrameResult
+from qifreport.registration.deformable.gbcicp import BendingBasis
+from qifreport.registration.deformable.methods import METHODS, method_spec
+from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import RigidResult
-from qifreport.registration.methods import METHODS, method_spec
-from qifreport.registration.prealign import PrealignResult
-from qifreport.registration.restrained import Restraint
+from qifreport.registration.pose.prealign import PrealignResult
+from qifreport.registration.restraint.restrained import Restraint
 
-from .acceptance import DEFAULT_MAX_REGION_AREA, Acceptance
-from .added import AddedMaterial
-from .bands import BandField, NotEvaluated, ToleranceZone
-from .characteristics import CharacteristicResult
-from .coverage import DEFAULT_MIN_COVERAGE, GAP_AREA_FACTOR, Coverage
-from .edges import EdgeDeviation
-from .frames import DatumFrameResult
-from .hygiene import MeshHygiene
 from .params import InspectionParams, method_label
-from .repeatability import Repeatability
-from .resolution import Resolution
-from .size import SizeEstimate
-from .statistics import DeviationStats
 
 #: :attr:`InspectionResult.fixture_decision` when the free state stands
 FREE_STATE_CONFORMS = "free state conforms"
@@ -69,8 +69,9 @@ class ZoneResult:
     fixtured : False when evaluated free-state (rigid alignment only).
     deviation : (n,) the deviation the zone was judged on, mm (the fixtured or free-state
         field on the zone's vertices, NaN elsewhere); None from older callers. Used by
-        :mod:`qifreport.metrology.repeatability` to match regions between runs.
-    coverage : whether the surface was measured (:mod:`qifreport.metrology.coverage`); None
+        :mod:`qifreport.metrology.acceptance.repeatability` to match regions between runs.
+    coverage : whether the surface was measured (:mod:`qifreport.metrology.acceptance.coverage`);
+    None
         from older callers (taken as measured).
     reading : where the zone was laid: ``'best fit'`` (no datums: a form control), or in
         the datum reference frame the tolerance names (ASME Y14.5-2018 11.2.1:
@@ -93,7 +94,7 @@ class ZoneResult:
     @property
     def failed(self) -> bool:
         """A criterion fails on what was scored, under the decision rule (a surface the scan
-        never saw fails none; :mod:`qifreport.metrology.decision`)."""
+        never saw fails none; :mod:`qifreport.metrology.acceptance.decision`)."""
         return self.acceptance.scored_area > 0 and self.acceptance.decision == "FAIL"
 
     @property
@@ -148,7 +149,8 @@ class InspectionResult:
     fit : the virtual fixture's result (None with ``rigid_only``), from the method
         ``params.method`` (``fit.method``).
     prealign : how the rigid ICP was started
-        (:class:`qifreport.registration.prealign.PrealignResult`; ``method == "identity"`` when the
+        (:class:`qifreport.registration.pose.prealign.PrealignResult`; ``method == "identity"`` when
+        the
         scan was already in the part frame).
     scan_area : estimated area covered by the scan, mm^2.
     coverage_ceiling_ok : coverage does not exceed scan area / nominal area (over-fit check).
@@ -157,7 +159,7 @@ class InspectionResult:
         edge band of sharp creases, not scored.
     repeatability : the resampling study of ``qifreport --seeds`` (None without it): when
         set, ``acceptance`` and each zone's acceptance hold only the persistent regions
-        (:func:`qifreport.metrology.repeatability.apply`).
+        (:func:`qifreport.metrology.acceptance.repeatability.apply`).
     basis : the nominal's GB-CICP bending basis when one was used (per-part state: pass it
         to :func:`inspect` for further scans of the part).
     fixture_decision : why the part was judged as it was: ``"free state conforms"`` (the
@@ -176,11 +178,12 @@ class InspectionResult:
     solid : the nominal is a B-rep solid (its size check is reported, not a trust gate:
         every face's own deviation measures the size).
     characteristics : the drawing's feature tolerances and dimensions measured on the
-        judged surface (:mod:`qifreport.metrology.characteristics`); a FAIL fails the part,
+        judged surface (:mod:`qifreport.metrology.gdt.characteristics`); a FAIL fails the part,
         an INDETERMINATE one leaves it NOT ESTABLISHED, one not measured is reported.
     frames : the datum reference frames established (profiles and characteristics).
     restraint : the restrained condition (``params.fixture == "restrained"``): the clamps'
-        free-state offsets and forces (:class:`qifreport.registration.restrained.Restraint`);
+        free-state offsets and forces
+        (:class:`qifreport.registration.restraint.restrained.Restraint`);
         ``P`` then holds the restrained scan. A clamp above its force limit fails the part
         (not restrainable).
     """
@@ -236,7 +239,7 @@ class InspectionResult:
     def fails_only_narrower_than_mesh(self) -> bool:
         """No surface fails on the nominal's vertices (each passes there or lies within the
         uncertainty of its limit), and some fail on regions of the scan points
-        (:mod:`qifreport.metrology.point_regions`): defects narrower than the mesh, which
+        (:mod:`qifreport.metrology.acceptance.point_regions`): defects narrower than the mesh, which
         no fixture bends out of a part (its compliance is smooth at the mesh's scale; a
         virtual one would only distort the rest of a stiff part), so the part fails
         whatever a fixture would do."""
@@ -289,10 +292,10 @@ class InspectionResult:
           surface as anomalous, so the band-limited refit fell back to a single pass
           (Section 6.4: on the paper's real part 23.9 % against a 20 % limit);
         * the measurement scatter (range noise, fit residual) is too large to resolve a
-          tolerance zone (:mod:`qifreport.metrology.resolution`: 2 sigma <= width / 4);
+          tolerance zone (:mod:`qifreport.metrology.acceptance.resolution`: 2 sigma <= width / 4);
         * ``--passes 1``: the single-pass fit has no two-pass guard;
         * the part's size cannot be established from its rim or trim edges
-          (:mod:`qifreport.metrology.size`: too little of the rim seen, or a scale too
+          (:mod:`qifreport.metrology.deviation.size`: too little of the rim seen, or a scale too
           uncertain or too close to the limit to decide);
         * with ``--seeds``: a resampled run whose own registration cannot be trusted (its
           regions decided which findings persist);
@@ -356,7 +359,8 @@ class InspectionResult:
     @property
     def measured(self) -> bool:
         """The whole part and every toleranced surface were measured (coverage and gap rules,
-        :mod:`qifreport.metrology.coverage`), and the rim seen enough for the size check."""
+        :mod:`qifreport.metrology.acceptance.coverage`), and the rim seen enough for the size
+        check."""
         return (
             (self.coverage is None or self.coverage.measured)
             and all(z.measured for z in self.zones)
@@ -428,7 +432,7 @@ class InspectionResult:
 
     def uncertain(self) -> list[str]:
         """The surfaces whose conformance is neither proven nor disproven within the
-        measurement uncertainty (:mod:`qifreport.metrology.decision`), one line each."""
+        measurement uncertainty (:mod:`qifreport.metrology.acceptance.decision`), one line each."""
         out = []
         if self.acceptance.decision == "UNCERTAIN":
             out += [f"whole part: {r}" for r in self.acceptance.uncertain_reasons]

@@ -19,7 +19,7 @@ import numpy as np
 from lxml import etree
 
 from qifreport import __version__
-from qifreport.metrology.bands import ToleranceZone
+from qifreport.metrology.acceptance.bands import ToleranceZone
 
 from .xmlkit import Attrs, E, Ids, dec, id_array, qpid, token
 

@@ -1,5 +1,5 @@
 """QIF 3.0 characteristics of the drawing's feature tolerances and dimensions
-(:mod:`qifreport.metrology.characteristics`): each PMI item as its own characteristic type
+(:mod:`qifreport.metrology.gdt.characteristics`): each PMI item as its own characteristic type
 (``FlatnessCharacteristic``, ``PositionCharacteristic``, ``DiameterCharacteristic`` ...)
 with its definition (tolerance, datum reference frame, material condition, zone shape),
 nominal, item (designator) and measurement (status, value, bonus), on an
@@ -21,8 +21,8 @@ import numpy as np
 from lxml import etree
 
 from qifreport.kinds import QifRules, kind_label, lookup_kind
-from qifreport.metrology.bands import material_boundary
-from qifreport.metrology.characteristics import (
+from qifreport.metrology.acceptance.bands import material_boundary
+from qifreport.metrology.gdt.characteristics import (
     CharacteristicResult,
     CharacteristicSpec,
     per_unit,

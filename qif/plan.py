@@ -27,8 +27,8 @@ import numpy as np
 from lxml import etree
 
 from qifreport import __version__
-from qifreport.metrology.bands import ToleranceZone
-from qifreport.metrology.characteristics import CharacteristicPlan
+from qifreport.metrology.acceptance.bands import ToleranceZone
+from qifreport.metrology.gdt.characteristics import CharacteristicPlan
 
 from .definitions import (
     Sections,
@@ -80,9 +80,9 @@ class PlanSource:
     ----------
     part_name : the part's name (the STEP file's stem by default).
     nominal_path, nominal_sha256 : the STEP file and its hex SHA-256.
-    zones : the profile zones (:func:`qifreport.metrology.bands.zones_from_pmi`).
+    zones : the profile zones (:func:`qifreport.metrology.acceptance.bands.zones_from_pmi`).
     plan : the feature characteristics and datums
-        (:func:`qifreport.metrology.characteristics.specs_from_pmi`).
+        (:func:`qifreport.metrology.gdt.characteristics.specs_from_pmi`).
     datums : the datum labels the PMI defines, file order.
     face_step_ids : (n_faces,) the STEP entity id of each B-rep face (-1 unknown).
     rule : an acceptance rule to state beside each profile (its ``<key>_ACCEPTANCE``

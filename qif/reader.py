@@ -3,9 +3,10 @@
 :func:`read_results` returns, for every characteristic measurement of the first
 ``MeasurementResults``, its QIF type, designator, status, measured value and tolerance, and,
 for documents qifreport wrote, the product's own result objects rebuilt from the typed
-``Attributes`` (:class:`qifreport.metrology.statistics.DeviationStats`,
-:class:`qifreport.metrology.acceptance.Acceptance` with its
-:class:`~qifreport.metrology.acceptance.Region` list), so a round trip can be checked number
+``Attributes`` (:class:`qifreport.metrology.acceptance.statistics.DeviationStats`,
+:class:`qifreport.metrology.acceptance.criteria.Acceptance` with its
+:class:`~qifreport.metrology.acceptance.criteria.Region` list), so a round trip can be checked
+number
 by number (see :mod:`qifreport.qif.writer` for the layout).
 Regions come back without their vertex lists (``vertices`` empty, ``peak_vertex`` -1): QIF
 carries the area, peak, sign, centroid and peak location.
@@ -20,8 +21,8 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from qifreport.metrology.acceptance import Acceptance, Region
-from qifreport.metrology.statistics import DeviationStats
+from qifreport.metrology.acceptance.criteria import Acceptance, Region
+from qifreport.metrology.acceptance.statistics import DeviationStats
 
 from .writer import NS
 

@@ -13,10 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from qifreport.metrology.added import AddedMaterial
+from qifreport.metrology.acceptance.added import AddedMaterial
+from qifreport.metrology.acceptance.repeatability import Repeatability
+from qifreport.metrology.acceptance.statistics import DeviationStats
 from qifreport.metrology.inspection import InspectionResult, method_label
-from qifreport.metrology.repeatability import Repeatability
-from qifreport.metrology.statistics import DeviationStats
 
 from .xmlkit import Attrs, xml_double
 
@@ -68,7 +68,7 @@ def acceptance_attrs(a: Attrs, acc, V: np.ndarray, prefix: str = "") -> None:
     ----------
     a : Attrs
         The attributes being built.
-    acc : qifreport.metrology.acceptance.Acceptance
+    acc : qifreport.metrology.acceptance.criteria.Acceptance
         The decision (whole part or one tolerance).
     V : numpy.ndarray
         The nominal's vertices (the regions' peak locations).
@@ -107,7 +107,8 @@ def acceptance_attrs(a: Attrs, acc, V: np.ndarray, prefix: str = "") -> None:
 
 def coverage_attrs(a: Attrs, cov, prefix: str = "") -> None:
     """Add whether a surface was measured (``cov``:
-    :class:`qifreport.metrology.coverage.Coverage`, or None: nothing is added): ``measured``,
+    :class:`qifreport.metrology.acceptance.coverage.Coverage`, or None: nothing is added):
+    ``measured``,
     its coverage of the surface's own area, the largest unmeasured patch, the rules' limits
     and the reasons it was not measured (``not_measured_reason_k``)."""
     if cov is None:

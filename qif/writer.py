@@ -94,7 +94,7 @@ from qifreport.metrology.inspection import (
     InspectionResult,
     ZoneResult,
 )
-from qifreport.registration.methods import method_spec
+from qifreport.registration.deformable.methods import method_spec
 
 from .definitions import (
     CONFORMS,
@@ -231,7 +231,7 @@ def characteristic_status(z: ZoneResult, established: bool = True) -> str:
         :attr:`ZoneResult.measured`; QIF's characteristic status has no "not measured"),
         ``FAIL``, ``PASS``, or ``INDETERMINATE`` (would pass, the registration is not trusted;
         or neither conformance nor non-conformance is proven within the measurement
-        uncertainty, :mod:`qifreport.metrology.decision`).
+        uncertainty, :mod:`qifreport.metrology.acceptance.decision`).
     """
     if z.acceptance.scored_area <= 0 or z.stats.n == 0:
         return "NOT_ANALYZED"

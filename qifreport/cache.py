@@ -70,8 +70,8 @@ import scipy
 from qifreport import __version__
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.prepared import PreparedPart, part_settings, prepare_part
-from qifreport.registration.methods import method_spec
-from qifreport.registration.restrained import RestraintBasis
+from qifreport.registration.deformable.methods import method_spec
+from qifreport.registration.restraint.restrained import RestraintBasis
 
 from .nominal import Nominal, load_nominal
 from .options import NominalOptions
@@ -103,7 +103,7 @@ log = logging.getLogger(__name__)
 
 #: version of the entry layout, part of every key: an entry written by another layout of
 #: :class:`PartState` (or of anything it holds) is never read; bump it when that changes
-CACHE_FORMAT = 14
+CACHE_FORMAT = 15
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"
@@ -674,7 +674,8 @@ def store_basis(
     cache_dir: Path | None,
 ) -> bool:
     """Complete a cache entry built without its bending basis with the ``basis`` an
-    inspection's virtual fixture built (:class:`qifreport.registration.gbcicp.BendingBasis`
+    inspection's virtual fixture built
+    (:class:`qifreport.registration.deformable.gbcicp.BendingBasis`
     of this part's mesh and settings). True when the entry was rewritten; a cache that
     cannot be written is left as it is (logged)."""
     if (

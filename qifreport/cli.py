@@ -37,9 +37,9 @@ from pathlib import Path
 
 from qifreport import __version__
 from qifreport.errors import InputError, Interrupted, raise_if_interrupted
-from qifreport.metrology.decision import DECISION_RULES, DEFAULT_DECISION_RULE
-from qifreport.metrology.repeatability import KEEP_FRACTION
-from qifreport.registration.methods import METHODS
+from qifreport.metrology.acceptance.decision import DECISION_RULES, DEFAULT_DECISION_RULE
+from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION
+from qifreport.registration.deformable.methods import METHODS
 from qifreport.restraint import DEFAULT_PAD_RADIUS
 
 from .cache import default_cache_dir, part_state, sha256

@@ -9,7 +9,7 @@ the files it writes, are :mod:`qifreport.pipeline`'s.
 
 from __future__ import annotations
 
-from qifreport.metrology.acceptance import Acceptance
+from qifreport.metrology.acceptance.criteria import Acceptance
 from qifreport.metrology.inspection import (
     FREE_STATE_CONFORMS,
     FREE_STATE_LOCAL_DEFECTS,
@@ -17,13 +17,13 @@ from qifreport.metrology.inspection import (
     InspectionResult,
 )
 from qifreport.metrology.params import method_label
-from qifreport.registration.restrained import Restraint
+from qifreport.registration.restraint.restrained import Restraint
 
 __all__ = ["decision_text", "fixture_text", "restraint_text", "summary"]
 
 
 def decision_text(a: Acceptance) -> str:
-    """The decision rule of an :class:`~qifreport.metrology.acceptance.Acceptance` and the
+    """The decision rule of an :class:`~qifreport.metrology.acceptance.criteria.Acceptance` and the
     expanded uncertainty it weighed, for the reports."""
     if a.proven_in is None:
         return f"{a.decision_rule} (no uncertainty weighed)"

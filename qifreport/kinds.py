@@ -11,7 +11,7 @@ This module is part of the foundation: it imports nothing else of qifreport. A m
 function is a lazy ``"module:function"`` reference, imported on first use.
 
 Dimensions (sizes, distances, angles) are not kinds here: their characteristic is the
-dimension's type (:mod:`qifreport.metrology.dimensions`).
+dimension's type (:mod:`qifreport.metrology.gdt.dimensions`).
 """
 
 from __future__ import annotations
@@ -119,12 +119,13 @@ class CharacteristicKind:
     datums : ``"never"`` (form: never related to a datum), ``"optional"`` (position and the
         profiles: in a datum frame when they name one) or ``"required"`` (not measured
         without datums).
-    band : judged as a band about the surface (:mod:`qifreport.metrology.bands`), not as a
+    band : judged as a band about the surface (:mod:`qifreport.metrology.acceptance.bands`), not as
+    a
         feature characteristic.
     whole_part : may apply to every face of the part (written with no face).
     measure : ``"module:function"`` measuring one feature of it:
         ``f(spec, S, sample, feat, frame, sizes, surf, faces)`` -> ``(value, least_squares,
-        U, how, bonus)`` (:mod:`qifreport.metrology.characteristics`); None: not measured
+        U, how, bonus)`` (:mod:`qifreport.metrology.gdt.characteristics`); None: not measured
         per feature.
     measure_whole : ``"module:function"`` measuring it over its faces at once, before any
         feature is formed: ``f(spec, surf, frame, rule)`` -> ``CharacteristicResult``.
@@ -188,7 +189,7 @@ class CharacteristicKind:
         return resolve(self.measure)
 
 
-_M = "qifreport.metrology"
+_M = "qifreport.metrology.gdt"
 _FORM = dict(family="form", datums="never")
 _ORIENTATION = dict(
     family="orientation",

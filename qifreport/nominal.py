@@ -2,7 +2,8 @@
 
 :func:`load_nominal` reads a STEP AP242 file through :mod:`qifreport.step` (tessellation with
 per-face ids, semantic PMI turned into tolerance zones by
-:func:`qifreport.metrology.bands.zones_from_pmi`) or a mesh nominal (STL/PLY/OBJ/OFF) with one
+:func:`qifreport.metrology.acceptance.bands.zones_from_pmi`) or a mesh nominal (STL/PLY/OBJ/OFF)
+with one
 general zone of the given tolerance.
 """
 
@@ -16,8 +17,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from qifreport.metrology.bands import NotEvaluated, ToleranceZone, symmetric_zone, zones_from_pmi
-from qifreport.metrology.characteristics import CharacteristicPlan, specs_from_pmi
+from qifreport.metrology.acceptance.bands import (
+    NotEvaluated,
+    ToleranceZone,
+    symmetric_zone,
+    zones_from_pmi,
+)
+from qifreport.metrology.gdt.characteristics import CharacteristicPlan, specs_from_pmi
 from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.mesh import (
     bounding_diagonal,

@@ -17,10 +17,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from qifreport.errors import InputError
-from qifreport.metrology.coverage import DEFAULT_MIN_COVERAGE
-from qifreport.metrology.decision import DECISION_RULES, DEFAULT_DECISION_RULE
+from qifreport.metrology.acceptance.coverage import DEFAULT_MIN_COVERAGE
+from qifreport.metrology.acceptance.decision import DECISION_RULES, DEFAULT_DECISION_RULE
 from qifreport.metrology.params import InspectionParams
-from qifreport.registration.gbcicp import GBCICPParams
+from qifreport.registration.deformable.gbcicp import GBCICPParams
 
 from .restraint import DEFAULT_PAD_RADIUS, RestraintSpec, gravity_direction, read_clamps
 
@@ -133,7 +133,7 @@ class InspectOptions:
     passes : GB-CICP passes (values below 1 run one pass).
     prealign : pose search, ``"auto"``, ``"always"`` or ``"never"``.
     fail_on_added_material : added material beyond the region limit fails the part.
-    method : deformable method (:data:`qifreport.registration.methods.METHODS`).
+    method : deformable method (:data:`qifreport.registration.deformable.methods.METHODS`).
     seeds : runs of the repeatability check (1: none).
     rigid_only : no virtual fixture.
     always_fixture : apply the virtual fixture even when the free state conforms.
@@ -144,12 +144,13 @@ class InspectOptions:
     cache_dir : per-part cache directory (None: no cache).
     accept_tolerance_as_read : inspect with tolerances the plausibility check of
         :mod:`qifreport.step.plausibility` flags (default: refuse the part).
-    min_coverage : least scored share of a toleranced surface (:mod:`qifreport.metrology.coverage`).
+    min_coverage : least scored share of a toleranced surface
+    (:mod:`qifreport.metrology.acceptance.coverage`).
     zone_min_coverage : ``((selector, fraction), ...)``: a tolerance's own least share; the
         selector is its key (``T2``), name, or STEP id (``#1452``).
     max_gap_area : largest unmeasured patch, mm^2 (None: 4 x the region criterion's area).
     decision_rule : how the measurement uncertainty enters each decision
-        (:mod:`qifreport.metrology.decision`).
+        (:mod:`qifreport.metrology.acceptance.decision`).
     scanner_uncertainty : the scanner's stated expanded uncertainty, mm (0: none).
     fixture : ``"auto"`` (restrained when clamps are known, else free), ``"restrained"``
         (ISO 10579: held at its clamps by its elastic model, :mod:`qifreport.restraint`) or

@@ -33,7 +33,9 @@ import numpy as np
 from qifreport import __version__
 from qifreport.atomic_io import atomic_write_many, output_lock, remove_stale_temps
 from qifreport.errors import InputError
-from qifreport.metrology.bands import ToleranceZone
+from qifreport.metrology.acceptance.bands import ToleranceZone
+from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION, resample_mask
+from qifreport.metrology.acceptance.repeatability import apply as apply_repeatability
 from qifreport.metrology.inspection import (
     InspectionParams,
     InspectionResult,
@@ -41,8 +43,6 @@ from qifreport.metrology.inspection import (
     inspect,
     start_scan_measures,
 )
-from qifreport.metrology.repeatability import KEEP_FRACTION, resample_mask
-from qifreport.metrology.repeatability import apply as apply_repeatability
 from qifreport.registration.linalg import default_backend
 from qifreport.registration.pointcloud import read_scan
 from qifreport.registration.thinning import ThinningReport, nominal_spacing, thin_scan
@@ -235,10 +235,10 @@ def resampled_runs(
     prepared=None,
 ) -> None:
     """Inspect ``seeds`` resamplings of the scan and keep only the persistent regions of
-    ``res`` (:mod:`qifreport.metrology.repeatability`; ``res`` is changed in place).
+    ``res`` (:mod:`qifreport.metrology.acceptance.repeatability`; ``res`` is changed in place).
 
     Resampling ``k`` keeps each point of the scan with probability
-    :data:`qifreport.metrology.repeatability.KEEP_FRACTION` (seed ``k``). It starts from
+    :data:`qifreport.metrology.acceptance.repeatability.KEEP_FRACTION` (seed ``k``). It starts from
     ``res``'s pose: the scan already moved into the nominal frame, no pose search
     (``prealign="never"``).
     """

@@ -10,7 +10,7 @@ This module gathers what such an inspection needs before the first scan:
   solved all the same, with Poisson's ratio 0.3, but no force can be stated, nor checked);
 * the part's elastic model: a STEP solid filled with tetrahedra by gmsh
   (:func:`qifreport.step.gmsh_mesh.gmsh_solid_mesh`), a mesh nominal (an open sheet)
-  decimated and thickened by ``--thickness`` (:mod:`qifreport.registration.sheet_solid`);
+  decimated and thickened by ``--thickness`` (:mod:`qifreport.registration.restraint.sheet_solid`);
 * and from them the restraint basis (:func:`build_restraint`), the per-part cache's entry.
 
 :class:`RestraintSpec` carries the choices (all JSON-able, for the cache key).
@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from qifreport.registration.clamps import Clamp, parse_clamps
-from qifreport.registration.elastic import Material, elastic_model, material, rigid_rank
 from qifreport.registration.mesh import face_normals
-from qifreport.registration.restrained import RestraintBasis, restraint_basis
+from qifreport.registration.restraint.clamps import Clamp, parse_clamps
+from qifreport.registration.restraint.elastic import Material, elastic_model, material, rigid_rank
+from qifreport.registration.restraint.restrained import RestraintBasis, restraint_basis
 
 from .errors import InputError
 
@@ -76,7 +76,7 @@ class RestraintSpec:
 
     Attributes
     ----------
-    clamps : the clamps (:class:`qifreport.registration.clamps.Clamp`).
+    clamps : the clamps (:class:`qifreport.registration.restraint.clamps.Clamp`).
     source : where they came from (``"clamps file NAME"``, ``"PMI datum targets"``).
     material : the ``--material`` text, None when not stated (no forces then).
     thickness : a mesh nominal's wall thickness, mm (``--thickness``).
@@ -130,7 +130,8 @@ def with_limits(basis: RestraintBasis, spec: RestraintSpec) -> RestraintBasis:
 
 
 def read_clamps_file(path: Path, max_force: float | None = None) -> tuple[Clamp, ...]:
-    """The clamps of a ``--clamps`` CSV (:func:`qifreport.registration.clamps.parse_clamps`),
+    """The clamps of a ``--clamps`` CSV
+    (:func:`qifreport.registration.restraint.clamps.parse_clamps`),
     ``max_force`` (N) the limit of those that state none.
 
     Raises
@@ -165,7 +166,7 @@ def _closest_normals(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Distances (c,) of ``points`` (c, 3) to the mesh and the unit normals (c, 3) of the
     triangles closest to them."""
-    from qifreport.metrology.deviation import closest_points
+    from qifreport.metrology.deviation.signed import closest_points
 
     C, tri, _ = closest_points(V, F, points)
     return np.linalg.norm(points - C, axis=1), face_normals(V, F)[tri]
@@ -228,7 +229,7 @@ def build_restraint(
     Returns
     -------
     RestraintBasis
-        :class:`qifreport.registration.restrained.RestraintBasis`; its ``model`` the
+        :class:`qifreport.registration.restraint.restrained.RestraintBasis`; its ``model`` the
         model's provenance for the reports (material, mesh, seconds).
 
     Raises
@@ -271,7 +272,7 @@ def build_restraint(
         if not (math.isfinite(spec.thickness) and spec.thickness > 0):
             raise InputError(f"--thickness must be a positive length in mm, got {spec.thickness}")
         from qifreport.registration.mesh import vertex_normals
-        from qifreport.registration.sheet_solid import sheet_solid
+        from qifreport.registration.restraint.sheet_solid import sheet_solid
 
         U, G = sheet_model_mesh(V, F)
         sheet = sheet_solid(U, G, vertex_normals(U, G), spec.thickness)
@@ -435,7 +436,7 @@ def clamp_rows(part, clamps: tuple[Clamp, ...]) -> list[dict]:
     index, the B-rep face it sits on), face_step_id, datum (the datum whose feature holds that
     face, or ""), off_surface_mm (its distance from the part's surface).
     """
-    from qifreport.metrology.deviation import closest_points
+    from qifreport.metrology.deviation.signed import closest_points
     from qifreport.step.tessellate import tessellate
 
     m = tessellate(part.shape, part.faces)

@@ -119,7 +119,7 @@ class SPDSolver:
         nothing, and its spinning wait takes the core from other work: beside another busy
         process, the fandisk's bending basis (202 solves) is several times slower with every
         pool at two threads than with CHOLMOD's at one, and fastest with all at one, as
-        :func:`~qifreport.registration.gbcicp.bending_basis` and the command line set; a
+        :func:`~qifreport.registration.deformable.gbcicp.bending_basis` and the command line set; a
         large factorisation is only slightly slower on one thread."""
         if self._pools is None:
             self._pools = ThreadpoolController()

@@ -257,7 +257,7 @@ def orient_normals_consistent(
     thin wall scanned from both sides) its side is outward, away from that skin, and its
     label is :data:`SIDE_KNOWN`. The side of every other sheet is arbitrary: the caller
     chooses it (e.g. by a vote against a posed nominal,
-    :func:`qifreport.registration.deformable.orient_scan_normals`): on a wall deflected by
+    :func:`qifreport.registration.deformable.result.orient_scan_normals`): on a wall deflected by
     more than half its thickness the nearest nominal skin is the other one, so the scan's
     own evidence comes first.
 

@@ -105,8 +105,8 @@ TRUTH_PAD = 5.0
 
 def panel_warped_scan(step_path: Path, clamps_path: Path) -> np.ndarray:
     """The panel's elastic free state (module docstring), scanned (float32, mm)."""
-    from qifreport.registration.clamps import parse_clamps
-    from qifreport.registration.elastic import Material, elastic_model
+    from qifreport.registration.restraint.clamps import parse_clamps
+    from qifreport.registration.restraint.elastic import Material, elastic_model
     from qifreport.simulate.physical import elastic_free_state
     from qifreport.step.gmsh_mesh import gmsh_solid_mesh
     from qifreport.step.reader import read_step
@@ -120,7 +120,7 @@ def panel_warped_scan(step_path: Path, clamps_path: Path) -> np.ndarray:
     tets = gmsh_solid_mesh(part.shape, TRUTH_EDGE_SHARE * diag)
     model = elastic_model(tets.X, tets.T, Material("truth", 2300.0, TRUTH_NU, 1.05e-9))
     clamps = parse_clamps(clamps_path.read_text(encoding="utf-8"))
-    from qifreport.metrology.deviation import closest_points
+    from qifreport.metrology.deviation.signed import closest_points
 
     pos = np.array([c.position for c in clamps])
     _, tri, _ = closest_points(V, F, pos)

@@ -394,7 +394,7 @@ class SolidMesh:
 
 def gmsh_solid_mesh(shape, max_edge: float, *, min_edge: float | None = None) -> SolidMesh:
     """Tetrahedra filling the solids of ``shape`` (gmsh's Delaunay 3-D mesher), for the
-    part's elastic model (:mod:`qifreport.registration.elastic`).
+    part's elastic model (:mod:`qifreport.registration.restraint.elastic`).
 
     Parameters
     ----------

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from qifreport.metrology.added import added_material
+from qifreport.metrology.acceptance.added import added_material
 from qifreport.metrology.inspection import InspectionParams, inspect
 from qifreport.registration.mesh import vertex_normals
 from qifreport.simulate.cases import make_case

@@ -96,19 +96,38 @@ def test_contracts_hold(tree):
         ("qifreport/step/p21.py", "import qifreport.cli", "library-below-app"),
         (
             "qifreport/registration/icp.py",
-            "import qifreport.metrology.statistics",
+            "import qifreport.metrology.acceptance.statistics",
             "library-layers",
         ),
-        ("qifreport/metrology/bands.py", "import qifreport.qif.writer", "library-layers"),
         (
-            "qifreport/registration/rbffem.py",
+            "qifreport/metrology/acceptance/bands.py",
+            "import qifreport.qif.writer",
+            "library-layers",
+        ),
+        (
+            "qifreport/registration/deformable/rbffem.py",
             "import qifreport.simulate.deform",
             "no-simulator-in-production",
         ),
         ("qifreport/options.py", "import qifreport.nominal", "app-layers"),
         ("qifreport/errors.py", "import qifreport.step.p21", "foundation"),
-        ("qifreport/kinds.py", "import qifreport.metrology.geometric", "foundation"),
+        ("qifreport/kinds.py", "import qifreport.metrology.gdt.geometric", "foundation"),
         ("qifreport/batch/plan.py", "import qifreport.batch.run", "acyclic"),
+        (
+            "qifreport/metrology/acceptance/criteria.py",
+            "import qifreport.metrology.judgement",
+            "metrology-stages",
+        ),
+        (
+            "qifreport/metrology/gdt/form.py",
+            "import qifreport.metrology.restraint.held",
+            "metrology-stages",
+        ),
+        (
+            "qifreport/registration/mesh.py",
+            "import qifreport.registration.deformable.gbcicp",
+            "registration-parts",
+        ),
     ],
 )
 def test_a_bad_import_breaks_the_contract(tmp_path, victim, bad_import, contract):

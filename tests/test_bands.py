@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.acceptance import evaluate
-from qifreport.metrology.bands import (
+from qifreport.metrology.acceptance.bands import (
     DEFAULT_GENERAL_TOLERANCE,
     ToleranceZone,
     lay_bands,
@@ -15,6 +14,7 @@ from qifreport.metrology.bands import (
     zone_vertex_areas,
     zones_from_pmi,
 )
+from qifreport.metrology.acceptance.criteria import evaluate
 from qifreport.step.pmi import PMI, DatumRef, Dimension, GeometricTolerance
 
 
@@ -111,7 +111,7 @@ def test_zones_from_pmi_sources_and_skips():
     # the flatness (14) and the dimension (20) are feature characteristics (issue 22)
     assert set(reasons) == {13, 15}
     assert "could not be established" in reasons[13]
-    from qifreport.metrology.characteristics import specs_from_pmi
+    from qifreport.metrology.gdt.characteristics import specs_from_pmi
 
     plan = specs_from_pmi(pmi, fidx)
     assert [(s.key, s.step_id) for s in plan.specs] == [("G1", 14), ("D1", 20)]

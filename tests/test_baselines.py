@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 
 from qifreport.registration import methods
-from qifreport.registration.cpd import CPDParams, cpd_em, cpd_warp
-from qifreport.registration.deformable import DeformResult
+from qifreport.registration.deformable.cpd import CPDParams, cpd_em, cpd_warp
+from qifreport.registration.deformable.nicp import NICPParams, nicp
+from qifreport.registration.deformable.rbffem import RBFFEMParams
+from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.mesh import bending_operator
-from qifreport.registration.nicp import NICPParams, nicp
-from qifreport.registration.rbffem import RBFFEMParams
 from qifreport.simulate.cases import inspection_error, make_case
 from qifreport.simulate.scanner import ScanSpec
 from qifreport.simulate.shapes import thin_shell

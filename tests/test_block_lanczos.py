@@ -1,7 +1,7 @@
 """The bending basis by block shift-invert Lanczos (issue 23).
 
-:func:`qifreport.registration.block_lanczos.lowest_modes` replaces ARPACK's one-vector
-Lanczos in :func:`~qifreport.registration.gbcicp.bending_basis`. Its modes are checked
+:func:`qifreport.registration.deformable.block_lanczos.lowest_modes` replaces ARPACK's one-vector
+Lanczos in :func:`~qifreport.registration.deformable.gbcicp.bending_basis`. Its modes are checked
 against LAPACK's dense generalized eigen-decomposition (software we did not write): the
 eigenvalues to 1e-10, the modes (in the canonical basis) to 1e-8 of their largest entry,
 which a Krylov basis missing a Gram-Schmidt sweep, a Rayleigh quotient missing its lower
@@ -16,8 +16,8 @@ import pytest
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from qifreport.registration.block_lanczos import lowest_modes
-from qifreport.registration.gbcicp import BASIS_BLOCK, bending_basis, canonical_modes
+from qifreport.registration.deformable.block_lanczos import lowest_modes
+from qifreport.registration.deformable.gbcicp import BASIS_BLOCK, bending_basis, canonical_modes
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import bending_operator
 from qifreport.simulate.shapes import thin_shell
@@ -109,7 +109,7 @@ def test_a_part_in_more_pieces_than_a_block_finds_every_null_mode(caplog):
     F = np.vstack([F0 + len(V0) * i for i in range(pieces)])
     ops = bending_operator(V, F, "laplacian")
     assert len(V) > 4 * (k + BASIS_BLOCK)
-    with caplog.at_level(logging.WARNING, logger="qifreport.registration.block_lanczos"):
+    with caplog.at_level(logging.WARNING, logger="qifreport.registration.deformable.block_lanczos"):
         B = bending_basis(ops, k, solver=SPDSolver(points=V))
     assert not caplog.records, [r.getMessage() for r in caplog.records]
     mu, _ = dense_modes(ops, k)

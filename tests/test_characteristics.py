@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.characteristics import measure_characteristics
-from qifreport.metrology.measured_surface import MeasuredSurface
+from qifreport.metrology.gdt.characteristics import measure_characteristics
+from qifreport.metrology.gdt.measured_surface import MeasuredSurface
 from tests.conftest import shared_file
 
 U_VERTEX = 0.002  # mm, every vertex's expanded uncertainty

@@ -1,4 +1,5 @@
-"""The ``--clamps`` file (:func:`qifreport.registration.clamps.parse_clamps`): rows read with
+"""The ``--clamps`` file (:func:`qifreport.registration.restraint.clamps.parse_clamps`): rows read
+with
 their source line, directions canonical, every malformed row refused naming its line."""
 
 from __future__ import annotations
@@ -6,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.registration.clamps import Clamp, parse_clamps
+from qifreport.registration.restraint.clamps import Clamp, parse_clamps
 
 GOOD = """name, x, y, z, directions, max_force_N
 # the 3-2-1 scheme of the sample panel

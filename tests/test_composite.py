@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from qifreport.metrology.characteristics import measure_characteristics
-from qifreport.metrology.composite import minimax_offsets, minimax_shift
-from qifreport.metrology.measured_surface import MeasuredSurface
+from qifreport.metrology.gdt.characteristics import measure_characteristics
+from qifreport.metrology.gdt.composite import minimax_offsets, minimax_shift
+from qifreport.metrology.gdt.measured_surface import MeasuredSurface
 from tests.conftest import shared_file
 
 U_VERTEX = 0.002
@@ -141,8 +141,8 @@ def test_pattern_moved_as_a_whole_passes_its_lower_segment(ftc08):
 
 
 def test_composite_profile_zone_keeps_the_orientation_and_places_the_zone():
-    from qifreport.metrology.composite import composite_zone_frame
-    from qifreport.metrology.frames import DatumFrameResult
+    from qifreport.metrology.gdt.composite import composite_zone_frame
+    from qifreport.metrology.gdt.frames import DatumFrameResult
 
     rng = np.random.default_rng(5)
     V = rng.uniform(-40, 40, (4000, 3))
@@ -161,7 +161,7 @@ def test_composite_profile_zone_keeps_the_orientation_and_places_the_zone():
 
 
 def test_a_local_defect_stays_where_it_is_when_no_placement_conforms():
-    from qifreport.metrology.composite import composite_zone_frame
+    from qifreport.metrology.gdt.composite import composite_zone_frame
 
     rng = np.random.default_rng(6)
     V = np.c_[rng.uniform(-50, 50, (6000, 2)), np.zeros(6000)]

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from qifreport.metrology.coverage import zone_coverage
+from qifreport.metrology.acceptance.coverage import zone_coverage
 from qifreport.metrology.inspection import InspectionParams, inspect
 from qifreport.registration.mesh import consistent_winding, vertex_areas
 from tests.conftest import assert_valid_summary

@@ -22,7 +22,7 @@ from OCP.XCAFApp import XCAFApp_Application
 from OCP.XCAFDoc import XCAFDoc_Datum, XCAFDoc_DocumentTool
 
 from qifreport.errors import InputError
-from qifreport.registration.clamps import parse_clamps
+from qifreport.registration.restraint.clamps import parse_clamps
 from qifreport.restraint import clamps_from_pmi
 from qifreport.step.semantic import read_pmi_text
 from qifreport.step.write import PMISpecDatum, PMISpecTarget, write_step_with_pmi

@@ -1,7 +1,7 @@
-"""Datum reference frames on measured points (metrology/datums.py; issue 22): 3-2-1 planes,
+"""Datum reference frames on measured points (metrology/gdt/datums.py; issue 22): 3-2-1 planes,
 a plane with a hole pattern, the free motions of an incomplete frame, and the simulators
 (tangent planes, inscribed and circumscribed cylinders) against closed forms and the
-minimum-zone flatness of metrology/form.py."""
+minimum-zone flatness of metrology/gdt/form.py."""
 
 from __future__ import annotations
 
@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from qifreport.metrology.datums import (
+from qifreport.metrology.gdt.datums import (
     DatumFeature,
     datum_frame,
     nominal_feature,
     simulate_datum,
 )
-from qifreport.metrology.form import flatness
+from qifreport.metrology.gdt.form import flatness
 
 RNG = np.random.default_rng(5459)
 

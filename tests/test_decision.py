@@ -1,8 +1,9 @@
 """Decision rules with the measurement uncertainty (ISO 14253-1; ASME B89.7.3.1):
-:mod:`qifreport.metrology.decision`, :func:`qifreport.metrology.acceptance.evaluate` with an
+:mod:`qifreport.metrology.acceptance.decision`,
+:func:`qifreport.metrology.acceptance.criteria.evaluate` with an
 uncertainty, and the variance of each vertex's measured deviation
-(:func:`qifreport.metrology.deviation.nominal_referenced`,
-:func:`~qifreport.metrology.deviation.residual_referenced`).
+(:func:`qifreport.metrology.deviation.signed.nominal_referenced`,
+:func:`~qifreport.metrology.deviation.signed.residual_referenced`).
 
 A surface on a zone limit (NIST CTC 02's zones ``2.5 UZ 0`` put a perfect face on it) is the
 case: simple acceptance fails it on noise, ISO 14253-1 proves neither; a defect beyond the
@@ -14,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.acceptance import evaluate
-from qifreport.metrology.decision import DECISION_RULES, decide, vertex_uncertainty
-from qifreport.metrology.deviation import nominal_referenced, residual_referenced
+from qifreport.metrology.acceptance.criteria import evaluate
+from qifreport.metrology.acceptance.decision import DECISION_RULES, decide, vertex_uncertainty
+from qifreport.metrology.deviation.signed import nominal_referenced, residual_referenced
 from tests.test_metrology import grid_mesh
 
 SIGMA = 0.003  # mm, each vertex's deviation standard uncertainty in the synthetic fields

@@ -137,7 +137,7 @@ def test_mid_grid_cell_end_to_end_multi_pass_detects(shell):
     through the real pipeline: the product's default multi-pass scheme keeps the defect
     separable (paper: rho 11.8, 92 % recovered) and puts its peak near the true centre."""
     from qifreport.metrology.inspection import InspectionParams, inspect
-    from qifreport.registration.gbcicp import GBCICPParams
+    from qifreport.registration.deformable.gbcicp import GBCICPParams
     from qifreport.registration.mesh import bounding_diagonal
     from qifreport.simulate.cases import make_case
     from qifreport.simulate.scanner import ScanSpec

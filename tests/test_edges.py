@@ -15,10 +15,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from qifreport.metrology.edges import edge_deviation, rim_frames
+from qifreport.metrology.deviation.edges import edge_deviation, rim_frames
+from qifreport.metrology.deviation.size import size_error
 from qifreport.metrology.inspection import InspectionParams, inspect
 from qifreport.metrology.prepared import prepare_part
-from qifreport.metrology.size import size_error
 from qifreport.simulate.cases import make_case
 from qifreport.simulate.scanner import ScanSpec, virtual_scan
 from qifreport.simulate.shapes import grid_triangles, thin_shell

@@ -1,4 +1,5 @@
-"""The part's elastic model (:mod:`qifreport.registration.elastic`, issue 21 item 1) against
+"""The part's elastic model (:mod:`qifreport.registration.restraint.elastic`, issue 21 item 1)
+against
 closed forms, on real gmsh tetrahedral meshes of real OCP solids
 (:func:`qifreport.step.gmsh_mesh.gmsh_solid_mesh`).
 
@@ -12,7 +13,7 @@ closed forms, on real gmsh tetrahedral meshes of real OCP solids
 * Linear tetrahedra lock in bending (the reason the model is quadratic): they read the
   cantilever at under half its deflection on the same mesh.
 * The same cantilever as a mesh nominal, its mid-surface thickened into one layer of
-  tetrahedra (:mod:`qifreport.registration.sheet_solid`): within 3 %, converged < 2 %.
+  tetrahedra (:mod:`qifreport.registration.restraint.sheet_solid`): within 3 %, converged < 2 %.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.registration.elastic import GRAVITY, MATERIALS, elastic_model, material
+from qifreport.registration.restraint.elastic import GRAVITY, MATERIALS, elastic_model, material
 
 STEEL = MATERIALS["steel"]
 
@@ -103,8 +104,9 @@ def test_materials_and_refusals():
 
 def sheet_cantilever(h: float) -> tuple[float, float]:
     """The cantilever strip as a mesh nominal (a mid-surface grid) thickened to 2 mm
-    (:func:`qifreport.registration.sheet_solid.sheet_solid`): (tip deflection, closed form)."""
-    from qifreport.registration.sheet_solid import sheet_solid
+    (:func:`qifreport.registration.restraint.sheet_solid.sheet_solid`): (tip deflection, closed
+    form)."""
+    from qifreport.registration.restraint.sheet_solid import sheet_solid
     from tests.test_metrology import grid_mesh
 
     L, b, t = 200.0, 10.0, 2.0
@@ -137,7 +139,7 @@ def test_a_pad_pushing_a_plate_needs_the_closed_form_force():
     +1.2 %: the pad spreads the load a little); the pad moves
     exactly 0.05 mm along its (non-axis) direction when tilted, and a pad alone cannot hold
     the plate's rigid motions."""
-    from qifreport.registration.elastic import Pad
+    from qifreport.registration.restraint.elastic import Pad
 
     a, t, w = 100.0, 2.0, 0.05
     X, T = box(0.0, a / 2, 0.0, a / 2, -t / 2, t / 2, 2.5)

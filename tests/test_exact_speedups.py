@@ -1,10 +1,10 @@
 """Faster paths that must give the same numbers as the slower ones (issue 23).
 
-:func:`qifreport.registration.descriptors.farthest_points` updates only the points within
+:func:`qifreport.registration.pose.descriptors.farthest_points` updates only the points within
 the current covering radius of each new sample. The reference here measures every point at
 every step, as the definition does; the two must agree index for index, and a prefix of a
 longer run must be the shorter run (``prepare_model`` takes its keypoints and its coarse
-vertices from one run). :func:`~qifreport.registration.descriptors.geodesic_balls` with the
+vertices from one run). :func:`~qifreport.registration.pose.descriptors.geodesic_balls` with the
 nodes' tree runs Dijkstra on the nodes near each group of sources; its balls must equal the
 whole graph's, entry for entry. The scan normals' spanning tree is built from each edge
 once (the upper triangle of the symmetric graph): Kruskal's stable order meets the edges in
@@ -20,7 +20,7 @@ import trimesh
 from scipy.sparse.csgraph import minimum_spanning_tree
 from scipy.spatial import cKDTree
 
-from qifreport.registration.descriptors import (
+from qifreport.registration.pose.descriptors import (
     farthest_points,
     geodesic_balls,
     knn_graph,
@@ -108,7 +108,7 @@ def test_spanning_tree_of_the_upper_triangle_is_the_whole_graphs(levels):
 
 
 def test_point_groups_of_nested_sets_reuse_the_links_and_equal_a_fresh_grouping():
-    from qifreport.metrology.point_regions import ScanSamples, linked_groups
+    from qifreport.metrology.acceptance.point_regions import ScanSamples, linked_groups
 
     rng = np.random.default_rng(5)
     P = np.c_[rng.uniform(0, 100, (20_000, 2)), rng.normal(0, 0.01, 20_000)]

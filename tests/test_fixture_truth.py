@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.registration.elastic import MATERIALS, elastic_model
 from qifreport.registration.mesh import vertex_normals
-from qifreport.registration.sheet_solid import sheet_solid
+from qifreport.registration.restraint.elastic import MATERIALS, elastic_model
+from qifreport.registration.restraint.sheet_solid import sheet_solid
 from qifreport.simulate.fixture_truth import (
     FreeState,
     dent,

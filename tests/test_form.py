@@ -1,4 +1,4 @@
-"""Form by the minimum zone (metrology/form.py; issue 22): flatness, straightness, roundness,
+"""Form by the minimum zone (metrology/gdt/form.py; issue 22): flatness, straightness, roundness,
 cylindricity against closed forms, an independent search, and scikit-spatial's
 least-squares fits."""
 
@@ -9,7 +9,7 @@ import pytest
 from scipy.optimize import minimize
 from scipy.spatial.transform import Rotation
 
-from qifreport.metrology.form import (
+from qifreport.metrology.gdt.form import (
     cylindricity,
     flatness,
     least_squares_circle,
@@ -205,7 +205,7 @@ def test_least_squares_cylinder_agrees_with_scikit_spatial():
 def test_zone_uncertainty_is_continuous_where_extremes_tie():
     """A zone's U comes from its extreme points; where two points nearly tie for the
     extreme, a change far below U (round-off) must not swap one point's U for the other's."""
-    from qifreport.metrology.characteristics import zone_uncertainty
+    from qifreport.metrology.gdt.characteristics import zone_uncertainty
 
     rng = np.random.default_rng(0)
     r = rng.uniform(-0.05, 0.05, 200)

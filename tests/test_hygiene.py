@@ -1,10 +1,10 @@
-"""Nominal hygiene: defect counts and the unscored rim band (metrology/hygiene.py)."""
+"""Nominal hygiene: defect counts and the unscored rim band (metrology/deviation/hygiene.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from qifreport.metrology.hygiene import mesh_hygiene, near_boundary
+from qifreport.metrology.deviation.hygiene import mesh_hygiene, near_boundary
 from qifreport.metrology.inspection import InspectionParams, inspect
 from qifreport.registration.mesh import boundary_vertices
 from qifreport.simulate.cases import make_case

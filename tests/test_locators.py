@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from qifreport.metrology.locators import patch_offset
+from qifreport.metrology.restraint.locators import patch_offset
 from qifreport.registration.mesh import face_normals
 from qifreport.registration.normals import pca_normals
 

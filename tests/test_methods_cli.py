@@ -1,5 +1,5 @@
 """``qifreport --method`` and ``--seeds`` on a small shell, and
-:mod:`qifreport.metrology.repeatability` on plain arrays.
+:mod:`qifreport.metrology.acceptance.repeatability` on plain arrays.
 
 The CLI cases use an 80 x 50 mm thin shell at a 2 mm pitch (1,066 vertices): analytic
 compliance at 1 % of the diagonal (0.91 mm at most), a 1.0 mm / sigma 5 mm Gaussian bump,
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qifreport.metrology.acceptance import evaluate
-from qifreport.metrology.repeatability import (
+from qifreport.metrology.acceptance.criteria import evaluate
+from qifreport.metrology.acceptance.repeatability import (
     KEEP_FRACTION,
     apply,
     persistent_regions,
@@ -38,7 +38,7 @@ from qifreport.metrology.repeatability import (
     spread,
 )
 from qifreport.qif.reader import read_results
-from qifreport.registration.methods import METHODS
+from qifreport.registration.deformable.methods import METHODS
 from tests.conftest import assert_valid_summary
 
 TOL = 0.5
@@ -357,7 +357,7 @@ def test_restrict_never_rescues_the_area_criterion():
 @pytest.fixture(scope="module")
 def small_result(small):
     """The small shell inspected in-process (GB-CICP): one defect region."""
-    from qifreport.metrology.bands import symmetric_zone
+    from qifreport.metrology.acceptance.bands import symmetric_zone
     from qifreport.metrology.inspection import InspectionParams, inspect
 
     res = inspect(

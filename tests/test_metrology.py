@@ -10,15 +10,15 @@ import trimesh
 from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as triangle_closest_point
 
-from qifreport.metrology.acceptance import (
+from qifreport.metrology.acceptance.criteria import (
     DEFAULT_MAX_REGION_AREA,
     coverage_ceiling_ok,
     evaluate,
     find_regions,
     scan_area,
 )
-from qifreport.metrology.deviation import closest_points, data_referenced, nominal_referenced
-from qifreport.metrology.statistics import deviation_statistics, tail_fractions
+from qifreport.metrology.acceptance.statistics import deviation_statistics, tail_fractions
+from qifreport.metrology.deviation.signed import closest_points, data_referenced, nominal_referenced
 from qifreport.registration.mesh import vertex_areas
 
 

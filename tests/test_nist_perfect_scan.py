@@ -13,12 +13,13 @@ NOT MEASURED only on a 2,400 mm^2 occlusion of its T3 surface; CTC 02's faces on
 unilateral zones' limits (``2.5 UZ 0``, ``2.5 UZ 2.5``) are neither proven in nor out (ISO
 14253-1: NOT ESTABLISHED, no fixture), which needed the B-rep's own normals at the mesh
 corners (:mod:`qifreport.step.normals`; the mesh's read its fillets up to 0.28 mm off) and
-proofs at k = 4 over a face's many values (:mod:`qifreport.metrology.decision`).
+proofs at k = 4 over a face's many values (:mod:`qifreport.metrology.acceptance.decision`).
 
 A 0.5 mm x sigma 3 mm bump on the tightest well-scanned toleranced face FAILs that
 tolerance where the bump is (:func:`tests.nist_scans.check_bump`): on CTC 01 the bump is
 narrower than the mesh (4 mm edges; the vertices read 0.19 mm against the +/-0.25 mm zone)
-and is found on the scan points (:mod:`qifreport.metrology.point_regions`), the free state
+and is found on the scan points (:mod:`qifreport.metrology.acceptance.point_regions`), the free
+state
 standing (no fixture bends such a defect out). CTC 02 and CTC 03 (measured: FAIL, regions
 1.9 and 0.4 mm from the bump) and CTC 04 (not yet right) run with
 ``QIFREPORT_ALL_NIST_BUMPS=1`` (:data:`tests.nist_scans.BUMP_GROUPS`).

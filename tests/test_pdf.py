@@ -381,8 +381,8 @@ def test_letter_page(reports, tmp_path):
 def test_stress_many_regions_and_tolerances(reports, tmp_path, page):
     """40 regions and 25 tolerances (and 9 PMI items not scored) still fit one page: the
     lists are cut and the cut is stated."""
-    from qifreport.metrology.acceptance import Region
-    from qifreport.metrology.bands import NotEvaluated
+    from qifreport.metrology.acceptance.bands import NotEvaluated
+    from qifreport.metrology.acceptance.criteria import Region
 
     base = reports["panel"].res
     res = copy.copy(base)

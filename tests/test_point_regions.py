@@ -1,12 +1,12 @@
-"""The region criterion on the scan points (:mod:`qifreport.metrology.point_regions`): a
+"""The region criterion on the scan points (:mod:`qifreport.metrology.acceptance.point_regions`): a
 defect narrower than the mesh is found where the scan samples it, a perfect surface gives
 no region, a surface on its limit is not proven out, and a defect both samplings see is
 reported once.
 
 A 100 x 100 mm plate meshed with 8 mm edges (its vertices' deviation is fitted over a
 12 mm ball) under a scan at 0.7 mm spacing with 10 um noise, the deviation measured by
-the product's own functions (:func:`qifreport.metrology.deviation.closest_points`,
-:func:`~qifreport.metrology.deviation.nominal_referenced`).
+the product's own functions (:func:`qifreport.metrology.deviation.signed.closest_points`,
+:func:`~qifreport.metrology.deviation.signed.nominal_referenced`).
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.acceptance import Region, evaluate
-from qifreport.metrology.deviation import closest_points, nominal_referenced
-from qifreport.metrology.point_regions import SurfacePoints, scan_samples
+from qifreport.metrology.acceptance.criteria import Region, evaluate
+from qifreport.metrology.acceptance.point_regions import SurfacePoints, scan_samples
+from qifreport.metrology.deviation.signed import closest_points, nominal_referenced
 from tests.test_metrology import grid_mesh
 
 NOISE = 0.01  # mm

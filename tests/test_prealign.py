@@ -15,10 +15,10 @@ from lxml import etree
 from scipy.spatial.transform import Rotation
 
 from qifreport.errors import InputError
-from qifreport.registration.curvature import mesh_curvatures, scan_curvatures
 from qifreport.registration.icp import converged_rigid_fit, pose_conditioning, rigid_icp
 from qifreport.registration.mesh import boundary_vertices, bounding_diagonal, vertex_normals
-from qifreport.registration.prealign import (
+from qifreport.registration.pose.curvature import mesh_curvatures, scan_curvatures
+from qifreport.registration.pose.prealign import (
     PoseNotEstablished,
     already_in_frame,
     pose_distance,

@@ -1,5 +1,5 @@
 """The two registries: the characteristic kinds (qifreport/kinds.py) and the deformable
-methods (registration/methods.py).
+methods (registration/deformable/methods.py).
 
 * Outside the registries no code compares a registered kind's or method's name as a string:
   the layers ask the registry (a kind's family, datum rule, QIF rules; a method's
@@ -27,20 +27,20 @@ from qifreport.kinds import (
     register_kind,
     registered,
 )
-from qifreport.metrology.characteristics import (
+from qifreport.metrology.gdt.characteristics import (
     CharacteristicResult,
     CharacteristicSpec,
     measure_characteristics,
     zone_uncertainty,
 )
-from qifreport.metrology.form import least_squares_sphere
-from qifreport.metrology.measured_surface import MeasuredSurface
-from qifreport.registration.methods import METHODS, method_label, method_spec
+from qifreport.metrology.gdt.form import least_squares_sphere
+from qifreport.metrology.gdt.measured_surface import MeasuredSurface
+from qifreport.registration.deformable.methods import METHODS, method_label, method_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 #: the folders of the product's code, and the registries themselves (where the names live)
 SCANNED = ("step", "registration", "metrology", "qif", "qifreport")
-REGISTRIES = {"qifreport/kinds.py", "registration/methods.py"}
+REGISTRIES = {"qifreport/kinds.py", "registration/deformable/methods.py"}
 
 
 # ------------------------------------------------------------------ no name compared as text
@@ -134,7 +134,7 @@ TOLERANCE, BUMP = 0.05, 0.02
 def sphericity(spec, S, sample, feat, frame, sizes, surf, faces):
     """Sphericity of a sphere's points: the peak-to-valley of their distances from the
     least-squares sphere's centre (a kind's per-feature measurement, signature of
-    :mod:`qifreport.metrology.geometric`)."""
+    :mod:`qifreport.metrology.gdt.geometric`)."""
     if feat.kind != "sphere":
         raise ValueError("sphericity of a feature that is not a sphere")
     c, r = least_squares_sphere(S)
@@ -196,7 +196,7 @@ def _spec() -> CharacteristicSpec:
 def test_a_kind_registered_alone_is_measured_written_and_summarised(tmp_path):
     assert lookup_kind("sphericity") is None
     with registered(SPHERICITY):
-        # measured through the product's dispatch (metrology/characteristics.py)
+        # measured through the product's dispatch (metrology/gdt/characteristics.py)
         surf = _sphere_surface(_bumped)
         assert surf.nominal([0]).kind == "sphere"
         (res,), frames = measure_characteristics([_spec()], {}, surf, "iso14253")

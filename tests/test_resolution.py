@@ -1,4 +1,4 @@
-"""Noise and residual against the band (metrology/resolution.py): a scan too noisy to
+"""Noise and residual against the band (metrology/acceptance/resolution.py): a scan too noisy to
 resolve a tolerance never PASSes; a clean one still does."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from qifreport.metrology.resolution import RESOLUTION_RATIO, range_noise, resolution
+from qifreport.metrology.acceptance.resolution import RESOLUTION_RATIO, range_noise, resolution
 from qifreport.simulate.scanner import ScanSpec, virtual_scan
 from qifreport.simulate.shapes import thin_shell
 

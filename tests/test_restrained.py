@@ -1,8 +1,10 @@
-"""The restrained condition's mechanism (:mod:`qifreport.registration.restrained`, issue 21
+"""The restrained condition's mechanism (:mod:`qifreport.registration.restraint.restrained`, issue
+21
 items 2-3): clamps driven back by their free-state offsets through the part's elastic model.
 
 A 200 x 100 mm PP sheet, 2 mm thick (a mesh nominal thickened,
-:mod:`qifreport.registration.sheet_solid`), held by four corner clamps along the normal and
+:mod:`qifreport.registration.restraint.sheet_solid`), held by four corner clamps along the normal
+and
 two in-plane pins. Its free state: one corner lifted 2 mm, the part bending elastically
 (the model's own solution: these tests check the mechanism, the physical benchmark of
 issue 21 uses another model for its truth) and, in one case, a 1.0 mm x sigma 20 mm dent in
@@ -20,16 +22,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.deviation import closest_points
-from qifreport.registration.clamps import Clamp
-from qifreport.registration.elastic import MATERIALS, Pad, elastic_model
-from qifreport.registration.restrained import (
+from qifreport.metrology.deviation.signed import closest_points
+from qifreport.registration.restraint.clamps import Clamp
+from qifreport.registration.restraint.elastic import MATERIALS, Pad, elastic_model
+from qifreport.registration.restraint.restrained import (
     clamp_offsets,
     interpolate_on_triangles,
     restrain,
     restraint_basis,
 )
-from qifreport.registration.sheet_solid import sheet_solid
+from qifreport.registration.restraint.sheet_solid import sheet_solid
 from tests.test_metrology import grid_mesh
 
 PP = MATERIALS["pp"]

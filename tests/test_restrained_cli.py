@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from qifreport.registration.elastic import Material, elastic_model
 from qifreport.registration.mesh import load_mesh, vertex_normals
-from qifreport.registration.sheet_solid import sheet_solid
+from qifreport.registration.restraint.elastic import Material, elastic_model
+from qifreport.registration.restraint.sheet_solid import sheet_solid
 from qifreport.simulate.defects import gaussian_bump
 from qifreport.simulate.physical import elastic_free_state
 from qifreport.simulate.shapes import rim_clamps, thin_shell

@@ -4,14 +4,16 @@ bending the nominal into, FAILs where it is once the part is restrained by its c
 elasticity; the same part without the dent PASSes restrained.
 
 The shell (:func:`qifreport.simulate.shapes.thin_shell`, 3 mm grid; its elastic model on a
-6 mm grid of the same shell, as a 2 mm PP sheet, :mod:`qifreport.registration.sheet_solid`),
+6 mm grid of the same shell, as a 2 mm PP sheet,
+:mod:`qifreport.registration.restraint.sheet_solid`),
 four clamps along the normal near its corners
 and two in-plane pins. Its free state: two corners lifted (+2 mm, -1 mm) and the part
 bending elastically (the model's own solution: a restrainable warp; the physical benchmark
 of issue 21 uses another model), the dent pressed into it (no elasticity made it), scanned
 as 40,000 points with 10 um noise. The product's own
 :func:`qifreport.metrology.inspection.inspect` with ``fixture="restrained"`` (the part's
-restraint basis, :func:`qifreport.registration.restrained.restraint_basis`) holds it at its
+restraint basis, :func:`qifreport.registration.restraint.restrained.restraint_basis`) holds it at
+its
 clamps and judges it against a +/-0.3 mm profile, as a fixtured CMM report would.
 """
 
@@ -22,11 +24,11 @@ import pytest
 
 from qifreport.metrology.inspection import inspect
 from qifreport.metrology.params import InspectionParams
-from qifreport.registration.clamps import Clamp
-from qifreport.registration.elastic import MATERIALS, Pad, elastic_model
 from qifreport.registration.mesh import vertex_normals
-from qifreport.registration.restrained import restraint_basis
-from qifreport.registration.sheet_solid import sheet_solid
+from qifreport.registration.restraint.clamps import Clamp
+from qifreport.registration.restraint.elastic import MATERIALS, Pad, elastic_model
+from qifreport.registration.restraint.restrained import restraint_basis
+from qifreport.registration.restraint.sheet_solid import sheet_solid
 from qifreport.simulate.defects import gaussian_bump
 from qifreport.simulate.shapes import thin_shell
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.registration.deformable import orient_scan_normals
+from qifreport.registration.deformable.result import orient_scan_normals
 from qifreport.registration.mesh import vertex_normals
 from qifreport.registration.normals import (
     SIDE_KNOWN,

@@ -493,8 +493,8 @@ STATUS_QIF = {
 def _feature_results(path: Path, run: dict, serial: str) -> Path:
     """A results document with the feature characteristics of ``FEATURES`` measured as
     ``run`` says, written with the product's builders."""
-    from qifreport.metrology.characteristics import CharacteristicResult as Measured
-    from qifreport.metrology.characteristics import CharacteristicSpec
+    from qifreport.metrology.gdt.characteristics import CharacteristicResult as Measured
+    from qifreport.metrology.gdt.characteristics import CharacteristicSpec
     from qifreport.qif.definitions import Sections
     from qifreport.qif.feature_characteristics import (
         characteristic_definition,

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.bands import lay_bands, zone_vertex_areas
-from qifreport.metrology.hygiene import mesh_hygiene
+from qifreport.metrology.acceptance.bands import lay_bands, zone_vertex_areas
+from qifreport.metrology.deviation.hygiene import mesh_hygiene
 from qifreport.nominal import load_nominal, seat_faces
 from qifreport.step.reader import read_step
 from qifreport.step.supplemental import face_solids
@@ -68,7 +68,7 @@ def test_the_disk_leaves_the_mesh_and_its_tolerance_takes_its_footprint(ctc04):
 def test_a_tolerance_on_a_face_off_the_solid_is_listed_not_dropped():
     """Arrays: a unit square (face 0, the solid), a free square on it (face 1) and one
     5 mm above it (face 2); a zone on each free face."""
-    from qifreport.metrology.bands import ToleranceZone
+    from qifreport.metrology.acceptance.bands import ToleranceZone
 
     sq = np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0]], float)
     grid = np.array([[x, y, 0.0] for y in np.linspace(0, 10, 11) for x in np.linspace(0, 10, 11)])

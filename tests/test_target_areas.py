@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.characteristics import measure_characteristics
-from qifreport.metrology.frames import establish_frame
+from qifreport.metrology.gdt.characteristics import measure_characteristics
+from qifreport.metrology.gdt.frames import establish_frame
 from qifreport.step.semantic import read_pmi_text
 from tests.conftest import shared_file
 from tests.test_characteristics import exact_surface

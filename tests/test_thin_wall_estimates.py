@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from qifreport.metrology.resolution import range_noise
+from qifreport.metrology.acceptance.resolution import range_noise
 
 SIGMA = 0.01  # mm
 

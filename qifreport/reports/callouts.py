@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from qifreport.metrology.acceptance import Region
+from qifreport.metrology.acceptance.criteria import Region
 from qifreport.metrology.inspection import InspectionResult
 
 from .kit import Box, fmt_smm

@@ -157,7 +157,7 @@ def rule_text(res: InspectionResult) -> str:
     )
 
 
-#: the decision rules of :mod:`qifreport.metrology.decision`, as the report states them
+#: the decision rules of :mod:`qifreport.metrology.acceptance.decision`, as the report states them
 _RULE_TEXT = {
     "iso14253": "Decision ISO 14253-1: conformance or non-conformance proven with each "
     "deviation's expanded uncertainty U, otherwise not established",

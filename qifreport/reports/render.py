@@ -544,7 +544,7 @@ def render_views(
     dev : (n,) signed deviation, mm; NaN = unscored (grey).
     lower, upper : scalar or (n,) per-vertex band, mm (the governing zone's band; may be
         asymmetric, ``lower <= 0 <= upper``).
-    regions : out-of-tolerance regions (:class:`qifreport.metrology.acceptance.Region`:
+    regions : out-of-tolerance regions (:class:`qifreport.metrology.acceptance.criteria.Region`:
         ``vertices``, ``centroid``), numbered 1, 2, ... in list order; outlined in every view and
         returned as label anchors (:attr:`RenderedView.labels`) where visible.
     size : picture size ``(width, height)`` in pixels, one for all views or one per view

@@ -15,8 +15,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from qifreport.metrology.acceptance.statistics import DeviationStats
 from qifreport.metrology.inspection import InspectionResult
-from qifreport.metrology.statistics import DeviationStats
 from qifreport.registration.mesh import vertex_areas
 
 from .context import ReportContext

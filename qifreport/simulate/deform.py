@@ -27,7 +27,7 @@ from types import MappingProxyType
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from qifreport.registration.handles import Handles, clamp_handles, pca_frame
+from qifreport.registration.deformable.handles import Handles, clamp_handles, pca_frame
 from qifreport.registration.mesh import (
     bending_operator,
     vertex_areas,
@@ -277,7 +277,8 @@ def elastic_deformation(
     """A free state made of the part's lowest elastic modes (Sections 1.2 and 11).
 
     The nominal, decimated to about ``model_triangles`` triangles and thickened to a wall of
-    ``thickness`` mm (:func:`qifreport.registration.sheet_solid.sheet_solid`; ABS, quadratic
+    ``thickness`` mm (:func:`qifreport.registration.restraint.sheet_solid.sheet_solid`; ABS,
+    quadratic
     tetrahedra), gives its ``n_modes`` lowest non-rigid modes; their mix with coefficients
     ``N(0, 1) / omega`` (equal energy per unit of each mode) is evaluated at ``V`` and scaled
     to a peak displacement ``a``.
@@ -291,8 +292,8 @@ def elastic_deformation(
     -------
     (n, 3) displacement, mm.
     """
-    from qifreport.registration.elastic import MATERIALS, elastic_model, elastic_modes
-    from qifreport.registration.sheet_solid import sheet_solid
+    from qifreport.registration.restraint.elastic import MATERIALS, elastic_model, elastic_modes
+    from qifreport.registration.restraint.sheet_solid import sheet_solid
     from qifreport.restraint import sheet_model_mesh
 
     V = np.asarray(V, dtype=np.float64)

@@ -26,9 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-from qifreport.registration.clamps import Clamp
-from qifreport.registration.elastic import ElasticModel, Pad, elastic_modes
-from qifreport.registration.restrained import clamp_pads
+from qifreport.registration.restraint.clamps import Clamp
+from qifreport.registration.restraint.elastic import ElasticModel, Pad, elastic_modes
+from qifreport.registration.restraint.restrained import clamp_pads
 
 __all__ = [
     "FreeState",

@@ -4,7 +4,8 @@ A compliant part's free state is what its elasticity makes of the loads it saw: 
 supports under gravity, its clamp points were pushed while it cooled or was handled. Such
 a state is, by construction, one a fixture can take back within the forces it needs (a
 plastic defect superimposed on it is not). :func:`elastic_free_state` makes one: the part's
-elastic model (:mod:`qifreport.registration.elastic`) held at its clamps, each displaced by
+elastic model (:mod:`qifreport.registration.restraint.elastic`) held at its clamps, each displaced
+by
 a given amount along its first restrained direction, optionally under its own weight.
 
 The truth of a benchmark must not be the product's own model, or it only measures itself
@@ -20,9 +21,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from qifreport.registration.clamps import Clamp
-from qifreport.registration.elastic import ElasticModel
-from qifreport.registration.restrained import clamp_pads
+from qifreport.registration.restraint.clamps import Clamp
+from qifreport.registration.restraint.elastic import ElasticModel
+from qifreport.registration.restraint.restrained import clamp_pads
 
 __all__ = ["elastic_free_state"]
 

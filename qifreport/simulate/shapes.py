@@ -188,10 +188,10 @@ def rim_clamps(
 
     Returns
     -------
-    clamps : list of :class:`qifreport.registration.clamps.Clamp`.
+    clamps : list of :class:`qifreport.registration.restraint.clamps.Clamp`.
     normals : (6, 3) the unit normals ``N`` (n, 3) at them.
     """
-    from qifreport.registration.clamps import Clamp
+    from qifreport.registration.restraint.clamps import Clamp
 
     lo, hi = V[:, :2].min(axis=0) + inset, V[:, :2].max(axis=0) - inset
     spots = [

@@ -1,0 +1,250 @@
+"""A feature characteristic to measure (:class:`CharacteristicSpec`), its measurement
+(:class:`CharacteristicResult`) and what every measurement of one shares: the judgement of a
+value against its limits, the expanded uncertainty of a zone width or a fitted parameter,
+the reading's text.
+
+Lengths mm, angles degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from qifreport.metrology.acceptance.decision import decide
+from qifreport.metrology.gdt.frames import DatumFrameResult
+from qifreport.metrology.gdt.measured_surface import FeatureSample
+
+__all__ = [
+    "CharacteristicResult",
+    "CharacteristicSpec",
+    "Unmeasurable",
+    "faces_text",
+    "fit_uncertainty",
+    "judge",
+    "not_measured",
+    "reading_text",
+    "zone_uncertainty",
+]
+
+
+@dataclass
+class CharacteristicSpec:
+    """One PMI item to measure.
+
+    Attributes
+    ----------
+    key : ``'G<k>'`` (geometric tolerance) or ``'D<k>'`` (dimension), file order.
+    kind : the tolerance kind (:data:`qifreport.kinds.KINDS`) or ``'dimension'``.
+    name, step_id : the PMI item's name and STEP entity.
+    faces : (k,) mesh face ids of the feature (a location's both ends).
+    tolerance : zone width, mm (geometric).
+    dim_type : the dimension's type (``'diameter'``, ``'linear distance'`` ...).
+    nominal, lower_limit, upper_limit : a dimension's nominal and limits (mm or deg).
+    unit : ``'mm'`` or ``'deg'``.
+    datums : the frame's labels in precedence (``[]``: none).
+    modifiers, zone_form : as read.  basic : a basic or reference dimension.
+    origin_faces, target_faces : a location's two features.
+    problems : why it cannot be measured (found when reading).
+    datum_materials : each datum reference's material boundary as drawn (``'MAXIMUM'``,
+        ``'LEAST'``, ``'NONE'``; same order as ``datums``).
+    unit_basis : a per-unit tolerance's unit as read (``'per unit length 25 mm'``,
+        ``'per rectangular area 6.35 mm x 6.35 mm'``), None for a whole-feature tolerance.
+    composite : ``'upper'`` or ``'lower'`` segment of a composite feature control frame
+        (:func:`qifreport.metrology.acceptance.bands.composite_segment`), ``''`` for none.
+    thread : the supplemental geometry a dimension of a thread is given on (``"'Thread
+        Cylinder.1'"``: a cosmetic thread, its model a tap-drill hole), ``''`` for none.
+    drawn : a location dimension between curves drawn on faces (supplemental geometry,
+        e.g. construction lines), not between the faces.
+    """
+
+    key: str
+    kind: str
+    name: str
+    step_id: int | None
+    faces: np.ndarray
+    tolerance: float | None = None
+    dim_type: str = ""
+    nominal: float | None = None
+    lower_limit: float | None = None
+    upper_limit: float | None = None
+    unit: str = "mm"
+    datums: list[str] = field(default_factory=list)
+    modifiers: list[str] = field(default_factory=list)
+    zone_form: str | None = None
+    basic: bool = False
+    origin_faces: np.ndarray | None = None
+    target_faces: np.ndarray | None = None
+    problems: list[str] = field(default_factory=list)
+    datum_materials: list[str] = field(default_factory=list)
+    unit_basis: str | None = None
+    composite: str = ""
+    thread: str = ""
+    drawn: bool = False
+
+    @property
+    def free_state(self) -> bool:
+        return "free_state" in self.modifiers
+
+    def limits_text(self) -> str:
+        if self.kind != "dimension":
+            return f"{self.tolerance:g} mm" if self.tolerance is not None else "?"
+        lo, hi = self.lower_limit, self.upper_limit
+        if lo is None and hi is None:
+            return "basic" if self.basic else "no limits"
+        return f"{_fmt(lo)} .. {_fmt(hi)} {self.unit}"
+
+
+@dataclass
+class CharacteristicResult:
+    """One characteristic measured.
+
+    Attributes
+    ----------
+    spec : what was measured.
+    value : the measured value (mm or deg; a tolerance's zone width, a dimension's size),
+        None when not measured.
+    least_squares : the least-squares reading beside a minimum zone (form), else None.
+    uncertainty : expanded uncertainty of ``value`` (k = 2).
+    status : ``'PASS'``, ``'FAIL'``, ``'INDETERMINATE'``, ``'NOT_MEASURED'``, ``'BASIC'``.
+    reason : why not measured, or how it failed.
+    reading : how it was measured (``'minimum zone, 1,204 vertices, frame |A|B|C|'`` ...).
+    n_points : points used.  coverage : share of the feature's vertices measured.
+    bonus : MMC/LMC bonus added to the tolerance, mm.
+    direction : (3,) the feature's nominal normal or axis where a report needs it (a line
+        profile's QIF ``Vector``), else None.
+    """
+
+    spec: CharacteristicSpec
+    value: float | None = None
+    least_squares: float | None = None
+    uncertainty: float | None = None
+    status: str = "NOT_MEASURED"
+    reason: str = ""
+    reading: str = ""
+    n_points: int = 0
+    coverage: float | None = None
+    bonus: float = 0.0
+    direction: np.ndarray | None = None
+
+    @property
+    def limit(self) -> float | None:
+        """The upper limit the value is judged against (tolerance + bonus), mm."""
+        if self.spec.kind == "dimension":
+            return self.spec.upper_limit
+        return None if self.spec.tolerance is None else self.spec.tolerance + self.bonus
+
+    def to_dict(self) -> dict:
+        s = self.spec
+        return {
+            "key": s.key,
+            "kind": s.kind if s.kind != "dimension" else f"dimension ({s.dim_type})",
+            "name": s.name,
+            "step_id": s.step_id,
+            "faces": [int(f) for f in s.faces],
+            "datums": list(s.datums),
+            "datum_materials": list(s.datum_materials) or ["NONE"] * len(s.datums),
+            "modifiers": list(s.modifiers),
+            "composite": s.composite,
+            "tolerance_mm": s.tolerance,
+            "nominal": s.nominal,
+            "lower_limit": s.lower_limit,
+            "upper_limit": s.upper_limit,
+            "unit": s.unit,
+            "value": _num(self.value),
+            "least_squares": _num(self.least_squares),
+            "uncertainty": _num(self.uncertainty),
+            "bonus_mm": self.bonus,
+            "status": self.status,
+            "reason": self.reason,
+            "reading": self.reading,
+            "n_points": self.n_points,
+            "coverage": _num(self.coverage),
+        }
+
+
+def _num(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _fmt(x: float | None) -> str:
+    return "-" if x is None else f"{x:g}"
+
+
+def not_measured(spec: CharacteristicSpec, reason: str) -> CharacteristicResult:
+    """``spec`` not measured, ``reason`` saying why."""
+    return CharacteristicResult(spec, status="NOT_MEASURED", reason=reason)
+
+
+def faces_text(faces) -> str:
+    """Face ids as a reading names them (``"12 13"``)."""
+    return " ".join(str(int(f)) for f in faces)
+
+
+class Unmeasurable(ValueError):
+    """The characteristic cannot be measured on this feature (the message says why)."""
+
+
+def reading_text(how: str, sample: FeatureSample, frame: DatumFrameResult | None) -> str:
+    """How a feature was read: ``how``, its points, the frame (and what it leaves free)."""
+    text = f"{how}; {len(sample.S)} {sample.source}"
+    if frame is not None:
+        text += f"; in |{'|'.join(frame.labels)}|"
+        if frame.free:
+            text += " (best fit: " + ", ".join(frame.free) + ")"
+    return text
+
+
+def judge(res: CharacteristicResult, rule: str, lo: float | None, hi: float | None) -> None:
+    """Set ``res.status`` from its value, uncertainty and limits ``[lo, hi]`` (None: open)."""
+    v, U = res.value, res.uncertainty or 0.0
+    lo_ = -math.inf if lo is None else lo
+    hi_ = math.inf if hi is None else hi
+    passed = lo_ <= v <= hi_
+    proven_in = lo_ + U <= v <= hi_ - U
+    proven_out = v < lo_ - U or v > hi_ + U
+    status = decide(rule, passed, proven_in, proven_out)
+    res.status = "INDETERMINATE" if status == "UNCERTAIN" else status
+    if res.status == "FAIL":
+        if lo is None:
+            res.reason = f"{v:.4g} > {hi:g}"
+        elif hi is None or v < lo:
+            res.reason = f"{v:.4g} < {lo:g}" if v < lo else f"{v:.4g} > {hi:g}"
+        else:
+            res.reason = f"{v:.4g} > {hi:g}"
+
+
+def zone_uncertainty(residuals: np.ndarray, U: np.ndarray) -> float:
+    """Expanded uncertainty (mm) of a zone width: its two extremes' in quadrature.
+
+    ``residuals`` (m,) mm: the points' signed distances from the fitted feature; ``U`` (m,)
+    mm: each point's expanded uncertainty (k = 2).
+
+    Each extreme's U is that of the points near it, weighted by how near: ``w = 1 - d / h``
+    for a point ``d`` below the extreme (mm), ``h`` the median U, none beyond ``h``. A
+    point that stands out by more than ``h`` gives its own U, as before. Where several points
+    nearly tie, which one is the extreme is itself within the measurement's uncertainty, and
+    the zone's U is their weighted U: a continuous function of the residuals. (The extreme
+    point's U alone jumped by a third when round-off, a 1e-13 mm change of the fit, picked
+    the other of two tied points of the sample panel's flatness G2.)
+    """
+    r = np.asarray(residuals, dtype=np.float64)
+    U = np.asarray(U, dtype=np.float64)
+    h = float(np.median(U))
+    if not h > 0.0:
+        return float(np.hypot(U[np.argmax(r)], U[np.argmin(r)]))
+
+    def side(d: np.ndarray) -> float:
+        w = np.clip(1.0 - d / h, 0.0, None)
+        return float(w @ U / w.sum())
+
+    return float(np.hypot(side(r.max() - r), side(r - r.min())))
+
+
+def fit_uncertainty(U: np.ndarray, n_params: int = 1) -> float:
+    """Expanded uncertainty of a fitted parameter from ``len(U)`` values; neighbouring
+    vertices share scan points, so a quarter of them count as independent."""
+    n_eff = max(len(U) / 4.0, float(n_params))
+    return float(np.median(U)) / math.sqrt(n_eff)

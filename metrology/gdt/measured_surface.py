@@ -1,0 +1,199 @@
+"""The part's measured surface as its features are judged on it: per B-rep face, in the
+nominal frame, with the virtual fixture's displacement taken out.
+
+Two samplings of one surface:
+
+* the **vertices** of the nominal mesh moved along their outward normal by their measured
+  deviation (each a robust local fit of the scan points around it: a filtered surface, the
+  one the profile zones are judged on, with its expanded uncertainty ``U``);
+* the **scan points** themselves, carried back through the fixture's displacement at their
+  closest point, with the B-rep face each lies on (raw: used where a face is narrower than
+  the unscored band along its edges, and for datum targets).
+
+A face set's own vertices are those whose every triangle belongs to the set (a vertex on
+an edge to another face is that face's too, and its deviation mixes both); its nominal
+geometry is read from the triangles' corners with the B-rep's exact normals.
+
+Lengths mm; ``V`` (n, 3), ``F`` (f, 3), ``P`` (m, 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from qifreport.metrology.gdt.datums import DatumFeature, nominal_feature
+from qifreport.registration.arrays import unique_sorted
+
+__all__ = ["FeatureSample", "MeasuredSurface"]
+
+#: fewest measured vertices for a feature to be judged on its vertices (else its points)
+MIN_VERTICES = 12
+
+
+@dataclass
+class FeatureSample:
+    """One feature's measured surface.
+
+    Attributes
+    ----------
+    S : (k, 3) measured positions in the nominal frame, mm.
+    U : (k,) their expanded uncertainty (k = 2), mm.
+    source : ``'vertices'`` or ``'scan points'``.
+    coverage : share of the feature's own vertices measured (None for scan points).
+    nominal : the feature's nominal plane or cylinder (None: another surface).
+    """
+
+    S: np.ndarray
+    U: np.ndarray
+    source: str
+    coverage: float | None
+    nominal: DatumFeature | None
+
+
+@dataclass
+class MeasuredSurface:
+    """The compliance-removed measured surface of a B-rep part (module docstring).
+
+    Attributes
+    ----------
+    V, F : nominal mesh, mm.  face_id : (f,) B-rep face of each triangle (mesh face ids).
+    corner_normals : (f, 3, 3) the B-rep's outward unit normals at each triangle's corners.
+    dev : (n,) measured deviation of each vertex along its normal, mm (NaN: not scored).
+    U : (n,) its expanded uncertainty, mm.
+    P : (m, 3) scan points carried back into the nominal frame, mm.
+    P_face : (m,) the mesh face each point lies on (-1: none).
+    P_dev : (m,) each point's signed deviation, mm.  P_U : (m,) its expanded uncertainty.
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    face_id: np.ndarray
+    corner_normals: np.ndarray
+    dev: np.ndarray
+    U: np.ndarray
+    P: np.ndarray
+    P_face: np.ndarray
+    P_dev: np.ndarray
+    P_U: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.V)
+        self._valence = np.bincount(self.F.ravel(), minlength=n)
+        N = np.zeros((n, 3))
+        for k in range(3):
+            np.add.at(N, self.F[:, k], self.corner_normals[:, k])
+        self.N = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+        self._nominal: dict[tuple[int, ...], DatumFeature | None] = {}
+        self._samples: dict[tuple, FeatureSample] = {}
+
+    def own_vertices(self, faces) -> np.ndarray:
+        """Vertex ids whose every triangle lies on ``faces`` (mesh face ids)."""
+        tri = np.isin(self.face_id, np.asarray(list(faces), dtype=np.int64))
+        inside = np.bincount(self.F[tri].ravel(), minlength=len(self.V))
+        return np.flatnonzero((inside > 0) & (inside == self._valence))
+
+    def nominal(self, faces, label: str = "") -> DatumFeature | None:
+        """The nominal plane or cylinder of ``faces`` (None: neither, or no triangle)."""
+        key = tuple(sorted(int(f) for f in faces))
+        if key not in self._nominal:
+            tri = np.flatnonzero(np.isin(self.face_id, np.asarray(key, dtype=np.int64)))
+            feat = None
+            if len(tri):
+                X = self.V[self.F[tri]].reshape(-1, 3)
+                Nc = self.corner_normals[tri].reshape(-1, 3)
+                # a cone's apex has no normal (the B-rep's is NaN there: a drill point)
+                ok = np.isfinite(Nc).all(axis=1) & (np.linalg.norm(Nc, axis=1) > 0.5)
+                X, Nc = X[ok], Nc[ok]
+                try:
+                    feat = nominal_feature(label, X, Nc)
+                except ValueError:
+                    feat = None
+            self._nominal[key] = feat
+        return self._nominal[key]
+
+    def features(self, faces) -> list[np.ndarray]:
+        """``faces`` split into single features: coplanar planes together, coaxial
+        cylinders of one radius together (a hole split into two half faces), any other face
+        alone; a pattern of holes or bosses gives one feature per member. File order of
+        the first face of each."""
+        diag = max(float(np.linalg.norm(np.ptp(self.V, axis=0))), 1.0)
+        tol = max(1e-4 * diag, 1e-3)
+        groups: list[tuple[list[int], DatumFeature | None]] = []
+        for f in faces:
+            g = self.nominal([int(f)])
+            for members, h in groups:
+                if g is not None and h is not None and _same_feature(g, h, tol):
+                    members.append(int(f))
+                    break
+            else:
+                groups.append(([int(f)], g))
+        return [np.array(m, dtype=np.int64) for m, _ in groups]
+
+    def sample(self, faces, label: str = "") -> FeatureSample:
+        """The measured surface of ``faces``: their own vertices when enough were scored
+        (:data:`MIN_VERTICES`), else the scan points on them (kept: asked again, the same
+        object)."""
+        key = (tuple(sorted(int(f) for f in faces)), label)
+        if key not in self._samples:
+            self._samples[key] = self._sample(faces, label)
+        return self._samples[key]
+
+    def _sample(self, faces, label: str) -> FeatureSample:
+        own = self.own_vertices(faces)
+        ok = own[np.isfinite(self.dev[own])]
+        nominal = self.nominal(faces, label)
+        if len(ok) >= MIN_VERTICES:
+            S = self.V[ok] + self.dev[ok, None] * self.N[ok]
+            return FeatureSample(S, self.U[ok], "vertices", len(ok) / len(own), nominal)
+        on = np.isin(self.P_face, np.asarray(list(faces), dtype=np.int64))
+        return FeatureSample(self.P[on], self.P_U[on], "scan points", None, nominal)
+
+    def vertex_deviation_near(
+        self, faces, position: np.ndarray, radius: float, k: int
+    ) -> np.ndarray:
+        """Deviations of the ``k`` measured vertices of ``faces`` (any of their triangles)
+        nearest ``position``, those within ``radius`` mm of it."""
+        tri = np.isin(self.face_id, np.asarray(list(faces), dtype=np.int64))
+        v = unique_sorted(self.F[tri])
+        v = v[np.isfinite(self.dev[v])]
+        d = np.linalg.norm(self.V[v] - np.asarray(position, dtype=np.float64), axis=1)
+        near = np.argsort(d)[:k]
+        return self.dev[v[near]][d[near] <= radius]
+
+    def point_deviation_near(self, faces, position: np.ndarray, radius: float) -> np.ndarray:
+        """Deviations (k,) of the scan points on ``faces`` within ``radius`` mm of
+        ``position`` (nominal frame)."""
+        on = np.isin(self.P_face, np.asarray(list(faces), dtype=np.int64))
+        d = np.linalg.norm(self.P[on] - np.asarray(position, dtype=np.float64), axis=1)
+        return self.P_dev[on][d <= radius]
+
+
+def _same_feature(g: DatumFeature, h: DatumFeature, tol: float) -> bool:
+    """Two faces' geometries are one feature: coplanar planes (same side), or coaxial
+    cylinders of one radius on the same side of the material (``tol`` mm)."""
+    if g.kind != h.kind:
+        return False
+    if g.kind == "plane":
+        return bool(
+            g.direction @ h.direction > 1 - 1e-6 and abs((h.origin - g.origin) @ g.direction) < tol
+        )
+    if g.kind == "sphere":
+        return bool(
+            np.linalg.norm(g.origin - h.origin) < tol
+            and abs(g.radius - h.radius) < tol
+            and g.internal == h.internal
+        )
+    if g.kind == "cone":
+        return bool(
+            g.direction @ h.direction > 1 - 1e-6
+            and np.linalg.norm(g.origin - h.origin) < tol
+            and abs(g.half_angle - h.half_angle) < 1e-4
+            and g.internal == h.internal
+        )
+    if abs(g.direction @ h.direction) < 1 - 1e-6 or g.internal != h.internal:
+        return False
+    d = h.origin - g.origin
+    across = d - (d @ g.direction) * g.direction
+    return bool(np.linalg.norm(across) < tol and abs(g.radius - h.radius) < tol)
