@@ -106,7 +106,7 @@ class PartSetup:
 
 
 def _clamp_normals(V, F, clamps):
-    from qifreport.metrology.deviation.signed import closest_points
+    from qifreport.metrology.deviation.closest import closest_points
     from qifreport.registration.mesh import face_normals
 
     _, tri, _ = closest_points(V, F, np.array([c.position for c in clamps]))

@@ -60,18 +60,14 @@ from qifreport.metrology.acceptance.decision import vertex_uncertainty
 from qifreport.metrology.acceptance.point_regions import ScanSamples, SurfacePoints, scan_samples
 from qifreport.metrology.acceptance.resolution import Resolution, range_noise, resolution
 from qifreport.metrology.acceptance.statistics import DeviationStats, deviation_statistics
-from qifreport.metrology.deviation.edges import EdgeDeviation, edge_deviation
+from qifreport.metrology.deviation.closest import beyond_rim, closest_points
+from qifreport.metrology.deviation.edge_statistics import EdgeDeviation
+from qifreport.metrology.deviation.edges import edge_deviation
 from qifreport.metrology.deviation.hygiene import MeshHygiene
-from qifreport.metrology.deviation.signed import (
-    beyond_rim,
-    closest_points,
-    follow_triangles,
-    nominal_referenced,
-    point_faces,
-    residual_referenced,
-    surface_distance,
-)
+from qifreport.metrology.deviation.local_planes import nominal_referenced
+from qifreport.metrology.deviation.residual_fit import residual_referenced
 from qifreport.metrology.deviation.size import SizeEstimate, size_error
+from qifreport.metrology.deviation.surface import follow_triangles, point_faces, surface_distance
 from qifreport.metrology.gdt.characteristics import (
     CharacteristicPlan,
     CharacteristicResult,

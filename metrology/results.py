@@ -20,7 +20,7 @@ from qifreport.metrology.acceptance.criteria import DEFAULT_MAX_REGION_AREA, Acc
 from qifreport.metrology.acceptance.repeatability import Repeatability
 from qifreport.metrology.acceptance.resolution import Resolution
 from qifreport.metrology.acceptance.statistics import DeviationStats
-from qifreport.metrology.deviation.edges import EdgeDeviation
+from qifreport.metrology.deviation.edge_statistics import EdgeDeviation
 from qifreport.metrology.deviation.hygiene import MeshHygiene
 from qifreport.metrology.deviation.size import SizeEstimate
 from qifreport.metrology.gdt.characteristics import CharacteristicResult

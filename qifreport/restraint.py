@@ -166,7 +166,7 @@ def _closest_normals(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Distances (c,) of ``points`` (c, 3) to the mesh and the unit normals (c, 3) of the
     triangles closest to them."""
-    from qifreport.metrology.deviation.signed import closest_points
+    from qifreport.metrology.deviation.closest import closest_points
 
     C, tri, _ = closest_points(V, F, points)
     return np.linalg.norm(points - C, axis=1), face_normals(V, F)[tri]
@@ -436,7 +436,7 @@ def clamp_rows(part, clamps: tuple[Clamp, ...]) -> list[dict]:
     index, the B-rep face it sits on), face_step_id, datum (the datum whose feature holds that
     face, or ""), off_surface_mm (its distance from the part's surface).
     """
-    from qifreport.metrology.deviation.signed import closest_points
+    from qifreport.metrology.deviation.closest import closest_points
     from qifreport.step.tessellate import tessellate
 
     m = tessellate(part.shape, part.faces)

@@ -120,7 +120,7 @@ def panel_warped_scan(step_path: Path, clamps_path: Path) -> np.ndarray:
     tets = gmsh_solid_mesh(part.shape, TRUTH_EDGE_SHARE * diag)
     model = elastic_model(tets.X, tets.T, Material("truth", 2300.0, TRUTH_NU, 1.05e-9))
     clamps = parse_clamps(clamps_path.read_text(encoding="utf-8"))
-    from qifreport.metrology.deviation.signed import closest_points
+    from qifreport.metrology.deviation.closest import closest_points
 
     pos = np.array([c.position for c in clamps])
     _, tri, _ = closest_points(V, F, pos)

@@ -3,7 +3,7 @@
 The deviation of a scan point from a curved face is its distance to the triangle it falls
 on less the triangle's chord height there; the chord height is read from a quadratic patch
 through the corners with the corners' normals
-(:func:`qifreport.metrology.deviation.signed.curved_offset`). Normals averaged from the mesh's
+(:func:`qifreport.metrology.deviation.surface.curved_offset`). Normals averaged from the mesh's
 own triangles are wrong where a face has few triangles across: at the edge of a fillet
 meshed with three segments per quarter turn a corner's averaged normal is off by half a
 segment (15 degrees), and a perfect scan of NIST CTC 02 read up to 0.28 mm off its fillets

@@ -1,6 +1,6 @@
 """The B-rep's exact normals at the triangle corners (:mod:`qifreport.step.normals`) and the
 scan points' distance to the curved surface read with them
-(:func:`qifreport.metrology.deviation.signed.surface_distance`).
+(:func:`qifreport.metrology.deviation.surface.surface_distance`).
 
 A 20 mm cube with its four vertical edges filleted (R 4 mm), meshed coarsely by gmsh (5 mm
 edges, 0.5 mm chord height, 46 degrees a segment: two per quarter turn), and a perfect scan
@@ -9,7 +9,7 @@ noise): its points lie on the surface, so their distances must read 0. With the 
 corner normals the fillets' points read tens of micrometres (a corner normal averaged from
 one side only is off by half a segment); with the B-rep's they read under 5 um. Also: the
 normals turned with a rigidly moved mesh
-(:func:`qifreport.metrology.deviation.signed.follow_triangles`) are the moved normals.
+(:func:`qifreport.metrology.deviation.surface.follow_triangles`) are the moved normals.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.deviation.signed import (
-    closest_points,
+from qifreport.metrology.deviation.closest import closest_points
+from qifreport.metrology.deviation.surface import (
     corner_normals,
     follow_triangles,
     point_faces,

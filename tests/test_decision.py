@@ -2,8 +2,8 @@
 :mod:`qifreport.metrology.acceptance.decision`,
 :func:`qifreport.metrology.acceptance.criteria.evaluate` with an
 uncertainty, and the variance of each vertex's measured deviation
-(:func:`qifreport.metrology.deviation.signed.nominal_referenced`,
-:func:`~qifreport.metrology.deviation.signed.residual_referenced`).
+(:func:`qifreport.metrology.deviation.local_planes.nominal_referenced`,
+:func:`~qifreport.metrology.deviation.residual_fit.residual_referenced`).
 
 A surface on a zone limit (NIST CTC 02's zones ``2.5 UZ 0`` put a perfect face on it) is the
 case: simple acceptance fails it on noise, ISO 14253-1 proves neither; a defect beyond the
@@ -17,7 +17,8 @@ import pytest
 
 from qifreport.metrology.acceptance.criteria import evaluate
 from qifreport.metrology.acceptance.decision import DECISION_RULES, decide, vertex_uncertainty
-from qifreport.metrology.deviation.signed import nominal_referenced, residual_referenced
+from qifreport.metrology.deviation.local_planes import nominal_referenced
+from qifreport.metrology.deviation.residual_fit import residual_referenced
 from tests.test_metrology import grid_mesh
 
 SIGMA = 0.003  # mm, each vertex's deviation standard uncertainty in the synthetic fields

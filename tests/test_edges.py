@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from qifreport.metrology.deviation.edges import edge_deviation, rim_frames
+from qifreport.metrology.deviation.edges import edge_deviation
+from qifreport.metrology.deviation.rim import rim_frames
 from qifreport.metrology.deviation.size import size_error
 from qifreport.metrology.inspection import InspectionParams, inspect
 from qifreport.metrology.prepared import prepare_part

@@ -18,7 +18,8 @@ from qifreport.metrology.acceptance.criteria import (
     scan_area,
 )
 from qifreport.metrology.acceptance.statistics import deviation_statistics, tail_fractions
-from qifreport.metrology.deviation.signed import closest_points, data_referenced, nominal_referenced
+from qifreport.metrology.deviation.closest import closest_points, data_referenced
+from qifreport.metrology.deviation.local_planes import nominal_referenced
 from qifreport.registration.mesh import vertex_areas
 
 

@@ -5,8 +5,8 @@ reported once.
 
 A 100 x 100 mm plate meshed with 8 mm edges (its vertices' deviation is fitted over a
 12 mm ball) under a scan at 0.7 mm spacing with 10 um noise, the deviation measured by
-the product's own functions (:func:`qifreport.metrology.deviation.signed.closest_points`,
-:func:`~qifreport.metrology.deviation.signed.nominal_referenced`).
+the product's own functions (:func:`qifreport.metrology.deviation.closest.closest_points`,
+:func:`~qifreport.metrology.deviation.local_planes.nominal_referenced`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ import pytest
 
 from qifreport.metrology.acceptance.criteria import Region, evaluate
 from qifreport.metrology.acceptance.point_regions import SurfacePoints, scan_samples
-from qifreport.metrology.deviation.signed import closest_points, nominal_referenced
+from qifreport.metrology.deviation.closest import closest_points
+from qifreport.metrology.deviation.local_planes import nominal_referenced
 from tests.test_metrology import grid_mesh
 
 NOISE = 0.01  # mm

@@ -1,6 +1,7 @@
 """The face-aware, curvature-corrected vertex deviation of CAD nominals (issue 20).
 
-Functions of :mod:`qifreport.metrology.deviation.signed` on an analytic part: no CLI, no OCP.
+Functions of :mod:`qifreport.metrology.deviation.residual_fit` and its neighbours on an
+analytic part: no CLI, no OCP.
 
 On a coarse cylinder (chord sag 0.2 mm) points exactly on the curved surface must read as on
 it: :func:`curved_offset` takes each triangle's chord height off the distance to the flat
@@ -12,13 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from qifreport.metrology.deviation.signed import (
-    closest_points,
-    corner_normals,
-    curved_offset,
-    nominal_referenced,
-    residual_referenced,
-)
+from qifreport.metrology.deviation.closest import closest_points
+from qifreport.metrology.deviation.local_planes import nominal_referenced
+from qifreport.metrology.deviation.residual_fit import residual_referenced
+from qifreport.metrology.deviation.surface import corner_normals, curved_offset
 from qifreport.registration.mesh import vertex_normals
 
 R, H, K = 20.0, 40.0, 24  # radius, height (mm), segments: sag R (1 - cos(pi / K)) = 0.17 mm
@@ -80,7 +78,7 @@ def test_residual_referenced_reads_an_offset_where_a_plane_fit_is_biased():
 def test_residual_referenced_in_blocks_of_vertices_is_the_same(monkeypatch):
     """A large part's vertices are fitted in blocks (the ball search's pairs stay bounded):
     every number equals the one-block fit's, bit for bit."""
-    import qifreport.metrology.deviation.signed as deviation
+    import qifreport.metrology.deviation.residual_fit as deviation
 
     V, F = _cylinder()
     lab = np.zeros(len(F), dtype=np.int64)

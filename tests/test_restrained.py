@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.deviation.signed import closest_points
+from qifreport.metrology.deviation.closest import closest_points
 from qifreport.registration.restraint.clamps import Clamp
 from qifreport.registration.restraint.elastic import MATERIALS, Pad, elastic_model
 from qifreport.registration.restraint.restrained import (

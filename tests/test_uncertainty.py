@@ -56,7 +56,7 @@ def test_propagated_noise_matches_direct_measurement(small_shell):
     est = L.local_plane_noise(case.P)
     truth = L.true_normal_noise(case, NOISE)
     assert abs(est.sigma - truth) < 0.15 * truth
-    from qifreport.metrology.deviation.signed import nominal_referenced
+    from qifreport.metrology.deviation.local_planes import nominal_referenced
 
     interior = np.flatnonzero(np.isfinite(nominal_referenced(V, F, case.P)))
     prop = L.propagate_noise(truth, V, F, case.P, vertices=interior)

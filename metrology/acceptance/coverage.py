@@ -334,7 +334,8 @@ def unseen_neighbour_edges(F: np.ndarray, face_id: np.ndarray, dev: np.ndarray) 
     """(n,) bool: the vertices on a B-rep face boundary left unscored beside scored ones.
 
     The face-aware measure scores a vertex shared by several B-rep faces only when every one
-    of them was seen (:func:`~qifreport.metrology.deviation.signed.residual_referenced`): along the
+    of them was seen
+    (:func:`~qifreport.metrology.deviation.residual_fit.residual_referenced`): along the
     edge of a seen face with an unseen one its boundary vertices stay unscored, by design, not
     for want of data on the seen face. They count as excluded (as the crease band of a mesh
     nominal does), not as an unmeasured patch of the seen face; boundary vertices with no

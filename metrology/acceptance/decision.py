@@ -42,7 +42,7 @@ measured it: the scatter of its ``N`` scan points about that fit (pooled with th
 scatter of its B-rep face, or of the part for a mesh nominal, so a vertex of few points is
 not trusted on their word alone) over ``N``,
 more at a scan edge where the fit extrapolates
-(:func:`qifreport.metrology.deviation.signed.residual_referenced`). It is the random (type A)
+(:func:`qifreport.metrology.deviation.residual_fit.residual_referenced`). It is the random (type A)
 part of the uncertainty; a scanner's own systematic error is not in it
 and can be added with ``--scanner-uncertainty`` (its expanded value, mm, combined in
 quadrature).
@@ -98,7 +98,8 @@ def vertex_uncertainty(variance: np.ndarray, systematic: float | np.ndarray = 0.
     ----------
     variance : (n,) mm^2, the variance of each vertex's deviation from the scatter of the
         scan points it was fitted to (NaN where unscored;
-        :func:`qifreport.metrology.deviation.signed.residual_referenced` with ``variance=True``).
+        :func:`qifreport.metrology.deviation.residual_fit.residual_referenced` with
+        ``variance=True``).
     systematic : an expanded uncertainty common to every vertex, mm (a scanner's stated
         accuracy), or one per vertex (n,) (with a restrained hold's model uncertainty),
         combined in quadrature.

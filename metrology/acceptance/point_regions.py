@@ -1,12 +1,12 @@
 """The region criterion on the scan points: defects smaller than the nominal's mesh.
 
-The deviation field of :mod:`qifreport.metrology.deviation.signed` lives on the nominal's vertices,
-each fitted to the scan points within about 1.5 mesh edges. A defect narrower than that
-ball is averaged away: on NIST CTC 01 (4 mm edges, a 6 mm ball) a 0.5 mm bump of sigma
-3 mm read 0.19 mm against a +/-0.25 mm zone and PASSed, although 39 mm^2 of the face stood
-more than 0.25 mm proud, beyond the 25 mm^2 region limit. A profile tolerance bounds every
-point of the surface, so the region criterion is also judged where the scan samples the
-surface more finely than the mesh: on the scan points themselves.
+The deviation field of :mod:`qifreport.metrology.deviation.residual_fit` lives on the
+nominal's vertices, each fitted to the scan points within about 1.5 mesh edges. A defect
+narrower than that ball is averaged away: on NIST CTC 01 (4 mm edges, a 6 mm ball) a 0.5 mm
+bump of sigma 3 mm read 0.19 mm against a +/-0.25 mm zone and PASSed, although 39 mm^2 of
+the face stood more than 0.25 mm proud, beyond the 25 mm^2 region limit. A profile tolerance
+bounds every point of the surface, so the region criterion is also judged where the scan
+samples the surface more finely than the mesh: on the scan points themselves.
 
 Each point's value is the median of the signed surface distances (+ outside the material)
 of its ``k`` nearest points on the same B-rep face (noise falls to about 0.42 sigma for

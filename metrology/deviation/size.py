@@ -66,7 +66,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from qifreport.metrology.acceptance.statistics import json_float
-from qifreport.metrology.deviation.edges import EdgeDeviation, EdgeSegment, RimFrames, rim_segments
+from qifreport.metrology.deviation.edge_statistics import EdgeDeviation, EdgeSegment, rim_segments
+from qifreport.metrology.deviation.rim import RimFrames
 
 __all__ = [
     "DEFAULT_FRACTION",

@@ -18,7 +18,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from qifreport.metrology.deviation.signed import closest_points, surface_distance
+from qifreport.metrology.deviation.closest import closest_points
+from qifreport.metrology.deviation.surface import surface_distance
 from qifreport.metrology.restraint.locators import patch_offset
 from qifreport.registration.deformable.result import orient_scan_normals
 from qifreport.registration.icp import robust_scale, tukey_rho, tukey_weights

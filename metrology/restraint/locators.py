@@ -27,7 +27,7 @@ import logging
 import numpy as np
 from scipy.spatial import cKDTree
 
-from qifreport.metrology.deviation.signed import closest_points
+from qifreport.metrology.deviation.closest import closest_points
 from qifreport.registration.restraint.restrained import rigid_motion
 
 __all__ = ["patch_offset"]

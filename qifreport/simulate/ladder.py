@@ -8,7 +8,7 @@ Every contribution is *measured* by running the real inspection chain
    sample spacings) and divided by the square root of the mean number of scan points within
    the deviation's neighbourhood radius (:func:`propagate_noise`), because the nominal-
    referenced deviation of a vertex is a plane fitted to those points
-   (:func:`qifreport.metrology.deviation.signed.nominal_referenced`).
+   (:func:`qifreport.metrology.deviation.local_planes.nominal_referenced`).
 2. **Case A, pipeline minimum error** (:func:`chain_floor`) -- a rigid, defect-free part,
    scanned, posed arbitrarily, written to a PLY file in metres, read back, pose-searched and
    processed end to end. Everything it reports is the chain's own error.
@@ -38,7 +38,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
-from qifreport.metrology.deviation.signed import nominal_referenced
+from qifreport.metrology.deviation.local_planes import nominal_referenced
 from qifreport.metrology.inspection import InspectionParams, InspectionResult, inspect
 from qifreport.registration.mesh import bounding_diagonal, median_edge_length
 from qifreport.registration.pointcloud import load_scan
@@ -255,9 +255,8 @@ def local_plane_noise(
 
 def deviation_radius(V: np.ndarray, F: np.ndarray) -> float:
     """Neighbourhood radius of the nominal-referenced deviation as ``inspect`` calls it
-    (the default of :func:`qifreport.metrology.deviation.signed.nominal_referenced`: 1.5 median
-    edges),
-    mm."""
+    (the default of :func:`qifreport.metrology.deviation.local_planes.nominal_referenced`:
+    1.5 median edges), mm."""
     return 1.5 * median_edge_length(V, F)
 
 
