@@ -42,8 +42,9 @@ import pandas as pd
 from qifreport.metrology.deviation.unscored import unscored_bands
 from qifreport.metrology.inspection import InspectionParams
 from qifreport.registration import methods
+from qifreport.registration.deformable.bending_basis import bending_basis
 from qifreport.registration.deformable.cpd import CPDParams, cpd_warp, resolve_params, sample_points
-from qifreport.registration.deformable.gbcicp import GBCICPParams, bending_basis
+from qifreport.registration.deformable.gbcicp import GBCICPParams
 from qifreport.registration.icp import rigid_icp
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import (

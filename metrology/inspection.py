@@ -36,7 +36,7 @@ from qifreport.metrology.acceptance.bands import (
 from qifreport.metrology.acceptance.criteria import scan_area
 from qifreport.metrology.gdt.characteristics import CharacteristicPlan
 from qifreport.metrology.restraint.held import hold_scan
-from qifreport.registration.deformable.gbcicp import BendingBasis, bending_basis, part_solver
+from qifreport.registration.deformable.bending_basis import BendingBasis, bending_basis, part_solver
 from qifreport.registration.deformable.methods import METHODS, deform, method_spec
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import RigidResult, rigid_icp

@@ -77,7 +77,7 @@ from qifreport.metrology.gdt.characteristics import (
 from qifreport.metrology.gdt.composite import composite_zone_frame
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.metrology.gdt.measured_surface import MeasuredSurface
-from qifreport.registration.deformable.gbcicp import BendingBasis
+from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.deformable.methods import method_spec
 from qifreport.registration.deformable.result import DeformResult, orient_scan_normals
 from qifreport.registration.icp import RigidResult, robust_scale

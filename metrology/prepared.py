@@ -23,7 +23,7 @@ import numpy as np
 
 from qifreport.metrology.deviation.hygiene import MeshHygiene, mesh_hygiene
 from qifreport.metrology.deviation.unscored import unscored_bands
-from qifreport.registration.deformable.gbcicp import BendingBasis, bending_basis
+from qifreport.registration.deformable.bending_basis import BendingBasis, bending_basis
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import MeshOperators, bending_operator, boundary_vertices
 from qifreport.registration.pose.prealign import PreparedModel, prepare_model

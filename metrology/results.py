@@ -25,7 +25,7 @@ from qifreport.metrology.deviation.hygiene import MeshHygiene
 from qifreport.metrology.deviation.size import SizeEstimate
 from qifreport.metrology.gdt.characteristics import CharacteristicResult
 from qifreport.metrology.gdt.frames import DatumFrameResult
-from qifreport.registration.deformable.gbcicp import BendingBasis
+from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.deformable.methods import METHODS, method_spec
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import RigidResult

@@ -103,7 +103,7 @@ log = logging.getLogger(__name__)
 
 #: version of the entry layout, part of every key: an entry written by another layout of
 #: :class:`PartState` (or of anything it holds) is never read; bump it when that changes
-CACHE_FORMAT = 15
+CACHE_FORMAT = 16
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"
@@ -675,7 +675,7 @@ def store_basis(
 ) -> bool:
     """Complete a cache entry built without its bending basis with the ``basis`` an
     inspection's virtual fixture built
-    (:class:`qifreport.registration.deformable.gbcicp.BendingBasis`
+    (:class:`qifreport.registration.deformable.bending_basis.BendingBasis`
     of this part's mesh and settings). True when the entry was rewritten; a cache that
     cannot be written is left as it is (logged)."""
     if (

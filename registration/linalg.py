@@ -119,8 +119,8 @@ class SPDSolver:
         nothing, and its spinning wait takes the core from other work: beside another busy
         process, the fandisk's bending basis (202 solves) is several times slower with every
         pool at two threads than with CHOLMOD's at one, and fastest with all at one, as
-        :func:`~qifreport.registration.deformable.gbcicp.bending_basis` and the command line set; a
-        large factorisation is only slightly slower on one thread."""
+        :func:`~qifreport.registration.deformable.bending_basis.bending_basis` and the command
+        line set; a large factorisation is only slightly slower on one thread."""
         if self._pools is None:
             self._pools = ThreadpoolController()
         return self._pools.limit(limits=1)

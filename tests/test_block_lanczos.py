@@ -1,11 +1,11 @@
 """The bending basis by block shift-invert Lanczos (issue 23).
 
-:func:`qifreport.registration.deformable.block_lanczos.lowest_modes` replaces ARPACK's one-vector
-Lanczos in :func:`~qifreport.registration.deformable.gbcicp.bending_basis`. Its modes are checked
-against LAPACK's dense generalized eigen-decomposition (software we did not write): the
-eigenvalues to 1e-10, the modes (in the canonical basis) to 1e-8 of their largest entry,
-which a Krylov basis missing a Gram-Schmidt sweep, a Rayleigh quotient missing its lower
-blocks or a convergence test that stopped early all miss. The blocks must be real: a
+:func:`qifreport.registration.deformable.block_lanczos.lowest_modes` replaces ARPACK's
+one-vector Lanczos in :func:`~qifreport.registration.deformable.bending_basis.bending_basis`.
+Its modes are checked against LAPACK's dense generalized eigen-decomposition (software we did
+not write): the eigenvalues to 1e-10, the modes (in the canonical basis) to 1e-8 of their
+largest entry, which a Krylov basis missing a Gram-Schmidt sweep, a Rayleigh quotient missing
+its lower blocks or a convergence test that stopped early all miss. The blocks must be real: a
 hundred modes in at most 40 block solves, where ARPACK made 202 single ones.
 """
 
@@ -16,8 +16,12 @@ import pytest
 import scipy.linalg as sla
 import scipy.sparse as sp
 
+from qifreport.registration.deformable.bending_basis import (
+    BASIS_BLOCK,
+    bending_basis,
+    canonical_modes,
+)
 from qifreport.registration.deformable.block_lanczos import lowest_modes
-from qifreport.registration.deformable.gbcicp import BASIS_BLOCK, bending_basis, canonical_modes
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import bending_operator
 from qifreport.simulate.shapes import thin_shell

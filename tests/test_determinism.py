@@ -89,7 +89,7 @@ def _run_pair(commands: list[list[str]], timeout: float = 600) -> None:
 
 
 def _small_basis(k: int = 24):
-    from qifreport.registration.deformable.gbcicp import bending_basis
+    from qifreport.registration.deformable.bending_basis import bending_basis
     from qifreport.registration.mesh import bending_operator
     from qifreport.simulate.shapes import thin_shell
 
@@ -101,7 +101,7 @@ def _small_basis(k: int = 24):
 def test_canonical_modes_undo_signs_and_rotations():
     """The conventions do not depend on what the eigen-solver picked: flipped signs, a
     rotated null space and a rotated degenerate pair come back to the same basis."""
-    from qifreport.registration.deformable.gbcicp import canonical_modes
+    from qifreport.registration.deformable.bending_basis import canonical_modes
 
     ops, B = _small_basis()
     assert B.mu[0] == 0.0 < B.mu[1]  # the constant (this coarse shell has no other null mode)
@@ -129,7 +129,7 @@ def test_bending_basis_is_bit_identical_and_independent_of_the_lanczos_start():
     eigen-solver gives the same modes to the solver's accuracy."""
     import scipy.sparse.linalg as spla
 
-    from qifreport.registration.deformable.gbcicp import canonical_modes
+    from qifreport.registration.deformable.bending_basis import canonical_modes
 
     ops, B = _small_basis()
     _, again = _small_basis()

@@ -14,7 +14,8 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from qifreport.registration.deformable.gbcicp import bending_basis, gbcicp
+from qifreport.registration.deformable.bending_basis import bending_basis
+from qifreport.registration.deformable.gbcicp import gbcicp
 from qifreport.registration.icp import rigid_icp
 from qifreport.registration.linalg import BACKEND_ENV, SPDSolver, default_backend, have_cholmod
 from qifreport.registration.mesh import adjacency, bending_operator
@@ -140,7 +141,7 @@ def test_the_bending_basis_keeps_its_order_for_the_parts_later_solvers(shell):
     """The basis records the fill-reducing order of its factorisation and the backend; the
     part's solver (:func:`part_solver`) takes it with the same backend, and not with the
     other one, nor for another mesh."""
-    from qifreport.registration.deformable.gbcicp import part_solver
+    from qifreport.registration.deformable.bending_basis import part_solver
 
     V, F = shell
     ops = bending_operator(V, F, "hessian")

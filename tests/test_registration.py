@@ -74,7 +74,7 @@ def test_gbcicp_removes_compliance(shell_case, solver):
 def test_bending_basis_is_m_orthonormal_and_diagonalises_q(shell):
     """The per-part modes: Phi^T M Phi = I, Phi^T Q Phi = diag(mu), mu ascending from the
     affine null space (0) upwards."""
-    from qifreport.registration.deformable.gbcicp import bending_basis
+    from qifreport.registration.deformable.bending_basis import bending_basis
 
     V, F = shell
     ops = bending_operator(V, F, "hessian")

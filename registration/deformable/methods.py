@@ -183,9 +183,8 @@ def deform(
     clamps : (k,) vertex indices of the clamps (RBF-FEM's driving points; default: the
         corners of the part's principal rectangle). Ignored by the other methods.
     progress : optional ``progress(n_iterations)`` callback.
-    basis : the part's :class:`qifreport.registration.deformable.gbcicp.BendingBasis` (GB-CICP's
-    per-part
-        precomputation, reused across scans); ignored by the other methods.
+    basis : the part's :class:`qifreport.registration.deformable.bending_basis.BendingBasis`
+        (GB-CICP's per-part precomputation, reused across scans); ignored by the other methods.
     flaggable : (n,) bool, vertices GB-CICP may flag as defect candidates (its multi-pass
         scheme); ignored by the other methods, which flag nothing.
     solver : the :class:`qifreport.registration.linalg.SPDSolver` GB-CICP factorises with (one

@@ -59,7 +59,7 @@ class DeformResult:
     history : per-iteration record.
     method : ``"gbcicp"``, ``"nicp"``, ``"cpd"`` or ``"rbffem"``.
     basis : GB-CICP's bending basis
-    (:class:`qifreport.registration.deformable.gbcicp.BendingBasis`), per-part
+    (:class:`qifreport.registration.deformable.bending_basis.BendingBasis`), per-part
         state to reuse for further scans of the part; None for the other methods.
     """
 
