@@ -29,6 +29,7 @@ import pytest
 from lxml import etree
 
 from qifreport.qif import dmsc as D
+from qifreport.qif import dmsc_report as R
 from qifreport.qif.identities import identity_constraints, norm_value
 from qifreport.qif.lxml_validator import lxml_schema
 from qifreport.qif.validate import (
@@ -341,11 +342,11 @@ def test_dmsc_node_paths_and_rule_names():
         f"<QIFDocument xmlns='{QIF_NS}'>\n<A>\n<B id='1'/>\n<B id='17'>\n<C/>\n</B>\n</A>\n"
         "</QIFDocument>".encode()
     )
-    assert D._node_line(root, "/QIFDocument/A/B[2]{17}/C") == 5
-    assert D._node_line(root, "/QIFDocument/A/B{17}") == 4
-    assert D._node_line(root, "/QIFDocument/A/B") == 3
-    assert D._node_line(root, "/QIFDocument/A/X") is None
-    assert D._node_line(root, "/Other/A") is None
+    assert R._node_line(root, "/QIFDocument/A/B[2]{17}/C") == 5
+    assert R._node_line(root, "/QIFDocument/A/B{17}") == 4
+    assert R._node_line(root, "/QIFDocument/A/B") == 3
+    assert R._node_line(root, "/QIFDocument/A/X") is None
+    assert R._node_line(root, "/Other/A") is None
     examples = {  # reports quoted in CheckDescriptions.md
         'The number of array elements doesn\'t correspond to the specified "n" attribute: '
         "n(3) != nElem(2)": "n-count",
@@ -361,7 +362,7 @@ def test_dmsc_node_paths_and_rule_names():
         "- should refer to faces": "body-form",
     }
     for text, rule in examples.items():
-        assert D._dmsc_rule(text, "CheckFormat") == rule, text
+        assert R._dmsc_rule(text, "CheckFormat") == rule, text
 
 
 # --------------------------------------------------------------------------------------------
