@@ -7,11 +7,8 @@ map act on, and it is structurally blind to added material: no nominal normal pa
 a feature that the nominal does not contain (paper Section 8.4.5). Vertices the scan did not
 observe are left unscored (NaN) rather than given a spurious value.
 
-Sign convention: positive means the scan lies on the outward (+normal) side of the nominal,
-i.e. material stands proud of the nominal surface; negative means it falls short. Outward is
-the direction of the face normals implied by the winding of ``F``.
-
-All arrays are plain numpy: ``V`` (n, 3) float64 mm, ``F`` (f, 3) int64, ``P`` (m, 3) mm.
+Signs and arrays as in :mod:`qifreport.metrology.deviation.closest` (positive: material
+proud of the nominal surface; ``V`` (n, 3) mm, ``F`` (f, 3), ``P`` (m, 3) mm).
 """
 
 from __future__ import annotations
