@@ -39,8 +39,8 @@ width of the smallest zone, disposed as the tolerance zone (same centre ``c``), 
 every scored point of the surface and the peaks of its out-of-tolerance regions,
 ``2 max |d - c|``. ``WorstPositiveDeviation`` and ``WorstNegativeDeviation`` are the signed
 extremes of the deviation ``d``. Its **status** is the profile read as the drawing states it
-(:func:`strict_profile_status`): ``FAIL`` whenever the value exceeds the tolerance, so a
-``Value`` beyond its ``ToleranceValue`` is never ``PASS``.
+(:func:`~qifreport.qif.profile_characteristics.strict_profile_status`): ``FAIL`` whenever the
+value exceeds the tolerance, so a ``Value`` beyond its ``ToleranceValue`` is never ``PASS``.
 
 qifreport's decision for a compliant part (paper Section 10: the area criterion, at least
 ``min_fraction`` of the scored area in the band, and the region criterion, no connected
@@ -69,10 +69,15 @@ Lengths are ``xs:decimal`` in QIF (no exponent): they are written with
 
 Modules
 -------
-The generic XML building blocks (element maker, ids, literals, ``Attributes``) are in
-:mod:`qifreport.qif.xmlkit`, shared with the statistics documents; the results' typed
-``Attributes`` in :mod:`qifreport.qif.result_attributes`. :func:`build_qif` puts the sections
-together in document order, each made by its own builder below.
+A surface's two characteristics are written from their
+:class:`~qifreport.metrology.gdt.characteristic_types.CharacteristicResult`
+(:mod:`qifreport.qif.profile_characteristics`, which also has the profile value and
+statuses, re-exported here), the drawing's feature characteristics from theirs
+(:mod:`qifreport.qif.feature_characteristics`). The generic XML building blocks (element
+maker, ids, literals, ``Attributes``) are in :mod:`qifreport.qif.xmlkit`, shared with the
+statistics documents; the results' typed ``Attributes`` in
+:mod:`qifreport.qif.result_attributes`. :func:`build_qif` puts the sections together in
+document order, each made by its own builder below.
 """
 
 from __future__ import annotations
