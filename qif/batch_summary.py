@@ -43,16 +43,20 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field
-from decimal import Decimal
 
 import numpy as np
 from lxml import etree
 
 from qifreport.kinds import StatisticsRule, kind_for_qif_type
+from qifreport.metrology.gdt.characteristic_types import CharacteristicResult
 from qifreport.metrology.spc import capability, upper_cpk
 
-from .reader import CharacteristicResult, QIFResults, child_text
-from .xmlkit import NS
+from .feature_characteristics import (
+    ANGULAR_DIMENSION_KINDS,
+    DIMENSION_KINDS,
+    LINEAR_DIMENSION_KINDS,
+)
+from .reader import Limits, QIFResults, child_text, definition_limits
 from .xsd import DocumentRefused, parse_document
 
 __all__ = [
@@ -67,6 +71,7 @@ __all__ = [
     "designator_of",
     "from_results",
     "group_batch",
+    "qif_type_of",
     "is_supported",
     "statistics_rule",
     "summarize",
@@ -74,30 +79,6 @@ __all__ = [
 ]
 
 log = logging.getLogger("qifreport.statistics")
-
-#: dimensions in mm between limits (two-sided; ``LinearCharacteristicStatsEvalType``)
-LINEAR_DIMENSION_KINDS = frozenset(
-    {
-        "Diameter",
-        "Radius",
-        "SphericalDiameter",
-        "SphericalRadius",
-        "Thickness",
-        "DistanceBetween",
-        "DistanceFrom",
-        "Width",
-        "Length",
-        "Height",
-        "Depth",
-        "Chord",
-        "CurveLength",
-        "LinearCoordinate",
-    }
-)
-#: dimensions in degrees between limits (``AngularCharacteristicStatsEvalType``)
-ANGULAR_DIMENSION_KINDS = frozenset({"Angle", "AngleBetween", "AngleFrom", "AngularCoordinate"})
-#: every dimension kind
-DIMENSION_KINDS = LINEAR_DIMENSION_KINDS | ANGULAR_DIMENSION_KINDS
 
 
 def statistics_rule(kind: str) -> StatisticsRule | None:
@@ -198,16 +179,6 @@ class CharacteristicSummary:
         return self.kind in DIMENSION_KINDS
 
 
-@dataclass(frozen=True)
-class Limits:
-    """What a characteristic's value is judged against: ``lower`` (None for a geometric
-    tolerance, whose value is at least 0) and ``upper`` limits, a dimension's ``nominal``."""
-
-    lower: float | None
-    upper: float | None
-    nominal: float | None = None
-
-
 @dataclass
 class Source:
     """A feature characteristic in its results document: its definition and nominal
@@ -234,25 +205,40 @@ class Observation:
 
     @property
     def spec(self) -> Limits:
-        if from_results(self.char.kind):
-            return Limits(None, self.char.tolerance)
+        if from_results(qif_type_of(self.char)):
+            return Limits(None, self.char.spec.tolerance)
         assert self.source.spec is not None
         return self.source.spec
+
+
+def qif_type_of(c: CharacteristicResult) -> str:
+    """The QIF type of a characteristic read back (:func:`qifreport.qif.reader.read_results`:
+    its document record's)."""
+    if c.document is None:
+        raise ValueError(f"characteristic {c.spec.key} was not read from a results document")
+    return c.document.type
+
+
+def _description(c: CharacteristicResult) -> str | None:
+    return c.document.description if c.document is not None else None
 
 
 def characteristic_description(c: CharacteristicResult) -> str | None:
     """A characteristic's description: a feature characteristic's first clause (what it is;
     the rest, after ``"; "``, says how one scan was read, :mod:`.feature_characteristics`)."""
-    if c.description is None or from_results(c.kind):
-        return c.description
-    return c.description.split("; ")[0]
+    text = _description(c)
+    if text is None or from_results(qif_type_of(c)):
+        return text
+    return text.split("; ")[0]
 
 
 def designator_of(c: CharacteristicResult) -> str:
-    key = c.designator if c.designator is not None else c.name
-    if key is None:
+    """A characteristic's designator (its spec's key), else its name."""
+    key = c.spec.key or c.spec.name
+    if not key:
+        what = f"{c.document.id} ({c.document.type})" if c.document is not None else "?"
         raise ValueError(
-            f"characteristic measurement {c.id} ({c.kind}) has neither a "
+            f"characteristic measurement {what} has neither a "
             "designator nor a name: it cannot be matched across the batch"
         )
     return key
@@ -260,78 +246,43 @@ def designator_of(c: CharacteristicResult) -> str:
 
 # ------------------------------------------------------------------- feature definitions
 
-_Q = f"{{{NS}}}"
-
-
-def _float(text: str | None) -> float | None:
-    if text is None:
-        return None
-    try:
-        x = float(text)
-    except ValueError:
-        return None
-    return x if math.isfinite(x) else None
-
 
 def _limits(kind: str, definition: etree._Element, nominal: etree._Element) -> Limits | str:
     """The limits a feature characteristic's definition states, or why it has none."""
-    if statistics_rule(kind) is not None:
-        tol = _float(child_text(definition, "q:ToleranceValue"))
-        for per_unit in ("q:ToleranceZonePerUnitArea", "q:ToleranceZonePerUnitLength"):
-            if tol is None:
-                tol = _float(child_text(definition, f"{per_unit}/q:ToleranceValuePerUnit"))
-        if tol is None:
-            return "no numeric tolerance value"
-        return Limits(None, tol)
-    if definition.find(f"{_Q}NonTolerance") is not None:
-        return "no limits (a basic or reference dimension)"
-    if definition.find(f"{_Q}LimitsAndFitsSpecification") is not None:
-        return "limits given as a limits-and-fits code, not evaluated here"
-    tol = definition.find(f"{_Q}Tolerance")
-    if tol is None or tol.find(f"{_Q}DefinitionId") is not None:
-        return "no limits in its definition"
-    hi, lo = child_text(tol, "q:MaxValue"), child_text(tol, "q:MinValue")
-    target = child_text(nominal, "q:TargetValue")
-    if _float(hi) is None and _float(lo) is None:
-        return "no limits in its definition"
-    if child_text(tol, "q:DefinedAsLimit") in ("true", "1"):
-        return Limits(_float(lo), _float(hi), _float(target))
-    if _float(target) is None:
-        return "limits relative to a nominal it does not state"
-
-    def limit(offset: str | None) -> float | None:
-        # nominal + offset as decimals, then the nearest double (10 + 0.1 is 10.1 exactly)
-        return None if _float(offset) is None else float(Decimal(target) + Decimal(offset))
-
-    return Limits(limit(lo), limit(hi), _float(target))
+    return definition_limits(definition, nominal, toleranced=statistics_rule(kind) is not None)
 
 
 def _sources(res: QIFResults) -> dict[str, Source]:
     """The feature characteristics of one results document (every supported kind but the
     surface profiles) by measurement id: their definition, nominal and limits, read from the
     file, or why they cannot be carried."""
-    wanted = [c for c in res.characteristics if is_supported(c.kind) and not from_results(c.kind)]
+    wanted = [
+        c
+        for c in res.characteristics
+        if is_supported(qif_type_of(c)) and not from_results(qif_type_of(c))
+    ]
     if not wanted:
         return {}
     try:
         root = parse_document(res.path).getroot()
     except (OSError, DocumentRefused, etree.XMLSyntaxError) as exc:
         why = f"its results document {res.path.name} could not be read ({exc})"
-        return {c.id: Source(None, reason=why) for c in wanted}
+        return {c.document.id: Source(None, reason=why) for c in wanted}
     by_id = {el.get("id"): el for el in root.iter() if el.get("id") is not None}
     out: dict[str, Source] = {}
     for c in wanted:
-        item = by_id.get(child_text(by_id.get(c.id), "q:CharacteristicItemId"))
+        mid = c.document.id
+        item = by_id.get(child_text(by_id.get(mid), "q:CharacteristicItemId"))
         nominal = by_id.get(child_text(item, "q:CharacteristicNominalId"))
         definition = by_id.get(child_text(nominal, "q:CharacteristicDefinitionId"))
         if definition is None or nominal is None:
-            out[c.id] = Source(None, reason=f"no definition in {res.path.name}")
+            out[mid] = Source(None, reason=f"no definition in {res.path.name}")
             continue
-        spec = _limits(c.kind, definition, nominal)
+        spec = _limits(c.document.type, definition, nominal)
         if isinstance(spec, str):
-            out[c.id] = Source(None, reason=spec)
+            out[mid] = Source(None, reason=spec)
         else:
-            out[c.id] = Source(spec, definition, nominal)
+            out[mid] = Source(spec, definition, nominal)
     return out
 
 
@@ -351,31 +302,32 @@ def group_batch(results: list[QIFResults]) -> dict[str, list[Observation]]:
     for k, res in enumerate(results):
         sources = _sources(res)
         for c in res.characteristics:
-            if not is_supported(c.kind):
-                log.debug("%s (%s) left out: no statistics of this type", designator_of(c), c.kind)
+            t = qif_type_of(c)
+            if not is_supported(t):
+                log.debug("%s (%s) left out: no statistics of this type", designator_of(c), t)
                 continue
             key = designator_of(c)
-            src = sources.get(c.id, Source(None))
-            if not from_results(c.kind) and src.spec is None:
-                left_out.setdefault(key, f"{c.kind}: {src.reason}")
+            src = sources.get(c.document.id, Source(None))
+            if not from_results(t) and src.spec is None:
+                left_out.setdefault(key, f"{t}: {src.reason}")
                 continue
             obs = groups.setdefault(key, [])
             o = Observation(k, c, src)
             if obs:
-                first = obs[0]
-                if c.kind != first.char.kind:
+                first = obs[0].char
+                if t != qif_type_of(first):
                     raise ValueError(
-                        f"{key}: {c.kind} in {res.path.name} but {first.char.kind} "
+                        f"{key}: {t} in {res.path.name} but {qif_type_of(first)} "
                         "before: not one part's batch"
                     )
-                if from_results(c.kind) and c.tolerance != first.char.tolerance:
+                if from_results(t) and c.spec.tolerance != first.spec.tolerance:
                     raise ValueError(
-                        f"{key}: tolerance {c.tolerance} in {res.path.name} "
-                        f"but {first.char.tolerance} before: not one part's batch"
+                        f"{key}: tolerance {c.spec.tolerance} in {res.path.name} "
+                        f"but {first.spec.tolerance} before: not one part's batch"
                     )
-                if o.spec != first.spec:
+                if o.spec != obs[0].spec:
                     raise ValueError(
-                        f"{key}: limits {o.spec} in {res.path.name} but {first.spec} "
+                        f"{key}: limits {o.spec} in {res.path.name} but {obs[0].spec} "
                         "before: not one part's batch"
                     )
             obs.append(o)
@@ -386,7 +338,7 @@ def group_batch(results: list[QIFResults]) -> dict[str, list[Observation]]:
 
 
 def summary_of(key: str, obs: list[Observation]) -> CharacteristicSummary:
-    first = obs[0].char
+    kind = qif_type_of(obs[0].char)
     spec = obs[0].spec
     values = np.array([o.value for o in obs if o.value is not None], dtype=float)
     count = len(values)
@@ -396,7 +348,7 @@ def summary_of(key: str, obs: list[Observation]) -> CharacteristicSummary:
     n_pass, n_fail = statuses.count("PASS"), statuses.count("FAIL")
     n_above = int((values > spec.upper).sum()) if spec.upper is not None else 0
     n_below = int((values < spec.lower).sum()) if spec.lower is not None else 0
-    if first.kind in DIMENSION_KINDS:
+    if kind in DIMENSION_KINDS:
         tol = None
         cp, cpk = capability(mean, std, count, spec.lower, spec.upper)
     else:
@@ -404,9 +356,9 @@ def summary_of(key: str, obs: list[Observation]) -> CharacteristicSummary:
         cp, cpk = math.nan, (math.nan if tol is None else upper_cpk(mean, std, tol, count))
     return CharacteristicSummary(
         designator=key,
-        kind=first.kind,
+        kind=kind,
         description=next(
-            (characteristic_description(o.char) for o in obs if o.char.description), None
+            (characteristic_description(o.char) for o in obs if _description(o.char)), None
         ),
         tolerance=tol,
         count=count,
@@ -423,7 +375,7 @@ def summary_of(key: str, obs: list[Observation]) -> CharacteristicSummary:
         lower=spec.lower,
         upper=spec.upper,
         nominal=spec.nominal,
-        unit="deg" if first.kind in ANGULAR_DIMENSION_KINDS else "mm",
+        unit="deg" if kind in ANGULAR_DIMENSION_KINDS else "mm",
         n_above=n_above,
         n_below=n_below,
     )

@@ -11,6 +11,27 @@ or the limits, under the decision rule with the value's expanded uncertainty), s
 for an item not measured) with the reason in ``NonConformanceDesignator``-free attributes
 (``not_measured_reason``) and the ``Description``; ``BASIC_OR_TED`` for a basic or
 reference dimension (its value is reported).
+
+Statuses are mapped here, at the boundary, both ways: :func:`qif_status` writes a
+:class:`~qifreport.metrology.gdt.characteristic_types.CharacteristicResult`'s status (one of
+its :data:`~qifreport.metrology.gdt.characteristic_types.STATUSES`) as QIF's
+``CharacteristicStatusEnum`` and :func:`status_from_qif` reads one back:
+
+================  ==============================================================
+ours              QIF ``CharacteristicStatusEnum``
+================  ==============================================================
+``PASS``          ``PASS``
+``FAIL``          ``FAIL``
+``INDETERMINATE`` ``INDETERMINATE``
+``NOT_MEASURED``  ``NOT_ANALYZED``
+``BASIC``         ``BASIC_OR_TED``
+``OTHER``         read only: ``REWORK``, ``SYSERROR``, ``UNDEFINED``, an
+                  ``OtherCharacteristicStatus`` or none (written back as read)
+================  ==============================================================
+
+So are the characteristic types: :func:`qif_type` names a spec's QIF type and
+:func:`kind_of_qif_type` reads one back (a registered kind's, found by the registry, a
+dimension's, or :data:`~qifreport.metrology.gdt.characteristic_types.OTHER_KIND`).
 """
 
 from __future__ import annotations
@@ -20,8 +41,9 @@ import math
 import numpy as np
 from lxml import etree
 
-from qifreport.kinds import QifRules, kind_label, lookup_kind
+from qifreport.kinds import QifRules, kind_for_qif_type, kind_label, lookup_kind
 from qifreport.metrology.acceptance.bands import material_boundary
+from qifreport.metrology.gdt.characteristic_types import OTHER_KIND
 from qifreport.metrology.gdt.characteristics import (
     CharacteristicResult,
     CharacteristicSpec,
@@ -32,12 +54,41 @@ from .definitions import DrfKey, Sections, drf_key, face_attrs, feature_definiti
 from .xmlkit import Attrs, E, Ids, dec, id_array, qpid, token
 
 __all__ = [
+    "ANGULAR_DIMENSION_KINDS",
+    "DIMENSION_KINDS",
+    "LINEAR_DIMENSION_KINDS",
     "characteristic_definition",
     "characteristic_measurement",
+    "kind_of_qif_type",
     "material_condition",
     "qif_status",
     "qif_type",
+    "status_from_qif",
 ]
+
+#: dimensions in mm between limits (two-sided; ``LinearCharacteristicStatsEvalType``)
+LINEAR_DIMENSION_KINDS = frozenset(
+    {
+        "Diameter",
+        "Radius",
+        "SphericalDiameter",
+        "SphericalRadius",
+        "Thickness",
+        "DistanceBetween",
+        "DistanceFrom",
+        "Width",
+        "Length",
+        "Height",
+        "Depth",
+        "Chord",
+        "CurveLength",
+        "LinearCoordinate",
+    }
+)
+#: dimensions in degrees between limits (``AngularCharacteristicStatsEvalType``)
+ANGULAR_DIMENSION_KINDS = frozenset({"Angle", "AngleBetween", "AngleFrom", "AngularCoordinate"})
+#: every dimension kind
+DIMENSION_KINDS = LINEAR_DIMENSION_KINDS | ANGULAR_DIMENSION_KINDS
 
 _STATUS = {
     "PASS": "PASS",
@@ -55,8 +106,35 @@ _COMPOSITE = {
 
 
 def qif_status(c: CharacteristicResult) -> str:
-    """The ``CharacteristicStatusEnum`` of a measured characteristic."""
-    return _STATUS[c.status]
+    """The ``CharacteristicStatusEnum`` of a characteristic result (an ``OTHER`` one: its
+    status as read, or ``UNDEFINED``)."""
+    if c.status in _STATUS:
+        return _STATUS[c.status]
+    return (c.document.status if c.document is not None else None) or "UNDEFINED"
+
+
+#: QIF's statuses the product gives, as its own
+_FROM_QIF = {v: k for k, v in _STATUS.items()}
+
+
+def status_from_qif(text: str | None) -> str:
+    """A characteristic result's status of a QIF status text (``CharacteristicStatusEnum`` or
+    the other-status text): ``OTHER`` for one the product does not give, or none."""
+    return _FROM_QIF.get(text, "OTHER") if text is not None else "OTHER"
+
+
+def kind_of_qif_type(qif_type: str) -> tuple[str, str, str]:
+    """The ``(kind, dim_type, unit)`` of a spec of a QIF characteristic type: a registered
+    kind's (:func:`qifreport.kinds.kind_for_qif_type`), a dimension (its type in words,
+    ``"DistanceBetween"`` -> ``"distance between"``; the unit ``"deg"`` for an angle), or
+    :data:`~qifreport.metrology.gdt.characteristic_types.OTHER_KIND`."""
+    kind = kind_for_qif_type(qif_type)
+    if kind is not None:
+        return kind.name, "", "mm"
+    if qif_type in DIMENSION_KINDS:
+        words = "".join(f" {ch.lower()}" if ch.isupper() else ch for ch in qif_type).strip()
+        return "dimension", words, "deg" if qif_type in ANGULAR_DIMENSION_KINDS else "mm"
+    return OTHER_KIND, "", "mm"
 
 
 def _dimension_type(s: CharacteristicSpec) -> str:

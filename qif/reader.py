@@ -1,21 +1,33 @@
 """Read a QIF 3.0 results document back: ours in full, anyone's in outline.
 
 :func:`read_results` returns, for every characteristic measurement of the first
-``MeasurementResults``, its QIF type, designator, status, measured value and tolerance, and,
-for documents qifreport wrote, the product's own result objects rebuilt from the typed
-``Attributes`` (:class:`qifreport.metrology.acceptance.statistics.DeviationStats`,
+``MeasurementResults``, the product's own
+:class:`~qifreport.metrology.gdt.characteristic_types.CharacteristicResult`, the type the
+writer writes: its spec built from the QIF definition, nominal and item (the kind found by
+the QIF type, :func:`qifreport.qif.feature_characteristics.kind_of_qif_type`; designator as
+key, name, tolerance, a dimension's nominal and limits, datum labels), its status mapped
+to the product's (:func:`~qifreport.qif.feature_characteristics.status_from_qif`), its
+value and a profile's worst deviations; the QIF type, id, status as written, description and
+attributes in its :class:`~qifreport.metrology.gdt.characteristic_types.DocumentRecord`. A
+characteristic type no kind has is read too, of kind
+:data:`~qifreport.metrology.gdt.characteristic_types.OTHER_KIND`.
+
+For documents qifreport wrote, the rest is rebuilt from the typed ``Attributes``: the
+reading, least-squares value, uncertainty, coverage and points of a feature characteristic,
+a tolerance's step entity and modifiers, and the result objects of a toleranced surface
+(:class:`qifreport.metrology.acceptance.statistics.DeviationStats`,
 :class:`qifreport.metrology.acceptance.criteria.Acceptance` with its
 :class:`~qifreport.metrology.acceptance.criteria.Region` list), so a round trip can be checked
-number
-by number (see :mod:`qifreport.qif.writer` for the layout).
-Regions come back without their vertex lists (``vertices`` empty, ``peak_vertex`` -1): QIF
-carries the area, peak, sign, centroid and peak location.
+number by number (see :mod:`qifreport.qif.writer` for the layout). Regions come back without
+their vertex lists (``vertices`` empty, ``peak_vertex`` -1): QIF carries the area, peak, sign,
+centroid and peak location. A feature's faces are not read (``faces`` empty).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from decimal import Decimal
 from pathlib import Path
 
 import numpy as np
@@ -23,14 +35,21 @@ from lxml import etree
 
 from qifreport.metrology.acceptance.criteria import Acceptance, Region
 from qifreport.metrology.acceptance.statistics import DeviationStats
+from qifreport.metrology.gdt.characteristic_types import (
+    CharacteristicResult,
+    CharacteristicSpec,
+    DocumentRecord,
+)
 
+from .feature_characteristics import kind_of_qif_type, status_from_qif
 from .writer import NS
 
 __all__ = [
+    "Limits",
+    "QIFResults",
     "acceptance_from_attributes",
     "child_text",
-    "CharacteristicResult",
-    "QIFResults",
+    "definition_limits",
     "read_attributes",
     "read_results",
     "stats_from_attributes",
@@ -38,42 +57,6 @@ __all__ = [
 
 _Q = f"{{{NS}}}"
 _STATS_KEYS = ("rms", "mean", "max_abs", "max_pos", "min_neg", "p95", "p99", "p999")
-
-
-@dataclass
-class CharacteristicResult:
-    """One characteristic measurement with its definition.
-
-    Attributes
-    ----------
-    kind : QIF type without suffix, e.g. ``"SurfaceProfile"``, ``"Flatness"``.
-    id : the measurement's QIF id.  name : the item's (or definition's) name.
-    designator : the item's ``CharacteristicDesignator/Designator`` (qifreport: zone key).
-    status : ``CharacteristicStatusEnum`` (or the other-status text).
-    value : measured ``Value`` (mm for lengths), None when absent.
-    worst_positive, worst_negative : profile measurements' worst deviations, mm.
-    tolerance : the definition's ``ToleranceValue``, None when absent.
-    unequally_disposed : ``UnequallyDisposedZone``, mm, None when absent.
-    description : the definition's description.  datum_labels : of its reference frame.
-    attributes : the measurement's typed Attributes, name -> value.
-    stats, acceptance : rebuilt for documents written by qifreport, else None.
-    """
-
-    kind: str
-    id: str
-    name: str | None
-    designator: str | None
-    status: str | None
-    value: float | None
-    worst_positive: float | None = None
-    worst_negative: float | None = None
-    tolerance: float | None = None
-    unequally_disposed: float | None = None
-    description: str | None = None
-    datum_labels: list[str] = field(default_factory=list)
-    attributes: dict = field(default_factory=dict)
-    stats: DeviationStats | None = None
-    acceptance: Acceptance | None = None
 
 
 @dataclass
@@ -116,7 +99,7 @@ class QIFResults:
     def characteristic(self, designator: str) -> CharacteristicResult:
         """The characteristic with this designator (qifreport: the zone key)."""
         for c in self.characteristics:
-            if c.designator == designator:
+            if c.spec.key == designator:
                 return c
         raise KeyError(designator)
 
@@ -259,48 +242,207 @@ def _datum_labels(root: etree._Element, by_id: dict) -> dict[str, list[str]]:
     return drf_labels
 
 
+@dataclass(frozen=True)
+class Limits:
+    """What a characteristic's value is judged against: ``lower`` (None for a geometric
+    tolerance, whose value is at least 0) and ``upper`` limits, a dimension's ``nominal``."""
+
+    lower: float | None
+    upper: float | None
+    nominal: float | None = None
+
+
+def _float(text: str | None) -> float | None:
+    """A finite decimal's value; None without one."""
+    if text is None:
+        return None
+    try:
+        x = float(text)
+    except ValueError:
+        return None
+    return x if math.isfinite(x) else None
+
+
+def definition_limits(
+    definition: etree._Element, nominal: etree._Element, toleranced: bool
+) -> Limits | str:
+    """The limits a characteristic's ``definition`` (and ``nominal``: its target value)
+    states, or why it has none: a geometric tolerance's (``toleranced``) its tolerance value
+    (or per-unit value) as the upper limit, a dimension's its limits about its nominal."""
+    if toleranced:
+        tol = _float(child_text(definition, "q:ToleranceValue"))
+        for per_unit in ("q:ToleranceZonePerUnitArea", "q:ToleranceZonePerUnitLength"):
+            if tol is None:
+                tol = _float(child_text(definition, f"{per_unit}/q:ToleranceValuePerUnit"))
+        if tol is None:
+            return "no numeric tolerance value"
+        return Limits(None, tol)
+    if definition.find(f"{_Q}NonTolerance") is not None:
+        return "no limits (a basic or reference dimension)"
+    if definition.find(f"{_Q}LimitsAndFitsSpecification") is not None:
+        return "limits given as a limits-and-fits code, not evaluated here"
+    tol = definition.find(f"{_Q}Tolerance")
+    if tol is None or tol.find(f"{_Q}DefinitionId") is not None:
+        return "no limits in its definition"
+    hi, lo = child_text(tol, "q:MaxValue"), child_text(tol, "q:MinValue")
+    target = child_text(nominal, "q:TargetValue")
+    if _float(hi) is None and _float(lo) is None:
+        return "no limits in its definition"
+    if child_text(tol, "q:DefinedAsLimit") in ("true", "1"):
+        return Limits(_float(lo), _float(hi), _float(target))
+    if _float(target) is None:
+        return "limits relative to a nominal it does not state"
+
+    def limit(offset: str | None) -> float | None:
+        # nominal + offset as decimals, then the nearest double (10 + 0.1 is 10.1 exactly)
+        return None if _float(offset) is None else float(Decimal(target) + Decimal(offset))
+
+    return Limits(limit(lo), limit(hi), _float(target))
+
+
+@dataclass
+class _Elements:
+    """A characteristic measurement's item, nominal and definition elements (None: not in
+    the document) and the definition's attributes when the document is ours."""
+
+    item: etree._Element | None
+    nominal: etree._Element | None
+    definition: etree._Element | None
+    definition_attrs: dict
+
+    @classmethod
+    def of(cls, m: etree._Element, by_id: dict, ours: bool) -> _Elements:
+        item = by_id.get(child_text(m, "q:CharacteristicItemId"))
+        nominal = by_id.get(child_text(item, "q:CharacteristicNominalId"))
+        definition = by_id.get(child_text(nominal, "q:CharacteristicDefinitionId"))
+        return cls(item, nominal, definition, read_attributes(definition) if ours else {})
+
+
+def _tolerance(d: etree._Element | None) -> tuple[float | None, str | None]:
+    """A definition's tolerance value (mm) and, for a per-unit tolerance, its unit basis as
+    the PMI states one (``"per unit length 25 mm"``, ``"per rectangular area 6 mm x 6 mm"``,
+    ``"per circular area 10 mm"``)."""
+    tol = _num(child_text(d, "q:ToleranceValue"))
+    if tol is not None or d is None:
+        return tol, None
+    length = d.find(f"{_Q}ToleranceZonePerUnitLength")
+    if length is not None:
+        unit = _float(child_text(length, "q:UnitLength"))
+        basis = None if unit is None else f"per unit length {unit:g} mm"
+        return _num(child_text(length, "q:ToleranceValuePerUnit")), basis
+    area = d.find(f"{_Q}ToleranceZonePerUnitArea")
+    if area is None:
+        return None, None
+    a = _float(child_text(area, "q:RectangularUnitArea/q:RectangularUnitAreaLength"))
+    b = _float(child_text(area, "q:RectangularUnitArea/q:RectangularUnitAreaWidth"))
+    c = _float(child_text(area, "q:CircularUnitArea/q:CircularUnitAreaDiameter"))
+    basis = None
+    if a is not None and b is not None:
+        basis = f"per rectangular area {a:g} mm x {b:g} mm"
+    elif c is not None:
+        basis = f"per circular area {c:g} mm"
+    return _num(child_text(area, "q:ToleranceValuePerUnit")), basis
+
+
+def _spec(qif_type: str, e: _Elements, drf_labels: dict[str, list[str]]) -> CharacteristicSpec:
+    """The spec of a characteristic of QIF type ``qif_type`` from its elements ``e``."""
+    kind, dim_type, unit = kind_of_qif_type(qif_type)
+    d, da = e.definition, e.definition_attrs
+    limits = None
+    if kind == "dimension" and d is not None:
+        limits = definition_limits(d, e.nominal, toleranced=False)
+    limits = limits if isinstance(limits, Limits) else Limits(None, None)
+    step_id = da.get("step_entity_id")
+    tolerance, unit_basis = _tolerance(d)
+    return CharacteristicSpec(
+        key=child_text(e.item, "q:CharacteristicDesignator/q:Designator") or "",
+        kind=kind,
+        name=child_text(e.item, "q:Name") or child_text(d, "q:Name") or "",
+        step_id=step_id if isinstance(step_id, int) else None,
+        faces=np.zeros(0, dtype=np.int64),
+        tolerance=tolerance,
+        dim_type=dim_type,
+        nominal=_float(child_text(e.nominal, "q:TargetValue")),
+        lower_limit=limits.lower,
+        upper_limit=limits.upper,
+        unit=unit,
+        datums=list(drf_labels.get(child_text(d, "q:DatumReferenceFrameId"), [])),
+        modifiers=str(da.get("modifiers", "")).split(),
+        basic=d is not None and d.find(f"{_Q}NonTolerance") is not None,
+        unit_basis=unit_basis,
+    )
+
+
+def _vector(text: str | None) -> np.ndarray | None:
+    """A QIF ``Vector`` (three decimals) as a (3,) array; None without a readable one."""
+    try:
+        v = np.array([float(x) for x in (text or "").split()])
+    except ValueError:
+        return None
+    return v if v.shape == (3,) else None
+
+
+def _ours(c: CharacteristicResult, attrs: dict, e: _Elements) -> None:
+    """Complete ``c`` read from a qifreport document from its attributes ``attrs`` (and its
+    definition's, in ``e``): the reading, least-squares value, uncertainty, coverage and
+    points, and a toleranced surface's statistics and acceptance."""
+    da = e.definition_attrs
+    half = None
+    if "lower_mm" in da and "upper_mm" in da:
+        half = 0.5 * (da["upper_mm"] - da["lower_mm"])
+    c.stats = stats_from_attributes(attrs)
+    c.acceptance = acceptance_from_attributes(attrs, half)
+    reading = str(attrs.get("reading", ""))
+    c.reading = "" if reading == "-" else reading
+    c.least_squares = _attr_float(attrs, "least_squares_mm")
+    c.uncertainty = _attr_float(attrs, "expanded_uncertainty")
+    c.coverage = _attr_float(attrs, "coverage")
+    points = attrs.get("points")
+    if isinstance(points, int):
+        c.n_points = points
+    elif c.stats is not None:
+        c.n_points = c.stats.n
+    c.reason = str(attrs.get("not_measured_reason", c.reason))
+
+
+def _attr_float(attrs: dict, name: str) -> float | None:
+    """The number attribute ``name`` (None when absent or not a number)."""
+    x = attrs.get(name)
+    return float(x) if isinstance(x, int | float) and not isinstance(x, bool) else None
+
+
 def _characteristic(
     m: etree._Element, by_id: dict, drf_labels: dict[str, list[str]], ours: bool
 ) -> CharacteristicResult:
     """The characteristic measurement ``m`` with its item, nominal and definition (found in
-    ``by_id``) and its datum labels; with qifreport's statistics and acceptance when the
-    document is ``ours``."""
-    tag = etree.QName(m).localname
-    kind = tag.removesuffix("CharacteristicMeasurement")
-    item = by_id.get(child_text(m, "q:CharacteristicItemId"))
-    nominal = by_id.get(child_text(item, "q:CharacteristicNominalId")) if item is not None else None
-    definition = (
-        by_id.get(child_text(nominal, "q:CharacteristicDefinitionId"))
-        if nominal is not None
-        else None
-    )
+    ``by_id``) and its datum labels; with the rest of qifreport's results when the document
+    is ``ours``."""
+    qif_type = etree.QName(m).localname.removesuffix("CharacteristicMeasurement")
+    e = _Elements.of(m, by_id, ours)
     status = child_text(m, "q:Status/q:CharacteristicStatusEnum") or child_text(
         m, "q:Status/q:OtherCharacteristicStatus"
     )
     attrs = read_attributes(m)
-    tol = _num(child_text(definition, "q:ToleranceValue"))
     c = CharacteristicResult(
-        kind=kind,
-        id=m.get("id"),
-        name=child_text(item, "q:Name") or child_text(definition, "q:Name"),
-        designator=child_text(item, "q:CharacteristicDesignator/q:Designator"),
-        status=status,
+        _spec(qif_type, e, drf_labels),
         value=_num(child_text(m, "q:Value")),
+        status=status_from_qif(status),
+        reason=child_text(m, "q:NonConformanceDesignator") or "",
+        bonus=_num(child_text(m, "q:Bonus")) or 0.0,
+        direction=_vector(child_text(e.nominal, "q:Vector")),
         worst_positive=_num(child_text(m, "q:WorstPositiveDeviation")),
         worst_negative=_num(child_text(m, "q:WorstNegativeDeviation")),
-        tolerance=tol,
-        unequally_disposed=_num(child_text(definition, "q:UnequallyDisposedZone")),
-        description=child_text(definition, "q:Description"),
-        datum_labels=drf_labels.get(child_text(definition, "q:DatumReferenceFrameId"), []),
-        attributes=attrs,
+        document=DocumentRecord(
+            type=qif_type,
+            id=m.get("id"),
+            status=status,
+            description=child_text(e.definition, "q:Description"),
+            unequally_disposed=_num(child_text(e.definition, "q:UnequallyDisposedZone")),
+            attributes=attrs,
+        ),
     )
     if ours:
-        da = read_attributes(definition)
-        half = None
-        if "lower_mm" in da and "upper_mm" in da:
-            half = 0.5 * (da["upper_mm"] - da["lower_mm"])
-        c.stats = stats_from_attributes(attrs)
-        c.acceptance = acceptance_from_attributes(attrs, half)
+        _ours(c, attrs, e)
     return c
 
 

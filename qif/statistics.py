@@ -151,6 +151,7 @@ from .batch_summary import (
     Observation,
     from_results,
     group_batch,
+    qif_type_of,
     summarize,
     summary_of,
 )
@@ -222,7 +223,7 @@ def _check_batch(
     untoleranced = [
         key
         for key, obs in groups.items()
-        if from_results(obs[0].char.kind) and obs[0].char.tolerance is None
+        if from_results(qif_type_of(obs[0].char)) and obs[0].char.spec.tolerance is None
     ]
     if untoleranced:
         raise ValueError(f"characteristics without a ToleranceValue: {untoleranced}")
@@ -378,7 +379,7 @@ def build_statistics(
     defs = Definitions()
     for key, obs in groups.items():
         defs.add(key, obs, ids)
-    runs = Runs({(o.scan, o.char.id) for obs in groups.values() for o in obs})
+    runs = Runs({(o.scan, o.char.document.id) for obs in groups.values() for o in obs})
     for k, res in enumerate(results):
         runs.add(k, res, defs.item_ids, sources, path_id, ids)
     statistics = _study(results, groups, runs, part_name, created, nominal_sha256, sw_id, ids)
@@ -435,7 +436,7 @@ def _software(version: str, sw_id: str) -> etree._Element:
 def _file_units(groups: dict[str, list[Observation]]) -> etree._Element:
     """``FileUnits``: mm, and degrees when an angle is carried."""
     angular = []
-    if any(obs[0].char.kind in ANGULAR_DIMENSION_KINDS for obs in groups.values()):
+    if any(qif_type_of(obs[0].char) in ANGULAR_DIMENSION_KINDS for obs in groups.values()):
         angular.append(
             E.AngularUnit(
                 E.SIUnitName("radian"),
@@ -489,7 +490,7 @@ def _study(
     summaries = {key: summary_of(key, obs) for key, obs in groups.items()}
     stats = [
         _characteristic_stats(
-            key, obs, summaries[key], [runs.meas_id[(o.scan, o.char.id)] for o in obs]
+            key, obs, summaries[key], [runs.meas_id[(o.scan, o.char.document.id)] for o in obs]
         )
         for key, obs in groups.items()
     ]
@@ -584,7 +585,7 @@ def _document(
 
 def _study_description(n: int, part_name: str, groups: dict[str, list[Observation]]) -> str:
     """The study's description: what its statistics are over and how Cpk is computed."""
-    if all(from_results(obs[0].char.kind) for obs in groups.values()):
+    if all(from_results(qif_type_of(obs[0].char)) for obs in groups.values()):
         return (
             f"Capability of {n} inspections of {part_name}: per "
             "characteristic, statistics of the profile values (mm) of the "

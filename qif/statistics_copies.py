@@ -18,11 +18,14 @@ from urllib.parse import quote
 import numpy as np
 from lxml import etree
 
+from qifreport.metrology.gdt.characteristic_types import CharacteristicResult
+
 from .batch_summary import (
     Observation,
     characteristic_description,
     designator_of,
     from_results,
+    qif_type_of,
     statistics_rule,
 )
 from .definitions import Sections, feature_definition
@@ -138,7 +141,7 @@ def feature_copies(
     for old in cnom.findall(f"{_Q}FeatureNominalIds"):
         old.addnext(id_array("FeatureNominalIds", [fn]))
         cnom.remove(old)
-    log.debug("%s: definition and nominal copied from %s", key, obs[0].char.id)
+    log.debug("%s: definition and nominal copied from %s", key, obs[0].char.document.id)
     return cdef, cnom
 
 
@@ -155,13 +158,13 @@ class Definitions:
     def add(self, key: str, obs: list[Observation], ids: Ids) -> None:
         """The feature and characteristic of designator ``key``."""
         c = obs[0].char
-        profile = from_results(c.kind)
+        profile = from_results(qif_type_of(c))
         zs = self.sections
         fname = token(f"SURFACE_{key}".upper() if profile else f"FEATURE_{key}")
         fn, fi, _ = feature_definition(zs, fname, Attrs(), ids)
         cd, cn, ci = ids(), ids(), ids()
         self.item_ids[key] = ci
-        name = token(c.name or key)
+        name = token(c.spec.name or key)
         if profile:
             cdef_el, cnom_el = _profile_definition(obs, name, cd, cn, fn)
         else:
@@ -170,7 +173,7 @@ class Definitions:
         zs.cnoms.append(cnom_el)
         zs.citems.append(
             E(
-                f"{c.kind}CharacteristicItem",
+                f"{qif_type_of(c)}CharacteristicItem",
                 E.Name(name),
                 E.CharacteristicDesignator(E.Designator(token(key))),
                 id_array("FeatureItemIds", [fi]),
@@ -186,11 +189,13 @@ def _profile_definition(
     """A surface profile's characteristic definition and nominal, from its results read
     back (description, tolerance, unequal disposition)."""
     c = obs[0].char
-    description = next((o.char.description for o in obs if o.char.description), None)
+    description = next(
+        (o.char.document.description for o in obs if o.char.document.description), None
+    )
     cdef = [E.Description(description)] if description else []
-    cdef += [E.Name(name), E.ToleranceValue(decimal_text(c.tolerance))]
-    if c.unequally_disposed is not None:
-        cdef.append(E.UnequallyDisposedZone(decimal_text(c.unequally_disposed)))
+    cdef += [E.Name(name), E.ToleranceValue(decimal_text(c.spec.tolerance))]
+    if c.document.unequally_disposed is not None:
+        cdef.append(E.UnequallyDisposedZone(decimal_text(c.document.unequally_disposed)))
     nominal = E.SurfaceProfileCharacteristicNominal(
         E.CharacteristicDefinitionId(cd),
         id_array("FeatureNominalIds", [fn]),
@@ -227,9 +232,9 @@ class Runs:
         self.mr_ids.append(mr_id)
         meas = []
         for c in res.characteristics:
-            if (k, c.id) not in self.carried:
+            if (k, c.document.id) not in self.carried:
                 continue
-            m = self.meas_id[(k, c.id)] = ids()
+            m = self.meas_id[(k, c.document.id)] = ids()
             meas.append(_copied_measurement(c, m, item_ids[designator_of(c)], actual_id))
         mr = _traceability(res)
         if sources is not None:
@@ -254,17 +259,19 @@ class Runs:
         )
 
 
-def _copied_measurement(c, m: str, item_id: str, actual_id: str) -> etree._Element:
-    """A characteristic measurement copied with id ``m`` (status, value, a profile's worst
-    deviations; its source id as an attribute)."""
+def _copied_measurement(
+    c: CharacteristicResult, m: str, item_id: str, actual_id: str
+) -> etree._Element:
+    """A characteristic measurement copied with id ``m`` (status as written, value, a
+    profile's worst deviations; its source id as an attribute)."""
     el = [
-        Attrs().s("source_id", c.id).element(),
-        characteristic_status(c.status),
+        Attrs().s("source_id", c.document.id).element(),
+        characteristic_status(c.document.status),
         E.CharacteristicItemId(item_id),
         E.ActualComponentId(actual_id),
     ]
     copied = [("Value", c.value)]
-    if worst_deviations(c.kind):
+    if worst_deviations(qif_type_of(c)):
         copied += [
             ("WorstPositiveDeviation", c.worst_positive),
             ("WorstNegativeDeviation", c.worst_negative),
@@ -272,7 +279,7 @@ def _copied_measurement(c, m: str, item_id: str, actual_id: str) -> etree._Eleme
     for tag, x in copied:
         if x is not None and math.isfinite(x):
             el.append(E(tag, decimal_text(x)))
-    return E(f"{c.kind}CharacteristicMeasurement", *el, id=m)
+    return E(f"{qif_type_of(c)}CharacteristicMeasurement", *el, id=m)
 
 
 def _traceability(res: QIFResults) -> list[etree._Element]:

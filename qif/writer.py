@@ -39,8 +39,8 @@ width of the smallest zone, disposed as the tolerance zone (same centre ``c``), 
 every scored point of the surface and the peaks of its out-of-tolerance regions,
 ``2 max |d - c|``. ``WorstPositiveDeviation`` and ``WorstNegativeDeviation`` are the signed
 extremes of the deviation ``d``. Its **status** is the profile read as the drawing states it
-(:func:`strict_profile_status`): ``FAIL`` whenever the value exceeds the tolerance, so a
-``Value`` beyond its ``ToleranceValue`` is never ``PASS``.
+(:func:`~qifreport.qif.profile_characteristics.strict_profile_status`): ``FAIL`` whenever the
+value exceeds the tolerance, so a ``Value`` beyond its ``ToleranceValue`` is never ``PASS``.
 
 qifreport's decision for a compliant part (paper Section 10: the area criterion, at least
 ``min_fraction`` of the scored area in the band, and the region criterion, no connected
@@ -69,16 +69,20 @@ Lengths are ``xs:decimal`` in QIF (no exponent): they are written with
 
 Modules
 -------
-The generic XML building blocks (element maker, ids, literals, ``Attributes``) are in
-:mod:`qifreport.qif.xmlkit`, shared with the statistics documents; the results' typed
-``Attributes`` in :mod:`qifreport.qif.result_attributes`. :func:`build_qif` puts the sections
-together in document order, each made by its own builder below.
+A surface's two characteristics are written from their
+:class:`~qifreport.metrology.gdt.characteristic_types.CharacteristicResult`
+(:mod:`qifreport.qif.profile_characteristics`, which also has the profile value and
+statuses, re-exported here), the drawing's feature characteristics from theirs
+(:mod:`qifreport.qif.feature_characteristics`). The generic XML building blocks (element
+maker, ids, literals, ``Attributes``) are in :mod:`qifreport.qif.xmlkit`, shared with the
+statistics documents; the results' typed ``Attributes`` in
+:mod:`qifreport.qif.result_attributes`. :func:`build_qif` puts the sections together in
+document order, each made by its own builder below.
 """
 
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import asdict, dataclass, field, is_dataclass
 from datetime import datetime
 from pathlib import Path
@@ -114,8 +118,20 @@ from .definitions import (
     software_definitions,
     standards_definitions,
 )
-from .feature_characteristics import characteristic_definition, characteristic_measurement
+from .feature_characteristics import (
+    characteristic_definition,
+    characteristic_measurement,
+    qif_status,
+)
 from .plan import plan_reference
+from .profile_characteristics import (
+    acceptance_characteristic,
+    characteristic_status,
+    profile_characteristic,
+    profile_value,
+    strict_profile_status,
+    worst_deviations,
+)
 from .result_attributes import (
     MAX_REGIONS_LISTED,
     acceptance_attrs,
@@ -191,77 +207,6 @@ class Provenance:
     operator: str | None = None
     serial_number: str | None = None
     standard: tuple[str, str, str] = ("ASME", "Y14.5", "2018")
-
-
-def worst_deviations(z: ZoneResult) -> tuple[float, float]:
-    """The signed extremes (mm) of a surface's deviation: its scored vertices' and the
-    peaks of its out-of-tolerance regions (a region found on the scan points, narrower
-    than the mesh, peaks beyond every vertex); NaN when nothing was scored."""
-    s = z.stats
-    if s.n == 0 or not math.isfinite(s.max_pos):
-        return math.nan, math.nan
-    peaks = [r.peak for r in z.acceptance.regions if math.isfinite(r.peak)]
-    return max([s.max_pos, *peaks]), min([s.min_neg, *peaks])
-
-
-def profile_value(z: ZoneResult) -> float:
-    """QIF profile value of a surface: ``2 max |d - c|`` over its scored points and its
-    regions' peaks (:func:`worst_deviations`), mm; NaN if nothing was scored."""
-    hi, lo = worst_deviations(z)
-    if not math.isfinite(hi):
-        return math.nan
-    c = z.zone.center
-    return 2.0 * max(hi - c, c - lo)
-
-
-def characteristic_status(z: ZoneResult, established: bool = True) -> str:
-    """The ``CharacteristicStatusEnum`` of one tolerance's measurement.
-
-    Parameters
-    ----------
-    z : ZoneResult
-        The tolerance's result.
-    established : bool
-        Whether the registration is trusted (:attr:`InspectionResult.established`).
-
-    Returns
-    -------
-    str
-        ``NOT_ANALYZED`` (nothing scored, or too little of the surface to measure it:
-        :attr:`ZoneResult.measured`; QIF's characteristic status has no "not measured"),
-        ``FAIL``, ``PASS``, or ``INDETERMINATE`` (would pass, the registration is not trusted;
-        or neither conformance nor non-conformance is proven within the measurement
-        uncertainty, :mod:`qifreport.metrology.acceptance.decision`).
-    """
-    if z.acceptance.scored_area <= 0 or z.stats.n == 0:
-        return "NOT_ANALYZED"
-    if z.failed:
-        return "FAIL"
-    if not z.measured:
-        return "NOT_ANALYZED"
-    return "PASS" if established and not z.uncertain else "INDETERMINATE"
-
-
-def strict_profile_status(z: ZoneResult, established: bool = True) -> str:
-    """The ``CharacteristicStatusEnum`` of a profile read as the drawing states it: every
-    scored point within the zone. ``FAIL`` when the profile value exceeds the tolerance
-    (whatever the area and region rule says) unless it does so only within the measurement
-    uncertainty (``INDETERMINATE``: the decision rule proved neither), ``NOT_ANALYZED`` as
-    :func:`characteristic_status`, ``INDETERMINATE`` when the value is within it but the
-    registration is not trusted or a point lies within the uncertainty of the limit, else
-    ``PASS``. So a ``Value`` beyond its ``ToleranceValue`` is never ``PASS``."""
-    if z.acceptance.scored_area <= 0 or z.stats.n == 0:
-        return "NOT_ANALYZED"
-    pv = profile_value(z)
-    if z.failed:
-        return "FAIL"
-    if math.isfinite(pv) and pv > z.zone.width + 1e-12:
-        # beyond the tolerance; within the measurement uncertainty of it when the decision
-        # rule could not prove the surface out (a face on its zone limit)
-        return "INDETERMINATE" if z.uncertain else "FAIL"
-    if not z.measured:
-        return "NOT_ANALYZED"
-    return "PASS" if established and not z.uncertain else "INDETERMINATE"
 
 
 def acceptance_rule(min_fraction: float, max_region_area: float) -> str:
@@ -492,31 +437,31 @@ def _add_zone(
 def _acceptance_measurement(
     z: ZoneResult, res: InspectionResult, ci: str, fm: str, actual_id: str, cm: str
 ) -> etree._Element:
-    """The acceptance characteristic's measurement: the inspection's decision for the
-    surface (area and region criteria under the decision rule), ``CONFORMS`` or
-    ``DOES_NOT_CONFORM``; the profile characteristic beside it keeps the strict reading, so
-    neither contradicts its own value."""
-    status = characteristic_status(z, established=res.established)
+    """The acceptance characteristic's measurement (:func:`acceptance_characteristic`): the
+    inspection's decision for the surface (area and region criteria under the decision
+    rule), ``CONFORMS`` or ``DOES_NOT_CONFORM``; the profile characteristic beside it keeps
+    the strict reading, so neither contradicts its own value."""
+    c = acceptance_characteristic(z, res.established)
     meas = [
-        E.Status(E.CharacteristicStatusEnum(status)),
+        E.Status(E.CharacteristicStatusEnum(qif_status(c))),
         E.CharacteristicItemId(ci),
         id_array("FeatureMeasurementIds", [fm]),
         E.ActualComponentId(actual_id),
     ]
-    if z.failed:
-        meas.append(
-            E.NonConformanceDesignator(token("; ".join(z.acceptance.reasons) or "not conforming"))
-        )
-    if status in ("PASS", "FAIL"):
-        meas.append(E.Value(CONFORMS if status == "PASS" else DOES_NOT_CONFORM))
+    if c.reason:
+        meas.append(E.NonConformanceDesignator(token(c.reason)))
+    if c.status in ("PASS", "FAIL"):
+        meas.append(E.Value(CONFORMS if c.status == "PASS" else DOES_NOT_CONFORM))
     return E.UserDefinedAttributeCharacteristicMeasurement(*meas, id=cm)
 
 
 def _characteristic_measurement(
     z: ZoneResult, res: InspectionResult, ci: str, fm: str, actual_id: str, cm: str
 ) -> etree._Element:
-    """A ``SurfaceProfileCharacteristicMeasurement``: the zone's statistics and acceptance
-    (Attributes), status, profile value and worst deviations."""
+    """A ``SurfaceProfileCharacteristicMeasurement`` (:func:`profile_characteristic`): the
+    zone's statistics and acceptance (Attributes), status, profile value and worst
+    deviations."""
+    c = profile_characteristic(z, res.established)
     ma = Attrs().b("fixtured", z.fixtured).s("measured_condition", measured_condition(z, res))
     ma.d("profile_value_mm", profile_value(z))
     stats_attrs(ma, z.stats)
@@ -527,23 +472,20 @@ def _characteristic_measurement(
         if sp is not None:
             ma.i("repeatability_regions", sp.n_regions)
             ma.i("repeatability_persistent_regions", sp.n_persistent)
-    ma.s("reading", z.reading)
-    status = strict_profile_status(z, established=res.established)
+    ma.s("reading", c.reading)
     meas = [
         ma.element(),
-        E.Status(E.CharacteristicStatusEnum(status)),
+        E.Status(E.CharacteristicStatusEnum(qif_status(c))),
         E.CharacteristicItemId(ci),
         id_array("FeatureMeasurementIds", [fm]),
         E.ActualComponentId(actual_id),
     ]
-    if status == "FAIL":
-        meas.append(E.NonConformanceDesignator(token("profile value beyond the tolerance")))
-    pv = profile_value(z)
-    if math.isfinite(pv):
-        hi, lo = worst_deviations(z)
-        meas.append(E.Value(dec(pv)))
-        meas.append(E.WorstPositiveDeviation(dec(hi)))
-        meas.append(E.WorstNegativeDeviation(dec(lo)))
+    if c.reason:
+        meas.append(E.NonConformanceDesignator(token(c.reason)))
+    if c.value is not None:
+        meas.append(E.Value(dec(c.value)))
+        meas.append(E.WorstPositiveDeviation(dec(c.worst_positive)))
+        meas.append(E.WorstNegativeDeviation(dec(c.worst_negative)))
     return E.SurfaceProfileCharacteristicMeasurement(*[x for x in meas if x is not None], id=cm)
 
 

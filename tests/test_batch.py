@@ -215,8 +215,8 @@ def test_local_batch_records_everything_and_resumes(scans, tmp_path):
     a = read_results(one / "shell_nominal.qif")
     b = read_results(out / "scans" / "shell_scan_defect.qif")
     assert a.status == b.status == "FAIL"
-    assert [(c.designator, c.status) for c in a.characteristics] == [
-        (c.designator, c.status) for c in b.characteristics
+    assert [(c.spec.key, c.status) for c in a.characteristics] == [
+        (c.spec.key, c.status) for c in b.characteristics
     ]
     assert [c.value for c in a.characteristics] == pytest.approx(
         [c.value for c in b.characteristics], abs=1.01e-4

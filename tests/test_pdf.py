@@ -303,13 +303,13 @@ def test_statistics_equal_result_and_qif(reports, case):
         row = next(
             ln
             for ln in o.text.splitlines()  # the tolerance table's row
-            if ln.split()[:1] == [z.zone.key] and c.status in ln.split()
+            if ln.split()[:1] == [z.zone.key] and c.document.status in ln.split()
         )
         cells = row.split()
-        assert fmt_mm(profile_value(z)) == fmt_mm(c.attributes["profile_value_mm"])
+        assert fmt_mm(profile_value(z)) == fmt_mm(c.document.attributes["profile_value_mm"])
         assert fmt_mm(profile_value(z)) in cells
-        assert fmt_pct(c.attributes["in_tolerance_area_fraction"]) in cells
-        assert c.status in cells
+        assert fmt_pct(c.document.attributes["in_tolerance_area_fraction"]) in cells
+        assert c.document.status in cells
     # two or three tolerances: each has its own column of the statistics table
     if 2 <= len(res.zones) <= 3:
         lines = o.text.splitlines()
@@ -322,7 +322,7 @@ def test_statistics_equal_result_and_qif(reports, case):
             row = next(ln for ln in lines if label in ln).split(label, 1)[1].split()
             for z in res.zones:
                 c = q.characteristic(z.zone.key)
-                qv = c.attributes[f"{key}_mm" if fmt is not fmt_pct else key]
+                qv = c.document.attributes[f"{key}_mm" if fmt is not fmt_pct else key]
                 assert fmt(getattr(z.stats, key)) == fmt(qv)
                 assert fmt(qv) in row, (label, z.zone.key, row)
     # PMI listed but not scored, with its count

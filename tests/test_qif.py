@@ -182,11 +182,11 @@ def test_ids_counts_and_qpids(runs, name):
 
 
 def _profiles(r) -> list:
-    return [c for c in r.characteristics if c.kind == "SurfaceProfile"]
+    return [c for c in r.characteristics if c.document.type == "SurfaceProfile"]
 
 
 def _acceptances(r) -> dict:
-    return {c.designator: c for c in r.characteristics if c.kind == "UserDefinedAttribute"}
+    return {c.spec.key: c for c in r.characteristics if c.document.type == "UserDefinedAttribute"}
 
 
 def test_failing_part_carries_fail_and_its_regions(runs):
@@ -194,13 +194,13 @@ def test_failing_part_carries_fail_and_its_regions(runs):
     r = read_results(path)
     assert r.status == "FAIL"
     (c,) = _profiles(r)
-    assert c.kind == "SurfaceProfile" and c.designator == "general"
+    assert c.document.type == "SurfaceProfile" and c.spec.key == "general"
     assert c.status == "FAIL"
     assert _acceptances(r)["general_ACCEPTANCE"].status == "FAIL"
-    assert c.tolerance == pytest.approx(0.6)
+    assert c.spec.tolerance == pytest.approx(0.6)
     # the profile value found: the zone width that would contain every scored point
     assert c.value == pytest.approx(2 * max(abs(c.worst_positive), abs(c.worst_negative)), abs=2e-4)
-    assert c.value > c.tolerance
+    assert c.value > c.spec.tolerance
     regions = c.acceptance.regions
     assert len(regions) == doc["tolerances"][0]["acceptance"]["n_regions"] >= 1
     case = runs["fail_case"]
@@ -235,26 +235,26 @@ def test_step_part_one_characteristic_per_profile_tolerance(runs):
     rc, path, doc = runs["step"]
     r = read_results(path)
     keys = [z["key"] for z in doc["tolerances"]]
-    assert [c.designator for c in _profiles(r)] == keys
+    assert [c.spec.key for c in _profiles(r)] == keys
     assert len(keys) >= 2
     accept = _acceptances(r)
     assert set(accept) == {f"{k}_ACCEPTANCE" for k in keys}
     for c, z in zip(_profiles(r), doc["tolerances"], strict=True):
-        assert c.kind == "SurfaceProfile"
-        assert c.tolerance == pytest.approx(z["width_mm"])
-        assert c.datum_labels == z["datums"]
+        assert c.document.type == "SurfaceProfile"
+        assert c.spec.tolerance == pytest.approx(z["width_mm"])
+        assert c.spec.datums == z["datums"]
         # the acceptance rule's decision is its own characteristic; the profile's status is
         # its value against its tolerance
         assert accept[f"{z['key']}_ACCEPTANCE"].status == _char_status(z, doc)
-        if c.value > c.tolerance:
+        if c.value > c.spec.tolerance:
             assert c.status == "FAIL"
         else:
             assert c.status in ("PASS", "INDETERMINATE", "FAIL")
-    assert _profiles(r)[0].datum_labels == ["A", "B", "C"]
+    assert _profiles(r)[0].spec.datums == ["A", "B", "C"]
     # the panel's two flatness tolerances, each as a FlatnessCharacteristic with its value
-    flat = [c for c in r.characteristics if c.kind == "Flatness"]
-    assert [c.designator for c in flat] == ["G1", "G2"]
-    assert all(c.tolerance == pytest.approx(0.2) and 0 < c.value < 0.2 for c in flat)
+    flat = [c for c in r.characteristics if c.document.type == "Flatness"]
+    assert [c.spec.key for c in flat] == ["G1", "G2"]
+    assert all(c.spec.tolerance == pytest.approx(0.2) and 0 < c.value < 0.2 for c in flat)
     root = etree.parse(str(path)).getroot()
     labels = [e.text for e in root.iter(f"{Q}DatumLabel")]
     assert labels == ["A", "B", "C"]
@@ -288,6 +288,44 @@ def _close(a, b, places=None):
         return a is None or not np.isfinite(a)
     tol = 0.0 if places is None else 0.51 * 10.0**-places
     return abs(a - b) <= tol + 1e-12 * abs(b)
+
+
+@pytest.fixture(scope="module")
+def panel_job(tmp_path_factory, qifreport_cache):
+    """The panel sample's failing scan inspected as the command does (its two profile
+    tolerances, their acceptances and two flatness tolerances), the QIF written."""
+    from qifreport.options import InspectJob, InspectOptions
+    from qifreport.pipeline import run_job
+
+    job = InspectJob(
+        nominal=ROOT / "samples/panel.step",
+        scan=ROOT / "samples/panel_scan_defect.ply",
+        out=tmp_path_factory.mktemp("qif-panel"),
+        options=InspectOptions(max_edge=6.0, no_pdf=True, cache_dir=qifreport_cache),
+    )
+    return run_job(job, progress=False)
+
+
+def test_panel_characteristics_read_back_as_written(panel_job):
+    """Each characteristic the writer writes (:func:`written_characteristics`: the
+    surfaces' profiles with their statistics and acceptance, their acceptances, the flatness
+    tolerances) is the one the reader reads back, field by field."""
+    from qifreport.kinds import kind_for_qif_type
+    from qifreport.metrology.gdt.characteristic_types import OTHER_KIND
+    from qifreport.qif.profile_characteristics import written_characteristics
+    from tests.round_trip import assert_same_result
+
+    written = written_characteristics(panel_job.result)
+    read = read_results(panel_job.paths["qif"]).characteristics
+    assert [c.spec.key for c in read] == [c.spec.key for c in written]
+    profile, flatness = kind_for_qif_type("SurfaceProfile"), kind_for_qif_type("Flatness")
+    kinds = [c.spec.kind for c in read]
+    assert kinds == [profile.name, OTHER_KIND] * 2 + [flatness.name] * 2
+    for w, r in zip(written, read, strict=True):
+        assert_same_result(w, r)
+    # the failing scan: a profile fails on its value, its acceptance on the regions
+    assert {c.status for c in read} >= {"PASS", "FAIL"}
+    assert all(c.stats is not None and c.worst_positive is not None for c in read[:3:2])
 
 
 @pytest.mark.parametrize("name", CASES)

@@ -26,7 +26,13 @@ import numpy as np
 import pytest
 from lxml import etree
 
-from qifreport.qif.reader import CharacteristicResult, QIFResults, read_results
+from qifreport.metrology.gdt.characteristic_types import (
+    CharacteristicResult,
+    CharacteristicSpec,
+    DocumentRecord,
+)
+from qifreport.qif.feature_characteristics import kind_of_qif_type, status_from_qif
+from qifreport.qif.reader import QIFResults, read_results
 from qifreport.qif.statistics import (
     NO_VALUE_REASON,
     build_statistics,
@@ -35,6 +41,7 @@ from qifreport.qif.statistics import (
 )
 from qifreport.qif.validate import validate
 from tests.consumers import assert_read_by_independent_consumers
+from tests.round_trip import assert_same_result
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"
@@ -309,18 +316,24 @@ def test_measurements_are_copies_traced_to_their_sources(batch):
 
 
 def _result(path: str, chars: list[tuple], status: str = "PASS") -> QIFResults:
-    """A read-back results document: ``chars`` = (designator, value, status, tolerance)."""
+    """A read-back results document: ``chars`` = (designator, value, QIF status,
+    tolerance)."""
+    kind = kind_of_qif_type("SurfaceProfile")[0]
     cs = [
         CharacteristicResult(
-            kind="SurfaceProfile",
-            id=str(10 + k),
-            name=f"profile {d}",
-            designator=d,
-            status=st,
+            CharacteristicSpec(
+                key=d,
+                kind=kind,
+                name=f"profile {d}",
+                step_id=None,
+                faces=np.zeros(0),
+                tolerance=tol,
+            ),
             value=v,
-            tolerance=tol,
+            status=status_from_qif(st),
             worst_positive=None if v is None else v / 2,
             worst_negative=None if v is None else -v / 4,
+            document=DocumentRecord(type="SurfaceProfile", id=str(10 + k), status=st),
         )
         for k, (d, v, st, tol) in enumerate(chars)
     ]
@@ -396,7 +409,7 @@ def test_rejects_what_it_cannot_write():
     # a feature characteristic whose results document (its definition) cannot be read is
     # left out (test_unreadable_feature_source_left_out), never written as a profile
     flat = _result("c.qif", [("F1", 0.1, "PASS", 0.2), ("T1", 0.2, "PASS", 1.0)])
-    flat.characteristics[0].kind = "Flatness"
+    flat.characteristics[0].document.type = "Flatness"
     doc = etree.tostring(build_statistics([flat], part_name="p", created=CREATED, sources=None))
     assert b"F1" not in doc and b"T1" in doc
     other = _result("d.qif", [("T1", 0.2, "PASS", 1.0)])
@@ -490,11 +503,31 @@ STATUS_QIF = {
 }
 
 
+def _feature_measured(run: dict, serial: str) -> list[CharacteristicResult]:
+    """The feature characteristics of ``FEATURES`` measured as ``run`` says."""
+    out = []
+    for k, (key, fields) in enumerate(FEATURES.items()):
+        spec = CharacteristicSpec(
+            key=key, name=f"item_{key}", step_id=100 + k, faces=np.array([k]), **fields
+        )
+        value, status = run[key]
+        out.append(
+            CharacteristicResult(
+                spec,
+                value=value,
+                uncertainty=None if value is None else 0.004,
+                status=status,
+                reason="not seen" if status == "NOT_MEASURED" else "",
+                reading="" if value is None else f"scan {serial}: 1,234 vertices",
+                n_points=0 if value is None else 1234,
+            )
+        )
+    return out
+
+
 def _feature_results(path: Path, run: dict, serial: str) -> Path:
     """A results document with the feature characteristics of ``FEATURES`` measured as
     ``run`` says, written with the product's builders."""
-    from qifreport.metrology.gdt.characteristics import CharacteristicResult as Measured
-    from qifreport.metrology.gdt.characteristics import CharacteristicSpec
     from qifreport.qif.definitions import Sections
     from qifreport.qif.feature_characteristics import (
         characteristic_definition,
@@ -505,20 +538,8 @@ def _feature_results(path: Path, run: dict, serial: str) -> Path:
     ids, zs = Ids(), Sections()
     actual_id, std_id, mr_id = ids(), ids(), ids()
     meas = []
-    for k, (key, fields) in enumerate(FEATURES.items()):
-        spec = CharacteristicSpec(
-            key=key, name=f"item_{key}", step_id=100 + k, faces=np.array([k]), **fields
-        )
-        value, status = run[key]
-        c = Measured(
-            spec,
-            value=value,
-            uncertainty=None if value is None else 0.004,
-            status=status,
-            reason="not seen" if status == "NOT_MEASURED" else "",
-            reading="" if value is None else f"scan {serial}: 1,234 vertices",
-            n_points=0 if value is None else 1234,
-        )
+    for c in _feature_measured(run, serial):
+        spec = c.spec
         _, ci, fm = characteristic_definition(zs, spec, ids, {}, result=c, actual_id=actual_id)
         meas.append(characteristic_measurement(c, ids, ci, fm, actual_id))
     fail = any(s == "FAIL" for _, s in run.values())
@@ -632,6 +653,21 @@ def features(tmp_path_factory):
         log=[r.getMessage() for r in records],
         per_scan=[_measurements(p) for p in paths],
     )
+
+
+def test_feature_characteristics_read_back_as_written(features):
+    """Every feature characteristic written (each status, a per-unit tolerance, dimensions
+    with limits and a basic one) is read back as the one type it was written from, field
+    by field (:mod:`tests.round_trip`)."""
+    for k, (run, res) in enumerate(zip(FEATURE_RUNS, features.results, strict=True)):
+        written = _feature_measured(run, f"S{k}")
+        assert len(res.characteristics) == len(written)
+        for w, r in zip(written, res.characteristics, strict=True):
+            # these documents are written without datum reference frames
+            w.spec.datums = []
+            assert_same_result(w, r)
+    statuses = {c.status for res in features.results for c in res.characteristics}
+    assert statuses == {"PASS", "FAIL", "INDETERMINATE", "NOT_MEASURED", "BASIC"}
 
 
 def test_feature_statistics_valid(features):
@@ -784,7 +820,7 @@ def test_unreadable_feature_source_left_out(tmp_path, caplog):
     """A feature characteristic whose results document cannot be read (its definition is
     needed) is left out, logged; the profiles are still written."""
     flat = _result(str(tmp_path / "gone.qif"), [("F1", 0.1, "PASS", 0.2), ("T1", 0.2, "PASS", 1.0)])
-    flat.characteristics[0].kind = "Flatness"
+    flat.characteristics[0].document.type = "Flatness"
     with caplog.at_level("INFO", logger="qifreport.statistics"):
         doc = etree.tostring(build_statistics([flat], part_name="p", created=CREATED))
     assert b"F1" not in doc and b"T1" in doc

@@ -1,7 +1,20 @@
-"""A feature characteristic to measure (:class:`CharacteristicSpec`), its measurement
+"""A characteristic to measure (:class:`CharacteristicSpec`), its result
 (:class:`CharacteristicResult`) and what every measurement of one shares: the judgement of a
 value against its limits, the expanded uncertainty of a zone width or a fitted parameter,
 the reading's text.
+
+:class:`CharacteristicResult` is the one type of a characteristic's result: the
+measurements made here (feature characteristics, a toleranced surface's profile), what the
+QIF writer writes, and what the QIF reader reads back from a results document (ours or
+another application's), the document's own identifiers and text then in its
+:class:`DocumentRecord`.
+
+Statuses (:data:`STATUSES`): ``PASS``, ``FAIL``, ``INDETERMINATE``, ``NOT_MEASURED``,
+``BASIC`` (a basic or reference dimension, reported without limits), and ``OTHER`` for a
+status read from a document that none of these is (QIF's ``REWORK``, ``SYSERROR``,
+``UNDEFINED`` or another application's own; its text kept in
+:attr:`DocumentRecord.status`). Documents' vocabularies are mapped at their boundary
+(:mod:`qifreport.qif.feature_characteristics`).
 
 Lengths mm, angles degrees.
 """
@@ -13,13 +26,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from qifreport.metrology.acceptance.criteria import Acceptance
 from qifreport.metrology.acceptance.decision import decide
+from qifreport.metrology.acceptance.statistics import DeviationStats
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.metrology.gdt.measured_surface import FeatureSample
 
 __all__ = [
+    "OTHER_KIND",
+    "STATUSES",
     "CharacteristicResult",
     "CharacteristicSpec",
+    "DocumentRecord",
     "Unmeasurable",
     "faces_text",
     "fit_uncertainty",
@@ -29,6 +47,13 @@ __all__ = [
     "zone_uncertainty",
 ]
 
+#: the statuses of a characteristic result (see the module docstring)
+STATUSES = ("PASS", "FAIL", "INDETERMINATE", "NOT_MEASURED", "BASIC", "OTHER")
+#: the kind of a characteristic that is neither a registered kind nor a dimension: one read
+#: from a document whose type no kind has (a QIF ``UserDefinedAttribute``, another
+#: application's type; the type is :attr:`DocumentRecord.type`)
+OTHER_KIND = "other"
+
 
 @dataclass
 class CharacteristicSpec:
@@ -36,8 +61,11 @@ class CharacteristicSpec:
 
     Attributes
     ----------
-    key : ``'G<k>'`` (geometric tolerance) or ``'D<k>'`` (dimension), file order.
-    kind : the tolerance kind (:data:`qifreport.kinds.KINDS`) or ``'dimension'``.
+    key : ``'G<k>'`` (geometric tolerance) or ``'D<k>'`` (dimension), file order; a
+        toleranced surface's zone key (``'T1'``, ``'general'``); read from a document, its
+        designator (``''``: none).
+    kind : the tolerance kind (:data:`qifreport.kinds.KINDS`), ``'dimension'`` or
+        :data:`OTHER_KIND`.
     name, step_id : the PMI item's name and STEP entity.
     faces : (k,) mesh face ids of the feature (a location's both ends).
     tolerance : zone width, mm (geometric).
@@ -98,23 +126,58 @@ class CharacteristicSpec:
 
 
 @dataclass
+class DocumentRecord:
+    """What a characteristic read from a results document carries besides its result: the
+    document's identifiers and text, as written (a copy of it, e.g. a statistics document,
+    repeats them). A characteristic measured here has none.
+
+    Attributes
+    ----------
+    type : the document's characteristic type (QIF: the stem of ``<type>Characteristic
+        Measurement``, ``"SurfaceProfile"``, ``"Diameter"``, ``"UserDefinedAttribute"``, or
+        another application's).
+    id : the measurement's id in the document.
+    status : the status as written (QIF: ``CharacteristicStatusEnum`` or the other-status
+        text; None: none), which :attr:`CharacteristicResult.status` maps.
+    description : the definition's description, None when absent.
+    unequally_disposed : the zone's part outside the material (QIF
+        ``UnequallyDisposedZone``), mm; None when absent.
+    attributes : the measurement's typed attributes, name -> value.
+    """
+
+    type: str
+    id: str | None
+    status: str | None = None
+    description: str | None = None
+    unequally_disposed: float | None = None
+    attributes: dict = field(default_factory=dict)
+
+
+@dataclass
 class CharacteristicResult:
-    """One characteristic measured.
+    """One characteristic's result: measured here, or read from a results document.
 
     Attributes
     ----------
     spec : what was measured.
-    value : the measured value (mm or deg; a tolerance's zone width, a dimension's size),
-        None when not measured.
+    value : the measured value (mm or deg; a tolerance's zone width or profile value, a
+        dimension's size), None when not measured.
     least_squares : the least-squares reading beside a minimum zone (form), else None.
     uncertainty : expanded uncertainty of ``value`` (k = 2).
-    status : ``'PASS'``, ``'FAIL'``, ``'INDETERMINATE'``, ``'NOT_MEASURED'``, ``'BASIC'``.
+    status : one of :data:`STATUSES`.
     reason : why not measured, or how it failed.
     reading : how it was measured (``'minimum zone, 1,204 vertices, frame |A|B|C|'`` ...).
-    n_points : points used.  coverage : share of the feature's vertices measured.
+    n_points : points used.  coverage : share of the feature's vertices measured (a
+        toleranced surface's: of its nominal area scored).
     bonus : MMC/LMC bonus added to the tolerance, mm.
     direction : (3,) the feature's nominal normal or axis where a report needs it (a line
         profile's QIF ``Vector``), else None.
+    worst_positive, worst_negative : a profile's signed extremes of the deviation, mm
+        (None: not a toleranced surface's, or not scored).
+    stats, acceptance : a toleranced surface's deviation statistics and acceptance (read
+        back: their regions without vertex lists), else None.
+    document : what the results document it was read from says besides (None: measured
+        here).
     """
 
     spec: CharacteristicSpec
@@ -128,6 +191,11 @@ class CharacteristicResult:
     coverage: float | None = None
     bonus: float = 0.0
     direction: np.ndarray | None = None
+    worst_positive: float | None = None
+    worst_negative: float | None = None
+    stats: DeviationStats | None = None
+    acceptance: Acceptance | None = None
+    document: DocumentRecord | None = None
 
     @property
     def limit(self) -> float | None:
