@@ -40,7 +40,7 @@ from qifreport.registration.mesh import (
     vertex_normals,
 )
 from qifreport.registration.nearest import ball_pairs
-from qifreport.registration.pointcloud import median_spacing
+from qifreport.registration.scan import median_spacing
 
 __all__ = [
     "beyond_rim",
