@@ -115,7 +115,7 @@ def test_trend_characteristics_of_a_part():
         ),
         _spec("G9", "flatness", tolerance=0.1),  # never measured: no column, no chart
     ]
-    st = SimpleNamespace(nominal=SimpleNamespace(zones=[zone], plan=SimpleNamespace(specs=specs)))
+    st = SimpleNamespace(drawing=SimpleNamespace(zones=[zone], plan=SimpleNamespace(specs=specs)))
     df = pd.DataFrame(
         {
             "profile_T1_mm": [0.3],

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 
 from qifreport.errors import InputError
 from qifreport.metrology.model import Drawing, Part
@@ -30,15 +31,6 @@ def grid(pitch: float = 0.5, n: int = 40) -> np.ndarray:
     return np.column_stack([x.ravel(), y.ravel(), np.ones(n * n)])
 
 
-def write_ply(path: Path, P: np.ndarray) -> None:
-    head = (
-        "ply\nformat binary_little_endian 1.0\n"
-        f"element vertex {len(P)}\nproperty double x\nproperty double y\nproperty double z\n"
-        "end_header\n"
-    )
-    path.write_bytes(head.encode() + np.ascontiguousarray(P, dtype="<f8").tobytes())
-
-
 @pytest.mark.parametrize("suffix, fmt", [(".ply", "ply"), (".xyz", "text"), (".npy", "npy")])
 def test_each_format_reads_the_same_scan(tmp_path, suffix, fmt):
     """A PLY, an XYZ and an NPY file of the same points read as the same :class:`Scan`:
@@ -46,7 +38,7 @@ def test_each_format_reads_the_same_scan(tmp_path, suffix, fmt):
     P = grid()
     f = tmp_path / f"scan{suffix}"
     if suffix == ".ply":
-        write_ply(f, P)
+        trimesh.PointCloud(P).export(f)
     elif suffix == ".xyz":
         np.savetxt(f, P, fmt="%.17g")
     else:
