@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 
 from qifreport.registration.mesh import load_mesh
 from qifreport.registration.normals import pca_normals
-from qifreport.registration.pointcloud import load_scan, read_scan, unique_points
+from qifreport.registration.pointcloud import read_scan, unique_points
 from qifreport.registration.thinning import nominal_spacing, thin_scan
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,7 +47,7 @@ SCAN = ROOT / "samples" / "shell_scan.ply"
 
 def dense_scan(n: int, seed: int = 0, k: int = 8, noise: float = 0.015) -> np.ndarray:
     """``n`` points (float32, mm) on the surface of the sample shell scan (module docstring)."""
-    S = load_scan(SCAN)
+    S = read_scan(SCAN).points
     _, nb = cKDTree(S).query(S, k=k + 1)
     N = pca_normals(S)
     rng = np.random.default_rng(seed)
@@ -89,7 +89,8 @@ def _median(fn, runs: int):
 
 def stages(scan: Path, spacing: float, runs: int) -> dict:
     """Median seconds of reading, de-duplicating and thinning ``scan`` in this process."""
-    t_read, (P, n_read) = _median(lambda: read_scan(scan, deduplicate=False), runs)
+    t_read, read = _median(lambda: read_scan(scan, deduplicate=False), runs)
+    P, n_read = read.points, read.points_read
     t_dedup, (Q, _) = _median(lambda: unique_points(P), runs)
     t_thin, (_, report) = _median(lambda: thin_scan(Q, spacing, points_read=n_read), runs)
     return {"read": t_read, "dedup": t_dedup, "thin": t_thin, "report": report}

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 NIST = ROOT.parent / "shared" / "step" / "nist"
 
 
-def _surface(nom, step: Path):
+def _surface(part, step: Path):
     """The perfect part: every vertex at zero deviation, and a full-coverage sample of the
     exact B-rep (one point per (diagonal / 300)^2, as a CT scan sees a part) as its scan
     points, so a face narrower than the mesh (a thin wall's hole) is measured on them."""
@@ -35,15 +35,15 @@ def _surface(nom, step: Path):
     from qifreport.simulate.brep_scan import surface_sample
     from qifreport.step.reader import read_step
 
-    part = read_step(step)
-    diag = float(np.linalg.norm(np.ptp(nom.V, axis=0)))
-    scan = surface_sample(part.shape, part.faces, diag / 300.0)
-    n, m = len(nom.V), len(scan.P)
+    step_part = read_step(step)
+    diag = float(np.linalg.norm(np.ptp(part.V, axis=0)))
+    scan = surface_sample(step_part.shape, step_part.faces, diag / 300.0)
+    n, m = len(part.V), len(scan.P)
     return MeasuredSurface(
-        nom.V,
-        nom.F,
-        nom.face_id,
-        nom.brep_normals,
+        part.V,
+        part.F,
+        part.face_id,
+        part.brep_normals,
         np.zeros(n),
         np.full(n, 0.002),
         scan.P,
@@ -70,13 +70,13 @@ def main() -> None:
     reasons: Counter = Counter()
     total = measured_total = 0
     for f in files:
-        nom = load_nominal(f, None, accept_tolerance_as_read=True)
-        if nom.plan is None or not nom.plan.specs:
+        part, drawing = load_nominal(f, None, accept_tolerance_as_read=True)
+        if drawing.plan is None or not drawing.plan.specs:
             print(f"{f.stem.split('_asme')[0]:<10} {0:>5}")
             continue
         t0 = time.perf_counter()
         res, _ = measure_characteristics(
-            nom.plan.specs, nom.plan.datums, _surface(nom, f), "iso14253"
+            drawing.plan.specs, drawing.plan.datums, _surface(part, f), "iso14253"
         )
         dt = time.perf_counter() - t0
         # a basic dimension of supplemental geometry (a datum target area's side) is applied

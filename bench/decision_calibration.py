@@ -43,18 +43,17 @@ def main() -> None:
     print(head)
     print("-" * len(head))
     for f in a.files or sorted(NIST.glob("*.stp")):
-        part = read_step(f)
-        scan, _ = technician_scan(part, noise=a.noise, points=a.points)
-        nom = load_nominal(f, None)
+        scan, _ = technician_scan(read_step(f), noise=a.noise, points=a.points)
+        part, drawing = load_nominal(f, None)
         res = inspect(
-            nom.V,
-            nom.F,
+            part.V,
+            part.F,
             scan.P,
             InspectionParams(rigid_only=True, prealign="never"),
-            face_id=nom.face_id,
-            brep_normals=nom.brep_normals,
-            zones=nom.zones,
-            not_evaluated=nom.not_evaluated,
+            face_id=part.face_id,
+            brep_normals=part.brep_normals,
+            zones=drawing.zones,
+            not_evaluated=drawing.not_evaluated,
             solid=True,
         )
         var = res.deviation_variance

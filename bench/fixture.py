@@ -138,8 +138,8 @@ def _product_nominal(name, nominal, options, csv, cache):
     from qifreport.registration.mesh import vertex_normals
 
     opts = _options(name, options, csv, "restrained", cache)
-    nom = _state((name, True), nominal, opts).nominal
-    return nom.V, nom.F, vertex_normals(nom.V, nom.F)
+    part = _state((name, True), nominal, opts).part
+    return part.V, part.F, vertex_normals(part.V, part.F)
 
 
 def _step_setup(
@@ -384,6 +384,7 @@ def run_product(task: dict) -> dict:
     logging.disable(logging.WARNING)
     from qifreport.options import InspectJob
     from qifreport.pipeline import inspect_state, scan_input
+    from qifreport.registration.scan import Scan
     from qifreport.restraint import with_limits
 
     opts = _options(task["part"], task["options"], task["clamps"], task["method"], task["cache"])
@@ -401,7 +402,7 @@ def run_product(task: dict) -> dict:
         with_limits(state.restraint, spec)
     job = InspectJob(nominal=task["nominal"], scan=Path("case.ply"), options=opts)
     t0 = time.perf_counter()
-    P, _ = scan_input(np.asarray(task["P"], dtype=np.float64), len(task["P"]), state.nominal)
+    P, _ = scan_input(Scan(np.asarray(task["P"], dtype=np.float64)), state.part)
     try:
         res = inspect_state(P, state, job)
     except Exception as e:  # noqa: BLE001 -- a refusal is a result of the benchmark

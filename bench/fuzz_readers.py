@@ -1,4 +1,4 @@
-"""Fuzz the file readers: ``load_scan`` and ``load_mesh`` on many arbitrary and damaged files.
+"""Fuzz the file readers: ``read_scan`` and ``load_mesh`` on many arbitrary and damaged files.
 
 The property of ``tests/test_fuzz_readers.py``, with many more cases and a fixed seed: for
 any file content a reader returns finite float64 arrays of the right shape or raises
@@ -13,7 +13,7 @@ successes, and escapes; then the first traceback of each kind of escape (excepti
 the line that raised it). Exit status 1 if anything escaped, else 0.
 
     python bench/fuzz_readers.py [--cases 2000] [--seed 0] [--timeout 10] [--mem-gb 8]
-                                 [--reader load_scan|load_mesh] [--save DIR]
+                                 [--reader read_scan|load_mesh] [--save DIR]
 
 ``--cases`` is per reader. ``--save DIR`` keeps the first input of each escape kind there,
 and the current input as ``last-case`` (reader, format and suffix in ``last-case.txt``): the

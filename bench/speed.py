@@ -24,8 +24,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 EXE = Path(sys.executable).with_name("qifreport")
 STAGE = re.compile(r"^(\S.*?)\s{2,}([0-9.]+)\s+([0-9]+)\s*$")
@@ -62,11 +60,11 @@ def unit(part: Path, scan: Path) -> float:
     from scipy.spatial import cKDTree
 
     from qifreport.nominal import load_nominal
-    from qifreport.registration.pointcloud import load_scan
+    from qifreport.registration.pointcloud import read_scan
 
-    nom = load_nominal(part, None)
-    P = np.asarray(load_scan(scan), dtype=np.float64)
-    tree = cKDTree(nom.V)
+    nominal, _ = load_nominal(part, None)
+    P = read_scan(scan).points
+    tree = cKDTree(nominal.V)
     times = []
     for _ in range(5):
         t0 = time.perf_counter()

@@ -68,12 +68,13 @@ import numpy as np
 import scipy
 
 from qifreport import __version__
+from qifreport.metrology.model import Drawing, Part
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.prepared import PreparedPart, part_settings, prepare_part
 from qifreport.registration.deformable.methods import method_spec
 from qifreport.registration.restraint.restrained import RestraintBasis
 
-from .nominal import Nominal, load_nominal
+from .nominal import load_nominal
 from .options import NominalOptions
 from .restraint import build_restraint, with_limits
 
@@ -103,7 +104,7 @@ log = logging.getLogger(__name__)
 
 #: version of the entry layout, part of every key: an entry written by another layout of
 #: :class:`PartState` (or of anything it holds) is never read; bump it when that changes
-CACHE_FORMAT = 16
+CACHE_FORMAT = 17
 SUFFIX = ".qprep"
 #: the per-user secret's file name inside the cache directory, and its length in bytes
 KEY_FILE = ".key"
@@ -136,7 +137,8 @@ class PartState:
 
     Attributes
     ----------
-    nominal : mesh, face ids, zones and provenance (:class:`qifreport.nominal.Nominal`).
+    part : the nominal's mesh, faces and provenance (:class:`qifreport.metrology.model.Part`).
+    drawing : its zones, characteristics and datums (:class:`qifreport.metrology.model.Drawing`).
     prepared : the scan-independent state (:class:`qifreport.metrology.prepared.PreparedPart`).
     nominal_sha256 : digest of the nominal file.  key : the cache key.
     build_seconds : what reading and preparing took when the entry was built.
@@ -144,7 +146,8 @@ class PartState:
         when the options hold it at clamps; None otherwise.
     """
 
-    nominal: Nominal
+    part: Part
+    drawing: Drawing
     prepared: PreparedPart
     nominal_sha256: str
     key: str
@@ -399,7 +402,7 @@ def build_state(
     key: str = "",
     complete: bool = True,
     lazy_basis: bool = False,
-    on_nominal: Callable[[Nominal], None] | None = None,
+    on_nominal: Callable[[Part], None] | None = None,
 ) -> PartState:
     """Read the nominal and prepare it.
 
@@ -409,11 +412,11 @@ def build_state(
     ``lazy_basis``: leave out the bending basis, the costliest part (an inspection that
     judges the free state first needs it only when the free state does not conform; it is
     then built by the fixture, and a cache entry's stored by :func:`store_basis`), with or
-    without ``complete``. ``on_nominal``: called with the nominal once it is read, before
+    without ``complete``. ``on_nominal``: called with the part once it is read, before
     it is prepared (:func:`part_state`).
     """
     t0 = time.perf_counter()
-    nom = load_nominal(
+    part, drawing = load_nominal(
         nominal,
         options.tolerance,
         options.max_edge,
@@ -425,13 +428,13 @@ def build_state(
     )
     restraint = None
     if options.restraint is not None:
-        solid = None if nom.solid_mesh is None else (nom.solid_mesh.X, nom.solid_mesh.T)
-        restraint = build_restraint(nom.V, nom.F, options.restraint, solid=solid)
-        nom.solid_mesh = None  # in the basis now: not kept in the cache entry
+        solid = None if part.solid_mesh is None else (part.solid_mesh.X, part.solid_mesh.T)
+        restraint = build_restraint(part.V, part.F, options.restraint, solid=solid)
+        part.solid_mesh = None  # in the basis now: not kept in the cache entry
     if on_nominal is not None:
-        on_nominal(nom)
+        on_nominal(part)
     if complete:
-        prepared = prepare_part(nom.V, nom.F, params, basis=not lazy_basis)
+        prepared = prepare_part(part.V, part.F, params, basis=not lazy_basis)
     else:
         basis = (
             method_spec(params.method).uses_bending_basis
@@ -439,9 +442,10 @@ def build_state(
             and params.gbcicp.solver == "modal"
             and not lazy_basis
         )
-        prepared = prepare_part(nom.V, nom.F, params, basis=basis, model=False)
+        prepared = prepare_part(part.V, part.F, params, basis=basis, model=False)
     return PartState(
-        nominal=nom,
+        part=part,
+        drawing=drawing,
         prepared=prepared,
         nominal_sha256=nominal_sha256,
         key=key,
@@ -565,7 +569,7 @@ def part_state(
     *,
     rebuild: bool = False,
     lazy_basis: bool = False,
-    on_nominal: Callable[[Nominal], None] | None = None,
+    on_nominal: Callable[[Part], None] | None = None,
 ) -> tuple[PartState, CacheOutcome]:
     """The prepared state of ``nominal``: loaded from ``cache_dir`` when a trusted entry
     exists, else built (and stored there).
@@ -580,7 +584,7 @@ def part_state(
     lazy_basis : a built state leaves out the bending basis (:func:`build_state`): the
         fixture builds it if the free state does not conform, beside the free state's
         judgement; with a cache the caller stores it then (:func:`store_basis`).
-    on_nominal : called once with the nominal (:class:`qifreport.nominal.Nominal`) as soon
+    on_nominal : called once with the part (:class:`qifreport.metrology.model.Part`) as soon
         as it is known: when a state is built, after reading it and before preparing it (the
         costly part), so that work needing only the mesh can start beside the preparation
         (the command line's scan measures); on a cache hit, once the entry is loaded.
@@ -640,7 +644,7 @@ def part_state(
             log.info("part state loaded from %s", path)
             outcome = CacheOutcome("hit", path, time.perf_counter() - t0, state.build_seconds)
             if on_nominal is not None:
-                on_nominal(state.nominal)
+                on_nominal(state.part)
             return state, outcome
         except CorruptEntry as exc:
             reason = str(exc)
@@ -683,7 +687,7 @@ def store_basis(
         or outcome.path is None
         or cache_dir is None
         or state.prepared.basis is not None
-        or len(basis.Phi) != len(state.nominal.V)
+        or len(basis.Phi) != len(state.part.V)
         or basis.energy != state.prepared.energy
     ):
         return False

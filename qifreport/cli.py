@@ -544,9 +544,10 @@ def _run_prepare(args: argparse.Namespace) -> int:
     print(outcome.describe())
     if outcome.timings:
         print("  " + ", ".join(f"{k} {v:.2f} s" for k, v in outcome.timings.items()))
-    n = state.nominal
+    part, zones = state.part, state.drawing.zones
     print(
-        f"  {len(n.V)} vertices, {len(n.F)} triangles, {len(n.zones)} zone(s), key {state.key[:16]}"
+        f"  {len(part.V)} vertices, {len(part.F)} triangles, {len(zones)} zone(s), "
+        f"key {state.key[:16]}"
     )
     return 0
 

@@ -1,17 +1,18 @@
-"""The nominal as an inspection needs it: a STEP part (mesh + PMI zones) or a mesh.
+"""Reading a nominal file into the :class:`~qifreport.metrology.model.Part` and its
+:class:`~qifreport.metrology.model.Drawing`: a STEP part or a mesh.
 
 :func:`load_nominal` reads a STEP AP242 file through :mod:`qifreport.step` (tessellation with
 per-face ids, semantic PMI turned into tolerance zones by
-:func:`qifreport.metrology.acceptance.bands.zones_from_pmi`) or a mesh nominal (STL/PLY/OBJ/OFF)
-with one
-general zone of the given tolerance.
+:func:`qifreport.metrology.acceptance.bands.zones_from_pmi` and into feature characteristics
+by :func:`qifreport.metrology.gdt.characteristics.specs_from_pmi`) or a mesh nominal
+(STL/PLY/OBJ/OFF) with one general zone of the operator's tolerance.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -23,7 +24,8 @@ from qifreport.metrology.acceptance.bands import (
     symmetric_zone,
     zones_from_pmi,
 )
-from qifreport.metrology.gdt.characteristics import CharacteristicPlan, specs_from_pmi
+from qifreport.metrology.gdt.characteristics import specs_from_pmi
+from qifreport.metrology.model import Drawing, Part
 from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.mesh import (
     bounding_diagonal,
@@ -38,38 +40,15 @@ from .errors import InputError
 
 if TYPE_CHECKING:
     from qifreport.step.gmsh_mesh import SolidMesh
+    from qifreport.step.reader import StepPart
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "Nominal",
     "load_nominal",
     "pick_part_solid",
     "seat_faces",
 ]
-
-
-@dataclass
-class Nominal:
-    """The nominal as the inspection needs it: mesh, face ids, zones, provenance."""
-
-    V: np.ndarray
-    F: np.ndarray
-    face_id: np.ndarray | None
-    zones: list[ToleranceZone]
-    not_evaluated: list[NotEvaluated]
-    info: dict
-    datums: list[str] = field(default_factory=list)
-    #: (f, 3, 3) the B-rep's outward normals at each triangle's corners (a STEP nominal;
-    #: :func:`qifreport.step.normals.corner_normals_exact`), None for a mesh nominal
-    brep_normals: np.ndarray | None = None
-    #: the tetrahedra filling the STEP part's solid, for its elastic model (when asked for:
-    #: :func:`load_nominal` ``solid_mesh``)
-    solid_mesh: SolidMesh | None = None
-    #: the drawing's feature characteristics and datums (a STEP nominal with PMI)
-    plan: CharacteristicPlan | None = None
-    #: (n_faces,) the STEP entity id of each B-rep face (-1 unknown), None for a mesh
-    face_step_ids: np.ndarray | None = None
 
 
 def load_nominal(
@@ -82,14 +61,19 @@ def load_nominal(
     mesher: str = "gmsh",
     solid: str | None = None,
     solid_mesh: bool = False,
-) -> Nominal:
-    """Read a STEP part (mesh + PMI zones) or a mesh nominal (one general zone).
+) -> tuple[Part, Drawing]:
+    """Read a STEP part (mesh + PMI zones and characteristics) or a mesh nominal (one general
+    zone of ``tolerance``): the part and its drawing.
 
     A STEP part whose tolerances the plausibility check flags
     (:func:`qifreport.step.plausibility.implausible_tolerances`: a zone wider than 10 % of
     the part's diagonal, or unreadable as a length) is refused (:class:`InputError`, naming
     the first value) unless ``accept_tolerance_as_read``; then the reasons are kept in
-    ``info["implausible_tolerances"]``.
+    ``Part.info["implausible_tolerances"]``.
+
+    ``tolerance``: the half-width (mm) of the general zone, required for a mesh nominal;
+    for a STEP part, of the zone of the faces no profile of the PMI covers (None: the PMI's
+    whole-part profile, else the default).
 
     ``mesher``: ``"gmsh"`` (:func:`qifreport.step.gmsh_mesh.gmsh_tessellate`, isotropic,
     welded and manifold; the default) or ``"brepmesh"``
@@ -98,109 +82,180 @@ def load_nominal(
     ``solid``: the solid of a multi-solid STEP file to inspect, by index or name
     (:func:`pick_part_solid`; a file with several solids is refused without it).
 
-    ``solid_mesh``: also fill a STEP part's solid with tetrahedra (``Nominal.solid_mesh``,
+    ``solid_mesh``: also fill a STEP part's solid with tetrahedra (``Part.solid_mesh``,
     edge :data:`qifreport.restraint.SOLID_EDGE_SHARE` of its diagonal), for the elastic
     model of a restrained inspection.
     """
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
     if path.suffix.lower() in STEP_SUFFIXES:
-        from qifreport.step.normals import corner_normals_exact
-        from qifreport.step.plausibility import implausible_tolerances
-        from qifreport.step.reader import read_step
-        from qifreport.step.supplemental import face_solids
-        from qifreport.step.tessellate import shape_diagonal, tessellate
+        return _step_nominal(
+            path,
+            tolerance,
+            max_edge,
+            deflection,
+            accept_tolerance_as_read=accept_tolerance_as_read,
+            mesher=mesher,
+            solid=solid,
+            solid_mesh=solid_mesh,
+        )
+    return _mesh_nominal(path, tolerance)
 
-        part = read_step(path)
-        diagonal = shape_diagonal(part.shape)
-        implausible = implausible_tolerances(part.pmi, diagonal)
-        if implausible and not accept_tolerance_as_read:
-            more = f" (and {len(implausible) - 1} more)" if len(implausible) > 1 else ""
-            raise InputError(
-                f"{path.name}: implausible tolerance read from the file: {implausible[0]}{more}; "
-                "if the drawing really means it, run with --accept-tolerance-as-read"
-            )
-        chosen, picked = pick_part_solid(part, solid)
-        if picked is not None:  # the part is that solid: its size sets the mesh
-            diagonal = float(np.linalg.norm(picked.hi - picked.lo))
-        if max_edge is None:
-            max_edge = diagonal / 60.0
-        if mesher == "gmsh":
-            from qifreport.step.gmsh_mesh import gmsh_tessellate
 
-            mesh = gmsh_tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
-        else:
-            mesh = tessellate(part.shape, part.faces, deflection=deflection, max_edge=max_edge)
-        zones, skipped = zones_from_pmi(part.pmi, part.face_index(), tolerance)
-        V, F, face_id = mesh.V, mesh.F, mesh.face_id
-        supplemental: list[dict] = []
-        face_solid = face_solids(part.shape, part.faces)
-        if chosen is not None or (face_solid < 0).any():
-            V, F, face_id, zones, skipped, supplemental = seat_faces(
-                V,
-                F,
-                face_id,
-                face_solid,
-                chosen,
-                zones,
-                skipped,
-                part.face_step_ids,
-                2.0 * mesh.deflection,
-            )
-        pmi = part.pmi
-        info = {
-            "format": "step",
-            "schema": getattr(pmi, "schema", None),
-            "length_unit": getattr(pmi, "length_unit", None),
-            "b_rep_faces": len(part.faces),
-            "solids": part.n_solids,
-            "tessellation": {
-                "mesher": mesher,
-                "deflection_mm": mesh.deflection,
-                "max_edge_mm": max_edge,
-                "vertices": len(V),
-                "triangles": len(F),
-            },
-            "pmi_counts": {
-                "tolerances": len(pmi.tolerances) if pmi else 0,
-                "dimensions": len(pmi.dimensions) if pmi else 0,
-                "datums": len(pmi.datums) if pmi else 0,
-            },
-            "timings_s": {**part.timings, "tessellate": mesh.seconds},
-        }
-        if implausible:
-            info["implausible_tolerances"] = implausible
-        if supplemental:
-            info["supplemental_faces"] = supplemental
-        if picked is not None:
-            info["solid"] = {"index": chosen, "name": picked.name, "of": part.n_solids}
-        datums = [d.label for d in pmi.datums] if pmi is not None else []
-        t0 = time.perf_counter()
-        normals = corner_normals_exact(part.faces, V, F, face_id)
-        info["timings_s"]["corner normals"] = time.perf_counter() - t0
-        tets = None
-        if solid_mesh:
-            from qifreport.step.gmsh_mesh import gmsh_solid_mesh
-            from qifreport.step.solids import solid_shape
+def _step_nominal(
+    path: Path,
+    tolerance: float | None,
+    max_edge: float | None,
+    deflection: float | None,
+    *,
+    accept_tolerance_as_read: bool,
+    mesher: str,
+    solid: str | None,
+    solid_mesh: bool,
+) -> tuple[Part, Drawing]:
+    """:func:`load_nominal` of a STEP file: tessellate the part (its solid ``solid``), seat
+    the zones of its PMI on the faces kept (:func:`seat_faces`), the B-rep's corner normals,
+    the solid's tetrahedra when ``solid_mesh``."""
+    from qifreport.step.normals import corner_normals_exact
+    from qifreport.step.reader import read_step
+    from qifreport.step.supplemental import face_solids
+    from qifreport.step.tessellate import shape_diagonal
 
-            from .restraint import SOLID_EDGE_SHARE
-
-            shape = part.shape if chosen is None else solid_shape(part.shape, chosen)
-            tets = gmsh_solid_mesh(shape, SOLID_EDGE_SHARE * diagonal)
-            info["timings_s"]["solid tetrahedra"] = tets.seconds
-        return Nominal(
+    step_part = read_step(path)
+    pmi = step_part.pmi
+    diagonal = shape_diagonal(step_part.shape)
+    implausible = _plausibility(path, pmi, diagonal, accept_tolerance_as_read)
+    chosen, picked = pick_part_solid(step_part, solid)
+    if picked is not None:  # the part is that solid: its size sets the mesh
+        diagonal = float(np.linalg.norm(picked.hi - picked.lo))
+    if max_edge is None:
+        max_edge = diagonal / 60.0
+    mesh = _tessellate(step_part, mesher, deflection, max_edge)
+    zones, skipped = zones_from_pmi(pmi, step_part.face_index(), tolerance)
+    V, F, face_id = mesh.V, mesh.F, mesh.face_id
+    supplemental: list[dict] = []
+    face_solid = face_solids(step_part.shape, step_part.faces)
+    if chosen is not None or (face_solid < 0).any():
+        V, F, face_id, zones, skipped, supplemental = seat_faces(
             V,
             F,
             face_id,
+            face_solid,
+            chosen,
             zones,
             skipped,
-            info,
-            list(dict.fromkeys(datums)),
-            brep_normals=normals,
-            solid_mesh=tets,
-            plan=specs_from_pmi(pmi, part.face_index()),
-            face_step_ids=np.asarray(part.face_step_ids, dtype=np.int64),
+            step_part.face_step_ids,
+            2.0 * mesh.deflection,
         )
+    info = _step_info(step_part, mesh, mesher, max_edge, len(V), len(F))
+    if implausible:
+        info["implausible_tolerances"] = implausible
+    if supplemental:
+        info["supplemental_faces"] = supplemental
+    if picked is not None:
+        info["solid"] = {"index": chosen, "name": picked.name, "of": step_part.n_solids}
+    datums = [d.label for d in pmi.datums] if pmi is not None else []
+    t0 = time.perf_counter()
+    normals = corner_normals_exact(step_part.faces, V, F, face_id)
+    info["timings_s"]["corner normals"] = time.perf_counter() - t0
+    tets = _solid_tetrahedra(step_part, chosen, diagonal) if solid_mesh else None
+    if tets is not None:
+        info["timings_s"]["solid tetrahedra"] = tets.seconds
+    part = Part(
+        V,
+        F,
+        face_id,
+        face_step_ids=np.asarray(step_part.face_step_ids, dtype=np.int64),
+        brep_normals=normals,
+        solid_mesh=tets,
+        name=step_part.name,
+        source=path,
+        units=getattr(pmi, "length_unit", None),
+        info=info,
+    )
+    drawing = Drawing(
+        zones,
+        skipped,
+        list(dict.fromkeys(datums)),
+        plan=specs_from_pmi(pmi, step_part.face_index()),
+        source="pmi",
+    )
+    return part, drawing
+
+
+def _plausibility(path: Path, pmi, diagonal: float, accept: bool) -> list:
+    """The reasons :func:`qifreport.step.plausibility.implausible_tolerances` finds the PMI's
+    tolerances implausible for a part of ``diagonal`` mm; any refuses the part
+    (:class:`InputError`, naming the first) unless ``accept``."""
+    from qifreport.step.plausibility import implausible_tolerances
+
+    implausible = implausible_tolerances(pmi, diagonal)
+    if implausible and not accept:
+        more = f" (and {len(implausible) - 1} more)" if len(implausible) > 1 else ""
+        raise InputError(
+            f"{path.name}: implausible tolerance read from the file: {implausible[0]}{more}; "
+            "if the drawing really means it, run with --accept-tolerance-as-read"
+        )
+    return implausible
+
+
+def _tessellate(step_part: StepPart, mesher: str, deflection: float | None, max_edge: float):
+    """The STEP part's inspection mesh with face ids, by ``mesher`` (:func:`load_nominal`)."""
+    if mesher == "gmsh":
+        from qifreport.step.gmsh_mesh import gmsh_tessellate
+
+        return gmsh_tessellate(
+            step_part.shape, step_part.faces, deflection=deflection, max_edge=max_edge
+        )
+    from qifreport.step.tessellate import tessellate
+
+    return tessellate(step_part.shape, step_part.faces, deflection=deflection, max_edge=max_edge)
+
+
+def _step_info(
+    step_part: StepPart, mesh, mesher: str, max_edge: float, n_vertices: int, n_triangles: int
+) -> dict:
+    """The provenance of a STEP part (``Part.info``, the JSON summary's ``nominal`` block):
+    schema, unit, faces, solids, the tessellation (``n_vertices`` and ``n_triangles`` of
+    the mesh kept), the PMI's counts, the timings."""
+    pmi = step_part.pmi
+    return {
+        "format": "step",
+        "schema": getattr(pmi, "schema", None),
+        "length_unit": getattr(pmi, "length_unit", None),
+        "b_rep_faces": len(step_part.faces),
+        "solids": step_part.n_solids,
+        "tessellation": {
+            "mesher": mesher,
+            "deflection_mm": mesh.deflection,
+            "max_edge_mm": max_edge,
+            "vertices": n_vertices,
+            "triangles": n_triangles,
+        },
+        "pmi_counts": {
+            "tolerances": len(pmi.tolerances) if pmi else 0,
+            "dimensions": len(pmi.dimensions) if pmi else 0,
+            "datums": len(pmi.datums) if pmi else 0,
+        },
+        "timings_s": {**step_part.timings, "tessellate": mesh.seconds},
+    }
+
+
+def _solid_tetrahedra(step_part: StepPart, chosen: int | None, diagonal: float) -> SolidMesh:
+    """The tetrahedra filling the part's solid (solid ``chosen``, every solid's when None),
+    edge :data:`qifreport.restraint.SOLID_EDGE_SHARE` of ``diagonal`` mm."""
+    from qifreport.step.gmsh_mesh import gmsh_solid_mesh
+    from qifreport.step.solids import solid_shape
+
+    from .restraint import SOLID_EDGE_SHARE
+
+    shape = step_part.shape if chosen is None else solid_shape(step_part.shape, chosen)
+    return gmsh_solid_mesh(shape, SOLID_EDGE_SHARE * diagonal)
+
+
+def _mesh_nominal(path: Path, tolerance: float | None) -> tuple[Part, Drawing]:
+    """:func:`load_nominal` of a mesh file: its triangles wound consistently, one general
+    zone of the operator's ``tolerance`` (required)."""
     if tolerance is None:
         raise InputError(
             f"{path.name} is a mesh nominal: it carries no tolerance, give "
@@ -221,7 +276,8 @@ def load_nominal(
         "diagonal_mm": bounding_diagonal(V),
         "winding": {"flipped_triangles": flipped, "unorientable_triangles": unorientable},
     }
-    return Nominal(V, F, None, [symmetric_zone(tolerance, "general")], [], info)
+    part = Part(V, F, name=path.stem, source=path, units="mm", info=info)
+    return part, Drawing([symmetric_zone(tolerance, "general")], source="operator")
 
 
 def seat_faces(
@@ -283,24 +339,43 @@ def seat_faces(
         tris = unique_sorted(np.concatenate(tris)) if tris else np.zeros(0, dtype=np.int64)
         kept = np.array([f for f in z.faces if not free[f] and not other[f]], dtype=np.int64)
         if len(tris) == 0 and len(kept) == 0:
-            if other[z.faces].any():
-                where = sorted({int(face_solid[f]) for f in z.faces if other[f]})
-                reason = (
-                    f"its faces are on solid {', '.join(map(str, where))}, not on the solid "
-                    f"inspected ({solid})"
-                )
-            else:
-                ids = ", ".join(f"#{face_step_ids[f]}" for f in mine)
-                reason = (
-                    f"its face {ids} is supplemental geometry off the part's solid: no scan "
-                    "of the part can measure it"
-                )
+            reason = _unseated(z.faces, mine, other, face_solid, solid, face_step_ids)
             out_skipped.append(
                 NotEvaluated(kind=z.kind, name=z.name, step_id=z.step_id, reason=reason)
             )
             continue
         faces = np.array([f for f in z.faces if not other[f]], dtype=np.int64)
         out_zones.append(replace(z, faces=faces, triangles=tris if len(tris) else None))
+    return V2, F2, fid2, out_zones, out_skipped, _supplemental_faces(prints, face_step_ids)
+
+
+def _unseated(
+    faces: np.ndarray,
+    mine: list[int],
+    other: np.ndarray,
+    face_solid: np.ndarray,
+    solid: int | None,
+    face_step_ids: np.ndarray,
+) -> str:
+    """Why a zone on ``faces`` is left with no surface (:func:`seat_faces`): they are on
+    another solid than the one inspected, or they are the supplemental faces ``mine`` with
+    no footprint on the solid."""
+    if other[faces].any():
+        where = sorted({int(face_solid[f]) for f in faces if other[f]})
+        return (
+            f"its faces are on solid {', '.join(map(str, where))}, not on the solid "
+            f"inspected ({solid})"
+        )
+    ids = ", ".join(f"#{face_step_ids[f]}" for f in mine)
+    return (
+        f"its face {ids} is supplemental geometry off the part's solid: no scan "
+        "of the part can measure it"
+    )
+
+
+def _supplemental_faces(prints: dict, face_step_ids: np.ndarray) -> list[dict]:
+    """One dict per supplemental face left out of the mesh (its footprint ``prints[face]``,
+    :func:`qifreport.step.supplemental.footprints`), each logged (INFO)."""
     supplemental = [
         {
             "face": f,
@@ -324,7 +399,7 @@ def seat_faces(
             fp.free_area,
             where,
         )
-    return V2, F2, fid2, out_zones, out_skipped, supplemental
+    return supplemental
 
 
 def pick_part_solid(part, solid: str | None) -> tuple[int | None, SolidInfo | None]:

@@ -43,14 +43,15 @@ from qifreport.metrology.inspection import (
     inspect,
     start_scan_measures,
 )
+from qifreport.metrology.model import Drawing, Part
 from qifreport.registration.linalg import default_backend
 from qifreport.registration.pointcloud import read_scan
+from qifreport.registration.scan import Scan
 from qifreport.registration.thinning import ThinningReport, nominal_spacing, thin_scan
 
 from .cache import CacheOutcome, PartState, part_state, sha256, store_basis
 from .forked import fork_executor
 from .jsonio import finite, json_default
-from .nominal import Nominal
 from .options import InspectJob
 from .profile import Profiler
 from .summary import SUMMARY_SCHEMA_VERSION
@@ -226,10 +227,24 @@ def check_job(job: InspectJob) -> None:
             raise InputError(f"output directory not writable: {parent}")
 
 
+def _model_arguments(part: Part, drawing: Drawing) -> dict:
+    """The part's and its drawing's arrays and items as
+    :func:`qifreport.metrology.inspection.inspect`'s keyword arguments."""
+    return {
+        "face_id": part.face_id,
+        "brep_normals": part.brep_normals,
+        "zones": drawing.zones,
+        "not_evaluated": drawing.not_evaluated,
+        "plan": drawing.plan,
+        "solid": part.is_solid,
+    }
+
+
 def resampled_runs(
     res: InspectionResult,
     params: InspectionParams,
-    nom: Nominal,
+    part: Part,
+    drawing: Drawing,
     seeds: int,
     bar=None,
     prepared=None,
@@ -258,14 +273,9 @@ def resampled_runs(
                 res.P[keep],
                 p,
                 progress=None if bar is None else bar.update,
-                face_id=nom.face_id,
-                brep_normals=nom.brep_normals,
-                zones=nom.zones,
-                not_evaluated=nom.not_evaluated,
-                plan=nom.plan,
                 basis=res.basis,
                 prepared=prepared,
-                solid=bool(nom.info.get("solids")),
+                **_model_arguments(part, drawing),
             )
         )
     seconds = time.perf_counter() - t0
@@ -316,33 +326,31 @@ def inspect_state(
     params = o.inspection_params()
     if state.restraint is not None:
         params = replace(params, fixture="restrained")
-    nom = state.nominal
+    part, drawing = state.part, state.drawing
+    # the --min-coverage rules apply to this inspection's zones
+    judged = replace(drawing, zones=zones_with_coverage(drawing.zones, o.zone_min_coverage))
     res = inspect(
-        nom.V,
-        nom.F,
+        part.V,
+        part.F,
         P,
         params,
         progress=None if bar is None else bar.update,
         scan_units=o.scan_units,
-        face_id=nom.face_id,
-        brep_normals=nom.brep_normals,
-        zones=zones_with_coverage(nom.zones, o.zone_min_coverage),
-        not_evaluated=nom.not_evaluated,
-        plan=nom.plan,
         prepared=state.prepared,
-        solid=bool(nom.info.get("solids")),
         restraint=state.restraint,
         executor=executor,
         measures=measures,
+        **_model_arguments(part, judged),
     )
     if o.seeds > 1:
         with _stage(prof, f"repeatability ({o.seeds} resamplings)"):
-            resampled_runs(res, params, nom, o.seeds, bar, prepared=state.prepared)
+            resampled_runs(res, params, part, drawing, o.seeds, bar, prepared=state.prepared)
     return res
 
 
 def _provenance(
-    nom: Nominal,
+    part: Part,
+    drawing: Drawing,
     job: InspectJob,
     digests: dict[str, str],
     started: datetime,
@@ -362,9 +370,9 @@ def _provenance(
         scan_sha256=digests["scan"],
         started=started,
         finished=finished,
-        datums=nom.datums,
-        nominal_info=nom.info,
-        face_step_ids=nom.face_step_ids,
+        datums=drawing.datums,
+        nominal_info=part.info,
+        face_step_ids=part.face_step_ids,
         author=o.author,
         organization=o.organization,
         operator=o.operator,
@@ -374,7 +382,7 @@ def _provenance(
 
 def _json_writer(
     res: InspectionResult,
-    nom: Nominal,
+    part: Part,
     job: InspectJob,
     digests: dict[str, str],
     scan_report: ThinningReport | None,
@@ -391,7 +399,7 @@ def _json_writer(
         "version": __version__,
         "sparse_solver": default_backend(),
     }
-    doc["nominal"] = nom.info
+    doc["nominal"] = part.info
     doc["inputs"] = {
         "nominal": {"path": str(job.nominal), "sha256": digests["nominal"]},
         "scan": {"path": str(job.scan), "sha256": digests["scan"]},
@@ -409,7 +417,8 @@ def _json_writer(
 
 def output_writers(
     res: InspectionResult,
-    nom: Nominal,
+    part: Part,
+    drawing: Drawing,
     job: InspectJob,
     paths: dict[str, Path],
     digests: dict[str, str],
@@ -432,13 +441,13 @@ def output_writers(
     qif_state = None
     prov = None
     if not (o.no_qif and o.no_pdf) or o.html:
-        prov = _provenance(nom, job, digests, started, finished)
+        prov = _provenance(part, drawing, job, digests, started, finished)
     if not o.no_qif:
         from qifreport.qif.writer import build_qif
 
         qif_state = {"path": str(paths["qif"])}
         outputs.append((paths["qif"], qif_writer(build_qif(res, prov), qif_state)))
-        plan = plan_output(nom, job, paths["qif"].parent, digests["nominal"])
+        plan = plan_output(part, drawing, job, paths["qif"].parent, digests["nominal"])
         if plan is not None:
             outputs.append(plan)
     if not o.no_pdf:
@@ -451,17 +460,17 @@ def output_writers(
     if o.html:
         from .reports.html import write_html
 
-        outputs.append((paths["html"], lambda p: write_html(p, res, prov, face_id=nom.face_id)))
+        outputs.append((paths["html"], lambda p: write_html(p, res, prov, face_id=part.face_id)))
     if job.json:
         outputs.append(
-            (paths["json"], _json_writer(res, nom, job, digests, scan_report, qif_state))
+            (paths["json"], _json_writer(res, part, job, digests, scan_report, qif_state))
         )
     if "mesh" in paths:
         outputs.append(
             (
                 paths["mesh"],
                 lambda p: write_ply_with_scalar(
-                    p, res.V_registered, nom.F, "deviation", res.deviation
+                    p, res.V_registered, part.F, "deviation", res.deviation
                 ),
             )
         )
@@ -480,7 +489,7 @@ def plan_path(job: InspectJob, out_dir: Path) -> Path | None:
 
 
 def plan_output(
-    nom: Nominal, job: InspectJob, out_dir: Path, nominal_sha256: str
+    part: Part, drawing: Drawing, job: InspectJob, out_dir: Path, nominal_sha256: str
 ) -> tuple[Path, Writer] | None:
     """The writer of the part's QIF plan (:mod:`qifreport.qif.plan`), which the results
     document names: None for a mesh nominal, or when the plan of this STEP file by this
@@ -488,7 +497,7 @@ def plan_output(
     from qifreport.qif.plan import PlanSource, build_plan, plan_qpid, read_qpid
 
     path = plan_path(job, out_dir)
-    if path is None or nom.face_step_ids is None or nom.plan is None:
+    if path is None or part.face_step_ids is None or drawing.plan is None:
         return None
     if path.is_file() and read_qpid(path) == plan_qpid(nominal_sha256):
         return None
@@ -496,22 +505,22 @@ def plan_output(
         part_name=job.nominal.stem,
         nominal_path=str(job.nominal),
         nominal_sha256=nominal_sha256,
-        zones=nom.zones,
-        plan=nom.plan,
-        datums=nom.datums,
-        face_step_ids=nom.face_step_ids,
+        zones=drawing.zones,
+        plan=drawing.plan,
+        datums=drawing.datums,
+        face_step_ids=part.face_step_ids,
     )
     return path, qif_writer(build_plan(src), {})
 
 
-def scan_input(
-    P: np.ndarray, points_read: int, nom: Nominal, name: str = "scan"
-) -> tuple[np.ndarray, ThinningReport]:
-    """The points an inspection uses of a scan read (distinct points, mm) against a part:
-    thinned to the nominal's grid when far denser
-    (:mod:`qifreport.registration.thinning`), and the report (logged, one INFO line)."""
-    P, report = thin_scan(P, nominal_spacing(nom.V, nom.F), points_read=points_read)
-    log.info("%s: %s", name, report.describe())
+def scan_input(scan: Scan, part: Part) -> tuple[np.ndarray, ThinningReport]:
+    """The points (m, 3) mm an inspection uses of a scan read against a part: thinned to the
+    part's mesh grid when far denser (:mod:`qifreport.registration.thinning`), and the
+    report (logged, one INFO line)."""
+    P, report = thin_scan(
+        scan.points, nominal_spacing(part.V, part.F), points_read=scan.points_read
+    )
+    log.info("%s: %s", scan.name, report.describe())
     return P, report
 
 
@@ -565,21 +574,20 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     o = job.options
     started = datetime.now(timezone.utc)
     with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
-        P, n_read = read_scan(job.scan, units=o.scan_units)
+        scan: dict = {"read": read_scan(job.scan, units=o.scan_units)}
     nominal_options, params = o.nominal_options(job.nominal), o.inspection_params()
     # one command, one scan: a second CPU measures the scan beside the part's preparation,
     # judges the free state beside the fixture and renders the reports beside the QIF (a
     # batch's processes fill the CPUs already)
     beside = None if o.one_process else fork_executor()
-    scan: dict = {}
 
-    def nominal_read(nom: Nominal) -> None:
+    def nominal_read(part: Part) -> None:
         # the scan's own normals need only its points, thinned to the nominal's grid: they
         # start as soon as the mesh is known, beside the preparation of a new part (one
         # CPU's work); its area waits for the pose search (both beside the preparation
         # slowed it by half)
-        with _stage(prof, "thin scan"):
-            scan["P"], scan["report"] = scan_input(P, n_read, nom, job.scan.name)
+        with _stage(prof, "thin scan"):  # the points read are let go once thinned
+            scan["P"], scan["report"] = scan_input(scan.pop("read"), part)
         scan["measures"] = start_scan_measures(scan["P"], params, beside, area=False)
 
     try:
@@ -613,7 +621,15 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     digests = {"nominal": state.nominal_sha256, "scan": sha256(job.scan)}
     paths = job.output_paths()
     outputs, qif_state = output_writers(
-        res, state.nominal, job, paths, digests, started, finished, scan_report=scan_report
+        res,
+        state.part,
+        state.drawing,
+        job,
+        paths,
+        digests,
+        started,
+        finished,
+        scan_report=scan_report,
     )
     with _stage(prof, "write outputs"):  # all outputs or none
         reports = [paths[k] for k in ("pdf", "html") if k in paths]

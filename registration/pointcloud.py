@@ -1,9 +1,11 @@
-"""Scan point clouds: loading, validation, spacing.
+"""Scan point clouds: reading and validation.
 
-A scan ``P`` is an (m, 3) float64 array of points in mm, as an optically tracked scanner
-delivers it: unordered, partial, noisy, already merged from all views (paper Section 4.1).
+A scan's points ``P`` are an (m, 3) float64 array in mm, as an optically tracked scanner
+delivers them: unordered, partial, noisy, already merged from all views (paper Section 4.1).
+:func:`read_scan` returns them as a :class:`qifreport.registration.scan.Scan`, with the
+file's unit and format and how many points it held.
 
-Reading (:func:`read_scan`, :func:`load_scan`) checks that the file's content is the format
+Reading checks that the file's content is the format
 its suffix names (a PLY file named ``.npy`` is refused as "looks like a PLY file"), removes
 exact duplicate points (:func:`unique_points`: a mesh format such as STL repeats every vertex
 once per triangle, and a duplicate carries no new measurement but would weigh a point twice),
@@ -20,9 +22,10 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
-from scipy.spatial import cKDTree
 
 from qifreport.errors import InputError
+
+from .scan import Scan
 
 __all__ = [
     "COLLINEAR_RATIO",
@@ -31,9 +34,7 @@ __all__ = [
     "SCAN_SUFFIXES",
     "SCAN_UNITS",
     "check_declared_counts",
-    "load_scan",
     "MalformedFile",
-    "median_spacing",
     "one_line",
     "read_scan",
     "principal_spreads",
@@ -139,20 +140,8 @@ def _check_format(path: Path) -> None:
         )
 
 
-def load_scan(path: str | Path, units: str | None = None) -> np.ndarray:
-    """Read a scan point cloud, in mm: :func:`read_scan`'s points (distinct, validated).
-
-    Returns
-    -------
-    P : (m, 3) float64 C-contiguous array of distinct finite points, mm; ``m >= MIN_POINTS``.
-    """
-    return read_scan(path, units)[0]
-
-
-def read_scan(
-    path: str | Path, units: str | None = None, *, deduplicate: bool = True
-) -> tuple[np.ndarray, int]:
-    """Read a scan point cloud, in mm, and how many points the file held.
+def read_scan(path: str | Path, units: str | None = None, *, deduplicate: bool = True) -> Scan:
+    """Read a scan point cloud: its points in mm, its unit, how many points the file held.
 
     Formats, by suffix: PLY (points, or the vertices of a mesh; ASCII or binary), STL (ASCII
     or binary), OBJ and OFF (vertices), XYZ/TXT/CSV (one point a row; ``#`` comments; a
@@ -177,8 +166,11 @@ def read_scan(
 
     Returns
     -------
-    P : (m, 3) float64 C-contiguous array of finite points, mm; ``m >= MIN_POINTS``.
-    points_read : the number of valid points in the file (``m`` plus the duplicates).
+    Scan
+        ``points``: (m, 3) float64 C-contiguous array of finite points, mm,
+        ``m >= MIN_POINTS``; ``points_read``: the number of valid points in the file (``m``
+        plus the duplicates); ``units``: the unit converted from; ``source``: ``path``;
+        ``format``: the format read; no ``normals``.
 
     Raises
     ------
@@ -236,7 +228,9 @@ def read_scan(
         raise
     except Exception as exc:  # third-party readers raise many types on corrupt input
         raise InputError(f"cannot read scan {path.name}: {one_line(exc)}") from None
-    return P, n_read
+    return Scan(
+        points=P, units=units, source=path, points_read=n_read, format=_SUFFIX_FORMATS[suffix]
+    )
 
 
 def one_line(exc: BaseException, limit: int = 200) -> str:
@@ -658,13 +652,3 @@ def _row_hash(P: np.ndarray) -> np.ndarray:
         h *= np.uint64(mult)
         h ^= h >> np.uint64(29)
     return h
-
-
-def median_spacing(P: np.ndarray, tree: cKDTree | None = None, probes: int | None = None) -> float:
-    """Median nearest-neighbour distance (mm) of the scan points ``P`` (m, 3) (``tree``: a
-    k-d tree of them to reuse); with ``probes``, measured at about that many of them (every
-    ``m // probes``-th) instead of all."""
-    tree = tree or cKDTree(P)
-    Q = P if probes is None else P[:: max(len(P) // probes, 1)]
-    d, _ = tree.query(Q, k=2, workers=-1)
-    return float(np.median(d[:, 1]))

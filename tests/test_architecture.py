@@ -128,6 +128,16 @@ def test_contracts_hold(tree):
             "import qifreport.registration.deformable.gbcicp",
             "registration-parts",
         ),
+        (
+            "qifreport/registration/scan.py",
+            "import qifreport.registration.pointcloud",
+            "registration-parts",
+        ),
+        (
+            "qifreport/metrology/model.py",
+            "import qifreport.metrology.judgement",
+            "metrology-stages",
+        ),
     ],
 )
 def test_a_bad_import_breaks_the_contract(tmp_path, victim, bad_import, contract):

@@ -17,7 +17,7 @@ import trimesh
 
 from qifreport.batch import plan
 from qifreport.errors import InputError
-from qifreport.registration.pointcloud import load_scan
+from qifreport.registration.pointcloud import read_scan
 from tests.consumers import poppler_tool
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -48,7 +48,7 @@ def scans(tmp_path_factory):
     d = tmp_path_factory.mktemp("scans")
     for name in ("shell_scan.ply", "shell_scan_defect.ply"):
         (d / name).write_bytes((SAMPLES / name).read_bytes())
-    P = load_scan(SAMPLES / "shell_scan.ply")
+    P = read_scan(SAMPLES / "shell_scan.ply").points
     rng = np.random.default_rng(7)
     for k in range(3):
         Q = P + rng.normal(0.0, 0.005, P.shape)
@@ -231,7 +231,7 @@ def test_local_batch_records_everything_and_resumes(scans, tmp_path):
     assert rc == 1 and "(0 inspected now, 6 done earlier)" in stdout, stdout
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()} == before
     # a changed scan is redone, alone; --retry-failed retries the corrupt file
-    P = load_scan(scans / "noisy_2.ply")
+    P = read_scan(scans / "noisy_2.ply").points
     trimesh.PointCloud(P + 0.001).export(scans / "noisy_2.ply")
     rc, stdout, _ = finish(batch(scans, "--out", out, "--jobs", "1", "--retry-failed", "--html"))
     assert "(2 inspected now, 4 done earlier)" in stdout, stdout

@@ -29,7 +29,7 @@ from PIL import Image
 from qifreport.batch.summaries import summary_frame, trend_characteristics
 from qifreport.batch.task import characteristic_columns
 from qifreport.metrology.gdt.characteristics import CharacteristicResult, CharacteristicSpec
-from qifreport.registration.pointcloud import load_scan
+from qifreport.registration.pointcloud import read_scan
 from qifreport.reports.trend import plan_trend
 from tests.consumers import poppler_tool
 
@@ -115,7 +115,7 @@ def test_trend_characteristics_of_a_part():
         ),
         _spec("G9", "flatness", tolerance=0.1),  # never measured: no column, no chart
     ]
-    st = SimpleNamespace(nominal=SimpleNamespace(zones=[zone], plan=SimpleNamespace(specs=specs)))
+    st = SimpleNamespace(drawing=SimpleNamespace(zones=[zone], plan=SimpleNamespace(specs=specs)))
     df = pd.DataFrame(
         {
             "profile_T1_mm": [0.3],
@@ -171,7 +171,7 @@ def batch(tmp_path_factory):
     for name in ("panel_scan.ply", "panel_scan_warped.ply"):
         (scans / name).write_bytes((SAMPLES / name).read_bytes())
     # a dent in the right flange (x > 62.5 mm): 0.45 mm deep, sigma 3 mm, across the wall
-    P = load_scan(SAMPLES / "panel_scan.ply")
+    P = read_scan(SAMPLES / "panel_scan.ply").points
     right = P[:, 0] > 62.5
     r2 = (P[right, 0] - 71.0) ** 2 + (P[right, 1] - 10.0) ** 2
     P[right, 2] -= 0.45 * np.exp(-r2 / (2 * 3.0**2))

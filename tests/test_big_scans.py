@@ -23,7 +23,6 @@ from qifreport.nominal import load_nominal
 from qifreport.pipeline import scan_input
 from qifreport.registration.mesh import load_mesh
 from qifreport.registration.pointcloud import (
-    load_scan,
     read_scan,
     unique_points,
     validate_scan,
@@ -43,9 +42,9 @@ EXE = Path(sys.executable).parent / "qifreport"
 
 
 def _refused(path: Path, *words: str) -> str:
-    """The one-line InputError ``load_scan(path)`` raises; it names the file and ``words``."""
+    """The one-line InputError ``read_scan(path)`` raises; it names the file and ``words``."""
     with pytest.raises(InputError) as exc:
-        load_scan(path)
+        read_scan(path)
     msg = str(exc.value)
     assert "\n" not in msg and path.name in msg, msg
     for w in words:
@@ -73,7 +72,8 @@ def test_stl_scan_is_its_distinct_vertices(tmp_path, fmt):
     V, F = grid_mesh()
     f = tmp_path / "scan.stl"
     f.write_bytes(encode(fmt, V, F))
-    P, n_read = read_scan(f)
+    scan = read_scan(f)
+    P, n_read = scan.points, scan.points_read
     assert n_read == 3 * len(F) == 600
     assert len(P) == len(V) == 121
     order = np.unique(F.ravel(), return_index=True)[1]  # first corner naming each vertex
@@ -115,15 +115,15 @@ def test_csv_header_names_the_columns(tmp_path):
     f = tmp_path / "scan.csv"
     rows = "\n".join(f"{k},{x!r},{y!r},{z!r}" for k, (x, y, z) in enumerate(rows3))
     f.write_text("id,x,y,z\n" + rows + "\n")
-    np.testing.assert_array_equal(load_scan(f), V)
+    np.testing.assert_array_equal(read_scan(f).points, V)
     # any order, any case, with units; whitespace-separated XYZ too
     g = tmp_path / "scan2.csv"
     rows = "\n".join(f"{z!r},7,{x!r},{y!r}" for x, y, z in rows3)
     g.write_text('# exported\n Z (mm),Flag,X_mm,"Y [mm]"\n' + rows + "\n")
-    np.testing.assert_array_equal(load_scan(g), V)
+    np.testing.assert_array_equal(read_scan(g).points, V)
     h = tmp_path / "scan.xyz"
     h.write_text("nx x y z\n" + "\n".join(f"0 {x!r} {y!r} {z!r}" for x, y, z in rows3) + "\n")
-    np.testing.assert_array_equal(load_scan(h), V)
+    np.testing.assert_array_equal(read_scan(h).points, V)
 
 
 def test_header_without_xyz_is_refused_naming_the_columns(tmp_path):
@@ -225,10 +225,11 @@ def test_thin_scan_keeps_one_measured_point_per_cell():
 )
 def test_samples_are_not_thinned(nominal, scan):
     """The normal-density samples keep every point: their results do not change."""
-    nom = load_nominal(SAMPLES / nominal, 0.5)
-    P, n_read = read_scan(SAMPLES / scan)
-    Q, rep = scan_input(P, n_read, nom, scan)
-    assert Q is P and not rep.thinned and rep.points_used == n_read == len(P)
+    part, _ = load_nominal(SAMPLES / nominal, 0.5)
+    read = read_scan(SAMPLES / scan)
+    Q, rep = scan_input(read, part)
+    assert Q is read.points and not rep.thinned
+    assert rep.points_used == read.points_read == read.n
     assert rep.points_per_voxel < MIN_POINTS_PER_VOXEL / 2  # a wide margin
 
 
@@ -236,7 +237,7 @@ def test_dense_scan_is_thinned_and_reported(tmp_path):
     """A 305k-point scan (eight jittered copies of every point of the shell sample) is
     thinned on the nominal's grid, reported in the JSON ``scan_input`` block, and passes as
     the sample does."""
-    S = load_scan(SAMPLES / "shell_scan.ply")
+    S = read_scan(SAMPLES / "shell_scan.ply").points
     rng = np.random.default_rng(5)
     P = np.repeat(S, 8, axis=0) + rng.normal(0.0, 0.01, (8 * len(S), 3))
     f = tmp_path / "dense.ply"

@@ -22,7 +22,7 @@ from qifreport.cache import (
 )
 from qifreport.metrology.inspection import InspectionParams, inspect
 from qifreport.metrology.prepared import prepare_part
-from qifreport.registration.pointcloud import load_scan
+from qifreport.registration.pointcloud import read_scan
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"
@@ -52,7 +52,7 @@ def test_first_use_builds_then_loads_the_same_state(built):
     assert (p.ops.Q != q.ops.Q).nnz == 0
     np.testing.assert_array_equal(p.near_rim, q.near_rim)
     np.testing.assert_array_equal(p.model.fields, q.model.fields)
-    assert again.nominal.zones[0].half_width == 0.5
+    assert again.drawing.zones[0].half_width == 0.5
     # every part of the expensive state is there: 100 modes, the pose-search model
     assert p.basis.Phi.shape == (len(p.V), 100) and p.model is not None
 
@@ -93,11 +93,11 @@ def test_the_nominal_is_handed_over_before_the_part_is_prepared(built, tmp_path,
         events.append("prepare")
         return real(*args, **kwargs)
 
-    def seen(nom):
-        events.append(("nominal", len(nom.V)))
+    def seen(part):
+        events.append(("nominal", len(part.V)))
 
     monkeypatch.setattr(cache, "prepare_part", preparing)
-    n = len(built[2].nominal.V)
+    n = len(built[2].part.V)
     part_state(nominal, OPTS, InspectionParams(), None, on_nominal=seen)
     assert events == [("nominal", n), "prepare"]
     for expected in ([("nominal", n), "prepare"], [("nominal", n)]):  # built, then a hit
@@ -139,12 +139,12 @@ def test_damaged_entry_is_refused_and_rebuilt(built, tmp_path, damage):
 
 def test_cached_inspection_equals_a_fresh_one(built):
     nominal, d, state, _ = built
-    P = load_scan(SAMPLES / "shell_scan_defect.ply")
+    P = read_scan(SAMPLES / "shell_scan_defect.ply").points
     params = InspectionParams(tolerance=0.5)
     cached, _ = part_state(nominal, OPTS, params, d)
-    nom = cached.nominal
-    a = inspect(nom.V, nom.F, P, params, zones=nom.zones, prepared=cached.prepared)
-    b = inspect(nom.V, nom.F, P, params, zones=nom.zones)
+    part, zones = cached.part, cached.drawing.zones
+    a = inspect(part.V, part.F, P, params, zones=zones, prepared=cached.prepared)
+    b = inspect(part.V, part.F, P, params, zones=zones)
     assert a.verdict == b.verdict == "FAIL"  # the 1 mm bump is found either way
     np.testing.assert_allclose(a.deviation, b.deviation, atol=1e-9, equal_nan=True)
     assert a.acceptance.largest_region_area == pytest.approx(b.acceptance.largest_region_area)
@@ -152,12 +152,12 @@ def test_cached_inspection_equals_a_fresh_one(built):
 
 def test_prepared_state_refuses_other_settings(built):
     _, _, state, _ = built
-    nom = state.nominal
-    P = load_scan(SAMPLES / "shell_scan.ply")
+    part = state.part
+    P = read_scan(SAMPLES / "shell_scan.ply").points
     with pytest.raises(ValueError, match="other settings"):
-        inspect(nom.V, nom.F, P, InspectionParams(edge_band=0.0), prepared=state.prepared)
+        inspect(part.V, part.F, P, InspectionParams(edge_band=0.0), prepared=state.prepared)
     with pytest.raises(ValueError, match="another nominal"):
-        inspect(nom.V + 1.0, nom.F, P, InspectionParams(), prepared=state.prepared)
+        inspect(part.V + 1.0, part.F, P, InspectionParams(), prepared=state.prepared)
 
 
 def test_prepare_part_without_basis_or_model():
@@ -256,7 +256,7 @@ def test_without_cache_only_what_the_inspection_needs(built):
     state, outcome = part_state(nominal, OPTS, InspectionParams(method="nicp"), None)
     assert outcome.status == "off" and outcome.path is None
     assert state.prepared.basis is None and state.prepared.model is None
-    assert state.prepared.ops.Q.shape == (len(state.nominal.V),) * 2
+    assert state.prepared.ops.Q.shape == (len(state.part.V),) * 2
 
 
 def test_without_cache_the_basis_waits_for_a_fixture(built):

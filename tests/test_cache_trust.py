@@ -114,7 +114,7 @@ def test_new_cache_is_private_and_entries_authenticated(small):
     assert kst.st_size == KEY_BYTES == 32
     assert not stat.S_IMODE(os.stat(outcome.path).st_mode) & 0o077
     header, payload = split(outcome.path)
-    assert header["format"] == CACHE_FORMAT == 14
+    assert header["format"] == CACHE_FORMAT == 17
     assert header["key"] == state.key
     assert header["hmac"] == entry_mac(key.read_bytes(), header, payload)
     # the secret is the user's: another secret gives another HMAC
@@ -308,9 +308,9 @@ def test_inspection_through_a_refused_directory_equals_a_fresh_one(small, tmp_pa
     state, outcome = part_state(nominal, OPTS, params, d)
     assert outcome.status == "refused"
     P, _ = thin_shell(spacing=3.0)
-    nom = state.nominal
-    a = inspect(nom.V, nom.F, P, params, zones=nom.zones, prepared=state.prepared)
-    b = inspect(nom.V, nom.F, P, params, zones=nom.zones)
+    part, zones = state.part, state.drawing.zones
+    a = inspect(part.V, part.F, P, params, zones=zones, prepared=state.prepared)
+    b = inspect(part.V, part.F, P, params, zones=zones)
     assert a.verdict == b.verdict
     np.testing.assert_allclose(a.deviation, b.deviation, atol=1e-9, equal_nan=True)
     assert os.listdir(d) == []

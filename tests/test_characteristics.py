@@ -27,22 +27,33 @@ U_VERTEX = 0.002  # mm, every vertex's expanded uncertainty
 
 
 @pytest.fixture(scope="module")
-def part():
+def ftc06():
+    """FTC 06's part and drawing."""
     from qifreport.nominal import load_nominal
 
     return load_nominal(shared_file("step/nist/nist_ftc_06_asme1_ap242-e1.stp"), None)
 
 
-def exact_surface(nom, dev: np.ndarray) -> MeasuredSurface:
-    """The nominal mesh measured exactly: each vertex at ``dev`` (n,) mm along its normal,
+@pytest.fixture(scope="module")
+def part(ftc06):
+    return ftc06[0]
+
+
+@pytest.fixture(scope="module")
+def drawing(ftc06):
+    return ftc06[1]
+
+
+def exact_surface(part, dev: np.ndarray) -> MeasuredSurface:
+    """The part's mesh measured exactly: each vertex at ``dev`` (n,) mm along its normal,
     every vertex's uncertainty :data:`U_VERTEX`, no scan points."""
-    n = len(nom.V)
+    n = len(part.V)
     e = np.empty(0)
     return MeasuredSurface(
-        nom.V,
-        nom.F,
-        nom.face_id,
-        nom.brep_normals,
+        part.V,
+        part.F,
+        part.face_id,
+        part.brep_normals,
         dev,
         np.full(n, U_VERTEX),
         np.empty((0, 3)),
@@ -52,15 +63,15 @@ def exact_surface(nom, dev: np.ndarray) -> MeasuredSurface:
     )
 
 
-def _measure(nom, dev: np.ndarray) -> dict:
+def _measure(part, drawing, dev: np.ndarray) -> dict:
     res, _ = measure_characteristics(
-        nom.plan.specs, nom.plan.datums, exact_surface(nom, dev), "iso14253"
+        drawing.plan.specs, drawing.plan.datums, exact_surface(part, dev), "iso14253"
     )
     return {r.spec.key: r for r in res}
 
 
-def _spec(nom, key: str):
-    return next(s for s in nom.plan.specs if s.key == key)
+def _spec(drawing, key: str):
+    return next(s for s in drawing.plan.specs if s.key == key)
 
 
 def _hole(surf: MeasuredSurface, faces: list[int]):
@@ -69,8 +80,8 @@ def _hole(surf: MeasuredSurface, faces: list[int]):
     return v, surf.nominal(faces)
 
 
-def test_perfect_part_conforms_everywhere(part):
-    got = _measure(part, np.zeros(len(part.V)))
+def test_perfect_part_conforms_everywhere(part, drawing):
+    got = _measure(part, drawing, np.zeros(len(part.V)))
     measured = [r for r in got.values() if r.status != "NOT_MEASURED"]
     # every drawing item the faces can give (not: spheres, curves of one face, a datum on a
     # torus, dimensions whose faces do not give the drawing's nominal; see the reasons)
@@ -89,7 +100,7 @@ def test_perfect_part_conforms_everywhere(part):
             assert r.reason, r.spec.key
 
 
-def test_hole_moved_and_oversize(part):
+def test_hole_moved_and_oversize(part, drawing):
     surf = exact_surface(part, np.zeros(len(part.V)))
     v, cyl = _hole(surf, [25, 26])
     assert cyl.kind == "cylinder" and cyl.internal
@@ -99,10 +110,10 @@ def test_hole_moved_and_oversize(part):
     # moved 0.10 mm along d; 0.05 mm oversize (the wall 0.025 mm away from the axis, i.e.
     # against its outward normal, which points into the hole)
     dev[v] = 0.10 * (surf.N[v] @ d) - 0.025
-    got = _measure(part, dev)
+    got = _measure(part, drawing, dev)
     g9, d9 = got["G9"], got["D9"]
-    assert _spec(part, "G9").kind == "position" and "maximum_material_requirement" in (
-        _spec(part, "G9").modifiers
+    assert _spec(drawing, "G9").kind == "position" and "maximum_material_requirement" in (
+        _spec(drawing, "G9").modifiers
     )
     assert g9.value == pytest.approx(0.20, rel=0.10), g9.reading
     # MMC bonus: measured size (15.875 + 0.05) - the hole's MMC size (its lower limit)
@@ -118,27 +129,27 @@ def test_hole_moved_and_oversize(part):
     assert 2 * fit.radius == pytest.approx(15.925, abs=0.002)
 
 
-def test_face_tilted_gives_its_perpendicularity(part):
+def test_face_tilted_gives_its_perpendicularity(part, drawing):
     surf = exact_surface(part, np.zeros(len(part.V)))
     v = surf.own_vertices([44])
     plane = surf.nominal([44])
     assert plane.kind == "plane"
-    s = _spec(part, "G11")
+    s = _spec(drawing, "G11")
     assert s.kind == "perpendicularity" and s.datums == ["A", "B"]
     # tilt about the line across the face perpendicular to datum A's normal (y): the face's
     # height along its normal grows linearly across its width in y by 0.05 mm
     y = surf.V[v, 1]
     dev = np.zeros(len(part.V))
     dev[v] = 0.05 * (y - y.min()) / np.ptp(y)
-    got = _measure(part, dev)
+    got = _measure(part, drawing, dev)
     assert got["G11"].value == pytest.approx(0.05, rel=0.10), got["G11"].reading
     assert got["G11"].status == "PASS"
 
 
-def test_face_bowed_gives_its_flatness(part):
+def test_face_bowed_gives_its_flatness(part, drawing):
     surf = exact_surface(part, np.zeros(len(part.V)))
     v = surf.own_vertices([180])
-    assert _spec(part, "G12").kind == "flatness"
+    assert _spec(drawing, "G12").kind == "flatness"
     X = surf.V[v]
     c = X.mean(axis=0)
     _, _, Vt = np.linalg.svd(X - c, full_matrices=False)
@@ -146,15 +157,15 @@ def test_face_bowed_gives_its_flatness(part):
     half = np.abs(u).max()
     dev = np.zeros(len(part.V))
     dev[v] = 0.03 * (1 - (u / half) ** 2)
-    got = _measure(part, dev)
+    got = _measure(part, drawing, dev)
     g12 = got["G12"]
     assert g12.value == pytest.approx(0.03, rel=0.10), g12.reading
     assert g12.least_squares >= g12.value - 1e-12  # the least-squares zone is never narrower
     assert g12.status == "PASS"
 
 
-def test_hole_moved_beyond_its_tolerance_fails(part):
-    s = _spec(part, "G3")
+def test_hole_moved_beyond_its_tolerance_fails(part, drawing):
+    s = _spec(drawing, "G3")
     assert s.kind == "position" and s.tolerance == pytest.approx(0.381) and not s.modifiers
     surf = exact_surface(part, np.zeros(len(part.V)))
     v, cyl = _hole(surf, [163, 164])
@@ -162,16 +173,16 @@ def test_hole_moved_beyond_its_tolerance_fails(part):
     d /= np.linalg.norm(d)
     dev = np.zeros(len(part.V))
     dev[v] = 0.25 * (surf.N[v] @ d)
-    got = _measure(part, dev)
+    got = _measure(part, drawing, dev)
     assert got["G3"].value == pytest.approx(0.50, rel=0.10)
     assert got["G3"].status == "FAIL" and "> 0.381" in got["G3"].reason
 
 
-def test_drill_point_moved_deepens_its_hole(part):
+def test_drill_point_moved_deepens_its_hole(part, drawing):
     """D23, the 12.7 mm depth of a drilled hole (from the plane it opens on to where its
     cylinder meets its 118 deg drill point): the drill point moved 0.05 mm deeper along the
     axis reads 12.75 mm; the perfect part's 12.700."""
-    s = _spec(part, "D23")
+    s = _spec(drawing, "D23")
     assert s.nominal == pytest.approx(12.7) and set(s.target_faces) == {18, 20}
     surf = exact_surface(part, np.zeros(len(part.V)))
     cone = surf.nominal([18])
@@ -182,8 +193,10 @@ def test_drill_point_moved_deepens_its_hole(part):
     v = surf.own_vertices([18])
     dev = np.zeros(len(part.V))
     dev[v] = 0.05 * (surf.N[v] @ inward)  # the cone translated 0.05 mm into the part
-    assert _measure(part, np.zeros(len(part.V)))["D23"].value == pytest.approx(12.7, abs=1e-3)
-    got = _measure(part, dev)["D23"]
+    assert _measure(part, drawing, np.zeros(len(part.V)))["D23"].value == pytest.approx(
+        12.7, abs=1e-3
+    )
+    got = _measure(part, drawing, dev)["D23"]
     assert got.value == pytest.approx(12.75, abs=0.005), got.reading
 
 
@@ -199,17 +212,18 @@ def test_line_profile_is_located_in_its_frame(ctc02):
     target C1 on that face: the face turned 0.15 mm about a line through C1 (the frame keeps
     C where it was) reads 0.30 mm, twice its largest deviation, and FAILs; the perfect part
     reads 0 and PASSes."""
-    s = _spec(ctc02, "G6")
+    part, drawing = ctc02
+    s = _spec(drawing, "G6")
     assert s.kind == "line_profile" and s.datums == ["A", "B", "C"]
-    c1 = ctc02.plan.datums["C"].targets[0].position
-    surf = exact_surface(ctc02, np.zeros(len(ctc02.V)))
+    c1 = drawing.plan.datums["C"].targets[0].position
+    surf = exact_surface(part, np.zeros(len(part.V)))
     v = surf.own_vertices([18])
     x = surf.V[v, 0] - c1[0]
-    dev = np.zeros(len(ctc02.V))
+    dev = np.zeros(len(part.V))
     dev[v] = 0.15 * x / np.abs(x).max()
-    perfect = _measure(ctc02, np.zeros(len(ctc02.V)))["G6"]
+    perfect = _measure(part, drawing, np.zeros(len(part.V)))["G6"]
     assert perfect.status == "PASS" and perfect.value < 1e-3
-    got = _measure(ctc02, dev)["G6"]
+    got = _measure(part, drawing, dev)["G6"]
     assert got.value == pytest.approx(0.30, rel=0.10), got.reading
     assert got.status == "FAIL"
 
@@ -219,18 +233,19 @@ def test_perpendicularity_to_a_datum_from_one_target_area(ctc02):
     85 mm circular target area on a face the part file leaves out of its solid (its
     simulator a flat disk at its nominal orientation, mated to the surface under it): the
     hole's axis tilted 0.1 mm over its length reads 0.10 mm; the perfect part 0."""
-    s = _spec(ctc02, "G5")
+    part, drawing = ctc02
+    s = _spec(drawing, "G5")
     assert s.kind == "perpendicularity" and s.datums == ["K"]
-    surf = exact_surface(ctc02, np.zeros(len(ctc02.V)))
+    surf = exact_surface(part, np.zeros(len(part.V)))
     hole = surf.nominal([231])
     v = surf.own_vertices([231, 232])
     z = (surf.V[v] - hole.origin) @ hole.direction
     across = np.cross(hole.direction, [1.0, 0.0, 0.0])
     across /= np.linalg.norm(across)
-    dev = np.zeros(len(ctc02.V))
+    dev = np.zeros(len(part.V))
     dev[v] = 0.10 * (z - z.mean()) / np.ptp(z) * (surf.N[v] @ across)
-    perfect = _measure(ctc02, np.zeros(len(ctc02.V)))["G5"]
+    perfect = _measure(part, drawing, np.zeros(len(part.V)))["G5"]
     assert perfect.status == "PASS" and perfect.value < 1e-3, perfect.reason
-    got = _measure(ctc02, dev)["G5"]
+    got = _measure(part, drawing, dev)["G5"]
     assert got.value == pytest.approx(0.10, rel=0.10), got.reading
     assert got.status == "PASS"

@@ -77,14 +77,14 @@ def ftc08():
     return load_nominal(shared_file("step/nist/nist_ftc_08_asme1_ap242-e1.stp"), None)
 
 
-def _measure(nom, dev):
-    n = len(nom.V)
+def _measure(part, drawing, dev):
+    n = len(part.V)
     e = np.empty(0)
     surf = MeasuredSurface(
-        nom.V,
-        nom.F,
-        nom.face_id,
-        nom.brep_normals,
+        part.V,
+        part.F,
+        part.face_id,
+        part.brep_normals,
         dev,
         np.full(n, U_VERTEX),
         np.empty((0, 3)),
@@ -92,7 +92,7 @@ def _measure(nom, dev):
         e,
         e,
     )
-    res, _ = measure_characteristics(nom.plan.specs, nom.plan.datums, surf, "iso14253")
+    res, _ = measure_characteristics(drawing.plan.specs, drawing.plan.datums, surf, "iso14253")
     return surf, res
 
 
@@ -103,18 +103,19 @@ def _segments(nom, res, name):
 
 
 def test_pattern_moved_as_a_whole_passes_its_lower_segment(ftc08):
-    surf, _ = _measure(ftc08, np.zeros(len(ftc08.V)))
-    upper_spec = next(s for s in ftc08.plan.specs if s.name == "Feature Control Frame (28)")
+    part, drawing = ftc08
+    surf, _ = _measure(part, drawing, np.zeros(len(part.V)))
+    upper_spec = next(s for s in drawing.plan.specs if s.name == "Feature Control Frame (28)")
     members = surf.features(upper_spec.faces)
     assert len(members) == 10
     axis = surf.nominal(members[0]).direction
     d = np.cross(axis, [1.0, 0.0, 0.0])
     d /= np.linalg.norm(d)
-    dev = np.zeros(len(ftc08.V))
+    dev = np.zeros(len(part.V))
     for faces in members:
         v = surf.own_vertices(faces)
         dev[v] = 0.35 * (surf.N[v] @ d)
-    _, res = _measure(ftc08, dev)
+    _, res = _measure(part, drawing, dev)
     up, low = _segments(ftc08, res, "Feature Control Frame (28)")
     assert up.value == pytest.approx(0.70, rel=0.1), up.reading
     assert up.status == "PASS"  # 0.70 < 1.016 + bonus
@@ -122,20 +123,20 @@ def test_pattern_moved_as_a_whole_passes_its_lower_segment(ftc08):
     assert low.status == "PASS" and "composite lower segment" in low.reading
 
     # two holes of the pattern moved apart: no placement of the pattern helps
-    dev = np.zeros(len(ftc08.V))
+    dev = np.zeros(len(part.V))
     for faces, sign in ((members[3], 1.0), (members[6], -1.0)):
         v = surf.own_vertices(faces)
         dev[v] = sign * 0.35 * (surf.N[v] @ d)
-    _, res = _measure(ftc08, dev)
+    _, res = _measure(part, drawing, dev)
     up, low = _segments(ftc08, res, "Feature Control Frame (28)")
     assert low.value == pytest.approx(0.70, rel=0.1), low.reading
     assert low.status == "FAIL", (low.value, low.limit)
     assert up.value == pytest.approx(0.70, rel=0.1) and up.status == "PASS"
     # one hole moved alone: the pattern's placement shares its offset with the other nine
-    dev = np.zeros(len(ftc08.V))
+    dev = np.zeros(len(part.V))
     v = surf.own_vertices(members[3])
     dev[v] = 0.35 * (surf.N[v] @ d)
-    _, res = _measure(ftc08, dev)
+    _, res = _measure(part, drawing, dev)
     _, low = _segments(ftc08, res, "Feature Control Frame (28)")
     assert low.value == pytest.approx(0.35, rel=0.1), low.reading
 
@@ -187,22 +188,22 @@ def test_flatness_per_unit_area_on_ctc_03():
     from qifreport.step.reader import read_step
 
     step = shared_file("step/nist/nist_ctc_03_asme1_ap242-e2.stp")
-    nom = load_nominal(step, None)
-    part = read_step(step)
-    spec = next(s for s in nom.plan.specs if s.kind == "flatness" and s.unit_basis)
-    scan = surface_sample(part.shape, part.faces, 0.5)
+    part, drawing = load_nominal(step, None)
+    step_part = read_step(step)
+    spec = next(s for s in drawing.plan.specs if s.kind == "flatness" and s.unit_basis)
+    scan = surface_sample(step_part.shape, step_part.faces, 0.5)
     on = np.isin(scan.face, spec.faces)
     P, Nn = scan.P[on], scan.normal[on]
     c = P[np.argmin(np.linalg.norm(P - P.mean(axis=0), axis=1))]  # a point of the face
     span = np.ptp(P, axis=0).max()
 
     def run(h):
-        n, m = len(nom.V), len(P)
+        n, m = len(part.V), len(P)
         surf = MeasuredSurface(
-            nom.V,
-            nom.F,
-            nom.face_id,
-            nom.brep_normals,
+            part.V,
+            part.F,
+            part.face_id,
+            part.brep_normals,
             np.zeros(n),
             np.full(n, U_VERTEX),
             P + h[:, None] * Nn,
@@ -210,7 +211,7 @@ def test_flatness_per_unit_area_on_ctc_03():
             h,
             np.full(m, U_VERTEX),
         )
-        res, _ = measure_characteristics([spec], nom.plan.datums, surf, "iso14253")
+        res, _ = measure_characteristics([spec], drawing.plan.datums, surf, "iso14253")
         return res[0]
 
     r = np.linalg.norm(P - c, axis=1)
@@ -230,22 +231,24 @@ def test_countersink_cone_measured_on_ctc_04():
     normals widens the diameter at the face by 2 x 0.05 / cos 45 deg."""
     from qifreport.nominal import load_nominal
 
-    nom = load_nominal(shared_file("step/nist/nist_ctc_04_asme1_ap242-e1.stp"), None)
-    angle = next(s for s in nom.plan.specs if s.kind == "dimension" and s.unit == "deg")
+    part, drawing = load_nominal(shared_file("step/nist/nist_ctc_04_asme1_ap242-e1.stp"), None)
+    angle = next(s for s in drawing.plan.specs if s.kind == "dimension" and s.unit == "deg")
     dia = next(
-        s for s in nom.plan.specs if s.dim_type == "diameter" and set(s.faces) == set(angle.faces)
+        s
+        for s in drawing.plan.specs
+        if s.dim_type == "diameter" and set(s.faces) == set(angle.faces)
     )
-    surf, res = _measure(nom, np.zeros(len(nom.V)))
+    surf, res = _measure(part, drawing, np.zeros(len(part.V)))
     got = {r.spec.key: r for r in res}
     assert got[angle.key].value == pytest.approx(90.0, abs=0.01), got[angle.key].reason
     assert got[dia.key].value == pytest.approx(dia.nominal, abs=1e-3), got[dia.key].reason
     members = surf.features(dia.faces)
     assert all(surf.nominal(m).kind == "cone" for m in members)
-    dev = np.zeros(len(nom.V))
+    dev = np.zeros(len(part.V))
     for m in members:
         v = surf.own_vertices(m)
         dev[v] = -0.05  # into the hole: the countersink opened up
-    _, res = _measure(nom, dev)
+    _, res = _measure(part, drawing, dev)
     got = {r.spec.key: r for r in res}
     assert got[dia.key].value == pytest.approx(dia.nominal + 0.1 / np.cos(np.pi / 4), abs=0.01)
     assert got[angle.key].value == pytest.approx(90.0, abs=0.05)

@@ -192,8 +192,8 @@ def _dump_prepared(nominal: str, tolerance: float, out: str) -> None:
     from qifreport.metrology.prepared import prepare_part
     from qifreport.nominal import load_nominal
 
-    nom = load_nominal(Path(nominal), tolerance, None, None)
-    state = prepare_part(nom.V, nom.F, InspectionParams())
+    part, _ = load_nominal(Path(nominal), tolerance, None, None)
+    state = prepare_part(part.V, part.F, InspectionParams())
     np.savez(out, **flatten(state, "prepared"))
 
 

@@ -1,4 +1,4 @@
-"""Fuzzing the file readers: ``load_scan`` and ``load_mesh`` on arbitrary and damaged files.
+"""Fuzzing the file readers: ``read_scan`` and ``load_mesh`` on arbitrary and damaged files.
 
 The property: for any file content, a reader either returns finite float64 arrays of the
 right shape (scan: (m, 3) points, ``m >= MIN_POINTS``; mesh: (n, 3) vertices and (f, 3)
@@ -32,7 +32,8 @@ from hypothesis import strategies as st
 
 from qifreport.errors import InputError
 from qifreport.registration.mesh import load_mesh
-from qifreport.registration.pointcloud import MIN_POINTS, load_scan
+from qifreport.registration.pointcloud import MIN_POINTS, read_scan
+from qifreport.registration.scan import Scan
 
 #: longest a reader may take on one case (s) before the case counts as a hang
 TIMEOUT_S = 10.0
@@ -157,7 +158,7 @@ def available_formats() -> list[str]:
 def encode(fmt: str, V: np.ndarray, F: np.ndarray) -> bytes:
     """The bytes of a valid ``fmt`` file (:data:`FORMATS`) of the mesh ``(V, F)`` (mm); point
     formats keep only the vertices. E57 stores metres (the standard's unit), which
-    ``load_scan`` reads back in mm by default."""
+    ``read_scan`` reads back in mm by default."""
     import trimesh
     from trimesh.exchange.obj import export_obj
     from trimesh.exchange.off import export_off
@@ -199,7 +200,7 @@ def encode(fmt: str, V: np.ndarray, F: np.ndarray) -> bytes:
 
 
 def expected_points(fmt: str, V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, float]:
-    """The points ``load_scan`` must return for :func:`encode` ``(fmt, V, F)``, in order
+    """The points ``read_scan`` must return for :func:`encode` ``(fmt, V, F)``, in order
     (duplicates removed: the first occurrence of each point), and the absolute tolerance
     (mm): float32 rounding where the format stores float32, the printed digits for text
     formats."""
@@ -244,15 +245,15 @@ def time_limit(seconds: float):
         signal.signal(signal.SIGALRM, old)
 
 
-READERS = {"load_scan": load_scan, "load_mesh": load_mesh}
+READERS = {"read_scan": read_scan, "load_mesh": load_mesh}
 #: reader -> formats it reads (load_mesh needs triangles)
 READER_FORMATS = {
-    "load_scan": list(FORMATS),
+    "read_scan": list(FORMATS),
     "load_mesh": [f for f, (_, tri, _) in FORMATS.items() if tri],
 }
 #: reader -> file suffixes tried with arbitrary bytes
 READER_SUFFIXES = {
-    "load_scan": [".ply", ".stl", ".obj", ".off", ".xyz", ".csv", ".npy", ".e57"],
+    "read_scan": [".ply", ".stl", ".obj", ".off", ".xyz", ".csv", ".npy", ".e57"],
     "load_mesh": [".ply", ".stl", ".obj", ".off"],
 }
 
@@ -284,8 +285,9 @@ def check_read(reader: str, suffix: str, data: bytes, directory: Path) -> str:
         assert msg and "\n" not in msg and "\r" not in msg, f"message not one line: {msg!r}"
         assert path.name in msg, f"message does not name the file: {msg!r}"
         return "error"
-    if reader == "load_scan":
-        P = out
+    if reader == "read_scan":
+        assert isinstance(out, Scan) and out.points_read >= out.n, type(out)
+        P = out.points
         assert isinstance(P, np.ndarray) and P.dtype == np.float64, type(P)
         assert P.ndim == 2 and P.shape[1] == 3 and len(P) >= MIN_POINTS, P.shape
         assert P.flags.c_contiguous and np.isfinite(P).all()

@@ -14,7 +14,7 @@ import pytest
 
 from qifreport.metrology.inspection import InspectionParams, inspect
 from qifreport.nominal import load_nominal
-from qifreport.registration.pointcloud import load_scan
+from qifreport.registration.pointcloud import read_scan
 from tests.conftest import ROOT
 
 #: where samples/make_samples.py puts the defect (0.45 mm proud, sigma 6 mm) on the crown
@@ -23,18 +23,18 @@ DEFECT_AT = np.array([25.0, 10.0, 9.3])
 
 @pytest.fixture(scope="module")
 def panel_results():
-    nom = load_nominal(ROOT / "samples/panel.step", None)
+    part, drawing = load_nominal(ROOT / "samples/panel.step", None)
     out = {}
     for name in ("panel_scan", "panel_scan_defect"):
-        P = load_scan(ROOT / f"samples/{name}.ply")
+        P = read_scan(ROOT / f"samples/{name}.ply").points
         out[name] = inspect(
-            nom.V,
-            nom.F,
+            part.V,
+            part.F,
             P,
             InspectionParams(),
-            face_id=nom.face_id,
-            zones=nom.zones,
-            not_evaluated=nom.not_evaluated,
+            face_id=part.face_id,
+            zones=drawing.zones,
+            not_evaluated=drawing.not_evaluated,
         )
     return out
 
@@ -72,7 +72,7 @@ def test_posed_thin_solid_is_refused_not_misjudged(tmp_path):
     import trimesh
     from scipy.spatial.transform import Rotation
 
-    P = load_scan(ROOT / "samples/panel_scan.ply")
+    P = read_scan(ROOT / "samples/panel_scan.ply").points
     R = Rotation.from_euler("xyz", (120.0, 45.0, 10.0), degrees=True).as_matrix()
     posed = tmp_path / "posed.ply"
     trimesh.PointCloud(P @ R.T + [300.0, -150.0, 80.0]).export(posed)

@@ -84,7 +84,8 @@ def _produce(d: Path, name: str, res, prov: Provenance, page: str = "A4") -> Out
 
 @pytest.fixture(scope="module")
 def panel_nominal():
-    """The STEP panel as the CLI reads it (default max edge: diagonal / 60)."""
+    """The STEP panel's part and drawing as the CLI reads them (default max edge:
+    diagonal / 60)."""
     from qifreport.nominal import load_nominal
 
     return load_nominal(ROOT / "samples/panel.step", None, None)
@@ -95,7 +96,7 @@ def results(shell, shell_case, shell_case_defect, panel_nominal):
     """name -> (InspectionResult, Provenance): a passing shell, a failing shell and the STEP
     panel (two PMI profile tolerances, two PMI items not scored), inspected as the CLI does."""
     from qifreport.metrology.inspection import InspectionParams, inspect
-    from qifreport.registration.pointcloud import load_scan
+    from qifreport.registration.pointcloud import read_scan
 
     V, F = shell
     out = {}
@@ -103,19 +104,19 @@ def results(shell, shell_case, shell_case_defect, panel_nominal):
     out["pass"] = (res, _prov("shell", "shell.ply", "shell_scan.npy"))
     res = inspect(V, F, shell_case_defect.P, InspectionParams(tolerance=0.3))
     out["fail"] = (res, _prov("shell", "shell.ply", "shell_defect.npy"))
-    nom = panel_nominal
-    P = load_scan(ROOT / "samples/panel_scan_defect.ply")
+    part, drawing = panel_nominal
+    P = read_scan(ROOT / "samples/panel_scan_defect.ply").points
     res = inspect(
-        nom.V,
-        nom.F,
+        part.V,
+        part.F,
         P,
         InspectionParams(tolerance=None),
-        face_id=nom.face_id,
-        zones=nom.zones,
-        not_evaluated=nom.not_evaluated,
+        face_id=part.face_id,
+        zones=drawing.zones,
+        not_evaluated=drawing.not_evaluated,
     )
     prov = _prov("panel", "samples/panel.step", "samples/panel_scan_defect.ply")
-    out["panel"] = (res, dataclasses.replace(prov, face_step_ids=nom.face_step_ids))
+    out["panel"] = (res, dataclasses.replace(prov, face_step_ids=part.face_step_ids))
     return out
 
 
@@ -692,7 +693,7 @@ def html_pages(tmp_path_factory, results, panel_nominal) -> dict[str, Path]:
     pages = {}
     for name, (res, prov) in results.items():
         pages[name] = d / f"{name}.html"
-        face_id = panel_nominal.face_id if name == "panel" else None
+        face_id = panel_nominal[0].face_id if name == "panel" else None
         write_html(pages[name], res, prov, face_id=face_id)
     return pages
 
@@ -877,7 +878,7 @@ def test_html_readout_in_chromium(html_pages, results, panel_nominal):
     res, prov = results["panel"]
     page = html_pages["panel"]
     d = np.asarray(_viewer_json(page)["views"][0]["direction"])
-    fid = panel_nominal.face_id
+    fid = panel_nominal[0].face_id
     F = np.asarray(res.F)
     n = len(res.V)
     lo = np.full(n, np.iinfo(np.int64).max)

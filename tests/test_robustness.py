@@ -20,7 +20,7 @@ import pytest
 
 from qifreport.errors import InputError
 from qifreport.registration.mesh import load_mesh
-from qifreport.registration.pointcloud import load_scan
+from qifreport.registration.pointcloud import read_scan
 from tests.conftest import assert_valid_summary
 from tests.test_cli import SAMPLES, run, write_points
 from tests.test_fuzz_readers import FORMATS, encode, expected_points, grid_mesh, seed
@@ -45,7 +45,7 @@ END-ISO-10303-21;
 @pytest.fixture(scope="module")
 def shell_points() -> np.ndarray:
     """The demo scan's points (mm)."""
-    return load_scan(SCAN)
+    return read_scan(SCAN).points
 
 
 def assert_refused(r, word: str, out: Path) -> None:
@@ -233,7 +233,7 @@ def test_scan_format_round_trip(tmp_path, fmt):
     V, F = grid_mesh()
     f = tmp_path / f"scan{FORMATS[fmt][0]}"
     f.write_bytes(encode(fmt, V, F))
-    P = load_scan(f)
+    P = read_scan(f).points
     want, tol = expected_points(fmt, V, F)
     assert P.dtype == np.float64 and P.shape == want.shape, (P.shape, want.shape)
     np.testing.assert_allclose(P, want, rtol=0, atol=tol)
@@ -256,10 +256,10 @@ def test_e57_scans_posed_concatenated_invalid_dropped(tmp_path):
         e.close()
     local = np.column_stack([raw0["cartesianX"], raw0["cartesianY"], raw0["cartesianZ"]])
     assert np.abs(local * 1000.0 - V[: len(local)]).max() > 10.0  # the pose matters
-    P = load_scan(f)  # E57 is in metres: read back in mm
+    P = read_scan(f).points  # E57 is in metres: read back in mm
     assert len(P) == len(V) and np.abs(P).max() < 100.0  # no invalid point (1 km away)
     np.testing.assert_allclose(P, V, rtol=0, atol=1e-4)
-    np.testing.assert_allclose(load_scan(f, units="mm"), V / 1000.0, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(read_scan(f, units="mm").points, V / 1000.0, rtol=0, atol=1e-7)
 
 
 def test_e57_without_pye57_is_one_clear_line(tmp_path, monkeypatch):
@@ -267,7 +267,7 @@ def test_e57_without_pye57_is_one_clear_line(tmp_path, monkeypatch):
     f.write_bytes(b"ASTM-E57" + bytes(1000))
     monkeypatch.setitem(sys.modules, "pye57", None)  # import pye57 -> ImportError
     with pytest.raises(InputError) as exc:
-        load_scan(f)
+        read_scan(f)
     msg = str(exc.value)
     assert "\n" not in msg and "scan.e57" in msg and "pye57" in msg and "qifreport[e57]" in msg
 
@@ -275,14 +275,14 @@ def test_e57_without_pye57_is_one_clear_line(tmp_path, monkeypatch):
 def test_scan_units(tmp_path, shell_points):
     f = tmp_path / "scan.npy"
     np.save(f, shell_points)
-    np.testing.assert_allclose(load_scan(f, units="in"), 25.4 * shell_points)
-    np.testing.assert_allclose(load_scan(f, units="m"), 1000.0 * shell_points)
-    np.testing.assert_array_equal(load_scan(f, units="mm"), shell_points)
+    np.testing.assert_allclose(read_scan(f, units="in").points, 25.4 * shell_points)
+    np.testing.assert_allclose(read_scan(f, units="m").points, 1000.0 * shell_points)
+    np.testing.assert_array_equal(read_scan(f, units="mm").points, shell_points)
     with pytest.raises(InputError, match="unknown scan units"):
-        load_scan(f, units="furlong")
+        read_scan(f, units="furlong")
     np.save(f, np.full((200, 3), 1e306))  # finite in the file, inf in mm
     with pytest.raises(InputError, match="NaN/inf"):
-        load_scan(f, units="m")
+        read_scan(f, units="m")
 
 
 @pytest.mark.parametrize(
@@ -298,14 +298,14 @@ def test_npy_of_non_numbers_is_refused(tmp_path, array):
     f = tmp_path / "scan.npy"
     np.save(f, array)
     with pytest.raises(InputError, match="scan.npy"):
-        load_scan(f)
+        read_scan(f)
 
 
 def test_obj_scan_keeps_points_no_face_uses(tmp_path):
     V, F = grid_mesh()
     f = tmp_path / "scan.obj"
     f.write_bytes(encode("obj", V, F[:-1]))  # the last corner is on no face
-    P = load_scan(f)
+    P = read_scan(f).points
     assert len(P) == len(V)
     np.testing.assert_allclose(P, V, atol=1e-8)
 
@@ -345,13 +345,13 @@ def test_truncated_ascii_mesh_is_refused(tmp_path, fmt):
     f = tmp_path / f"cut{FORMATS[fmt][0]}"
     f.write_bytes(data[: int(0.95 * len(data))])
     _refuses(load_mesh, f, "truncated")
-    _refuses(load_scan, f, "truncated")
+    _refuses(read_scan, f, "truncated")
 
 
 def test_ply_header_count_edited_is_refused(tmp_path):
     f = tmp_path / "fewer.ply"
     f.write_bytes(seed("ply-ascii-points").replace(b"element vertex 121", b"element vertex 110"))
-    _refuses(load_scan, f, "truncated or corrupt")
+    _refuses(read_scan, f, "truncated or corrupt")
 
 
 def test_obj_face_index_zero_is_refused(tmp_path):
@@ -366,7 +366,7 @@ def test_trimesh_log_does_not_reach_the_console(tmp_path, caplog):
     f = tmp_path / "badnormal.stl"
     f.write_bytes(seed("stl-ascii").replace(b"facet normal", b"facet normal x", 1))
     with caplog.at_level(logging.DEBUG):
-        P = load_scan(f)
+        P = read_scan(f).points
         load_mesh(f)
     assert len(P) == len(grid_mesh()[0])  # the distinct corners (STL repeats them)
     assert not [r for r in caplog.records if r.name.startswith("trimesh")], caplog.text

@@ -258,7 +258,7 @@ def test_scan_deterministic_from_seed(shell):
     np.testing.assert_array_equal(a.P, b.P)
     np.testing.assert_array_equal(a.vertex, b.vertex)
     assert len(a.P) != len(c.P) or np.abs(a.P - c.P).max() > 1e-3
-    assert a.vertex.dtype == np.int64 and a.P.shape == a.normals.shape
+    assert a.vertex.dtype == np.int64 and a.P.shape == a.true_normals.shape
     # the open shell is seen from its front (+z side), so every view looks down
     assert (a.directions[:, 2] < -0.8).all()
     # generator vertex is a vertex of the hit triangle, close to the sample
@@ -321,7 +321,7 @@ def test_depth_buffer_sphere_front_hemisphere_only():
     )
     S = virtual_scan(V, F, spec)
     assert S.P[:, 2].min() > -0.05 * r  # nothing from the back hemisphere
-    assert (S.normals[:, 2] > 0).mean() > 0.99
+    assert (S.true_normals[:, 2] > 0).mean() > 0.99
     # one sample per pixel of the projected disk (an all-hits raster would give twice this)
     assert len(S.P) == pytest.approx(np.pi * r**2 / pixel**2, rel=0.03)
 

@@ -42,27 +42,27 @@ def test_the_disk_leaves_the_mesh_and_its_tolerance_takes_its_footprint(ctc04):
     from OCP.BRepGProp import BRepGProp
     from OCP.GProp import GProp_GProps
 
-    part, nom = ctc04
-    disk = part.face_index()[17460]
+    step_part, (part, drawing) = ctc04
+    disk = step_part.face_index()[17460]
     props = GProp_GProps()
-    BRepGProp.SurfaceProperties_s(part.faces[disk], props)
+    BRepGProp.SurfaceProperties_s(step_part.faces[disk], props)
     brep_area = props.Mass()  # 962.1 mm^2
-    assert not np.any(nom.face_id == disk)
+    assert not np.any(part.face_id == disk)
     # the disk was the mesh's only open boundary and its second piece
-    h = mesh_hygiene(nom.V, nom.F)
+    h = mesh_hygiene(part.V, part.F)
     assert h.boundary_edges == 0 and h.components == 1, h.describe()
-    (sup,) = nom.info["supplemental_faces"]
+    (sup,) = part.info["supplemental_faces"]
     assert sup["step_id"] == 17460 and len(sup["on_faces"]) == 1
-    zone = next(z for z in nom.zones if z.step_id == 18835)
+    zone = next(z for z in drawing.zones if z.step_id == 18835)
     assert list(zone.faces) == [disk] and zone.triangles is not None
-    bands = lay_bands(nom.F, len(nom.V), nom.face_id, nom.zones)
+    bands = lay_bands(part.F, len(part.V), part.face_id, drawing.zones)
     k = next(i for i, z in enumerate(bands.zones) if z.step_id == 18835)
-    area = zone_vertex_areas(nom.V, nom.F, bands.tri_masks[k]).sum()
+    area = zone_vertex_areas(part.V, part.F, bands.tri_masks[k]).sum()
     # the footprint is the solid's triangles whose centroids lie on the disk: the disk's
     # area to within the triangles along its rim (measured 949 of 962 mm^2)
     assert abs(area - brep_area) < 0.03 * brep_area, (area, brep_area)
     # beneath it, the solid's face keeps its own triangles (and so its own tolerances)
-    assert np.all(np.isin(nom.face_id[bands.tri_masks[k]], sup["on_faces"]))
+    assert np.all(np.isin(part.face_id[bands.tri_masks[k]], sup["on_faces"]))
 
 
 def test_a_tolerance_on_a_face_off_the_solid_is_listed_not_dropped():

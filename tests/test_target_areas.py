@@ -97,15 +97,17 @@ def ctc05():
     return load_nominal(shared_file(CTC05), None)
 
 
-def _frame_C(nom, dev):
-    surf = exact_surface(nom, dev)
-    return establish_frame([nom.plan.datums["C"]], surf), surf
+def _frame_C(ctc05, dev):
+    part, drawing = ctc05
+    surf = exact_surface(part, dev)
+    return establish_frame([drawing.plan.datums["C"]], surf), surf
 
 
 def test_datum_c_is_simulated_under_its_area_only(ctc05):
-    (tg,) = ctc05.plan.datums["C"].targets
+    part, drawing = ctc05
+    (tg,) = drawing.plan.datums["C"].targets
     assert tg.is_area and (tg.length, tg.width) == (50.8, 31.75)
-    zero = np.zeros(len(ctc05.V))
+    zero = np.zeros(len(part.V))
     frame, surf = _frame_C(ctc05, zero)
     assert frame.established and "target area C1" in frame.readings[0], frame.readings
     assert abs(frame.t @ tg.normal) < 1e-6
@@ -125,10 +127,11 @@ def test_datum_c_is_simulated_under_its_area_only(ctc05):
 
 
 def test_the_area_sides_are_theoretically_exact(ctc05):
+    part, drawing = ctc05
     res, _ = measure_characteristics(
-        ctc05.plan.specs,
-        ctc05.plan.datums,
-        exact_surface(ctc05, np.zeros(len(ctc05.V))),
+        drawing.plan.specs,
+        drawing.plan.datums,
+        exact_surface(part, np.zeros(len(part.V))),
         "iso14253",
     )
     got = {r.spec.key: r for r in res}

@@ -29,7 +29,7 @@ def rippled_cli_run(shell, tmp_path_factory) -> dict:
 
     V, F = shell
     case = make_case(V, F, generator="analytic", amplitude=0.02, seed=0)
-    P, N = case.P.copy(), case.scan.normals
+    P, N = case.P.copy(), case.scan.true_normals
     x = P[:, 0]
     zone = x > x.max() - 0.4 * (x.max() - x.min())
     P[zone] += (0.4 * np.sin(2 * np.pi * P[zone, 1] / 12.0))[:, None] * N[zone]

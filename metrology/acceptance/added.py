@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from qifreport.metrology.acceptance.point_regions import linked_groups, point_areas
 from qifreport.metrology.acceptance.statistics import json_float
-from qifreport.registration.pointcloud import median_spacing
+from qifreport.registration.scan import median_spacing
 
 __all__ = [
     "added_material",

@@ -45,7 +45,7 @@ from scipy.spatial import cKDTree
 from qifreport.metrology.acceptance.decision import PROOF_COVERAGE
 from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.nearest import workers_for
-from qifreport.registration.pointcloud import median_spacing
+from qifreport.registration.scan import median_spacing
 
 __all__ = ["ScanSamples", "SurfacePoints", "linked_groups", "point_areas", "scan_samples"]
 

@@ -21,7 +21,7 @@ from qifreport.metrology.groups import sort_within_groups
 from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.mesh import median_edge_length
 from qifreport.registration.nearest import ball_pairs
-from qifreport.registration.pointcloud import median_spacing
+from qifreport.registration.scan import median_spacing
 
 __all__ = [
     "residual_referenced",

@@ -183,10 +183,10 @@ def trend_characteristics(st: PartState, df) -> list:
 
     chars = [
         TrendCharacteristic(z.key, z.describe(), float(z.upper - z.lower))
-        for z in st.nominal.zones
+        for z in st.drawing.zones
         if f"profile_{z.key}_mm" in df
     ]
-    plan = st.nominal.plan
+    plan = st.drawing.plan
     for s in plan.specs if plan is not None else []:
         column = f"value_{s.key}_{s.unit}"
         if column not in df:  # never measured

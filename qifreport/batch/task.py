@@ -123,8 +123,9 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
         with tempfile.TemporaryDirectory(prefix="qifreport-") as td:
             scan_file = Path(td) / item.scan.name
             scan_file.write_bytes(task.scan_bytes)
-            P, n_read = read_scan(scan_file, units=job.options.scan_units)
-            P, scan_report = scan_input(P, n_read, state.nominal, item.scan.name)
+            scan = read_scan(scan_file, units=job.options.scan_units)
+            P, scan_report = scan_input(scan, state.part)
+            del scan  # the inspection uses its thinned points
             this = replace(
                 job,
                 nominal=item.nominal,
@@ -139,7 +140,8 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
             digests = {"nominal": state.nominal_sha256, "scan": task.scan_sha256}
             writers, _ = output_writers(
                 res,
-                state.nominal,
+                state.part,
+                state.drawing,
                 this,
                 this.output_paths(),
                 digests,

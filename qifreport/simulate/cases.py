@@ -23,7 +23,7 @@ from .deform import (
     elastic_deformation,
     pca_frame,
 )
-from .scanner import Scan, ScanSpec, virtual_scan
+from .scanner import ScanSpec, SimulatedScan, virtual_scan
 
 __all__ = [
     "Case",
@@ -51,7 +51,7 @@ class Case:
     F: np.ndarray
     V_true: np.ndarray
     V_scanned: np.ndarray
-    scan: Scan
+    scan: SimulatedScan
     clamp_centers: np.ndarray
     defect_vertex: int
     defect: tuple[float, float] | None

@@ -41,7 +41,7 @@ from scipy.stats import chi2
 from qifreport.metrology.deviation.local_planes import nominal_referenced
 from qifreport.metrology.inspection import InspectionParams, InspectionResult, inspect
 from qifreport.registration.mesh import bounding_diagonal, median_edge_length
-from qifreport.registration.pointcloud import load_scan
+from qifreport.registration.pointcloud import read_scan
 
 from .cases import Case, inspection_error, make_case
 from .scanner import ScanSpec
@@ -296,7 +296,7 @@ def true_normal_noise(case: Case, noise: float) -> float:
     normal, ``noise * rms(|n . v|)`` (the scanner perturbs along the view direction ``v``).
     Uses the generator's record (scoring only)."""
     s = case.scan
-    cosv = np.einsum("ij,ij->i", s.normals, s.directions[s.view])
+    cosv = np.einsum("ij,ij->i", s.true_normals, s.directions[s.view])
     return float(noise * np.sqrt(np.mean(cosv**2)))
 
 
@@ -335,7 +335,7 @@ def ingest_posed(P: np.ndarray, workdir: str | Path | None = None) -> np.ndarray
     with tempfile.TemporaryDirectory(dir=workdir) as tmp:
         path = Path(tmp) / "case_a_scan.ply"
         trimesh.PointCloud(Q / 1000.0).export(path)
-        return load_scan(path, units="m")
+        return read_scan(path, units="m").points
 
 
 def chain_floor(

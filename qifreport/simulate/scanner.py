@@ -4,8 +4,10 @@ Each view projects the surface orthographically along its direction ``v`` onto a
 keeps the nearest surface sample per pixel (depth buffer: self-occluded surface is removed),
 discards grazing samples (``|n . v| < tau_g``), perturbs every sample along ``v`` with Gaussian
 range noise, thins at random and cuts a dropout disk around each clamp. The views are
-concatenated into one unordered cloud. The generator vertex and the true normal of every
-sample are recorded for scoring only; they must never reach a registration algorithm.
+concatenated into one unordered cloud: a :class:`~qifreport.registration.scan.Scan`, as the
+inspection reads one from a file. The generator vertex and the true normal of every sample
+are recorded beside it (:class:`SimulatedScan`) for scoring only; they must never reach a
+registration algorithm.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from qifreport.registration.mesh import face_normals, median_edge_length
+from qifreport.registration.scan import Scan
 
 from .deform import pca_frame
 
@@ -23,8 +26,8 @@ __all__ = [
     "aim_views",
     "turntable_views",
     "rasterize",
-    "Scan",
     "ScanSpec",
+    "SimulatedScan",
     "virtual_scan",
 ]
 
@@ -77,23 +80,29 @@ class ScanSpec:
 
 
 @dataclass
-class Scan:
-    """A simulated point cloud.
+class SimulatedScan:
+    """A simulated scan: the :class:`~qifreport.registration.scan.Scan` an inspection gets
+    (points only, format ``"simulated"``) and its truth.
 
     Attributes
     ----------
-    P : (m, 3) measured points, mm.
+    scan : the measured points, mm.
     vertex : (m,) int64 generator vertex (nearest vertex of the hit triangle). SCORING ONLY.
     view : (m,) int index of the view that produced each point.
     directions : (k, 3) unit view directions (camera -> part).
-    normals : (m, 3) true unit surface normal (of the hit triangle). SCORING ONLY.
+    true_normals : (m, 3) true unit surface normal (of the hit triangle). SCORING ONLY.
     """
 
-    P: np.ndarray
+    scan: Scan
     vertex: np.ndarray
     view: np.ndarray
     directions: np.ndarray
-    normals: np.ndarray
+    true_normals: np.ndarray
+
+    @property
+    def P(self) -> np.ndarray:
+        """(m, 3) the measured points, mm (``scan.points``)."""
+        return self.scan.points
 
 
 def _perpendicular_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -220,7 +229,7 @@ def rasterize(V: np.ndarray, F: np.ndarray, direction: np.ndarray, pixel: float)
     return _Hits(X=X, face=face.astype(np.int64))
 
 
-def virtual_scan(V: np.ndarray, F: np.ndarray, spec: ScanSpec | None = None) -> Scan:
+def virtual_scan(V: np.ndarray, F: np.ndarray, spec: ScanSpec | None = None) -> SimulatedScan:
     """Simulate a multiview range scan of the surface ``(V, F)`` (paper Section 4.2).
 
     Per view: depth-buffered orthographic rasterisation (:func:`rasterize`), grazing cutoff
@@ -237,7 +246,7 @@ def virtual_scan(V: np.ndarray, F: np.ndarray, spec: ScanSpec | None = None) -> 
 
     Returns
     -------
-    Scan, points of all views concatenated in view order.
+    SimulatedScan, points of all views concatenated in view order.
     """
     spec = ScanSpec() if spec is None else spec
     V = np.ascontiguousarray(V, dtype=np.float64)
@@ -278,10 +287,10 @@ def virtual_scan(V: np.ndarray, F: np.ndarray, spec: ScanSpec | None = None) -> 
         out_view.append(np.full(len(P), k, dtype=np.int64))
         out_n.append(n)
         log.debug("view %d %s: %d samples", k, np.round(v, 3), len(P))
-    return Scan(
-        P=np.concatenate(out_P),
+    return SimulatedScan(
+        scan=Scan(np.concatenate(out_P), format="simulated"),
         vertex=np.concatenate(out_vert).astype(np.int64),
         view=np.concatenate(out_view),
         directions=dirs,
-        normals=np.concatenate(out_n),
+        true_normals=np.concatenate(out_n),
     )

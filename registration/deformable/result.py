@@ -21,7 +21,7 @@ from qifreport.registration.icp import robust_scale
 from qifreport.registration.mesh import MeshOperators, median_edge_length
 from qifreport.registration.nearest import workers_for
 from qifreport.registration.normals import SIDE_KNOWN, orient_normals_consistent, pca_normals
-from qifreport.registration.pointcloud import median_spacing
+from qifreport.registration.scan import median_spacing
 
 __all__ = [
     "coverage_radius",
