@@ -240,18 +240,21 @@ def _run_batch(args: argparse.Namespace) -> int:
 
 
 def _add_validate_arguments(ap: argparse.ArgumentParser) -> None:
+    """``validate``'s arguments (imported when the parser is built)."""
     from .validate_command import add_arguments
 
     add_arguments(ap)
 
 
 def _add_plan_arguments(ap: argparse.ArgumentParser) -> None:
+    """``plan``'s arguments (imported when the parser is built)."""
     from .plan_command import add_arguments
 
     add_arguments(ap)
 
 
 def _add_batch_arguments(ap: argparse.ArgumentParser) -> None:
+    """``batch``'s own arguments, then the inspection options (no single-scan ones)."""
     from .batch import add_batch_arguments
 
     add_batch_arguments(ap)
