@@ -19,26 +19,8 @@ Entries are written to a temporary file and renamed into place, so a reader neve
 entry and concurrent builders of one part are harmless (the last rename wins; both are
 identical).
 
-Trust. Unpickling runs code, so nothing is unpickled that anyone but the current user
-(``os.geteuid()``) could have written (POSIX ownership and modes):
-
-* the **directory** must be owned by the user and writable by nobody else (no group/other
-  write bit). A directory this module creates is made mode 0700 (``chmod`` after ``mkdir``,
-  whatever the umask); an existing directory is never changed. A directory that fails the
-  check (or cannot be created) is not used at all -- neither read nor written: one warning,
-  the inspection goes on without the cache (:class:`CacheOutcome` status ``"refused"``);
-* the directory holds the user's **secret**, ``<cache>/.key``: 32 random bytes, written to a
-  private temporary file and hard-linked into place (exclusive: an existing key is never
-  overwritten), mode 0600. A key file that is a symbolic link, not a regular file, not owned
-  by the user, not mode 0600 or not 32 bytes refuses the directory as above;
-* an **entry** is read only when it is a regular file (opened with ``O_NOFOLLOW``: never a
-  symbolic link) owned by the user and writable by nobody else, checked on the open file;
-* then its header must parse, name this format, carry the key :func:`part_state`
-  **recomputes from the inputs** (the header's key is only compared, never trusted), the
-  payload's length and SHA-256, and an HMAC-SHA256, under the secret, of the canonical header
-  (all of it but the HMAC) and the payload, compared with :func:`hmac.compare_digest`. Only
-  then is the payload unpickled. A header copied from another entry with a swapped payload
-  fails the HMAC.
+Trust (:mod:`qifreport.cache_trust`): nothing is unpickled that anyone but the current user
+could have written, and only after its header and an HMAC under the user's secret check out.
 
 An entry that fails any check is logged and never used; the state is rebuilt and the entry
 replaced by a fresh one (the directory is the user's, so replacing it is the user's to do).
@@ -55,8 +37,6 @@ import json
 import logging
 import os
 import pickle
-import secrets
-import stat
 import tempfile
 import time
 from collections.abc import Callable
@@ -74,6 +54,16 @@ from qifreport.metrology.prepared import PreparedPart, part_settings, prepare_pa
 from qifreport.registration.deformable.methods import method_spec
 from qifreport.registration.restraint.restrained import RestraintBasis
 
+from .cache_trust import (
+    KEY_BYTES,
+    KEY_FILE,
+    CorruptEntry,
+    UntrustedCache,
+    cache_secret,
+    check_cache_dir,
+    entry_mac,
+    open_entry,
+)
 from .nominal import load_nominal
 from .options import NominalOptions
 from .restraint import build_restraint, with_limits
@@ -106,10 +96,6 @@ log = logging.getLogger(__name__)
 #: :class:`PartState` (or of anything it holds) is never read; bump it when that changes
 CACHE_FORMAT = 17
 SUFFIX = ".qprep"
-#: the per-user secret's file name inside the cache directory, and its length in bytes
-KEY_FILE = ".key"
-KEY_BYTES = 32
-_MAX_HEADER = 1 << 20
 
 
 def sha256(path: Path) -> str:
@@ -189,170 +175,6 @@ class CacheOutcome:
             return f"part state prepared in {self.seconds:.1f} s (cache not used: {self.reason})"
         why = f" (cache entry refused: {self.reason})" if self.reason else ""
         return f"part state prepared in {self.seconds:.1f} s{why}, cached: {self.path}"
-
-
-class CorruptEntry(Exception):
-    """A cache entry that cannot be trusted (the message says why)."""
-
-
-class UntrustedCache(Exception):
-    """A cache directory (or its key file) the current user cannot trust (the message names
-    it and says why): the cache is not used."""
-
-
-def _writable_by_others(mode: int) -> bool:
-    return bool(mode & (stat.S_IWGRP | stat.S_IWOTH))
-
-
-def _owner_problem(st: os.stat_result) -> str:
-    """Why a file or directory with status ``st`` is not the current user's alone ("" if it
-    is)."""
-    uid = os.geteuid()
-    if st.st_uid != uid:
-        return f"owned by uid {st.st_uid}, not by this user (uid {uid})"
-    if _writable_by_others(st.st_mode):
-        return f"writable by group or others (mode {stat.S_IMODE(st.st_mode):04o})"
-    return ""
-
-
-def check_cache_dir(cache_dir: Path, *, create: bool = True) -> None:
-    """Check that ``cache_dir`` is the current user's alone; create it (mode 0700) if missing.
-
-    Parameters
-    ----------
-    cache_dir : the cache directory.
-    create : create a missing directory (its parents with the default mode, itself 0700).
-
-    Raises
-    ------
-    UntrustedCache
-        It cannot be created, is not a directory, is not owned by the current user or is
-        writable by group or others. An existing directory is never modified.
-    """
-    cache_dir = Path(cache_dir)
-    if create and not os.path.lexists(cache_dir):
-        try:
-            cache_dir.parent.mkdir(parents=True, exist_ok=True)
-            os.mkdir(cache_dir, 0o700)
-        except FileExistsError:
-            pass  # created meanwhile (by another process): checked below like any other
-        except OSError as exc:
-            raise UntrustedCache(f"cache directory {cache_dir} cannot be created: {exc}") from exc
-        else:
-            os.chmod(cache_dir, 0o700)  # ours, just made: 0700 whatever the umask
-            log.info("created the cache directory %s (mode 0700)", cache_dir)
-    try:
-        st = os.stat(cache_dir)
-    except OSError as exc:
-        raise UntrustedCache(f"cache directory {cache_dir} is unusable: {exc}") from exc
-    if not stat.S_ISDIR(st.st_mode):
-        raise UntrustedCache(f"cache directory {cache_dir} is not a directory")
-    problem = _owner_problem(st)
-    if problem:
-        raise UntrustedCache(f"cache directory {cache_dir} is {problem}")
-
-
-def _read_secret(path: Path) -> bytes | None:
-    """The secret in ``path``, None if there is no such file; :class:`UntrustedCache` unless it
-    is a regular file of the user's, mode 0600, :data:`KEY_BYTES` long."""
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    except FileNotFoundError:
-        return None
-    except OSError as exc:  # ELOOP: a symbolic link
-        what = "a symbolic link" if os.path.islink(path) else f"unreadable ({exc})"
-        raise UntrustedCache(f"cache key file {path} is {what}") from exc
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise UntrustedCache(f"cache key file {path} is not a regular file")
-        uid = os.geteuid()
-        if st.st_uid != uid:
-            raise UntrustedCache(
-                f"cache key file {path} is owned by uid {st.st_uid}, not by this user (uid {uid})"
-            )
-        if stat.S_IMODE(st.st_mode) != 0o600:
-            raise UntrustedCache(
-                f"cache key file {path} has mode {stat.S_IMODE(st.st_mode):04o}, not 0600"
-            )
-        data = os.read(fd, KEY_BYTES + 1)
-    finally:
-        os.close(fd)
-    if len(data) != KEY_BYTES:
-        raise UntrustedCache(f"cache key file {path} is {len(data)} bytes, not {KEY_BYTES}")
-    return data
-
-
-def cache_secret(cache_dir: Path) -> bytes:
-    """The current user's secret for ``cache_dir``, created on first use.
-
-    The directory is checked (and created) by :func:`check_cache_dir`. A missing key is made
-    from :func:`secrets.token_bytes` in a private temporary file (mode 0600) and hard-linked to
-    ``<cache>/.key``: exclusive (an existing key, e.g. one another process made meanwhile,
-    is never replaced) and atomic (no reader sees a partial key).
-
-    Parameters
-    ----------
-    cache_dir : the cache directory.
-
-    Returns
-    -------
-    bytes
-        :data:`KEY_BYTES` bytes.
-
-    Raises
-    ------
-    UntrustedCache
-        The directory fails :func:`check_cache_dir`, or the key file is a symbolic link, not
-        a regular file, not owned by the current user, not mode 0600 or not
-        :data:`KEY_BYTES` long, or it cannot be created.
-    """
-    cache_dir = Path(cache_dir)
-    check_cache_dir(cache_dir)
-    path = cache_dir / KEY_FILE
-    key = _read_secret(path)
-    if key is not None:
-        return key
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-key-", dir=cache_dir)
-        try:
-            os.fchmod(fd, 0o600)
-            with os.fdopen(fd, "wb") as fh:
-                fh.write(secrets.token_bytes(KEY_BYTES))
-                fh.flush()
-                os.fsync(fh.fileno())
-            with contextlib.suppress(FileExistsError):  # another process was first: use its key
-                os.link(tmp, path)
-        finally:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-    except OSError as exc:
-        raise UntrustedCache(f"cache key file {path} cannot be created: {exc}") from exc
-    key = _read_secret(path)
-    if key is None:
-        raise UntrustedCache(f"cache key file {path} vanished while it was created")
-    log.info("created the cache key %s", path)
-    return key
-
-
-def _canonical(header: dict) -> bytes:
-    return json.dumps(header, sort_keys=True, separators=(",", ":")).encode("utf-8")
-
-
-def entry_mac(secret: bytes, header: dict, payload: bytes) -> str:
-    """HMAC-SHA256 (hex) of an entry under ``secret``: the canonical JSON of ``header`` (every
-    field but ``"hmac"``), a newline and the payload.
-
-    Parameters
-    ----------
-    secret : the user's key (:func:`cache_secret`).  header : the entry's header.
-    payload : the pickled state.
-    """
-    mac = hmac.new(secret, digestmod=hashlib.sha256)
-    mac.update(_canonical({k: v for k, v in header.items() if k != "hmac"}))
-    mac.update(b"\n")
-    mac.update(payload)
-    return mac.hexdigest()
 
 
 def key_material(nominal_sha256: str, options: NominalOptions, params: InspectionParams) -> dict:
@@ -489,33 +311,6 @@ def save_entry(path: Path, state: PartState, material: dict, secret: bytes) -> N
         raise
 
 
-def _open_entry(path: Path) -> tuple[bytes, bytes]:
-    """The header line and payload of ``path``, read only if it is a regular file (not a
-    symbolic link) of the current user's, writable by nobody else; else :class:`CorruptEntry`.
-    """
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-    except OSError as exc:
-        if os.path.islink(path):
-            raise CorruptEntry("refused: a symbolic link") from exc
-        raise CorruptEntry(f"unreadable: {exc}") from exc
-    try:
-        st = os.fstat(fd)  # the file opened, not whatever the name points at now
-        if not stat.S_ISREG(st.st_mode):
-            raise CorruptEntry("refused: not a regular file")
-        problem = _owner_problem(st)
-        if problem:
-            raise CorruptEntry(f"refused: {problem}")
-        with os.fdopen(fd, "rb") as fh:
-            fd = -1
-            return fh.readline(_MAX_HEADER), fh.read()
-    except OSError as exc:
-        raise CorruptEntry(f"unreadable: {exc}") from exc
-    finally:
-        if fd >= 0:
-            os.close(fd)
-
-
 def load_entry(path: Path, key: str, secret: bytes) -> PartState:
     """Read, check and verify one entry; :class:`CorruptEntry` (with the reason) unless trusted.
 
@@ -528,7 +323,7 @@ def load_entry(path: Path, key: str, secret: bytes) -> PartState:
     path : the entry file.  key : the key recomputed from the inputs (:func:`cache_key`).
     secret : the user's key (:func:`cache_secret`).
     """
-    line, payload = _open_entry(path)
+    line, payload = open_entry(path)
     try:
         header = json.loads(line.decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -599,74 +394,72 @@ def part_state(
     material = key_material(digest, options, params)
     key = cache_key(material)
 
-    def for_one_inspection() -> PartState:  # without a cache: only what it needs
-        return build_state(
+    def built(status: str, reason: str = "", path: Path | None = None, secret: bytes = b""):
+        # without an entry to write, only what one inspection needs
+        state = build_state(
             nominal,
             options,
             params,
             digest,
             key,
-            complete=False,
+            complete=path is not None,
             lazy_basis=lazy_basis,
             on_nominal=on_nominal,
         )
-
-    if cache_dir is None:
-        state = for_one_inspection()
+        if path is not None:
+            try:
+                save_entry(path, state, material, secret)
+            except OSError as exc:  # a read-only cache must not stop an inspection
+                log.warning("could not write the cache entry %s: %s", path, exc)
         return state, CacheOutcome(
-            "off",
-            None,
+            status,
+            path,
             time.perf_counter() - t0,
             state.build_seconds,
+            reason=reason,
             timings=dict(state.prepared.timings),
         )
+
+    if cache_dir is None:
+        return built("off")
     try:
         secret = cache_secret(cache_dir)
     except UntrustedCache as exc:  # never read nor write a directory others could write
         log.warning("%s: the part is prepared without the cache", exc)
-        state = for_one_inspection()
-        return state, CacheOutcome(
-            "refused",
-            None,
-            time.perf_counter() - t0,
-            state.build_seconds,
-            reason=str(exc),
-            timings=dict(state.prepared.timings),
-        )
+        return built("refused", str(exc))
     path = entry_path(cache_dir, nominal, key)
     reason = ""
     exists = os.path.lexists(path)  # a symbolic link (even a dangling one) is refused
     if exists and not rebuild:
         try:
-            state = load_entry(path, key, secret)
-            if state.restraint is not None and options.restraint is not None:
-                with_limits(state.restraint, options.restraint)
-            log.info("part state loaded from %s", path)
-            outcome = CacheOutcome("hit", path, time.perf_counter() - t0, state.build_seconds)
-            if on_nominal is not None:
-                on_nominal(state.part)
-            return state, outcome
+            return _cache_hit(path, key, secret, options, on_nominal, t0)
         except CorruptEntry as exc:
             reason = str(exc)
             log.warning("cache entry %s refused (%s): rebuilding it", path, reason)
     elif rebuild and exists:
         reason = "rebuild asked for"
-    state = build_state(
-        nominal, options, params, digest, key, lazy_basis=lazy_basis, on_nominal=on_nominal
-    )
-    try:
-        save_entry(path, state, material, secret)
-    except OSError as exc:  # a read-only cache must not stop an inspection
-        log.warning("could not write the cache entry %s: %s", path, exc)
-    status = "rebuilt" if reason else "built"
-    return state, CacheOutcome(
-        status,
-        path,
-        time.perf_counter() - t0,
-        state.build_seconds,
-        reason=reason,
-        timings=dict(state.prepared.timings),
-    )
+    return built("rebuilt" if reason else "built", reason, path, secret)
+
+
+def _cache_hit(
+    path: Path,
+    key: str,
+    secret: bytes,
+    options: NominalOptions,
+    on_nominal: Callable[[Part], None] | None,
+    t0: float,
+) -> tuple[PartState, CacheOutcome]:
+    """The state in the entry ``path`` (:func:`load_entry`; :class:`CorruptEntry` when it is
+    refused), with the options' clamp force limits, and how it was obtained (``t0``: when
+    :func:`part_state` started, :func:`time.perf_counter`)."""
+    state = load_entry(path, key, secret)
+    if state.restraint is not None and options.restraint is not None:
+        with_limits(state.restraint, options.restraint)
+    log.info("part state loaded from %s", path)
+    outcome = CacheOutcome("hit", path, time.perf_counter() - t0, state.build_seconds)
+    if on_nominal is not None:
+        on_nominal(state.part)
+    return state, outcome
 
 
 def store_basis(

@@ -241,52 +241,10 @@ def build_restraint(
     t0 = time.perf_counter()
     clamps = list(spec.clamps)
     mat = spec.elastic_material()
-    pos = np.array([c.position for c in clamps], dtype=np.float64)
-    diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
-    dist, normals = _closest_normals(V, F, pos)
-    limit = max(1.0, _ON_SURFACE_SHARE * diag)
-    for c, d in zip(clamps, dist, strict=True):
-        if d > limit:
-            raise InputError(
-                f"clamp {c.name} ({', '.join(f'{x:g}' for x in c.position)}) is {d:.3g} mm "
-                f"from the part's surface (at most {limit:.3g} mm): its file is in another "
-                "frame, or names another part's point"
-            )
-    dirs = [(p, e) for c, p, n in zip(clamps, pos, normals, strict=True) for e in c.axes(n)]
-    free = 6 - rigid_rank(np.array([d[0] for d in dirs]), np.array([d[1] for d in dirs]), V)
-    if free:
-        raise InputError(
-            f"the clamps leave {free} rigid motion(s) of the part free: a restrained "
-            "inspection needs them to hold all six (3-2-1: e.g. three along the normal, two "
-            "along one in-plane axis, one along the other)"
-        )
-    if solid is not None:
-        X, T = solid
-        kind = "STEP solid, gmsh tetrahedra"
-    else:
-        if spec.thickness is None:
-            raise InputError(
-                "a mesh nominal's restrained inspection needs its wall thickness: "
-                "--thickness MM (or --fixture free)"
-            )
-        if not (math.isfinite(spec.thickness) and spec.thickness > 0):
-            raise InputError(f"--thickness must be a positive length in mm, got {spec.thickness}")
-        from qifreport.registration.mesh import vertex_normals
-        from qifreport.registration.restraint.sheet_solid import sheet_solid
-
-        U, G = sheet_model_mesh(V, F)
-        sheet = sheet_solid(U, G, vertex_normals(U, G), spec.thickness)
-        X, T = sheet.X, sheet.T
-        kind = f"sheet {spec.thickness:g} mm thick, {len(G)} triangles thickened"
+    normals = _held_normals(V, F, clamps)
+    X, T, kind = _elastic_solid(V, F, spec, solid)
     model = elastic_model(X, T, mat)
-    load = None
-    if spec.gravity is not None:
-        if spec.material is None or mat.density <= 0:
-            raise InputError(
-                "--gravity needs the part's weight: --material with a density (a preset, "
-                "or E=..,nu=..,density=..)"
-            )
-        load = model.gravity(gravity_direction(spec.gravity))
+    load = _gravity_load(spec, mat, model)
     try:
         basis = restraint_basis(
             model,
@@ -321,6 +279,70 @@ def build_restraint(
         info["seconds"],
     )
     return basis
+
+
+def _held_normals(V: np.ndarray, F: np.ndarray, clamps: list) -> np.ndarray:
+    """(c, 3) the surface normal at each clamp; InputError for a clamp off the part's
+    surface or clamps that leave a rigid motion free."""
+    pos = np.array([c.position for c in clamps], dtype=np.float64)
+    diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    dist, normals = _closest_normals(V, F, pos)
+    limit = max(1.0, _ON_SURFACE_SHARE * diag)
+    for c, d in zip(clamps, dist, strict=True):
+        if d > limit:
+            raise InputError(
+                f"clamp {c.name} ({', '.join(f'{x:g}' for x in c.position)}) is {d:.3g} mm "
+                f"from the part's surface (at most {limit:.3g} mm): its file is in another "
+                "frame, or names another part's point"
+            )
+    dirs = [(p, e) for c, p, n in zip(clamps, pos, normals, strict=True) for e in c.axes(n)]
+    free = 6 - rigid_rank(np.array([d[0] for d in dirs]), np.array([d[1] for d in dirs]), V)
+    if free:
+        raise InputError(
+            f"the clamps leave {free} rigid motion(s) of the part free: a restrained "
+            "inspection needs them to hold all six (3-2-1: e.g. three along the normal, two "
+            "along one in-plane axis, one along the other)"
+        )
+    return normals
+
+
+def _elastic_solid(
+    V: np.ndarray,
+    F: np.ndarray,
+    spec: RestraintSpec,
+    solid: tuple[np.ndarray, np.ndarray] | None,
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """The tetrahedra ``(X, T)`` of the elastic model and what they are: the STEP solid's,
+    or a mesh nominal's sheet thickened by ``spec.thickness`` (InputError without one)."""
+    if solid is not None:
+        X, T = solid
+        return X, T, "STEP solid, gmsh tetrahedra"
+    if spec.thickness is None:
+        raise InputError(
+            "a mesh nominal's restrained inspection needs its wall thickness: "
+            "--thickness MM (or --fixture free)"
+        )
+    if not (math.isfinite(spec.thickness) and spec.thickness > 0):
+        raise InputError(f"--thickness must be a positive length in mm, got {spec.thickness}")
+    from qifreport.registration.mesh import vertex_normals
+    from qifreport.registration.restraint.sheet_solid import sheet_solid
+
+    U, G = sheet_model_mesh(V, F)
+    sheet = sheet_solid(U, G, vertex_normals(U, G), spec.thickness)
+    return sheet.X, sheet.T, f"sheet {spec.thickness:g} mm thick, {len(G)} triangles thickened"
+
+
+def _gravity_load(spec: RestraintSpec, mat: Material, model) -> np.ndarray | None:
+    """The part's own weight as a load on ``model`` when ``--gravity`` is given (None
+    otherwise; InputError without a material's density)."""
+    if spec.gravity is None:
+        return None
+    if spec.material is None or mat.density <= 0:
+        raise InputError(
+            "--gravity needs the part's weight: --material with a density (a preset, "
+            "or E=..,nu=..,density=..)"
+        )
+    return model.gravity(gravity_direction(spec.gravity))
 
 
 def gravity_direction(text: str) -> np.ndarray:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -346,46 +346,12 @@ def draw_colorbar(c: Canvas, ctx: ReportContext, box: Box) -> None:
     bw = box.w - label_w - legend_w - 12
     yy = box.top - 12
     draw_text(c, box.x, yy + 2, "Colour scale: signed deviation, mm", 7.0, True)
-    xs = np.linspace(-S, S, 241)
-    mids = 0.5 * (xs[1:] + xs[:-1])
 
     def xpos(v: float) -> float:
         return x0 + (v + S) / (2 * S) * bw
 
-    row_h = 9.0
     for lo, hi, keys in bands:
-        y = yy - row_h
-        cols = deviation_colors(mids, lo, hi, S)
-        start = 0
-        for i in range(1, len(mids) + 1):
-            if i == len(mids) or not np.allclose(cols[i], cols[start], atol=1e-3):
-                c.setFillColorRGB(*cols[start])
-                c.rect(
-                    xpos(xs[start]),
-                    y + 1,
-                    xpos(xs[i]) - xpos(xs[start]) + 0.3,
-                    row_h - 2,
-                    stroke=0,
-                    fill=1,
-                )
-                start = i
-        c.setStrokeColorRGB(*INK)
-        c.setLineWidth(0.8)
-        for v in (lo, hi):
-            c.line(xpos(v), y, xpos(v), y + row_h)
-        c.setLineWidth(0.4)
-        c.rect(x0, y + 1, bw, row_h - 2, stroke=1, fill=0)
-        draw_text(
-            c,
-            x0 - 4,
-            y + 2.4,
-            fit_text(f"{join_names(keys, 3)} [{fmt_band(lo)}, {fmt_band(hi)}]", label_w - 6, 6.5),
-            6.5,
-            False,
-            INK,
-            "r",
-        )
-        yy = y
+        yy = _draw_band_row(c, S, (lo, hi), keys, yy, x0, bw, label_w, xpos)
     if len(ctx.bands) > 3:
         draw_text(
             c,
@@ -397,7 +363,68 @@ def draw_colorbar(c: Canvas, ctx: ReportContext, box: Box) -> None:
             MUTED,
             "r",
         )
-    # ticks: the scale ends, 0 and the band limits
+    _draw_colorbar_ticks(c, S, bands, yy, xpos)
+    draw_text(c, x0, yy - 17, "\u2190 sunk (material below nominal)", 6.2, False, MUTED)
+    draw_text(c, x0 + bw, yy - 17, "proud (material above nominal) \u2192", 6.2, False, MUTED, "r")
+    _draw_mark_legend(c, box.x + box.w - legend_w, box.top - 20)
+
+
+def _draw_band_row(
+    c: Canvas,
+    S: float,
+    band: tuple[float, float],
+    keys: Sequence[str],
+    yy: float,
+    x0: float,
+    bw: float,
+    label_w: float,
+    xpos: Callable[[float], float],
+) -> float:
+    """One band's row of the colour bar below ``yy`` (its colours over -S..S mm, its limits,
+    its tolerances named on the left); returns the row's bottom."""
+    lo, hi = band
+    row_h = 9.0
+    xs = np.linspace(-S, S, 241)
+    mids = 0.5 * (xs[1:] + xs[:-1])
+    y = yy - row_h
+    cols = deviation_colors(mids, lo, hi, S)
+    start = 0
+    for i in range(1, len(mids) + 1):
+        if i == len(mids) or not np.allclose(cols[i], cols[start], atol=1e-3):
+            c.setFillColorRGB(*cols[start])
+            c.rect(
+                xpos(xs[start]),
+                y + 1,
+                xpos(xs[i]) - xpos(xs[start]) + 0.3,
+                row_h - 2,
+                stroke=0,
+                fill=1,
+            )
+            start = i
+    c.setStrokeColorRGB(*INK)
+    c.setLineWidth(0.8)
+    for v in (lo, hi):
+        c.line(xpos(v), y, xpos(v), y + row_h)
+    c.setLineWidth(0.4)
+    c.rect(x0, y + 1, bw, row_h - 2, stroke=1, fill=0)
+    draw_text(
+        c,
+        x0 - 4,
+        y + 2.4,
+        fit_text(f"{join_names(keys, 3)} [{fmt_band(lo)}, {fmt_band(hi)}]", label_w - 6, 6.5),
+        6.5,
+        False,
+        INK,
+        "r",
+    )
+    return y
+
+
+def _draw_colorbar_ticks(
+    c: Canvas, S: float, bands: list, yy: float, xpos: Callable[[float], float]
+) -> None:
+    """The colour bar's ticks below ``yy``: the scale ends, 0, the band limits, then even
+    steps, each where its label does not collide with one drawn before."""
     ticks: list[tuple[float, str, int]] = [
         (-S, f"\u2264{fmt_band(-S)}", 0),
         (S, f"\u2265{fmt_band(S)}", 0),
@@ -419,11 +446,11 @@ def draw_colorbar(c: Canvas, ctx: ReportContext, box: Box) -> None:
         used.append((lo_x, hi_x))
         c.line(x, yy, x, yy - 2.5)
         draw_text(c, x, yy - 9, s, 6.2, False, INK, "c")
-    draw_text(c, x0, yy - 17, "\u2190 sunk (material below nominal)", 6.2, False, MUTED)
-    draw_text(c, x0 + bw, yy - 17, "proud (material above nominal) \u2192", 6.2, False, MUTED, "r")
-    # legend
-    lx = box.x + box.w - legend_w
-    ly = box.top - 20
+
+
+def _draw_mark_legend(c: Canvas, lx: float, ly: float) -> None:
+    """The legend of the map's marks from (``lx``, ``ly``) down: unscanned grey, the band
+    edge, a region's number and worst deviation."""
     c.setFillColorRGB(*GREY)
     c.rect(lx, ly, 10, 6, stroke=0, fill=1)
     draw_text(c, lx + 14, ly + 0.8, "not scanned (unscored)", 6.5)

@@ -120,6 +120,48 @@ class PageLayout:
     blocks: dict = field(default_factory=dict, repr=False)  # internal: what the drawer uses
 
 
+@dataclass
+class _FixedBlocks:
+    """The report's blocks that the fitting does not shrink (the notes are cut last, when
+    nothing else can give) and the widths of the columns, points."""
+
+    stats: Table
+    regtab: Table
+    notes: list
+    reg_w: float
+    regf_w: float
+    hist_w: float
+
+
+def shrink_steps(n_chr_fail: int) -> list[tuple[str, float, float]]:
+    """The order in which the page's blocks are cut, as (block, floor, step): the maps'
+    height (points) and the rows listed of the decision's reasons, the regions, the
+    tolerances and the characteristics (the ``n_chr_fail`` failing ones stay listed)."""
+    return [
+        ("map", 240.0, 5.0),
+        ("dec", 6, 1),
+        ("reg", 12, 1),
+        ("tol", 10, 1),
+        ("chr", 10, 1),
+        ("map", 210.0, 5.0),
+        ("dec", 3, 1),
+        ("reg", 8, 1),
+        ("tol", 6, 1),
+        ("chr", 5, 1),
+        ("map", 180.0, 5.0),
+        ("reg", 5, 1),
+        ("tol", 4, 1),
+        ("dec", 2, 1),
+        ("map", 140.0, 5.0),
+        ("reg", 2, 1),
+        ("tol", 2, 1),
+        ("chr", 2, 1),
+        ("dec", 1, 1),
+        ("chr", min(2, n_chr_fail), 1),  # failing ones stay listed
+        ("map", MAP_MIN_PT, 5.0),
+    ]
+
+
 class _Report(ReportContext):
     """Lays out and draws the page of one result (each block drawn by its module)."""
 
@@ -153,89 +195,65 @@ class _Report(ReportContext):
         turns; what was cut for nothing (a list beside a taller block) is given back, and
         the spare height goes to the maps as long as that draws the part larger.
         """
+        fx = self._fixed_blocks()
+        return self._geometry(self._fit(fx), fx)
+
+    def _fixed_blocks(self) -> _FixedBlocks:
+        """The blocks the fitting does not cut (the notes only last), and the widths."""
+        reg_w = self.CW * 0.56
+        regf_w = self.CW - reg_w - 12.0
+        stats = stats_table(self.res)
+        hist_w = self.CW - 12.0 - stats.width
+        regtab = registration_table(self.res, self.chain_floor, regf_w)
+        notes = note_lines(self.res, self.chain_floor)
+        return _FixedBlocks(stats, regtab, notes, reg_w, regf_w, hist_w)
+
+    def _total(self, s: dict, fx: _FixedBlocks) -> float:
+        """Height of the page's content with the sizes ``s``, points."""
+        dec, _ = self.decision_lines(s["dec"])
+        h = HEADER_H + self.GAP
+        h += 8.6 * len(dec) + self.GAP
+        h += s["map"] + colorbar_height(self) + self.GAP
+        h += max(fx.stats.height, 160.0) + self.GAP
+        h += self.tolerance_table(s["tol"]).height + self.GAP
+        h += self._chr_height(s["chr"])
+        h += max(self.region_table(s["reg"], fx.reg_w).height, fx.regtab.height) + self.GAP
+        h += notes_height(fx.notes, self.CW) + 34.0  # sign-off and footer
+        return h
+
+    def _fit(self, fx: _FixedBlocks) -> dict:
+        """The sizes that fit the page: ``"map"`` (height, points) and the rows listed of
+        ``"dec"``, ``"reg"``, ``"tol"``, ``"chr"``; cuts ``fx.notes`` when nothing else
+        can give."""
         res = self.res
         avail = self.H - 2 * self.MT
-        n_reg, n_tol, n_dec = len(res.acceptance.regions), len(res.zones), len(res.decided_by())
-        n_chr = len(res.characteristics)
         n_chr_fail = sum(c.status == "FAIL" for c in res.characteristics)
         full = {
             "map": MAP_MAX_PT,
-            "reg": n_reg,
-            "tol": n_tol,
-            "dec": min(n_dec, 8),
-            "chr": n_chr,
+            "reg": len(res.acceptance.regions),
+            "tol": len(res.zones),
+            "dec": min(len(res.decided_by()), 8),
+            "chr": len(res.characteristics),
         }
         st = dict(full)
-        reg_w = self.CW * 0.56
-        regf_w = self.CW - reg_w - 12.0
-        stats = stats_table(res)
-        hist_w = self.CW - 12.0 - stats.width
-        regtab = registration_table(res, self.chain_floor, regf_w)
-        notes = note_lines(res, self.chain_floor)
-
-        def total(s: dict) -> float:
-            dec, _ = self.decision_lines(s["dec"])
-            h = HEADER_H + self.GAP
-            h += 8.6 * len(dec) + self.GAP
-            h += s["map"] + colorbar_height(self) + self.GAP
-            h += max(stats.height, 160.0) + self.GAP
-            h += self.tolerance_table(s["tol"]).height + self.GAP
-            h += self._chr_height(s["chr"])
-            h += max(self.region_table(s["reg"], reg_w).height, regtab.height) + self.GAP
-            h += notes_height(notes, self.CW) + 34.0  # sign-off and footer
-            return h
-
-        steps = [
-            ("map", 240.0, 5.0),
-            ("dec", 6, 1),
-            ("reg", 12, 1),
-            ("tol", 10, 1),
-            ("chr", 10, 1),
-            ("map", 210.0, 5.0),
-            ("dec", 3, 1),
-            ("reg", 8, 1),
-            ("tol", 6, 1),
-            ("chr", 5, 1),
-            ("map", 180.0, 5.0),
-            ("reg", 5, 1),
-            ("tol", 4, 1),
-            ("dec", 2, 1),
-            ("map", 140.0, 5.0),
-            ("reg", 2, 1),
-            ("tol", 2, 1),
-            ("chr", 2, 1),
-            ("dec", 1, 1),
-            ("chr", min(2, n_chr_fail), 1),  # failing ones stay listed
-            ("map", MAP_MIN_PT, 5.0),
-        ]
         history = []
-        for key, floor, step in steps:
+        for key, floor, step in shrink_steps(n_chr_fail):
             before = st[key]
-            while total(st) > avail and st[key] - step >= floor - 1e-9:
+            while self._total(st, fx) > avail and st[key] - step >= floor - 1e-9:
                 st[key] -= step
             if st[key] != before:
                 history.append((key, before, step))
-        if total(st) > avail:  # last, the notes: cut to the room left above the sign-off
-            over = total(st) - avail
-            notes = fit_notes(notes, self.CW, notes_height(notes, self.CW) - over)
-            if total(st) > avail:
-                log.warning("report content exceeds the page by %.0f pt", total(st) - avail)
-
-        def grow_back() -> None:
-            # undo what was cut for nothing (a list beside a taller block), last cut first
-            for key, before, step in reversed(history):
-                if key == "map":
-                    continue
-                while st[key] + step <= before + 1e-9:
-                    st[key] += step
-                    if total(st) > avail:
-                        st[key] -= step
-                        break
-
-        grow_back()
+        if self._total(st, fx) > avail:  # last, the notes: cut to the room left above the sign-off
+            over = self._total(st, fx) - avail
+            fx.notes = fit_notes(fx.notes, self.CW, notes_height(fx.notes, self.CW) - over)
+            if self._total(st, fx) > avail:
+                log.warning(
+                    "report content exceeds the page by %.0f pt", self._total(st, fx) - avail
+                )
+        self._grow_back(st, fx, avail, history)
         # leftover height goes to the maps, but no more than makes them larger: a picture
         # whose width limits the part gains nothing from height
-        spare = avail - total(st)
+        spare = avail - self._total(st, fx)
         if spare > 0:
             st["map"] = min(MAP_MAX_PT, st["map"] + spare)
 
@@ -245,10 +263,26 @@ class _Report(ReportContext):
         best = score(st["map"])
         while st["map"] - 5.0 >= MAP_MIN_PT and score(st["map"] - 5.0) >= best - 0.01:
             st["map"] -= 5.0
-        history = [(k, full[k], 1) for k in ("dec", "tol", "chr", "reg")]
-        grow_back()
+        self._grow_back(st, fx, avail, [(k, full[k], 1) for k in ("dec", "tol", "chr", "reg")])
+        return st
 
-        # -- geometry, top down
+    def _grow_back(
+        self, st: dict, fx: _FixedBlocks, avail: float, history: list[tuple[str, float, float]]
+    ) -> None:
+        """Undo what was cut for nothing (a list beside a taller block), last cut first:
+        ``history`` holds (key, size before, step); the maps are not grown here."""
+        for key, before, step in reversed(history):
+            if key == "map":
+                continue
+            while st[key] + step <= before + 1e-9:
+                st[key] += step
+                if self._total(st, fx) > avail:
+                    st[key] -= step
+                    break
+
+    def _geometry(self, st: dict, fx: _FixedBlocks) -> PageLayout:
+        """The blocks' boxes, top down, for the sizes ``st`` (:meth:`_fit`)."""
+        res = self.res
         x0, y = self.M, self.H - self.MT
         blocks: dict = {}
         blocks["header"] = Box(x0, y - HEADER_H, self.CW, HEADER_H)
@@ -264,9 +298,9 @@ class _Report(ReportContext):
         y -= mh
         cb = Box(x0, y - colorbar_height(self), self.CW, colorbar_height(self))
         y -= colorbar_height(self) + self.GAP
-        mid_h = max(stats.height, 160.0)
-        hist = Box(x0, y - mid_h, hist_w, mid_h)
-        blocks["stats"] = (Box(x0 + hist_w + 12.0, y - mid_h, stats.width, mid_h), stats)
+        mid_h = max(fx.stats.height, 160.0)
+        hist = Box(x0, y - mid_h, fx.hist_w, mid_h)
+        blocks["stats"] = (Box(x0 + fx.hist_w + 12.0, y - mid_h, fx.stats.width, mid_h), fx.stats)
         y -= mid_h + self.GAP
         tol = self.tolerance_table(st["tol"])
         blocks["tolerances"] = (Box(x0, y - tol.height, self.CW, tol.height), tol)
@@ -275,15 +309,16 @@ class _Report(ReportContext):
         if chars is not None:
             blocks["characteristics"] = (Box(x0, y - chars.height, self.CW, chars.height), chars)
             y -= chars.height + self.GAP
-        regt = self.region_table(st["reg"], reg_w)
+        regt = self.region_table(st["reg"], fx.reg_w)
+        regtab = fx.regtab
         bottom_h = max(regt.height, regtab.height)
-        blocks["regions"] = (Box(x0, y - regt.height, reg_w, regt.height), regt)
+        blocks["regions"] = (Box(x0, y - regt.height, fx.reg_w, regt.height), regt)
         blocks["registration"] = (
-            Box(x0 + reg_w + 12.0, y - regtab.height, regf_w, regtab.height),
+            Box(x0 + fx.reg_w + 12.0, y - regtab.height, fx.regf_w, regtab.height),
             regtab,
         )
         y -= bottom_h + self.GAP
-        blocks["notes"] = (y, notes)
+        blocks["notes"] = (y, fx.notes)
         return PageLayout(
             page=self.page,
             width=self.W,
@@ -292,7 +327,7 @@ class _Report(ReportContext):
             maps=maps,
             colorbar=cb,
             histogram=hist,
-            regions_listed=min(st["reg"], n_reg),
+            regions_listed=min(st["reg"], len(res.acceptance.regions)),
             tolerances_listed=len(pick_tolerances(res, st["tol"])),
             reasons_listed=n_dec_shown,
             scale=self.scale,

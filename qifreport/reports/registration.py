@@ -28,106 +28,134 @@ def registration_table(res: InspectionResult, chain_floor: float | None, width: 
     virtual fixture (its method, residual, iterations, fallback, displacement and
     parameters), the chain floor (mm; None: "not measured") and the sizes of the inputs.
     Rows that undermine the result (fallback, an ambiguous or sliding pose) are emphasised."""
-    rg, fit = res.rigid, res.fit
-    R = np.asarray(rg.R, dtype=float)
-    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
-    t = np.asarray(rg.t, dtype=float)
-    rows: list[list[str]] = [
-        ["Pose search: starts agreeing", _pose_text(res.prealign)],
-        ["Rigid residual RMS, mm", fmt_mm(rg.rms)],
-        ["Rigid inliers, % / iterations", f"{fmt_pct(rg.inlier_fraction)} / {rg.iterations}"],
-        ["Rigid rotation, deg / shift, mm", f"{angle:.3f} / {np.linalg.norm(t):.3f}"],
-    ]
-    r = res.restraint
-    if r is not None:
-        held = f"{len(r.clamps)} clamps"
-        unseen = sum(s not in SEEN_SOURCES for s in r.offset_sources)
-        if unseen:
-            held += f" ({unseen} unseen)"
-        mat = r.model_info.get("material")
-        rows += [
-            [
-                "Restrained (ISO 10579) at",
-                f"{held}, {'material not stated' if mat is None else mat['name']}",
-            ],
-            [
-                "Clamp force total / largest, N",
-                f"{r.total_force:.3g} / {r.force.max():.3g}" if r.forces_known else "not known",
-            ],
-        ]
-
-        if r.over_limit:
-            rows.append(["Not restrainable at", ", ".join(r.over_limit)])
-    elif fit is None:
+    rows = _rigid_rows(res)
+    if res.restraint is not None:
+        rows += _restraint_rows(res)
+    elif res.fit is None:
         none = f"none: {res.fixture_decision}" if res.free_state_stands else "none: rigid only"
         rows.append(["Non-rigid (virtual fixture)", none])
     else:
-        fp = fit.params
-        rows += [
-            [
-                "Virtual fixture method",
-                method_label(fit.method)
-                + ("" if res.free_state is None else f" (free state: {res.free_state})"),
-            ],
-            ["Non-rigid residual (robust), mm", fmt_mm(fit.scale)],
-            [
-                "Iterations / passes / fallback",
-                f"{fit.iterations} / {fit.passes} / {'YES' if fit.fallback else 'no'}",
-            ],
-        ]
-        spec = method_spec(fit.method)
-        if spec.flags_defects:
-            rows.append(["Flagged as defect candidates, %", fmt_pct(fit.flagged_fraction)])
-        rows.append(
-            [
-                "Max fixture displacement, mm",
-                fmt_mm(fit.max_displacement) if len(fit.e) else DASH,
-            ]
-        )
-        if spec.band_limited:
-            rows += [
-                [
-                    "Energy; band limits l1, l2, mm",
-                    f"{res.params.energy}; {_num(fp.band_limit)}, {_num(fp.band_limit_refit)}",
-                ],
-                [
-                    "Start length; coverage radius, mm",
-                    f"{_num(fp.band_limit_start)}; {_num(fp.coverage_radius)}",
-                ],
-            ]
-        else:
-            rows.append([f"{method_label(fit.method)} parameters", _params_text(fp)])
+        rows += _fixture_rows(res)
     rows.append(
         ["Chain floor, mm", fmt_mm(chain_floor) if chain_floor is not None else "not measured"]
     )
     rows.append(["Vertices / triangles / points", f"{len(res.V)} / {len(res.F)} / {len(res.P)}"])
     w2 = width * 0.42
-    emph = [False] * len(rows)
-    for k, row in enumerate(rows):
-        emph[k] = bool(
-            (row[0] == "Iterations / passes / fallback" and fit is not None and fit.fallback)
-            or row[0] == "Not restrainable at"
-            or (
-                row[0].startswith("Pose")
-                and res.prealign is not None
-                and (res.prealign.ambiguous or res.prealign.weakly_constrained)
-            )
+    return Table(
+        columns=[("", width - w2, "l"), ("", w2, "r")],
+        rows=rows,
+        title=_title(res),
+        head_h=0.0,
+        emphasis=[_undermines(res, row[0]) for row in rows],
+    )
+
+
+def _rigid_rows(res: InspectionResult) -> list[list[str]]:
+    """The pose search and the rigid fit: residual, inliers, rotation and shift."""
+    rg = res.rigid
+    R = np.asarray(rg.R, dtype=float)
+    angle = math.degrees(math.acos(max(-1.0, min(1.0, (np.trace(R) - 1) / 2))))
+    t = np.asarray(rg.t, dtype=float)
+    return [
+        ["Pose search: starts agreeing", _pose_text(res.prealign)],
+        ["Rigid residual RMS, mm", fmt_mm(rg.rms)],
+        ["Rigid inliers, % / iterations", f"{fmt_pct(rg.inlier_fraction)} / {rg.iterations}"],
+        ["Rigid rotation, deg / shift, mm", f"{angle:.3f} / {np.linalg.norm(t):.3f}"],
+    ]
+
+
+def _restraint_rows(res: InspectionResult) -> list[list[str]]:
+    """The restrained condition: clamps, material, clamp forces, the clamps over their
+    limit."""
+    r = res.restraint
+    held = f"{len(r.clamps)} clamps"
+    unseen = sum(s not in SEEN_SOURCES for s in r.offset_sources)
+    if unseen:
+        held += f" ({unseen} unseen)"
+    mat = r.model_info.get("material")
+    rows = [
+        [
+            "Restrained (ISO 10579) at",
+            f"{held}, {'material not stated' if mat is None else mat['name']}",
+        ],
+        [
+            "Clamp force total / largest, N",
+            f"{r.total_force:.3g} / {r.force.max():.3g}" if r.forces_known else "not known",
+        ],
+    ]
+    if r.over_limit:
+        rows.append(["Not restrainable at", ", ".join(r.over_limit)])
+    return rows
+
+
+def _fixture_rows(res: InspectionResult) -> list[list[str]]:
+    """The virtual fixture: method, residual, iterations, flagged fraction, displacement and
+    the method's parameters."""
+    fit = res.fit
+    fp = fit.params
+    rows = [
+        [
+            "Virtual fixture method",
+            method_label(fit.method)
+            + ("" if res.free_state is None else f" (free state: {res.free_state})"),
+        ],
+        ["Non-rigid residual (robust), mm", fmt_mm(fit.scale)],
+        [
+            "Iterations / passes / fallback",
+            f"{fit.iterations} / {fit.passes} / {'YES' if fit.fallback else 'no'}",
+        ],
+    ]
+    spec = method_spec(fit.method)
+    if spec.flags_defects:
+        rows.append(["Flagged as defect candidates, %", fmt_pct(fit.flagged_fraction)])
+    rows.append(
+        [
+            "Max fixture displacement, mm",
+            fmt_mm(fit.max_displacement) if len(fit.e) else DASH,
+        ]
+    )
+    if spec.band_limited:
+        rows += [
+            [
+                "Energy; band limits l1, l2, mm",
+                f"{res.params.energy}; {_num(fp.band_limit)}, {_num(fp.band_limit_refit)}",
+            ],
+            [
+                "Start length; coverage radius, mm",
+                f"{_num(fp.band_limit_start)}; {_num(fp.coverage_radius)}",
+            ],
+        ]
+    else:
+        rows.append([f"{method_label(fit.method)} parameters", _params_text(fp)])
+    return rows
+
+
+def _undermines(res: InspectionResult, label: str) -> bool:
+    """Whether the row ``label`` undermines the result (emphasised): the fixture fell back,
+    a clamp is over its limit, the pose is ambiguous or sliding."""
+    fit = res.fit
+    return bool(
+        (label == "Iterations / passes / fallback" and fit is not None and fit.fallback)
+        or label == "Not restrainable at"
+        or (
+            label.startswith("Pose")
+            and res.prealign is not None
+            and (res.prealign.ambiguous or res.prealign.weakly_constrained)
         )
-    title = (
+    )
+
+
+def _title(res: InspectionResult) -> str:
+    """The table's title: what brought the scan onto the nominal."""
+    fit = res.fit
+    return (
         "Registration: rigid ICP + restrained at its clamps"
-        if r is not None
+        if res.restraint is not None
         else f"Registration: rigid ICP + virtual fixture ({method_label(fit.method)})"
         if fit is not None
         else "Registration: rigid ICP only (free state)"
         if not res.free_state_stands
         else f"Registration: rigid ICP, {res.fixture_decision}"
-    )
-    return Table(
-        columns=[("", width - w2, "l"), ("", w2, "r")],
-        rows=rows,
-        title=title,
-        head_h=0.0,
-        emphasis=emph,
     )
 
 

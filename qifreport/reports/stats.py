@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -109,80 +110,121 @@ def stats_table(res: InspectionResult) -> Table:
     return Table(columns=columns, rows=rows, title=title, emphasis=emph)
 
 
-def draw_histogram(c: Canvas, ctx: ReportContext, box: Box) -> None:
-    """The histogram in ``box``: the area-weighted signed deviation of the vertices (bars,
-    % of the scored area per bin, log scale) and the data-referenced deviation of the scan
-    points (step line), over the colour scale, with the band limits."""
-    res = ctx.res
-    S = ctx.scale
-    title_h, left, bottom, right = 12.0, 30.0, 24.0, 4.0
-    pa = Box(box.x + left, box.y + bottom, box.w - left - right, box.h - bottom - title_h - 25)
-    draw_text(c, box.x, box.top - 9, "Histogram of the signed deviation", 8, True)
+#: bins of the histogram across the colour scale
+HIST_BINS = 60
+#: the bars' colour when several bands are drawn (no single colour scale)
+BAR_GREY = (0.62, 0.66, 0.74)
+
+
+@dataclass
+class _HistAxes:
+    """The histogram's plot area ``pa`` and scales: deviation -``S``..``S`` mm across, %
+    per bin ``ymin``..``ymax`` up (log)."""
+
+    pa: Box
+    S: float
+    ymin: float
+    ymax: float = 100.0
+
+    def X(self, v: float) -> float:
+        """Page x of a deviation ``v``, mm."""
+        return self.pa.x + (v + self.S) / (2 * self.S) * self.pa.w
+
+    def Y(self, p: float) -> float:
+        """Page y of a percentage ``p`` (at least ``ymin``)."""
+        p = max(p, self.ymin)
+        lo, hi = math.log10(self.ymin), math.log10(self.ymax)
+        return self.pa.y + (math.log10(p) - lo) / (hi - lo) * self.pa.h
+
+
+def _histograms(res: InspectionResult, S: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bin edges (shape (HIST_BINS + 1,), mm) over -S..S, and per bin the % of the
+    scored area (vertices, area-weighted) and of the scan points (data-referenced), values
+    beyond the scale in the end bins."""
     dev = np.asarray(res.deviation, dtype=float)
     w = vertex_areas(np.asarray(res.V, float), np.asarray(res.F, np.int64))
     ok = np.isfinite(dev) & (w > 0)
-    nb = 60
-    edges = np.linspace(-S, S, nb + 1)
+    edges = np.linspace(-S, S, HIST_BINS + 1)
     hv, _ = np.histogram(np.clip(dev[ok], -S, S), bins=edges, weights=w[ok])
     hv = 100.0 * hv / max(hv.sum(), 1e-300)
     pdv = np.asarray(res.point_deviation, dtype=float)
     pdv = pdv[np.isfinite(pdv)]
     hp, _ = np.histogram(np.clip(pdv, -S, S), bins=edges)
     hp = 100.0 * hp / max(hp.sum(), 1)
+    return edges, hv, hp
+
+
+def draw_histogram(c: Canvas, ctx: ReportContext, box: Box) -> None:
+    """The histogram in ``box``: the area-weighted signed deviation of the vertices (bars,
+    % of the scored area per bin, log scale) and the data-referenced deviation of the scan
+    points (step line), over the colour scale, with the band limits."""
+    S = ctx.scale
+    title_h, left, bottom, right = 12.0, 30.0, 24.0, 4.0
+    pa = Box(box.x + left, box.y + bottom, box.w - left - right, box.h - bottom - title_h - 25)
+    draw_text(c, box.x, box.top - 9, "Histogram of the signed deviation", 8, True)
+    edges, hv, hp = _histograms(ctx.res, S)
     pos = np.r_[hv[hv > 0], hp[hp > 0]]
     ymin = 10.0 ** max(-3, math.floor(math.log10(pos.min()))) if len(pos) else 0.01
-    ymax = 100.0
-
-    def X(v):
-        return pa.x + (v + S) / (2 * S) * pa.w
-
-    def Y(p):
-        p = max(p, ymin)
-        return (
-            pa.y + (math.log10(p) - math.log10(ymin)) / (math.log10(ymax) - math.log10(ymin)) * pa.h
-        )
-
-    # grid and axes
-    c.setLineWidth(0.3)
-    c.setStrokeColorRGB(*RULE)
-    e = int(math.log10(ymin))
-    for k in range(e, 3):
-        y = Y(10.0**k)
-        c.line(pa.x, y, pa.x + pa.w, y)
-        lab = f"{10.0**k:g}"
-        draw_text(c, pa.x - 3, y - 2.2, lab, 6.0, False, MUTED, "r")
+    ax = _HistAxes(pa, S, ymin)
+    _draw_hist_grid(c, ax)
     single = len(ctx.bands) == 1
     lo1, hi1 = ctx.bands[0][0], ctx.bands[0][1]
     mids = 0.5 * (edges[1:] + edges[:-1])
-    cols = deviation_colors(mids, lo1, hi1, S) if single else np.tile([0.62, 0.66, 0.74], (nb, 1))
-    for i in range(nb):
+    cols = deviation_colors(mids, lo1, hi1, S) if single else np.tile(BAR_GREY, (HIST_BINS, 1))
+    for i in range(HIST_BINS):
         if hv[i] <= 0:
             continue
         c.setFillColorRGB(*cols[i])
-        c.rect(X(edges[i]), pa.y, X(edges[i + 1]) - X(edges[i]), Y(hv[i]) - pa.y, stroke=0, fill=1)
-    # data-referenced distribution: step line
+        x0, x1 = ax.X(edges[i]), ax.X(edges[i + 1])
+        c.rect(x0, pa.y, x1 - x0, ax.Y(hv[i]) - pa.y, stroke=0, fill=1)
+    _draw_point_steps(c, ax, edges, hp)
+    _draw_band_limits(c, ax, ctx.bands)
+    _draw_hist_axes(c, ax, box)
+    _draw_hist_legend(c, ax, box, tuple(cols[HIST_BINS // 2]) if single else BAR_GREY)
+
+
+def _draw_hist_grid(c: Canvas, ax: _HistAxes) -> None:
+    """The decades of the log axis: grid lines and labels."""
+    pa = ax.pa
+    c.setLineWidth(0.3)
+    c.setStrokeColorRGB(*RULE)
+    e = int(math.log10(ax.ymin))
+    for k in range(e, 3):
+        y = ax.Y(10.0**k)
+        c.line(pa.x, y, pa.x + pa.w, y)
+        lab = f"{10.0**k:g}"
+        draw_text(c, pa.x - 3, y - 2.2, lab, 6.0, False, MUTED, "r")
+
+
+def _draw_point_steps(c: Canvas, ax: _HistAxes, edges: np.ndarray, hp: np.ndarray) -> None:
+    """The data-referenced distribution of the scan points: a step line."""
     c.setStrokeColorRGB(*INK)
     c.setLineWidth(0.8)
     path = c.beginPath()
     started = False
-    for i in range(nb):
-        y = Y(hp[i]) if hp[i] > 0 else pa.y
+    for i in range(HIST_BINS):
+        y = ax.Y(hp[i]) if hp[i] > 0 else ax.pa.y
         if not started:
-            path.moveTo(X(edges[i]), y)
+            path.moveTo(ax.X(edges[i]), y)
             started = True
         else:
-            path.lineTo(X(edges[i]), y)
-        path.lineTo(X(edges[i + 1]), y)
+            path.lineTo(ax.X(edges[i]), y)
+        path.lineTo(ax.X(edges[i + 1]), y)
     c.drawPath(path, stroke=1, fill=0)
-    # band limits
+
+
+def _draw_band_limits(c: Canvas, ax: _HistAxes, bands: list) -> None:
+    """The limits of the first three bands, dashed, labelled above the plot on one of two
+    rows where they do not collide."""
+    pa = ax.pa
     c.setDash(2, 1.5)
     c.setLineWidth(0.7)
     rows_used: list[list[float]] = [[], []]
-    for lo, hi, _keys in ctx.bands[:3]:
+    for lo, hi, _keys in bands[:3]:
         for v in (lo, hi):
             if abs(v) < 1e-12:
                 continue
-            x = X(v)
+            x = ax.X(v)
             c.setStrokeColorRGB(*INK)
             c.line(x, pa.y, x, pa.y + pa.h)
             for k, used in enumerate(rows_used):
@@ -191,12 +233,16 @@ def draw_histogram(c: Canvas, ctx: ReportContext, box: Box) -> None:
                     used.append(x)
                     break
     c.setDash()
+
+
+def _draw_hist_axes(c: Canvas, ax: _HistAxes, box: Box) -> None:
+    """The frame, the deviation ticks (the end ones as <= and >=) and the axis titles."""
+    pa, S = ax.pa, ax.S
     c.setStrokeColorRGB(*INK)
     c.setLineWidth(0.5)
     c.rect(pa.x, pa.y, pa.w, pa.h, stroke=1, fill=0)
-    # x ticks
     for v in np.linspace(-S, S, 5):
-        x = X(v)
+        x = ax.X(v)
         c.line(x, pa.y, x, pa.y - 2)
         s = fmt_band(float(v))
         if abs(v) == S:
@@ -217,9 +263,14 @@ def draw_histogram(c: Canvas, ctx: ReportContext, box: Box) -> None:
     c.rotate(90)
     draw_text(c, 0, 0, "% per bin (log)", 6.2, False, MUTED, "c")
     c.restoreState()
-    # legend
+
+
+def _draw_hist_legend(c: Canvas, ax: _HistAxes, box: Box, bar_color: tuple) -> None:
+    """The legend above the plot: a bar of ``bar_color`` for the vertices, a line for the
+    scan points."""
+    pa = ax.pa
     ly = box.top - 20
-    c.setFillColorRGB(*(cols[nb // 2] if single else (0.62, 0.66, 0.74)))
+    c.setFillColorRGB(*bar_color)
     c.rect(pa.x, ly, 9, 5.5, stroke=0, fill=1)
     first = "vertices, % of scored area"
     draw_text(c, pa.x + 12, ly + 0.6, first, 6.2)
