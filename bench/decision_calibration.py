@@ -30,7 +30,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=150_000)
     ap.add_argument("--noise", type=float, default=0.01, help="range noise sigma, mm")
     a = ap.parse_args()
-    from qifreport.metrology.inspection import inspect
+    from qifreport.metrology.inspection import InspectionInputs, inspect
     from qifreport.metrology.params import InspectionParams
     from qifreport.nominal import load_nominal
     from qifreport.simulate.brep_scan import technician_scan
@@ -51,11 +51,13 @@ def main() -> None:
             nom.F,
             scan.P,
             InspectionParams(rigid_only=True, prealign="never"),
-            face_id=nom.face_id,
-            brep_normals=nom.brep_normals,
-            zones=nom.zones,
-            not_evaluated=nom.not_evaluated,
-            solid=True,
+            InspectionInputs(
+                face_id=nom.face_id,
+                brep_normals=nom.brep_normals,
+                zones=nom.zones,
+                not_evaluated=nom.not_evaluated,
+                solid=True,
+            ),
         )
         var = res.deviation_variance
         for z in res.zones:

@@ -37,11 +37,10 @@ from qifreport.metrology.acceptance.bands import ToleranceZone
 from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION, resample_mask
 from qifreport.metrology.acceptance.repeatability import apply as apply_repeatability
 from qifreport.metrology.inspection import (
+    InspectionInputs,
     InspectionParams,
     InspectionResult,
-    ScanMeasures,
     inspect,
-    start_scan_measures,
 )
 from qifreport.registration.linalg import default_backend
 from qifreport.registration.pointcloud import read_scan
@@ -53,6 +52,7 @@ from .jsonio import finite, json_default
 from .nominal import Nominal
 from .options import InspectJob
 from .profile import Profiler
+from .schedule import ScanMeasures, inspect_beside, start_scan_measures
 from .summary import SUMMARY_SCHEMA_VERSION
 
 __all__ = [
@@ -65,6 +65,7 @@ __all__ = [
     "exit_code",
     "inspect_state",
     "output_writers",
+    "part_inputs",
     "progress_bar",
     "qif_writer",
     "resampled_runs",
@@ -251,26 +252,27 @@ def resampled_runs(
         if bar is not None:
             bar.set_description(f"resampling {k + 1}/{seeds}")
         keep = resample_mask(len(res.P), k, KEEP_FRACTION)
-        runs.append(
-            inspect(
-                res.V,
-                res.F,
-                res.P[keep],
-                p,
-                progress=None if bar is None else bar.update,
-                face_id=nom.face_id,
-                brep_normals=nom.brep_normals,
-                zones=nom.zones,
-                not_evaluated=nom.not_evaluated,
-                plan=nom.plan,
-                basis=res.basis,
-                prepared=prepared,
-                solid=bool(nom.info.get("solids")),
-            )
-        )
+        inputs = part_inputs(nom, basis=res.basis, prepared=prepared)
+        progress = None if bar is None else bar.update
+        runs.append(inspect(res.V, res.F, res.P[keep], p, inputs, progress=progress))
     seconds = time.perf_counter() - t0
     apply_repeatability(res, runs, KEEP_FRACTION, seconds=seconds)
     res.timings["repeatability"] = seconds
+
+
+def part_inputs(nom: Nominal, **more) -> InspectionInputs:
+    """The inspection's inputs of the part read (:class:`InspectionInputs`): its B-rep
+    faces and corner normals, zones, unscored PMI, drawing and solidity, with ``more``
+    (its prepared state, bending basis, restraint)."""
+    return InspectionInputs(
+        zones=nom.zones,
+        face_id=nom.face_id,
+        not_evaluated=nom.not_evaluated,
+        solid=bool(nom.info.get("solids")),
+        brep_normals=nom.brep_normals,
+        plan=nom.plan,
+        **more,
+    )
 
 
 def zones_with_coverage(
@@ -311,29 +313,26 @@ def inspect_state(
     """Inspect the scan points ``P`` (mm) against a prepared part, with the job's options
     (the repeatability runs included); ``executor``: where side work of the inspection runs
     beside its main line, ``measures``: the scan's normals and area started already on
-    ``P`` (:func:`qifreport.metrology.inspection.inspect`)."""
+    ``P`` (:func:`qifreport.schedule.inspect_beside`)."""
     o = job.options
     params = o.inspection_params()
     if state.restraint is not None:
         params = replace(params, fixture="restrained")
     nom = state.nominal
-    res = inspect(
+    inputs = replace(
+        part_inputs(nom, prepared=state.prepared, restraint=state.restraint),
+        zones=zones_with_coverage(nom.zones, o.zone_min_coverage),
+        scan_units=o.scan_units,
+    )
+    res = inspect_beside(
         nom.V,
         nom.F,
         P,
         params,
-        progress=None if bar is None else bar.update,
-        scan_units=o.scan_units,
-        face_id=nom.face_id,
-        brep_normals=nom.brep_normals,
-        zones=zones_with_coverage(nom.zones, o.zone_min_coverage),
-        not_evaluated=nom.not_evaluated,
-        plan=nom.plan,
-        prepared=state.prepared,
-        solid=bool(nom.info.get("solids")),
-        restraint=state.restraint,
+        inputs,
         executor=executor,
         measures=measures,
+        progress=None if bar is None else bar.update,
     )
     if o.seeds > 1:
         with _stage(prof, f"repeatability ({o.seeds} resamplings)"):

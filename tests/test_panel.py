@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.metrology.inspection import InspectionInputs, InspectionParams, inspect
 from qifreport.nominal import load_nominal
 from qifreport.registration.pointcloud import load_scan
 from tests.conftest import ROOT
@@ -32,9 +32,7 @@ def panel_results():
             nom.F,
             P,
             InspectionParams(),
-            face_id=nom.face_id,
-            zones=nom.zones,
-            not_evaluated=nom.not_evaluated,
+            InspectionInputs(face_id=nom.face_id, zones=nom.zones, not_evaluated=nom.not_evaluated),
         )
     return out
 
