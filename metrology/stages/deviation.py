@@ -77,7 +77,7 @@ def deviation_stage(
 
     Parameters
     ----------
-    reg : the seated scan.  nominal : :func:`held_nominal`.  ctx : the judgement's context.
+    reg : the seated scan.  nominal : :func:`.held.held_nominal`.  ctx : the judgement's context.
     free_deviation : the free state's (n,) vertex deviation, mm, and its variance, mm^2,
         when it was judged already; None: measured here when needed.
     free : the free state's registration when ``reg`` holds the scan otherwise (restrained).

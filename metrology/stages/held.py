@@ -30,7 +30,7 @@ class HeldNominal:
     basis : the bending basis reported (the fixture's, else the context's).
     held : the part is held (a virtual fixture, or clamps), not in its free state.
     to_creases : the free state of a B-rep nominal, scored up to its creases (no crease
-        band: :func:`vertex_deviation` keeps each vertex to its own faces' points).
+        band: :func:`.deviation.vertex_deviation` keeps each vertex to its own faces' points).
     """
 
     V: np.ndarray
@@ -62,8 +62,9 @@ def held_nominal(
         basis=ctx.basis if fit is None else fit.basis,
         held=fit is not None or restrained,
         # the free state of a B-rep nominal is scored up to its creases: the face-aware
-        # measure (:func:`vertex_deviation`) fits each vertex to the points of its own faces
-        # and leaves a crease vertex unscored unless all its faces were seen. A fixtured
-        # nominal keeps the band: there the displacement field is least determined
+        # measure (:func:`.deviation.vertex_deviation`) fits each vertex to the points of
+        # its own faces and leaves a crease vertex unscored unless all its faces were seen.
+        # A fixtured nominal keeps the band: there the displacement field is least
+        # determined
         to_creases=fit is None and ctx.face_id is not None and params.edge_band is None,
     )

@@ -133,8 +133,9 @@ def _points_judging(
         dev_pts[free_v[np.maximum(pvert, 0)]] = np.nan
     pts_ok = (pvert >= 0) & np.isfinite(dev_pts)
     # a point standing proud beyond the whole part's band is added material (a rib, a
-    # boss, flash, a clamp in the scan): judged by its own policy (:mod:`.added`, reported
-    # unless --fail-on-added-material), as the vertex measure's robust fit drops it too
+    # boss, flash, a clamp in the scan): judged by its own policy
+    # (:mod:`qifreport.metrology.acceptance.added`, reported unless
+    # --fail-on-added-material), as the vertex measure's robust fit drops it too
     with np.errstate(invalid="ignore"):
         pts_ok &= ~(samples.value > general_half)
     return pts_ok
