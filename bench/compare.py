@@ -41,7 +41,7 @@ import pandas as pd
 
 from qifreport.metrology.deviation.unscored import unscored_bands
 from qifreport.metrology.inspection import InspectionParams
-from qifreport.registration import methods
+from qifreport.registration.deformable import methods
 from qifreport.registration.deformable.bending_basis import bending_basis
 from qifreport.registration.deformable.cpd import CPDParams, cpd_warp, resolve_params, sample_points
 from qifreport.registration.deformable.gbcicp import GBCICPParams

@@ -30,7 +30,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=150_000)
     ap.add_argument("--noise", type=float, default=0.01, help="range noise sigma, mm")
     a = ap.parse_args()
-    from qifreport.metrology.inspection import inspect
+    from qifreport.metrology.inspection import InspectionInputs, inspect
     from qifreport.metrology.params import InspectionParams
     from qifreport.nominal import load_nominal
     from qifreport.simulate.brep_scan import technician_scan
@@ -50,11 +50,13 @@ def main() -> None:
             part.F,
             scan.P,
             InspectionParams(rigid_only=True, prealign="never"),
-            face_id=part.face_id,
-            brep_normals=part.brep_normals,
-            zones=drawing.zones,
-            not_evaluated=drawing.not_evaluated,
-            solid=True,
+            InspectionInputs(
+                face_id=part.face_id,
+                brep_normals=part.brep_normals,
+                zones=drawing.zones,
+                not_evaluated=drawing.not_evaluated,
+                solid=True,
+            ),
         )
         var = res.deviation_variance
         for z in res.zones:

@@ -40,7 +40,7 @@ import numpy as np
 
 from qifreport.metrology.deviation.edges import edge_deviation
 from qifreport.metrology.deviation.size import size_error
-from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.metrology.inspection import InspectionInputs, InspectionParams, inspect
 from qifreport.metrology.prepared import prepare_part
 from qifreport.registration.mesh import vertex_areas
 from qifreport.simulate.cases import make_case
@@ -79,7 +79,7 @@ def variants(P: np.ndarray, s: float, extra: bool) -> list[tuple[str, np.ndarray
 def run(V, F, P, params, prepared, amp, seed, s, name, shrink, face_id=None) -> dict:
     """One inspection and the size rule on it; prints its row."""
     t0 = time.perf_counter()
-    r = inspect(V, F, P, params, prepared=prepared, face_id=face_id)
+    r = inspect(V, F, P, params, InspectionInputs(prepared=prepared, face_id=face_id))
     t_insp = time.perf_counter() - t0
     t0 = time.perf_counter()
     ed = edge_deviation(r.V_registered, F, r.P, TOLERANCE)

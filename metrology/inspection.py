@@ -1,13 +1,18 @@
 """One inspection, end to end on arrays: rigid alignment, virtual fixturing, deviation, verdict.
 
-This is the library entry point the command line calls. :func:`inspect` takes the nominal
-``(V, F)`` and the scan ``P`` in mm and returns an
-:class:`~qifreport.metrology.results.InspectionResult`: the registered nominal, the signed
-deviation field, its statistics and the acceptance decision of the paper's Section 10 (area
-criterion and region criterion). It seats the scan (pose search, rigid fit) and schedules
-the rest: the free state's judgement, the virtual fixture when the free state does not
-stand (beside each other, given a second process), or the restrained hold the drawing asks
-for. Each judgement is :func:`qifreport.metrology.judgement.judge`'s.
+This is the library entry point. :func:`inspect` takes the nominal ``(V, F)`` and the scan
+``P`` in mm and returns an :class:`~qifreport.metrology.results.InspectionResult`: the
+registered nominal, the signed deviation field, its statistics and the acceptance decision
+of the paper's Section 10 (area criterion and region criterion). It seats the scan
+(:func:`seat_rigidly`: pose search, rigid fit) and judges it as the inspection's fixture
+policy asks (:func:`judge_as_held`): the free state first, the virtual fixture
+(:func:`fixture_step`) when the free state does not stand (:func:`free_state_stands`), or
+the restrained hold the drawing asks for. Each judgement is
+:func:`qifreport.metrology.judgement.judge`'s.
+
+Everything runs here, one step after the other; each step is a public function, so a
+caller with other processes (the command line, :mod:`qifreport.schedule`) can run some of
+them elsewhere and get the same numbers.
 
 Frames: the scan is moved into the nominal (CAD) frame once, by the rigid stage
 (paper Section 3); everything reported (registered nominal, region centroids) is in the
@@ -18,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -36,18 +42,17 @@ from qifreport.metrology.acceptance.bands import (
 from qifreport.metrology.acceptance.criteria import scan_area
 from qifreport.metrology.gdt.characteristics import CharacteristicPlan
 from qifreport.metrology.restraint.held import hold_scan
-from qifreport.registration.deformable.bending_basis import BendingBasis, bending_basis, part_solver
+from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.deformable.methods import METHODS, deform, method_spec
 from qifreport.registration.deformable.result import DeformResult
-from qifreport.registration.icp import RigidResult, rigid_icp
+from qifreport.registration.icp import rigid_icp
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import bounding_diagonal
 from qifreport.registration.normals import oriented_normals
 from qifreport.registration.pose.prealign import seat_scan
 from qifreport.registration.restraint.restrained import RestraintBasis
 
-from .deferred import submit
-from .judgement import JudgeContext, Registered, judge
+from .judgement import JudgeContext, Registered, judge, resolved
 from .params import InspectionParams, method_label
 from .prepared import PreparedPart, prepare_part
 from .results import (
@@ -64,18 +69,26 @@ __all__ = [
     "FREE_STATE_LOCAL_DEFECTS",
     "FREE_STATE_UNCERTAIN",
     "RESTRAINED",
+    "InspectionInputs",
     "InspectionParams",
     "InspectionResult",
-    "ScanMeasures",
+    "JudgeRun",
     "ZoneResult",
     "check_units",
+    "checked_part",
     "default_zones",
+    "fixture_and_judge",
+    "fixture_step",
+    "free_deviation",
+    "free_state_stands",
+    "free_state_zones",
     "inspect",
+    "inspection_context",
     "judge_as_held",
     "lay_zone_bands",
     "method_label",
     "seat_rigidly",
-    "start_scan_measures",
+    "with_free_state",
 ]
 
 log = logging.getLogger(__name__)
@@ -122,52 +135,47 @@ def check_units(V: np.ndarray, P: np.ndarray, scan_units: str | None = None) -> 
         )
 
 
-@dataclass
-class ScanMeasures:
-    """The scan's own normals and the area it covers, under way (:func:`start_scan_measures`).
+@dataclass(frozen=True)
+class InspectionInputs:
+    """What an inspection may be given besides the nominal mesh, the scan and the
+    parameters (:func:`inspect`): the part's B-rep faces and drawing, its clamps, the state
+    prepared for it to reuse across its scans, and the scan's declared unit. Every field is
+    optional: the default is a mesh nominal with one general zone.
 
     Attributes
     ----------
-    P : (m, 3) the scan points they are measured on, mm (the very array later inspected).
-    normals : pending ``(Ns, sheets)`` of
-        :func:`~qifreport.registration.normals.oriented_normals` (``result()``).
-    area : pending covered area, mm^2, of
-    :func:`~qifreport.metrology.acceptance.criteria.scan_area`;
-        None: not started yet (:func:`inspect` starts it).
+    zones : tolerance zones (:func:`qifreport.metrology.acceptance.bands.zones_from_pmi`);
+        default one general zone of half-width ``params.tolerance``
+        (:func:`default_zones`). Zones that cover no triangle are dropped.
+    face_id, not_evaluated, solid, brep_normals, plan : the part's B-rep faces, PMI items
+        not scored, solidity, exact corner normals and drawing characteristics, as
+        :class:`~qifreport.metrology.judgement.JudgeContext` holds them.
+    restraint : the part's clamps and their elastic responses
+        (:func:`qifreport.registration.restraint.restrained.restraint_basis` on this mesh),
+        for ``params.fixture == "restrained"``: the rigidly seated scan is held at its
+        clamps and judged as held (no virtual fixture, no free-state shortcut: the drawing
+        says how the part is inspected).
+    prepared : the nominal's scan-independent state
+        (:func:`qifreport.metrology.prepared.prepare_part` with these ``params``), to reuse
+        across scans of one part: operators, unscored bands, hygiene, bending basis (unless
+        ``basis`` is given) and the pose search's model. ``ValueError`` if it was prepared
+        for another mesh or other settings.
+    basis : the nominal's GB-CICP bending basis
+        (:func:`qifreport.registration.deformable.gbcicp.bending_basis`), to reuse it across
+        scans of one part; computed when needed if omitted.
+    scan_units : the unit the user declared for the scan file (for the units hint only).
     """
 
-    P: np.ndarray
-    normals: Any
-    area: Any = None
-
-    def cancel(self) -> None:
-        """Stop whatever of them is still running (a result taken already is kept)."""
-        self.normals.cancel()
-        if self.area is not None:
-            self.area.cancel()
-
-
-def start_scan_measures(
-    P: np.ndarray, params: InspectionParams, executor=None, *, area: bool = True
-) -> ScanMeasures:
-    """Start measuring the scan's own normals and covered area (for :func:`inspect`).
-
-    The normals (oriented consistently per connected sheet once; the inspection only chooses
-    each sheet's side against its nominal) and the area do not depend on where the scan
-    lies: they are measured on the points as read and turned with the scan. So they can run
-    before the scan is seated, even while the part is still being prepared: on ``executor``
-    (as :func:`inspect`'s) beside it, else when their results are asked for.
-
-    Parameters
-    ----------
-    P : (m, 3) the scan points the inspection will be given, mm.
-    params : the inspection's parameters (the normals' neighbourhood).
-    executor : where they run; default: in this process, when asked for.
-    area : start the area too (else :func:`inspect` starts it).
-    """
-    normals = submit(executor, oriented_normals, P, params.gbcicp.scan_normal_k)
-    pending = submit(executor, scan_area, P) if area else None
-    return ScanMeasures(P=P, normals=normals, area=pending)
+    zones: list[ToleranceZone] | None = None
+    face_id: np.ndarray | None = None
+    not_evaluated: list[NotEvaluated] | None = None
+    solid: bool = False
+    brep_normals: np.ndarray | None = None
+    plan: CharacteristicPlan | None = None
+    restraint: RestraintBasis | None = None
+    prepared: PreparedPart | None = None
+    basis: BendingBasis | None = None
+    scan_units: str | None = None
 
 
 def inspect(
@@ -175,20 +183,9 @@ def inspect(
     F: np.ndarray,
     P: np.ndarray,
     params: InspectionParams,
-    progress=None,
+    inputs: InspectionInputs | None = None,
     *,
-    face_id: np.ndarray | None = None,
-    zones: list[ToleranceZone] | None = None,
-    not_evaluated: list[NotEvaluated] | None = None,
-    scan_units: str | None = None,
-    basis: BendingBasis | None = None,
-    prepared: PreparedPart | None = None,
-    solid: bool = False,
-    brep_normals: np.ndarray | None = None,
-    restraint: RestraintBasis | None = None,
-    plan: CharacteristicPlan | None = None,
-    executor=None,
-    measures: ScanMeasures | None = None,
+    progress: Callable[[int], Any] | None = None,
 ) -> InspectionResult:
     """Inspect the scan ``P`` against the nominal ``(V, F)``.
 
@@ -198,39 +195,10 @@ def inspect(
     P : (m, 3) scan points, mm, in any placement: a scan not already in the nominal frame
         is seated first by the pose search (``params.prealign``).
     params : :class:`InspectionParams`.
+    inputs : the part's zones, B-rep, drawing, clamps and prepared state
+        (:class:`InspectionInputs`); default: none.
     progress : optional callable ``progress(k)`` advanced once per iteration of the virtual
         fixture (``params.method``).
-    zones : tolerance zones (:func:`qifreport.metrology.acceptance.bands.zones_from_pmi`); default
-    one general
-        zone of half-width ``params.tolerance``. Zones that cover no triangle are dropped.
-    face_id, not_evaluated, solid, brep_normals, plan : the part's B-rep faces, PMI items not
-        scored, solidity, exact corner normals and drawing characteristics, as
-        :class:`~qifreport.metrology.judgement.JudgeContext` holds them.
-    scan_units : the unit the user declared for the scan file (for the units hint only).
-    basis : the nominal's GB-CICP bending basis
-        (:func:`qifreport.registration.deformable.gbcicp.bending_basis`), to reuse it across scans
-        of one part;
-        computed when needed if omitted.
-    prepared : the nominal's scan-independent state
-        (:func:`qifreport.metrology.prepared.prepare_part` with these ``params``), to reuse across
-        scans of one part: operators, unscored bands, hygiene, bending basis (unless ``basis`` is
-        given) and the pose search's model. ``ValueError`` if it was prepared for another mesh or
-        other settings.
-    restraint : the part's clamps and their elastic responses
-        (:func:`qifreport.registration.restraint.restrained.restraint_basis` on this mesh), for
-        ``params.fixture == "restrained"``: the rigidly seated scan is held at its clamps
-        and judged as held (no virtual fixture, no free-state shortcut: the drawing says
-        how the part is inspected).
-    executor : an object whose ``submit(fn, *args, **kwargs)`` returns a future (with
-        ``result()`` and ``cancel()``, and ``done()`` to give up the fixture early), e.g. a
-        :class:`concurrent.futures.Executor` or the command line's forked child
-        (:class:`qifreport.forked.ForkExecutor`). Given to it: the scan's normals and area
-        (beside the pose), the free-state judgement (beside the virtual fixture, which is
-        given up once the free state stands) and the fixtured part's trim edges. The
-        outcome is the sequential one. Default: sequential.
-    measures : the scan's normals and area started already on these very points
-        (:func:`start_scan_measures`, e.g. beside the part's preparation); default: started
-        here, on ``executor``. The inspection takes them, or stops them when it fails.
 
     Raises
     ------
@@ -239,42 +207,71 @@ def inspect(
         :class:`qifreport.registration.pose.prealign.PoseNotEstablished` when no pose can be
         established.
     """
+    inputs = InspectionInputs() if inputs is None else inputs
     timings: dict[str, float] = {}
-    prepared, basis = _checked_part(V, F, P, params, scan_units, prepared, basis, timings, measures)
-    reg = seat_rigidly(V, F, P, params, prepared, timings, measures=measures, executor=executor)
-    zones = default_zones(params) if zones is None else zones
+    prepared, basis = checked_part(V, F, P, params, inputs, timings)
+    reg = seat_rigidly(V, F, P, params, prepared, timings)
+    run = inspection_context(reg, params, inputs, prepared, basis, timings, progress)
+    return judge_as_held(run, inputs.restraint)
+
+
+@dataclass(frozen=True)
+class JudgeRun:
+    """What the judgements of one seated scan share (:func:`judge_as_held`'s inputs).
+
+    Attributes
+    ----------
+    reg : the seated scan.  ctx : the judgements' context.  params : the parameters.
+    zones : the zones as given, before those covering no triangle were dropped (the
+        tightest sets the fixture's guard).
+    timings : seconds per stage, added to.
+    progress : :func:`inspect`'s.
+    judge : how the free state and the fixtured part are judged:
+        :func:`~qifreport.metrology.judgement.judge`, or a caller's function with its
+        signature that gives it side work started elsewhere (the trim edges).
+    """
+
+    reg: Registered
+    ctx: JudgeContext
+    params: InspectionParams
+    zones: list[ToleranceZone]
+    timings: dict[str, float]
+    progress: Callable[[int], Any] | None = None
+    judge: Callable[..., InspectionResult] = judge
+
+
+def inspection_context(
+    reg: Registered,
+    params: InspectionParams,
+    inputs: InspectionInputs,
+    prepared: PreparedPart,
+    basis: BendingBasis | None,
+    timings: dict[str, float],
+    progress: Callable[[int], Any] | None = None,
+) -> JudgeRun:
+    """The judgements' shared inputs for the seated scan ``reg``: the zones (``inputs``' or
+    :func:`default_zones`) laid on the nominal, the part's ``prepared`` state and bending
+    ``basis`` (:func:`checked_part`), its B-rep and drawing (:class:`JudgeRun`)."""
+    zones = default_zones(params) if inputs.zones is None else inputs.zones
     ctx = JudgeContext(
         prepared=prepared,
-        bands=lay_zone_bands(F, len(V), face_id, zones),
+        bands=lay_zone_bands(reg.F, len(reg.V), inputs.face_id, zones),
         energy=prepared.energy,
-        face_id=face_id,
-        not_evaluated=not_evaluated,
-        solid=solid,
+        face_id=inputs.face_id,
+        not_evaluated=inputs.not_evaluated,
+        solid=inputs.solid,
         basis=basis,
-        brep_normals=brep_normals,
-        plan=plan,
+        brep_normals=inputs.brep_normals,
+        plan=inputs.plan,
     )
-    return judge_as_held(reg, ctx, params, zones, timings, progress, restraint, executor)
+    return JudgeRun(reg, ctx, params, zones, timings, progress)
 
 
-def judge_as_held(
-    reg: Registered,
-    ctx: JudgeContext,
-    params: InspectionParams,
-    zones: list[ToleranceZone],
-    timings: dict[str, float],
-    progress=None,
-    restraint: RestraintBasis | None = None,
-    executor=None,
-) -> InspectionResult:
+def judge_as_held(run: JudgeRun, restraint: RestraintBasis | None = None) -> InspectionResult:
     """The seated scan judged as the inspection's fixture policy asks (:func:`inspect`):
     rigidly only, held at its clamps (``restraint``), always fixtured, or in its free state
-    first and fixtured only when that does not stand (:func:`_free_state_stands`).
-
-    ``zones``: the zones as given, before those covering no triangle were dropped (the
-    tightest sets the fixture's guard); ``timings``: seconds per stage, added to;
-    ``executor``: as :func:`inspect`'s (:func:`_free_state_beside_fixture`)."""
-    run = _Run(reg, ctx, params, zones, timings, progress, executor)
+    first and fixtured only when that does not stand (:func:`free_state_stands`)."""
+    reg, ctx, params, timings = run.reg, run.ctx, run.params, run.timings
     if params.rigid_only:
         res = judge(reg, None, params, timings, ctx)
         res.fixture_decision = "rigid only"
@@ -286,73 +283,43 @@ def judge_as_held(
             raise ValueError("the restraint basis was built for another mesh of the part")
         return _restrained(run, restraint)
     if params.always_fixture:
-        return _fixture_and_judge(run, ctx.basis)
+        return fixture_and_judge(run, ctx.basis)
     # ISO 10579 / Y14.5: restraint is there to bring a compliant part to its drawing shape;
     # the free state (no force) is one of the states a fixture may hold it in. When it
     # conforms on its own, no restraint is needed and none is simulated: a virtual fixture
     # can then only add its own error (a stiff part moved by it).
     t0 = time.perf_counter()
-    if executor is not None and _fixture_likely(reg.rigid, zones):
-        return _free_state_beside_fixture(run, ctx.basis)
-    # a seat well inside the tightest zone (a stiff part): its free state will most likely
-    # stand, so no fixture is started beside it (its work would be wasted, and would take a
-    # core from the judgement); judged here, its own steps beside it
-    free = judge(reg, None, params, dict(timings), ctx, check_part=False, executor=executor)
-    decided = _free_state_stands(free)
+    free = run.judge(reg, None, params, dict(timings), ctx, check_part=False)
+    decided = free_state_stands(free)
     if decided is not None:
         return decided
     timings["free state"] = time.perf_counter() - t0  # then the fixtured judgement's
-    return _fixture_and_judge(run, ctx.basis, free=free)
+    return fixture_and_judge(run, ctx.basis, free=free)
 
 
-@dataclass(frozen=True)
-class _Run:
-    """What the judgements of one seated scan share (:func:`judge_as_held`'s inputs):
-    ``timings`` is added to; ``progress`` and ``executor`` are :func:`inspect`'s."""
-
-    reg: Registered
-    ctx: JudgeContext
-    params: InspectionParams
-    zones: list[ToleranceZone]
-    timings: dict[str, float]
-    progress: Any = None
-    executor: Any = None
-
-
-def _checked_part(
+def checked_part(
     V: np.ndarray,
     F: np.ndarray,
     P: np.ndarray,
     params: InspectionParams,
-    scan_units: str | None,
-    prepared: PreparedPart | None,
-    basis: BendingBasis | None,
+    inputs: InspectionInputs,
     timings: dict[str, float],
-    measures: ScanMeasures | None = None,
 ) -> tuple[PreparedPart, BendingBasis | None]:
-    """The inspection's method and units checked, and the part's prepared state (made, or
-    checked against ``(V, F)`` and ``params``) with the bending basis to use; ``timings``:
-    added to ("operators"). ``measures`` (:func:`start_scan_measures`) are stopped when a
-    check fails."""
-    if measures is not None and measures.P is not P:
-        measures.cancel()
-        raise ValueError("the scan measures were started on other points than these")
-    try:
-        if params.method not in METHODS:
-            raise ValueError(f"unknown method {params.method!r} (one of {', '.join(METHODS)})")
-        t0 = time.perf_counter()
-        check_units(V, P, scan_units)
-        if prepared is None:
-            prepared = prepare_part(V, F, params, basis=False, model=False)
-        else:
-            prepared.check(V, F, params)
-            if basis is None:
-                basis = prepared.basis
-        timings["operators"] = time.perf_counter() - t0
-    except BaseException:
-        if measures is not None:
-            measures.cancel()
-        raise
+    """The inspection's method and units checked, and the part's prepared state
+    (``inputs.prepared``, checked against ``(V, F)`` and ``params``, or made) with the
+    bending basis to use; ``timings``: added to ("operators")."""
+    if params.method not in METHODS:
+        raise ValueError(f"unknown method {params.method!r} (one of {', '.join(METHODS)})")
+    t0 = time.perf_counter()
+    check_units(V, P, inputs.scan_units)
+    prepared, basis = inputs.prepared, inputs.basis
+    if prepared is None:
+        prepared = prepare_part(V, F, params, basis=False, model=False)
+    else:
+        prepared.check(V, F, params)
+        if basis is None:
+            basis = prepared.basis
+    timings["operators"] = time.perf_counter() - t0
     return prepared, basis
 
 
@@ -364,47 +331,46 @@ def seat_rigidly(
     prepared: PreparedPart,
     timings: dict[str, float],
     *,
-    measures: ScanMeasures | None = None,
-    executor=None,
+    scan_normals: Any = None,
+    area: Any = None,
 ) -> Registered:
     """The scan ``P`` (m, 3) seated on the nominal ``(V, F)``: the pose search, the rigid
     fit, the overlap check, and the scan's normals (turned with it) and covered area
     (:class:`~qifreport.metrology.judgement.Registered`).
 
-    ``measures``: the scan's normals and area started already (:func:`start_scan_measures`);
-    default: started here on ``executor``; either is stopped when the seat fails.
-    ``timings``: seconds per stage, added to. Raises :class:`InputError` when the seated
-    scan does not overlap the nominal."""
-    if measures is None:
-        measures = start_scan_measures(P, params, executor)
-    elif measures.area is None:
-        measures.area = submit(executor, scan_area, P)
-    normals, area = measures.normals, measures.area
-    try:
-        t0 = time.perf_counter()
-        seat = seat_scan(V, F, P, mode=params.prealign, model=prepared.model)
-        timings["prealign"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
-        rigid = rigid_icp(V, prepared.ops.normals, P, R0=seat.R, t0=seat.t, tree=tree)
-        Pm = rigid.apply(P)
-        timings["rigid"] = time.perf_counter() - t0
-        diag = bounding_diagonal(V)
-        d_near, _ = tree.query(Pm, workers=-1)
-        overlap = float(np.mean(d_near < 0.02 * diag))
-        if overlap < 0.3 or rigid.inlier_fraction < 0.3:
-            raise InputError(
-                f"scan does not overlap the nominal: after rigid alignment only "
-                f"{100 * overlap:.0f} % of the points lie within {0.02 * diag:.3g} mm of it"
-            )
-        t0 = time.perf_counter()
-        Ns, sheets = normals.result()
-        Ns = Ns @ rigid.R.T
-        area_mm2 = area.result()
-        timings["scan normals, area"] = time.perf_counter() - t0
-    finally:
-        normals.cancel()
-        area.cancel()
+    The normals (oriented consistently per connected sheet once; the inspection only
+    chooses each sheet's side against its nominal) and the area do not depend on where the
+    scan lies: they are measured on the points as given and turned with the scan.
+    ``scan_normals``: ``(Ns, sheets)`` of
+    :func:`~qifreport.registration.normals.oriented_normals` on ``P`` with
+    ``params.gbcicp.scan_normal_k``, and ``area``: its covered area, mm^2
+    (:func:`~qifreport.metrology.acceptance.criteria.scan_area`), when the caller measures
+    them already: the values, or pending results (anything with ``result()``); default:
+    measured here, after the rigid fit. ``timings``: seconds per stage, added to. Raises
+    :class:`InputError` when the seated scan does not overlap the nominal."""
+    t0 = time.perf_counter()
+    seat = seat_scan(V, F, P, mode=params.prealign, model=prepared.model)
+    timings["prealign"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
+    rigid = rigid_icp(V, prepared.ops.normals, P, R0=seat.R, t0=seat.t, tree=tree)
+    Pm = rigid.apply(P)
+    timings["rigid"] = time.perf_counter() - t0
+    diag = bounding_diagonal(V)
+    d_near, _ = tree.query(Pm, workers=-1)
+    overlap = float(np.mean(d_near < 0.02 * diag))
+    if overlap < 0.3 or rigid.inlier_fraction < 0.3:
+        raise InputError(
+            f"scan does not overlap the nominal: after rigid alignment only "
+            f"{100 * overlap:.0f} % of the points lie within {0.02 * diag:.3g} mm of it"
+        )
+    t0 = time.perf_counter()
+    if scan_normals is None:
+        scan_normals = oriented_normals(P, params.gbcicp.scan_normal_k)
+    Ns, sheets = resolved(scan_normals)
+    Ns = Ns @ rigid.R.T
+    area_mm2 = scan_area(P) if area is None else resolved(area)
+    timings["scan normals, area"] = time.perf_counter() - t0
     reg = Registered(
         V=V, F=F, P=Pm, rigid=rigid, seat=seat, scan_normals=Ns, sheets=sheets, diag=diag
     )
@@ -435,55 +401,7 @@ def lay_zone_bands(
     return bands
 
 
-#: the rigid seat's robust residual scale, in units of the tightest zone's half-width, from
-#: which the virtual fixture is started beside the free state's judgement. Measured: the
-#: compliant sample parts seat at 0.6-1.9 and the fandisk of ``bench/fandisk_command.py``
-#: (bent and twisted, its free state fails) at 0.19; the NIST machined parts' perfect
-#: scans at 0.02-0.18 (0.02-0.08 for five of the seven)
-FIXTURE_LIKELY = 0.1
-
-
-def _fixture_likely(rigid: RigidResult, zones: list[ToleranceZone]) -> bool:
-    """Whether the rigid seat leaves the part far enough from its drawing shape that its
-    free state may well not conform: its robust residual scale reaches a tenth of the
-    tightest zone's half-width.
-
-    Only the schedule depends on it, never the result: whether the fixture starts beside
-    the free state's judgement or after it, if it does not stand. A wrong guess costs time,
-    not a verdict: a fixture started for a free state that stands wastes the CPU it took (a
-    stiff part's bending basis, a large cost), and one not started for a free state that
-    fails waits for the judgement (a small one); hence a low bar."""
-    tightest = min(z.half_width for z in zones)
-    return rigid.scale >= FIXTURE_LIKELY * tightest
-
-
-def _modal(params: InspectionParams) -> bool:
-    """Whether the inspection's virtual fixture iterates in the part's bending basis
-    (GB-CICP's modal solver)."""
-    g = params.gbcicp
-    return (
-        method_spec(params.method).uses_bending_basis and g.solver == "modal" and g.lambda0 is None
-    )
-
-
-class _FreeStateStood(Exception):
-    """The free state, judged beside the virtual fixture, stands: the fixture is given up."""
-
-
-class _StoodCheck:
-    """Called between two steps of the virtual fixture: raises :class:`_FreeStateStood`
-    when the free-state judgement beside it is done and stands."""
-
-    def __init__(self, pending) -> None:
-        self.pending = pending
-
-    def __call__(self) -> None:
-        done = getattr(self.pending, "done", None)
-        if done is not None and done() and _free_state_stands(self.pending.result()):
-            raise _FreeStateStood
-
-
-def _free_state_stands(free: InspectionResult) -> InspectionResult | None:
+def free_state_stands(free: InspectionResult) -> InspectionResult | None:
     """The free-state judgement ``free`` as the inspection's result when it decides it:
     nothing of it proven out of tolerance with the registration trusted (PASS; NOT
     MEASURED where the scan has holes; NOT ESTABLISHED on a zone limit within the
@@ -498,84 +416,31 @@ def _free_state_stands(free: InspectionResult) -> InspectionResult | None:
     return None
 
 
-def _fixture_and_judge(
-    run: _Run, basis: BendingBasis | None, free: InspectionResult | None = None
+def fixture_and_judge(
+    run: JudgeRun, basis: BendingBasis | None, free: InspectionResult | None = None
 ) -> InspectionResult:
     """The virtual fixture (in ``basis``) and the judgement of the part as it holds it
-    (``run.executor``: for the trim edges), after the free state's judgement ``free`` that
-    did not stand (None: ``always_fixture``, not judged)."""
-    fit = _timed_fixture(run, basis, run.progress)
-    res = judge(
-        run.reg,
-        fit,
-        run.params,
-        run.timings,
-        run.ctx,
-        free_deviation=_deviation(free),
-        executor=run.executor,
+    (``run.judge``), after the free state's judgement ``free`` that did not stand (None:
+    ``always_fixture``, not judged)."""
+    fit = fixture_step(run, basis, run.progress)
+    res = run.judge(
+        run.reg, fit, run.params, run.timings, run.ctx, free_deviation=free_deviation(free)
     )
-    return _with_free_state(res, free)
+    return with_free_state(res, free)
 
 
-def _free_state_beside_fixture(run: _Run, basis: BendingBasis | None) -> InspectionResult:
-    """The schedule with a second process: the free state judged on ``run.executor``
-    beside the virtual fixture, which is given up (between two of its steps, or of the
-    bending basis's) once the free state stands; the outcome is the sequential one
-    (:func:`inspect`).
-
-    The only function whose steps depend on the executor: the decisions it makes are
-    :func:`_free_state_stands`' and :func:`_with_free_state`'s, as in the sequential
-    schedule."""
-    reg, ctx, params, timings, executor = run.reg, run.ctx, run.params, run.timings, run.executor
-    pending = executor.submit(judge, reg, None, params, dict(timings), ctx, check_part=False)
-    stood = _StoodCheck(pending)
-    # one factorisation for the basis and the fixture: their matrices share a pattern, so
-    # the symbolic analysis is made once (and never again for the part: the basis keeps its
-    # fill-reducing order)
-    solver = part_solver(reg.V, basis)
-    try:
-        if basis is None and _modal(params):
-            # a new part's bending basis (a fixture's costliest step), built here and given
-            # up between two of its solves once the free state stands
-            t_basis = time.perf_counter()
-            basis = bending_basis(ctx.prepared.ops, params.gbcicp.modes, solver=solver, check=stood)
-            timings["bending basis"] = time.perf_counter() - t_basis
-
-        def watched(k: int) -> None:  # between two fixture iterations, likewise
-            stood()
-            if run.progress is not None:
-                run.progress(k)
-
-        fit = _timed_fixture(run, basis, watched, solver)
-        # the free-state zones take its deviation; else the fixtured judgement goes first
-        free = _take(pending, timings) if _free_state_zones(ctx) else None
-        res = judge(
-            reg, fit, params, timings, ctx, free_deviation=_deviation(free), executor=executor
-        )
-        return _with_free_state(res, _take(pending, timings) if free is None else free)
-    except _FreeStateStood:  # its fixture_decision is set (_free_state_stands)
-        free = pending.result()
-        # taken when it was done already (between two fixture steps), or waited for
-        timings.setdefault("free state (waited)", 0.0)
-        # the stages this process ran beside it: their sum is the inspection's wall time
-        free.timings = dict(timings)
-        return free
-    finally:
-        pending.cancel()
-
-
-def _free_state_zones(ctx: JudgeContext) -> bool:
+def free_state_zones(ctx: JudgeContext) -> bool:
     """Whether a zone of the part is judged in its free state (a held part's too)."""
     return any(z.free_state for z in ctx.bands.zones)
 
 
-def _deviation(free: InspectionResult | None) -> tuple[np.ndarray, np.ndarray] | None:
+def free_deviation(free: InspectionResult | None) -> tuple[np.ndarray, np.ndarray] | None:
     """The free state's vertex deviation and its variance, measured once (None: not
-    judged)."""
+    judged), for the fixtured judgement's free-state zones."""
     return None if free is None else (free.deviation, free.deviation_variance)
 
 
-def _with_free_state(res: InspectionResult, free: InspectionResult | None) -> InspectionResult:
+def with_free_state(res: InspectionResult, free: InspectionResult | None) -> InspectionResult:
     """The fixtured judgement ``res`` with why it was fixtured and the free state's verdict
     (``free``: its judgement that did not stand; None: ``always_fixture``)."""
     res.fixture_decision = "always" if free is None else "free state does not conform"
@@ -585,22 +450,18 @@ def _with_free_state(res: InspectionResult, free: InspectionResult | None) -> In
     return res
 
 
-def _take(pending, timings: dict[str, float]) -> InspectionResult:
-    """The pending free-state judgement's result (the time waited for it is a stage);
-    :class:`_FreeStateStood` when it stands."""
-    t0 = time.perf_counter()
-    free = pending.result()
-    timings["free state (waited)"] = time.perf_counter() - t0
-    if _free_state_stands(free) is not None:
-        raise _FreeStateStood
-    return free
-
-
-def _timed_fixture(
-    run: _Run, basis: BendingBasis | None, progress, solver: SPDSolver | None = None
+def fixture_step(
+    run: JudgeRun,
+    basis: BendingBasis | None,
+    progress: Callable[[int], Any] | None,
+    solver: SPDSolver | None = None,
 ) -> DeformResult:
-    """:func:`_virtual_fixture` of ``run``'s seated scan, its time a stage
-    (``run.timings[params.method]``)."""
+    """The virtual fixture (``params.method``) of ``run``'s seated scan in ``basis`` (None:
+    built by the fixture when it needs one), its time a stage (``run.timings[method]``).
+
+    ``progress(k)``: called between two of its iterations (it may raise to give the fixture
+    up); ``solver``: GB-CICP's factorisation, one that built ``basis``
+    (:func:`~qifreport.registration.deformable.gbcicp.part_solver`); a new one if None."""
     t0 = time.perf_counter()
     params = run.params
     fit = _virtual_fixture(run.reg, params, run.ctx.prepared, run.zones, basis, progress, solver)
@@ -640,7 +501,7 @@ def _virtual_fixture(
     )
 
 
-def _restrained(run: _Run, restraint: RestraintBasis) -> InspectionResult:
+def _restrained(run: JudgeRun, restraint: RestraintBasis) -> InspectionResult:
     """Hold the rigidly seated scan at its clamps
     (:func:`qifreport.metrology.restraint.held.hold_scan`)
     and judge it as held; the free-state zones are judged on the free state in the held

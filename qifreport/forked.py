@@ -1,7 +1,7 @@
 """Run one call in a forked child process while the caller goes on (Linux).
 
 :class:`ForkExecutor` has the one method of :class:`concurrent.futures.Executor` that
-:func:`qifreport.metrology.inspection.inspect` uses, ``submit(fn, *args, **kwargs)``. The
+:func:`qifreport.schedule.inspect_beside` uses, ``submit(fn, *args, **kwargs)``. The
 inspection gives it the free-state judgement, which needs the CPU while the virtual fixture
 runs in the caller: threads cannot share that work (the judgement is many short numpy calls
 that hold the GIL; measured on the sample panel: no gain), a forked child can, and it starts

@@ -37,11 +37,10 @@ from qifreport.metrology.acceptance.bands import ToleranceZone
 from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION, resample_mask
 from qifreport.metrology.acceptance.repeatability import apply as apply_repeatability
 from qifreport.metrology.inspection import (
+    InspectionInputs,
     InspectionParams,
     InspectionResult,
-    ScanMeasures,
     inspect,
-    start_scan_measures,
 )
 from qifreport.metrology.model import Drawing, Part
 from qifreport.registration.linalg import default_backend
@@ -54,6 +53,7 @@ from .forked import fork_executor
 from .jsonio import finite, json_default
 from .options import InspectJob
 from .profile import Profiler
+from .schedule import ScanMeasures, inspect_beside, start_scan_measures
 from .summary import SUMMARY_SCHEMA_VERSION
 
 __all__ = [
@@ -66,6 +66,7 @@ __all__ = [
     "exit_code",
     "inspect_state",
     "output_writers",
+    "part_inputs",
     "progress_bar",
     "qif_writer",
     "resampled_runs",
@@ -227,19 +228,6 @@ def check_job(job: InspectJob) -> None:
             raise InputError(f"output directory not writable: {parent}")
 
 
-def _model_arguments(part: Part, drawing: Drawing) -> dict:
-    """The part's and its drawing's arrays and items as
-    :func:`qifreport.metrology.inspection.inspect`'s keyword arguments."""
-    return {
-        "face_id": part.face_id,
-        "brep_normals": part.brep_normals,
-        "zones": drawing.zones,
-        "not_evaluated": drawing.not_evaluated,
-        "plan": drawing.plan,
-        "solid": part.is_solid,
-    }
-
-
 def resampled_runs(
     res: InspectionResult,
     params: InspectionParams,
@@ -266,21 +254,27 @@ def resampled_runs(
         if bar is not None:
             bar.set_description(f"resampling {k + 1}/{seeds}")
         keep = resample_mask(len(res.P), k, KEEP_FRACTION)
-        runs.append(
-            inspect(
-                res.V,
-                res.F,
-                res.P[keep],
-                p,
-                progress=None if bar is None else bar.update,
-                basis=res.basis,
-                prepared=prepared,
-                **_model_arguments(part, drawing),
-            )
-        )
+        inputs = part_inputs(part, drawing, basis=res.basis, prepared=prepared)
+        progress = None if bar is None else bar.update
+        runs.append(inspect(res.V, res.F, res.P[keep], p, inputs, progress=progress))
     seconds = time.perf_counter() - t0
     apply_repeatability(res, runs, KEEP_FRACTION, seconds=seconds)
     res.timings["repeatability"] = seconds
+
+
+def part_inputs(part: Part, drawing: Drawing, **more) -> InspectionInputs:
+    """The inspection's inputs of the part read and its drawing (:class:`InspectionInputs`):
+    its B-rep faces and corner normals, solidity, zones, unscored PMI items and
+    characteristic plan, with ``more`` (its prepared state, bending basis, restraint)."""
+    return InspectionInputs(
+        zones=drawing.zones,
+        face_id=part.face_id,
+        not_evaluated=drawing.not_evaluated,
+        solid=part.is_solid,
+        brep_normals=part.brep_normals,
+        plan=drawing.plan,
+        **more,
+    )
 
 
 def zones_with_coverage(
@@ -321,26 +315,27 @@ def inspect_state(
     """Inspect the scan points ``P`` (mm) against a prepared part, with the job's options
     (the repeatability runs included); ``executor``: where side work of the inspection runs
     beside its main line, ``measures``: the scan's normals and area started already on
-    ``P`` (:func:`qifreport.metrology.inspection.inspect`)."""
+    ``P`` (:func:`qifreport.schedule.inspect_beside`)."""
     o = job.options
     params = o.inspection_params()
     if state.restraint is not None:
         params = replace(params, fixture="restrained")
     part, drawing = state.part, state.drawing
-    # the --min-coverage rules apply to this inspection's zones
-    judged = replace(drawing, zones=zones_with_coverage(drawing.zones, o.zone_min_coverage))
-    res = inspect(
+    inputs = replace(
+        part_inputs(part, drawing, prepared=state.prepared, restraint=state.restraint),
+        # the --min-coverage rules apply to this inspection's zones
+        zones=zones_with_coverage(drawing.zones, o.zone_min_coverage),
+        scan_units=o.scan_units,
+    )
+    res = inspect_beside(
         part.V,
         part.F,
         P,
         params,
-        progress=None if bar is None else bar.update,
-        scan_units=o.scan_units,
-        prepared=state.prepared,
-        restraint=state.restraint,
+        inputs,
         executor=executor,
         measures=measures,
-        **_model_arguments(part, judged),
+        progress=None if bar is None else bar.update,
     )
     if o.seeds > 1:
         with _stage(prof, f"repeatability ({o.seeds} resamplings)"):

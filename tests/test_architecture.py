@@ -124,6 +124,16 @@ def test_contracts_hold(tree):
             "metrology-stages",
         ),
         (
+            "qifreport/metrology/stages/deviation.py",
+            "import qifreport.metrology.stages.readings",
+            "judgement-stages",
+        ),
+        (
+            "qifreport/metrology/stages/acceptance.py",
+            "import qifreport.metrology.judgement",
+            "metrology-stages",
+        ),
+        (
             "qifreport/registration/mesh.py",
             "import qifreport.registration.deformable.gbcicp",
             "registration-parts",

@@ -13,7 +13,7 @@ import os
 import numpy as np
 import pytest
 
-from qifreport.registration import methods
+from qifreport.registration.deformable import methods
 from qifreport.registration.deformable.cpd import CPDParams, cpd_em, cpd_warp
 from qifreport.registration.deformable.nicp import NICPParams, nicp
 from qifreport.registration.deformable.rbffem import RBFFEMParams

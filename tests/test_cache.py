@@ -20,7 +20,7 @@ from qifreport.cache import (
     part_state,
     sha256,
 )
-from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.metrology.inspection import InspectionInputs, InspectionParams, inspect
 from qifreport.metrology.prepared import prepare_part
 from qifreport.registration.pointcloud import read_scan
 
@@ -143,8 +143,8 @@ def test_cached_inspection_equals_a_fresh_one(built):
     params = InspectionParams(tolerance=0.5)
     cached, _ = part_state(nominal, OPTS, params, d)
     part, zones = cached.part, cached.drawing.zones
-    a = inspect(part.V, part.F, P, params, zones=zones, prepared=cached.prepared)
-    b = inspect(part.V, part.F, P, params, zones=zones)
+    a = inspect(part.V, part.F, P, params, InspectionInputs(zones=zones, prepared=cached.prepared))
+    b = inspect(part.V, part.F, P, params, InspectionInputs(zones=zones))
     assert a.verdict == b.verdict == "FAIL"  # the 1 mm bump is found either way
     np.testing.assert_allclose(a.deviation, b.deviation, atol=1e-9, equal_nan=True)
     assert a.acceptance.largest_region_area == pytest.approx(b.acceptance.largest_region_area)
@@ -154,10 +154,11 @@ def test_prepared_state_refuses_other_settings(built):
     _, _, state, _ = built
     part = state.part
     P = read_scan(SAMPLES / "shell_scan.ply").points
+    reuse = InspectionInputs(prepared=state.prepared)
     with pytest.raises(ValueError, match="other settings"):
-        inspect(part.V, part.F, P, InspectionParams(edge_band=0.0), prepared=state.prepared)
+        inspect(part.V, part.F, P, InspectionParams(edge_band=0.0), reuse)
     with pytest.raises(ValueError, match="another nominal"):
-        inspect(part.V + 1.0, part.F, P, InspectionParams(), prepared=state.prepared)
+        inspect(part.V + 1.0, part.F, P, InspectionParams(), reuse)
 
 
 def test_prepare_part_without_basis_or_model():

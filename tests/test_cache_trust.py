@@ -36,7 +36,7 @@ from qifreport.cache import (
     load_entry,
     part_state,
 )
-from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.metrology.inspection import InspectionInputs, InspectionParams, inspect
 from qifreport.simulate.shapes import thin_shell
 
 EXE = Path(sys.executable).parent / "qifreport"
@@ -309,8 +309,8 @@ def test_inspection_through_a_refused_directory_equals_a_fresh_one(small, tmp_pa
     assert outcome.status == "refused"
     P, _ = thin_shell(spacing=3.0)
     part, zones = state.part, state.drawing.zones
-    a = inspect(part.V, part.F, P, params, zones=zones, prepared=state.prepared)
-    b = inspect(part.V, part.F, P, params, zones=zones)
+    a = inspect(part.V, part.F, P, params, InspectionInputs(zones=zones, prepared=state.prepared))
+    b = inspect(part.V, part.F, P, params, InspectionInputs(zones=zones))
     assert a.verdict == b.verdict
     np.testing.assert_allclose(a.deviation, b.deviation, atol=1e-9, equal_nan=True)
     assert os.listdir(d) == []

@@ -18,7 +18,7 @@ import trimesh
 from qifreport.metrology.deviation.edges import edge_deviation
 from qifreport.metrology.deviation.rim import rim_frames
 from qifreport.metrology.deviation.size import size_error
-from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.metrology.inspection import InspectionInputs, InspectionParams, inspect
 from qifreport.metrology.prepared import prepare_part
 from qifreport.simulate.cases import make_case
 from qifreport.simulate.scanner import ScanSpec, virtual_scan
@@ -186,7 +186,7 @@ def inspect_scaled(shell, scale: float, seed: int):
     V, F, params, prepared = shell
     P = make_case(V, F, generator="analytic", amplitude=0.02, seed=seed).P
     c = P.mean(axis=0)
-    r = inspect(V, F, c + scale * (P - c), params, prepared=prepared)
+    r = inspect(V, F, c + scale * (P - c), params, InspectionInputs(prepared=prepared))
     ed = edge_deviation(r.V_registered, F, r.P, TOL)
     return r, ed, size_error(ed)
 

@@ -1,8 +1,8 @@
 """Work beside the caller in a forked child (:mod:`qifreport.forked`): the outcome is the
 sequential one, bit for bit, whatever the child does.
 
-The inspection gives the free-state judgement and the scan's area to the child
-(:func:`qifreport.metrology.inspection.inspect`, ``executor=``): on a thin shell whose free
+The command's schedule gives the free-state judgement and the scan's area to the child
+(:func:`qifreport.schedule.inspect_beside`, ``executor=``): on a thin shell whose free
 state conforms (the free state stands: the child's judgement is the result) and on one
 warped beyond its band (the fixture's judgement, with the child's free-state verdict), every
 number of the result equals the sequential run's. The child's failures (an exception, a
@@ -22,10 +22,11 @@ import pytest
 
 from qifreport.atomic_io import atomic_write_many
 from qifreport.forked import ForkExecutor, fork_executor
-from qifreport.metrology.inspection import inspect, start_scan_measures
+from qifreport.metrology.inspection import inspect
 from qifreport.metrology.params import InspectionParams
 from qifreport.profile import peak_rss_bytes
 from qifreport.registration.mesh import vertex_normals
+from qifreport.schedule import inspect_beside, start_scan_measures
 from qifreport.simulate.shapes import thin_shell
 from tests.test_determinism import flatten
 
@@ -182,16 +183,16 @@ def test_the_inspection_beside_the_fixture_is_the_sequential_one(
     starts beside the free state's judgement (the lifted part, seated far outside its zone;
     every part with ``always_beside``, where the flat part's fixture is given up when its
     free state stands) or after it."""
-    import qifreport.metrology.inspection as inspection
+    import qifreport.schedule as schedule
 
     V, F = thin_shell(spacing=3.0)
     P = shell_scan(V, F, lift)
     params = InspectionParams(tolerance=0.3, prealign="never")
     alone = inspect(V, F, P, params)
     if always_beside:
-        monkeypatch.setattr(inspection, "FIXTURE_LIKELY", 0.0)
+        monkeypatch.setattr(schedule, "FIXTURE_LIKELY", 0.0)
     with caplog.at_level(logging.INFO, logger="qifreport.forked"):
-        beside = inspect(V, F, P, params, executor=ForkExecutor())
+        beside = inspect_beside(V, F, P, params, executor=ForkExecutor())
     assert not caplog.records  # the children answered: nothing was computed again here
     # started beside it, the fixture waits for the free state's result when it needs it
     assert ("free state (waited)" in beside.timings) == (always_beside or not stands)
@@ -221,7 +222,7 @@ def test_scan_measures_started_before_the_inspection_give_the_same_result():
     ex = ForkExecutor()
     measures = start_scan_measures(P, params, ex, area=False)
     assert measures.area is None
-    early = inspect(V, F, P, params, executor=ex, measures=measures)
+    early = inspect_beside(V, F, P, params, executor=ex, measures=measures)
     assert measures.area is not None  # the inspection started it
     x, y = flatten(alone), flatten(early)
     assert x.keys() == y.keys()
@@ -229,7 +230,7 @@ def test_scan_measures_started_before_the_inspection_give_the_same_result():
     assert not differ, differ[:10]
     other = start_scan_measures(P, params, ex)
     with pytest.raises(ValueError, match="other points"):
-        inspect(V, F, P.copy(), params, executor=ex, measures=other)
+        inspect_beside(V, F, P.copy(), params, executor=ex, measures=other)
     with pytest.raises(ChildProcessError):
         os.waitpid(other.normals._pid, os.WNOHANG)  # stopped and reaped
 

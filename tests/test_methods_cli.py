@@ -358,14 +358,14 @@ def test_restrict_never_rescues_the_area_criterion():
 def small_result(small):
     """The small shell inspected in-process (GB-CICP): one defect region."""
     from qifreport.metrology.acceptance.bands import symmetric_zone
-    from qifreport.metrology.inspection import InspectionParams, inspect
+    from qifreport.metrology.inspection import InspectionInputs, InspectionParams, inspect
 
     res = inspect(
         small["V"],
         small["F"],
         small["case"].P,
         InspectionParams(tolerance=TOL),
-        zones=[symmetric_zone(TOL, "general")],
+        InspectionInputs(zones=[symmetric_zone(TOL, "general")]),
     )
     assert res.verdict == "FAIL" and len(res.acceptance.regions) == 1
     return res

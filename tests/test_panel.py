@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.metrology.inspection import InspectionInputs, InspectionParams, inspect
 from qifreport.nominal import load_nominal
 from qifreport.registration.pointcloud import read_scan
 from tests.conftest import ROOT
@@ -32,9 +32,9 @@ def panel_results():
             part.F,
             P,
             InspectionParams(),
-            face_id=part.face_id,
-            zones=drawing.zones,
-            not_evaluated=drawing.not_evaluated,
+            InspectionInputs(
+                face_id=part.face_id, zones=drawing.zones, not_evaluated=drawing.not_evaluated
+            ),
         )
     return out
 

@@ -95,7 +95,7 @@ def panel_nominal():
 def results(shell, shell_case, shell_case_defect, panel_nominal):
     """name -> (InspectionResult, Provenance): a passing shell, a failing shell and the STEP
     panel (two PMI profile tolerances, two PMI items not scored), inspected as the CLI does."""
-    from qifreport.metrology.inspection import InspectionParams, inspect
+    from qifreport.metrology.inspection import InspectionInputs, InspectionParams, inspect
     from qifreport.registration.pointcloud import read_scan
 
     V, F = shell
@@ -111,9 +111,9 @@ def results(shell, shell_case, shell_case_defect, panel_nominal):
         part.F,
         P,
         InspectionParams(tolerance=None),
-        face_id=part.face_id,
-        zones=drawing.zones,
-        not_evaluated=drawing.not_evaluated,
+        InspectionInputs(
+            face_id=part.face_id, zones=drawing.zones, not_evaluated=drawing.not_evaluated
+        ),
     )
     prov = _prov("panel", "samples/panel.step", "samples/panel_scan_defect.ply")
     out["panel"] = (res, dataclasses.replace(prov, face_step_ids=part.face_step_ids))

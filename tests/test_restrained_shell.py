@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from qifreport.metrology.inspection import inspect
+from qifreport.metrology.inspection import InspectionInputs, inspect
 from qifreport.metrology.params import InspectionParams
 from qifreport.registration.mesh import vertex_normals
 from qifreport.registration.restraint.clamps import Clamp
@@ -87,7 +87,7 @@ def scan(V_free, F, dent: float, seed: int = 1) -> np.ndarray:
 def judge(shell, P):
     V, F, basis, _ = shell
     params = InspectionParams(tolerance=TOL, prealign="never", fixture="restrained")
-    return inspect(V, F, P, params, restraint=basis)
+    return inspect(V, F, P, params, InspectionInputs(restraint=basis))
 
 
 def test_restrained_the_dent_fails_where_it_is(shell):

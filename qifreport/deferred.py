@@ -1,9 +1,10 @@
 """A call made now in another process, or later here: one interface for both.
 
-The judgement hands its costlier independent steps (the scan's normals and area, the trim
-edges) to an executor when the command has one (a forked child, :mod:`qifreport.forked`),
-else makes them when their result is first asked for, in the sequential order.
-:func:`submit` returns either as a future (``result()``, ``cancel()``).
+The command's schedule (:mod:`qifreport.schedule`) hands the inspection's costlier
+independent steps (the scan's normals and area, the trim edges) to an executor when it has
+one (a forked child, :mod:`qifreport.forked`), else makes them when their result is first
+asked for, in the library's sequential order. :func:`submit` returns either as a future
+(``result()``, ``cancel()``).
 """
 
 from __future__ import annotations

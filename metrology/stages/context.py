@@ -1,0 +1,96 @@
+"""What every stage of one judgement is given: the seated scan and the inspection's context.
+
+:class:`Registered` is the scan seated rigidly on the nominal
+(:func:`qifreport.metrology.inspection.seat_rigidly`), :class:`JudgeContext` what the
+judgements of one inspection share besides it (the prepared part, its tolerance zones, its
+drawing). Every stage of :mod:`qifreport.metrology.stages` takes them.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from qifreport.metrology.acceptance.bands import BandField, NotEvaluated
+from qifreport.metrology.acceptance.criteria import scan_area
+from qifreport.metrology.gdt.characteristics import CharacteristicPlan
+from qifreport.metrology.prepared import PreparedPart
+from qifreport.registration.deformable.gbcicp import BendingBasis
+from qifreport.registration.icp import RigidResult
+from qifreport.registration.pose.prealign import PrealignResult
+
+__all__ = ["JudgeContext", "Registered"]
+
+
+@dataclass
+class Registered:
+    """The scan seated rigidly on the nominal: what every judgement of one inspection shares."""
+
+    V: np.ndarray
+    F: np.ndarray
+    P: np.ndarray
+    rigid: RigidResult
+    seat: PrealignResult
+    scan_normals: np.ndarray
+    sheets: np.ndarray
+    diag: float
+
+    @functools.cached_property
+    def scan_tree(self) -> cKDTree:
+        """``cKDTree(P)``: built once for every judgement's searches of the seated scan."""
+        return cKDTree(self.P)
+
+    @functools.cached_property
+    def scan_area(self) -> float:
+        """The area the seated scan covers, mm^2 (:func:`scan_area`): the same points for
+        every judgement, measured once."""
+        return scan_area(self.P)
+
+
+@dataclass(frozen=True)
+class JudgeContext:
+    """What every judgement of one inspection shares besides the scan: the prepared part,
+    its tolerance zones and its drawing.
+
+    Attributes
+    ----------
+    prepared : the nominal's scan-independent state (operators, unscored bands, hygiene).
+    bands : the tolerance zones laid on the nominal
+    (:func:`~qifreport.metrology.acceptance.bands.lay_bands`).
+    energy : the bending energy of the virtual fixture (``prepared.energy``), reported.
+    face_id : (f,) B-rep face id of each triangle (a STEP nominal), for face-based zones;
+        None: a mesh nominal.
+    not_evaluated : PMI items listed in the result but not scored.
+    solid : the nominal is a B-rep solid (a STEP part): its trim edges, for the size check,
+        are its sharp creases, and open edges of its mesh (a B-rep's sewing gaps) are not a
+        rim.
+    basis : the nominal's GB-CICP bending basis, reported (a fixture's own replaces it).
+    brep_normals : (f, 3, 3) the B-rep's normals at the triangle corners (a STEP nominal,
+        :func:`qifreport.step.normals.corner_normals_exact`): the scan points' distances to
+        the curved surface are read with them (NaN rows: the mesh's).
+    plan : the drawing's feature characteristics and datums
+        (:func:`qifreport.metrology.gdt.characteristics.specs_from_pmi`; a STEP nominal with
+        ``brep_normals``): measured on the judged surface, and the profiles that name
+        datums laid in their frame; None: none.
+    """
+
+    prepared: PreparedPart
+    bands: BandField
+    energy: str
+    face_id: np.ndarray | None = None
+    not_evaluated: list[NotEvaluated] | None = None
+    solid: bool = False
+    basis: BendingBasis | None = None
+    brep_normals: np.ndarray | None = None
+    plan: CharacteristicPlan | None = None
+
+    @property
+    def general_half(self) -> float:
+        """The threshold of the whole-part tail fractions and of added material, mm: the
+        general zone's half-width, or (all faces under PMI profiles) the widest zone's:
+        "beyond every band" (per-zone fractions use their own band)."""
+        general = [z for z in self.bands.zones if z.faces is None]
+        return general[0].half_width if general else max(z.half_width for z in self.bands.zones)

@@ -1,0 +1,42 @@
+"""The trim-edge stage: the scan's deviation along the nominal's trim edges and the size
+error read from it (:func:`trim_edge_stage`), where the fixture lets the size be read
+(:func:`measures_size`)."""
+
+from __future__ import annotations
+
+from qifreport.metrology.deviation.edges import EdgeDeviation, edge_deviation
+from qifreport.metrology.deviation.size import SizeEstimate, size_error
+from qifreport.registration.deformable.methods import method_spec
+from qifreport.registration.deformable.result import DeformResult
+
+from .context import JudgeContext, Registered
+from .held import HeldNominal
+
+__all__ = ["measures_size", "trim_edge_stage"]
+
+
+def measures_size(fit: DeformResult | None) -> bool:
+    """Whether the size is read from the trim edges on the nominal as the fixture ``fit``
+    holds it (None: the free state): on a fixture that moves the nominal along its normals
+    only (GB-CICP) or not at all; the baselines move it along the surface too, and so
+    absorb or make up a size error at the rim."""
+    return fit is None or method_spec(fit.method).moves_along_normals_only
+
+
+def trim_edge_stage(
+    reg: Registered, nominal: HeldNominal, ctx: JudgeContext
+) -> tuple[EdgeDeviation, SizeEstimate]:
+    """The trim-edge deviation of the seated scan ``reg`` along the nominal as held
+    (``nominal``, :func:`~qifreport.metrology.stages.held.held_nominal`), and the size
+    error read from it (:func:`edge_deviation`, :func:`size_error`): against the general
+    half-width, along a solid's sharp creases (``ctx.solid``) or the mesh's open rim."""
+    edges = edge_deviation(
+        nominal.V,
+        reg.F,
+        reg.P,
+        ctx.general_half,
+        normals=nominal.normals,
+        trim_edges="crease" if ctx.solid else "auto",
+        tree=reg.scan_tree,
+    )
+    return edges, size_error(edges)
