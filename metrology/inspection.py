@@ -161,7 +161,7 @@ class InspectionInputs:
         ``basis`` is given) and the pose search's model. ``ValueError`` if it was prepared
         for another mesh or other settings.
     basis : the nominal's GB-CICP bending basis
-        (:func:`qifreport.registration.deformable.gbcicp.bending_basis`), to reuse it across
+        (:func:`qifreport.registration.deformable.bending_basis.bending_basis`), to reuse it across
         scans of one part; computed when needed if omitted.
     scan_units : the unit the user declared for the scan file (for the units hint only).
     """
@@ -461,7 +461,7 @@ def fixture_step(
 
     ``progress(k)``: called between two of its iterations (it may raise to give the fixture
     up); ``solver``: GB-CICP's factorisation, one that built ``basis``
-    (:func:`~qifreport.registration.deformable.gbcicp.part_solver`); a new one if None."""
+    (:func:`~qifreport.registration.deformable.bending_basis.part_solver`); a new one if None."""
     t0 = time.perf_counter()
     params = run.params
     fit = _virtual_fixture(run.reg, params, run.ctx.prepared, run.zones, basis, progress, solver)

@@ -153,14 +153,15 @@ def vertex_deviation(
     :func:`qifreport.metrology.acceptance.decision.vertex_uncertainty`).
 
     Each point's signed distance to the nominal *surface* (its distance to the closest
-    triangle, ``closest`` from :func:`~qifreport.metrology.deviation.signed.closest_points`,
+    triangle, ``closest`` from :func:`~qifreport.metrology.deviation.closest.closest_points`,
     computed
     when not given, less the
-    triangle's chord height there, :func:`~qifreport.metrology.deviation.signed.curved_offset`) is
-    fitted about each vertex by :func:`~qifreport.metrology.deviation.signed.residual_referenced`,
+    triangle's chord height there, :func:`~qifreport.metrology.deviation.surface.curved_offset`) is
+    fitted about each vertex by
+    :func:`~qifreport.metrology.deviation.residual_fit.residual_referenced`,
     a vertex using only the points on its own B-rep faces (``face_id``, a STEP nominal);
     without ``face_id`` (a mesh nominal), the plane fit of
-    :func:`~qifreport.metrology.deviation.signed.nominal_referenced`. ``residual`` (m,): those
+    :func:`~qifreport.metrology.deviation.local_planes.nominal_referenced`. ``residual`` (m,): those
     signed distances to the surface, when the caller has them (:func:`surface_distance`).
     ``brep_normals`` (f, 3, 3): the surface's normals at the triangle corners for
     :func:`surface_distance` (the B-rep's, :mod:`qifreport.step.normals`). ``tree``:
