@@ -44,7 +44,7 @@ from qifreport.metrology.inspection import (
 from qifreport.metrology.judgement import JudgeContext, Registered, judge
 from qifreport.metrology.stages.held import held_nominal
 from qifreport.metrology.stages.trim_edges import measures_size, trim_edge_stage
-from qifreport.registration.deformable.gbcicp import bending_basis, part_solver
+from qifreport.registration.deformable.bending_basis import bending_basis, part_solver
 from qifreport.registration.deformable.methods import method_spec
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import RigidResult

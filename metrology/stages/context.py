@@ -18,7 +18,7 @@ from qifreport.metrology.acceptance.bands import BandField, NotEvaluated
 from qifreport.metrology.acceptance.criteria import scan_area
 from qifreport.metrology.gdt.characteristics import CharacteristicPlan
 from qifreport.metrology.prepared import PreparedPart
-from qifreport.registration.deformable.gbcicp import BendingBasis
+from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.icp import RigidResult
 from qifreport.registration.pose.prealign import PrealignResult
 

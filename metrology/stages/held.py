@@ -8,7 +8,7 @@ import numpy as np
 
 from qifreport.metrology.deviation.surface import follow_triangles
 from qifreport.metrology.params import InspectionParams
-from qifreport.registration.deformable.gbcicp import BendingBasis
+from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.mesh import vertex_normals
 
