@@ -57,7 +57,13 @@ import numpy as np
 
 from qifreport.errors import InputError
 
-from .tessellate import DEFAULT_ANGLE, DEFAULT_REL_DEFLECTION, FaceMesh, shape_diagonal
+from .tessellate import (
+    DEFAULT_ANGLE,
+    DEFAULT_REL_DEFLECTION,
+    FaceMesh,
+    checked_mesh,
+    resolve_deflection,
+)
 
 __all__ = [
     "SolidMesh",
@@ -320,11 +326,7 @@ def gmsh_tessellate(
         algorithm could mesh.
     """
     t0 = time.perf_counter()
-    diag = shape_diagonal(shape)
-    if deflection is None:
-        deflection = rel_deflection * diag
-    if not deflection > 0:
-        raise InputError("the part has zero extent: nothing to tessellate")
+    diag, deflection = resolve_deflection(shape, deflection, rel_deflection)
     if max_edge is None or not max_edge > 0:
         max_edge = diag / 60.0
     if min_edge is None:
@@ -334,26 +336,9 @@ def gmsh_tessellate(
     face_props = np.array([_face_props(f) for f in faces])
 
     with _brep_file(shape) as brep, _GmshSession(threads) as gmsh:
-        for opt in ("OCCFixDegenerated", "OCCFixSmallEdges", "OCCFixSmallFaces"):
-            gmsh.option.setNumber(f"Geometry.{opt}", 0)
-        gmsh.option.setNumber("Geometry.OCCSewFaces", 0)
-        gmsh.option.setNumber("Geometry.OCCMakeSolids", 0)
-        gmsh.model.occ.importShapes(brep, highestDimOnly=False)
-        gmsh.model.occ.synchronize()
-        tags = [t for _, t in gmsh.model.getEntities(2)]
-        surf_props = np.array([_gmsh_props(gmsh, t) for t in tags])
-        row = match_surfaces(face_props, surf_props, diag)
-        tag_of_face = [tags[r] for r in row]
+        tag_of_face = _import_surfaces(gmsh, brep, face_props, diag)
         t_read = time.perf_counter() - t0
-
-        gmsh.option.setNumber("Mesh.MeshSizeMax", float(max_edge))
-        gmsh.option.setNumber("Mesh.MeshSizeMin", float(min_edge))
-        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", n_curv)
-        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
-        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
-        gmsh.option.setNumber("Mesh.Algorithm", int(algorithm))
-        gmsh.option.setNumber("Mesh.ElementOrder", 1)
-        gmsh.option.setNumber("Mesh.RecombineAll", 0)
+        _surface_mesh_options(gmsh, float(max_edge), min_edge, n_curv, int(algorithm))
         V, F, fid = _mesh_and_collect(gmsh, tag_of_face, algorithm)
 
     F, flipped = _orient_faces(V, F, fid, faces)
@@ -371,11 +356,43 @@ def gmsh_tessellate(
         t_read,
         dt,
     )
-    if not np.linalg.norm(np.ptp(V, axis=0)) > 0:
-        raise InputError("the tessellated part has zero extent")
-    return FaceMesh(
-        V=V, F=F, face_id=fid, n_faces=len(faces), deflection=float(deflection), seconds=dt
-    )
+    return checked_mesh(V, F, fid, len(faces), deflection, dt)
+
+
+def _surface_mesh_options(
+    gmsh, max_edge: float, min_edge: float, n_curv: int, algorithm: int
+) -> None:
+    """gmsh's options of the surface mesh: sizes between ``min_edge`` and ``max_edge`` (mm),
+    ``n_curv`` elements per 2 pi radians of curvature, 2-D ``algorithm``, linear triangles."""
+    gmsh.option.setNumber("Mesh.MeshSizeMax", max_edge)
+    gmsh.option.setNumber("Mesh.MeshSizeMin", min_edge)
+    gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", n_curv)
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
+    gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+    gmsh.option.setNumber("Mesh.Algorithm", algorithm)
+    gmsh.option.setNumber("Mesh.ElementOrder", 1)
+    gmsh.option.setNumber("Mesh.RecombineAll", 0)
+
+
+def _import_surfaces(gmsh, brep: str, face_props: np.ndarray, diag: float) -> list[int]:
+    """Import the BREP file into gmsh (no healing, no sewing) and match its surfaces to the
+    B-rep faces (:func:`match_surfaces`): the gmsh surface tag of each face id.
+
+    Parameters
+    ----------
+    face_props : (n_faces, 4) area and centre of mass of each face (:func:`_face_props`).
+    diag : the shape's bounding diagonal, mm.
+    """
+    for opt in ("OCCFixDegenerated", "OCCFixSmallEdges", "OCCFixSmallFaces"):
+        gmsh.option.setNumber(f"Geometry.{opt}", 0)
+    gmsh.option.setNumber("Geometry.OCCSewFaces", 0)
+    gmsh.option.setNumber("Geometry.OCCMakeSolids", 0)
+    gmsh.model.occ.importShapes(brep, highestDimOnly=False)
+    gmsh.model.occ.synchronize()
+    tags = [t for _, t in gmsh.model.getEntities(2)]
+    surf_props = np.array([_gmsh_props(gmsh, t) for t in tags])
+    row = match_surfaces(face_props, surf_props, diag)
+    return [tags[r] for r in row]
 
 
 @dataclass

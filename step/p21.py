@@ -361,34 +361,13 @@ def parse_params(text: str) -> list:
             # only the parts of a complex instance, A(...) B(...), follow each other unseparated
             raise P21Error(f"missing ',' before {tok!r} in {text[:80]!r}")
         sep = True
-        if c == "#":
-            cur.append(Ref(int(tok[1:])))
-        elif c == "(":
+        if c == "(":
             stack.append((cur, None))
             cur, sep = [], False
-        elif c == "'":
-            cur.append(decode_string(tok))
-        elif c == "$":
-            cur.append(None)
-        elif c == "*":
-            cur.append(DERIVED)
-        elif c in _NUMBER_START:
-            if c == "." and len(tok) > 2 and tok[-1] == "." and not tok[1].isdigit():
-                cur.append(Enum(tok[1:-1].upper()))
-                continue
-            try:
-                if "." in tok or "e" in tok or "E" in tok:
-                    cur.append(float(tok))
-                else:
-                    cur.append(int(tok))
-            except ValueError:
-                raise P21Error(f"bad number {tok!r} in {text[:80]!r}") from None
         elif is_keyword:
             keyword, sep = tok.upper(), False
-        elif c == '"' and len(tok) > 1:
-            cur.append(Binary(tok[1:-1]))
         else:
-            raise P21Error(f"unexpected {tok!r} in {text[:80]!r}")
+            cur.append(_atom(tok, c, text))
     if stack:
         raise P21Error(f"unbalanced '(' in {text[:80]!r}")
     if keyword is not None:
@@ -396,6 +375,42 @@ def parse_params(text: str) -> list:
     if cur and not sep:
         raise P21Error(f"trailing ',' in {text[:80]!r}")
     return cur
+
+
+def _atom(tok: str, c: str, text: str):
+    """The value of a one-token parameter: a reference, string, ``$``, ``*``, number,
+    enumeration or binary.
+
+    Parameters
+    ----------
+    tok : the token; ``c`` its first character.
+    text : the parameter text it was read from (for the error message).
+
+    Raises
+    ------
+    P21Error
+        On a malformed number or an unexpected character.
+    """
+    if c == "#":
+        return Ref(int(tok[1:]))
+    if c == "'":
+        return decode_string(tok)
+    if c == "$":
+        return None
+    if c == "*":
+        return DERIVED
+    if c in _NUMBER_START:
+        if c == "." and len(tok) > 2 and tok[-1] == "." and not tok[1].isdigit():
+            return Enum(tok[1:-1].upper())
+        try:
+            if "." in tok or "e" in tok or "E" in tok:
+                return float(tok)
+            return int(tok)
+        except ValueError:
+            raise P21Error(f"bad number {tok!r} in {text[:80]!r}") from None
+    if c == '"' and len(tok) > 1:
+        return Binary(tok[1:-1])
+    raise P21Error(f"unexpected {tok!r} in {text[:80]!r}")
 
 
 def parse_record(eid: int, body: str) -> Entity:

@@ -267,25 +267,10 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
         (:mod:`qifreport.step.integrity`, checked on the text before OCCT reads it), or no
         solid or face in OCCT's result.
     """
-    from OCP.BRep import BRep_Builder
-    from OCP.IFSelect import IFSelect_RetDone
-    from OCP.STEPCAFControl import STEPCAFControl_Reader
-    from OCP.TCollection import TCollection_ExtendedString
-    from OCP.TDF import TDF_LabelSequence
-    from OCP.TDocStd import TDocStd_Document
-    from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
-    from OCP.TopExp import TopExp
-    from OCP.TopoDS import TopoDS, TopoDS_Compound
-    from OCP.TopTools import TopTools_IndexedMapOfShape
     from OCP.XCAFDoc import XCAFDoc_DocumentTool
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
-    with open(path, "rb") as fh:
-        head = fh.read(64)
-    if not head.lstrip().startswith(b"ISO-10303-21"):
-        raise InputError(f"{path.name}: not a STEP file (no ISO-10303-21 header)")
+    _check_header(path)
     timings: dict[str, float] = {}
     # the Part 21 text, split once: checked whole before OCCT's result is used, then the
     # source of the face ids and of the PMI
@@ -297,6 +282,63 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
     timings["p21_read"] = time.perf_counter() - t0
     timings["integrity"] = check_integrity(p21, path.name)
     t0 = time.perf_counter()
+    doc, reader, occt = _xde_transfer(path)
+    timings["xde_read"] = time.perf_counter() - t0
+
+    st = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+    shape = _free_shape(st, path)
+    faces, solids = _faces_and_solids(shape, path, p21, occt)
+    solid_names = _solid_names(st, solids)
+
+    t0 = time.perf_counter()
+    face_ids = _face_step_ids(reader, p21, faces, path)
+    timings["face_map"] = time.perf_counter() - t0
+    n_unmapped = int(np.sum(face_ids < 0))
+    if n_unmapped:
+        log.info("%s: %d of %d faces without a STEP entity id", path.name, n_unmapped, len(faces))
+
+    pmi_data = None
+    xde = XdeSummary()
+    if pmi:
+        pmi_data, xde = _read_pmi(p21, doc, path, timings)
+    return StepPart(
+        path=path,
+        name=path.stem,
+        shape=shape,
+        faces=faces,
+        face_step_ids=face_ids,
+        n_solids=len(solids),
+        solid_names=solid_names,
+        pmi=pmi_data,
+        xde=xde,
+        timings=timings,
+    )
+
+
+def _check_header(path: Path) -> None:
+    """Refuse a missing file or one that does not start with the Part 21 header."""
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    with open(path, "rb") as fh:
+        head = fh.read(64)
+    if not head.lstrip().startswith(b"ISO-10303-21"):
+        raise InputError(f"{path.name}: not a STEP file (no ISO-10303-21 header)")
+
+
+def _xde_transfer(path: Path) -> tuple[object, object, _OcctMessages]:
+    """OCCT's XDE read of the file (GD&T and name modes on): ``(document, reader, messages)``,
+    the messages OCCT printed while reading collected (:class:`_OcctMessages`).
+
+    Raises
+    ------
+    InputError
+        OCCT could not parse the file, or transferred no shape.
+    """
+    from OCP.IFSelect import IFSelect_RetDone
+    from OCP.STEPCAFControl import STEPCAFControl_Reader
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDocStd import TDocStd_Document
+
     doc = TDocStd_Document(TCollection_ExtendedString("XmlXCAF"))
     reader = STEPCAFControl_Reader()
     reader.SetGDTMode(True)
@@ -314,9 +356,20 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
             f"{path.name}: the STEP file has no solid, shell or face to inspect "
             "(no transferable shape)"
         )
-    timings["xde_read"] = time.perf_counter() - t0
+    return doc, reader, occt
 
-    st = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+
+def _free_shape(st, path: Path):
+    """The document's free shapes: the one shape, or a compound of them all.
+
+    Parameters
+    ----------
+    st : the document's ``XCAFDoc_ShapeTool``.
+    """
+    from OCP.BRep import BRep_Builder
+    from OCP.TDF import TDF_LabelSequence
+    from OCP.TopoDS import TopoDS_Compound
+
     labs = TDF_LabelSequence()
     st.GetFreeShapes(labs)
     shapes = [st.GetShape_s(labs.Value(i)) for i in range(1, labs.Length() + 1)]
@@ -326,13 +379,28 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
             f"{path.name}: the STEP file has no solid, shell or face to inspect (no shape)"
         )
     if len(shapes) == 1:
-        shape = shapes[0]
-    else:
-        shape = TopoDS_Compound()
-        b = BRep_Builder()
-        b.MakeCompound(shape)
-        for s in shapes:
-            b.Add(shape, s)
+        return shapes[0]
+    shape = TopoDS_Compound()
+    b = BRep_Builder()
+    b.MakeCompound(shape)
+    for s in shapes:
+        b.Add(shape, s)
+    return shape
+
+
+def _faces_and_solids(shape, path: Path, p21: P21Model, occt: _OcctMessages):
+    """The shape's faces and solids, in ``TopExp.MapShapes`` order (the face ids).
+
+    Raises
+    ------
+    InputError
+        No face, or no solid (naming the file's solid records and OCCT's first message).
+    """
+    from OCP.TopAbs import TopAbs_FACE, TopAbs_SOLID
+    from OCP.TopExp import TopExp
+    from OCP.TopoDS import TopoDS
+    from OCP.TopTools import TopTools_IndexedMapOfShape
+
     fmap = TopTools_IndexedMapOfShape()
     TopExp.MapShapes_s(shape, TopAbs_FACE, fmap)
     faces = [TopoDS.Face_s(fmap.FindKey(i)) for i in range(1, fmap.Size() + 1)]
@@ -348,11 +416,12 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
             f"{path.name}: no solid in OpenCASCADE's result ({len(faces)} faces): the "
             f"file's {n} solid records gave none ({occt.first() or 'no message'})"
         )
+    return faces, [smap.FindKey(i) for i in range(1, smap.Size() + 1)]
 
-    solid_names = _solid_names(st, [smap.FindKey(i) for i in range(1, smap.Size() + 1)])
 
-    # face -> STEP entity id, through the transfer process and the model's record order
-    t0 = time.perf_counter()
+def _face_step_ids(reader, p21: P21Model, faces: list, path: Path) -> np.ndarray:
+    """(n_faces,) int64 STEP entity id of each face, -1 where unknown: through the transfer
+    process and the model's record order (best effort: a failure leaves the ids at -1)."""
     face_ids = np.full(len(faces), -1, dtype=np.int64)
     try:
         model = reader.Reader().StepModel()
@@ -390,39 +459,25 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
         raise
     except Exception as exc:  # the mapping is best effort: PMI then has no face links
         log.warning("%s: could not map faces to STEP entities: %s", path.name, exc)
-    timings["face_map"] = time.perf_counter() - t0
-    n_unmapped = int(np.sum(face_ids < 0))
-    if n_unmapped:
-        log.info("%s: %d of %d faces without a STEP entity id", path.name, n_unmapped, len(faces))
+    return face_ids
 
-    name = path.stem
 
-    pmi_data = None
+def _read_pmi(p21: P21Model, doc, path: Path, timings: dict[str, float]):
+    """The semantic PMI from the text and XDE's cross-check: ``(PMI, XdeSummary)``; the
+    stages' seconds go into ``timings``."""
+    from .semantic import pmi_from_model
+
+    t0 = time.perf_counter()
+    pmi_data = pmi_from_model(p21)
+    timings["pmi_text"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     xde = XdeSummary()
-    if pmi:
-        from .semantic import pmi_from_model
-
-        t0 = time.perf_counter()
-        pmi_data = pmi_from_model(p21)
-        timings["pmi_text"] = time.perf_counter() - t0
-        t0 = time.perf_counter()
-        try:
-            xde = _xde_items(doc)
-        except Exception as exc:  # cross-check only
-            log.warning("%s: XDE GD&T cross-check failed: %s", path.name, exc)
-        timings["pmi_xde"] = time.perf_counter() - t0
-    return StepPart(
-        path=path,
-        name=name,
-        shape=shape,
-        faces=faces,
-        face_step_ids=face_ids,
-        n_solids=smap.Size(),
-        solid_names=solid_names,
-        pmi=pmi_data,
-        xde=xde,
-        timings=timings,
-    )
+    try:
+        xde = _xde_items(doc)
+    except Exception as exc:  # cross-check only
+        log.warning("%s: XDE GD&T cross-check failed: %s", path.name, exc)
+    timings["pmi_xde"] = time.perf_counter() - t0
+    return pmi_data, xde
 
 
 def _solid_names(st, solids: list) -> list[str]:

@@ -45,88 +45,102 @@ def pmi_rows(part: StepPart) -> list[dict]:
         return rows
     idx = part.face_index()
     xde = _xde_values(part)
-    for t in pmi.tolerances:
-        faces = sorted({idx[s] for s in t.face_step_ids if s in idx})
-        xv = xde.get(t.name) or []
-        rows.append(
-            {
-                "item": "tolerance",
-                "step_id": t.step_id,
-                "name": t.name,
-                "type": t.type,
-                "value": t.value,
-                "unit": "mm",
-                "value_text": t.value_text,
-                "zone_form": t.zone_form,
-                "modifiers": list(t.modifiers),
-                "unequal_displacement": t.unequal_displacement,
-                "unit_basis": t.unit_basis,
-                "max_value": t.max_value,
-                "whole_part": t.whole_part,
-                "face_notes": list(t.face_notes),
-                "datums": "|".join(d.label for d in sorted(t.datums, key=lambda d: d.precedence)),
-                "n_faces": len(faces),
-                "faces": faces,
-                "xde_value": xv.pop(0) if xv else None,
-                "problems": list(t.problems),
-            }
-        )
-    for d in pmi.dimensions:
-        faces = sorted({idx[s] for s in d.face_step_ids if s in idx})
-        rows.append(
-            {
-                "item": "dimension",
-                "step_id": d.step_id,
-                "name": d.name,
-                "type": f"{d.kind} {d.type}".strip(),
-                "value": d.nominal,
-                "unit": d.unit,
-                "lower": d.lower,
-                "upper": d.upper,
-                "lower_limit": d.lower_limit,
-                "upper_limit": d.upper_limit,
-                "fit": d.fit,
-                "modifiers": list(d.qualifiers),
-                "datums": "",
-                "n_faces": len(faces),
-                "faces": faces,
-                "problems": list(d.problems),
-            }
-        )
-    for d in pmi.datums:
-        faces = sorted({idx[s] for s in d.face_step_ids if s in idx})
-        rows.append(
-            {
-                "item": "datum",
-                "step_id": d.step_id,
-                "name": d.label,
-                "type": "datum",
-                "value": None,
-                "unit": "",
-                "modifiers": list(d.targets),
-                "datums": d.label,
-                "n_faces": len(faces),
-                "faces": faces,
-                "problems": list(d.problems),
-            }
-        )
-    for text in pmi.problems:
-        rows.append(
-            {
-                "item": "problem",
-                "step_id": _entity_id(text),
-                "name": "",
-                "type": "unreadable",
-                "value": None,
-                "unit": "",
-                "modifiers": [],
-                "datums": "",
-                "n_faces": 0,
-                "faces": [],
-                "problems": [text],
-            }
-        )
+    rows += [_tolerance_row(t, idx, xde) for t in pmi.tolerances]
+    rows += [_dimension_row(d, idx) for d in pmi.dimensions]
+    rows += [_datum_row(d, idx) for d in pmi.datums]
+    rows += [_problem_row(text) for text in pmi.problems]
     return rows
+
+
+def _face_ids(step_ids, idx: dict[int, int]) -> list[int]:
+    """The sorted face ids of the STEP face entity ids in ``idx`` (the others dropped)."""
+    return sorted({idx[s] for s in step_ids if s in idx})
+
+
+def _tolerance_row(t, idx: dict[int, int], xde: dict[str, list]) -> dict:
+    """The row of a geometric tolerance; its XDE value is taken off ``xde``'s list of its
+    name (one per tolerance of that name, in order)."""
+    faces = _face_ids(t.face_step_ids, idx)
+    xv = xde.get(t.name) or []
+    return {
+        "item": "tolerance",
+        "step_id": t.step_id,
+        "name": t.name,
+        "type": t.type,
+        "value": t.value,
+        "unit": "mm",
+        "value_text": t.value_text,
+        "zone_form": t.zone_form,
+        "modifiers": list(t.modifiers),
+        "unequal_displacement": t.unequal_displacement,
+        "unit_basis": t.unit_basis,
+        "max_value": t.max_value,
+        "whole_part": t.whole_part,
+        "face_notes": list(t.face_notes),
+        "datums": "|".join(d.label for d in sorted(t.datums, key=lambda d: d.precedence)),
+        "n_faces": len(faces),
+        "faces": faces,
+        "xde_value": xv.pop(0) if xv else None,
+        "problems": list(t.problems),
+    }
+
+
+def _dimension_row(d, idx: dict[int, int]) -> dict:
+    """The row of a dimension (size or location)."""
+    faces = _face_ids(d.face_step_ids, idx)
+    return {
+        "item": "dimension",
+        "step_id": d.step_id,
+        "name": d.name,
+        "type": f"{d.kind} {d.type}".strip(),
+        "value": d.nominal,
+        "unit": d.unit,
+        "lower": d.lower,
+        "upper": d.upper,
+        "lower_limit": d.lower_limit,
+        "upper_limit": d.upper_limit,
+        "fit": d.fit,
+        "modifiers": list(d.qualifiers),
+        "datums": "",
+        "n_faces": len(faces),
+        "faces": faces,
+        "problems": list(d.problems),
+    }
+
+
+def _datum_row(d, idx: dict[int, int]) -> dict:
+    """The row of a datum (its targets as modifiers)."""
+    faces = _face_ids(d.face_step_ids, idx)
+    return {
+        "item": "datum",
+        "step_id": d.step_id,
+        "name": d.label,
+        "type": "datum",
+        "value": None,
+        "unit": "",
+        "modifiers": list(d.targets),
+        "datums": d.label,
+        "n_faces": len(faces),
+        "faces": faces,
+        "problems": list(d.problems),
+    }
+
+
+def _problem_row(text: str) -> dict:
+    """The row of a PMI entity that could not be read."""
+    return {
+        "item": "problem",
+        "step_id": _entity_id(text),
+        "name": "",
+        "type": "unreadable",
+        "value": None,
+        "unit": "",
+        "modifiers": [],
+        "datums": "",
+        "n_faces": 0,
+        "faces": [],
+        "problems": [text],
+    }
 
 
 def _entity_id(text: str) -> int | None:

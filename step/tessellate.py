@@ -38,7 +38,9 @@ __all__ = [
     "DEFAULT_ANGLE",
     "DEFAULT_REL_DEFLECTION",
     "FaceMesh",
+    "checked_mesh",
     "refine_long_edges",
+    "resolve_deflection",
     "shape_diagonal",
     "tessellate",
 ]
@@ -154,6 +156,42 @@ def shape_diagonal(shape) -> float:
     return float(np.linalg.norm([x1 - x0, y1 - y0, z1 - z0]))
 
 
+def resolve_deflection(
+    shape, deflection: float | None, rel_deflection: float
+) -> tuple[float, float]:
+    """The shape's bounding diagonal and the linear deflection to mesh it with, mm:
+    ``deflection``, or ``rel_deflection`` x the diagonal when it is None.
+
+    Raises
+    ------
+    InputError
+        When the deflection is not positive (a part of zero extent).
+    """
+    diag = shape_diagonal(shape)
+    if deflection is None:
+        deflection = rel_deflection * diag
+    if not deflection > 0:
+        raise InputError("the part has zero extent: nothing to tessellate")
+    return diag, deflection
+
+
+def checked_mesh(
+    V: np.ndarray, F: np.ndarray, fid: np.ndarray, n_faces: int, deflection: float, dt: float
+) -> FaceMesh:
+    """The :class:`FaceMesh` of a tessellation, refused when its vertices have zero extent.
+
+    Raises
+    ------
+    InputError
+        When the tessellated part has zero extent.
+    """
+    if not np.linalg.norm(np.ptp(V, axis=0)) > 0:
+        raise InputError("the tessellated part has zero extent")
+    return FaceMesh(
+        V=V, F=F, face_id=fid, n_faces=n_faces, deflection=float(deflection), seconds=dt
+    )
+
+
 def tessellate(
     shape,
     faces: list,
@@ -178,18 +216,45 @@ def tessellate(
     InputError
         When no face could be triangulated.
     """
-    from OCP.BRep import BRep_Tool
     from OCP.BRepMesh import BRepMesh_IncrementalMesh
-    from OCP.TopAbs import TopAbs_REVERSED
-    from OCP.TopLoc import TopLoc_Location
 
     t0 = time.perf_counter()
-    diag = shape_diagonal(shape)
-    if deflection is None:
-        deflection = rel_deflection * diag
-    if not deflection > 0:
-        raise InputError("the part has zero extent: nothing to tessellate")
+    diag, deflection = resolve_deflection(shape, deflection, rel_deflection)
     BRepMesh_IncrementalMesh(shape, float(deflection), False, float(angle), True)
+    V, F, fid, empty = _face_triangles(faces)
+    V, F, fid = _weld(V, F, fid, diag)
+    if max_edge is not None and max_edge > 0:
+        V, F, fid = refine_long_edges(V, F, fid, float(max_edge))
+
+    used = np.zeros(len(V), dtype=bool)
+    used[F.ravel()] = True
+    remap = np.cumsum(used) - 1
+    V, F = V[used], remap[F]
+    dt = time.perf_counter() - t0
+    log.info(
+        "tessellated %d faces: %d vertices, %d triangles (deflection %.3g mm) in %.2f s",
+        len(faces) - empty,
+        len(V),
+        len(F),
+        deflection,
+        dt,
+    )
+    return checked_mesh(V, F, fid, len(faces), deflection, dt)
+
+
+def _face_triangles(faces: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """BRepMesh's triangulation of every face, stacked (not welded): ``V`` (n, 3) mm, ``F``
+    (f, 3) outward (a reversed face's triangles turned), ``face_id`` (f,), and the number of
+    faces without triangles.
+
+    Raises
+    ------
+    InputError
+        When no face has triangles.
+    """
+    from OCP.BRep import BRep_Tool
+    from OCP.TopAbs import TopAbs_REVERSED
+    from OCP.TopLoc import TopLoc_Location
 
     Vs, Fs, ids = [], [], []
     offset = 0
@@ -224,36 +289,17 @@ def tessellate(
         raise InputError("no face of the part could be triangulated")
     if empty:
         log.warning("%d of %d faces produced no triangles", empty, len(faces))
-    V = np.concatenate(Vs)
-    F = np.concatenate(Fs)
-    fid = np.concatenate(ids)
+    return np.concatenate(Vs), np.concatenate(Fs), np.concatenate(ids), empty
 
-    # weld the per-face triangulations along their shared edges
+
+def _weld(
+    V: np.ndarray, F: np.ndarray, fid: np.ndarray, diag: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weld the per-face triangulations along their shared edges (vertices within ``1e-6``
+    of the diagonal merged) and drop the triangles that collapse; ``V, F, face_id``."""
     eps = 1e-6 * max(diag, 1e-12)
     SV, _, SVJ, _ = igl.remove_duplicate_vertices(V, F, eps)
     F = np.asarray(SVJ, dtype=np.int64).ravel()[F]
     V = np.asarray(SV, dtype=np.float64)
     good = (F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])
-    F, fid = F[good], fid[good]
-
-    if max_edge is not None and max_edge > 0:
-        V, F, fid = refine_long_edges(V, F, fid, float(max_edge))
-
-    used = np.zeros(len(V), dtype=bool)
-    used[F.ravel()] = True
-    remap = np.cumsum(used) - 1
-    V, F = V[used], remap[F]
-    dt = time.perf_counter() - t0
-    log.info(
-        "tessellated %d faces: %d vertices, %d triangles (deflection %.3g mm) in %.2f s",
-        len(faces) - empty,
-        len(V),
-        len(F),
-        deflection,
-        dt,
-    )
-    if not np.linalg.norm(np.ptp(V, axis=0)) > 0:
-        raise InputError("the tessellated part has zero extent")
-    return FaceMesh(
-        V=V, F=F, face_id=fid, n_faces=len(faces), deflection=float(deflection), seconds=dt
-    )
+    return V, F[good], fid[good]

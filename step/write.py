@@ -369,38 +369,67 @@ def _fill_document(
 ) -> None:
     """Put the shape, its datums and its tolerances into the XDE document ``doc``."""
     XCAFDoc_DocumentTool.SetLengthUnit_s(doc, 0.001)  # document unit: mm (value in metres)
-    shape_tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
-    dimtol = XCAFDoc_DocumentTool.DimTolTool_s(doc.Main())
+    xde = _XdeGdt(doc, shape, faces, part_name)
+    # One definition label per datum, in the given order: the writer writes each datum
+    # (DATUM_FEATURE + DATUM) once, from the first label carrying its name.
+    by_label = {d.label: d for d in datums}
+    for d in datums:
+        xde.add_datum(d, 0)
+    for d in datums:
+        for tg in d.targets:
+            xde.add_target(d.label, tg)
+    for t, name in zip(tolerances, names, strict=True):
+        xde.add_tolerance(t, name, by_label)
 
-    part = shape_tool.AddShape(shape, False)  # a single part, never an assembly
-    TDataStd_Name.Set_s(part, TCollection_ExtendedString(part_name))
 
-    face_labels: dict[int, TDF_Label] = {}
+class _XdeGdt:
+    """The part of an XDE document and its GD&T labels, added one by one.
 
-    def labels_of(indices: Sequence[int]) -> TDF_LabelSequence:
+    Parameters
+    ----------
+    doc : the document; the shape is added to it as a single part named ``part_name``.
+    faces : the shape's faces in face-id order; a face gets its sub-shape label the first
+        time an item refers to it.
+    """
+
+    def __init__(
+        self, doc: TDocStd_Document, shape: TopoDS_Shape, faces: list[TopoDS_Shape], part_name: str
+    ) -> None:
+        self.shape_tool = XCAFDoc_DocumentTool.ShapeTool_s(doc.Main())
+        self.dimtol = XCAFDoc_DocumentTool.DimTolTool_s(doc.Main())
+        self.part = self.shape_tool.AddShape(shape, False)  # a single part, never an assembly
+        TDataStd_Name.Set_s(self.part, TCollection_ExtendedString(part_name))
+        self.faces = faces
+        self.face_labels: dict[int, TDF_Label] = {}
+
+    def labels_of(self, indices: Sequence[int]) -> TDF_LabelSequence:
+        """The sub-shape labels of faces ``indices``."""
         seq = TDF_LabelSequence()
         for k in indices:
-            if k not in face_labels:
-                lab = shape_tool.AddSubShape(part, faces[k])
+            if k not in self.face_labels:
+                lab = self.shape_tool.AddSubShape(self.part, self.faces[k])
                 if lab.IsNull():
                     raise RuntimeError(f"face {k} is not a sub-shape of the part")
-                face_labels[k] = lab
-            seq.Append(face_labels[k])
+                self.face_labels[k] = lab
+            seq.Append(self.face_labels[k])
         return seq
 
-    def add_datum(spec: PMISpecDatum, position: int) -> TDF_Label:
-        lab = dimtol.AddDatum()
+    def add_datum(self, spec: PMISpecDatum, position: int) -> TDF_Label:
+        """A datum label on the datum's faces, at ``position`` (a tolerance's 1-based
+        precedence, 0 for the datum's definition)."""
+        lab = self.dimtol.AddDatum()
         attr = XCAFDoc_Datum.Set_s(lab)
         obj = attr.GetObject()
         obj.SetName(TCollection_HAsciiString(spec.label))
         obj.SetPosition(position)
         attr.SetObject(obj)
         TDataStd_Name.Set_s(lab, TCollection_ExtendedString(f"Datum {spec.label}"))
-        dimtol.SetDatum(labels_of(spec.faces), lab)
+        self.dimtol.SetDatum(self.labels_of(spec.faces), lab)
         return lab
 
-    def add_target(label: str, tg: PMISpecTarget) -> None:
-        lab = dimtol.AddDatum()
+    def add_target(self, label: str, tg: PMISpecTarget) -> None:
+        """A point datum target of datum ``label`` on its face."""
+        lab = self.dimtol.AddDatum()
         attr = XCAFDoc_Datum.Set_s(lab)
         obj = attr.GetObject()
         obj.SetName(TCollection_HAsciiString(label))
@@ -415,19 +444,13 @@ def _fill_document(
         obj.SetPosition(0)
         attr.SetObject(obj)
         TDataStd_Name.Set_s(lab, TCollection_ExtendedString(f"Datum target {label}{tg.number}"))
-        dimtol.SetDatum(labels_of([tg.face]), lab)
+        self.dimtol.SetDatum(self.labels_of([tg.face]), lab)
 
-    # One definition label per datum, in the given order: the writer writes each datum
-    # (DATUM_FEATURE + DATUM) once, from the first label carrying its name.
-    by_label = {d.label: d for d in datums}
-    for d in datums:
-        add_datum(d, 0)
-    for d in datums:
-        for tg in d.targets:
-            add_target(d.label, tg)
-
-    for t, name in zip(tolerances, names, strict=True):
-        lab = dimtol.AddGeomTolerance()
+    def add_tolerance(
+        self, t: PMISpecTolerance, name: str, by_label: dict[str, PMISpecDatum]
+    ) -> None:
+        """A geometric tolerance on its faces, with its own datum references."""
+        lab = self.dimtol.AddGeomTolerance()
         attr = XCAFDoc_GeomTolerance.Set_s(lab)
         obj = attr.GetObject()
         obj.SetType(TOLERANCE_TYPES[t.type])
@@ -437,11 +460,11 @@ def _fill_document(
         # The writer names the tolerance's SHAPE_ASPECT with the words after the first.
         TDataStd_Name.Set_s(lab, TCollection_ExtendedString(f"{t.type} {name}"))
         # a whole-part tolerance goes on a placeholder face, re-targeted after the transfer
-        dimtol.SetGeomTolerance(labels_of(t.faces or [0]), lab)
+        self.dimtol.SetGeomTolerance(self.labels_of(t.faces or [0]), lab)
         # Precedence is the datum object's position, so a tolerance gets its own datum
         # references (same name and faces, position = 1-based precedence).
         for position, dlabel in enumerate(t.datums, start=1):
-            dimtol.SetDatumToGeomTol(add_datum(by_label[dlabel], position), lab)
+            self.dimtol.SetDatumToGeomTol(self.add_datum(by_label[dlabel], position), lab)
 
 
 @contextlib.contextmanager

@@ -17,7 +17,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 #: the library and the job runner: no function longer than this many lines
 FUNCTION_LIMIT = 100
-CORE = ["metrology", "registration", "qif", "qifreport/pipeline.py"]
+CORE = ["step", "metrology", "registration", "qif", "qifreport/pipeline.py"]
 #: every folder of Python sources the project ships or runs
 SOURCES = ["step", "registration", "metrology", "qif", "qifreport", "bench", "samples"]
 README_LIMIT = 300
