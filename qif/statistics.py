@@ -370,25 +370,18 @@ def build_statistics(
     groups = group_batch(results)
     _check_batch(results, groups, sources, nominal_sha256)
     ids = Ids()
-    std_id, sw_id = ids(), ids()
-    standards = _standards(standard, std_id)
-    software = _software(software_version or __version__, sw_id)
-    units = _file_units(groups)
-    external = _external_references(results, sources, ids)
+    definitions, std_id, sw_id = _definitions(
+        results, groups, sources, standard, software_version, ids
+    )
     part_id, comp_id, path_id = ids(), ids(), ids()
-    defs = Definitions()
-    for key, obs in groups.items():
-        defs.add(key, obs, ids)
-    runs = Runs({(o.scan, o.char.document.id) for obs in groups.values() for o in obs})
-    for k, res in enumerate(results):
-        runs.add(k, res, defs.item_ids, sources, path_id, ids)
+    defs, runs = _copies(results, groups, sources, path_id, ids)
     statistics = _study(results, groups, runs, part_name, created, nominal_sha256, sw_id, ids)
     root = _document(
         part_name,
         created,
         results,
         groups,
-        [external, standards, software, units],
+        definitions,
         defs,
         runs,
         statistics,
@@ -403,6 +396,44 @@ def build_statistics(
         ids.max,
     )
     return etree.ElementTree(root)
+
+
+def _definitions(
+    results: list[QIFResults],
+    groups: dict[str, list[Observation]],
+    sources: list[str] | None,
+    standard: tuple[str, str, str],
+    software_version: str | None,
+    ids: Ids,
+) -> tuple[list[etree._Element | None], str, str]:
+    """:func:`_document`'s ``definitions`` (``ExternalQIFReferences``, None without
+    ``sources``; ``StandardsDefinitions``, ``SoftwareDefinitions``, ``FileUnits``), the
+    standard's and the software's ids (the document's first two)."""
+    std_id, sw_id = ids(), ids()
+    standards = _standards(standard, std_id)
+    software = _software(software_version or __version__, sw_id)
+    units = _file_units(groups)
+    external = _external_references(results, sources, ids)
+    return [external, standards, software, units], std_id, sw_id
+
+
+def _copies(
+    results: list[QIFResults],
+    groups: dict[str, list[Observation]],
+    sources: list[str] | None,
+    path_id: str,
+    ids: Ids,
+) -> tuple[Definitions, Runs]:
+    """The characteristics' definitions copied from the results documents (one per group)
+    and each inspection's copied measurements, given their ids from ``ids`` in that order;
+    ``path_id``: the id of the part's ``AsmPath``, which the measurements refer to."""
+    defs = Definitions()
+    for key, obs in groups.items():
+        defs.add(key, obs, ids)
+    runs = Runs({(o.scan, o.char.document.id) for obs in groups.values() for o in obs})
+    for k, res in enumerate(results):
+        runs.add(k, res, defs.item_ids, sources, path_id, ids)
+    return defs, runs
 
 
 def _standards(standard: tuple[str, str, str], std_id: str) -> etree._Element:

@@ -253,21 +253,7 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
     # -- one surface feature and one characteristic per zone
     rule = acceptance_rule(res.params.min_fraction, res.params.max_region_area)
     part = _PartIds(part=ids(), component=ids(), asm_path=ids(), actual=ids())
-    zs = Sections()
-    for z in res.zones:
-        _add_zone(zs, z, res, ids, rule, drf_ids, part.actual, prov.face_step_ids)
-    for c in res.characteristics:
-        fi, ci, fm = characteristic_definition(
-            zs,
-            c.spec,
-            ids,
-            drf_ids,
-            prov.face_step_ids,
-            direction=c.direction,
-            result=c,
-            actual_id=part.actual,
-        )
-        zs.cmeas.append(characteristic_measurement(c, ids, ci, fm, part.actual))
+    zs = _sections(res, prov.face_step_ids, ids, rule, drf_ids, part.actual)
     product = _product(prov.part_name, part, zs, dids, drf_ids)
     features = zs.features()
     characteristics = zs.characteristics(std_id)
@@ -412,6 +398,34 @@ class _PartIds:
     component: str
     asm_path: str
     actual: str
+
+
+def _sections(
+    res: InspectionResult,
+    face_step_ids: np.ndarray | None,
+    ids: Ids,
+    rule: str,
+    drf_ids: dict[DrfKey, str],
+    actual_id: str,
+) -> Sections:
+    """The features and characteristics of the inspection: each zone's (:func:`_add_zone`),
+    then each feature characteristic's definition, nominal, item and measurement."""
+    zs = Sections()
+    for z in res.zones:
+        _add_zone(zs, z, res, ids, rule, drf_ids, actual_id, face_step_ids)
+    for c in res.characteristics:
+        fi, ci, fm = characteristic_definition(
+            zs,
+            c.spec,
+            ids,
+            drf_ids,
+            face_step_ids,
+            direction=c.direction,
+            result=c,
+            actual_id=actual_id,
+        )
+        zs.cmeas.append(characteristic_measurement(c, ids, ci, fm, actual_id))
+    return zs
 
 
 def _add_zone(

@@ -196,33 +196,12 @@ def read_scan(path: str | Path, units: str | None = None, *, deduplicate: bool =
         _check_format(path)
         with warnings.catch_warnings():  # reader noise; problems are reported below, once
             warnings.simplefilter("ignore")
-            if suffix == ".npy":
-                P = np.load(path, allow_pickle=False)
-            elif suffix in (".xyz", ".txt", ".csv"):
-                P = _read_text_points(path, "," if suffix == ".csv" else None)
-            elif suffix == ".e57":
-                P = _read_e57(path)
-            elif suffix == ".obj":
-                P = _read_obj_vertices(path)
-            else:
-                geom = read_trimesh(path)
-                if isinstance(geom, trimesh.Scene):
-                    geom = geom.to_geometry() if geom.geometry else None
-                P = np.asarray(getattr(geom, "vertices", np.empty((0, 3))))
-                check_declared_counts(path, len(P))
-            P = _finite_points(P, path.name)
+            P = _finite_points(_points_in_file(path, suffix), path.name)
             if units != "mm":
                 P = _finite_points(P * SCAN_UNITS[units], path.name)  # may overflow to inf
             n_read = len(P)
             if deduplicate:
-                P, n_dup = unique_points(P)
-                if n_dup and len(P) < MIN_POINTS:
-                    raise InputError(
-                        f"{path.name}: only {len(P)} distinct point{'s' if len(P) > 1 else ''}"
-                        f" ({n_read} read, {n_dup} duplicates; at least {MIN_POINTS} needed)"
-                    )
-                if n_dup:
-                    log.debug("%s: %d duplicate points removed", path.name, n_dup)
+                P = _deduplicated(P, path.name)
             P = validate_scan(P, path.name)
     except InputError:
         raise
@@ -231,6 +210,45 @@ def read_scan(path: str | Path, units: str | None = None, *, deduplicate: bool =
     return Scan(
         points=P, units=units, source=path, points_read=n_read, format=_SUFFIX_FORMATS[suffix]
     )
+
+
+def _points_in_file(path: Path, suffix: str) -> np.ndarray:
+    """The points (or vertices) of a scan file as its format's reader gives them, in the
+    file's unit; ``suffix`` lower case."""
+    if suffix == ".npy":
+        return np.load(path, allow_pickle=False)
+    if suffix in (".xyz", ".txt", ".csv"):
+        return _read_text_points(path, "," if suffix == ".csv" else None)
+    if suffix == ".e57":
+        return _read_e57(path)
+    if suffix == ".obj":
+        return _read_obj_vertices(path)
+    geom = read_trimesh(path)
+    if isinstance(geom, trimesh.Scene):
+        geom = geom.to_geometry() if geom.geometry else None
+    P = np.asarray(getattr(geom, "vertices", np.empty((0, 3))))
+    check_declared_counts(path, len(P))
+    return P
+
+
+def _deduplicated(P: np.ndarray, name: str) -> np.ndarray:
+    """``P`` without its exact duplicates (:func:`unique_points`).
+
+    Raises
+    ------
+    InputError
+        When removing them leaves fewer than :data:`MIN_POINTS` points.
+    """
+    n_read = len(P)
+    P, n_dup = unique_points(P)
+    if n_dup and len(P) < MIN_POINTS:
+        raise InputError(
+            f"{name}: only {len(P)} distinct point{'s' if len(P) > 1 else ''}"
+            f" ({n_read} read, {n_dup} duplicates; at least {MIN_POINTS} needed)"
+        )
+    if n_dup:
+        log.debug("%s: %d duplicate points removed", name, n_dup)
+    return P
 
 
 def one_line(exc: BaseException, limit: int = 200) -> str:

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -381,16 +382,14 @@ def evaluate(
     max_region_area : mm^2; a region passes if its area is ``<=`` this.
     center : scalar or (n,) band centre, mm: in tolerance is ``|dev - center| <= tolerance``.
     uncertainty : scalar or (n,) expanded uncertainty ``U`` (k = 2) of each vertex's
-        deviation, mm (:func:`qifreport.metrology.acceptance.decision.vertex_uncertainty`); the
-        proofs
-        scale it to :data:`qifreport.metrology.acceptance.decision.PROOF_COVERAGE`; None: not known
-        (the decision is the simple one whatever ``decision_rule``).
+        deviation, mm (:func:`qifreport.metrology.acceptance.decision.vertex_uncertainty`);
+        the proofs scale it to :data:`qifreport.metrology.acceptance.decision.PROOF_COVERAGE`;
+        None: not known (the decision is the simple one whatever ``decision_rule``).
     decision_rule : one of :data:`qifreport.metrology.acceptance.decision.DECISION_RULES`.
-    points : the scan points of the surface (:mod:`qifreport.metrology.acceptance.point_regions`):
-    the
-        region criterion is also judged on them, with their own uncertainties, so a defect
-        narrower than the mesh is not averaged away; a region found on both samplings is
-        reported once, as the larger.
+    points : the scan points of the surface
+        (:mod:`qifreport.metrology.acceptance.point_regions`): the region criterion is also
+        judged on them, with their own uncertainties, so a defect narrower than the mesh is
+        not averaged away; a region found on both samplings is reported once, as the larger.
 
     Returns
     -------
@@ -398,8 +397,7 @@ def evaluate(
     """
     V, F, dev, tol, A, c = _prepare(V, F, dev, tolerance, area, center)
     scored = ~np.isnan(dev)
-    scored_area = float(A[scored].sum())
-    nominal_area = float(A.sum())
+    scored_area, nominal_area = float(A[scored].sum()), float(A.sum())
     adj = adjacency(F, len(V))  # one adjacency for the measured values and both guard bands
     U, u_stats = _proof_band(uncertainty, scored, scored_area)
 
@@ -413,20 +411,13 @@ def evaluate(
     region_ok = bool(largest <= max_region_area)
     passed = bool(area_ok and region_ok and scored_area > 0)
     passed_v = bool(area_ok and largest_v <= max_region_area and scored_area > 0)
-    proven_in_v, proven_out_v = passed_v, not passed_v
-    proven_in = proven_out = None
-    uncertain: list[str] = []
-    if U is not None:
-        proven_in, proven_in_v = _within(reduced, max_region_area)
-        conforms_out, conforms_out_v = _within(criteria(tol + U, 1.0), max_region_area)
-        proven_out, proven_out_v = not conforms_out, not conforms_out_v
-        if not proven_in and not proven_out:
-            uncertain = _uncertain_reasons(reduced, u_stats, max_region_area)
+    proven_in, proven_out, proven_in_v, proven_out_v, uncertain = _proofs(
+        criteria, tol, U, reduced, u_stats, max_region_area, passed_v
+    )
     rule = decision_rule if uncertainty is not None else "simple"
+    nominal = None if points is None else decide(rule, passed_v, proven_in_v, proven_out_v)
     return Acceptance(
-        tolerance=float(tolerance)
-        if np.ndim(tolerance) == 0
-        else np.asarray(tolerance, dtype=float),
+        tolerance=float(tolerance) if np.ndim(tolerance) == 0 else np.asarray(tolerance, float),
         min_fraction=float(min_fraction),
         max_region_area=float(max_region_area),
         scored_area=scored_area,
@@ -444,10 +435,33 @@ def evaluate(
         proven_out=proven_out,
         uncertainty_mm=u_stats,
         uncertain_reasons=uncertain,
-        nominal_decision=None
-        if points is None
-        else decide(rule, passed_v, proven_in_v, proven_out_v),
+        nominal_decision=nominal,
     )
+
+
+def _proofs(
+    criteria: Callable[[np.ndarray, float], tuple],
+    tol: np.ndarray,
+    U: np.ndarray | None,
+    reduced: tuple | None,
+    u_stats: tuple[float, float],
+    max_region_area: float,
+    passed_v: bool,
+) -> tuple[bool | None, bool | None, bool, bool, list[str]]:
+    """Conformance and non-conformance proven against the band reduced (``reduced``, its
+    :func:`_criteria`) and enlarged (``tol + U``, judged here by ``criteria(band, widen)``)
+    by the uncertainty ``U``: ``(proven_in, proven_out, proven_in_v, proven_out_v,
+    uncertain_reasons)``, the ``_v`` on the vertices alone. Without ``U``: nothing proven
+    (None), the vertices' verdict ``passed_v`` taken as it is."""
+    if U is None:
+        return None, None, passed_v, not passed_v, []
+    proven_in, proven_in_v = _within(reduced, max_region_area)
+    conforms_out, conforms_out_v = _within(criteria(tol + U, 1.0), max_region_area)
+    proven_out, proven_out_v = not conforms_out, not conforms_out_v
+    uncertain: list[str] = []
+    if not proven_in and not proven_out:
+        uncertain = _uncertain_reasons(reduced, u_stats, max_region_area)
+    return proven_in, proven_out, proven_in_v, proven_out_v, uncertain
 
 
 def _proof_band(

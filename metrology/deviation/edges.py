@@ -194,6 +194,13 @@ def edge_deviation(
     status = "measured" if ok.any() else "not seen"
     out = EdgeDeviation(status, rim, dev, cnt, tolerance, radius, max_gap)
     out.segments = rim_segments(rim, dev, tolerance)
+    _log_summary(out, tolerance)
+    return out
+
+
+def _log_summary(out: EdgeDeviation, tolerance: float) -> None:
+    """Log a measured rim's length, seen share, median deviation and the segments beyond
+    ``tolerance`` (mm)."""
     log.info(
         "edge deviation: rim %.0f mm, seen %.0f %%, median %+.3f mm, %d segment(s) beyond %.3g mm",
         out.rim_length,
@@ -202,4 +209,3 @@ def edge_deviation(
         len(out.segments),
         tolerance,
     )
-    return out

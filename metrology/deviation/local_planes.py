@@ -7,6 +7,21 @@ map act on, and it is structurally blind to added material: no nominal normal pa
 a feature that the nominal does not contain (paper Section 8.4.5). Vertices the scan did not
 observe are left unscored (NaN) rather than given a spurious value.
 
+Unscored vertices: a vertex is unscored (NaN) when fewer than ``min_points`` scan points are
+in its neighbourhood, and -- unless ``max_centroid_offset`` is None -- when the centroid of
+those points lies more than ``max_centroid_offset * radius`` from the normal line of the
+vertex. The second rule rejects vertices *beyond the edge of the scan*, whose few points sit
+in a sliver on one side and would be scored by extrapolating a plane fitted to the sliver
+(errors of tenths of a mm to several mm at 0.02 mm noise); a vertex right on a straight scan
+edge (half-disk neighbourhood, offset ``4 / (3 pi) = 0.42`` of the radius) stays scored, the
+corner of a scan (quarter disk, 0.60) does not.
+
+The neighbourhood is a ball: a deviation larger than ``radius`` cannot be measured and leaves
+the vertex unscored (NaN), not out of tolerance. Pass ``max_distance`` to use a cylinder
+instead -- points within ``radius`` of the normal line and within ``max_distance`` along it
+-- so that deep dents and large form errors are still scored; keep ``max_distance`` below the
+wall thickness of a closed part, or the opposite wall enters the fit.
+
 Signs and arrays as in :mod:`qifreport.metrology.deviation.closest` (positive: material
 proud of the nominal surface; ``V`` (n, 3) mm, ``F`` (f, 3), ``P`` (m, 3) mm).
 """
@@ -63,23 +78,8 @@ def nominal_referenced(
     ``t = ((c - v) . m) / (n . m)``. Where the plane is near-parallel to the normal
     (``|n . m| < 0.26``, i.e. more than 75 degrees of tilt) or the points are nearly
     collinear (second covariance eigenvalue < 10 x the smallest: the plane could rotate
-    freely about their line), it falls back to ``t = (c - v) . n``.
-
-    A vertex is unscored (NaN) when fewer than ``min_points`` scan points are in its
-    neighbourhood, and -- unless ``max_centroid_offset`` is None -- when the centroid of
-    those points lies more than ``max_centroid_offset * radius`` from the normal line of
-    ``v``. The second rule rejects vertices *beyond the edge of the scan*, whose few points
-    sit in a sliver on one side and would be scored by extrapolating a plane fitted to the
-    sliver (errors of tenths of a mm to several mm at 0.02 mm noise); a vertex right on a
-    straight scan edge (half-disk neighbourhood, offset ``4 / (3 pi) = 0.42`` of the
-    radius) stays scored, the corner of a scan (quarter disk, 0.60) does not.
-
-    The neighbourhood is a ball: a deviation larger than ``radius`` cannot be measured and
-    leaves the vertex unscored (NaN), not out of tolerance. Pass ``max_distance`` to use a
-    cylinder instead -- points within ``radius`` of the normal line and within
-    ``max_distance`` along it -- so that deep dents and large form errors are still scored;
-    keep ``max_distance`` below the wall thickness of a closed part, or the opposite wall
-    enters the fit.
+    freely about their line), it falls back to ``t = (c - v) . n``. Which vertices are left
+    unscored, and the ball or cylinder neighbourhood: module docstring.
 
     Parameters
     ----------
@@ -88,14 +88,13 @@ def nominal_referenced(
         :func:`qifreport.registration.mesh.vertex_normals`.
     radius : neighbourhood radius, mm; default 1.5 x the median edge length.
     min_points : a vertex with fewer scan points than this in its neighbourhood is unscored.
-    max_centroid_offset : fraction of ``radius`` (see above); None disables the rule.
-    max_distance : mm; if given, the neighbourhood is the cylinder described above.
+    max_centroid_offset : fraction of ``radius`` (module docstring); None disables the rule.
+    max_distance : mm; if given, the neighbourhood is the cylinder of the module docstring.
     scan_normals : (m, 3) scan normals *oriented* outward (e.g. by
-        :func:`qifreport.registration.deformable.result.orient_scan_normals`); if given, a vertex
-        only uses
-        points whose normal is within 60 degrees of its own (``n_point . n_vertex > 0.5``).
-        This keeps the back skin and the edge faces of a thin wall, closer to the front's
-        measurements than ``radius``, from being scored against them.
+        :func:`qifreport.registration.deformable.result.orient_scan_normals`); if given, a
+        vertex only uses points whose normal is within 60 degrees of its own (``n_point .
+        n_vertex > 0.5``). This keeps the back skin and the edge faces of a thin wall, closer
+        to the front's measurements than ``radius``, from being scored against them.
     variance : also return each deviation's variance (see Returns).
     tree : ``cKDTree(P)`` when at hand (built here otherwise).
 
@@ -108,17 +107,14 @@ def nominal_referenced(
         cos^2)`` (``N`` points, centroid ``c``, in-plane principal directions ``e_k`` and
         spreads ``lambda_k``, the plane's tilt ``cos`` to the vertex normal; ``s^2 / N`` for
         the centroid fallback), ``s^2`` the points' scatter about the plane pooled with the
-        part's median (:func:`qifreport.metrology.acceptance.decision.vertex_uncertainty`); NaN
-        where
-        unscored.
+        part's median (:func:`qifreport.metrology.acceptance.decision.vertex_uncertainty`);
+        NaN where unscored.
     """
     V, F = as_mesh(V, F)
     P = as_points(P)
     finite = np.isfinite(P).all(axis=1)
     P = P[finite]
-    Ns = None
-    if scan_normals is not None:
-        Ns = np.asarray(scan_normals, dtype=np.float64)[finite]
+    Ns = None if scan_normals is None else np.asarray(scan_normals, dtype=np.float64)[finite]
     n = len(V)
     dev = np.full(n, np.nan)
     h = np.full(n, np.nan)

@@ -90,14 +90,7 @@ def residual_referenced(
         return (dev, h) if variance else dev
     sel = np.flatnonzero(use)
     tree = cKDTree(P[sel])
-    if radius is None:
-        # 1.5 edges, and never under 2.5 point spacings (about 20 points in the ball): a
-        # curvature-refined CAD mesh can be finer than the scan
-        spacing = median_spacing(P[sel], tree, probes=2000) if len(sel) > 1 else 0.0
-        radius = max(1.5 * median_edge_length(V, F), 2.5 * spacing)
-    radius = float(radius)
-    if not radius > 0:
-        raise ValueError(f"radius must be positive, got {radius}")
+    radius = _ball_radius(V, F, P[sel], tree, radius)
     min_points = max(int(min_points), 1)
     # the (vertex, B-rep face) pairs of the mesh, as sorted keys vertex * m + face
     m = int(np.max(labels)) + 1
@@ -112,6 +105,27 @@ def residual_referenced(
     if not variance:
         return dev
     return dev, pooled_variance(h, sse, dof, _first_faces(own, m, n))
+
+
+def _ball_radius(
+    V: np.ndarray, F: np.ndarray, P: np.ndarray, tree: cKDTree, radius: float | None
+) -> float:
+    """:func:`residual_referenced`'s first ball radius, mm: ``radius``, by default 1.5 x the
+    median edge and never under 2.5 point spacings of ``P`` (about 20 points in the ball: a
+    curvature-refined CAD mesh can be finer than the scan); ``tree``: ``cKDTree(P)``.
+
+    Raises
+    ------
+    ValueError
+        When the radius is not positive.
+    """
+    if radius is None:
+        spacing = median_spacing(P, tree, probes=2000) if len(P) > 1 else 0.0
+        radius = max(1.5 * median_edge_length(V, F), 2.5 * spacing)
+    radius = float(radius)
+    if not radius > 0:
+        raise ValueError(f"radius must be positive, got {radius}")
+    return radius
 
 
 def _first_faces(own: np.ndarray, m: int, n: int) -> np.ndarray:

@@ -331,7 +331,52 @@ def measure_dimension(
     """Dimension ``spec`` measured on ``surf`` and judged by ``rule`` (module docstring);
     ``areas``: the part's datum target areas (label, target), whose sides a basic
     dimension may give."""
-    no_value = spec.nominal is None
+    early = _not_measurable(spec, surf, areas)
+    if early is not None:
+        return early
+    if spec.origin_faces is not None and spec.target_faces is not None:
+        cands = _between(surf, spec.origin_faces, spec.target_faces)
+        what = "between its origin and target features"
+    else:
+        gauge = spec.nominal if spec.dim_type == "diameter" else None
+        cands = _size_candidates(surf, spec.faces, pairs=False, gauge=gauge)
+        what = "of its feature"
+    if spec.unit == "deg":
+        keys = ["angle", "angle_supplement"]
+    elif spec.dim_type == "radius":
+        keys = ["radius", "distance"]
+    else:
+        keys = ["diameter", "distance", "radius"]
+    if spec.nominal is None:
+        natural = {"diameter": "diameter", "radius": "radius"}.get(spec.dim_type, "distance")
+        return _reported(spec, cands, "angle" if spec.unit == "deg" else natural, what)
+    tol = max(_NOMINAL_AGREEMENT * abs(spec.nominal), 0.02 if spec.unit == "mm" else 0.1)
+    found = _matching(spec, cands, keys, tol)
+    if not found and spec.origin_faces is None:  # not its members' sizes: between them
+        cands = cands + _size_candidates(surf, spec.faces, pairs=True)
+        found = _matching(spec, cands, keys, tol)
+    if not found:
+        seen = sorted({f"{k} {nom[k]:.4g}" for nom, _, _ in cands for k in keys if k in nom})
+        why = (
+            f"the faces' geometry ({', '.join(seen) or 'no plane pair or cylinder measured'}) "
+            f"does not give the drawing's nominal {spec.nominal:g} {spec.unit}"
+        )
+        if spec.drawn:
+            why = (
+                "its origin and target are curves drawn on faces "
+                f"{faces_text(spec.origin_faces)} and {faces_text(spec.target_faces)} "
+                f"(supplemental geometry), not the faces themselves, and {why}"
+            )
+        return not_measured(spec, why)
+    return _judged(spec, found, what, rule)
+
+
+def _not_measurable(
+    spec: CharacteristicSpec, surf: MeasuredSurface, areas: Sequence[tuple[str, TargetSpec]]
+) -> CharacteristicResult | None:
+    """The result of a dimension the surface cannot measure (a thread's, one without its
+    nominal, one without faces or between curves of the same faces; a side of a datum
+    target area applied as given), or None when it is measured."""
     if spec.thread:
         return not_measured(
             spec,
@@ -339,7 +384,7 @@ def measure_dimension(
             "carries the thread as its tap-drill hole (a cosmetic thread), so its size and "
             "depth are no surface a scan measures (a thread gauge does)",
         )
-    if no_value and (spec.lower_limit is not None or spec.upper_limit is not None):
+    if spec.nominal is None and (spec.lower_limit is not None or spec.upper_limit is not None):
         return not_measured(spec, "the dimension's nominal could not be established")
     if spec.origin_faces is not None and spec.target_faces is not None:
         if not len(spec.origin_faces) or not len(spec.target_faces):
@@ -354,50 +399,26 @@ def measure_dimension(
                 f"{faces_text(spec.origin_faces)} (curves of a face, not surfaces): not measured "
                 "from the scanned surface",
             )
-        cands = _between(surf, spec.origin_faces, spec.target_faces)
-        what = "between its origin and target features"
-    elif len(spec.faces):
-        gauge = spec.nominal if spec.dim_type == "diameter" else None
-        cands = _size_candidates(surf, spec.faces, pairs=False, gauge=gauge)
-        what = "of its feature"
-    else:
+    elif not len(spec.faces):
         return not_measured(spec, "no B-rep face of the part is associated")
-    if spec.unit == "deg":
-        keys = ["angle", "angle_supplement"]
-    elif spec.dim_type == "radius":
-        keys = ["radius", "distance"]
-    else:
-        keys = ["diameter", "distance", "radius"]
-    if no_value:
-        natural = {"diameter": "diameter", "radius": "radius"}.get(spec.dim_type, "distance")
-        return _reported(spec, cands, "angle" if spec.unit == "deg" else natural, what)
-    tol = max(_NOMINAL_AGREEMENT * abs(spec.nominal), 0.02 if spec.unit == "mm" else 0.1)
+    return None
 
-    def matching(cands) -> list:
-        found = []
-        for nom, meas, U_pts in cands:
-            k = next((k for k in keys if k in nom and abs(nom[k] - spec.nominal) <= tol), None)
-            if k is not None:
-                found.append((spec.nominal + (meas[k] - nom[k]), k, meas, U_pts))
-        return found
 
-    found = matching(cands)
-    if not found and spec.origin_faces is None:  # not its members' sizes: between them
-        cands = cands + _size_candidates(surf, spec.faces, pairs=True)
-        found = matching(cands)
-    if not found:
-        seen = sorted({f"{k} {nom[k]:.4g}" for nom, _, _ in cands for k in keys if k in nom})
-        why = (
-            f"the faces' geometry ({', '.join(seen) or 'no plane pair or cylinder measured'}) "
-            f"does not give the drawing's nominal {spec.nominal:g} {spec.unit}"
-        )
-        if spec.drawn:
-            why = (
-                "its origin and target are curves drawn on faces "
-                f"{faces_text(spec.origin_faces)} and {faces_text(spec.target_faces)} "
-                f"(supplemental geometry), not the faces themselves, and {why}"
-            )
-        return not_measured(spec, why)
+def _matching(spec: CharacteristicSpec, cands: list, keys: list[str], tol: float) -> list:
+    """``(value, key, measured, U)`` of the candidates whose nominal quantity (the first of
+    ``keys`` they have within ``tol`` of the drawing's nominal) is the drawing's; the value
+    is the drawing's nominal + measured - mesh nominal."""
+    found = []
+    for nom, meas, U_pts in cands:
+        k = next((k for k in keys if k in nom and abs(nom[k] - spec.nominal) <= tol), None)
+        if k is not None:
+            found.append((spec.nominal + (meas[k] - nom[k]), k, meas, U_pts))
+    return found
+
+
+def _judged(spec: CharacteristicSpec, found: list, what: str, rule: str) -> CharacteristicResult:
+    """The result of the worst of the ``found`` features (:func:`_matching`), with its
+    uncertainty, judged by ``rule`` (``BASIC`` for a basic or unlimited dimension)."""
     lo, hi = spec.lower_limit, spec.upper_limit
     mid = 0.5 * (lo + hi) if lo is not None and hi is not None else spec.nominal
     value, k, meas, U_pts = max(found, key=lambda f: abs(f[0] - mid))  # the worst member

@@ -274,19 +274,7 @@ class ElasticModel:
         """
         fixed = np.asarray([] if fixed is None else fixed, dtype=np.int64).reshape(-1, 2)
         pads = list(pads or [])
-        rows = [(self.X[fixed[:, 0]], np.eye(3)[fixed[:, 1]])]
-        for pad in pads:
-            d = np.asarray(pad.direction, dtype=np.float64)
-            v = np.asarray(pad.vertices, dtype=np.int64)
-            rows.append((self.X[v], np.tile(d / np.linalg.norm(d), (len(v), 1))))
-        free_motions = 6 - rigid_rank(
-            np.concatenate([r[0] for r in rows]), np.concatenate([r[1] for r in rows]), self.X
-        )
-        if free_motions:
-            raise ValueError(
-                f"the elastic problem is singular: the prescribed displacements leave "
-                f"{free_motions} rigid motion(s) of the part free"
-            )
+        self._check_held(fixed, pads)
         vals = np.zeros(len(fixed)) if values is None else np.asarray(values, dtype=np.float64)
         dofs, vals = self._prescribed(fixed, vals)
         x = np.zeros(self.n_dofs)
@@ -315,6 +303,42 @@ class ElasticModel:
         x[free] = sol[:nf]
         lam = sol[nf:]
         pad_forces = -np.bincount(owner, weights=lam, minlength=len(pads)) if len(c) else None
+        reaction = self._vertex_reactions(x, f, free)
+        energy = 0.5 * float(x @ (self.K @ x))
+        return ElasticSolution(
+            u=x[self.vertex_dofs],
+            reaction=reaction,
+            energy=energy,
+            pad_forces=np.zeros(len(pads)) if pad_forces is None else pad_forces,
+            dofs=x,
+        )
+
+    def _check_held(self, fixed: np.ndarray, pads: list[Pad]) -> None:
+        """Refuse constraints that leave a rigid motion free: the prescribed vertex axes
+        ``fixed`` (m, 2) and the pads' directions must hold all six.
+
+        Raises
+        ------
+        ValueError
+            When fewer than six rigid motions are held.
+        """
+        rows = [(self.X[fixed[:, 0]], np.eye(3)[fixed[:, 1]])]
+        for pad in pads:
+            d = np.asarray(pad.direction, dtype=np.float64)
+            v = np.asarray(pad.vertices, dtype=np.int64)
+            rows.append((self.X[v], np.tile(d / np.linalg.norm(d), (len(v), 1))))
+        free_motions = 6 - rigid_rank(
+            np.concatenate([r[0] for r in rows]), np.concatenate([r[1] for r in rows]), self.X
+        )
+        if free_motions:
+            raise ValueError(
+                f"the elastic problem is singular: the prescribed displacements leave "
+                f"{free_motions} rigid motion(s) of the part free"
+            )
+
+    def _vertex_reactions(self, x: np.ndarray, f: np.ndarray, free: np.ndarray) -> np.ndarray:
+        """(n, 3) the reaction forces, N, at the vertices: ``K x - f`` on the prescribed
+        degrees of freedom (``~free``), a mid-edge node's shared by its edge's ends."""
         r = self.K @ x - f
         reaction = np.zeros(self.n_dofs)
         reaction[~free] = r[~free]
@@ -323,14 +347,7 @@ class ElasticModel:
             half = 0.5 * reaction[self.edge_dofs]
             np.add.at(at_vertex, self.edges[:, 0], half)
             np.add.at(at_vertex, self.edges[:, 1], half)
-        energy = 0.5 * float(x @ (self.K @ x))
-        return ElasticSolution(
-            u=x[self.vertex_dofs],
-            reaction=at_vertex,
-            energy=energy,
-            pad_forces=np.zeros(len(pads)) if pad_forces is None else pad_forces,
-            dofs=x,
-        )
+        return at_vertex
 
     def displacement_at(self, solution: ElasticSolution, points: np.ndarray) -> np.ndarray:
         """(m, 3) the displacement field of ``solution`` at ``points`` (m, 3) mm, with the
