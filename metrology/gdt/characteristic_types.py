@@ -42,7 +42,9 @@ __all__ = [
     "faces_text",
     "fit_uncertainty",
     "judge",
+    "implausible",
     "not_measured",
+    "part_diagonal",
     "reading_text",
     "zone_uncertainty",
 ]
@@ -265,8 +267,62 @@ def reading_text(how: str, sample: FeatureSample, frame: DatumFrameResult | None
     return text
 
 
-def judge(res: CharacteristicResult, rule: str, lo: float | None, hi: float | None) -> None:
-    """Set ``res.status`` from its value, uncertainty and limits ``[lo, hi]`` (None: open)."""
+def part_diagonal(V: np.ndarray) -> float:
+    """The part's size: the diagonal (mm) of the box around its nominal vertices ``V`` (n, 3)
+    mm."""
+    return float(np.linalg.norm(np.ptp(np.asarray(V, dtype=np.float64), axis=0)))
+
+
+def implausible(res: CharacteristicResult, diagonal: float) -> str | None:
+    """Why ``res``'s reading cannot be a measurement of a part ``diagonal`` mm across
+    (:func:`part_diagonal`; ``'implausible reading: ...'``, naming the number and the
+    bound), or None when it can.
+
+    A reading is physically implausible when its value or expanded uncertainty is not
+    finite; when a length (mm) is farther from its nominal (0 for a zone width) than the
+    part's diagonal, or its uncertainty is wider than the diagonal (no deviation of a
+    feature of the part is larger than the part); when a size dimension with a positive
+    nominal reads ``<= 0``; when an angle (deg) is outside 0..180 or its uncertainty wider
+    than 180. Such a number is a failed fit or a lost registration, not the part.
+    """
+    why = _implausible(res, diagonal)
+    return None if why is None else f"implausible reading: {why}"
+
+
+def _implausible(res: CharacteristicResult, diagonal: float) -> str | None:
+    s, v, U = res.spec, res.value, res.uncertainty
+    what = s.dim_type or s.kind
+    if v is None or not math.isfinite(v) or (U is not None and not math.isfinite(U)):
+        return f"{what} {_fmt(v)} {s.unit}, uncertainty {_fmt(U)}: not a finite number"
+    if s.unit == "deg":
+        if not 0.0 <= v <= 180.0 or (U is not None and U > 180.0):
+            return f"{what} {v:.7g} deg (U {_fmt(U)} deg) outside an angle's 0..180 deg"
+        return None
+    bound = f"the part's {diagonal:.4g} mm diagonal"
+    if s.nominal is not None and s.nominal > 0.0 and v <= 0.0:
+        return f"{what} {v:.7g} mm, not a size (nominal {s.nominal:g} mm)"
+    if s.nominal and abs(v - s.nominal) > diagonal:
+        return f"{what} {v:.7g} mm is farther from its nominal {s.nominal:g} mm than {bound}"
+    if not s.nominal and abs(v) > diagonal:
+        return f"{what} {v:.7g} mm exceeds {bound}"
+    if U is not None and U > diagonal:
+        return f"{what} uncertainty U {U:.7g} mm exceeds {bound}"
+    return None
+
+
+def judge(
+    res: CharacteristicResult, rule: str, lo: float | None, hi: float | None, diagonal: float
+) -> None:
+    """Set ``res.status`` from its value, uncertainty and limits ``[lo, hi]`` (None: open).
+
+    A physically implausible reading (:func:`implausible`, ``diagonal`` the part's size,
+    mm) is not judged: ``NOT_MEASURED``, the reason naming the number and the bound, never
+    ``PASS``, ``FAIL`` or ``INDETERMINATE``.
+    """
+    why = implausible(res, diagonal)
+    if why is not None:
+        res.status, res.reason = "NOT_MEASURED", why
+        return
     v, U = res.value, res.uncertainty or 0.0
     lo_ = -math.inf if lo is None else lo
     hi_ = math.inf if hi is None else hi

@@ -51,6 +51,7 @@ from qifreport.metrology.gdt.characteristic_types import (
     faces_text,
     judge,
     not_measured,
+    part_diagonal,
     reading_text,
     zone_uncertainty,
 )
@@ -212,5 +213,5 @@ def _measure_features(
         res.reading = (
             f"worst of {len(readings)} features (faces {faces_text(members[k])}): {res.reading}"
         )
-    judge(res, rule, None, res.limit)
+    judge(res, rule, None, res.limit, part_diagonal(surf.V))
     return res

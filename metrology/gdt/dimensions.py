@@ -21,8 +21,10 @@ from qifreport.metrology.gdt.characteristic_types import (
     CharacteristicSpec,
     faces_text,
     fit_uncertainty,
+    implausible,
     judge,
     not_measured,
+    part_diagonal,
 )
 from qifreport.metrology.gdt.datums import DatumFeature
 from qifreport.metrology.gdt.form import (
@@ -262,10 +264,13 @@ def _pair(surf: MeasuredSurface, fa, fb) -> tuple[dict, dict, np.ndarray] | None
     return out[0], out[1], np.r_[sa.U, sb.U]
 
 
-def _reported(spec: CharacteristicSpec, cands: list, key: str, what: str) -> CharacteristicResult:
+def _reported(
+    spec: CharacteristicSpec, cands: list, key: str, what: str, diagonal: float
+) -> CharacteristicResult:
     """A dimension the drawing gives no value (and no limits): the size its faces give,
     measured and reported (status BASIC: a reference, not judged) when they give one
-    quantity of its kind, not measured when they give none or several."""
+    quantity of its kind, not measured when they give none or several or an implausible
+    one for a part ``diagonal`` mm across."""
     found = [(nom, meas, U_pts) for nom, meas, U_pts in cands if key in nom]
     values = sorted({round(nom[key], 6) for nom, _, _ in found})
     if len(values) != 1:
@@ -279,15 +284,15 @@ def _reported(spec: CharacteristicSpec, cands: list, key: str, what: str) -> Cha
     if spec.unit == "mm":
         sys_r = meas.get("_systematic_radius", 0.0) * (2.0 if key == "diameter" else 1.0)
         U = float(np.hypot(2 * fit_uncertainty(U_pts, 2), sys_r))
-    return CharacteristicResult(
+    res = CharacteristicResult(
         spec,
         value=float(meas[key]),
         uncertainty=U,
-        status="BASIC",
         reading=f"{key} {what}; the drawing gives no value (nominal {nom[key]:.4g} on the "
         "model): reported, not judged",
         n_points=len(U_pts),
     )
+    return _basic(res, diagonal)
 
 
 def _target_area_size(
@@ -330,7 +335,11 @@ def measure_dimension(
 ) -> CharacteristicResult:
     """Dimension ``spec`` measured on ``surf`` and judged by ``rule`` (module docstring);
     ``areas``: the part's datum target areas (label, target), whose sides a basic
-    dimension may give."""
+    dimension may give. A physically implausible reading (a size farther from its nominal
+    than the part's bounding-box diagonal, or with a wider uncertainty; a size ``<= 0``; an
+    angle outside 0..180 deg; a non-finite number:
+    :func:`~qifreport.metrology.gdt.characteristic_types.implausible`) is not measured, the
+    reason naming the number and the bound, never judged or reported."""
     early = _not_measurable(spec, surf, areas)
     if early is not None:
         return early
@@ -349,7 +358,8 @@ def measure_dimension(
         keys = ["diameter", "distance", "radius"]
     if spec.nominal is None:
         natural = {"diameter": "diameter", "radius": "radius"}.get(spec.dim_type, "distance")
-        return _reported(spec, cands, "angle" if spec.unit == "deg" else natural, what)
+        quantity = "angle" if spec.unit == "deg" else natural
+        return _reported(spec, cands, quantity, what, part_diagonal(surf.V))
     tol = max(_NOMINAL_AGREEMENT * abs(spec.nominal), 0.02 if spec.unit == "mm" else 0.1)
     found = _matching(spec, cands, keys, tol)
     if not found and spec.origin_faces is None:  # not its members' sizes: between them
@@ -368,7 +378,7 @@ def measure_dimension(
                 f"(supplemental geometry), not the faces themselves, and {why}"
             )
         return not_measured(spec, why)
-    return _judged(spec, found, what, rule)
+    return _judged(spec, found, what, rule, part_diagonal(surf.V))
 
 
 def _not_measurable(
@@ -416,9 +426,13 @@ def _matching(spec: CharacteristicSpec, cands: list, keys: list[str], tol: float
     return found
 
 
-def _judged(spec: CharacteristicSpec, found: list, what: str, rule: str) -> CharacteristicResult:
+def _judged(
+    spec: CharacteristicSpec, found: list, what: str, rule: str, diagonal: float
+) -> CharacteristicResult:
     """The result of the worst of the ``found`` features (:func:`_matching`), with its
-    uncertainty, judged by ``rule`` (``BASIC`` for a basic or unlimited dimension)."""
+    uncertainty, judged by ``rule`` (``BASIC`` for a basic or unlimited dimension); a
+    reading implausible for a part ``diagonal`` mm across is not measured
+    (:func:`~qifreport.metrology.gdt.characteristic_types.judge`)."""
     lo, hi = spec.lower_limit, spec.upper_limit
     mid = 0.5 * (lo + hi) if lo is not None and hi is not None else spec.nominal
     value, k, meas, U_pts = max(found, key=lambda f: abs(f[0] - mid))  # the worst member
@@ -438,7 +452,16 @@ def _judged(spec: CharacteristicSpec, found: list, what: str, rule: str) -> Char
         n_points=len(U_pts),
     )
     if spec.basic or (lo is None and hi is None):
-        res.status = "BASIC"
-        return res
-    judge(res, rule, lo, hi)
+        return _basic(res, diagonal)
+    judge(res, rule, lo, hi, diagonal)
+    return res
+
+
+def _basic(res: CharacteristicResult, diagonal: float) -> CharacteristicResult:
+    """``res`` reported, not judged (``BASIC``), unless its reading is implausible for a
+    part ``diagonal`` mm across (:func:`implausible`: then not measured, saying why)."""
+    why = implausible(res, diagonal)
+    if why is not None:
+        return not_measured(res.spec, why)
+    res.status = "BASIC"
     return res

@@ -18,6 +18,7 @@ from qifreport.metrology.gdt.characteristic_types import (
     fit_uncertainty,
     judge,
     not_measured,
+    part_diagonal,
     reading_text,
 )
 from qifreport.metrology.gdt.composite import free_rotations, minimax_offsets, orientation_only
@@ -205,7 +206,7 @@ def _pattern_position(
         coverage=sample.coverage,
         bonus=bonus,
     )
-    judge(res, rule, None, res.limit)
+    judge(res, rule, None, res.limit, part_diagonal(surf.V))
     return res
 
 
@@ -260,5 +261,5 @@ def _center_plane(
         n_points=len(U),
         coverage=sa.coverage,
     )
-    judge(res, rule, None, res.limit)
+    judge(res, rule, None, res.limit, part_diagonal(surf.V))
     return res
