@@ -21,11 +21,11 @@ import pytest
 from qifreport.metrology.gdt.characteristic_types import (
     CharacteristicResult,
     judge,
-    part_diagonal,
 )
 from qifreport.metrology.gdt.characteristics import measure_characteristics
 from qifreport.metrology.gdt.dimensions import measure_dimension
 from qifreport.metrology.gdt.measured_surface import MeasuredSurface
+from qifreport.registration.mesh import bounding_diagonal
 from tests.conftest import shared_file
 from tests.test_characteristics import exact_surface
 
@@ -69,7 +69,7 @@ def test_a_huge_fitted_diameter_is_not_measured(ftc06):
     part, drawing = ftc06
     spec = _spec(drawing, "D9")
     assert spec.dim_type == "diameter" and spec.nominal == pytest.approx(15.875)
-    diagonal = part_diagonal(part.V)
+    diagonal = bounding_diagonal(part.V)
     assert diagonal == pytest.approx(404.7, abs=0.1)
     perfect = measure_dimension(spec, exact_surface(part, np.zeros(len(part.V))), "iso14253")
     assert perfect.status == "PASS" and perfect.value == pytest.approx(15.875, abs=1e-3)

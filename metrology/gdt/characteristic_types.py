@@ -44,7 +44,6 @@ __all__ = [
     "judge",
     "implausible",
     "not_measured",
-    "part_diagonal",
     "reading_text",
     "zone_uncertainty",
 ]
@@ -267,16 +266,10 @@ def reading_text(how: str, sample: FeatureSample, frame: DatumFrameResult | None
     return text
 
 
-def part_diagonal(V: np.ndarray) -> float:
-    """The part's size: the diagonal (mm) of the box around its nominal vertices ``V`` (n, 3)
-    mm."""
-    return float(np.linalg.norm(np.ptp(np.asarray(V, dtype=np.float64), axis=0)))
-
-
 def implausible(res: CharacteristicResult, diagonal: float) -> str | None:
     """Why ``res``'s reading cannot be a measurement of a part ``diagonal`` mm across
-    (:func:`part_diagonal`; ``'implausible reading: ...'``, naming the number and the
-    bound), or None when it can.
+    (``MeasuredSurface.diagonal``), or None when it can: ``'implausible reading: ...'``,
+    naming the number and the bound.
 
     A reading is physically implausible when its value or expanded uncertainty is not
     finite; when a length (mm) is farther from its nominal (0 for a zone width) than the

@@ -51,7 +51,6 @@ from qifreport.metrology.gdt.characteristic_types import (
     faces_text,
     judge,
     not_measured,
-    part_diagonal,
     reading_text,
     zone_uncertainty,
 )
@@ -213,5 +212,5 @@ def _measure_features(
         res.reading = (
             f"worst of {len(readings)} features (faces {faces_text(members[k])}): {res.reading}"
         )
-    judge(res, rule, None, res.limit, part_diagonal(surf.V))
+    judge(res, rule, None, res.limit, surf.diagonal)
     return res

@@ -24,7 +24,6 @@ from qifreport.metrology.gdt.characteristic_types import (
     implausible,
     judge,
     not_measured,
-    part_diagonal,
 )
 from qifreport.metrology.gdt.datums import DatumFeature
 from qifreport.metrology.gdt.form import (
@@ -359,7 +358,7 @@ def measure_dimension(
     if spec.nominal is None:
         natural = {"diameter": "diameter", "radius": "radius"}.get(spec.dim_type, "distance")
         quantity = "angle" if spec.unit == "deg" else natural
-        return _reported(spec, cands, quantity, what, part_diagonal(surf.V))
+        return _reported(spec, cands, quantity, what, surf.diagonal)
     tol = max(_NOMINAL_AGREEMENT * abs(spec.nominal), 0.02 if spec.unit == "mm" else 0.1)
     found = _matching(spec, cands, keys, tol)
     if not found and spec.origin_faces is None:  # not its members' sizes: between them
@@ -378,7 +377,7 @@ def measure_dimension(
                 f"(supplemental geometry), not the faces themselves, and {why}"
             )
         return not_measured(spec, why)
-    return _judged(spec, found, what, rule, part_diagonal(surf.V))
+    return _judged(spec, found, what, rule, surf.diagonal)
 
 
 def _not_measurable(

@@ -36,7 +36,6 @@ from qifreport.metrology.gdt.characteristic_types import (
     fit_uncertainty,
     judge,
     not_measured,
-    part_diagonal,
     zone_uncertainty,
 )
 from qifreport.metrology.gdt.datums import DatumFeature
@@ -386,5 +385,5 @@ def measure_line_profile(
         n_points=len(v),
         direction=res.direction,
     )
-    judge(out, rule, None, out.limit, part_diagonal(surf.V))
+    judge(out, rule, None, out.limit, surf.diagonal)
     return out

@@ -18,7 +18,6 @@ from qifreport.metrology.gdt.characteristic_types import (
     fit_uncertainty,
     judge,
     not_measured,
-    part_diagonal,
     reading_text,
 )
 from qifreport.metrology.gdt.composite import free_rotations, minimax_offsets, orientation_only
@@ -206,7 +205,7 @@ def _pattern_position(
         coverage=sample.coverage,
         bonus=bonus,
     )
-    judge(res, rule, None, res.limit, part_diagonal(surf.V))
+    judge(res, rule, None, res.limit, surf.diagonal)
     return res
 
 
@@ -261,5 +260,5 @@ def _center_plane(
         n_points=len(U),
         coverage=sa.coverage,
     )
-    judge(res, rule, None, res.limit, part_diagonal(surf.V))
+    judge(res, rule, None, res.limit, surf.diagonal)
     return res

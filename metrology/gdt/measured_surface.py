@@ -25,6 +25,7 @@ import numpy as np
 
 from qifreport.metrology.gdt.datums import DatumFeature, nominal_feature
 from qifreport.registration.arrays import unique_sorted
+from qifreport.registration.mesh import bounding_diagonal
 
 __all__ = ["FeatureSample", "MeasuredSurface"]
 
@@ -65,6 +66,9 @@ class MeasuredSurface:
     P : (m, 3) scan points carried back into the nominal frame, mm.
     P_face : (m,) the mesh face each point lies on (-1: none).
     P_dev : (m,) each point's signed deviation, mm.  P_U : (m,) its expanded uncertainty.
+    diagonal : the part's size, the diagonal of the box around ``V``, mm (derived): the
+        bound of a physically plausible reading
+        (:func:`~qifreport.metrology.gdt.characteristic_types.implausible`).
     """
 
     V: np.ndarray
@@ -80,6 +84,7 @@ class MeasuredSurface:
 
     def __post_init__(self) -> None:
         n = len(self.V)
+        self.diagonal = bounding_diagonal(self.V)
         self._valence = np.bincount(self.F.ravel(), minlength=n)
         N = np.zeros((n, 3))
         for k in range(3):
