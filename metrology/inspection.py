@@ -40,7 +40,7 @@ from qifreport.metrology.acceptance.bands import (
     symmetric_zone,
 )
 from qifreport.metrology.acceptance.criteria import scan_area
-from qifreport.metrology.gdt.characteristics import CharacteristicPlan
+from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 from qifreport.metrology.restraint.held import hold_scan
 from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.deformable.methods import METHODS, deform, method_spec
@@ -52,8 +52,8 @@ from qifreport.registration.normals import oriented_normals
 from qifreport.registration.pose.prealign import seat_scan
 from qifreport.registration.restraint.restrained import RestraintBasis
 
-from .judgement import JudgeContext, Registered, judge, resolved
-from .params import InspectionParams, method_label
+from .judgement import judge, resolved
+from .params import InspectionParams
 from .prepared import PreparedPart, prepare_part
 from .results import (
     FREE_STATE_CONFORMS,
@@ -63,6 +63,7 @@ from .results import (
     InspectionResult,
     ZoneResult,
 )
+from .stages.context import JudgeContext, Registered
 
 __all__ = [
     "FREE_STATE_CONFORMS",
@@ -86,7 +87,6 @@ __all__ = [
     "inspection_context",
     "judge_as_held",
     "lay_zone_bands",
-    "method_label",
     "seat_rigidly",
     "with_free_state",
 ]
@@ -149,7 +149,7 @@ class InspectionInputs:
         (:func:`default_zones`). Zones that cover no triangle are dropped.
     face_id, not_evaluated, solid, brep_normals, plan : the part's B-rep faces, PMI items
         not scored, solidity, exact corner normals and drawing characteristics, as
-        :class:`~qifreport.metrology.judgement.JudgeContext` holds them.
+        :class:`~qifreport.metrology.stages.context.JudgeContext` holds them.
     restraint : the part's clamps and their elastic responses
         (:func:`qifreport.registration.restraint.restrained.restraint_basis` on this mesh),
         for ``params.fixture == "restrained"``: the rigidly seated scan is held at its
@@ -336,7 +336,7 @@ def seat_rigidly(
 ) -> Registered:
     """The scan ``P`` (m, 3) seated on the nominal ``(V, F)``: the pose search, the rigid
     fit, the overlap check, and the scan's normals (turned with it) and covered area
-    (:class:`~qifreport.metrology.judgement.Registered`).
+    (:class:`~qifreport.metrology.stages.context.Registered`).
 
     The normals (oriented consistently per connected sheet once; the inspection only
     chooses each sheet's side against its nominal) and the area do not depend on where the

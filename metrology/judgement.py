@@ -50,8 +50,6 @@ __all__ = [
     "FAR_DIAGONAL",
     "FAR_HALF_WIDTHS",
     "MAX_FAR_SHARE",
-    "JudgeContext",
-    "Registered",
     "Stages",
     "assemble_result",
     "check_same_part",

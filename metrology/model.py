@@ -10,7 +10,7 @@ where the tolerances came from). The third piece of an inspection's input, the s
 Both are made by the application's ``qifreport.nominal.load_nominal`` (a STEP file through
 :mod:`qifreport.step`, its semantic PMI turned into zones by
 :func:`qifreport.metrology.acceptance.bands.zones_from_pmi` and into characteristics by
-:func:`qifreport.metrology.gdt.characteristics.specs_from_pmi`; or a mesh file and the
+:func:`qifreport.metrology.gdt.pmi_plan.specs_from_pmi`; or a mesh file and the
 operator's ``--tolerance``), and kept prepared in the per-part cache.
 """
 
@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from qifreport.metrology.acceptance.bands import NotEvaluated, ToleranceZone
-from qifreport.metrology.gdt.characteristics import CharacteristicPlan
+from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 
 if TYPE_CHECKING:
     from qifreport.step.gmsh_mesh import SolidMesh

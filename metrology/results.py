@@ -23,16 +23,16 @@ from qifreport.metrology.acceptance.statistics import DeviationStats
 from qifreport.metrology.deviation.edge_statistics import EdgeDeviation
 from qifreport.metrology.deviation.hygiene import MeshHygiene
 from qifreport.metrology.deviation.size import SizeEstimate
-from qifreport.metrology.gdt.characteristics import CharacteristicResult
+from qifreport.metrology.gdt.characteristic_types import CharacteristicResult
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.registration.deformable.bending_basis import BendingBasis
-from qifreport.registration.deformable.methods import METHODS, method_spec
+from qifreport.registration.deformable.methods import METHODS, method_label, method_spec
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import RigidResult
 from qifreport.registration.pose.prealign import PrealignResult
 from qifreport.registration.restraint.restrained import Restraint
 
-from .params import InspectionParams, method_label
+from .params import InspectionParams
 
 #: :attr:`InspectionResult.fixture_decision` when the free state stands
 FREE_STATE_CONFORMS = "free state conforms"

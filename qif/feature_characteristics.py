@@ -43,12 +43,12 @@ from lxml import etree
 
 from qifreport.kinds import QifRules, kind_for_qif_type, kind_label, lookup_kind
 from qifreport.metrology.acceptance.bands import material_boundary
-from qifreport.metrology.gdt.characteristic_types import OTHER_KIND
-from qifreport.metrology.gdt.characteristics import (
+from qifreport.metrology.gdt.characteristic_types import (
+    OTHER_KIND,
     CharacteristicResult,
     CharacteristicSpec,
-    per_unit,
 )
+from qifreport.metrology.gdt.geometric import per_unit
 
 from .definitions import DrfKey, Sections, drf_key, face_attrs, feature_definition
 from .xmlkit import Attrs, E, Ids, dec, id_array, qpid, token

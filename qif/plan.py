@@ -28,7 +28,7 @@ from lxml import etree
 
 from qifreport import __version__
 from qifreport.metrology.acceptance.bands import ToleranceZone
-from qifreport.metrology.gdt.characteristics import CharacteristicPlan
+from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 
 from .definitions import (
     Sections,
@@ -82,7 +82,7 @@ class PlanSource:
     nominal_path, nominal_sha256 : the STEP file and its hex SHA-256.
     zones : the profile zones (:func:`qifreport.metrology.acceptance.bands.zones_from_pmi`).
     plan : the feature characteristics and datums
-        (:func:`qifreport.metrology.gdt.characteristics.specs_from_pmi`).
+        (:func:`qifreport.metrology.gdt.pmi_plan.specs_from_pmi`).
     datums : the datum labels the PMI defines, file order.
     face_step_ids : (n_faces,) the STEP entity id of each B-rep face (-1 unknown).
     rule : an acceptance rule to state beside each profile (its ``<key>_ACCEPTANCE``

@@ -16,7 +16,8 @@ import numpy as np
 from qifreport.metrology.acceptance.added import AddedMaterial
 from qifreport.metrology.acceptance.repeatability import Repeatability
 from qifreport.metrology.acceptance.statistics import DeviationStats
-from qifreport.metrology.inspection import InspectionResult, method_label
+from qifreport.metrology.inspection import InspectionResult
+from qifreport.registration.deformable.methods import method_label
 
 from .xmlkit import Attrs, xml_double
 

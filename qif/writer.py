@@ -72,7 +72,7 @@ Modules
 A surface's two characteristics are written from their
 :class:`~qifreport.metrology.gdt.characteristic_types.CharacteristicResult`
 (:mod:`qifreport.qif.profile_characteristics`, which also has the profile value and
-statuses, re-exported here), the drawing's feature characteristics from theirs
+statuses), the drawing's feature characteristics from theirs
 (:mod:`qifreport.qif.feature_characteristics`). The generic XML building blocks (element
 maker, ids, literals, ``Attributes``) are in :mod:`qifreport.qif.xmlkit`, shared with the
 statistics documents; the results' typed ``Attributes`` in
@@ -126,11 +126,8 @@ from .feature_characteristics import (
 from .plan import plan_reference
 from .profile_characteristics import (
     acceptance_characteristic,
-    characteristic_status,
     profile_characteristic,
     profile_value,
-    strict_profile_status,
-    worst_deviations,
 )
 from .result_attributes import (
     MAX_REGIONS_LISTED,
@@ -165,11 +162,7 @@ __all__ = [
     "Provenance",
     "acceptance_rule",
     "build_qif",
-    "characteristic_status",
-    "strict_profile_status",
     "dec",
-    "profile_value",
-    "worst_deviations",
     "write_qif",
 ]
 

@@ -55,12 +55,9 @@ from qifreport.registration.deformable.methods import method_spec
 from qifreport.registration.restraint.restrained import RestraintBasis
 
 from .cache_trust import (
-    KEY_BYTES,
-    KEY_FILE,
     CorruptEntry,
     UntrustedCache,
     cache_secret,
-    check_cache_dir,
     entry_mac,
     open_entry,
 )
@@ -71,17 +68,10 @@ from .restraint import build_restraint, with_limits
 __all__ = [
     "CACHE_FORMAT",
     "CacheOutcome",
-    "CorruptEntry",
-    "KEY_BYTES",
-    "KEY_FILE",
     "NominalOptions",
     "PartState",
-    "UntrustedCache",
     "cache_key",
-    "cache_secret",
-    "check_cache_dir",
     "default_cache_dir",
-    "entry_mac",
     "entry_path",
     "key_material",
     "load_entry",

@@ -16,7 +16,7 @@ from qifreport.metrology.inspection import (
     FREE_STATE_UNCERTAIN,
     InspectionResult,
 )
-from qifreport.metrology.params import method_label
+from qifreport.registration.deformable.methods import method_label
 from qifreport.registration.restraint.restrained import Restraint
 
 __all__ = ["decision_text", "fixture_text", "restraint_text", "summary"]

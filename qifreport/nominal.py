@@ -4,7 +4,7 @@
 :func:`load_nominal` reads a STEP AP242 file through :mod:`qifreport.step` (tessellation with
 per-face ids, semantic PMI turned into tolerance zones by
 :func:`qifreport.metrology.acceptance.bands.zones_from_pmi` and into feature characteristics
-by :func:`qifreport.metrology.gdt.characteristics.specs_from_pmi`) or a mesh nominal
+by :func:`qifreport.metrology.gdt.pmi_plan.specs_from_pmi`) or a mesh nominal
 (STL/PLY/OBJ/OFF) with one general zone of the operator's tolerance.
 """
 
@@ -24,7 +24,7 @@ from qifreport.metrology.acceptance.bands import (
     symmetric_zone,
     zones_from_pmi,
 )
-from qifreport.metrology.gdt.characteristics import specs_from_pmi
+from qifreport.metrology.gdt.pmi_plan import specs_from_pmi
 from qifreport.metrology.model import Drawing, Part
 from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.mesh import (

@@ -43,7 +43,7 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Write the plan of ``args.step``; compare it when asked. Returns the exit code."""
     from qifreport.metrology.acceptance.bands import zones_from_pmi
-    from qifreport.metrology.gdt.characteristics import specs_from_pmi
+    from qifreport.metrology.gdt.pmi_plan import specs_from_pmi
     from qifreport.qif.plan import PlanSource, build_plan, plan_file_name
     from qifreport.step.reader import STEP_SUFFIXES, read_step
 

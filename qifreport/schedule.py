@@ -41,7 +41,8 @@ from qifreport.metrology.inspection import (
     seat_rigidly,
     with_free_state,
 )
-from qifreport.metrology.judgement import JudgeContext, Registered, judge
+from qifreport.metrology.judgement import judge
+from qifreport.metrology.stages.context import JudgeContext, Registered
 from qifreport.metrology.stages.held import held_nominal
 from qifreport.metrology.stages.trim_edges import measures_size, trim_edge_stage
 from qifreport.registration.deformable.bending_basis import bending_basis, part_solver

@@ -13,7 +13,7 @@ import dataclasses
 import math
 
 from qifreport.metrology.gdt.characteristic_types import CharacteristicResult
-from qifreport.metrology.gdt.characteristics import per_unit
+from qifreport.metrology.gdt.geometric import per_unit
 from qifreport.qif.feature_characteristics import qif_status
 from qifreport.qif.xmlkit import dec, token
 

@@ -111,7 +111,7 @@ def test_zones_from_pmi_sources_and_skips():
     # the flatness (14) and the dimension (20) are feature characteristics (issue 22)
     assert set(reasons) == {13, 15}
     assert "could not be established" in reasons[13]
-    from qifreport.metrology.gdt.characteristics import specs_from_pmi
+    from qifreport.metrology.gdt.pmi_plan import specs_from_pmi
 
     plan = specs_from_pmi(pmi, fidx)
     assert [(s.key, s.step_id) for s in plan.specs] == [("G1", 14), ("D1", 20)]

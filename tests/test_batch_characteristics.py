@@ -28,7 +28,7 @@ from PIL import Image
 
 from qifreport.batch.summaries import summary_frame, trend_characteristics
 from qifreport.batch.task import characteristic_columns
-from qifreport.metrology.gdt.characteristics import CharacteristicResult, CharacteristicSpec
+from qifreport.metrology.gdt.characteristic_types import CharacteristicResult, CharacteristicSpec
 from qifreport.registration.pointcloud import read_scan
 from qifreport.reports.trend import plan_trend
 from tests.consumers import poppler_tool

@@ -10,16 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qifreport.cache import (
-    CorruptEntry,
-    NominalOptions,
-    cache_key,
-    cache_secret,
-    key_material,
-    load_entry,
-    part_state,
-    sha256,
-)
+from qifreport.cache import NominalOptions, cache_key, key_material, load_entry, part_state, sha256
+from qifreport.cache_trust import CorruptEntry, cache_secret
 from qifreport.metrology.inspection import InspectionInputs, InspectionParams, inspect
 from qifreport.metrology.prepared import prepare_part
 from qifreport.registration.pointcloud import read_scan

@@ -22,19 +22,15 @@ import numpy as np
 import pytest
 import trimesh
 
-from qifreport.cache import (
-    CACHE_FORMAT,
+from qifreport.cache import CACHE_FORMAT, NominalOptions, entry_path, load_entry, part_state
+from qifreport.cache_trust import (
     KEY_BYTES,
     KEY_FILE,
     CorruptEntry,
-    NominalOptions,
     UntrustedCache,
     cache_secret,
     check_cache_dir,
     entry_mac,
-    entry_path,
-    load_entry,
-    part_state,
 )
 from qifreport.metrology.inspection import InspectionInputs, InspectionParams, inspect
 from qifreport.simulate.shapes import thin_shell

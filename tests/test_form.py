@@ -205,7 +205,7 @@ def test_least_squares_cylinder_agrees_with_scikit_spatial():
 def test_zone_uncertainty_is_continuous_where_extremes_tie():
     """A zone's U comes from its extreme points; where two points nearly tie for the
     extreme, a change far below U (round-off) must not swap one point's U for the other's."""
-    from qifreport.metrology.gdt.characteristics import zone_uncertainty
+    from qifreport.metrology.gdt.characteristic_types import zone_uncertainty
 
     rng = np.random.default_rng(0)
     r = rng.uniform(-0.05, 0.05, 200)

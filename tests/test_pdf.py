@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from qifreport.qif.profile_characteristics import profile_value
 from qifreport.qif.reader import read_results
-from qifreport.qif.writer import Provenance, build_qif, profile_value, write_qif
+from qifreport.qif.writer import Provenance, build_qif, write_qif
 from qifreport.reports.callouts import MAX_PER_VIEW
 from qifreport.reports.pdf import (
     fmt_area,

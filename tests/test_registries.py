@@ -27,12 +27,12 @@ from qifreport.kinds import (
     register_kind,
     registered,
 )
-from qifreport.metrology.gdt.characteristics import (
+from qifreport.metrology.gdt.characteristic_types import (
     CharacteristicResult,
     CharacteristicSpec,
-    measure_characteristics,
     zone_uncertainty,
 )
+from qifreport.metrology.gdt.characteristics import measure_characteristics
 from qifreport.metrology.gdt.form import least_squares_sphere
 from qifreport.metrology.gdt.measured_surface import MeasuredSurface
 from qifreport.registration.deformable.methods import METHODS, method_label, method_spec

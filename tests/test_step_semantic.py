@@ -624,8 +624,9 @@ def test_dimensions_of_threads_and_of_drawn_lines_say_what_they_are():
     named 'Thread Cylinder.1' / 'Upper Thread Plane.1' (the B-rep holds the 10.2 mm tap
     drill): not measured, with that reason; FTC 06's 1.106 in REF between two lines drawn
     on the faces of a V: its reason says so."""
-    from qifreport.metrology.gdt.characteristics import measure_characteristics, specs_from_pmi
+    from qifreport.metrology.gdt.characteristics import measure_characteristics
     from qifreport.metrology.gdt.measured_surface import MeasuredSurface
+    from qifreport.metrology.gdt.pmi_plan import specs_from_pmi
 
     dims = {d.step_id: d for d in _pmi(NIST[3]).dimensions}
     assert "'Thread Cylinder.1'" in dims[18938].face_notes[0]

@@ -261,7 +261,7 @@ def test_all_around_profile_without_faces_is_whole_part():
     zones, skipped = zones_from_pmi(pmi, {14: 0, 15: 1, 16: 2}, None)
     assert [(z.key, z.source, z.step_id, z.width) for z in zones] == [("general", "pmi", 32, 0.8)]
     assert skipped == []  # the flatness is a feature characteristic (issue 22)
-    from qifreport.metrology.gdt.characteristics import specs_from_pmi
+    from qifreport.metrology.gdt.pmi_plan import specs_from_pmi
 
     (spec,) = specs_from_pmi(pmi, {14: 0, 15: 1, 16: 2}).specs
     assert spec.step_id == 42 and len(spec.faces) == 0

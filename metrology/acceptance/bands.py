@@ -260,7 +260,7 @@ def zones_from_pmi(
         the tightest whole-part profile of the PMI if there is one (module docstring).
     skipped : profile tolerances that are not scored, with the reason (the other
         tolerances and the dimensions are feature characteristics:
-        :func:`qifreport.metrology.gdt.characteristics.specs_from_pmi`).
+        :func:`qifreport.metrology.gdt.pmi_plan.specs_from_pmi`).
 
     Raises
     ------

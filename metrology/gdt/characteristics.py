@@ -31,7 +31,7 @@ size and distance      dimensions: the geometric quantity of the faces (cylinder
 Each tolerance kind is measured by the function its :class:`qifreport.kinds.CharacteristicKind`
 names (:mod:`.geometric`, :mod:`.location`); dimensions by :mod:`.dimensions`; the plan from
 the PMI is :mod:`.pmi_plan`'s, the spec and result :mod:`.characteristic_types`'. This module
-dispatches and re-exports them.
+dispatches to them.
 
 Statuses: ``PASS``/``FAIL``/``INDETERMINATE`` by the decision rule
 (:func:`qifreport.metrology.acceptance.decision.decide`, the value's ``U`` against its limits),
@@ -52,23 +52,14 @@ from qifreport.metrology.gdt.characteristic_types import (
     judge,
     not_measured,
     reading_text,
-    zone_uncertainty,
 )
 from qifreport.metrology.gdt.dimensions import measure_dimension
 from qifreport.metrology.gdt.frames import DatumFrameResult, DatumSpec, TargetSpec, establish_frame
-from qifreport.metrology.gdt.geometric import per_unit
 from qifreport.metrology.gdt.measured_surface import MeasuredSurface
-from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan, specs_from_pmi
 
 __all__ = [
-    "CharacteristicPlan",
-    "CharacteristicResult",
-    "CharacteristicSpec",
     "frame_of",
     "measure_characteristics",
-    "per_unit",
-    "specs_from_pmi",
-    "zone_uncertainty",
 ]
 
 

@@ -9,11 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 from trimesh.triangles import points_to_barycentric
 
-from qifreport.metrology.gdt.characteristics import (
-    CharacteristicResult,
-    frame_of,
-    measure_characteristics,
-)
+from qifreport.metrology.gdt.characteristic_types import CharacteristicResult
+from qifreport.metrology.gdt.characteristics import frame_of, measure_characteristics
 from qifreport.metrology.gdt.composite import composite_zone_frame
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.metrology.gdt.measured_surface import MeasuredSurface

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from qifreport.metrology.acceptance.bands import BandField, NotEvaluated
 from qifreport.metrology.acceptance.criteria import scan_area
-from qifreport.metrology.gdt.characteristics import CharacteristicPlan
+from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 from qifreport.metrology.prepared import PreparedPart
 from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.icp import RigidResult
@@ -72,7 +72,7 @@ class JudgeContext:
         :func:`qifreport.step.normals.corner_normals_exact`): the scan points' distances to
         the curved surface are read with them (NaN rows: the mesh's).
     plan : the drawing's feature characteristics and datums
-        (:func:`qifreport.metrology.gdt.characteristics.specs_from_pmi`; a STEP nominal with
+        (:func:`qifreport.metrology.gdt.pmi_plan.specs_from_pmi`; a STEP nominal with
         ``brep_normals``): measured on the judged surface, and the profiles that name
         datums laid in their frame; None: none.
     """

@@ -19,7 +19,7 @@ import numpy as np
 from qifreport import __version__
 from qifreport.atomic_io import atomic_write_many
 from qifreport.kinds import kind_label
-from qifreport.metrology.gdt.characteristics import CharacteristicSpec
+from qifreport.metrology.gdt.characteristic_types import CharacteristicSpec
 
 from ..cache import PartState
 from ..pipeline import qif_writer

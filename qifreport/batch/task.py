@@ -25,9 +25,9 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from qifreport.errors import InputError
-from qifreport.metrology.gdt.characteristics import CharacteristicResult
+from qifreport.metrology.gdt.characteristic_types import CharacteristicResult
 from qifreport.qif.feature_characteristics import qif_status
-from qifreport.qif.writer import characteristic_status, profile_value
+from qifreport.qif.profile_characteristics import characteristic_status, profile_value
 from qifreport.registration.pointcloud import read_scan
 
 from ..cache import PartState

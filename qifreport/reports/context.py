@@ -17,7 +17,8 @@ from qifreport.metrology.inspection import InspectionResult
 from qifreport.qif.writer import Provenance
 
 from .kit import ReportPage
-from .render import ViewSpec, camera_frame, choose_views, color_scale
+from .render import color_scale
+from .views import ViewSpec, camera_frame, choose_views
 
 __all__ = ["ReportContext", "clamp_markers", "distinct_bands", "map_views", "vertex_bands"]
 
@@ -71,7 +72,7 @@ def distinct_bands(res: InspectionResult) -> list[tuple[float, float, list[str]]
 
 def map_views(res: InspectionResult) -> list[ViewSpec]:
     """The views of the deviation map, A, B, C in order (two or three,
-    :func:`~qifreport.reports.render.choose_views` on the registered nominal and its
+    :func:`~qifreport.reports.views.choose_views` on the registered nominal and its
     regions): the PDF's maps and the HTML viewer's view buttons."""
     return choose_views(res.V_registered, res.F, res.deviation, res.acceptance.regions, n_views=3)
 

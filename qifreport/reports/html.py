@@ -60,12 +60,12 @@ from .render import (
     GREY,
     OUTLINE,
     band_outline,
-    camera_frame,
     color_scale,
     deviation_colors,
 )
 from .tables import zone_status
 from .threejs import three_js, three_js_origin
+from .views import camera_frame
 
 __all__ = [
     "MAX_SCAN_POINTS",

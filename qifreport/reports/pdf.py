@@ -62,9 +62,10 @@ from .kit import FONT, Box, Table, draw_table, fmt_area, fmt_mm, fmt_pct, fmt_sm
 from .maps import colorbar_height, draw_colorbar, draw_maps, layout_score, map_boxes, map_margins
 from .notes import draw_notes_footer, fit_notes, note_lines, notes_height
 from .registration import registration_table
-from .render import RenderedView, ViewSpec, picture_points, render_views
+from .render import RenderedView, render_views
 from .stats import draw_histogram, stats_table
 from .tables import characteristic_table, pick_tolerances, region_table, tolerance_table
+from .views import ViewSpec, picture_points
 
 log = logging.getLogger(__name__)
 

@@ -14,9 +14,9 @@ import math
 
 import numpy as np
 
-from qifreport.metrology.inspection import InspectionResult, method_label
+from qifreport.metrology.inspection import InspectionResult
 from qifreport.metrology.restraint.held import SEEN_SOURCES
-from qifreport.registration.deformable.methods import method_spec
+from qifreport.registration.deformable.methods import method_label, method_spec
 
 from .kit import DASH, Table, finite, fmt_mm, fmt_pct
 

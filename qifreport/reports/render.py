@@ -41,11 +41,8 @@ from .raster import Scene, render_mpl, render_vtk
 from .views import (
     Projection,
     ViewSpec,
-    camera_frame,
     choose_views,
-    picture_points,
     project_view,
-    view_from_direction,
     view_margins,
 )
 
@@ -56,17 +53,12 @@ __all__ = [
     "GREY",
     "OUTLINE",
     "band_outline",
-    "camera_frame",
-    "choose_views",
     "color_scale",
     "deviation_colors",
     "nice_ceil",
-    "picture_points",
     "RegionLabel",
     "render_views",
     "RenderedView",
-    "view_from_direction",
-    "ViewSpec",
 ]
 
 log = logging.getLogger(__name__)

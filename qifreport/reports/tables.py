@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from qifreport.kinds import kind_label
 from qifreport.metrology.inspection import InspectionResult, ZoneResult
-from qifreport.qif.writer import profile_value
+from qifreport.qif.profile_characteristics import profile_value
 
 from .kit import Table, fit_text, fmt_area, fmt_band, fmt_mm, fmt_pct, fmt_smm, join_names
 
