@@ -5,9 +5,10 @@ This is the library entry point. :func:`inspect` takes the nominal ``(V, F)`` an
 registered nominal, the signed deviation field, its statistics and the acceptance decision
 of the paper's Section 10 (area criterion and region criterion). It seats the scan
 (:func:`seat_rigidly`: pose search, rigid fit) and judges it as the inspection's fixture
-policy asks (:func:`judge_as_held`): the free state first, the virtual fixture
-(:func:`fixture_step`) when the free state does not stand (:func:`free_state_stands`), or
-the restrained hold the drawing asks for. Each judgement is
+policy asks (:func:`judge_as_held`), in the condition the drawing or the operator states
+(:class:`~qifreport.metrology.params.RestraintCondition`): the free state only; a virtual
+restraint, the free state first and the virtual fixture (:func:`fixture_step`) when the
+free state does not stand (:func:`free_state_stands`); or held at its clamps. Each judgement is
 :func:`qifreport.metrology.judgement.judge`'s.
 
 Everything runs here, one step after the other; each step is a public function, so a
@@ -53,7 +54,7 @@ from qifreport.registration.pose.prealign import seat_scan
 from qifreport.registration.restraint.restrained import RestraintBasis
 
 from .judgement import judge, resolved
-from .params import InspectionParams
+from .params import CLAMPS, FREE, InspectionParams
 from .prepared import PreparedPart, prepare_part
 from .results import (
     FREE_STATE_CONFORMS,
@@ -268,15 +269,20 @@ def inspection_context(
 
 
 def judge_as_held(run: JudgeRun, restraint: RestraintBasis | None = None) -> InspectionResult:
-    """The seated scan judged as the inspection's fixture policy asks (:func:`inspect`):
-    rigidly only, held at its clamps (``restraint``), always fixtured, or in its free state
-    first and fixtured only when that does not stand (:func:`free_state_stands`)."""
+    """The seated scan judged in the condition its parameters state
+    (:attr:`~qifreport.metrology.params.InspectionParams.held_condition`, recorded in the
+    result's ``params``): the free state only (:data:`~qifreport.metrology.params.FREE`),
+    held at its clamps (``restraint``, :data:`~qifreport.metrology.params.CLAMPS`), or
+    virtually restrained (:data:`~qifreport.metrology.params.VIRTUAL`): always fixtured, or
+    in its free state first and fixtured only when that does not stand
+    (:func:`free_state_stands`)."""
     reg, ctx, params, timings = run.reg, run.ctx, run.params, run.timings
-    if params.rigid_only:
+    condition = params.held_condition.condition
+    if condition == FREE:
         res = judge(reg, None, params, timings, ctx)
         res.fixture_decision = "rigid only"
         return res
-    if params.fixture == "restrained":
+    if condition == CLAMPS:
         if restraint is None:
             raise ValueError("a restrained inspection needs the part's restraint basis")
         if len(restraint.points) != len(reg.V):

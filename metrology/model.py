@@ -31,6 +31,7 @@ if TYPE_CHECKING:
 __all__ = [
     "Drawing",
     "Part",
+    "RestraintStatement",
 ]
 
 
@@ -85,6 +86,26 @@ class Part:
         return 0 if self.face_step_ids is None else len(self.face_step_ids)
 
 
+@dataclass(frozen=True)
+class RestraintStatement:
+    """What the drawing states about restraint (ASME Y14.5: tolerances apply in the free
+    state unless the drawing says otherwise; ISO 10579: a non-rigid part's drawing says
+    "ISO 10579-NR" and states the restraint).
+
+    Attributes
+    ----------
+    stated : the drawing states a restrained condition.
+    text : the statement (the note around it, at most 400 characters); empty when none.
+    source : where it was read: ``"drawing note"`` (a note of the STEP file,
+        :func:`qifreport.step.notes.restraint_note`), ``"drawing"`` (a STEP file that
+        states none) or ``"none"`` (a mesh nominal: no drawing).
+    """
+
+    stated: bool = False
+    text: str = ""
+    source: str = "none"
+
+
 @dataclass
 class Drawing:
     """What the part's drawing asks of it: tolerance zones, characteristics, datums.
@@ -102,6 +123,7 @@ class Drawing:
         general zone's own ``source`` says whether a whole-part profile of the PMI, the
         ``--tolerance`` or the default set it); ``"operator"``, the ``--tolerance`` given
         with a mesh nominal, which carries none.
+    restraint : what the drawing states about restraint (:class:`RestraintStatement`).
     """
 
     zones: list[ToleranceZone]
@@ -109,3 +131,4 @@ class Drawing:
     datums: list[str] = field(default_factory=list)
     plan: CharacteristicPlan | None = None
     source: str = "pmi"
+    restraint: RestraintStatement = field(default_factory=RestraintStatement)

@@ -16,7 +16,57 @@ from qifreport.metrology.acceptance.decision import DEFAULT_DECISION_RULE
 from qifreport.registration.deformable.gbcicp import GBCICPParams
 from qifreport.registration.deformable.methods import method_label
 
-__all__ = ["InspectionParams", "method_label"]
+__all__ = [
+    "CLAMPS",
+    "FREE",
+    "RESTRAINT_CONDITIONS",
+    "STATED_BY_DEFAULT",
+    "STATED_BY_DRAWING",
+    "STATED_BY_NOTE",
+    "STATED_BY_OPERATOR",
+    "VIRTUAL",
+    "InspectionParams",
+    "RestraintCondition",
+    "method_label",
+]
+
+#: the conditions a part is judged in: its free state only (no fixture), a virtual fixture
+#: (the free state judged first, GB-CICP when it does not conform), or held at its clamps
+FREE, VIRTUAL, CLAMPS = "free", "virtual", "clamps"
+RESTRAINT_CONDITIONS = (FREE, VIRTUAL, CLAMPS)
+#: who stated the condition: a restraint note of the drawing; the drawing, by stating none
+#: (free state, ASME Y14.5 / ISO 10579); the operator (a command-line option or a library
+#: caller's parameters); nobody (a mesh nominal has no drawing: the operator-level default)
+STATED_BY_NOTE = "drawing note"
+STATED_BY_DRAWING = "drawing"
+STATED_BY_OPERATOR = "operator"
+STATED_BY_DEFAULT = "default"
+
+
+@dataclass(frozen=True)
+class RestraintCondition:
+    """The condition a part is judged in and who stated it.
+
+    Attributes
+    ----------
+    condition : :data:`FREE`, :data:`VIRTUAL` or :data:`CLAMPS`.
+    stated_by : :data:`STATED_BY_NOTE`, :data:`STATED_BY_DRAWING`,
+        :data:`STATED_BY_OPERATOR` or :data:`STATED_BY_DEFAULT`.
+    statement : the statement itself: the drawing note's text, the operator's option, or
+        why the default applies.
+    """
+
+    condition: str = VIRTUAL
+    stated_by: str = STATED_BY_DEFAULT
+    statement: str = ""
+
+    def to_dict(self) -> dict:
+        """JSON-ready: ``condition``, ``stated_by``, ``statement``."""
+        return {
+            "condition": self.condition,
+            "stated_by": self.stated_by,
+            "statement": self.statement,
+        }
 
 
 @dataclass
@@ -82,6 +132,11 @@ class InspectionParams:
         ``method`` when it does not conform) or ``"restrained"`` (ISO 10579: the part held
         at its clamps by its elastic model, :mod:`qifreport.registration.restraint.restrained`; the
         inspection then needs the part's restraint basis).
+    restraint : the condition the part is judged in and who stated it
+        (:class:`RestraintCondition`; default: the virtual fixture, nobody's statement). The
+        application decides it from the drawing and the operator's options; ``rigid_only``
+        and ``fixture="restrained"`` state :data:`FREE` and :data:`CLAMPS` too
+        (:meth:`held_condition`).
     """
 
     tolerance: float | None = None
@@ -102,3 +157,16 @@ class InspectionParams:
     decision_rule: str = DEFAULT_DECISION_RULE
     scanner_uncertainty: float = 0.0
     fixture: str = "free"
+    restraint: RestraintCondition = field(default_factory=RestraintCondition)
+
+    @property
+    def held_condition(self) -> RestraintCondition:
+        """The condition these parameters ask for: :attr:`restraint`, or the one a caller's
+        flags state (``rigid_only``: free; ``fixture="restrained"``: clamps), stated by
+        the operator."""
+        r = self.restraint
+        if self.rigid_only and r.condition != FREE:
+            return RestraintCondition(FREE, STATED_BY_OPERATOR, "rigid only")
+        if self.fixture == "restrained" and r.condition != CLAMPS:
+            return RestraintCondition(CLAMPS, STATED_BY_OPERATOR, "restrained at its clamps")
+        return r

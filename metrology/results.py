@@ -32,7 +32,7 @@ from qifreport.registration.icp import RigidResult
 from qifreport.registration.pose.prealign import PrealignResult
 from qifreport.registration.restraint.restrained import Restraint
 
-from .params import InspectionParams
+from .params import CLAMPS, VIRTUAL, InspectionParams, RestraintCondition
 
 #: :attr:`InspectionResult.fixture_decision` when the free state stands
 FREE_STATE_CONFORMS = "free state conforms"
@@ -226,6 +226,65 @@ class InspectionResult:
     restraint: Restraint | None = None
     characteristics: list[CharacteristicResult] = field(default_factory=list)
     frames: list[DatumFrameResult] = field(default_factory=list)
+
+    @property
+    def condition(self) -> RestraintCondition:
+        """The condition the part was judged in and who stated it (its parameters'
+        :attr:`~qifreport.metrology.params.InspectionParams.held_condition`)."""
+        return self.params.held_condition
+
+    @property
+    def restraint_applied(self) -> bool:
+        """A restraint was applied: the virtual fixture's fit, or the hold at the clamps."""
+        return self.fit is not None or self.restraint is not None
+
+    def condition_text(self) -> str:
+        """The verdict, the condition it was judged in, who stated it and what the free
+        state gave: e.g. ``"PASS in a virtually restrained condition (stated by: drawing
+        note); free state FAIL: T2 ..."``."""
+        c = self.condition
+        text = f"{self.verdict} {self.condition_words()} (stated by: {c.stated_by})"
+        if self.restraint_applied:
+            return f"{text}; {self.free_state_text()}"
+        if c.condition == VIRTUAL:
+            return f"{text}; the virtual restraint stated was not applied: {self.fixture_decision}"
+        return f"{text}; no restraint applied"
+
+    def condition_words(self) -> str:
+        """Where the verdict holds: ``"restrained at its clamps"``, ``"in a virtually
+        restrained condition"`` (the virtual fixture applied) or ``"in the free state"``."""
+        if self.condition.condition == CLAMPS:
+            return "restrained at its clamps"
+        return (
+            "in a virtually restrained condition" if self.fit is not None else "in the free state"
+        )
+
+    def free_state_text(self) -> str:
+        """What the free state gave, when a restraint was applied: its verdict and the
+        first thing it failed on, or that it was not judged."""
+        if self.free_state is None:
+            return "free state not judged"
+        why = self.free_state_decided_by
+        more = f" (and {len(why) - 1} more)" if len(why) > 1 else ""
+        return f"free state {self.free_state}" + (f": {why[0]}{more}" if why else "")
+
+    def restraint_dict(self) -> dict:
+        """JSON-ready: the condition, who stated it and the statement, whether a restraint
+        was applied, the sentence of :meth:`condition_text`, and the free state's verdict
+        and what decided it (None: not judged); when no restraint was applied the free
+        state is the result itself."""
+        if not self.restraint_applied:
+            free = {"verdict": self.verdict, "decided_by": self.decided_by()}
+        elif self.free_state is None:
+            free = None
+        else:
+            free = {"verdict": self.free_state, "decided_by": list(self.free_state_decided_by)}
+        return {
+            **self.condition.to_dict(),
+            "applied": self.restraint_applied,
+            "judged": self.condition_text(),
+            "free_state": free,
+        }
 
     @property
     def free_state_stands(self) -> bool:
@@ -498,6 +557,7 @@ class InspectionResult:
             p[own] = asdict(fit.params)  # defaults resolved from the part size
         return {
             "verdict": self.verdict,
+            "restraint": self.restraint_dict(),
             "warnings": self.trust_warnings(),
             "decided_by": self.decided_by(),
             "relaxed_guards": self.relaxed_guards(),

@@ -223,6 +223,13 @@ def _registration_attrs(ra: Attrs, res: InspectionResult) -> None:
     ra.s("rigid_rotation", " ".join(xml_double(v) for v in np.asarray(rigid.R).ravel()))
     ra.d3("rigid_translation_mm", rigid.t)
     ra.s("fixture_decision", res.fixture_decision)
+    c = res.condition  # the condition judged in, who stated it, what the free state gave
+    ra.s("restraint_condition", c.condition).s("restraint_stated_by", c.stated_by)
+    if c.statement:
+        ra.s("restraint_statement", c.statement)
+    ra.b("restraint_applied", res.restraint_applied).s("judged_condition", res.condition_text())
+    if res.free_state is not None:
+        ra.s("free_state_verdict", res.free_state)
     if res.restraint is not None:
         _restraint_attrs(ra, res.restraint)
     if res.fit is not None:

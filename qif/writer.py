@@ -334,6 +334,7 @@ def _algorithm_definitions(
                         "method": method,
                         "energy": res.energy,
                         "rigid_only": params.rigid_only,
+                        "condition": res.condition.to_dict(),
                         "fixture_decision": res.fixture_decision,
                         method: fit_params,
                         "restraint": None

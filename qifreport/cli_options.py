@@ -17,6 +17,7 @@ from pathlib import Path
 from qifreport import __version__
 from qifreport.metrology.acceptance.decision import DECISION_RULES, DEFAULT_DECISION_RULE
 from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION
+from qifreport.metrology.params import RESTRAINT_CONDITIONS
 from qifreport.registration.deformable.methods import METHODS
 from qifreport.restraint import DEFAULT_PAD_RADIUS
 
@@ -306,13 +307,17 @@ def add_registration_options(ap: argparse.ArgumentParser) -> None:
         "no resampling",
     )
     fixture = ap.add_mutually_exclusive_group()
-    fixture.add_argument("--rigid-only", action="store_true", help="no virtual fixture (baseline)")
+    fixture.add_argument(
+        "--rigid-only",
+        action="store_true",
+        help="the free state only, no virtual fixture (the same as --restraint free)",
+    )
     fixture.add_argument(
         "--always-fixture",
         action="store_true",
-        help="apply the virtual fixture even when the free state conforms (default: the "
-        "free state is judged first and a part that conforms without restraint is not "
-        "fixtured, ISO 10579); for comparing registration methods",
+        help="with a virtual restraint, apply the virtual fixture even when the free state "
+        "conforms (default: the free state is judged first and a part that conforms "
+        "without restraint is not fixtured, ISO 10579); for comparing registration methods",
     )
 
 
@@ -324,12 +329,22 @@ def add_restraint_options(ap: argparse.ArgumentParser) -> None:
         "hold the part at its clamps by its elastic model instead of the free virtual fixture",
     )
     held.add_argument(
+        "--restraint",
+        choices=RESTRAINT_CONDITIONS,
+        default=None,
+        help="the condition the part is judged in, stated by the operator: free (the free "
+        "state only, no fixture), virtual (the free state first, then the virtual fixture "
+        "--method when it does not conform) or clamps (held at --clamps by its elastic "
+        "model). Default: the drawing's statement (a STEP restraint note such as ISO "
+        "10579-NR: virtual; none: free, ASME Y14.5); a mesh nominal, which has no drawing: "
+        "virtual. --clamps implies clamps",
+    )
+    held.add_argument(
         "--fixture",
         choices=("auto", "restrained", "free"),
         default="auto",
-        help="restrained: the part held at its clamps (--clamps) by its elastic model, "
-        "judged as held; free: the free state, then the virtual fixture (--method) when it "
-        "does not conform; auto (default): restrained when clamps are given, else free",
+        help="older spelling of --restraint: restrained = --restraint clamps, free = "
+        "--restraint virtual; auto (default): --restraint's default",
     )
     held.add_argument(
         "--clamps",

@@ -38,6 +38,8 @@ def summary(res: InspectionResult) -> str:
     a, s = res.acceptance, res.vertex_stats
     lines = [
         f"verdict: {res.verdict}",
+        f"condition: {res.condition_text()}",
+        f"restraint stated: {res.condition.statement}",
         f"registration: {fixture_text(res)}",
         f"deviation (area-weighted, {s.n} scored vertices): RMS {s.rms:.3f}  max {s.max_abs:.3f}"
         f"  P95 {s.p95:.3f}  P99.9 {s.p999:.3f}  mean {s.mean:+.3f} mm",
@@ -170,7 +172,7 @@ def fixture_text(res: InspectionResult) -> str:
                 "points narrower than the mesh: no fixture bends such a defect out of a "
                 "part, so none was applied"
             )
-        return "rigid ICP only (no virtual fixture)"
+        return "rigid ICP only: judged in the free state (no virtual fixture)"
     fit = res.fit
     text = (
         f"rigid ICP + virtual fixture {method_label(fit.method)} ({fit.iterations} "

@@ -25,7 +25,7 @@ from qifreport.metrology.acceptance.bands import (
     zones_from_pmi,
 )
 from qifreport.metrology.gdt.pmi_plan import specs_from_pmi
-from qifreport.metrology.model import Drawing, Part
+from qifreport.metrology.model import Drawing, Part, RestraintStatement
 from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.mesh import (
     bounding_diagonal,
@@ -179,8 +179,18 @@ def _step_nominal(
         list(dict.fromkeys(datums)),
         plan=specs_from_pmi(pmi, step_part.face_index()),
         source="pmi",
+        restraint=_restraint_statement(pmi),
     )
     return part, drawing
+
+
+def _restraint_statement(pmi) -> RestraintStatement:
+    """What the STEP file's notes state about restraint (:attr:`PMI.restraint
+    <qifreport.step.pmi.PMI.restraint>`)."""
+    note = getattr(pmi, "restraint", None)
+    if note is None:
+        return RestraintStatement(False, "", "drawing")
+    return RestraintStatement(True, note.text, "drawing note")
 
 
 def _plausibility(path: Path, pmi, diagonal: float, accept: bool) -> list:

@@ -19,7 +19,19 @@ from pathlib import Path
 from qifreport.errors import InputError
 from qifreport.metrology.acceptance.coverage import DEFAULT_MIN_COVERAGE
 from qifreport.metrology.acceptance.decision import DECISION_RULES, DEFAULT_DECISION_RULE
-from qifreport.metrology.params import InspectionParams
+from qifreport.metrology.model import Drawing
+from qifreport.metrology.params import (
+    CLAMPS,
+    FREE,
+    RESTRAINT_CONDITIONS,
+    STATED_BY_DEFAULT,
+    STATED_BY_DRAWING,
+    STATED_BY_NOTE,
+    STATED_BY_OPERATOR,
+    VIRTUAL,
+    InspectionParams,
+    RestraintCondition,
+)
 from qifreport.registration.deformable.gbcicp import GBCICPParams
 
 from .restraint import DEFAULT_PAD_RADIUS, RestraintSpec, gravity_direction, read_clamps
@@ -67,6 +79,7 @@ RESULT_OPTIONS = (
     "decision_rule",
     "scanner_uncertainty",
     "fixture",
+    "restraint",
     "clamps",
     "material",
     "thickness",
@@ -155,6 +168,8 @@ class InspectOptions:
     fixture : ``"auto"`` (restrained when clamps are known, else free), ``"restrained"``
         (ISO 10579: held at its clamps by its elastic model, :mod:`qifreport.restraint`) or
         ``"free"`` (the free state, then the virtual fixture ``method``).
+    restraint : ``--restraint``: the condition the operator states, ``"free"``,
+        ``"virtual"`` or ``"clamps"`` (None: the drawing's, :meth:`restraint_condition`).
     clamps : the ``--clamps`` CSV file.  material : ``--material`` (preset or values).
     thickness : a mesh nominal's wall thickness, mm.  max_clamp_force : the force limit
         of clamps that state none, N.  pad_radius : each clamp's contact radius, mm.
@@ -197,6 +212,7 @@ class InspectOptions:
     decision_rule: str = DEFAULT_DECISION_RULE
     scanner_uncertainty: float = 0.0
     fixture: str = "auto"
+    restraint: str | None = None
     clamps: Path | None = None
     material: str | None = None
     thickness: float | None = None
@@ -244,6 +260,7 @@ class InspectOptions:
         if self.fixture == "restrained" and (self.rigid_only or self.always_fixture):
             flag = "--rigid-only" if self.rigid_only else "--always-fixture"
             raise InputError(f"--fixture restrained and {flag} exclude each other")
+        self._check_restraint()
         for flag, v in (("--thickness", self.thickness), ("--pad-radius", self.pad_radius)):
             if v is not None and not (math.isfinite(v) and v > 0):
                 raise InputError(f"{flag} must be a positive length in mm, got {v}")
@@ -285,6 +302,75 @@ class InspectOptions:
         ):
             check_text(flag, v)
 
+    def _check_restraint(self) -> None:
+        """Refuse a ``--restraint`` that another option contradicts."""
+        r = self.restraint
+        if r is None:
+            return
+        if r not in RESTRAINT_CONDITIONS:
+            raise InputError(
+                f"--restraint must be one of {', '.join(RESTRAINT_CONDITIONS)}, got {r!r}"
+            )
+        implied = self._operator_flag()
+        if implied is not None and implied[0] != r:
+            raise InputError(f"--restraint {r} and {implied[1]} exclude each other")
+        if r == CLAMPS and self.clamps is None:
+            raise InputError(
+                "--restraint clamps needs the clamps: --clamps FILE (CSV: name, x, y, z, "
+                "directions[, max_force_N]) or --clamps pmi"
+            )
+
+    def _operator_flag(self) -> tuple[str, str] | None:
+        """The condition another option of the operator states, and that option:
+        ``--clamps`` or ``--fixture restrained`` (clamps), ``--rigid-only`` (free),
+        ``--always-fixture`` or ``--fixture free`` (virtual); None: none does."""
+        if (
+            self.clamps is not None
+            and self.fixture != "free"
+            and not (self.rigid_only or self.always_fixture)
+        ):
+            return CLAMPS, f"--clamps {self.clamps}"
+        if self.fixture == "restrained":
+            return CLAMPS, "--fixture restrained"
+        if self.rigid_only:
+            return FREE, "--rigid-only"
+        if self.always_fixture:
+            return VIRTUAL, "--always-fixture"
+        if self.fixture == "free":
+            return VIRTUAL, "--fixture free"
+        return None
+
+    def restraint_condition(self, drawing: Drawing | None) -> RestraintCondition:
+        """The condition the part is judged in and who stated it, decided here once: the
+        operator's (``--restraint``, else ``--clamps``, ``--rigid-only``,
+        ``--always-fixture`` or ``--fixture``); else the drawing's (a restraint note:
+        virtual; a STEP drawing that states none: the free state, ASME Y14.5 / ISO 10579);
+        else, a mesh nominal having no drawing, the virtual fixture as the operator-level
+        default."""
+        if self.restraint is not None:
+            return RestraintCondition(
+                self.restraint, STATED_BY_OPERATOR, "--restraint " + self.restraint
+            )
+        flag = self._operator_flag()
+        if flag is not None:
+            return RestraintCondition(flag[0], STATED_BY_OPERATOR, flag[1])
+        said = None if drawing is None else drawing.restraint
+        if said is not None and said.stated:
+            return RestraintCondition(VIRTUAL, STATED_BY_NOTE, said.text)
+        if said is not None and said.source != "none":  # a drawing that states none
+            return RestraintCondition(
+                FREE,
+                STATED_BY_DRAWING,
+                "the drawing states no restraint: tolerances apply in the free state "
+                "(ASME Y14.5, ISO 10579)",
+            )
+        return RestraintCondition(
+            VIRTUAL,
+            STATED_BY_DEFAULT,
+            "no drawing (mesh nominal): the virtual fixture is the operator-level default "
+            "(--restraint free|virtual|clamps states another)",
+        )
+
     def inspection_params(self) -> InspectionParams:
         """The metrology parameters of these options."""
         g = GBCICPParams(passes=max(1, self.passes), band_limit=self.band_limit)
@@ -314,7 +400,12 @@ class InspectOptions:
         file read, or with ``--clamps pmi`` the datum targets of the STEP ``nominal``
         (:class:`~qifreport.errors.InputError` for a bad one); None with ``--fixture free``,
         the rigid baseline, or no clamps."""
-        if self.fixture == "free" or self.rigid_only or self.always_fixture:
+        if (
+            self.fixture == "free"
+            or self.rigid_only
+            or self.always_fixture
+            or self.restraint in (FREE, VIRTUAL)
+        ):
             return None
         if self.clamps is None:
             if self.fixture == "restrained":

@@ -317,10 +317,10 @@ def inspect_state(
     beside its main line, ``measures``: the scan's normals and area started already on
     ``P`` (:func:`qifreport.schedule.inspect_beside`)."""
     o = job.options
-    params = o.inspection_params()
-    if state.restraint is not None:
-        params = replace(params, fixture="restrained")
     part, drawing = state.part, state.drawing
+    # the condition the part is judged in, and who stated it: the operator's, else the
+    # drawing's (judge_as_held applies it)
+    params = replace(o.inspection_params(), restraint=o.restraint_condition(drawing))
     inputs = replace(
         part_inputs(part, drawing, prepared=state.prepared, restraint=state.restraint),
         # the --min-coverage rules apply to this inspection's zones

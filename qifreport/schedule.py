@@ -42,6 +42,7 @@ from qifreport.metrology.inspection import (
     with_free_state,
 )
 from qifreport.metrology.judgement import judge
+from qifreport.metrology.params import VIRTUAL
 from qifreport.metrology.stages.context import JudgeContext, Registered
 from qifreport.metrology.stages.held import held_nominal
 from qifreport.metrology.stages.trim_edges import measures_size, trim_edge_stage
@@ -196,9 +197,9 @@ def judge_beside(
 
 
 def _held_as_asked(params: InspectionParams) -> bool:
-    """Whether the inspection's fixture policy leaves no free-state shortcut: rigidly only,
-    restrained, or always fixtured."""
-    return params.rigid_only or params.fixture == "restrained" or params.always_fixture
+    """Whether the inspection's fixture policy leaves no free-state shortcut: the free state
+    only, restrained at its clamps, or always fixtured."""
+    return params.held_condition.condition != VIRTUAL or params.always_fixture
 
 
 #: the rigid seat's robust residual scale, in units of the tightest zone's half-width, from

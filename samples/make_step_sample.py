@@ -14,7 +14,9 @@ Datums and PMI (faces by their index in ``TopExp.MapShapes(solid, TopAbs_FACE)``
   A, B, C are mutually perpendicular.
 * surface profile 1.0 mm |A|B|C| on every face;
 * surface profile 0.5 mm |A|B| on the outer skin of the crown (the functional face);
-* flatness 0.2 mm on each flange underside.
+* flatness 0.2 mm on each flange underside;
+* the drawing note :data:`RESTRAINT_NOTE` (AP242 semantic text): the cover is a non-rigid
+  part (ISO 10579-NR), toleranced in its restrained condition at its datum targets.
 
 Usage: ``python samples/make_step_sample.py [OUT.step]`` (default ``samples/panel.step``).
 """
@@ -56,6 +58,15 @@ LOCATING_HOLE_D = 10.0  # mm, crown hole
 PART_NAME = "curved_cover"
 TIMESTAMP = "2025-01-01T00:00:00"  # fixed FILE_NAME time stamp: reproducible file
 DEFAULT_PATH = Path(__file__).resolve().parent / "panel.step"
+
+#: the drawing's restraint note (ISO 10579 non-rigid part): the cover is toleranced held at
+#: its datum targets, as an inspection fixture holds it (samples/panel_clamps.csv)
+RESTRAINT_NOTE = (
+    "1. ISO 10579-NR. DIMENSIONING AND TOLERANCING APPLY WITH\n"
+    "   PART RESTRAINED: DATUM FEATURE A HELD AGAINST ITS SIMULATOR\n"
+    "   AT TARGETS A1-A4, DATUM FEATURES B AND C ENGAGED AT TARGETS\n"
+    "   B1, C1-C2; RESTRAINT FORCE AT MOST 20 N PER TARGET."
+)
 
 PROFILE_ALL = 1.0  # mm, |A|B|C| on all faces
 PROFILE_SKIN = 0.5  # mm, |A|B| on the outer skin
@@ -222,7 +233,15 @@ def build_sample(step_path: str | Path = DEFAULT_PATH) -> dict:
     step_path = Path(step_path)
     shape = build_part()
     datums, tolerances = sample_spec(shape)
-    write_step_with_pmi(shape, step_path, tolerances, datums, PART_NAME, timestamp=TIMESTAMP)
+    write_step_with_pmi(
+        shape,
+        step_path,
+        tolerances,
+        datums,
+        PART_NAME,
+        timestamp=TIMESTAMP,
+        notes=[RESTRAINT_NOTE],
+    )
     skin = next(t for t in tolerances if t.name == "profile_skin").faces[0]
     return {
         "path": str(step_path),

@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-__all__ = ["PMI", "Datum", "DatumRef", "Dimension", "GeometricTolerance"]
+__all__ = ["PMI", "Datum", "DatumRef", "Dimension", "GeometricTolerance", "RestraintNote"]
 
 
 @dataclass
@@ -248,6 +248,23 @@ class Dimension:
 
 
 @dataclass
+class RestraintNote:
+    """A drawing note that states a restraint (:func:`qifreport.step.notes.restraint_note`).
+
+    Attributes
+    ----------
+    text : the note around the statement, whitespace collapsed (at most 400 characters).
+    phrase : what was found, upper case: ``'ISO 10579-NR'``, ``'RESTRAINED'`` ...
+    step_id : the entity carrying the text (a ``REPRESENTATION`` of its lines, a
+        ``DESCRIPTIVE_REPRESENTATION_ITEM`` or a ``TEXT_LITERAL``).
+    """
+
+    text: str
+    phrase: str
+    step_id: int
+
+
+@dataclass
 class PMI:
     """All semantic PMI of one STEP file.
 
@@ -264,6 +281,8 @@ class PMI:
     datums : list of Datum
     problems : list of str
         File-level problems (unreadable records, missing units ...).
+    restraint : the first drawing note that states a restraint (ISO 10579-NR, "part
+        restrained"), None when the file carries none.
     """
 
     schema: str
@@ -273,6 +292,7 @@ class PMI:
     dimensions: list[Dimension] = field(default_factory=list)
     datums: list[Datum] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
+    restraint: RestraintNote | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-serialisable dictionary (:func:`dataclasses.asdict`)."""

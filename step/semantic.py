@@ -17,6 +17,8 @@ AP214/AP203e2 ``DATUM_REFERENCE``) structures.
   their ``_WITH_PATH`` / ``DIRECTED_`` forms) give their nominal or limits from
   DIMENSIONAL_CHARACTERISTIC_REPRESENTATION and their tolerance from PLUS_MINUS_TOLERANCE.
 * **Datums** give their label, datum features and target names.
+* **A restraint note** (ISO 10579-NR, "part restrained"), from the file's text
+  (:mod:`.notes`).
 
 This module reads those items, each kind by its own reader: datums (:mod:`.datums`),
 geometric tolerances (:mod:`.tolerances`) and dimensions (:mod:`.dimensions`). They stand on
@@ -36,6 +38,7 @@ import time
 from pathlib import Path
 
 from .dimensions import DimensionReader
+from .notes import restraint_note
 from .p21 import P21Model, Ref
 from .pmi import PMI, Dimension, GeometricTolerance
 from .tolerances import ToleranceReader
@@ -116,6 +119,7 @@ def pmi_from_model(model: P21Model) -> PMI:
         dimensions=dimensions,
         datums=datums,
         problems=list(dict.fromkeys(r.problems + unread)),
+        restraint=restraint_note(model),
     )
     log.debug(
         "semantic PMI: %d tolerances (%.3f s), %d dimensions and %d datums (%.3f s)",

@@ -78,6 +78,17 @@ from OCP.StepGeom import (
     StepGeom_GeometricRepresentationContextAndGlobalUnitAssignedContext,
     StepGeom_GeomRepContextAndGlobUnitAssCtxAndGlobUncertaintyAssCtx,
 )
+from OCP.StepRepr import (
+    StepRepr_CharacterizedDefinition,
+    StepRepr_DescriptiveRepresentationItem,
+    StepRepr_HArray1OfRepresentationItem,
+    StepRepr_ProductDefinitionShape,
+    StepRepr_PropertyDefinition,
+    StepRepr_PropertyDefinitionRepresentation,
+    StepRepr_Representation,
+    StepRepr_RepresentedDefinition,
+)
+from OCP.StepShape import StepShape_ShapeDefinitionRepresentation
 from OCP.TCollection import (
     TCollection_ExtendedString,
     TCollection_HAsciiString,
@@ -217,6 +228,7 @@ def write_step_with_pmi(
     part_name: str = "part",
     *,
     timestamp: str | None = None,
+    notes: Sequence[str] = (),
 ) -> None:
     """Write ``shape`` as STEP AP242 (mm) with semantic datums and geometric tolerances.
 
@@ -237,6 +249,12 @@ def write_step_with_pmi(
     timestamp : str, optional
         ``FILE_NAME`` time stamp (ISO 8601, e.g. ``"2025-01-01T00:00:00"``); default the
         current time. Fix it for byte-reproducible output.
+    notes : sequence of str
+        Drawing notes (e.g. an ISO 10579-NR restraint note), each written as AP242
+        "semantic text": a ``PROPERTY_DEFINITION('semantic text', '', <the part's
+        PRODUCT_DEFINITION_SHAPE>)`` whose ``REPRESENTATION`` holds one
+        ``DESCRIPTIVE_REPRESENTATION_ITEM('note', <line>)`` per line of the note, as CAD
+        systems export notes (NIST FTC 08 #12879).
 
     Raises
     ------
@@ -261,7 +279,7 @@ def write_step_with_pmi(
     doc = TDocStd_Document(TCollection_ExtendedString("MDTV-XCAF"))
     app.InitDocument(doc)  # a transient document: never opened in the session, not closed
     _fill_document(doc, shape, faces, tolerances, names, datums, part_name)
-    _write_atomic(doc, path, tolerances, names, timestamp)
+    _write_atomic(doc, path, tolerances, names, timestamp, notes)
     logger.info(
         "wrote %s: %d faces, %d datums, %d tolerances",
         path,
@@ -510,8 +528,10 @@ def _write_atomic(
     tolerances: Sequence[PMISpecTolerance],
     names: list[str],
     timestamp: str | None,
+    notes: Sequence[str] = (),
 ) -> None:
-    """Transfer ``doc`` to an AP242 model, correct and check it, write it atomically."""
+    """Transfer ``doc`` to an AP242 model, correct and check it, add the ``notes``
+    (:func:`_add_notes`), write it atomically."""
     with _ap242_in_mm():
         writer = STEPCAFControl_Writer()
         writer.SetNameMode(True)
@@ -527,6 +547,7 @@ def _write_atomic(
         _target_whole_part(model, whole)
         _correct_tolerance_units(model)
         _check_magnitudes(model, tolerances, names)
+        _add_notes(model, notes)
 
         header = APIHeaderSection_MakeHeader(model)
         header.SetName(TCollection_HAsciiString(path.name))
@@ -534,6 +555,47 @@ def _write_atomic(
             header.SetTimeStamp(TCollection_HAsciiString(timestamp))
 
         _write_file(writer, path)
+
+
+def _add_notes(model, notes: Sequence[str]) -> None:
+    """Add each note to the STEP ``model`` as AP242 semantic text on the part's shape
+    (:func:`write_step_with_pmi`), its lines as descriptive items in the shape
+    representation's context."""
+    if not notes:
+        return
+    shape_rep = next(
+        (
+            model.Value(i)
+            for i in range(1, model.NbEntities() + 1)
+            if isinstance(model.Value(i), StepShape_ShapeDefinitionRepresentation)
+            and isinstance(model.Value(i).Definition().Value(), StepRepr_ProductDefinitionShape)
+        ),
+        None,
+    )
+    if shape_rep is None:
+        raise RuntimeError("STEP model: no shape representation of the part to attach notes to")
+    pds = shape_rep.Definition().Value()
+    context = shape_rep.UsedRepresentation().ContextOfItems()
+    for note in notes:
+        lines = note.splitlines() or [""]
+        items = StepRepr_HArray1OfRepresentationItem(1, len(lines))
+        for k, line in enumerate(lines, start=1):
+            item = StepRepr_DescriptiveRepresentationItem()
+            item.Init(TCollection_HAsciiString("note"), TCollection_HAsciiString(line))
+            items.SetValue(k, item)
+        rep = StepRepr_Representation()
+        rep.Init(TCollection_HAsciiString(""), items, context)
+        owner = StepRepr_CharacterizedDefinition()
+        owner.SetValue(pds)
+        prop = StepRepr_PropertyDefinition()
+        prop.Init(
+            TCollection_HAsciiString("semantic text"), True, TCollection_HAsciiString(""), owner
+        )
+        used = StepRepr_RepresentedDefinition()
+        used.SetValue(prop)
+        link = StepRepr_PropertyDefinitionRepresentation()
+        link.Init(used, rep)
+        model.AddWithRefs(link)
 
 
 def _context_length_unit(model) -> StepBasic_SiUnitAndLengthUnit:

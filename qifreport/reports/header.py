@@ -48,6 +48,7 @@ __all__ = [
     "rule_text",
     "reasons",
     "decision_lines",
+    "condition_line",
     "draw_header",
     "draw_decision",
 ]
@@ -177,6 +178,17 @@ def reasons(res: InspectionResult) -> list[str]:
     return [_display(s) for s in res.decided_by()]
 
 
+def condition_line(res: InspectionResult) -> str:
+    """The verdict box's line on the condition: where the verdict holds, who stated it and,
+    when a restraint was applied, the free state's verdict."""
+    if res.restraint is not None:
+        where = "restrained at clamps"
+    else:
+        where = "virtually restrained" if res.fit is not None else "in the free state"
+    free = f"; free state {res.free_state}" if res.restraint_applied and res.free_state else ""
+    return f"{where} ({res.condition.stated_by}){free}"
+
+
 def decision_lines(
     res: InspectionResult, width: float, limit: int
 ) -> tuple[list[tuple[str, bool]], int]:
@@ -187,7 +199,8 @@ def decision_lines(
     lines : ``(text, reason)`` per line; reasons print in the fail colour.
     shown : the number of reasons listed (at most ``limit``; the rest are counted).
     """
-    lines = [(s, False) for s in wrap_text(rule_text(res), width, 7.0)]
+    lines = [(s, False) for s in wrap_text(f"Judged {res.condition_text()}.", width, 7.0)]
+    lines += [(s, False) for s in wrap_text(rule_text(res), width, 7.0)]
     rs = reasons(res)
     shown = rs[:limit]
     for r in shown:
@@ -218,9 +231,10 @@ def draw_header(c: Canvas, ctx: ReportContext, box: Box) -> None:
         draw_text(c, vx + vw / 2, box.top - 36, word, 34, True, (1, 1, 1), "c")
     else:  # NOT ESTABLISHED
         draw_text(c, vx + vw / 2, box.top - 32, word, 16, True, (1, 1, 1), "c")
-    lines = verdict_lines(res, vw - 10, 6.8)
+    # the criteria, then the condition the verdict holds in and who stated it
+    lines = verdict_lines(res, vw - 10, 6.8)[:2] + [condition_line(res)]
     yy = box.top - 50
-    for s in lines[:3]:
+    for s in lines:
         draw_text(c, vx + vw / 2, yy, fit_text(s, vw - 10, 6.8), 6.8, False, (1, 1, 1), "c")
         yy -= 8.4
     # title

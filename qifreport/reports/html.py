@@ -457,6 +457,8 @@ def _panel(res: InspectionResult, prov: Provenance, scale: float, data: dict) ->
         f'<div class="verdict" style="background:{_verdict_colour(res.verdict)}">'
         f"{_esc(res.verdict)}</div>"
     )
+    # the condition the verdict holds in, who stated it, what the free state gave
+    out.append(f'<p class="condition">Judged {_esc(res.condition_text())}.</p>')
     reasons = res.decided_by()
     if reasons:
         items = "".join(f"<li>{_esc(r)}</li>" for r in reasons[:4])
