@@ -43,6 +43,7 @@ from qifreport.metrology.inspection import (
     inspect,
 )
 from qifreport.metrology.model import Drawing, Part
+from qifreport.metrology.params import CLAMPS
 from qifreport.registration.linalg import default_backend
 from qifreport.registration.pointcloud import read_scan
 from qifreport.registration.scan import Scan
@@ -320,7 +321,10 @@ def inspect_state(
     part, drawing = state.part, state.drawing
     # the condition the part is judged in, and who stated it: the operator's, else the
     # drawing's (judge_as_held applies it)
-    params = replace(o.inspection_params(), restraint=o.restraint_condition(drawing))
+    held = o.restraint_condition(drawing)
+    params = replace(o.inspection_params(), restraint=held)
+    if held.condition == CLAMPS:
+        params = replace(params, fixture="restrained")
     inputs = replace(
         part_inputs(part, drawing, prepared=state.prepared, restraint=state.restraint),
         # the --min-coverage rules apply to this inspection's zones

@@ -85,16 +85,26 @@ def pmi_zones(doc: dict) -> list[dict]:
 
 
 def assert_conforms(doc: dict) -> None:
-    """The judgement of a perfect scan: nothing fails, the free state conforms or lies on a
-    zone limit within the uncertainty (so no virtual fixture was applied: these are stiff,
-    machined parts), the rigid fit is tight, and every PMI-toleranced surface measured
+    """The judgement of a perfect scan: nothing fails, judged in the free state (only, when
+    the drawing states no restraint; first, and it conforms or lies on a zone limit within
+    the uncertainty, when it does: no virtual fixture applied to these stiff, machined
+    parts), the rigid fit is tight, and every PMI-toleranced surface measured
     PASSes or, on its zone limit, is not established."""
     fails = [z["description"] for z in doc["tolerances"] if z["verdict"] == "FAIL"]
     assert not fails, f"perfect scan fails {fails}"
     assert doc["verdict"] != "FAIL" and doc["_rc"] != 1, doc["decided_by"]
     reg = doc["registration"]
-    # a face on its zone limit (CTC 02's unilateral zones) stands within the uncertainty
-    assert reg["fixture"]["decision"] in (FREE_STATE_CONFORMS, FREE_STATE_UNCERTAIN), reg
+    held = doc["restraint"]
+    # no restraint note (all but FTC 08): judged in the free state only, as the drawing
+    # states; FTC 08's note states a restraint: the free state first, which conforms (a
+    # face on its zone limit stands within the uncertainty)
+    free_only = held["condition"] == "free"
+    assert free_only == (held["stated_by"] == "drawing"), held
+    assert not held["applied"] and held["free_state"]["verdict"] == doc["verdict"], held
+    if free_only:
+        assert reg["fixture"]["decision"] == "rigid only", reg
+    else:
+        assert reg["fixture"]["decision"] in (FREE_STATE_CONFORMS, FREE_STATE_UNCERTAIN), reg
     # nor a feature characteristic (issue 22): a perfect part is within every limit, or on
     # one (a hole modelled at its size limit, CTC 01's 35 +0/-0.2 at 35) within the
     # uncertainty
@@ -105,7 +115,8 @@ def assert_conforms(doc: dict) -> None:
     on_limit = any(z["acceptance"]["decision"] == "UNCERTAIN" for z in doc["tolerances"]) or any(
         c["status"] == "INDETERMINATE" for c in doc["characteristics"]
     )
-    assert (reg["fixture"]["decision"] == FREE_STATE_UNCERTAIN) == on_limit
+    if not free_only:
+        assert (reg["fixture"]["decision"] == FREE_STATE_UNCERTAIN) == on_limit
     assert reg["fit"] is None
     assert reg["rigid"]["residual_scale_mm"] <= 2.0 * NOISE, reg["rigid"]
     measured = [z for z in pmi_zones(doc) if z["verdict"] != "NOT MEASURED"]

@@ -44,8 +44,10 @@ def test_arbitrary_pose_and_rigid_only_agree(scans):
     posed = s.run(s.scan.P @ T[:3, :3].T + T[:3, 3], "posed")
     assert_conforms(posed)
     rigid = s.run(None, "rigid", "--rigid-only")
-    # the free state of a stiff part conforms: no virtual fixture is applied
-    assert base["registration"]["fixture"]["decision"] == "free state conforms"
+    # FTC 06's drawing states no restraint: judged in the free state only, as --rigid-only
+    assert base["restraint"]["condition"] == rigid["restraint"]["condition"] == "free"
+    assert base["restraint"]["stated_by"] == "drawing" and not base["restraint"]["applied"]
+    assert base["registration"]["fixture"]["decision"] == "rigid only"
     verdicts = {z["key"]: z["verdict"] for z in base["tolerances"]}
     assert {z["key"]: z["verdict"] for z in posed["tolerances"]} == verdicts
     assert {z["key"]: z["verdict"] for z in rigid["tolerances"]} == verdicts

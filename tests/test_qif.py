@@ -87,6 +87,8 @@ def runs(tmp_path_factory, shell, shell_case, shell_case_defect):
             str(ROOT / "samples/panel_scan_defect.ply"),
             "--max-edge",
             "6",
+            "--restraint",
+            "virtual",
             "--out",
             str(d),
             "--json",
@@ -187,6 +189,33 @@ def _profiles(r) -> list:
 
 def _acceptances(r) -> dict:
     return {c.spec.key: c for c in r.characteristics if c.document.type == "UserDefinedAttribute"}
+
+
+def test_the_condition_and_who_stated_it_are_in_the_json_and_the_qif(runs):
+    """The operator's --restraint virtual (the panel's drawing note states it too: the
+    operator's word is the one recorded), the mesh nominal's operator-level default, each in
+    the JSON's restraint block and the QIF's result attributes, with the free state's
+    verdict where the fixture was applied."""
+    for name, stated_by, statement in (
+        ("step", "operator", "--restraint virtual"),
+        ("pass", "default", "no drawing (mesh nominal)"),
+    ):
+        _, qif, doc = runs[name]
+        held = doc["restraint"]
+        assert (held["condition"], held["stated_by"]) == ("virtual", stated_by)
+        assert held["statement"].startswith(statement)
+        assert doc["parameters"]["restraint"] == {
+            k: held[k] for k in ("condition", "stated_by", "statement")
+        }
+        attrs = {
+            a.get("name"): a.get("value") for a in etree.parse(str(qif)).iter(f"{Q}AttributeStr")
+        }
+        assert attrs["restraint_condition"] == "virtual"
+        assert attrs["restraint_stated_by"] == stated_by
+        assert attrs["judged_condition"] == held["judged"]
+        if held["applied"]:
+            assert held["judged"].startswith(f"{doc['verdict']} in a virtually restrained")
+            assert attrs["free_state_verdict"] == held["free_state"]["verdict"] == "FAIL"
 
 
 def test_failing_part_carries_fail_and_its_regions(runs):

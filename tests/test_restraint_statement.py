@@ -1,0 +1,156 @@
+"""Restraint is stated, never chosen silently: the drawing's restraint note read from the
+AP242 text (NIST FTC 08's note 5, the sample panel's ISO 10579-NR note; none in FTC 06 and
+the CTC files), the condition decided once from the drawing and the operator's options,
+and a STEP part whose drawing states no restraint judged in the free state only, said so
+in its JSON and QIF.
+
+Real NIST files, the real sample STEP read by OCP, the real command line.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from lxml import etree
+
+from qifreport.errors import InputError
+from qifreport.metrology.acceptance.bands import symmetric_zone
+from qifreport.metrology.model import Drawing, RestraintStatement
+from qifreport.metrology.params import InspectionParams
+from qifreport.options import InspectOptions
+from qifreport.step.notes import restraint_note
+from qifreport.step.p21 import P21Model
+from qifreport.step.semantic import read_pmi_text
+from tests.conftest import NIST, shared_file
+
+ROOT = Path(__file__).resolve().parents[1]
+EXE = Path(sys.executable).with_name("qifreport")
+Q = "{http://qifstandards.org/xsd/qif3}"
+
+
+def test_ftc08_restraint_note_is_read_and_no_other_nist_file_states_one():
+    """FTC 08's note 5 states the restrained condition (its tolerances carry the free-state
+    modifier (F) too); FTC 06 and the CTC files state none."""
+    found = {name: read_pmi_text(shared_file(f"step/nist/{name}")) for name in NIST}
+    ftc08 = next(n for n in found if n.startswith("nist_ftc_08"))
+    note = found[ftc08].restraint
+    assert note is not None and note.phrase == "RESTRAINED" and note.step_id == 12880
+    assert note.text.startswith("5. DIMENSIONING AND TOLERANCING APPLY WITH PART RESTRAINED")
+    assert note.text.endswith("DETAILED INSPECTION PLAN NEEDED TO COMPLETELY DEFINE RESTRAINT.")
+    assert "6. UNITS" not in note.text  # the note, not the next one
+    free = [t for t in found[ftc08].tolerances if "free_state" in t.modifiers]
+    assert len(free) == 5
+    assert [n for n, pmi in found.items() if pmi.restraint is not None] == [ftc08]
+    assert any(n.startswith("nist_ftc_06") for n in found)
+
+
+def test_a_denied_restraint_states_none_and_a_text_literal_is_read():
+    def note(text: str, entity: str = "DESCRIPTIVE_REPRESENTATION_ITEM('note',{})"):
+        return restraint_note(P21Model.from_text(f"DATA; #1 = {entity.format(text)}; ENDSEC;"))
+
+    assert note("'INSPECT IN THE FREE STATE, UNRESTRAINED.'") is None
+    assert note("'PART NOT RESTRAINED'") is None
+    assert note("'NO RESTRAINT APPLIES'") is None
+    lit = note("'ISO 10579 - NR'", "TEXT_LITERAL('n',{},$,'baseline left',.RIGHT.)")
+    assert lit is not None and lit.phrase == "ISO 10579 - NR" and lit.step_id == 1
+
+
+def test_the_sample_panel_declares_its_restraint():
+    note = read_pmi_text(ROOT / "samples/panel.step").restraint
+    assert note is not None and note.phrase == "ISO 10579-NR"
+    assert "APPLY WITH PART RESTRAINED" in note.text and "20 N" in note.text
+
+
+def _drawing(said: RestraintStatement) -> Drawing:
+    return Drawing([symmetric_zone(0.5, "general")], restraint=said)
+
+
+NOTE = RestraintStatement(True, "1. ISO 10579-NR. ...", "drawing note")
+NONE = RestraintStatement(False, "", "drawing")
+MESH = RestraintStatement()
+
+
+@pytest.mark.parametrize(
+    ("options", "said", "expected"),
+    [
+        ({}, NOTE, ("virtual", "drawing note")),
+        ({}, NONE, ("free", "drawing")),
+        ({}, MESH, ("virtual", "default")),
+        ({"restraint": "free"}, NOTE, ("free", "operator")),
+        ({"restraint": "virtual"}, NONE, ("virtual", "operator")),
+        ({"rigid_only": True}, NOTE, ("free", "operator")),
+        ({"always_fixture": True}, NONE, ("virtual", "operator")),
+        ({"fixture": "free"}, NONE, ("virtual", "operator")),
+        ({"clamps": Path("pmi")}, NONE, ("clamps", "operator")),
+        ({"restraint": "clamps", "clamps": Path("pmi")}, MESH, ("clamps", "operator")),
+    ],
+)
+def test_the_condition_is_decided_once_and_says_who_stated_it(options, said, expected):
+    o = InspectOptions(**options)
+    o.check()
+    got = o.restraint_condition(_drawing(said))
+    assert (got.condition, got.stated_by) == expected
+    assert got.statement  # the note, the option, or why the default applies
+    params = InspectionParams(restraint=got)
+    assert params.held_condition == got
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ({"restraint": "free", "clamps": Path("pmi")}, "--restraint free and --clamps pmi"),
+        ({"restraint": "virtual", "rigid_only": True}, "--restraint virtual and --rigid-only"),
+        ({"restraint": "free", "always_fixture": True}, "--restraint free and --always-fixture"),
+        ({"restraint": "clamps"}, "--restraint clamps needs the clamps"),
+        ({"restraint": "held"}, "--restraint must be one of free, virtual, clamps"),
+    ],
+)
+def test_contradicting_statements_are_refused(options, message):
+    with pytest.raises(InputError, match=message):
+        InspectOptions(**options).check()
+
+
+def test_a_step_part_without_a_restraint_note_is_judged_in_its_free_state(tmp_path):
+    """The sample panel with its restraint note taken out: the drawing states no restraint,
+    so no fixture is applied and the part FAILs in its free state (the virtual fixture of
+    the noted drawing hides it: PASS); the JSON's restraint block and the QIF say so."""
+    text = (ROOT / "samples/panel.step").read_text()
+    plain = tmp_path / "plain.step"
+    plain.write_text(
+        text.replace("ISO 10579-NR. ", "")
+        .replace("RESTRAINED", "INSPECTED")
+        .replace("RESTRAINT FORCE", "FORCE")
+    )
+    assert read_pmi_text(plain).restraint is None
+    out = tmp_path / "out"
+    cmd = [str(EXE), str(plain), str(ROOT / "samples/panel_scan.ply"), "--max-edge", "6"]
+    r = subprocess.run(
+        cmd + ["--no-cache", "--json", "--no-pdf", "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 1, r.stdout + r.stderr[-2000:]
+    assert "condition: FAIL in the free state (stated by: drawing); no restraint applied" in (
+        r.stdout
+    )
+    doc = json.loads((out / "plain.json").read_text())
+    held = doc["restraint"]
+    assert (held["condition"], held["stated_by"], held["applied"]) == ("free", "drawing", False)
+    assert held["free_state"]["verdict"] == doc["verdict"] == "FAIL"
+    assert doc["registration"]["fit"] is None
+    assert doc["parameters"]["restraint"]["condition"] == "free"
+    # the free state's deviation is what a virtual fixture would have bent away: the
+    # crown's skin (T2, +/-0.25 mm) lies 0.5-0.9 mm off its nominal
+    t2 = next(z for z in doc["tolerances"] if z["key"] == "T2")
+    assert t2["verdict"] == "FAIL" and t2["deviation"]["max_abs"] > 0.5
+    attrs = {
+        a.get("name"): a.get("value")
+        for a in etree.parse(str(out / "plain.qif")).iter(f"{Q}AttributeStr")
+    }
+    assert attrs["restraint_condition"] == "free" and attrs["restraint_stated_by"] == "drawing"
+    assert attrs["judged_condition"].startswith("FAIL in the free state")
+    assert doc["qif"]["valid"] is True
