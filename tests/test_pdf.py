@@ -185,8 +185,8 @@ def test_one_page_verdict_and_fonts(reports, case):
     assert {"pass": "PASS", "fail": "FAIL", "panel": "FAIL"}[case] == verdict
     assert verdict in _tokens(o.text)
     other = "FAIL" if verdict == "PASS" else "PASS"
-    if verdict == "PASS":
-        assert other not in _tokens(o.text)
+    if verdict == "PASS":  # the word FAIL only where the page says what the free state gave
+        assert other not in _tokens(re.sub(r"free\s+state\s+FAIL", "", o.text))
     assert read_results(o.qif).status == verdict
     # title block: part, files with their digest, operator, organization, units, software
     for s in (
