@@ -47,8 +47,8 @@ from qifreport.registration.deformable.methods import METHODS, deform, method_sp
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import rigid_icp
 from qifreport.registration.linalg import SPDSolver
-from qifreport.registration.mesh import bounding_diagonal
-from qifreport.registration.normals import oriented_normals
+from qifreport.registration.mesh import bounding_diagonal, median_edge_length
+from qifreport.registration.normals import oriented_normals, refined_normals
 from qifreport.registration.pose.prealign import seat_scan
 from qifreport.registration.restraint.restrained import RestraintBasis
 
@@ -368,7 +368,7 @@ def seat_rigidly(
     if scan_normals is None:
         scan_normals = oriented_normals(P, params.gbcicp.scan_normal_k)
     Ns, sheets = resolved(scan_normals)
-    Ns = Ns @ rigid.R.T
+    Ns = seated_normals(Pm, Ns @ rigid.R.T, V, F, prepared.ops.normals, tree)
     area_mm2 = scan_area(P) if area is None else resolved(area)
     timings["scan normals, area"] = time.perf_counter() - t0
     reg = Registered(
@@ -376,6 +376,19 @@ def seat_rigidly(
     )
     reg.scan_area = area_mm2  # the cached property, known already
     return reg
+
+
+def seated_normals(
+    P: np.ndarray, Ns: np.ndarray, V: np.ndarray, F: np.ndarray, normals: np.ndarray, tree: cKDTree
+) -> np.ndarray:
+    """The seated scan's normals (m, 3) refitted on one skin within one median edge of the
+    nominal (:func:`~qifreport.registration.normals.refined_normals`, the prior each point's
+    nearest nominal vertex's normal): a length of the part, so that a sparser scan of the
+    same surface gets the same normals. ``P`` (m, 3) mm seated, ``Ns`` its signed normals,
+    ``V`` (n, 3) mm, ``F`` the nominal, ``normals`` (n, 3) its unit vertex normals,
+    ``tree``: ``cKDTree(V)``."""
+    _, near = tree.query(P, workers=-1)
+    return refined_normals(P, Ns, normals[near], median_edge_length(V, F))
 
 
 def default_zones(params: InspectionParams) -> list[ToleranceZone]:
