@@ -25,6 +25,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from big_scan import write_ply  # bench/: the script's own folder
 
 from qifreport.registration.pointcloud import read_scan
 
@@ -38,18 +39,6 @@ CASES: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "shell": ("shell_nominal.ply", "shell_scan.ply", ("--tolerance", "0.5")),
     "shell_defect": ("shell_nominal.ply", "shell_scan_defect.ply", ("--tolerance", "0.5")),
 }
-
-
-def write_ply(path: Path, points: np.ndarray) -> None:
-    """Write (m, 3) points, mm, as a binary little-endian PLY of float64 coordinates."""
-    head = (
-        "ply\nformat binary_little_endian 1.0\ncomment qifreport bench/density.py\n"
-        f"element vertex {len(points)}\nproperty double x\nproperty double y\n"
-        "property double z\nend_header\n"
-    )
-    with open(path, "wb") as fh:
-        fh.write(head.encode("ascii"))
-        fh.write(np.ascontiguousarray(points, dtype="<f8").tobytes())
 
 
 def subsample(points: np.ndarray, fraction: float, seed: int) -> np.ndarray:
