@@ -663,27 +663,34 @@ def scan_area(
         e = min(s + chunk, m)
         Q = np.take(P, nbr[s:e], axis=0) - P[s:e, None, :]  # (c, k, 3) about the point
         T = _tangent_basis(Q, None if N is None else N[s:e])
-        q = np.matmul(Q, T)  # (c, k, 2) tangent-plane coordinates
-        r = rho[s:e]
-        # the probe u lies in the cell iff u . q_j < |q_j|^2 / 2 for every neighbour j
-        half = 0.5 * (q * q).sum(axis=2)
-        coincident = half <= 0.5 * (1e-9 * r[:, None]) ** 2
-        half[coincident] = np.inf  # coincident in the plane: excluded, the cell is shared
-        half[~own[s:e]] = np.inf  # the far skin bounds no cell of this one
-        coincident &= own[s:e]
         phi = rng.uniform(0.0, 2.0 * math.pi, e - s)
-        cos, sin = np.cos(phi), np.sin(phi)
-        # the probes (c, M): the disk turned by phi and scaled by r, as x and y planes
-        ux = (np.multiply.outer(cos, disk[:, 0]) - np.multiply.outer(sin, disk[:, 1])) * r[:, None]
-        uy = (np.multiply.outer(sin, disk[:, 0]) + np.multiply.outer(cos, disk[:, 1])) * r[:, None]
-        # every neighbour's half-plane: an AND over k, one (c, M) plane at a time (a stacked
-        # matmul of 2-vectors pays a call per point, and np.all along a short axis is slow)
-        inside = ux * q[:, None, 0, 0] + uy * q[:, None, 0, 1] < half[:, None, 0]
-        for j in range(1, k):
-            inside &= ux * q[:, None, j, 0] + uy * q[:, None, j, 1] < half[:, None, j]
-        cell = inside.mean(axis=1) * math.pi * r * r / (1.0 + coincident.sum(axis=1))
-        total += float(cell.sum())
+        total += float(_cell_areas(np.matmul(Q, T), own[s:e], rho[s:e], disk, phi).sum())
     return total
+
+
+def _cell_areas(
+    q: np.ndarray, own: np.ndarray, r: np.ndarray, disk: np.ndarray, phi: np.ndarray
+) -> np.ndarray:
+    """(c,) the Voronoi cell areas, mm^2, of :func:`scan_area`'s points: ``q`` (c, k, 2)
+    their neighbours in their tangent planes, mm, ``own`` (c, k) bool those of their own
+    skin, ``r`` (c,) the disks' radii, mm, ``disk`` (M, 2) the unit probe disk, turned by
+    ``phi`` (c,) rad per point."""
+    # the probe u lies in the cell iff u . q_j < |q_j|^2 / 2 for every neighbour j
+    half = 0.5 * (q * q).sum(axis=2)
+    coincident = half <= 0.5 * (1e-9 * r[:, None]) ** 2
+    half[coincident] = np.inf  # coincident in the plane: excluded, the cell is shared
+    half[~own] = np.inf  # the far skin bounds no cell of this one
+    coincident &= own
+    cos, sin = np.cos(phi), np.sin(phi)
+    # the probes (c, M): the disk turned by phi and scaled by r, as x and y planes
+    ux = (np.multiply.outer(cos, disk[:, 0]) - np.multiply.outer(sin, disk[:, 1])) * r[:, None]
+    uy = (np.multiply.outer(sin, disk[:, 0]) + np.multiply.outer(cos, disk[:, 1])) * r[:, None]
+    # every neighbour's half-plane: an AND over k, one (c, M) plane at a time (a stacked
+    # matmul of 2-vectors pays a call per point, and np.all along a short axis is slow)
+    inside = ux * q[:, None, 0, 0] + uy * q[:, None, 0, 1] < half[:, None, 0]
+    for j in range(1, q.shape[1]):
+        inside &= ux * q[:, None, j, 0] + uy * q[:, None, j, 1] < half[:, None, j]
+    return inside.mean(axis=1) * math.pi * r * r / (1.0 + coincident.sum(axis=1))
 
 
 def _cell_neighbours(
