@@ -40,7 +40,6 @@ from qifreport.metrology.acceptance.bands import (
     lay_bands,
     symmetric_zone,
 )
-from qifreport.metrology.acceptance.criteria import scan_area
 from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 from qifreport.metrology.restraint.held import hold_scan
 from qifreport.registration.deformable.bending_basis import BendingBasis
@@ -48,8 +47,8 @@ from qifreport.registration.deformable.methods import METHODS, deform, method_sp
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import rigid_icp
 from qifreport.registration.linalg import SPDSolver
-from qifreport.registration.mesh import bounding_diagonal
-from qifreport.registration.normals import oriented_normals
+from qifreport.registration.mesh import bounding_diagonal, median_edge_length
+from qifreport.registration.normals import oriented_normals, refined_normals
 from qifreport.registration.pose.prealign import seat_scan
 from qifreport.registration.restraint.restrained import RestraintBasis
 
@@ -338,22 +337,21 @@ def seat_rigidly(
     timings: dict[str, float],
     *,
     scan_normals: Any = None,
-    area: Any = None,
 ) -> Registered:
     """The scan ``P`` (m, 3) seated on the nominal ``(V, F)``: the pose search, the rigid
-    fit, the overlap check, and the scan's normals (turned with it) and covered area
-    (:class:`~qifreport.metrology.stages.context.Registered`).
+    fit, the overlap check, and the scan's normals (turned with it)
+    (:class:`~qifreport.metrology.stages.context.Registered`; its covered area is measured
+    when first asked for, with the seated normals).
 
     The normals (oriented consistently per connected sheet once; the inspection only
-    chooses each sheet's side against its nominal) and the area do not depend on where the
-    scan lies: they are measured on the points as given and turned with the scan.
-    ``scan_normals``: ``(Ns, sheets)`` of
+    chooses each sheet's side against its nominal) do not depend on where the scan lies:
+    they are measured on the points as given and turned with the scan, then refitted on one
+    skin (:func:`seated_normals`). ``scan_normals``: ``(Ns, sheets)`` of
     :func:`~qifreport.registration.normals.oriented_normals` on ``P`` with
-    ``params.gbcicp.scan_normal_k``, and ``area``: its covered area, mm^2
-    (:func:`~qifreport.metrology.acceptance.criteria.scan_area`), when the caller measures
-    them already: the values, or pending results (anything with ``result()``); default:
-    measured here, after the rigid fit. ``timings``: seconds per stage, added to. Raises
-    :class:`InputError` when the seated scan does not overlap the nominal."""
+    ``params.gbcicp.scan_normal_k``, when the caller measures them already: the values, or
+    pending results (anything with ``result()``); default: measured here, after the rigid
+    fit. ``timings``: seconds per stage, added to. Raises :class:`InputError` when the
+    seated scan does not overlap the nominal."""
     t0 = time.perf_counter()
     seat = seat_scan(V, F, P, mode=params.prealign, model=prepared.model)
     timings["prealign"] = time.perf_counter() - t0
@@ -374,14 +372,24 @@ def seat_rigidly(
     if scan_normals is None:
         scan_normals = oriented_normals(P, params.gbcicp.scan_normal_k)
     Ns, sheets = resolved(scan_normals)
-    Ns = Ns @ rigid.R.T
-    area_mm2 = scan_area(P) if area is None else resolved(area)
-    timings["scan normals, area"] = time.perf_counter() - t0
-    reg = Registered(
+    Ns = seated_normals(Pm, Ns @ rigid.R.T, V, F, prepared.ops.normals, tree)
+    timings["scan normals"] = time.perf_counter() - t0
+    return Registered(
         V=V, F=F, P=Pm, rigid=rigid, seat=seat, scan_normals=Ns, sheets=sheets, diag=diag
     )
-    reg.scan_area = area_mm2  # the cached property, known already
-    return reg
+
+
+def seated_normals(
+    P: np.ndarray, Ns: np.ndarray, V: np.ndarray, F: np.ndarray, normals: np.ndarray, tree: cKDTree
+) -> np.ndarray:
+    """The seated scan's normals (m, 3) refitted on one skin within one median edge of the
+    nominal (:func:`~qifreport.registration.normals.refined_normals`, the prior each point's
+    nearest nominal vertex's normal): a length of the part, so that a sparser scan of the
+    same surface gets the same normals. ``P`` (m, 3) mm seated, ``Ns`` its signed normals,
+    ``V`` (n, 3) mm, ``F`` the nominal, ``normals`` (n, 3) its unit vertex normals,
+    ``tree``: ``cKDTree(V)``."""
+    _, near = tree.query(P, workers=-1)
+    return refined_normals(P, Ns, normals[near], median_edge_length(V, F))
 
 
 def default_zones(params: InspectionParams) -> list[ToleranceZone]:

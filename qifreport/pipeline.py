@@ -583,11 +583,10 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     def nominal_read(part: Part) -> None:
         # the scan's own normals need only its points, thinned to the nominal's grid: they
         # start as soon as the mesh is known, beside the preparation of a new part (one
-        # CPU's work); its area waits for the pose search (both beside the preparation
-        # slowed it by half)
+        # CPU's work); its area is measured once seated, on one skin at a time
         with _stage(prof, "thin scan"):  # the points read are let go once thinned
             scan["P"], scan["report"] = scan_input(scan.pop("read"), part)
-        scan["measures"] = start_scan_measures(scan["P"], params, beside, area=False)
+        scan["measures"] = start_scan_measures(scan["P"], params, beside)
 
     try:
         with _stage(prof, "prepare part (cache)"):

@@ -3,7 +3,7 @@
 The library's :func:`qifreport.metrology.inspection.inspect` makes every step in this
 process, one after the other. A command with a second CPU (a forked child,
 :mod:`qifreport.forked`) makes some of them beside the rest, from the library's public
-steps: :func:`inspect_beside` measures the scan's normals and area beside the pose search
+steps: :func:`inspect_beside` measures the scan's normals beside the pose search
 (or, :func:`start_scan_measures`, beside the part's preparation), judges the free state
 beside the virtual fixture, which is given up once the free state stands, and measures the
 trim edges beside each judgement made here (:func:`judge_beside`).
@@ -25,7 +25,6 @@ from typing import Any
 import numpy as np
 
 from qifreport.metrology.acceptance.bands import ToleranceZone
-from qifreport.metrology.acceptance.criteria import scan_area
 from qifreport.metrology.inspection import (
     InspectionInputs,
     InspectionParams,
@@ -66,33 +65,26 @@ __all__ = [
 
 @dataclass
 class ScanMeasures:
-    """The scan's own normals and the area it covers, under way (:func:`start_scan_measures`).
+    """The scan's own normals, under way (:func:`start_scan_measures`). (The area it
+    covers is measured on the seated scan, with its normals refitted on one skin.)
 
     Attributes
     ----------
     P : (m, 3) the scan points they are measured on, mm (the very array later inspected).
     normals : pending ``(Ns, sheets)`` of
         :func:`~qifreport.registration.normals.oriented_normals` (``result()``).
-    area : pending covered area, mm^2, of
-        :func:`~qifreport.metrology.acceptance.criteria.scan_area`;
-        None: not started yet (:func:`inspect_beside` starts it).
     """
 
     P: np.ndarray
     normals: Any
-    area: Any = None
 
     def cancel(self) -> None:
-        """Stop whatever of them is still running (a result taken already is kept)."""
+        """Stop them if still running (a result taken already is kept)."""
         self.normals.cancel()
-        if self.area is not None:
-            self.area.cancel()
 
 
-def start_scan_measures(
-    P: np.ndarray, params: InspectionParams, executor=None, *, area: bool = True
-) -> ScanMeasures:
-    """Start measuring the scan's own normals and covered area (for :func:`inspect_beside`).
+def start_scan_measures(P: np.ndarray, params: InspectionParams, executor=None) -> ScanMeasures:
+    """Start measuring the scan's own normals (for :func:`inspect_beside`).
 
     They do not depend on where the scan lies
     (:func:`~qifreport.metrology.inspection.seat_rigidly`), so they can run before the scan
@@ -104,11 +96,9 @@ def start_scan_measures(
     P : (m, 3) the scan points the inspection will be given, mm.
     params : the inspection's parameters (the normals' neighbourhood).
     executor : where they run; default: in this process, when asked for.
-    area : start the area too (else :func:`inspect_beside` starts it).
     """
     normals = submit(executor, oriented_normals, P, params.gbcicp.scan_normal_k)
-    pending = submit(executor, scan_area, P) if area else None
-    return ScanMeasures(P=P, normals=normals, area=pending)
+    return ScanMeasures(P=P, normals=normals)
 
 
 def inspect_beside(
@@ -131,11 +121,11 @@ def inspect_beside(
     executor : an object whose ``submit(fn, *args, **kwargs)`` returns a future (with
         ``result()`` and ``cancel()``, and ``done()`` to give up the fixture early), e.g. a
         :class:`concurrent.futures.Executor` or the command line's forked child
-        (:class:`qifreport.forked.ForkExecutor`). Given to it: the scan's normals and area
-        (beside the pose), the free-state judgement (beside the virtual fixture, which is
+        (:class:`qifreport.forked.ForkExecutor`). Given to it: the scan's normals (beside
+        the pose), the free-state judgement (beside the virtual fixture, which is
         given up once the free state stands) and the trim edges of the judgements made
         here. Default: everything here, in the library's order.
-    measures : the scan's normals and area started already on these very points
+    measures : the scan's normals started already on these very points
         (:func:`start_scan_measures`, e.g. beside the part's preparation); default: started
         here, on ``executor``. The inspection takes them, or stops them when it fails.
     """
@@ -148,12 +138,8 @@ def inspect_beside(
         prepared, basis = checked_part(V, F, P, params, inputs, timings)
     if measures is None:
         measures = start_scan_measures(P, params, executor)
-    elif measures.area is None:
-        measures.area = submit(executor, scan_area, P)
     try:
-        reg = seat_rigidly(
-            V, F, P, params, prepared, timings, scan_normals=measures.normals, area=measures.area
-        )
+        reg = seat_rigidly(V, F, P, params, prepared, timings, scan_normals=measures.normals)
     finally:
         measures.cancel()
     run = inspection_context(reg, params, inputs, prepared, basis, timings, progress)

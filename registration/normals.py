@@ -27,6 +27,7 @@ __all__ = [
     "orient_normals_consistent",
     "oriented_normals",
     "pca_normals",
+    "refined_normals",
     "wall_sides",
 ]
 
@@ -48,6 +49,69 @@ def pca_normals(P: np.ndarray, k: int = 12, tree: cKDTree | None = None) -> np.n
         _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", Q, Q))
         N[s : s + _PCA_BLOCK] = vecs[:, :, 0]
     return N
+
+
+#: most neighbours :func:`refined_normals` fits a tangent plane to; the slab of one skin, a
+#: share of its radius; the fewest neighbours it fits, and the least spread across the
+#: second tangent direction, as a share of the first (scan lines: points along a line leave
+#: the normal undetermined about the line)
+REFINE_MAX_NEIGHBOURS = 48
+REFINE_SLAB = 0.25
+REFINE_MIN_POINTS = 5
+REFINE_MIN_SPREAD = 0.05
+
+
+def refined_normals(
+    P: np.ndarray,
+    Ns: np.ndarray,
+    prior: np.ndarray,
+    radius: float,
+    tree: cKDTree | None = None,
+) -> np.ndarray:
+    """Scan normals (m, 3) refitted on the points of one skin within ``radius`` mm.
+
+    :func:`pca_normals` takes each point's ``k`` nearest neighbours: their reach follows
+    the scan's density, and on a sparse scan of a thin wall (or one along scan lines) they
+    mix the wall's two skins or lie along one line, and the normal turns by tens of
+    degrees. Here each point's tangent plane is fitted to its neighbours within a fixed
+    ``radius`` (at most :data:`REFINE_MAX_NEIGHBOURS`, at least the nearest
+    :data:`REFINE_MIN_POINTS`) that lie in the slab of half-width :data:`REFINE_SLAB` x
+    ``radius`` about the point across ``prior``, its approximate normal (the nominal's
+    surface normal there, the scan seated rigidly on it): a wall's other skin, farther
+    than the slab, never enters. The normal is the prior where fewer than
+    :data:`REFINE_MIN_POINTS` neighbours are in the slab or they lie along one line
+    (second tangent spread under :data:`REFINE_MIN_SPREAD` of the first).
+
+    Each normal keeps the side of ``Ns`` (the consistently signed scan normals) where the
+    two agree within 60 degrees, else the prior's.
+
+    Parameters
+    ----------
+    P : (m, 3) scan points, mm.  Ns : (m, 3) their unit normals, signed.
+    prior : (m, 3) unit approximate normals (e.g. of the nominal's closest triangles).
+    radius : the neighbourhood, mm, stated from the part (not from the scan's spacing).
+    tree : ``cKDTree(P)``.
+    """
+    tree = tree or cKDTree(P)
+    k = min(REFINE_MAX_NEIGHBOURS, len(P))
+    out = np.asarray(prior, dtype=np.float64).copy()
+    for s in range(0, len(P), _PCA_BLOCK):
+        X0, N0 = P[s : s + _PCA_BLOCK], out[s : s + _PCA_BLOCK]
+        dist, idx = tree.query(X0, k=k, workers=-1)
+        D = np.take(P, idx, axis=0) - X0[:, None, :]  # (np.take: registration.arrays)
+        near = (dist <= radius) | (np.arange(k) < REFINE_MIN_POINTS)
+        w = near & (np.abs(np.einsum("mki,mi->mk", D, N0)) <= REFINE_SLAB * radius)
+        cnt = w.sum(axis=1)
+        W = w[..., None].astype(np.float64)
+        D -= (D * W).sum(axis=1, keepdims=True) / np.maximum(cnt, 1)[:, None, None]
+        D *= W
+        vals, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", D, D))
+        ok = (cnt >= REFINE_MIN_POINTS) & (vals[:, 1] > REFINE_MIN_SPREAD * vals[:, 2])
+        N0[ok] = vecs[ok, :, 0]
+    same = np.einsum("ij,ij->i", out, Ns)
+    side = np.where(np.abs(same) >= 0.5, same, np.einsum("ij,ij->i", out, prior))
+    out[side < 0] *= -1.0
+    return out
 
 
 #: points per block of :func:`pca_normals`, neighbour pairs per block of

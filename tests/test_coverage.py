@@ -61,6 +61,39 @@ def test_coverage_counts_the_bands_left_out_by_design():
     assert c.measured
 
 
+def test_a_surface_scanned_too_sparsely_for_its_region_criterion_is_not_measured():
+    """The density rule: a 25 mm^2 region must hold the 9 points of one point's median,
+    0.36 points per mm^2 of the scored surface (1,600 mm^2 here); stated by the region's
+    area in mm^2, so a 100 mm^2 region asks a quarter of it."""
+    V, F = grid()
+    A = vertex_areas(V, F)
+    dev = np.zeros(len(V))
+    none = np.zeros(len(V), bool)
+    c = zone_coverage(V, F, dev, A, none, 0.0, 0.5, points=400)
+    assert c.density == pytest.approx(0.25) and c.min_density == pytest.approx(0.36)
+    assert not c.measured and c.reasons == [
+        "scan too sparse: 0.25 points/mm^2 on the scored surface < 0.36 (the 9 points of one "
+        "point's median within a 25 mm^2 region of the region criterion)"
+    ]
+    assert zone_coverage(V, F, dev, A, none, 0.0, 0.5, points=600).measured  # 0.375
+    assert zone_coverage(V, F, dev, A, none, 0.0, 0.5, max_region_area=100.0, points=400).measured
+    assert zone_coverage(V, F, dev, A, none, 0.0, 0.5).measured  # not counted: no rule
+
+
+def test_a_sparse_scan_of_the_shell_is_not_measured_as_too_sparse(shell, shell_case):
+    """A seeded 15 % of the shell's scan (about 0.3 points/mm^2) is NOT MEASURED, "scan too
+    sparse", with its real density; never a verdict from too few points."""
+    V, F = shell
+    P = shell_case.P
+    keep = np.random.default_rng(0).random(len(P)) < 0.15
+    res = inspect(V, F, P[keep], InspectionParams(tolerance=0.5))
+    c = res.zones[0].coverage
+    assert res.verdict == "NOT MEASURED", res.decided_by()
+    assert 0.2 < c.density < c.min_density == pytest.approx(0.36), c.density
+    assert any("scan too sparse: " + f"{c.density:.2f} points/mm^2" in r for r in c.reasons)
+    assert any("scan too sparse" in r for r in res.decided_by())
+
+
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_hole_larger_than_the_gap_limit_is_not_measured(seed):
     rng = np.random.default_rng(seed)

@@ -424,6 +424,24 @@ def test_scan_area_independent_of_overlap():
     assert abs(scan_area(two[two[:, 2] > 0]) / (true / 2) - 1) < 0.10
 
 
+def test_scan_area_keeps_the_two_skins_of_a_thin_wall_apart():
+    """A 1.5 mm wall seen from both sides at 1.2 mm point spacing (sparser than the wall is
+    thick): without normals the far skin's points share each cell of the near skin's and
+    the area reads about half the two skins' (a sparse scan of a thin part then looked
+    over-fitted); with the signed normals each skin keeps its own cells."""
+    rng = np.random.default_rng(5)
+    true = 2 * 60.0 * 50.0
+    top = _lattice_plane(60, 50, 1.2, 0.3, 0.0, rng) + [0.0, 0.0, 1.5]
+    bottom = _lattice_plane(60, 50, 1.2, 0.8, 0.5, rng)
+    P = np.r_[top, bottom]
+    N = np.r_[np.tile([0.0, 0.0, 1.0], (len(top), 1)), np.tile([0.0, 0.0, -1.0], (len(bottom), 1))]
+    assert scan_area(P) / true < 0.75  # the skins merged (0.64)
+    # each skin as if scanned alone (both read 6 % over the patch: its boundary's share)
+    alone = scan_area(top) + scan_area(bottom)
+    assert abs(scan_area(P, normals=N) / alone - 1) < 0.01
+    assert abs(alone / true - 1) < 0.08
+
+
 def test_coverage_ceiling():
     assert coverage_ceiling_ok(0.50, 600.0, 1000.0)
     assert coverage_ceiling_ok(0.63, 600.0, 1000.0)  # 0.6 * 1.05

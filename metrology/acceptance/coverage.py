@@ -26,11 +26,20 @@ criteria count:
   drawing, a screen for gross errors on the faces it does not tolerance) takes the first gap
   rule as a warning only (``advisory_gaps``): it is judged where it was measured, and the
   drawing's tolerances keep every rule on their own surfaces.
+* **Scan density** -- a region of the region criterion's area (``max_region_area``) must
+  hold the :data:`~qifreport.metrology.acceptance.point_regions.DEFAULT_K` points of one
+  point's median (:mod:`qifreport.metrology.acceptance.point_regions`), else a failing
+  region of that size is not seen on the points: the surface's points per mm^2 of its
+  scored area must reach ``DEFAULT_K / max_region_area`` (0.36 for 25 mm^2;
+  :func:`min_scan_density`). Below it the surface is NOT MEASURED, "scan too sparse". The
+  rule is stated by the drawing's region size, not by the scan's spacing. (Each vertex's
+  own reading needs points within its ball, about 1.5 mesh edges: a vertex without them
+  is unscored, and the coverage rule counts it.)
 * **Excluded share** -- the bands left out by design are reported per zone; when they exceed
   :data:`MAX_EXCLUDED_SHARE` of a zone's area the zone's result says so in a warning (the
   coverage rule then decides: 70 % cannot be reached with more than 30 % excluded).
 
-A zone that fails the coverage or gap rule is **NOT MEASURED**: its criteria are still
+A zone that fails the coverage, gap or density rule is **NOT MEASURED**: its criteria are still
 computed and reported on what was scored, but it neither passes nor fails on them, and a
 part with a required zone not measured is never PASS (:mod:`qifreport.metrology.inspection`).
 
@@ -47,6 +56,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from qifreport.metrology.acceptance.point_regions import DEFAULT_K
 from qifreport.metrology.acceptance.statistics import json_float
 from qifreport.registration.mesh import adjacency
 
@@ -55,6 +65,7 @@ __all__ = [
     "GAP_AREA_FACTOR",
     "MAX_EXCLUDED_SHARE",
     "Coverage",
+    "min_scan_density",
     "unmeasured_patches",
     "unseen_neighbour_edges",
     "zone_coverage",
@@ -84,9 +95,11 @@ class Coverage:
     largest_gap_area : mm^2, the largest connected unmeasured patch (0 if none).
     largest_gap_centroid : (3,) its area-weighted centroid, mm, or None.
     max_gap_area : the gap rule's limit, mm^2.
-    measured : both rules hold.
+    measured : every rule holds.
     reasons : one line per rule that failed (empty when measured).
     warnings : other notes (a large excluded share).
+    density : the surface's scan points per mm^2 of its scored area (NaN: not counted).
+    min_density : the density rule's least points per mm^2 (:func:`min_scan_density`).
     """
 
     area: float
@@ -101,6 +114,8 @@ class Coverage:
     measured: bool = False
     reasons: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    density: float = math.nan
+    min_density: float = math.nan
 
     @property
     def excluded_share(self) -> float:
@@ -122,7 +137,16 @@ class Coverage:
             "max_gap_area_mm2": float(self.max_gap_area),
             "reasons": list(self.reasons),
             "warnings": list(self.warnings),
+            "points_per_mm2": json_float(self.density),
+            "min_points_per_mm2": json_float(self.min_density),
         }
+
+
+def min_scan_density(max_region_area: float) -> float:
+    """The least scan points per mm^2 a toleranced surface needs for its region criterion
+    (module docstring): the :data:`DEFAULT_K` points of one point's median within one region
+    of ``max_region_area`` mm^2."""
+    return DEFAULT_K / float(max_region_area)
 
 
 def unmeasured_patches(
@@ -174,8 +198,9 @@ def zone_coverage(
     max_region_area: float = 25.0,
     max_gap_area: float | None = None,
     advisory_gaps: bool = False,
+    points: int | None = None,
 ) -> Coverage:
-    """The coverage and gap rules on one toleranced surface (module docstring).
+    """The coverage, gap and density rules on one toleranced surface (module docstring).
 
     Parameters
     ----------
@@ -191,6 +216,7 @@ def zone_coverage(
         band that is no drawing requirement (qifreport's default band beside a drawing's
         tolerances), judged where it was measured. The coverage rule and the second gap
         rule (a patch that could hide a failing region) still decide.
+    points : the scan points judging the surface (None: no density rule, e.g. a free state).
 
     Returns
     -------
@@ -221,11 +247,9 @@ def zone_coverage(
         adj, V, gap, out, excess, area, patches, max_gap_area, max_region_area, advisory_gaps
     )
     reasons += gap_reasons
-    if total > 0 and e_area / total > MAX_EXCLUDED_SHARE:
-        warnings.append(
-            f"{100 * e_area / total:.1f} % of the surface lies in the bands left unscored near "
-            f"sharp creases and open rims (more than {100 * MAX_EXCLUDED_SHARE:.0f} %)"
-        )
+    density = points / s_area if points is not None and s_area > 0 else math.nan
+    reasons += _density_rule(density, max_region_area)
+    warnings += _excluded_share_warning(total, e_area)
     return Coverage(
         area=total,
         scored_area=s_area,
@@ -239,7 +263,33 @@ def zone_coverage(
         measured=not reasons,
         reasons=reasons,
         warnings=warnings,
+        density=density,
+        min_density=min_scan_density(max_region_area),
     )
+
+
+def _excluded_share_warning(total: float, e_area: float) -> list[str]:
+    """The warning of a surface of ``total`` mm^2 with ``e_area`` mm^2 in the bands left
+    unscored by design beyond :data:`MAX_EXCLUDED_SHARE`, or none."""
+    if not (total > 0 and e_area / total > MAX_EXCLUDED_SHARE):
+        return []
+    return [
+        f"{100 * e_area / total:.1f} % of the surface lies in the bands left unscored near "
+        f"sharp creases and open rims (more than {100 * MAX_EXCLUDED_SHARE:.0f} %)"
+    ]
+
+
+def _density_rule(density: float, max_region_area: float) -> list[str]:
+    """The density rule on a surface scanned at ``density`` points per mm^2 (NaN: not
+    counted) with the region criterion's ``max_region_area``, mm^2: its reason, or none."""
+    least = min_scan_density(max_region_area)
+    if not density < least:
+        return []
+    return [
+        f"scan too sparse: {density:.2f} points/mm^2 on the scored surface < {least:.2f} "
+        f"(the {DEFAULT_K} points of one point's median within a {max_region_area:g} mm^2 "
+        "region of the region criterion)"
+    ]
 
 
 def _coverage_rule(total: float, cov: float, e_area: float, min_coverage: float) -> list[str]:

@@ -86,8 +86,9 @@ def acceptance_stage(
     zones = [
         zone_result(i, reg, m, ctx, params, advisory=advisory) for i in range(len(bands.zones))
     ]
+    excluded, n_points = deviations.excluded, int(scores.points_ok.sum())
     whole = _coverage(
-        V, F, dev_all, bands, area, deviations.excluded, params.min_coverage, params, advisory
+        V, F, dev_all, bands, area, excluded, params.min_coverage, params, advisory, n_points
     )
     # the ceiling catches a deformable fit that met points of other features; a B-rep's free
     # state is rigid and scores each vertex from its own faces' points only, while the
@@ -137,15 +138,17 @@ def zone_result(
         zpU = frame.shift_uncertainty(V, normals)
         own_U = scores.free_uncertainty if use_free else scores.uncertainty
         zU = np.hypot(own_U, frame.shift_uncertainty(V, normals))
-    points = None
+    points, n_points = None, None
     if not use_free:
         on_zone = scores.points_ok & mask[np.maximum(deviations.face, 0)]
         points = _surface_points(scores.samples, on_zone, z.half_width, zcenter, zpU)
+        n_points = int(on_zone.sum())
     zacc = _acceptance(V, F[mask], dz, z, az, zU, points, params)
     zstats = deviation_statistics(dz, weights=az, threshold=z.half_width)
     min_coverage = params.min_coverage if z.min_coverage is None else z.min_coverage
     advisory = advisory and z.source == "default"
-    zcov = _coverage(V, F[mask], dz, z, az, deviations.excluded, min_coverage, params, advisory)
+    excluded = deviations.excluded
+    zcov = _coverage(V, F[mask], dz, z, az, excluded, min_coverage, params, advisory, n_points)
     return ZoneResult(
         zone=z,
         stats=zstats,
@@ -194,9 +197,11 @@ def _coverage(
     min_coverage: float,
     params: InspectionParams,
     advisory: bool,
+    points: int | None,
 ) -> Coverage:
     """:func:`zone_coverage` of the surface ``F`` in ``band`` with the inspection's region
-    and gap limits (``advisory``: its gaps reported only)."""
+    and gap limits (``advisory``: its gaps reported only) and its ``points`` scan points
+    (None: no density rule)."""
     return zone_coverage(
         V,
         F,
@@ -209,6 +214,7 @@ def _coverage(
         max_region_area=params.max_region_area,
         max_gap_area=params.max_gap_area,
         advisory_gaps=advisory,
+        points=points,
     )
 
 

@@ -45,9 +45,10 @@ class Registered:
 
     @functools.cached_property
     def scan_area(self) -> float:
-        """The area the seated scan covers, mm^2 (:func:`scan_area`): the same points for
-        every judgement, measured once."""
-        return scan_area(self.P)
+        """The area the seated scan covers, mm^2 (:func:`scan_area` with the seated
+        normals: the two skins of a thin wall apart): the same points for every judgement,
+        measured once."""
+        return scan_area(self.P, normals=self.scan_normals)
 
 
 @dataclass(frozen=True)

@@ -20,9 +20,11 @@ available with ``lambda0=``. Either way lambda is annealed by 0.8 per iteration.
 
 Band-limited multi-pass scheme (paper Section 8.3.3). A first fit at band limit ``l1``
 leaves localized defects in the residual; vertices whose residual exceeds ``flag_k``
-robust scales are flagged and the measurement within ``holdout_factor`` coverage radii of
-them is withheld; the fit continues at the finer band limit ``l2`` without ever seeing the
-defect, and repeats the flagging until no new vertex is flagged (at most ``passes``). If
+robust scales of that first fit are flagged and the measurement within ``holdout_factor``
+coverage radii of them is withheld; the fit continues at the finer band limit ``l2``
+without ever seeing the defect, and repeats the flagging (against the same threshold:
+the refit's scale is the scanner's noise, over which any vertex count crosses
+``flag_k`` scales by chance) until no new vertex is flagged (at most ``passes``). If
 more than ``max_flagged_fraction`` of the covered vertices are flagged, the fit has gone
 wrong rather than the part being all defect: the single-pass result is returned.
 """
@@ -86,7 +88,8 @@ class GBCICPParams:
     coverage_radius : a vertex is *covered* when its matched scan point lies within this
         tangential distance (mm). Default 1.5 x max(median edge, scan spacing).
     passes : total passes (1 = single pass, the paper's default; 2-3 = band-limited scheme).
-    flag_k : flag vertices with ``|residual| > flag_k`` robust scales (paper: 3).
+    flag_k : flag vertices with ``|residual| > flag_k`` robust scales (paper: 3) of the
+        first pass (a refit's own scale, when larger).
     guard_floor : the guard (``max_flagged_fraction``) counts only the flagged vertices
         whose residual exceeds this, mm (0: all). A residual under a fraction of the tightest
         tolerance is no defect the verdict could turn on; on a stiff part measured almost
@@ -507,8 +510,12 @@ def _band_limited_passes(fit: _Fit, flaggable: np.ndarray | None) -> _Passes:
                 e, m, w, scale = fit.refit(e, hold, pass_no)
                 passes = pass_no
                 # re-evaluate every flag against the refit: a defect the fit never saw keeps
-                # its residual; compliance the first pass could not follow has been fit
-                new = _flag(m, p, scale, flaggable)
+                # its residual; compliance the first pass could not follow has been fit. The
+                # threshold stays the first pass's: the refit's robust scale falls to the
+                # scanner's noise, and flag_k of it is crossed by chance on a few vertices in
+                # a thousand, each then withheld with its neighbourhood (which ones depends
+                # on the noise, so on the scan's density)
+                new = _flag(m, p, max(scale, single[3]), flaggable)
                 n_new = _counted(new, m, p)
                 frac = max(n_flagged, n_new) / n_cov
                 if frac > p.max_flagged_fraction:
