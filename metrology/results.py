@@ -498,6 +498,7 @@ class InspectionResult:
             p[own] = asdict(fit.params)  # defaults resolved from the part size
         return {
             "verdict": self.verdict,
+            "scanner": self.params.scanner.label,
             "warnings": self.trust_warnings(),
             "decided_by": self.decided_by(),
             "relaxed_guards": self.relaxed_guards(),
