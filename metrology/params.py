@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from qifreport.metrology.acceptance.coverage import DEFAULT_MIN_COVERAGE
 from qifreport.metrology.acceptance.criteria import DEFAULT_MAX_REGION_AREA
 from qifreport.metrology.acceptance.decision import DEFAULT_DECISION_RULE
+from qifreport.metrology.acceptance.scanner import DEFAULT_SCANNER, ScannerProfile
 from qifreport.registration.deformable.gbcicp import GBCICPParams
 from qifreport.registration.deformable.methods import method_label
 
@@ -128,6 +129,9 @@ class InspectionParams:
         proven, FAIL proven, otherwise not established).
     scanner_uncertainty : the scanner's own expanded uncertainty (k = 2), mm, combined in
         quadrature with each vertex's uncertainty from the range noise (0: none stated).
+    scanner : the scanner's acceptance figures, the instrument terms of each
+        characteristic's uncertainty budget (:mod:`qifreport.metrology.gdt.budgets`;
+        default: the documented default scanner class).
     fixture : ``"free"`` (default: the free state judged first, then the virtual fixture
         ``method`` when it does not conform) or ``"restrained"`` (ISO 10579: the part held
         at its clamps by its elastic model, :mod:`qifreport.registration.restraint.restrained`; the
@@ -156,6 +160,7 @@ class InspectionParams:
     max_gap_area: float | None = None
     decision_rule: str = DEFAULT_DECISION_RULE
     scanner_uncertainty: float = 0.0
+    scanner: ScannerProfile = DEFAULT_SCANNER
     fixture: str = "free"
     restraint: RestraintCondition = field(default_factory=RestraintCondition)
 

@@ -558,6 +558,7 @@ class InspectionResult:
         return {
             "verdict": self.verdict,
             "restraint": self.restraint_dict(),
+            "scanner": self.params.scanner.label,
             "warnings": self.trust_warnings(),
             "decided_by": self.decided_by(),
             "relaxed_guards": self.relaxed_guards(),

@@ -51,6 +51,7 @@ from qifreport.metrology.gdt.characteristic_types import (
 from qifreport.metrology.gdt.geometric import per_unit
 
 from .definitions import DrfKey, Sections, drf_key, face_attrs, feature_definition
+from .uncertainty import budget_attributes, uncertainty_attributes
 from .xmlkit import Attrs, E, Ids, dec, id_array, qpid, token
 
 __all__ = [
@@ -242,11 +243,18 @@ def characteristic_definition(
 
 
 def characteristic_measurement(
-    c: CharacteristicResult, ids: Ids, ci: str, fm: str, actual_id: str
+    c: CharacteristicResult,
+    ids: Ids,
+    ci: str,
+    fm: str,
+    actual_id: str,
+    device_id: str | None = None,
 ) -> etree._Element:
     """The characteristic's measurement (status, value, bonus; the reading, least-squares
-    value, uncertainty and points as ``Attributes``) of item ``ci`` on feature measurement
-    ``fm``."""
+    value, uncertainty, its budget and points as ``Attributes``) of item ``ci`` on feature
+    measurement ``fm``; a value with a budget names the scanner ``device_id``
+    (``MeasurementDeviceIds``) and states its combined uncertainty
+    (:mod:`qifreport.qif.uncertainty`)."""
     s = c.spec
     t = qif_type(s, c.direction)
     ma = Attrs().s("reading", c.reading or "-")
@@ -254,6 +262,7 @@ def characteristic_measurement(
         ma.d("least_squares_mm", c.least_squares)
     if c.uncertainty is not None and math.isfinite(c.uncertainty):
         ma.d("expanded_uncertainty", c.uncertainty)
+    budget_attributes(ma, c.budget)
     if c.coverage is not None:
         ma.d("coverage", c.coverage)
     ma.i("points", c.n_points)
@@ -266,10 +275,13 @@ def characteristic_measurement(
         id_array("FeatureMeasurementIds", [fm]),
         E.ActualComponentId(actual_id),
     ]
+    if c.budget is not None and device_id is not None:
+        meas.append(id_array("MeasurementDeviceIds", [device_id]))
     if c.status == "FAIL":
         meas.append(E.NonConformanceDesignator(token(c.reason or "not conforming")))
     if c.value is not None and math.isfinite(c.value):
-        meas.append(E.Value(dec(c.value)))
+        u = uncertainty_attributes(c.budget) if t != "UserDefinedAttribute" else {}
+        meas.append(E.Value(dec(c.value), **u))
         if _rules(s).bonus and c.bonus > 0:
             meas.append(E.Bonus(dec(c.bonus)))
     return E(f"{t}CharacteristicMeasurement", *[x for x in meas if x is not None], id=ids())

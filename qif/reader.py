@@ -42,6 +42,7 @@ from qifreport.metrology.gdt.characteristic_types import (
 )
 
 from .feature_characteristics import kind_of_qif_type, status_from_qif
+from .uncertainty import budget_from_attributes
 from .writer import NS
 
 __all__ = [
@@ -396,6 +397,7 @@ def _ours(c: CharacteristicResult, attrs: dict, e: _Elements) -> None:
     c.reading = "" if reading == "-" else reading
     c.least_squares = _attr_float(attrs, "least_squares_mm")
     c.uncertainty = _attr_float(attrs, "expanded_uncertainty")
+    c.budget = budget_from_attributes(attrs)
     c.coverage = _attr_float(attrs, "coverage")
     points = attrs.get("points")
     if isinstance(points, int):

@@ -13,6 +13,10 @@ per inspection, written with lxml. What goes where:
 ``FileUnits``                               mm, degree, mm^2
 ``DatumDefinitions``, ``DatumReferenceFrames``  the datums of the PMI, one frame per datum
                                             sequence a profile tolerance cites
+``MeasurementResources``                    the scanner whose acceptance figures the
+                                            uncertainty budgets used (a ``MeasurementDevice``,
+                                            :mod:`.uncertainty`), named by each characteristic
+                                            measurement that has a budget
 ``Product``                                 the part (name, UUID), its component and assembly
                                             path; the toleranced surfaces are referenced from it
 ``Features``                                one ``OtherSurfaceFeature`` per toleranced surface
@@ -136,6 +140,7 @@ from .result_attributes import (
     measurement_results_attrs,
     stats_attrs,
 )
+from .uncertainty import measurement_resources
 from .xmlkit import (
     DECIMAL_PLACES,
     NS,
@@ -243,10 +248,14 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
     datum_defs = datum_definitions(dids)
     drfs = datum_reference_frames(drf_ids, dids)
 
+    # -- the instrument: the scanner whose figures the uncertainty budgets used
+    device_id = ids()
+    resources = measurement_resources(res.params.scanner, device_id)
+
     # -- one surface feature and one characteristic per zone
     rule = acceptance_rule(res.params.min_fraction, res.params.max_region_area)
     part = _PartIds(part=ids(), component=ids(), asm_path=ids(), actual=ids())
-    zs = _sections(res, prov.face_step_ids, ids, rule, drf_ids, part.actual)
+    zs = _sections(res, prov.face_step_ids, ids, rule, drf_ids, part.actual, device_id)
     product = _product(prov.part_name, part, zs, dids, drf_ids)
     features = zs.features()
     characteristics = zs.characteristics(std_id)
@@ -269,6 +278,7 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
         units,
         datum_defs,
         drfs,
+        resources,
         product,
         features,
         characteristics,
@@ -401,9 +411,11 @@ def _sections(
     rule: str,
     drf_ids: dict[DrfKey, str],
     actual_id: str,
+    device_id: str | None = None,
 ) -> Sections:
     """The features and characteristics of the inspection: each zone's (:func:`_add_zone`),
-    then each feature characteristic's definition, nominal, item and measurement."""
+    then each feature characteristic's definition, nominal, item and measurement (naming
+    the scanner ``device_id`` when it has an uncertainty budget)."""
     zs = Sections()
     for z in res.zones:
         _add_zone(zs, z, res, ids, rule, drf_ids, actual_id, face_step_ids)
@@ -418,7 +430,7 @@ def _sections(
             result=c,
             actual_id=actual_id,
         )
-        zs.cmeas.append(characteristic_measurement(c, ids, ci, fm, actual_id))
+        zs.cmeas.append(characteristic_measurement(c, ids, ci, fm, actual_id, device_id))
     return zs
 
 

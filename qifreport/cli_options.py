@@ -224,6 +224,16 @@ def add_criteria_options(ap: argparse.ArgumentParser) -> None:
         help="the scanner's stated expanded uncertainty (k = 2), combined with each "
         "deviation's own from the scan's range noise (default 0: none stated)",
     )
+    ap.add_argument(
+        "--scanner",
+        type=Path,
+        default=None,
+        metavar="FILE",
+        help="the scanner's acceptance figures (JSON or TOML: name, probing_form, "
+        "probing_size, length_a, length_k, optional flatness, temperature, cte; ISO 10360-8 / "
+        "VDI/VDE 2634-2), the instrument terms of each characteristic's uncertainty budget "
+        "(default: the documented default scanner class, said in every output)",
+    )
 
 
 def add_scoring_band_options(ap: argparse.ArgumentParser) -> None:

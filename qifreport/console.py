@@ -49,6 +49,7 @@ def summary(res: InspectionResult) -> str:
         f"(<= {a.max_region_area:g} mm^2) {'ok' if a.region_ok else 'FAILED'}; "
         f"{len(a.regions)} region(s)",
         f"decision rule: {decision_text(a)}",
+        f"instrument (uncertainty budgets): {res.params.scanner.label}",
         f"coverage: {100 * a.coverage:.1f} % of the nominal area scored"
         + (
             f" ({res.edge_excluded_area:.0f} mm^2 along sharp creases not scored)"

@@ -19,6 +19,12 @@ from pathlib import Path
 from qifreport.errors import InputError
 from qifreport.metrology.acceptance.coverage import DEFAULT_MIN_COVERAGE
 from qifreport.metrology.acceptance.decision import DECISION_RULES, DEFAULT_DECISION_RULE
+from qifreport.metrology.acceptance.scanner import (
+    DEFAULT_SCANNER,
+    ScannerProfile,
+    ScannerProfileError,
+    load_scanner,
+)
 from qifreport.metrology.model import Drawing
 from qifreport.metrology.params import (
     CLAMPS,
@@ -78,6 +84,7 @@ RESULT_OPTIONS = (
     "max_gap_area",
     "decision_rule",
     "scanner_uncertainty",
+    "scanner",
     "fixture",
     "restraint",
     "clamps",
@@ -165,6 +172,8 @@ class InspectOptions:
     decision_rule : how the measurement uncertainty enters each decision
         (:mod:`qifreport.metrology.acceptance.decision`).
     scanner_uncertainty : the scanner's stated expanded uncertainty, mm (0: none).
+    scanner : the ``--scanner`` profile file (None: the default scanner class,
+        :data:`~qifreport.metrology.acceptance.scanner.DEFAULT_SCANNER`).
     fixture : ``"auto"`` (restrained when clamps are known, else free), ``"restrained"``
         (ISO 10579: held at its clamps by its elastic model, :mod:`qifreport.restraint`) or
         ``"free"`` (the free state, then the virtual fixture ``method``).
@@ -211,6 +220,7 @@ class InspectOptions:
     max_gap_area: float | None = None
     decision_rule: str = DEFAULT_DECISION_RULE
     scanner_uncertainty: float = 0.0
+    scanner: Path | None = None
     fixture: str = "auto"
     restraint: str | None = None
     clamps: Path | None = None
@@ -255,6 +265,7 @@ class InspectOptions:
             raise InputError(
                 f"--scanner-uncertainty must be a length >= 0 mm, got {self.scanner_uncertainty}"
             )
+        self.scanner_profile()  # InputError for a profile that cannot be used
         if self.fixture not in ("auto", "restrained", "free"):
             raise InputError(f"--fixture must be auto, restrained or free, got {self.fixture!r}")
         if self.fixture == "restrained" and (self.rigid_only or self.always_fixture):
@@ -390,10 +401,21 @@ class InspectOptions:
             max_gap_area=self.max_gap_area,
             decision_rule=self.decision_rule,
             scanner_uncertainty=self.scanner_uncertainty,
+            scanner=self.scanner_profile(),
         )
         if self.max_region_area is not None:
             params.max_region_area = self.max_region_area
         return params
+
+    def scanner_profile(self) -> ScannerProfile:
+        """The ``--scanner`` profile read (:class:`~qifreport.errors.InputError`, one line,
+        for a file that cannot be used), or the default scanner class without one."""
+        if self.scanner is None:
+            return DEFAULT_SCANNER
+        try:
+            return load_scanner(self.scanner)
+        except ScannerProfileError as exc:
+            raise InputError(f"--scanner: {exc}") from None
 
     def restraint_spec(self, nominal: Path | None = None) -> RestraintSpec | None:
         """How the part is held, when a restrained inspection may use it: the ``--clamps``

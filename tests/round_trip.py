@@ -101,6 +101,7 @@ def assert_same_result(w: CharacteristicResult, r: CharacteristicResult) -> None
     if w.stats is not None:
         for f, x in dataclasses.asdict(w.stats).items():
             assert _same_number(getattr(r.stats, f), x), (what, f)
+    assert_same_budget(w, r)
     assert (r.acceptance is None) == (w.acceptance is None), what
     if w.acceptance is not None:
         a, b = r.acceptance, w.acceptance
@@ -109,3 +110,15 @@ def assert_same_result(w: CharacteristicResult, r: CharacteristicResult) -> None
         assert [(g.area, g.peak, g.sign) for g in a.regions] == [
             (g.area, g.peak, g.sign) for g in b.regions
         ]
+
+
+def assert_same_budget(w: CharacteristicResult, r: CharacteristicResult) -> None:
+    """The uncertainty budget read back is the one written: its scanner, and each term's
+    name, standard uncertainty (a double attribute: exactly) and source."""
+    what = w.spec.key
+    assert (r.budget is None) == (w.budget is None), what
+    if w.budget is None:
+        return
+    assert r.budget.scanner == w.budget.scanner, what
+    got = [(t.name, t.u, t.source) for t in r.budget.terms]
+    assert got == [(t.name, t.u, t.source) for t in w.budget.terms], (what, got)

@@ -357,6 +357,29 @@ def test_panel_characteristics_read_back_as_written(panel_job):
     assert all(c.stats is not None and c.worst_positive is not None for c in read[:3:2])
 
 
+def test_budget_in_qif_names_the_scanner_and_its_combined_uncertainty(panel_job):
+    """The flatness tolerances' uncertainty budgets in QIF's own elements: the scanner a
+    ``MeasurementDevice`` (the default class, said so), each measurement naming it and its
+    ``Value`` stating the budget's combined standard uncertainty; its terms as Attributes
+    (read back field by field by the round-trip test above)."""
+    root = etree.parse(str(panel_job.paths["qif"])).getroot()
+    q = {"q": NS}
+    (device,) = root.findall("q:MeasurementResources/q:MeasurementDevices/q:MeasurementDevice", q)
+    assert device.findtext("q:Name", namespaces=q) == "mid-range structured-light scanner"
+    assert "default scanner class" in device.findtext("q:Description", namespaces=q)
+    flat = root.findall(".//q:FlatnessCharacteristicMeasurement", q)
+    by_key = {c.spec.key: c for c in panel_job.result.characteristics}
+    assert len(flat) == 2
+    for m in flat:
+        assert m.findtext("q:MeasurementDeviceIds/q:Id", namespaces=q) == device.get("id")
+        key = m.find("q:Attributes/*[@name='budget_instrument_u']", q)
+        assert float(key.get("value")) == pytest.approx(0.025 / np.sqrt(3), rel=1e-12)
+        value = m.find("q:Value", q)
+        u_c = float(value.get("combinedUncertainty"))
+        assert value.get("meanError") == "0" + "." + "0" * DECIMAL_PLACES
+        assert any(abs(u_c - c.budget.combined) < 10**-DECIMAL_PLACES for c in by_key.values())
+
+
 @pytest.mark.parametrize("name", CASES)
 def test_round_trip_reproduces_verdicts_and_statistics(runs, name):
     rc, path, doc = runs[name]

@@ -50,7 +50,7 @@ Areas are the barycentric vertex areas of the nominal restricted to the zone's t
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -66,6 +66,7 @@ __all__ = [
     "MAX_EXCLUDED_SHARE",
     "Coverage",
     "min_scan_density",
+    "plausible_uncertainty",
     "unmeasured_patches",
     "unseen_neighbour_edges",
     "zone_coverage",
@@ -405,3 +406,18 @@ def unseen_neighbour_edges(F: np.ndarray, face_id: np.ndarray, dev: np.ndarray) 
     scored = np.isfinite(dev)
     beside = (adjacency(F, n) @ scored.astype(np.int64)) > 0
     return (lo < hi) & ~scored & beside
+
+
+def plausible_uncertainty(cov: Coverage, u_max: float, diagonal: float) -> Coverage:
+    """``cov``, not measured when the surface's largest expanded uncertainty ``u_max`` (mm,
+    :attr:`~qifreport.metrology.acceptance.criteria.Acceptance.uncertainty_mm`) is wider
+    than the part's ``diagonal`` (mm): no deviation of the part's surface is larger than
+    the part, so such a U is a fit extrapolated far beyond its points (a sparse scan), not
+    a measurement; the reason names both numbers."""
+    if not (math.isfinite(u_max) and u_max > diagonal):
+        return cov
+    why = (
+        f"implausible uncertainty: U max {u_max:.4g} mm exceeds the part's {diagonal:.4g} mm "
+        "diagonal (a fit extrapolated beyond its scan points)"
+    )
+    return replace(cov, measured=False, reasons=[*cov.reasons, why])

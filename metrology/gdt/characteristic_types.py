@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from qifreport.metrology.acceptance.budget import UncertaintyBudget
 from qifreport.metrology.acceptance.criteria import Acceptance
 from qifreport.metrology.acceptance.decision import decide
 from qifreport.metrology.acceptance.statistics import DeviationStats
@@ -179,6 +180,8 @@ class CharacteristicResult:
         back: their regions without vertex lists), else None.
     document : what the results document it was read from says besides (None: measured
         here).
+    budget : the uncertainty's budget (its terms; ``uncertainty`` is its expanded total),
+        None when not made (:mod:`qifreport.metrology.gdt.budgets`).
     """
 
     spec: CharacteristicSpec
@@ -197,6 +200,7 @@ class CharacteristicResult:
     stats: DeviationStats | None = None
     acceptance: Acceptance | None = None
     document: DocumentRecord | None = None
+    budget: UncertaintyBudget | None = None
 
     @property
     def limit(self) -> float | None:
@@ -231,6 +235,7 @@ class CharacteristicResult:
             "reading": self.reading,
             "n_points": self.n_points,
             "coverage": _num(self.coverage),
+            "uncertainty_budget": None if self.budget is None else self.budget.to_dict(),
         }
 
 

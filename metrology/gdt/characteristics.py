@@ -44,6 +44,8 @@ from __future__ import annotations
 import numpy as np
 
 from qifreport.kinds import CharacteristicKind, kind_label, lookup_kind, resolve
+from qifreport.metrology.acceptance.scanner import DEFAULT_SCANNER, ScannerProfile
+from qifreport.metrology.gdt.budgets import apply_budget, sampling_budget
 from qifreport.metrology.gdt.characteristic_types import (
     CharacteristicResult,
     CharacteristicSpec,
@@ -86,9 +88,12 @@ def measure_characteristics(
     rule: str,
     free_surface: MeasuredSurface | None = None,
     frames: dict | None = None,
+    scanner: ScannerProfile = DEFAULT_SCANNER,
 ) -> tuple[list[CharacteristicResult], list[DatumFrameResult]]:
     """Measure ``specs`` on ``surface`` (``free_surface`` for those with the free-state
-    modifier, when the part was held otherwise) and judge them by ``rule``.
+    modifier, when the part was held otherwise) and judge them by ``rule``, each value's
+    uncertainty its budget with the instrument ``scanner``'s figures
+    (:func:`~qifreport.metrology.gdt.budgets.apply_budget`).
 
     ``frames``: the frames established so far (:func:`frame_of`), shared with the
     datum-located profiles. Returns the results (one per spec, same order) and every
@@ -101,7 +106,7 @@ def measure_characteristics(
     for spec in specs:
         surf = free_surface if spec.free_state and free_surface is not None else surface
         frame = frame_of(spec.datums, datums, surf, frames)
-        res = _measure(spec, surf, frame, rule, sizes, areas)
+        res = apply_budget(_measure(spec, surf, frame, rule, sizes, areas), scanner, surf, rule)
         soft = [p for p in spec.problems if "simulated regardless" in p]
         if soft and res.status != "NOT_MEASURED":  # a datum at MMC/LMC: said in the reading
             res.reading = "; ".join([res.reading, *soft]) if res.reading else "; ".join(soft)
@@ -178,9 +183,10 @@ def _measure_features(
                 raise Unmeasurable(f"{len(sample.S)} measured points on a feature")
             S = sample.S if frame is None or not needs_frame else frame.move(sample.S)
             value, ls, U, how, bonus = measure(spec, S, sample, feat, frame, sizes, surf, faces)
+            U_frame = 0.0
             if frame is not None and needs_frame:  # the frame's own uncertainty
                 width = 2.0 if kind.diametral else 1.0
-                U = float(np.hypot(U, width * frame.point_uncertainty(S)))
+                U_frame = width * frame.point_uncertainty(S)
         except (ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
             # Unmeasurable, a fit refused (too few points, a partial arc), a programme failed
             why = str(exc) if len(members) == 1 else f"faces {faces_text(faces)}: {exc}"
@@ -190,11 +196,12 @@ def _measure_features(
                 spec,
                 value=value,
                 least_squares=ls,
-                uncertainty=U,
+                uncertainty=float(np.hypot(U, U_frame)),
                 reading=reading_text(how, sample, frame if needs_frame else None),
                 n_points=len(S),
                 coverage=sample.coverage,
                 bonus=bonus,
+                budget=sampling_budget(U, U_frame),
             )
         )
     k = int(np.argmax([r.value - (r.limit or 0.0) for r in readings]))

@@ -16,6 +16,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from qifreport.metrology.acceptance.budget import UncertaintyBudget
+from qifreport.metrology.gdt.budgets import sampling_budget
 from qifreport.metrology.gdt.characteristic_types import (
     CharacteristicResult,
     CharacteristicSpec,
@@ -279,14 +281,12 @@ def _reported(
             + ("no " + key if not values else f"several ({', '.join(f'{v:g}' for v in values)})"),
         )
     nom, meas, U_pts = max(found, key=lambda f: abs(f[1][key] - f[0][key]))
-    U = None
-    if spec.unit == "mm":
-        sys_r = meas.get("_systematic_radius", 0.0) * (2.0 if key == "diameter" else 1.0)
-        U = float(np.hypot(2 * fit_uncertainty(U_pts, 2), sys_r))
+    U, budget = _own_uncertainty(spec, meas, key, U_pts)
     res = CharacteristicResult(
         spec,
         value=float(meas[key]),
         uncertainty=U,
+        budget=budget,
         reading=f"{key} {what}; the drawing gives no value (nominal {nom[key]:.4g} on the "
         "model): reported, not judged",
         n_points=len(U_pts),
@@ -435,12 +435,7 @@ def _judged(
     lo, hi = spec.lower_limit, spec.upper_limit
     mid = 0.5 * (lo + hi) if lo is not None and hi is not None else spec.nominal
     value, k, meas, U_pts = max(found, key=lambda f: abs(f[0] - mid))  # the worst member
-    U = None
-    if spec.unit == "mm":
-        sys_r = meas.get("_systematic_radius", 0.0) * (2.0 if k == "diameter" else 1.0)
-        U = float(np.hypot(2 * fit_uncertainty(U_pts, 2), sys_r))
-    if f"_U_{k}" in meas:  # a fit's own spread (a cone's)
-        U = float(np.hypot(U or 0.0, meas[f"_U_{k}"]))
+    U, budget = _own_uncertainty(spec, meas, k, U_pts)
     n_members = f"worst of {len(found)} features; " if len(found) > 1 else ""
     res = CharacteristicResult(
         spec,
@@ -449,11 +444,31 @@ def _judged(
         reading=f"{n_members}{k.replace('_', ' ')} {what} (drawing nominal + measured "
         "- mesh nominal)",
         n_points=len(U_pts),
+        budget=budget,
     )
     if spec.basic or (lo is None and hi is None):
         return _basic(res, diagonal)
     judge(res, rule, lo, hi, diagonal)
     return res
+
+
+def _own_uncertainty(
+    spec: CharacteristicSpec, meas: dict, key: str, U_pts: np.ndarray
+) -> tuple[float | None, UncertaintyBudget | None]:
+    """The expanded uncertainty (k = 2) of the measured ``key`` of ``meas`` from the
+    measurement itself, and its budget: the points' statistics (``U_pts``), the mesh's
+    difference from the scan points (a cylinder's radius), a fit's own spread (a cone's);
+    (None, None) for an angle without a spread."""
+    U_fit = U_mesh = U_spread = 0.0
+    if spec.unit == "mm":
+        U_fit = 2 * fit_uncertainty(U_pts, 2)
+        U_mesh = meas.get("_systematic_radius", 0.0) * (2.0 if key == "diameter" else 1.0)
+    U_spread = meas.get(f"_U_{key}", 0.0)
+    if spec.unit != "mm" and f"_U_{key}" not in meas:
+        return None, None
+    budget = sampling_budget(U_fit, mesh_U=U_mesh)
+    budget.add("fit spread", 0.5 * U_spread, "the spread of the fit over its points' draws")
+    return float(np.sqrt(U_fit**2 + U_mesh**2 + U_spread**2)), budget
 
 
 def _basic(res: CharacteristicResult, diagonal: float) -> CharacteristicResult:

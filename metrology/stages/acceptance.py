@@ -8,13 +8,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from qifreport.metrology.acceptance.bands import BandField, ToleranceZone, zone_vertex_areas
-from qifreport.metrology.acceptance.coverage import Coverage, zone_coverage
+from qifreport.metrology.acceptance.coverage import (
+    Coverage,
+    plausible_uncertainty,
+    zone_coverage,
+)
 from qifreport.metrology.acceptance.criteria import Acceptance, coverage_ceiling_ok, evaluate
 from qifreport.metrology.acceptance.point_regions import ScanSamples, SurfacePoints
 from qifreport.metrology.acceptance.statistics import DeviationStats, deviation_statistics
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.results import ZoneResult
+from qifreport.registration.mesh import bounding_diagonal
 
 from .context import JudgeContext, Registered
 from .deviation import Deviations
@@ -90,6 +95,7 @@ def acceptance_stage(
     whole = _coverage(
         V, F, dev_all, bands, area, excluded, params.min_coverage, params, advisory, n_points
     )
+    whole = plausible_uncertainty(whole, acc.uncertainty_mm[1], bounding_diagonal(V))
     # the ceiling catches a deformable fit that met points of other features; a B-rep's free
     # state is rigid and scores each vertex from its own faces' points only, while the
     # scan-area estimate merges the two skins of a wall thinner than a point neighbourhood
@@ -149,6 +155,7 @@ def zone_result(
     advisory = advisory and z.source == "default"
     excluded = deviations.excluded
     zcov = _coverage(V, F[mask], dz, z, az, excluded, min_coverage, params, advisory, n_points)
+    zcov = plausible_uncertainty(zcov, zacc.uncertainty_mm[1], bounding_diagonal(V))
     return ZoneResult(
         zone=z,
         stats=zstats,

@@ -95,7 +95,13 @@ def characteristics_stage(
                 z.half_width,
             )
     feats, frames_used = measure_characteristics(
-        plan.specs, plan.datums, surf, params.decision_rule, free_surface=free_surf, frames=cache
+        plan.specs,
+        plan.datums,
+        surf,
+        params.decision_rule,
+        free_surface=free_surf,
+        frames=cache,
+        scanner=params.scanner,
     )
     timings["characteristics"] = time.perf_counter() - t_feat
     return Characteristics(results=feats or [], frames=frames_used or [], zone_frames=zone_frames)

@@ -275,6 +275,8 @@ def characteristic_table(res: InspectionResult, width: float, limit: int) -> Tab
         legend.append("n/e = within the uncertainty of its limit")
     if "NOT_MEASURED" in statuses:
         legend.append("n/m = not measured (reason given)")
+    if any(c.budget is not None for c in chars):
+        legend.append(f"U: uncertainty budget, instrument {res.params.scanner.label}")
     if legend:
         note = ("; ".join(legend) + ". " + note).strip()
     title = (
