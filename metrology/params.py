@@ -82,6 +82,11 @@ class InspectionParams:
         ``method`` when it does not conform) or ``"restrained"`` (ISO 10579: the part held
         at its clamps by its elastic model, :mod:`qifreport.registration.restraint.restrained`; the
         inspection then needs the part's restraint basis).
+    max_restraint_force : the force a physical fixture may use to hold the part in the
+        virtual fixture's shape, N (None: the drawing's, else
+        :data:`qifreport.registration.restraint.fixture_load.DEFAULT_MAX_FORCE`): a
+        fixtured PASS that needs more is not established
+        (:mod:`qifreport.registration.restraint.fixture_load`).
     """
 
     tolerance: float | None = None
@@ -102,3 +107,4 @@ class InspectionParams:
     decision_rule: str = DEFAULT_DECISION_RULE
     scanner_uncertainty: float = 0.0
     fixture: str = "free"
+    max_restraint_force: float | None = None

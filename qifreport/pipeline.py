@@ -322,7 +322,13 @@ def inspect_state(
         params = replace(params, fixture="restrained")
     part, drawing = state.part, state.drawing
     inputs = replace(
-        part_inputs(part, drawing, prepared=state.prepared, restraint=state.restraint),
+        part_inputs(
+            part,
+            drawing,
+            prepared=state.prepared,
+            restraint=state.restraint,
+            fixture_load=state.fixture_load,
+        ),
         # the --min-coverage rules apply to this inspection's zones
         zones=zones_with_coverage(drawing.zones, o.zone_min_coverage),
         scan_units=o.scan_units,
