@@ -9,7 +9,14 @@ elastic model (:mod:`qifreport.registration.restraint.elastic`):
 
 1. the fixture's displacement ``d`` at the nominal's vertices, its rigid part removed
    (:func:`without_rigid_motion`), is carried to the model's surface nodes
-   (:class:`LoadModel`: each node's closest point on the nominal, linear in its triangle);
+   (:class:`LoadModel`: each node's closest point on the nominal, linear in its triangle).
+   On a thin wall (its opposite skin within :data:`THIN_WALL_SHARE` of the part's
+   diagonal) each skin node takes the mean of its own skin's and the opposite skin's
+   normal displacement (:func:`_opposite_skin`): the fixture holds the wall's mid-surface.
+   The fit displaces the two skins of a wall independently, and the difference, a change
+   of the wall's thickness, is the part's own form, not a shape a fixture can bend it into:
+   prescribed, it is a squeeze through the thickness whose energy dwarfs the bending and
+   grows as the model refines (reported as :attr:`FixtureLoad.thickness_change`);
 2. the model is solved with each surface node's displacement along its outward normal
    prescribed, the tangential ones free (:func:`fixture_load`). A scan observes a surface
    along its normal only, a fixture's contacts push along it, and the smooth field's
@@ -42,6 +49,7 @@ __all__ = [
     "DEFAULT_MAX_FORCE",
     "FACE_ANGLE",
     "PAD_RADIUS",
+    "THIN_WALL_SHARE",
     "FixtureLoad",
     "LoadModel",
     "boundary_faces",
@@ -63,6 +71,11 @@ DEFAULT_MAX_FORCE = 100.0
 #: the contact whose force is reported as the peak: an RPS pad of 10 mm diameter, mm
 PAD_RADIUS = 5.0
 
+#: a wall is thin, its two skins held together at its mid-surface, when the opposite skin
+#: lies within this share of the part's diagonal (the thin-shell rule, thickness at most a
+#: twentieth of the span)
+THIN_WALL_SHARE = 1.0 / 20.0
+
 
 @dataclass
 class LoadModel:
@@ -74,7 +87,10 @@ class LoadModel:
     model : the elastic model (its assembly basis dropped: not needed, not cached).
     nodes : (m,) the held surface nodes (model vertices).
     normals : (m, 3) their outward unit normals.
-    W : (m, n) sparse: a field at the nominal's n vertices to its value at the held nodes.
+    W : (m, n) sparse: a field at the nominal's n vertices to its value at the held nodes
+        (on a thin wall, the mean of the node's skin and the opposite skin).
+    thickness : (m, n) sparse: a field at the nominal's vertices to the change of the wall's
+        thickness it makes at the held nodes along their normals (zero rows off thin walls).
     description : what the model is (``"STEP solid, gmsh tetrahedra"``, a sheet's
         thickness), for the reports.
     """
@@ -83,6 +99,7 @@ class LoadModel:
     nodes: np.ndarray
     normals: np.ndarray
     W: sp.csr_matrix
+    thickness: sp.csr_matrix | None = None
     description: str = ""
 
     @property
@@ -110,6 +127,9 @@ class FixtureLoad:
     peak_pad_force : the largest resultant of the reactions within :data:`PAD_RADIUS` of a
         held node, N: what the most loaded 10 mm contact would carry.
     peak_stress : the largest von Mises stress, MPa (vertex-averaged stress tensors).
+    thickness_change : the largest change of a thin wall's thickness in the fitted shape,
+        mm: the part's own form, which the fixture holds at the wall's mid-surface and no
+        load can bend away (module docstring).
     yield_strength : the material's, MPa (None: not known).
     material : the material's name.  model : the model's description.
     limit : the force limit the equivalent force is checked against, N, and
@@ -124,6 +144,7 @@ class FixtureLoad:
     total_reaction: float | None = None
     peak_pad_force: float | None = None
     peak_stress: float | None = None
+    thickness_change: float | None = None
     yield_strength: float | None = None
     material: str = ""
     model: str = ""
@@ -202,6 +223,7 @@ class FixtureLoad:
             "peak_pad_force_N": num(self.peak_pad_force),
             "pad_radius_mm": PAD_RADIUS,
             "peak_von_mises_MPa": num(self.peak_stress),
+            "wall_thickness_change_mm": num(self.thickness_change),
             "yield_MPa": num(self.yield_strength),
             "material": self.material or None,
             "model": self.model or None,
@@ -279,11 +301,13 @@ def load_model(
     description: str = "",
 ) -> LoadModel:
     """Prepare ``model`` (the part's elastic model) to take displacements given at the
-    vertices of the nominal mesh ``(V, F)`` (mm).
+    vertices of the nominal mesh ``(V, F)`` (mm, outward-wound triangles).
 
     Each held surface node (:func:`_held_nodes`) takes the field at its closest point on
-    the nominal, linear in that triangle. A sheet's model (its skins at +/- half the
-    thickness of a mid-surface nominal) takes the mid-surface's value on both skins.
+    the nominal, linear in that triangle; on a thin wall, the mean of that and the field at
+    the opposite skin's point behind it (:func:`_opposite_skin`). A sheet's model (its
+    skins at +/- half the thickness of a mid-surface nominal) takes the mid-surface's value
+    on both skins.
 
     Raises
     ------
@@ -302,7 +326,12 @@ def load_model(
     w = np.clip(barycentric(V, F, tri, C), 0.0, None)
     w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
     m = len(nodes)
-    W = sp.csr_matrix((w.ravel(), (np.repeat(np.arange(m), 3), F[tri].ravel())), shape=(m, len(V)))
+    own = sp.csr_matrix(
+        (w.ravel(), (np.repeat(np.arange(m), 3), F[tri].ravel())), shape=(m, len(V))
+    )
+    reach = THIN_WALL_SHARE * float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    opposite = _opposite_skin(model, nodes, normals, V, F, reach)
+    wall = sp.diags(np.asarray(opposite.sum(axis=1)).ravel())  # 1 on a thin wall's rows
     return LoadModel(
         model=ElasticModel(
             X=model.X,
@@ -316,9 +345,88 @@ def load_model(
         ),
         nodes=nodes,
         normals=normals,
-        W=W,
+        W=(own - 0.5 * (wall @ own) + 0.5 * opposite).tocsr(),
+        thickness=((wall @ own) - opposite).tocsr(),
         description=description,
     )
+
+
+def _opposite_skin(
+    model: ElasticModel,
+    nodes: np.ndarray,
+    normals: np.ndarray,
+    V: np.ndarray,
+    F: np.ndarray,
+    reach: float,
+) -> sp.csr_matrix:
+    """(m, n) sparse: a field at the nominal's vertices to its value at the opposite skin
+    behind each held node (zero rows where there is none within ``reach`` mm).
+
+    The opposite skin is the first nominal triangle facing the other way (within
+    :data:`FACE_ANGLE` of antiparallel) hit by the ray from the node inward along its
+    normal. A ray from a node on a wall's rim runs along the rim's face and may slip past
+    the skin's edge: it is cast again from a point a little inside the node's face."""
+    import igl
+
+    X = model.X[nodes]
+    fn = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
+    cos = np.cos(np.radians(FACE_ANGLE))
+    eps = 1e-4 * float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    tree = igl.AABB()
+    Vc, Fc = np.ascontiguousarray(V), np.ascontiguousarray(F)
+    tree.init(Vc, Fc)
+    rows, cols, vals = [], [], []
+    todo = np.arange(len(nodes))
+    for start in (X, X + _inward_steps(model, nodes, normals)):
+        hits = tree.intersect_ray(
+            Vc,
+            Fc,
+            np.ascontiguousarray(start[todo] + eps * normals[todo]),
+            np.ascontiguousarray(-normals[todo]),
+        )
+        missed = []
+        for i, node_hits in zip(todo, hits, strict=True):
+            hit = _exit(node_hits, fn, normals[i])
+            if hit is None or hit[1] - eps > reach or fn[hit[0]] @ normals[i] > -cos:
+                missed.append(i)
+                continue
+            f, _, u, v = hit
+            rows += [i, i, i]
+            cols += list(F[f])
+            vals += [1.0 - u - v, u, v]
+        todo = np.asarray(missed, dtype=np.int64)
+    return sp.csr_matrix((vals, (rows, cols)), shape=(len(nodes), len(V)))
+
+
+def _exit(hits: list, fn: np.ndarray, normal: np.ndarray) -> tuple | None:
+    """The first of a ray's ``hits`` ``(triangle, t, u, v)`` where it leaves the solid (a
+    triangle of unit normal ``fn`` facing along the ray, against ``normal``; a face the ray
+    grazes, within about 6 degrees, is passed)."""
+    for h in sorted(hits, key=lambda h: h[1]):
+        if fn[h[0]] @ normal < -0.1:
+            return h
+    return None
+
+
+def _inward_steps(model: ElasticModel, nodes: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(m, 3) mm: a twentieth of the way from each held node toward the mean of its
+    neighbours on the model's surface, in its tangent plane (off a rim, into its face)."""
+    f, _ = boundary_faces(model.X, model.T)
+    n = len(model.X)
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    A = sp.csr_matrix(
+        (
+            np.ones(2 * len(edges)),
+            (np.r_[edges[:, 0], edges[:, 1]], np.r_[edges[:, 1], edges[:, 0]]),
+        ),
+        shape=(n, n),
+    )
+    A.data[:] = 1.0
+    mean = (A @ model.X) / np.maximum(np.asarray(A.sum(axis=1)), 1.0)
+    step = mean[nodes] - model.X[nodes]
+    step -= np.einsum("ij,ij->i", step, normals)[:, None] * normals
+    return step / 20.0
 
 
 def without_rigid_motion(V: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -383,8 +491,8 @@ def fixture_load(lm: LoadModel, V: np.ndarray, d: np.ndarray) -> FixtureLoad:
 
     The held nodes' normal displacements are eliminated: the free degrees of freedom
     (:func:`_held_basis`) minimise the strain energy, a symmetric positive definite
-    system (a rigid motion left free is held at zero by a penalty that changes no
-    energy).
+    system (a rigid motion left free is held by pinning one degree of freedom, which
+    changes no energy: :func:`_pinned_out`).
 
     Returns
     -------
@@ -401,10 +509,9 @@ def fixture_load(lm: LoadModel, V: np.ndarray, d: np.ndarray) -> FixtureLoad:
     x0 = np.zeros(model.n_dofs)
     x0[vd] = target[:, None] * lm.normals
     B = _held_basis(lm)
+    keep = _pinned_out(B.T @ _free_rigid_motions(lm))
+    B = B[:, keep]
     A = (B.T @ model.K @ B).tocsc()
-    rigid = B.T @ _free_rigid_motions(lm)
-    if rigid.shape[1]:
-        A = A + sp.csc_matrix(float(A.diagonal().mean()) * (rigid @ rigid.T))
     try:
         lu = spla.splu(
             A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}
@@ -412,7 +519,24 @@ def fixture_load(lm: LoadModel, V: np.ndarray, d: np.ndarray) -> FixtureLoad:
     except RuntimeError as e:
         raise ValueError(f"the fixture's load cannot be solved ({e})") from None
     x = x0 + B @ lu.solve(-(B.T @ (model.K @ x0)))
-    return _load_of(lm, x, target)
+    load = _load_of(lm, x, target)
+    if lm.thickness is not None and lm.thickness.nnz:
+        change = np.einsum("ij,ij->i", lm.thickness @ d, lm.normals)
+        load.thickness_change = float(np.abs(change).max())
+    return load
+
+
+def _pinned_out(rigid: np.ndarray) -> np.ndarray:
+    """(k,) the columns of the free basis kept when the rigid motions ``rigid`` (k, r) it
+    leaves free are held by pinning one column each: the energy and the load do not change
+    along a rigid motion, and the rows pivoted out of ``rigid`` make it nonsingular."""
+    keep = np.ones(rigid.shape[0], dtype=bool)
+    if rigid.shape[1]:
+        from scipy.linalg import qr
+
+        _, _, piv = qr(rigid.T, mode="economic", pivoting=True)
+        keep[piv[: rigid.shape[1]]] = False
+    return np.flatnonzero(keep)
 
 
 def _load_of(lm: LoadModel, x: np.ndarray, target: np.ndarray) -> FixtureLoad:
