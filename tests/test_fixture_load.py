@@ -94,6 +94,8 @@ def test_refused_with_forces_named(steel_plate):
     assert f"{big.equivalent_force:.3g} N" in why and "100 N limit" in why
     small = fixture_load(lm, X, 1e-3 * d).bounded(100.0, "default")
     assert small.refusals() == [] and 0 < small.equivalent_force < 1.0
+    assert "> 100" in big.short() and "<= 100" in small.short()
+    assert "over the 100 N limit" in big.describe() and "within" in small.describe()
     assert FixtureLoad.not_established("no material").refusals() == []
 
 

@@ -198,16 +198,40 @@ class FixtureLoad:
         return out
 
     def describe(self) -> str:
-        """One line: the load, or why it is not established."""
+        """One line: the load and whether it lies within the limit and the yield
+        strength, or why it is not established."""
         if not self.established:
             return f"fixture load not established: {self.reason}"
         ys = "yield not known" if self.yield_strength is None else f"yield {self.yield_strength:g}"
-        limit = "" if self.limit is None else f" (limit {self.limit:g} N)"
-        return (
-            f"fixture load {self.equivalent_force:.3g} N{limit}: {self.energy:.3g} mJ over "
-            f"{self.max_correction:.3g} mm, peak contact {self.peak_pad_force:.3g} N, "
-            f"stress {self.peak_stress:.3g} MPa ({ys}, {self.material})"
+        thick = (
+            ""
+            if not self.thickness_change
+            else f"; walls' own thickness change {self.thickness_change:.3g} mm not held"
         )
+        return (
+            f"fixture load {self.equivalent_force:.3g} N ({self._force_status()}): "
+            f"{self.energy:.3g} mJ over {self.max_correction:.3g} mm, peak contact "
+            f"{self.peak_pad_force:.3g} N, stress {self.peak_stress:.3g} MPa ({ys}, "
+            f"{self.material}){thick}"
+        )
+
+    def short(self) -> str:
+        """A few words for a report's verdict box: the force and the stress against their
+        limits (``>`` beyond, ``<=`` within)."""
+        if not self.established:
+            return "fixture load not established"
+        force = f"fixture {self.equivalent_force:.3g} N"
+        if self.limit is not None:
+            force += f" {'>' if self.over_force else '<='} {self.limit:g}"
+        stress = f"{self.peak_stress:.3g} MPa"
+        if self.yield_strength is not None:
+            stress += f" {'>' if self.beyond_yield else '<='} yield {self.yield_strength:g}"
+        return f"{force}, {stress}"
+
+    def _force_status(self) -> str:
+        if self.limit is None:
+            return "no limit set"
+        return f"{'over' if self.over_force else 'within'} the {self.limit:g} N limit"
 
     def to_dict(self) -> dict:
         def num(x):
