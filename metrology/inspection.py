@@ -50,6 +50,12 @@ from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import bounding_diagonal, median_edge_length
 from qifreport.registration.normals import oriented_normals, refined_normals
 from qifreport.registration.pose.prealign import seat_scan
+from qifreport.registration.restraint.fixture_load import (
+    DEFAULT_MAX_FORCE,
+    FixtureLoad,
+    LoadModel,
+    fixture_load,
+)
 from qifreport.registration.restraint.restrained import RestraintBasis
 
 from .judgement import judge, resolved
@@ -88,6 +94,7 @@ __all__ = [
     "judge_as_held",
     "lay_zone_bands",
     "seat_rigidly",
+    "with_fixture_load",
     "with_free_state",
 ]
 
@@ -164,6 +171,10 @@ class InspectionInputs:
         (:func:`qifreport.registration.deformable.bending_basis.bending_basis`), to reuse it across
         scans of one part; computed when needed if omitted.
     scan_units : the unit the user declared for the scan file (for the units hint only).
+    fixture_load : the part's elastic model for the virtual fixture's load
+        (:func:`qifreport.registration.restraint.fixture_load.load_model` on this mesh), or
+        why there is none (a sentence naming what is needed); None: none given. A fixtured
+        result carries the load (:func:`with_fixture_load`).
     """
 
     zones: list[ToleranceZone] | None = None
@@ -176,6 +187,7 @@ class InspectionInputs:
     prepared: PreparedPart | None = None
     basis: BendingBasis | None = None
     scan_units: str | None = None
+    fixture_load: LoadModel | str | None = None
 
 
 def inspect(
@@ -263,6 +275,7 @@ def inspection_context(
         basis=basis,
         brep_normals=inputs.brep_normals,
         plan=inputs.plan,
+        fixture_load=inputs.fixture_load,
     )
     return JudgeRun(reg, ctx, params, zones, timings, progress)
 
@@ -440,7 +453,35 @@ def fixture_and_judge(
     res = run.judge(
         run.reg, fit, run.params, run.timings, run.ctx, free_deviation=free_deviation(free)
     )
-    return with_free_state(res, free)
+    return with_fixture_load(with_free_state(res, free), run)
+
+
+def with_fixture_load(res: InspectionResult, run: JudgeRun) -> InspectionResult:
+    """The fixtured judgement ``res`` with the load a physical fixture would need to hold
+    the part in its virtual fixture's shape
+    (:func:`~qifreport.registration.restraint.fixture_load.fixture_load` on the part's
+    elastic model ``run.ctx.fixture_load``), checked against ``params.max_restraint_force``
+    (default :data:`~qifreport.registration.restraint.fixture_load.DEFAULT_MAX_FORCE`) and
+    the material's yield strength: beyond either, a PASS is not established
+    (:meth:`InspectionResult.trust_warnings`). Without a model the load is reported as not
+    established and the verdict stands (no model, no force to bound)."""
+    if res.fit is None:
+        return res
+    t0 = time.perf_counter()
+    lm = run.ctx.fixture_load
+    if not isinstance(lm, LoadModel):
+        res.fixture_load = FixtureLoad.not_established(
+            lm or "no elastic model of the part was given (--material, a sheet's --thickness)"
+        )
+        return res
+    limit = run.params.max_restraint_force
+    source = "--max-restraint-force"
+    if limit is None:
+        limit, source = DEFAULT_MAX_FORCE, "default: none stated"
+    load = fixture_load(lm, run.reg.V, res.fit.V - run.reg.V)
+    res.fixture_load = load.bounded(limit, source)
+    run.timings["fixture load"] = time.perf_counter() - t0
+    return res
 
 
 def free_state_zones(ctx: JudgeContext) -> bool:

@@ -141,6 +141,11 @@ class InspectionParams:
         application decides it from the drawing and the operator's options; ``rigid_only``
         and ``fixture="restrained"`` state :data:`FREE` and :data:`CLAMPS` too
         (:meth:`held_condition`).
+    max_restraint_force : the force a physical fixture may use to hold the part in the
+        virtual fixture's shape, N (None: the drawing's, else
+        :data:`qifreport.registration.restraint.fixture_load.DEFAULT_MAX_FORCE`): a
+        fixtured PASS that needs more is not established
+        (:mod:`qifreport.registration.restraint.fixture_load`).
     """
 
     tolerance: float | None = None
@@ -162,6 +167,7 @@ class InspectionParams:
     scanner_uncertainty: float = 0.0
     scanner: ScannerProfile = DEFAULT_SCANNER
     fixture: str = "free"
+    max_restraint_force: float | None = None
     restraint: RestraintCondition = field(default_factory=RestraintCondition)
 
     @property

@@ -30,6 +30,7 @@ from qifreport.registration.deformable.methods import METHODS, method_label, met
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import RigidResult
 from qifreport.registration.pose.prealign import PrealignResult
+from qifreport.registration.restraint.fixture_load import FixtureLoad
 from qifreport.registration.restraint.restrained import Restraint
 
 from .params import CLAMPS, VIRTUAL, InspectionParams, RestraintCondition
@@ -186,6 +187,10 @@ class InspectionResult:
         (:class:`qifreport.registration.restraint.restrained.Restraint`);
         ``P`` then holds the restrained scan. A clamp above its force limit fails the part
         (not restrainable).
+    fixture_load : what a physical fixture would need to hold the part in the virtual
+        fixture's shape (:class:`qifreport.registration.restraint.fixture_load.FixtureLoad`;
+        a fixtured result only): above its force limit or beyond the material's yield
+        strength, a PASS is not established.
     """
 
     V: np.ndarray
@@ -224,6 +229,7 @@ class InspectionResult:
     deviation_variance: np.ndarray | None = None
     solid: bool = False
     restraint: Restraint | None = None
+    fixture_load: FixtureLoad | None = None
     characteristics: list[CharacteristicResult] = field(default_factory=list)
     frames: list[DatumFrameResult] = field(default_factory=list)
 
@@ -359,9 +365,14 @@ class InspectionResult:
         * with ``--seeds``: a resampled run whose own registration cannot be trusted (its
           regions decided which findings persist);
         * clamp force limits stated for a part held without a material: whether it can be
-          held within them is not known.
+          held within them is not known;
+        * the virtual fixture's shape needs more force than its limit to hold, or stresses
+          the material beyond its yield strength (:attr:`fixture_load`): no physical
+          fixture could hold the part so.
         """
         out = []
+        if self.fixture_load is not None:
+            out += self.fixture_load.refusals()
         r = self.restraint
         if r is not None and not r.forces_known:
             limited = [c.name for c in r.clamps if c.max_force is not None]
@@ -587,6 +598,7 @@ class InspectionResult:
                     "free_state_decided_by": list(self.free_state_decided_by),
                 },
                 "restraint": None if self.restraint is None else self.restraint.to_dict(),
+                "fixture_load": None if self.fixture_load is None else self.fixture_load.to_dict(),
                 "prealign": None if self.prealign is None else _prealign_dict(self.prealign),
                 "rigid": {
                     "R": self.rigid.R.tolist(),

@@ -239,6 +239,22 @@ def _registration_attrs(ra: Attrs, res: InspectionResult) -> None:
         ra.b("fit_fallback", fit.fallback).d("fit_flagged_fraction", fit.flagged_fraction)
         ra.d("fit_residual_scale_mm", fit.scale)
         ra.d("fit_max_displacement_mm", float(np.linalg.norm(fit.e, axis=1).max()))
+    if res.fixture_load is not None:
+        _fixture_load_attrs(ra, res.fixture_load)
+
+
+def _fixture_load_attrs(ra: Attrs, load) -> None:
+    """What a physical fixture would need to hold the part in the virtual fixture's shape
+    (``fixture_load_*``: energy, equivalent force, peak contact, stress against yield, the
+    limit and whether it refuses the PASS), or why it is not established."""
+    for key, value in load.to_dict().items():
+        name = f"fixture_load_{key}"
+        if isinstance(value, bool):
+            ra.b(name, value)
+        elif isinstance(value, int | float):
+            ra.d(name, value)
+        elif value is not None:
+            ra.s(name, value)
 
 
 def _restraint_attrs(ra: Attrs, r) -> None:

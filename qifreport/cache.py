@@ -52,6 +52,7 @@ from qifreport.metrology.model import Drawing, Part
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.prepared import PreparedPart, part_settings, prepare_part
 from qifreport.registration.deformable.methods import method_spec
+from qifreport.registration.restraint.fixture_load import LoadModel
 from qifreport.registration.restraint.restrained import RestraintBasis
 
 from .cache_trust import (
@@ -63,7 +64,7 @@ from .cache_trust import (
 )
 from .nominal import load_nominal
 from .options import NominalOptions
-from .restraint import build_restraint, with_limits
+from .restraint import build_load_model, build_restraint, with_limits
 
 __all__ = [
     "CACHE_FORMAT",
@@ -84,7 +85,7 @@ log = logging.getLogger(__name__)
 
 #: version of the entry layout, part of every key: an entry written by another layout of
 #: :class:`PartState` (or of anything it holds) is never read; bump it when that changes
-CACHE_FORMAT = 18
+CACHE_FORMAT = 20
 SUFFIX = ".qprep"
 
 
@@ -120,6 +121,9 @@ class PartState:
     build_seconds : what reading and preparing took when the entry was built.
     restraint : the part's restraint basis (:func:`qifreport.restraint.build_restraint`)
         when the options hold it at clamps; None otherwise.
+    fixture_load : the part's elastic model for the virtual fixture's load
+        (:func:`qifreport.restraint.build_load_model`), or why there is none (a sentence);
+        None when no virtual fixture is to be bounded (rigid only, held at clamps).
     """
 
     part: Part
@@ -129,6 +133,7 @@ class PartState:
     key: str
     build_seconds: float = 0.0
     restraint: RestraintBasis | None = None
+    fixture_load: LoadModel | str | None = None
 
 
 @dataclass
@@ -191,6 +196,7 @@ def key_material(nominal_sha256: str, options: NominalOptions, params: Inspectio
         },
         "part": part_settings(params),
         "restraint": None if options.restraint is None else options.restraint.key(),
+        "fixture_load": None if options.fixture_load is None else options.fixture_load.key(),
     }
 
 
@@ -236,13 +242,17 @@ def build_state(
         accept_tolerance_as_read=options.accept_tolerance_as_read,
         mesher=options.mesher,
         solid=options.solid,
-        solid_mesh=options.restraint is not None,
+        solid_mesh=options.restraint is not None or _loads(options),
     )
-    restraint = None
+    restraint = fixture_load = None
+    solid = None if part.solid_mesh is None else (part.solid_mesh.X, part.solid_mesh.T)
     if options.restraint is not None:
-        solid = None if part.solid_mesh is None else (part.solid_mesh.X, part.solid_mesh.T)
         restraint = build_restraint(part.V, part.F, options.restraint, solid=solid)
-        part.solid_mesh = None  # in the basis now: not kept in the cache entry
+    if options.fixture_load is not None:
+        fixture_load = build_load_model(
+            part.V, part.F, options.fixture_load, solid=solid, step=part.face_id is not None
+        )
+    part.solid_mesh = None  # in the models now: not kept in the cache entry
     if on_nominal is not None:
         on_nominal(part)
     if complete:
@@ -263,7 +273,14 @@ def build_state(
         key=key,
         build_seconds=time.perf_counter() - t0,
         restraint=restraint,
+        fixture_load=fixture_load,
     )
+
+
+def _loads(options: NominalOptions) -> bool:
+    """Whether the virtual fixture's load is to be measured on a model of the part's
+    solid (a material is stated)."""
+    return options.fixture_load is not None and options.fixture_load.material is not None
 
 
 def save_entry(path: Path, state: PartState, material: dict, secret: bytes) -> None:

@@ -19,6 +19,7 @@ from qifreport.metrology.acceptance.decision import DECISION_RULES, DEFAULT_DECI
 from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION
 from qifreport.metrology.params import RESTRAINT_CONDITIONS
 from qifreport.registration.deformable.methods import METHODS
+from qifreport.registration.restraint.fixture_load import DEFAULT_MAX_FORCE
 from qifreport.restraint import DEFAULT_PAD_RADIUS
 
 __all__ = [
@@ -388,6 +389,16 @@ def add_restraint_options(ap: argparse.ArgumentParser) -> None:
         metavar="N",
         help="force limit of the clamps whose file states none: a part that needs more "
         "FAILs as not restrainable",
+    )
+    held.add_argument(
+        "--max-restraint-force",
+        type=float,
+        default=None,
+        metavar="N",
+        help="the force a physical fixture may use to hold the part in the virtual "
+        "fixture's shape (measured on its elastic model: needs --material, and a mesh "
+        f"nominal's --thickness); a PASS that needs more is NOT ESTABLISHED (default "
+        f"{DEFAULT_MAX_FORCE:g} N)",
     )
     held.add_argument(
         "--pad-radius",

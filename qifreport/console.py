@@ -41,6 +41,7 @@ def summary(res: InspectionResult) -> str:
         f"condition: {res.condition_text()}",
         f"restraint stated: {res.condition.statement}",
         f"registration: {fixture_text(res)}",
+        *([] if res.fixture_load is None else [res.fixture_load.describe()]),
         f"deviation (area-weighted, {s.n} scored vertices): RMS {s.rms:.3f}  max {s.max_abs:.3f}"
         f"  P95 {s.p95:.3f}  P99.9 {s.p999:.3f}  mean {s.mean:+.3f} mm",
         f"area criterion: {100 * a.in_tolerance_fraction:.2f} % in tolerance "

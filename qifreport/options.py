@@ -40,7 +40,13 @@ from qifreport.metrology.params import (
 )
 from qifreport.registration.deformable.gbcicp import GBCICPParams
 
-from .restraint import DEFAULT_PAD_RADIUS, RestraintSpec, gravity_direction, read_clamps
+from .restraint import (
+    DEFAULT_PAD_RADIUS,
+    LoadSpec,
+    RestraintSpec,
+    gravity_direction,
+    read_clamps,
+)
 
 __all__ = [
     "RESULT_OPTIONS",
@@ -93,6 +99,7 @@ RESULT_OPTIONS = (
     "max_clamp_force",
     "pad_radius",
     "gravity",
+    "max_restraint_force",
 )
 
 
@@ -116,7 +123,8 @@ def check_text(flag: str, value: str | None) -> None:
 class NominalOptions:
     """How the nominal file is read (mm): ``--tolerance``, ``--max-edge``, ``--deflection``,
     ``--mesher``, ``--solid``; and how the part is held (``restraint``: the per-part
-    restraint basis is built with it)."""
+    restraint basis is built with it; ``fixture_load``: what the virtual fixture's load
+    needs, its elastic model built with it)."""
 
     tolerance: float | None = None
     max_edge: float | None = None
@@ -125,6 +133,7 @@ class NominalOptions:
     mesher: str = "gmsh"
     solid: str | None = None
     restraint: RestraintSpec | None = None
+    fixture_load: LoadSpec | None = None
 
 
 @dataclass(frozen=True)
@@ -184,6 +193,9 @@ class InspectOptions:
         of clamps that state none, N.  pad_radius : each clamp's contact radius, mm.
     gravity : the direction of gravity in the part frame while it is held (``-z``, ``+x``
         or ``x,y,z``; None: no weight): the held part sags under its own weight.
+    max_restraint_force : the force a physical fixture may use to hold the part in the
+        virtual fixture's shape, N (None: the default,
+        :data:`qifreport.registration.restraint.fixture_load.DEFAULT_MAX_FORCE`).
     """
 
     tolerance: float | None = None
@@ -229,6 +241,7 @@ class InspectOptions:
     max_clamp_force: float | None = None
     pad_radius: float = DEFAULT_PAD_RADIUS
     gravity: str | None = None
+    max_restraint_force: float | None = None
 
     def check(self) -> None:
         """Refuse values no inspection can use (:class:`~qifreport.errors.InputError`)."""
@@ -280,6 +293,13 @@ class InspectOptions:
         ):
             raise InputError(
                 f"--max-clamp-force must be a positive force in N, got {self.max_clamp_force}"
+            )
+        if self.max_restraint_force is not None and not (
+            math.isfinite(self.max_restraint_force) and self.max_restraint_force > 0
+        ):
+            raise InputError(
+                "--max-restraint-force must be a positive force in N, got "
+                f"{self.max_restraint_force}"
             )
         if self.material is not None:
             check_text("--material", self.material)
@@ -402,6 +422,7 @@ class InspectOptions:
             decision_rule=self.decision_rule,
             scanner_uncertainty=self.scanner_uncertainty,
             scanner=self.scanner_profile(),
+            max_restraint_force=self.max_restraint_force,
         )
         if self.max_region_area is not None:
             params.max_region_area = self.max_region_area
@@ -457,8 +478,17 @@ class InspectOptions:
             self.accept_tolerance_as_read,
             self.mesher,
             self.solid,
-            self.restraint_spec(nominal),
+            restraint := self.restraint_spec(nominal),
+            self.load_spec(restraint),
         )
+
+    def load_spec(self, restraint: RestraintSpec | None) -> LoadSpec | None:
+        """What the virtual fixture's load needs (the material, a mesh nominal's
+        thickness) when a virtual fixture may be applied: not rigidly only, nor held at
+        clamps (``restraint``)."""
+        if self.rigid_only or restraint is not None:
+            return None
+        return LoadSpec(self.material, self.thickness)
 
     def result_options(self) -> dict:
         """The options that change a scan's outputs, by name (JSON-able)."""

@@ -326,7 +326,13 @@ def inspect_state(
     if held.condition == CLAMPS:
         params = replace(params, fixture="restrained")
     inputs = replace(
-        part_inputs(part, drawing, prepared=state.prepared, restraint=state.restraint),
+        part_inputs(
+            part,
+            drawing,
+            prepared=state.prepared,
+            restraint=state.restraint,
+            fixture_load=state.fixture_load,
+        ),
         # the --min-coverage rules apply to this inspection's zones
         zones=zones_with_coverage(drawing.zones, o.zone_min_coverage),
         scan_units=o.scan_units,

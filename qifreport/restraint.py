@@ -29,12 +29,15 @@ import numpy as np
 from qifreport.registration.mesh import face_normals
 from qifreport.registration.restraint.clamps import Clamp, parse_clamps
 from qifreport.registration.restraint.elastic import Material, elastic_model, material, rigid_rank
+from qifreport.registration.restraint.fixture_load import LoadModel, boundary_faces, load_model
 from qifreport.registration.restraint.restrained import RestraintBasis, restraint_basis
 
 from .errors import InputError
 
 __all__ = [
     "DEFAULT_PAD_RADIUS",
+    "LoadSpec",
+    "build_load_model",
     "RestraintSpec",
     "boundary_normals",
     "build_restraint",
@@ -190,20 +193,8 @@ def sheet_model_mesh(
 def boundary_normals(X: np.ndarray, T: np.ndarray) -> np.ndarray:
     """(n, 3) the outward unit normals at the boundary vertices of tetrahedra ``T`` (k, 4)
     over ``X`` (n, 3) (area-weighted over their boundary faces; zero rows inside)."""
-    X = np.asarray(X, dtype=np.float64)
-    T = np.asarray(T, dtype=np.int64)
-    local = ((1, 2, 3, 0), (0, 2, 3, 1), (0, 1, 3, 2), (0, 1, 2, 3))
-    faces = np.concatenate([T[:, [a, b, c]] for a, b, c, _ in local])
-    opposite = np.concatenate([T[:, d] for *_, d in local])
-    _, inv, count = np.unique(
-        np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True
-    )
-    once = count[inv.ravel()] == 1
-    f, o = faces[once], opposite[once]
-    n = np.cross(X[f[:, 1]] - X[f[:, 0]], X[f[:, 2]] - X[f[:, 0]])
-    inward = np.einsum("ij,ij->i", n, X[o] - X[f[:, 0]]) > 0
-    n[inward] *= -1.0
-    out = np.zeros_like(X)
+    f, n = boundary_faces(X, T)
+    out = np.zeros_like(np.asarray(X, dtype=np.float64))
     for k in range(3):
         np.add.at(out, f[:, k], n)
     norm = np.linalg.norm(out, axis=1, keepdims=True)
@@ -487,3 +478,65 @@ def clamp_rows(part, clamps: tuple[Clamp, ...]) -> list[dict]:
             }
         )
     return rows
+
+
+@dataclass(frozen=True)
+class LoadSpec:
+    """What the virtual fixture's load needs of the part (:func:`build_load_model`): its
+    material (``--material``) and, for a mesh nominal, its wall thickness (``--thickness``)."""
+
+    material: str | None = None
+    thickness: float | None = None
+
+    def key(self) -> dict:
+        """JSON-able, for the cache key."""
+        return {"material": self.material, "thickness": self.thickness}
+
+
+def build_load_model(
+    V: np.ndarray,
+    F: np.ndarray,
+    spec: LoadSpec,
+    *,
+    solid: tuple[np.ndarray, np.ndarray] | None = None,
+    step: bool = False,
+) -> LoadModel | str:
+    """The part's elastic model for the virtual fixture's load
+    (:func:`qifreport.registration.restraint.fixture_load.load_model`), or why there is none
+    (a sentence naming what is needed: the load is then reported as not established).
+
+    Parameters
+    ----------
+    V : (n, 3) mm, F : (f, 3) the nominal's inspection mesh.  spec : material, thickness.
+    solid : ``(X, T)`` a STEP solid's tetrahedra (mm); None for a mesh nominal, thickened
+        by ``spec.thickness``.  step : the nominal is a STEP part (for the reason only).
+
+    Raises
+    ------
+    InputError
+        A material that is not one.
+    """
+    if spec.material is None:
+        return "the part's material is not stated (--material)" + (
+            "" if step or spec.thickness is not None else " nor its wall thickness (--thickness)"
+        )
+    mat = RestraintSpec((), "", material=spec.material).elastic_material()
+    if solid is None and step:
+        return "the STEP part has no solid to fill with tetrahedra"
+    if solid is None and spec.thickness is None:
+        return "a mesh nominal's elastic model needs its wall thickness (--thickness)"
+    t0 = time.perf_counter()
+    shell = RestraintSpec((), "", thickness=spec.thickness)
+    X, T, kind = _elastic_solid(V, F, shell, solid)
+    try:
+        lm = load_model(elastic_model(X, T, mat), V, F, kind)
+    except ValueError as exc:
+        return f"the elastic model cannot take the fixture's displacement: {exc}"
+    log.info(
+        "fixture-load model (%s): %d vertices, %d held, %.1f s",
+        kind,
+        len(X),
+        len(lm.nodes),
+        time.perf_counter() - t0,
+    )
+    return lm

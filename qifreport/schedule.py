@@ -38,6 +38,7 @@ from qifreport.metrology.inspection import (
     inspection_context,
     judge_as_held,
     seat_rigidly,
+    with_fixture_load,
     with_free_state,
 )
 from qifreport.metrology.judgement import judge
@@ -271,7 +272,8 @@ def _free_state_beside_fixture(run: JudgeRun, executor) -> InspectionResult:
         # the free-state zones take its deviation; else the fixtured judgement goes first
         free = _take(pending, timings) if free_state_zones(ctx) else None
         res = run.judge(reg, fit, params, timings, ctx, free_deviation=free_deviation(free))
-        return with_free_state(res, _take(pending, timings) if free is None else free)
+        res = with_free_state(res, _take(pending, timings) if free is None else free)
+        return with_fixture_load(res, run)
     except _FreeStateStood:  # its fixture_decision is set (free_state_stands)
         free = pending.result()
         # taken when it was done already (between two fixture steps), or waited for

@@ -21,6 +21,7 @@ from qifreport.metrology.prepared import PreparedPart
 from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.icp import RigidResult
 from qifreport.registration.pose.prealign import PrealignResult
+from qifreport.registration.restraint.fixture_load import LoadModel
 
 __all__ = ["JudgeContext", "Registered"]
 
@@ -76,6 +77,9 @@ class JudgeContext:
         (:func:`qifreport.metrology.gdt.pmi_plan.specs_from_pmi`; a STEP nominal with
         ``brep_normals``): measured on the judged surface, and the profiles that name
         datums laid in their frame; None: none.
+    fixture_load : the part's elastic model for the virtual fixture's load
+        (:class:`qifreport.registration.restraint.fixture_load.LoadModel`), or why there is
+        none (a sentence); None: none given.
     """
 
     prepared: PreparedPart
@@ -87,6 +91,7 @@ class JudgeContext:
     basis: BendingBasis | None = None
     brep_normals: np.ndarray | None = None
     plan: CharacteristicPlan | None = None
+    fixture_load: LoadModel | str | None = None
 
     @property
     def general_half(self) -> float:

@@ -78,7 +78,15 @@ def criteria(res: InspectionResult) -> tuple[list[str], list[str], list[str]]:
 
 
 def verdict_lines(res: InspectionResult, width: float = 1e9, size: float = 6.8) -> list[str]:
-    """Which criteria decided the verdict, for whom (names cut to fit ``width`` points)."""
+    """Which criteria decided the verdict, for whom (names cut to fit ``width`` points),
+    and the virtual fixture's load when it was measured."""
+    load = res.fixture_load
+    tail = [] if load is None or not load.established else [fit_text(load.short(), width, size)]
+    return _criteria_lines(res, width, size) + tail
+
+
+def _criteria_lines(res: InspectionResult, width: float, size: float) -> list[str]:
+    """:func:`verdict_lines` without the fixture's load."""
     area, region, empty = criteria(res)
     if res.passed:
         n = len(res.zones)

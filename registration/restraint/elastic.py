@@ -59,12 +59,15 @@ class Material:
     name : a label for the reports.
     E : Young's modulus, MPa (N/mm^2).  nu : Poisson's ratio.
     density : t/mm^3 (1 g/cm^3 = 1e-9 t/mm^3).
+    yield_strength : the stress beyond which the material no longer springs back, MPa
+        (yield or 0.2 % proof stress; a brittle fill's strength at break); None: not known.
     """
 
     name: str
     E: float
     nu: float
     density: float
+    yield_strength: float | None = None
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.E) and self.E > 0):
@@ -73,6 +76,9 @@ class Material:
             raise ValueError(f"Poisson's ratio must lie in (-1, 0.5), got {self.nu}")
         if not (np.isfinite(self.density) and self.density >= 0):
             raise ValueError(f"density must be >= 0 (t/mm^3), got {self.density}")
+        ys = self.yield_strength
+        if ys is not None and not (np.isfinite(ys) and ys > 0):
+            raise ValueError(f"yield strength must be positive (MPa), got {ys}")
 
     @property
     def lame(self) -> tuple[float, float]:
@@ -86,23 +92,28 @@ class Material:
             "E_MPa": float(self.E),
             "nu": float(self.nu),
             "density_t_per_mm3": float(self.density),
+            "yield_MPa": None if self.yield_strength is None else float(self.yield_strength),
         }
 
 
-#: presets (handbook values at room temperature; a drawing's material overrides them)
+#: presets (handbook values at room temperature; a drawing's material overrides them). The
+#: yield strengths are the low end of each class (docs/restraint.md gives the sources):
+#: structural steel S235 (EN 10025-2, ReH), EN AW-6061-T6 (EN 755-2, Rp0.2), and the
+#: plastics' tensile stress at yield (ISO 527, conditioned; PA6-GF30 at break)
 MATERIALS = {
-    "steel": Material("steel", 210_000.0, 0.30, 7.85e-9),
-    "aluminium": Material("aluminium", 70_000.0, 0.33, 2.70e-9),
-    "pp": Material("PP", 1_500.0, 0.42, 0.905e-9),
-    "abs": Material("ABS", 2_300.0, 0.35, 1.05e-9),
-    "pa6-gf30": Material("PA6-GF30", 9_500.0, 0.35, 1.36e-9),
+    "steel": Material("steel", 210_000.0, 0.30, 7.85e-9, 235.0),
+    "aluminium": Material("aluminium", 70_000.0, 0.33, 2.70e-9, 240.0),
+    "pp": Material("PP", 1_500.0, 0.42, 0.905e-9, 30.0),
+    "abs": Material("ABS", 2_300.0, 0.35, 1.05e-9, 40.0),
+    "pa6-gf30": Material("PA6-GF30", 9_500.0, 0.35, 1.36e-9, 100.0),
 }
 
 
 def material(spec: str) -> Material:
     """A preset by name (``steel``, ``aluminium``, ``pp``, ``abs``, ``pa6-gf30``; case
     insensitive, ``aluminum`` accepted) or explicit values ``E=70000,nu=0.33,density=2.7e-9``
-    (MPa, -, t/mm^3; ``density`` optional, 0 without gravity).
+    (MPa, -, t/mm^3; ``density`` optional, 0 without gravity; ``yield=240`` MPa optional,
+    unknown without it).
 
     Raises
     ------
@@ -121,15 +132,19 @@ def material(spec: str) -> Material:
     for item in key.split(","):
         name, _, value = item.partition("=")
         name = name.strip()
-        if name not in ("e", "nu", "density"):
-            raise ValueError(f"material {spec!r}: unknown property {name!r} (E, nu, density)")
+        if name not in ("e", "nu", "density", "yield"):
+            raise ValueError(
+                f"material {spec!r}: unknown property {name!r} (E, nu, density, yield)"
+            )
         try:
             values[name] = float(value)
         except ValueError:
             raise ValueError(f"material {spec!r}: {name} is not a number: {value!r}") from None
     if "e" not in values or "nu" not in values:
         raise ValueError(f"material {spec!r}: E and nu are required")
-    return Material("custom", values["e"], values["nu"], values.get("density", 0.0))
+    return Material(
+        "custom", values["e"], values["nu"], values.get("density", 0.0), values.get("yield")
+    )
 
 
 @dataclass
@@ -398,7 +413,7 @@ class ElasticModel:
                 best_lam * (2.0 * best_lam - 1.0),
                 np.stack([4.0 * best_lam[:, a] * best_lam[:, b] for a, b in pairs], axis=1),
             ]
-            edge = self._edge_index(np.stack([corners[:, [a, b]] for a, b in pairs], axis=1))
+            edge = self.edge_index(np.stack([corners[:, [a, b]] for a, b in pairs], axis=1))
             nodes = [self.vertex_dofs[corners[:, k]] for k in range(4)]
             nodes += [self.edge_dofs[edge[:, k]] for k in range(6)]
         m, K = len(P), len(nodes)
@@ -409,7 +424,7 @@ class ElasticModel:
             (vals.ravel(), (rows.ravel(), dofs.ravel())), shape=(3 * m, self.n_dofs)
         )
 
-    def _edge_index(self, pairs: np.ndarray) -> np.ndarray:
+    def edge_index(self, pairs: np.ndarray) -> np.ndarray:
         """The index in :attr:`edges` of vertex pairs ``pairs`` (..., 2)."""
         n = np.int64(len(self.X))
         e = np.sort(self.edges, axis=1)

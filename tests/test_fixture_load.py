@@ -1,0 +1,106 @@
+"""The virtual fixture's load on a part's elastic model (registration.restraint.fixture_load)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from qifreport.registration.restraint.elastic import MATERIALS, elastic_model, material
+from qifreport.registration.restraint.fixture_load import FixtureLoad, fixture_load, load_model
+
+
+def _plate(L: float, W: float, t: float, nx: int, ny: int):
+    """A one-layer box of tetrahedra (six per hexahedron) and its surface triangles."""
+    xs, ys, zs = (
+        np.linspace(-L / 2, L / 2, nx + 1),
+        np.linspace(-W / 2, W / 2, ny + 1),
+        [-t / 2, t / 2],
+    )
+    X = np.stack(np.meshgrid(xs, ys, zs, indexing="ij"), -1).reshape(-1, 3)
+    idx = np.arange(len(X)).reshape(nx + 1, ny + 1, 2)
+    T = []
+    for i in range(nx):
+        for j in range(ny):
+            c = [idx[i + a, j + b, k] for a in (0, 1) for b in (0, 1) for k in (0, 1)]
+            for p, q in ((4, 6), (6, 2), (2, 3), (3, 1), (1, 5), (5, 4)):
+                T.append([c[0], c[p], c[q], c[7]])
+    from qifreport.registration.restraint.fixture_load import boundary_faces
+
+    F, n = boundary_faces(X, np.array(T))
+    wound = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
+    flip = np.einsum("ij,ij->i", wound, n) < 0  # outward winding, as a nominal's
+    F[flip] = F[flip][:, ::-1]
+    return X, np.array(T), F
+
+
+@pytest.fixture(scope="module")
+def steel_plate():
+    X, T, F = _plate(100.0, 20.0, 2.0, 20, 4)
+    return X, F, load_model(elastic_model(X, T, MATERIALS["steel"]), X, F, "plate")
+
+
+def test_bending_matches_plate_theory(steel_plate):
+    """w = kappa x^2 / 2 on a 100 x 20 x 2 mm steel plate: the energy lies between the
+    beam's (E I) and the plate's (D, no anticlastic curvature), within 5 % of the plate's;
+    the surface stress within 10 % of E kappa t / 2 / (1 - nu^2)'s von Mises."""
+    X, F, lm = steel_plate
+    kappa, mat = 1e-3, MATERIALS["steel"]
+    d = np.zeros_like(X)
+    d[:, 2] = kappa * X[:, 0] ** 2 / 2
+    load = fixture_load(lm, X, d)
+    E, nu, t, L, W = mat.E, mat.nu, 2.0, 100.0, 20.0
+    plate = 0.5 * E * t**3 / (12 * (1 - nu**2)) * kappa**2 * L * W
+    beam = plate * (1 - nu**2)
+    assert beam < load.energy <= plate * 1.01
+    assert load.energy == pytest.approx(plate, rel=0.05)
+    sx = E / (1 - nu**2) * kappa * t / 2
+    assert load.peak_stress == pytest.approx(sx * np.sqrt(1 - nu + nu**2), rel=0.10)
+    # a rigid motion added changes nothing
+    moved = d + np.array([0.3, -0.2, 0.5]) + np.cross([0.0, 0.002, 0.001], X)
+    assert fixture_load(lm, X, moved).energy == pytest.approx(load.energy, rel=1e-6)
+
+
+def test_curved_shell_bends_as_shell_theory_says():
+    """A cylindrical ABS panel (mid radius 220 mm, 1.8 mm wall, 124 mm arc x 100 mm) given
+    the vertical field w = kappa x^2 / 2: its normal part is an inextensional bend of
+    change of curvature kappa cos(phi) (cos^2 phi - 3 sin^2 phi) (shell theory), 0.794 of
+    the flat plate's energy. The field's through-thickness part (the skins' normal
+    displacements differ by kappa x t sin(phi)) is a change of the wall's thickness, held
+    out: prescribed, it read 32 times the plate's energy."""
+    R, t, L, W, kappa, mat = 220.0, 1.8, 124.0, 100.0, 1e-4, MATERIALS["abs"]
+    X, T, F = _plate(L, W, t, 31, 25)
+    phi = X[:, 0] / R
+    X = np.stack([(R + X[:, 2]) * np.sin(phi), X[:, 1], (R + X[:, 2]) * np.cos(phi) - R], 1)
+    lm = load_model(elastic_model(X, T, mat), X, F, "cylindrical panel")
+    d = np.zeros_like(X)
+    d[:, 2] = kappa * X[:, 0] ** 2 / 2
+    load = fixture_load(lm, X, d)
+    p = np.linspace(-L / 2 / R, L / 2 / R, 2001)
+    shell = np.mean(np.cos(p) ** 2 * (np.cos(p) ** 2 - 3 * np.sin(p) ** 2) ** 2)
+    plate = 0.5 * mat.E * t**3 / (12 * (1 - mat.nu**2)) * kappa**2 * L * W
+    assert load.energy == pytest.approx(shell * plate, rel=0.06)
+    assert load.thickness_change == pytest.approx(kappa * 62 * t * np.sin(62 / R), rel=0.1)
+
+
+def test_refused_with_forces_named(steel_plate):
+    """A stiff part forced beyond the limit is refused, the forces in the reason; within
+    it and the yield strength, nothing is refused."""
+    X, F, lm = steel_plate
+    d = np.zeros_like(X)
+    d[:, 2] = 1e-3 * X[:, 0] ** 2 / 2
+    big = fixture_load(lm, X, d).bounded(100.0, "--max-restraint-force")
+    assert big.over_force and big.equivalent_force > 100.0
+    (why,) = [r for r in big.refusals() if "N to hold" in r]
+    assert f"{big.equivalent_force:.3g} N" in why and "100 N limit" in why
+    small = fixture_load(lm, X, 1e-3 * d).bounded(100.0, "default")
+    assert small.refusals() == [] and 0 < small.equivalent_force < 1.0
+    assert "> 100" in big.short() and "<= 100" in small.short()
+    assert "over the 100 N limit" in big.describe() and "within" in small.describe()
+    assert FixtureLoad.not_established("no material").refusals() == []
+
+
+def test_yield_in_presets_and_values():
+    assert MATERIALS["steel"].yield_strength == 235.0
+    assert material("E=70000,nu=0.33,yield=240").yield_strength == 240.0
+    with pytest.raises(ValueError):
+        material("E=70000,nu=0.33,yield=-1")
