@@ -9,16 +9,28 @@ mesh does not.
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
+import trimesh
 
 from qifreport.metrology.deviation.local_planes import nominal_referenced
 from qifreport.metrology.stages.deviation import vertex_deviation
-from qifreport.registration.mesh import crease_band, median_edge_length, vertex_normals
+from qifreport.registration.mesh import (
+    crease_band,
+    load_mesh,
+    median_edge_length,
+    vertex_normals,
+)
 from qifreport.simulate.shapes import bumpy_sphere, fandisk
 from tests.conftest import shared_file
 
 NOISE = 0.005
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def own_vertices(V: np.ndarray, F: np.ndarray, seed: int = 0) -> np.ndarray:
@@ -45,3 +57,43 @@ def test_mesh_nominal_at_its_own_vertices_reads_its_noise(shape):
     # the plane fit this replaces: the curvature's sag, several sigma
     plane = nominal_referenced(V, F, P, normals=N)[scored]
     assert np.nanmax(np.abs(plane)) > 8 * NOISE
+
+
+def _own_vertex_run(tmp_path, V: np.ndarray, F: np.ndarray) -> tuple[int, dict]:
+    """``qifreport NOMINAL SCAN --tolerance 0.5`` on the mesh and a scan of its own vertices:
+    the exit code and the JSON summary."""
+    nominal = tmp_path / "nominal.ply"
+    trimesh.Trimesh(V, F, process=False).export(nominal)
+    scan = tmp_path / "scan.xyz"
+    np.savetxt(scan, own_vertices(V, F), fmt="%.6f")
+    out = tmp_path / "out"
+    exe = Path(sys.executable).parent / "qifreport"
+    args = [nominal, scan, "--tolerance", "0.5", "--out", out, "--json", "--no-pdf", "--no-cache"]
+    r = subprocess.run([str(exe), *map(str, args)], capture_output=True, text=True)
+    return r.returncode, json.loads((out / "nominal.json").read_text())
+
+
+def test_shell_at_its_own_vertices_passes_with_its_rim_where_it_is(tmp_path):
+    """The open shell: PASS, every vertex within 4 sigma; the trim edge at the mesh's rim
+    (the outermost row of points is the rim: no spacing added) and the size 1."""
+    V, F = load_mesh(ROOT / "samples" / "shell_nominal.ply")
+    rc, doc = _own_vertex_run(tmp_path, V, F)
+    assert (rc, doc["verdict"]) == (0, "PASS"), doc["warnings"]
+    assert doc["vertex_deviation"]["max_abs"] <= 4 * NOISE
+    edges = doc["edges"]
+    assert edges["status"] == "measured" and edges["seen_fraction"] > 0.5, edges
+    st = edges["statistics_mm"]
+    assert max(abs(st["median"]), abs(st["p05"]), abs(st["p95"])) < 0.05, st
+    assert doc["size"]["status"] == "conforming"
+    assert abs(doc["size"]["scale"] - 1.0) < 0.001
+    assert abs(doc["size"]["size_deviation_mm"]) < 0.05
+
+
+def test_organic_mesh_at_its_own_vertices_passes(tmp_path):
+    """A smooth closed surface without rim or crease: PASS, every vertex within 4 sigma."""
+    V, F = bumpy_sphere()
+    rc, doc = _own_vertex_run(tmp_path, V, F)
+    assert (rc, doc["verdict"]) == (0, "PASS"), doc["warnings"]
+    assert doc["vertex_deviation"]["n"] == len(V)
+    assert doc["vertex_deviation"]["max_abs"] <= 4 * NOISE
+    assert doc["edges"]["status"] == "no rim"

@@ -102,6 +102,18 @@ class EdgeDeviation:
         total = self.rim_length
         return float(self.rim.length[self.seen].sum() / total) if total > 0 else 0.0
 
+    @property
+    def spacing(self) -> float:
+        """The scan's point spacing at the rim, mm: ``sqrt(area / points)`` of the seen
+        strips (``2 radius`` along the rim by ``radius`` deep), their median; NaN when
+        nothing was seen. The sampling leaves each edge's position uncertain by about this
+        much (the true edge lies between the outermost points and the next, unsampled ones)."""
+        n = self.points[self.seen]
+        n = n[n > 0]
+        if len(n) == 0:
+            return float("nan")
+        return float(self.radius * np.sqrt(2.0 / np.median(n)))
+
     def statistics(self) -> dict[str, float]:
         """Median, P05, P95, min and max of the seen deviations (length weighted), mm.
 
@@ -141,6 +153,7 @@ class EdgeDeviation:
             "tolerance_mm": json_float(self.tolerance),
             "radius_mm": json_float(self.radius),
             "max_gap_mm": json_float(self.max_gap),
+            "spacing_mm": json_float(self.spacing),
             "statistics_mm": {k: json_float(v) for k, v in self.statistics().items()},
             "out_of_tolerance_length_mm": json_float(self.out_of_tolerance_length),
             "n_segments": len(self.segments),
@@ -168,7 +181,7 @@ class EdgeDeviation:
         out = [
             f"trim edge seen over {100 * self.seen_fraction:.0f} % of the "
             f"{self.rim_length:.0f} mm {what}: median {s['median']:+.2f} mm, "
-            f"P05/P95 {s['p05']:+.2f}/{s['p95']:+.2f} mm"
+            f"P05/P95 {s['p05']:+.2f}/{s['p95']:+.2f} mm (point spacing {self.spacing:.2f} mm)"
         ]
         if self.segments:
             worst = max(self.segments, key=lambda g: abs(g.peak))
