@@ -1,4 +1,5 @@
-"""No phantom deviation: mesh nominals scanned at their own vertices read their noise.
+"""No phantom deviation: mesh nominals scanned at their own vertices read their noise, their
+rim where it is; a solid's trim edges are reported, not judged.
 
 Every point lies on the nominal mesh (5 um noise along the vertex normal), so every scored
 vertex must read within 4 sigma of zero. A plane fitted to the points about a vertex reads
@@ -19,6 +20,7 @@ import pytest
 import trimesh
 
 from qifreport.metrology.deviation.local_planes import nominal_referenced
+from qifreport.metrology.deviation.part_class import SHEET, SOLID, part_class
 from qifreport.metrology.stages.deviation import vertex_deviation
 from qifreport.registration.mesh import (
     crease_band,
@@ -59,8 +61,10 @@ def test_mesh_nominal_at_its_own_vertices_reads_its_noise(shape):
     assert np.nanmax(np.abs(plane)) > 8 * NOISE
 
 
-def _own_vertex_run(tmp_path, V: np.ndarray, F: np.ndarray) -> tuple[int, dict]:
-    """``qifreport NOMINAL SCAN --tolerance 0.5`` on the mesh and a scan of its own vertices:
+def _own_vertex_run(
+    tmp_path, V: np.ndarray, F: np.ndarray, tolerance: float = 0.5
+) -> tuple[int, dict]:
+    """``qifreport NOMINAL SCAN --tolerance T`` on the mesh and a scan of its own vertices:
     the exit code and the JSON summary."""
     nominal = tmp_path / "nominal.ply"
     trimesh.Trimesh(V, F, process=False).export(nominal)
@@ -68,7 +72,8 @@ def _own_vertex_run(tmp_path, V: np.ndarray, F: np.ndarray) -> tuple[int, dict]:
     np.savetxt(scan, own_vertices(V, F), fmt="%.6f")
     out = tmp_path / "out"
     exe = Path(sys.executable).parent / "qifreport"
-    args = [nominal, scan, "--tolerance", "0.5", "--out", out, "--json", "--no-pdf", "--no-cache"]
+    args = [nominal, scan, "--tolerance", tolerance, "--out", out, "--json", "--no-pdf"]
+    args.append("--no-cache")
     r = subprocess.run([str(exe), *map(str, args)], capture_output=True, text=True)
     return r.returncode, json.loads((out / "nominal.json").read_text())
 
@@ -97,3 +102,37 @@ def test_organic_mesh_at_its_own_vertices_passes(tmp_path):
     assert doc["vertex_deviation"]["n"] == len(V)
     assert doc["vertex_deviation"]["max_abs"] <= 4 * NOISE
     assert doc["edges"]["status"] == "no rim"
+
+
+def _box(size: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    m = trimesh.creation.box(extents=size).subdivide().subdivide()
+    return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+
+
+def test_part_class_from_the_geometry():
+    """An open mesh and a thin closed slab are sheets (their trim edges judged); a block
+    and the fandisk are solids (reported, not judged)."""
+    shell = part_class(*load_mesh(ROOT / "samples" / "shell_nominal.ply"), solid=False)
+    assert (shell.kind, shell.open_rim, shell.judges_trim_edges) == (SHEET, True, True)
+    slab = part_class(*_box((120.0, 80.0, 1.8)), solid=True)
+    assert slab.kind == SHEET and slab.thin_area > 0.9
+    assert slab.wall == pytest.approx(1.8, abs=0.01)
+    block = part_class(*_box((120.0, 80.0, 40.0)), solid=True)
+    assert block.kind == SOLID and block.thin_area < 0.1 and not block.judges_trim_edges
+    disk = part_class(*fandisk(str(shared_file("meshes/fandisk.off"))), solid=False)
+    assert disk.kind == SOLID
+
+
+def test_machined_solid_trim_edges_are_reported_not_judged(tmp_path):
+    """The fandisk (a closed solid) at its own vertices against a 0.05 mm tolerance: its
+    trim creases read a size that is not established (judged, the verdict would be NOT
+    ESTABLISHED, exit 3); on a solid it is a note, and the part PASSes."""
+    V, F = fandisk(str(shared_file("meshes/fandisk.off")))
+    rc, doc = _own_vertex_run(tmp_path, V, F, tolerance=0.05)
+    assert (rc, doc["verdict"]) == (0, "PASS"), doc["warnings"]
+    assert doc["vertex_deviation"]["max_abs"] <= 4 * NOISE
+    edges = doc["edges"]
+    assert edges["status"] == "measured" and edges["judged"] is False
+    assert edges["part_class"]["kind"] == SOLID
+    assert doc["size"]["status"] == "not established"  # what a judged size would decide
+    assert not any("size" in w for w in doc["warnings"])

@@ -70,9 +70,8 @@ def residual_referenced(
         -1: none).  labels : (f,) B-rep face of each triangle.
     radius : mm; default 1.5 x the median edge, at least 2.5 x the scan's median point
         spacing.
-    point_normals : (m, 3) unit normal of each point's closest triangle: a point counts for
-        a vertex only within 60 degrees of the vertex normal (the far skin of a thin wall
-        that ``labels`` do not keep apart); None: every point of the vertex's faces.
+    point_normals : (m, 3) unit normal of each point's closest triangle: a point counts only
+        within 60 degrees of the vertex normal (not a thin wall's far skin); None: any.
     variance : also return each deviation's variance (n,) mm^2: the fitted value's,
         ``s^2 (1 + y . A0 y) / N`` with ``y = A^-1 c`` (``N`` points, centroid offset ``c``,
         ``A0`` their tangent covariance, ``A`` it regularised as in the fit; ``s^2 / N`` for
@@ -99,9 +98,8 @@ def residual_referenced(
     # the (vertex, B-rep face) pairs of the mesh, as sorted keys vertex * m + face
     m = int(np.max(labels)) + 1
     own = unique_sorted(F.astype(np.int64) * m + np.asarray(labels, dtype=np.int64)[:, None])
-    pl = np.asarray(point_label, dtype=np.int64)
     facing = None if point_normals is None else np.asarray(point_normals, dtype=np.float64)
-    args = (V, P, r, N, sel, tree, min_points, own, m, pl, facing)
+    args = (V, P, r, N, sel, tree, min_points, own, m, np.asarray(point_label, np.int64), facing)
     # a second, twice as wide ball for the vertices the first left unscored (surfaces seen
     # at a grazing angle, where the points are sparser than the median spacing)
     for ball in (radius, 2.0 * radius):
