@@ -14,7 +14,8 @@ normal by Gaussian noise of ``--noise`` mm (5 um), and runs ``qifreport NOMINAL 
     python bench/phantom.py [--cases shell,fandisk,organic] [--noise 0.005] [--seed 0]
 
 Prints per case: verdict, exit code, scored vertices, vertex RMS, max |dev|, P99.9, the
-4-sigma bound, the trim edge's median and P05/P95, and the size scale +/- sd.
+4-sigma bound, the trim edge's median and P05/P95, the size scale +/- sd, and the part
+class (:mod:`qifreport.metrology.deviation.part_class`: whether the trim edges are judged).
 """
 
 from __future__ import annotations
@@ -100,6 +101,8 @@ def run_case(case: str, noise: float, seed: int, work: Path) -> dict:
         "bound": 4.0 * noise,
         "edge": (e.get("median"), e.get("p05"), e.get("p95")),
         "edge_status": (d.get("edges") or {}).get("status"),
+        "part": ((d.get("edges") or {}).get("part_class") or {}).get("kind", "-"),
+        "judged": (d.get("edges") or {}).get("judged"),
         "size": (s.get("status"), s.get("scale"), s.get("scale_sd")),
     }
 
@@ -116,9 +119,9 @@ def main() -> None:
     a = ap.parse_args()
     print(
         "| case | vertices | verdict (exit) | scored | RMS mm | max mm | P99.9 mm | 4 sigma mm "
-        "| trim edge median (P05/P95) mm | size |"
+        "| trim edge median (P05/P95) mm | size | part class (trim edges judged) |"
     )
-    print("|---|---:|---|---:|---:|---:|---:|---:|---|---|")
+    print("|---|---:|---|---:|---:|---:|---:|---:|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for case in a.cases.split(","):
             r = run_case(case, a.noise, a.seed, Path(tmp))
@@ -133,7 +136,7 @@ def main() -> None:
             print(
                 f"| {case} | {r['vertices']} | {r['verdict']} ({r['exit']}) | {r['scored']} "
                 f"| {r['rms']:.4f} | {r['max']:.4f} | {r['p999']:.4f} | {r['bound']:.3f} "
-                f"| {edge} | {size} |",
+                f"| {edge} | {size} | {r['part']} ({'yes' if r['judged'] else 'no'}) |",
                 flush=True,
             )
 
