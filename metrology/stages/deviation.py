@@ -14,6 +14,7 @@ from qifreport.metrology.deviation.residual_fit import residual_referenced
 from qifreport.metrology.deviation.rim import split_at_creases
 from qifreport.metrology.deviation.surface import point_faces, surface_distance
 from qifreport.metrology.prepared import PreparedPart
+from qifreport.registration.deformable.result import orient_scan_normals
 from qifreport.registration.mesh import face_normals
 
 from .context import JudgeContext, Registered
@@ -88,6 +89,7 @@ def deviation_stage(
         nominal.normals,
         face_id,
         closest=(C, cface, pdev),
+        scan_normals=_mesh_scan_normals(reg, nominal.V, nominal.normals, face_id),
         residual=pdev if face_id is not None else None,
         crease_angle=ctx.prepared.settings["crease_angle"],
     )
@@ -123,9 +125,22 @@ def free_state_deviation(free: Registered, ctx: JudgeContext) -> tuple[np.ndarra
         free.P,
         normals,
         ctx.face_id,
+        scan_normals=_mesh_scan_normals(free, free.V, normals, ctx.face_id),
         brep_normals=ctx.brep_normals,
         crease_angle=ctx.prepared.settings["crease_angle"],
     )
+
+
+def _mesh_scan_normals(
+    reg: Registered, V: np.ndarray, normals: np.ndarray, face_id: np.ndarray | None
+) -> np.ndarray | None:
+    """The scan's outward normals (m, 3) for a mesh nominal's vertex fit
+    (:func:`~qifreport.registration.deformable.result.orient_scan_normals` against the
+    nominal ``V`` (n, 3) mm with its unit ``normals``); None for a B-rep nominal
+    (``face_id``), whose faces keep the points apart."""
+    if face_id is not None:
+        return None
+    return orient_scan_normals(reg.P, reg.scan_normals, V, normals, sheets=reg.sheets)
 
 
 def vertex_deviation(
@@ -136,6 +151,7 @@ def vertex_deviation(
     face_id: np.ndarray | None,
     *,
     closest: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    scan_normals: np.ndarray | None = None,
     residual: np.ndarray | None = None,
     brep_normals: np.ndarray | None = None,
     crease_angle: float = 45.0,
@@ -155,8 +171,10 @@ def vertex_deviation(
     nominal surface (no chord correction); its faces are the smooth patches between its
     creases sharper than ``crease_angle`` degrees
     (:func:`~qifreport.metrology.deviation.rim.split_at_creases`), a point counts for a vertex
-    only where its closest triangle faces the vertex's side (not a thin wall's far skin), and
-    the points beyond the open rim are left out. A plane fitted to the points would read a
+    only where its outward normal (``scan_normals`` (m, 3), oriented; default its closest
+    triangle's) lies within 60 degrees of the vertex's: not a thin wall's far skin, nor the
+    side of material the nominal does not have (a rib, reported as added material), and the
+    points beyond the open rim are left out. A plane fitted to the points would read a
     curved surface's sag inside its ball as deviation (``r^2 / 4R``: 0.025 mm for a 2 mm
     ball on a 40 mm radius); the points' own distances do not.
     """
@@ -173,7 +191,9 @@ def vertex_deviation(
             point_faces(cface, labels),
             labels,
             variance=True,
-            point_normals=face_normals(V, F)[np.maximum(cface, 0)],
+            point_normals=face_normals(V, F)[np.maximum(cface, 0)]
+            if scan_normals is None
+            else scan_normals,
         )
     if residual is None:
         residual = surface_distance(V, F, C, cface, pdev, face_id, brep_normals, P)
