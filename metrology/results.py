@@ -318,9 +318,11 @@ class InspectionResult:
 
     @property
     def judged_size(self) -> SizeEstimate | None:
-        """The size check when it takes part in the verdict: not for a solid, whose faces
-        measure its size themselves (its check is a note, :meth:`coverage_notes`)."""
-        return None if self.solid else self.size
+        """The size check when it takes part in the verdict: not for a solid
+        (:mod:`qifreport.metrology.deviation.part_class`: a machined block, not a sheet),
+        whose faces measure its size themselves (its check is a note,
+        :meth:`coverage_notes`)."""
+        return None if self.edges is not None and not self.edges.judged else self.size
 
     @property
     def passed(self) -> bool:
@@ -459,9 +461,10 @@ class InspectionResult:
         for z in self.zones:
             if z.coverage is not None:
                 out += [f"{z.zone.key}: {w}" for w in z.coverage.warnings]
-        if self.solid and self.size is not None and self.size.status != "conforming":
+        if self.judged_size is None and self.size is not None and self.size.status != "conforming":
             # a solid's faces measure its size themselves: the trim-edge check is reported
-            out += [f"size (a solid: reported, not judged): {r}" for r in self.size.reasons()]
+            what = self.edges.part.describe()
+            out += [f"size ({what}: reported, not judged): {r}" for r in self.size.reasons()]
         return out
 
     def relaxed_guards(self) -> list[str]:

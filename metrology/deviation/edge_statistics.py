@@ -17,6 +17,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from qifreport.metrology.acceptance.statistics import json_float
+from qifreport.metrology.deviation.part_class import PartClass
 from qifreport.metrology.deviation.rim import RimFrames
 
 __all__ = [
@@ -75,6 +76,9 @@ class EdgeDeviation:
     max_gap : the wide window of the coarse pass, mm (a scan edge farther inside the nominal
         rim than this is "not seen").
     segments : connected rim stretches out of tolerance, longest first.
+    part : the part's class (:func:`~qifreport.metrology.deviation.part_class.part_class`):
+        on a solid the trim edges and the size read from them are reported, not judged;
+        None: not classified (judged).
     """
 
     status: str
@@ -85,6 +89,13 @@ class EdgeDeviation:
     radius: float
     max_gap: float
     segments: list[EdgeSegment] = field(default_factory=list)
+    part: PartClass | None = None
+
+    @property
+    def judged(self) -> bool:
+        """Whether the trim edges (and the size read from them) take part in the verdict:
+        not on a solid (:attr:`part`)."""
+        return self.part is None or self.part.judges_trim_edges
 
     @property
     def seen(self) -> np.ndarray:
@@ -101,6 +112,18 @@ class EdgeDeviation:
         """Share of the rim length where the edge deviation was measured (0 without rim)."""
         total = self.rim_length
         return float(self.rim.length[self.seen].sum() / total) if total > 0 else 0.0
+
+    @property
+    def spacing(self) -> float:
+        """The scan's point spacing at the rim, mm: ``sqrt(area / points)`` of the seen
+        strips (``2 radius`` along the rim by ``radius`` deep), their median; NaN when
+        nothing was seen. The sampling leaves each edge's position uncertain by about this
+        much (the true edge lies between the outermost points and the next, unsampled ones)."""
+        n = self.points[self.seen]
+        n = n[n > 0]
+        if len(n) == 0:
+            return float("nan")
+        return float(self.radius * np.sqrt(2.0 / np.median(n)))
 
     def statistics(self) -> dict[str, float]:
         """Median, P05, P95, min and max of the seen deviations (length weighted), mm.
@@ -141,8 +164,11 @@ class EdgeDeviation:
             "tolerance_mm": json_float(self.tolerance),
             "radius_mm": json_float(self.radius),
             "max_gap_mm": json_float(self.max_gap),
+            "spacing_mm": json_float(self.spacing),
             "statistics_mm": {k: json_float(v) for k, v in self.statistics().items()},
             "out_of_tolerance_length_mm": json_float(self.out_of_tolerance_length),
+            "part_class": None if self.part is None else self.part.to_dict(),
+            "judged": self.judged,
             "n_segments": len(self.segments),
             "segments": [s.to_dict() for s in self.segments[:50]],
         }
@@ -168,7 +194,8 @@ class EdgeDeviation:
         out = [
             f"trim edge seen over {100 * self.seen_fraction:.0f} % of the "
             f"{self.rim_length:.0f} mm {what}: median {s['median']:+.2f} mm, "
-            f"P05/P95 {s['p05']:+.2f}/{s['p95']:+.2f} mm"
+            f"P05/P95 {s['p05']:+.2f}/{s['p95']:+.2f} mm (point spacing {self.spacing:.2f} mm)"
+            + ("" if self.judged else f"; reported, not judged: {self.part.describe()}")
         ]
         if self.segments:
             worst = max(self.segments, key=lambda g: abs(g.peak))

@@ -8,9 +8,12 @@ check; the rim vertices, where the difference shows, are left unscored
 For every open-boundary vertex ``v`` of the (registered) nominal it builds a local frame: the
 rim tangent ``t`` (from the boundary edges, oriented by the triangles' winding), the surface
 normal ``n`` and the *outward in-plane normal* ``b = t x n`` (in the tangent plane, pointing
-away from the material). The scan's edge is estimated in a strip about each rim vertex, from the
-quantile of the points' outward projections corrected for the scan density
-(:mod:`~qifreport.metrology.deviation.rim_strips`).
+away from the material). The scan's edge is estimated in a strip about each rim vertex, where
+the points' outward projections end (:mod:`~qifreport.metrology.deviation.rim_strips`). The
+strip's size is a length of the part, 2.5 median edges of the nominal, not of the scan: the
+reading does not change with the scan's density (a strip holds the outermost rows of a scan
+as sparse as the nominal's own vertices; a sparser scan's strips hold too few points, and
+those rim vertices are not seen).
 
 The *edge deviation* of ``v`` is that estimate, in mm: positive where the scan's material
 reaches beyond the nominal edge (trimmed long, part too large), negative where it stops
@@ -57,35 +60,13 @@ from qifreport.metrology.deviation.rim_strips import rim_strips
 from qifreport.registration.mesh import median_edge_length
 
 __all__ = [
-    "DEFAULT_QUANTILE",
     "edge_deviation",
-    "scan_spacing",
 ]
 
 log = logging.getLogger(__name__)
 
-#: quantile of the outward projections in the strip (the density-corrected edge estimate)
-DEFAULT_QUANTILE = 0.9
-#: scan points sampled for the spacing estimate
-_SPACING_SAMPLE = 20_000
-
-
-def scan_spacing(P: np.ndarray, tree: cKDTree | None = None) -> float:
-    """Median nearest-neighbour distance of the scan points (mm), from a fixed subsample.
-
-    Parameters
-    ----------
-    P : (m, 3) scan points, mm.
-    tree : ``cKDTree(P)`` when at hand (``P`` then all finite).
-    """
-    P = np.asarray(P, dtype=np.float64).reshape(-1, 3)
-    if tree is None:
-        P = P[np.isfinite(P).all(axis=1)]
-    if len(P) < 2:
-        return float("nan")
-    step = max(1, len(P) // _SPACING_SAMPLE)
-    d, _ = (cKDTree(P) if tree is None else tree).query(P[::step], k=2, workers=-1)
-    return float(np.median(d[:, 1]))
+#: the strip's half-width along the rim, depth and normal window, in median nominal edges
+_STRIP_EDGES = 2.5
 
 
 def _checked(
@@ -93,7 +74,6 @@ def _checked(
     F: np.ndarray,
     P: np.ndarray,
     tolerance: float,
-    quantile: float,
     radius: float | None,
     trim_edges: str,
     tree: cKDTree | None,
@@ -107,13 +87,10 @@ def _checked(
     tolerance = float(tolerance)
     if not (np.isfinite(tolerance) and tolerance > 0):
         raise ValueError(f"edge tolerance must be positive, got {tolerance}")
-    if not 0.5 <= quantile < 1.0:
-        raise ValueError(f"quantile must lie in [0.5, 1), got {quantile}")
     if tree is None and len(P):
         tree = cKDTree(P)
     if radius is None:
-        spacing = scan_spacing(P, tree) if tree is not None else float("nan")
-        radius = max(2.0 * median_edge_length(V, F), 6.0 * np.nan_to_num(spacing))
+        radius = _STRIP_EDGES * median_edge_length(V, F)
     radius = float(radius)
     if not radius > 0:
         raise ValueError(f"radius must be positive, got {radius}")
@@ -132,7 +109,6 @@ def edge_deviation(
     radius: float | None = None,
     max_gap: float | None = None,
     min_points: int = 10,
-    quantile: float = DEFAULT_QUANTILE,
     corner_angle: float = 30.0,
     trim_edges: str = "auto",
     crease_angle: float = 60.0,
@@ -151,13 +127,11 @@ def edge_deviation(
     normals : (n, 3) unit vertex normals of ``V``; default
         :func:`qifreport.registration.mesh.vertex_normals`.
     radius : strip half-width along the rim, strip depth and normal window, mm; default
-        ``max(2 x median edge length, 6 x scan spacing)`` (:func:`scan_spacing`).
+        2.5 median edge lengths of the nominal.
     max_gap : half-width of the coarse pass's window along the outward normal, mm: a scan
         edge more than this inside the nominal rim is "not seen", one more than this
         outside is not found. Default ``2.5 x radius``.
     min_points : fewest strip points for a seen vertex.
-    quantile : ``q`` of the density-corrected estimate
-        (:mod:`~qifreport.metrology.deviation.rim_strips`).
     corner_angle : degrees; rim vertices at corners are not measured
         (:func:`~qifreport.metrology.deviation.rim.rim_frames`).
     trim_edges : ``"rim"`` (the open boundary only), ``"crease"`` (the rims of the smooth
@@ -174,7 +148,7 @@ def edge_deviation(
     """
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
-    P, tree, tolerance, radius = _checked(V, F, P, tolerance, quantile, radius, trim_edges, tree)
+    P, tree, tolerance, radius = _checked(V, F, P, tolerance, radius, trim_edges, tree)
     max_gap = 2.5 * radius if max_gap is None else float(max_gap)
     rim = rim_frames(V, F, normals=normals, radius=1.5 * radius, corner_angle=corner_angle)
     if trim_edges == "crease" or (trim_edges == "auto" and rim.empty):
@@ -188,7 +162,7 @@ def edge_deviation(
     measured = np.flatnonzero(~rim.corner)
     if len(P) == 0 or len(measured) == 0:
         return EdgeDeviation("not seen", rim, dev, cnt, tolerance, radius, max_gap)
-    e, n2, ok = rim_strips(P, tree, rim, measured, radius, max_gap, min_points, quantile)
+    e, n2, ok = rim_strips(P, tree, rim, measured, radius, max_gap, min_points)
     dev[measured[ok]] = e[ok]
     cnt[measured] = n2
     status = "measured" if ok.any() else "not seen"

@@ -2,9 +2,12 @@
 
 :func:`nominal_referenced` scores every *nominal vertex*: the signed distance, along the
 vertex normal, from the vertex to a plane fitted to the scan points near it (paper
-Sections 8.4.5, 10). It is the per-vertex field that the acceptance criteria and the colour
-map act on, and it is structurally blind to added material: no nominal normal passes through
-a feature that the nominal does not contain (paper Section 8.4.5). Vertices the scan did not
+Sections 8.4.5, 10). It is structurally blind to added material: no nominal normal passes
+through a feature that the nominal does not contain (paper Section 8.4.5). On a curved
+surface the plane reads the sag of the points inside its ball as deviation (``r^2 / 4R``),
+so the inspection scores vertices with the fit of the points' own distances to the nominal
+instead (:mod:`qifreport.metrology.deviation.residual_fit`); this measure remains for the
+noise-floor study (:mod:`qifreport.simulate.ladder`). Vertices the scan did not
 observe are left unscored (NaN) rather than given a spurious value.
 
 Unscored vertices: a vertex is unscored (NaN) when fewer than ``min_points`` scan points are

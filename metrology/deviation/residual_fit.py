@@ -41,6 +41,7 @@ def residual_referenced(
     min_points: int = 4,
     max_centroid_offset: float | None = 0.5,
     variance: bool = False,
+    point_normals: np.ndarray | None = None,
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Signed deviation (n,) mm of every nominal vertex from the scan points' own residuals.
 
@@ -69,6 +70,8 @@ def residual_referenced(
         -1: none).  labels : (f,) B-rep face of each triangle.
     radius : mm; default 1.5 x the median edge, at least 2.5 x the scan's median point
         spacing.
+    point_normals : (m, 3) unit normal of each point's closest triangle: a point counts only
+        within 60 degrees of the vertex normal (not a thin wall's far skin); None: any.
     variance : also return each deviation's variance (n,) mm^2: the fitted value's,
         ``s^2 (1 + y . A0 y) / N`` with ``y = A^-1 c`` (``N`` points, centroid offset ``c``,
         ``A0`` their tangent covariance, ``A`` it regularised as in the fit; ``s^2 / N`` for
@@ -95,8 +98,8 @@ def residual_referenced(
     # the (vertex, B-rep face) pairs of the mesh, as sorted keys vertex * m + face
     m = int(np.max(labels)) + 1
     own = unique_sorted(F.astype(np.int64) * m + np.asarray(labels, dtype=np.int64)[:, None])
-    pl = np.asarray(point_label, dtype=np.int64)
-    args = (V, P, r, N, sel, tree, min_points, own, m, pl)
+    facing = None if point_normals is None else np.asarray(point_normals, dtype=np.float64)
+    args = (V, P, r, N, sel, tree, min_points, own, m, np.asarray(point_label, np.int64), facing)
     # a second, twice as wide ball for the vertices the first left unscored (surfaces seen
     # at a grazing angle, where the points are sparser than the median spacing)
     for ball in (radius, 2.0 * radius):
@@ -138,6 +141,10 @@ def _first_faces(own: np.ndarray, m: int, n: int) -> np.ndarray:
     return first_face
 
 
+#: with ``point_normals``, a point belongs to a vertex's surface only within 60 degrees
+_MIN_FACING_COS = 0.5
+
+
 #: vertices per call of :func:`_residual_fit` (its ball search holds every (vertex, point)
 #: pair of the call: ~10^2 per vertex)
 _FIT_BLOCK = 16384
@@ -148,11 +155,25 @@ _PAIR_TABLE_MAX = 1 << 26
 
 
 def _residual_fit(
-    V, P, r, N, sel, tree, min_points, own, m, point_label, verts, radius, max_centroid_offset
+    V,
+    P,
+    r,
+    N,
+    sel,
+    tree,
+    min_points,
+    own,
+    m,
+    point_label,
+    facing,
+    verts,
+    radius,
+    max_centroid_offset,
 ):
     """:func:`residual_referenced` on the vertices ``verts`` with one ball ``radius``:
     (scored vertex ids, their deviations, their variance factors, the sums of squared
-    residuals of their fits and those residuals' degrees of freedom)."""
+    residuals of their fits and those residuals' degrees of freedom). ``facing``: the
+    points' normals of :func:`residual_referenced` (``point_normals``), or None."""
     n = len(V)
     none = (np.empty(0, dtype=np.int64),) + (np.empty(0),) * 4
     # every (vertex, point) pair within the ball, of the vertices with enough points
@@ -160,6 +181,9 @@ def _residual_fit(
     if len(pi) == 0:
         return none
     idx, vrt = _own_face_pairs(sel[pj], verts[pi], point_label, own, m, n)
+    if facing is not None:
+        same_side = np.einsum("ij,ij->i", facing[idx], N[vrt]) >= _MIN_FACING_COS
+        idx, vrt = idx[same_side], vrt[same_side]
     if len(idx) == 0:
         return none
     idx, vrt, rr = _without_outliers(idx, vrt, r)

@@ -6,16 +6,16 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from qifreport.metrology.acceptance.coverage import unseen_neighbour_edges
 from qifreport.metrology.deviation.closest import beyond_rim, closest_points
 from qifreport.metrology.deviation.hygiene import MeshHygiene
-from qifreport.metrology.deviation.local_planes import nominal_referenced
 from qifreport.metrology.deviation.residual_fit import residual_referenced
+from qifreport.metrology.deviation.rim import split_at_creases
 from qifreport.metrology.deviation.surface import point_faces, surface_distance
 from qifreport.metrology.prepared import PreparedPart
 from qifreport.registration.deformable.result import orient_scan_normals
+from qifreport.registration.mesh import face_normals
 
 from .context import JudgeContext, Registered
 from .held import HeldNominal
@@ -89,11 +89,9 @@ def deviation_stage(
         nominal.normals,
         face_id,
         closest=(C, cface, pdev),
-        scan_normals=orient_scan_normals(
-            Pm, reg.scan_normals, nominal.V, nominal.normals, sheets=reg.sheets
-        ),
+        scan_normals=_mesh_scan_normals(reg, nominal.V, nominal.normals, face_id),
         residual=pdev if face_id is not None else None,
-        tree=reg.scan_tree,
+        crease_angle=ctx.prepared.settings["crease_angle"],
     )
     dev_free = var_free = None
     if nominal.held and any(z.free_state for z in ctx.bands.zones):
@@ -127,12 +125,22 @@ def free_state_deviation(free: Registered, ctx: JudgeContext) -> tuple[np.ndarra
         free.P,
         normals,
         ctx.face_id,
-        scan_normals=orient_scan_normals(
-            free.P, free.scan_normals, free.V, normals, sheets=free.sheets
-        ),
+        scan_normals=_mesh_scan_normals(free, free.V, normals, ctx.face_id),
         brep_normals=ctx.brep_normals,
-        tree=free.scan_tree,
+        crease_angle=ctx.prepared.settings["crease_angle"],
     )
+
+
+def _mesh_scan_normals(
+    reg: Registered, V: np.ndarray, normals: np.ndarray, face_id: np.ndarray | None
+) -> np.ndarray | None:
+    """The scan's outward normals (m, 3) for a mesh nominal's vertex fit
+    (:func:`~qifreport.registration.deformable.result.orient_scan_normals` against the
+    nominal ``V`` (n, 3) mm with its unit ``normals``); None for a B-rep nominal
+    (``face_id``), whose faces keep the points apart."""
+    if face_id is not None:
+        return None
+    return orient_scan_normals(reg.P, reg.scan_normals, V, normals, sheets=reg.sheets)
 
 
 def vertex_deviation(
@@ -146,32 +154,47 @@ def vertex_deviation(
     scan_normals: np.ndarray | None = None,
     residual: np.ndarray | None = None,
     brep_normals: np.ndarray | None = None,
-    tree: cKDTree | None = None,
+    crease_angle: float = 45.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Nominal-referenced deviation (n,) mm of every vertex of ``(V, F)`` from scan ``P``,
     and its variance (n,) mm^2 from the scan points' scatter about the local fit (for
     :func:`qifreport.metrology.acceptance.decision.vertex_uncertainty`).
 
-    Each point's signed distance to the nominal *surface* (its distance to the closest
-    triangle, ``closest`` from :func:`~qifreport.metrology.deviation.closest.closest_points`,
-    computed
-    when not given, less the
-    triangle's chord height there, :func:`~qifreport.metrology.deviation.surface.curved_offset`) is
-    fitted about each vertex by
-    :func:`~qifreport.metrology.deviation.residual_fit.residual_referenced`,
-    a vertex using only the points on its own B-rep faces (``face_id``, a STEP nominal);
-    without ``face_id`` (a mesh nominal), the plane fit of
-    :func:`~qifreport.metrology.deviation.local_planes.nominal_referenced`. ``residual`` (m,): those
-    signed distances to the surface, when the caller has them (:func:`surface_distance`).
-    ``brep_normals`` (f, 3, 3): the surface's normals at the triangle corners for
-    :func:`surface_distance` (the B-rep's, :mod:`qifreport.step.normals`). ``tree``:
-    ``cKDTree(P)`` when at hand (the plane fit searches the scan).
+    Each point's signed distance to the nominal *surface* is fitted about each vertex by
+    :func:`~qifreport.metrology.deviation.residual_fit.residual_referenced`, a vertex using
+    only the points on its own faces. The distance is the point's to the closest triangle
+    (``closest`` from :func:`~qifreport.metrology.deviation.closest.closest_points`, computed
+    when not given). A STEP nominal (``face_id``, its B-rep faces): less the triangle's chord
+    height there (:func:`~qifreport.metrology.deviation.surface.surface_distance`, with the
+    B-rep's corner normals ``brep_normals`` (f, 3, 3)); ``residual`` (m,): those distances
+    when the caller has them. A mesh nominal (``face_id`` None): the triangles are the
+    nominal surface (no chord correction); its faces are the smooth patches between its
+    creases sharper than ``crease_angle`` degrees
+    (:func:`~qifreport.metrology.deviation.rim.split_at_creases`), a point counts for a vertex
+    only where its outward normal (``scan_normals`` (m, 3), oriented; default its closest
+    triangle's) lies within 60 degrees of the vertex's: not a thin wall's far skin, nor the
+    side of material the nominal does not have (a rib, reported as added material), and the
+    points beyond the open rim are left out. A plane fitted to the points would read a
+    curved surface's sag inside its ball as deviation (``r^2 / 4R``: 0.025 mm for a 2 mm
+    ball on a 40 mm radius); the points' own distances do not.
     """
-    if face_id is None:  # a mesh nominal: the local plane fit (no faces to keep apart)
-        return nominal_referenced(
-            V, F, P, normals=normals, scan_normals=scan_normals, variance=True, tree=tree
-        )
     C, cface, pdev = closest_points(V, F, P) if closest is None else closest
+    if face_id is None:  # a mesh nominal: the triangles are the surface
+        labels = split_at_creases(V, F, crease_angle)[3]
+        residual = np.where(beyond_rim(V, F, C, cface), np.nan, pdev)
+        return residual_referenced(
+            V,
+            F,
+            P,
+            residual,
+            normals,
+            point_faces(cface, labels),
+            labels,
+            variance=True,
+            point_normals=face_normals(V, F)[np.maximum(cface, 0)]
+            if scan_normals is None
+            else scan_normals,
+        )
     if residual is None:
         residual = surface_distance(V, F, C, cface, pdev, face_id, brep_normals, P)
     return residual_referenced(

@@ -5,6 +5,7 @@ error read from it (:func:`trim_edge_stage`), where the fixture lets the size be
 from __future__ import annotations
 
 from qifreport.metrology.deviation.edges import EdgeDeviation, edge_deviation
+from qifreport.metrology.deviation.part_class import part_class
 from qifreport.metrology.deviation.size import SizeEstimate, size_error
 from qifreport.registration.deformable.methods import method_spec
 from qifreport.registration.deformable.result import DeformResult
@@ -29,7 +30,9 @@ def trim_edge_stage(
     """The trim-edge deviation of the seated scan ``reg`` along the nominal as held
     (``nominal``, :func:`~qifreport.metrology.stages.held.held_nominal`), and the size
     error read from it (:func:`edge_deviation`, :func:`size_error`): against the general
-    half-width, along a solid's sharp creases (``ctx.solid``) or the mesh's open rim."""
+    half-width, along a solid's sharp creases (``ctx.solid``) or the mesh's open rim; the
+    part's class (:func:`part_class`, of the nominal as prepared) says whether they are
+    judged."""
     edges = edge_deviation(
         nominal.V,
         reg.F,
@@ -39,4 +42,6 @@ def trim_edge_stage(
         trim_edges="crease" if ctx.solid else "auto",
         tree=reg.scan_tree,
     )
+    prepared = ctx.prepared
+    edges.part = part_class(prepared.V, prepared.F, solid=ctx.solid, normals=prepared.ops.normals)
     return edges, size_error(edges)

@@ -83,7 +83,7 @@ def note_lines(res: InspectionResult, chain_floor: float | None) -> list[tuple[s
         edge = res.edges.reasons()[0] if res.edges is not None else ""
         s = res.size.reasons()[0]
         judged = res.judged_size is not None
-        solid = "" if judged else " (a solid: reported, not judged)"
+        solid = "" if judged else f" ({res.edges.part.describe()}: reported, not judged)"
         out.append(
             (
                 f"Size from the trim edges{solid}: {s}; {edge}.",

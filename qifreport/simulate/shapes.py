@@ -1,5 +1,6 @@
 """Test geometries: the doubly curved thin shell (paper Section 8.3.1), the fandisk (7.1),
-a housing and a formed hat bracket with a bead (a STEP solid, for the fixture benchmark).
+a housing, a formed hat bracket with a bead (a STEP solid, for the fixture benchmark) and a
+smooth organic closed surface (a bumpy sphere).
 
 The meshes are plain arrays ``V`` (n, 3) float64 in mm and ``F`` (f, 3) int64.
 """
@@ -10,10 +11,12 @@ import logging
 
 import igl
 import numpy as np
+import trimesh
 
 from qifreport.registration.mesh import bounding_diagonal, load_mesh, weld
 
 __all__ = [
+    "bumpy_sphere",
     "fandisk",
     "HAT_CLAMPS",
     "hat_bracket",
@@ -122,6 +125,29 @@ def fandisk(
     if subdivide > 0:
         V, F = igl.upsample(np.ascontiguousarray(V), np.ascontiguousarray(F), subdivide)
     return np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64)
+
+
+def bumpy_sphere(radius: float = 40.0, subdivisions: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth organic closed surface: an icosphere of ``radius`` mm (10,242 vertices at 5
+    subdivisions, edges about 1.5 mm) displaced along its normals by three low-frequency
+    Gaussian bumps (+4, -3 and +2.5 mm over 0.6, 0.5 and 0.7 rad).
+
+    Returns
+    -------
+    V : (n, 3) float64, mm, centred on the origin.  F : (f, 3) int64, outward.
+    """
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    u = np.asarray(m.vertices, dtype=np.float64)
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    r = np.full(len(u), float(radius))
+    for centre, amplitude, width in (
+        ((0.0, 0.0, 1.0), 4.0, 0.6),
+        ((1.0, 0.0, 0.0), -3.0, 0.5),
+        ((0.0, -0.6, -0.8), 2.5, 0.7),
+    ):
+        angle = np.arccos(np.clip(u @ np.asarray(centre), -1.0, 1.0))
+        r += amplitude * np.exp(-0.5 * (angle / width) ** 2)
+    return u * r[:, None], np.asarray(m.faces, dtype=np.int64)
 
 
 def housing(
