@@ -3,12 +3,17 @@ nominal frame, with the virtual fixture's displacement taken out.
 
 Two samplings of one surface:
 
+* the **scan points** themselves, carried back through the fixture's displacement at their
+  closest point, with the B-rep face each lies on: a feature's form, size, orientation and
+  location are read on them (a smoothed field would average a defect narrower than its
+  smoothing away, and bias a small radius), those that judge the surface (outside the
+  unscored bands along creases and rims, where a point may lie on the neighbouring face)
+  when enough do, else all on the feature (a face narrower than the band);
 * the **vertices** of the nominal mesh moved along their outward normal by their measured
   deviation (each a robust local fit of the scan points around it: a filtered surface, the
-  one the profile zones are judged on, with its expanded uncertainty ``U``);
-* the **scan points** themselves, carried back through the fixture's displacement at their
-  closest point, with the B-rep face each lies on (raw: used where a face is narrower than
-  the unscored band along its edges, and for datum targets).
+  one the profile zones are judged on, with its expanded uncertainty ``U``): a feature's
+  reading where no scan points are kept (the free state of a held judgement), and its
+  areal coverage (the share of its own vertices measured).
 
 A face set's own vertices are those whose every triangle belongs to the set (a vertex on
 an edge to another face is that face's too, and its deviation mixes both); its nominal
@@ -29,8 +34,15 @@ from qifreport.registration.mesh import bounding_diagonal
 
 __all__ = ["FeatureSample", "MeasuredSurface"]
 
-#: fewest measured vertices for a feature to be judged on its vertices (else its points)
+#: fewest measured vertices for a feature to be judged on its vertices (where it has no
+#: scan points), and fewest judging scan points for it to be read on those alone (else on
+#: all its points)
 MIN_VERTICES = 12
+#: a scan point is its labelled feature's when its distance from the feature's nominal
+#: surface and its deviation from the part's agree within this, mm: the nominal feature's
+#: fit to the mesh corners and the fixture's carry-back stay well inside it, a neighbouring
+#: face's point near a crease does not (:func:`_own_points`)
+OWN_SURFACE_MM = 0.01
 
 
 @dataclass
@@ -42,7 +54,7 @@ class FeatureSample:
     S : (k, 3) measured positions in the nominal frame, mm.
     U : (k,) their expanded uncertainty (k = 2), mm.
     source : ``'vertices'`` or ``'scan points'``.
-    coverage : share of the feature's own vertices measured (None for scan points).
+    coverage : share of the feature's own vertices measured (None: it has none).
     nominal : the feature's nominal plane or cylinder (None: another surface).
     """
 
@@ -66,6 +78,8 @@ class MeasuredSurface:
     P : (m, 3) scan points carried back into the nominal frame, mm.
     P_face : (m,) the mesh face each point lies on (-1: none).
     P_dev : (m,) each point's signed deviation, mm.  P_U : (m,) its expanded uncertainty.
+    P_ok : (m,) bool, the points that judge the surface (outside the crease and rim bands);
+        None: all.
     diagonal : the part's size, the diagonal of the box around ``V``, mm (derived): the
         bound of a physically plausible reading
         (:func:`~qifreport.metrology.gdt.characteristic_types.implausible`).
@@ -81,6 +95,7 @@ class MeasuredSurface:
     P_face: np.ndarray
     P_dev: np.ndarray
     P_U: np.ndarray
+    P_ok: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.V)
@@ -149,11 +164,19 @@ class MeasuredSurface:
         own = self.own_vertices(faces)
         ok = own[np.isfinite(self.dev[own])]
         nominal = self.nominal(faces, label)
+        coverage = len(ok) / len(own) if len(own) else None
+        on = np.isin(self.P_face, np.asarray(list(faces), dtype=np.int64))
+        if nominal is not None and on.any():
+            on[on] = _own_points(self.P[on], self.P_dev[on], nominal)
+        if on.any():
+            judging = on if self.P_ok is None else on & self.P_ok
+            if judging.sum() >= MIN_VERTICES:
+                on = judging
+            return FeatureSample(self.P[on], self.P_U[on], "scan points", coverage, nominal)
         if len(ok) >= MIN_VERTICES:
             S = self.V[ok] + self.dev[ok, None] * self.N[ok]
-            return FeatureSample(S, self.U[ok], "vertices", len(ok) / len(own), nominal)
-        on = np.isin(self.P_face, np.asarray(list(faces), dtype=np.int64))
-        return FeatureSample(self.P[on], self.P_U[on], "scan points", None, nominal)
+            return FeatureSample(S, self.U[ok], "vertices", coverage, nominal)
+        return FeatureSample(self.P[on], self.P_U[on], "scan points", coverage, nominal)
 
     def vertex_deviation_near(
         self, faces, position: np.ndarray, radius: float, k: int
@@ -173,6 +196,35 @@ class MeasuredSurface:
         on = np.isin(self.P_face, np.asarray(list(faces), dtype=np.int64))
         d = np.linalg.norm(self.P[on] - np.asarray(position, dtype=np.float64), axis=1)
         return self.P_dev[on][d <= radius]
+
+
+def nominal_distance(P: np.ndarray, feat: DatumFeature) -> np.ndarray:
+    """(m,) signed distance, mm, of points ``P`` (m, 3) from a nominal feature's surface,
+    positive outside the material: a plane's (along its outward normal), a cylinder's or
+    sphere's (radial), a cone's (across its surface)."""
+    X = np.asarray(P, dtype=np.float64) - feat.origin
+    if feat.kind == "plane":
+        return X @ feat.direction
+    if feat.kind == "sphere":
+        d = np.linalg.norm(X, axis=1) - feat.radius
+    else:
+        z = X @ feat.direction
+        rho = np.linalg.norm(X - np.outer(z, feat.direction), axis=1)
+        if feat.kind == "cone":
+            d = rho * np.cos(feat.half_angle) - z * np.sin(feat.half_angle)
+        else:
+            d = rho - feat.radius
+    return -d if feat.internal else d
+
+
+def _own_points(P: np.ndarray, dev: np.ndarray, feat: DatumFeature) -> np.ndarray:
+    """(m,) bool: the points (labelled on the feature's faces, deviations ``dev`` from the
+    part's surface) that read on the feature's own surface the deviation they were given,
+    within :data:`OWN_SURFACE_MM`. At a crease the closest chord may be the feature's while
+    the point lies on the neighbouring face (within the chord's sag of the edge: a boss's
+    wall read 0.13 mm above the plane it stands on); its deviation is the neighbour's, and
+    on the feature it would be a phantom one."""
+    return np.abs(nominal_distance(P, feat) - dev) <= OWN_SURFACE_MM
 
 
 def _same_feature(g: DatumFeature, h: DatumFeature, tol: float) -> bool:

@@ -73,6 +73,7 @@ def characteristics_stage(
         d.point,
         scores.labels,
         scores.samples.vertex,
+        scores.points_ok,
     )
     free_surf = None
     if d.free is not None and scores.free_uncertainty is not None:
@@ -102,7 +103,7 @@ def characteristics_stage(
 
 
 def _measured_surface(
-    V, F, V_reg, face_id, corner_normals, dev, U, P, C, cface, pdev, plabel, pvert
+    V, F, V_reg, face_id, corner_normals, dev, U, P, C, cface, pdev, plabel, pvert, pok=None
 ) -> MeasuredSurface:
     """The judged surface for the feature characteristics: the vertices' deviations, and
     the scan points carried back through the fixture's displacement at their closest
@@ -116,7 +117,17 @@ def _measured_surface(
     else:
         P0, PU = P, np.empty(0)
     return MeasuredSurface(
-        V, F, face_id, corner_normals, dev.copy(), U, P0, np.asarray(plabel), np.asarray(pdev), PU
+        V,
+        F,
+        face_id,
+        corner_normals,
+        dev.copy(),
+        U,
+        P0,
+        np.asarray(plabel),
+        np.asarray(pdev),
+        PU,
+        None if pok is None else np.asarray(pok, dtype=bool),
     )
 
 
