@@ -53,18 +53,23 @@ class Scan:
         if points is not None:
             scan = self.tmp / f"{self.step.stem}_{tag}.npy"
             np.save(scan, points)
-        out = self.tmp / tag
-        r = subprocess.run(
-            [str(EXE), str(self.step), str(scan), "--json", "--no-pdf", "--force"]
-            + ["--out", str(out), *extra],
-            capture_output=True,
-            text=True,
-        )
-        assert r.returncode in (0, 1, 3), r.stderr[-2000:]
-        doc = json.loads((out / f"{self.step.stem}.json").read_text())
-        doc["_rc"] = r.returncode
-        self._done[tag] = doc
-        return doc
+        self._done[tag] = run_cli(self.step, scan, self.tmp / tag, *extra)
+        return self._done[tag]
+
+
+def run_cli(step: Path, scan: Path, out: Path, *extra: str) -> dict:
+    """The CLI's JSON summary of ``scan`` against ``step`` (written to ``out``), its exit
+    code as ``_rc`` (0, 1 or 3: anything else fails the test)."""
+    r = subprocess.run(
+        [str(EXE), str(step), str(scan), "--json", "--no-pdf", "--force"]
+        + ["--out", str(out), *extra],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode in (0, 1, 3), r.stderr[-2000:]
+    doc = json.loads((out / f"{step.stem}.json").read_text())
+    doc["_rc"] = r.returncode
+    return doc
 
 
 def scans_fixture(tmp_path_factory):

@@ -4,8 +4,9 @@ measurement a report runs.
 
 * D9, the 15.875 mm hole diameter, read on its perfect surface: PASS; the same hole with a
   sixth of each of its four holes scored, those vertices on a 100 m circle (a nearly
-  straight arc, as a sparse scan of a hole's edge gives): the fitted diameter is 200 m,
-  beyond the part's 405 mm diagonal: NOT_MEASURED, the reason naming both numbers;
+  straight arc, as a sparse scan of a hole's edge gives): too little of the circumference
+  for a size, NOT_MEASURED; read regardless, the fitted diameter is 200 m, beyond the
+  part's 405 mm diagonal: NOT_MEASURED, the reason naming both numbers;
 * the same holes with a 10 m vertex uncertainty (a scan too sparse to know them): D9's
   value is right but its U is wider than the part, and G9 (their position): both
   NOT_MEASURED;
@@ -65,7 +66,7 @@ def _on_big_circle(surf: MeasuredSurface, faces, R: float) -> tuple[np.ndarray, 
     return v, np.where(keep, dev, np.nan)
 
 
-def test_a_huge_fitted_diameter_is_not_measured(ftc06):
+def test_a_huge_fitted_diameter_is_not_measured(ftc06, monkeypatch):
     part, drawing = ftc06
     spec = _spec(drawing, "D9")
     assert spec.dim_type == "diameter" and spec.nominal == pytest.approx(15.875)
@@ -78,7 +79,17 @@ def test_a_huge_fitted_diameter_is_not_measured(ftc06):
     for hole in surf.features(spec.faces):
         v, d = _on_big_circle(surf, hole, 1e5)
         dev[v] = d
-    got = measure_dimension(spec, exact_surface(part, dev), "iso14253")
+    sparse = exact_surface(part, dev)
+    (got,), _ = measure_characteristics([spec], drawing.plan.datums, sparse, "iso14253")
+    # 60 deg of each hole seen: too little of its circumference to give a size at all
+    assert got.status == "NOT_MEASURED" and got.value is None
+    assert "unseen (at most 180)" in got.reason and "circumference" in got.reason, got.reason
+    # read regardless, the fit goes astray and the plausibility bound refuses it
+    from qifreport.metrology.gdt import dimensions
+
+    with monkeypatch.context() as m:
+        m.setattr(dimensions, "max_unseen_arc", lambda feat: 360.0)
+        got = measure_dimension(spec, sparse, "iso14253")
     assert got.value == pytest.approx(2e5, rel=1e-3), got.reading  # the fit did go astray
     assert got.status == "NOT_MEASURED"
     assert got.reason.startswith("implausible reading: diameter 200000 mm"), got.reason

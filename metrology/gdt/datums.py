@@ -37,7 +37,10 @@ __all__ = [
     "DatumFrame",
     "DatumSimulator",
     "datum_frame",
+    "design_text",
     "largest_gap",
+    "max_unseen_arc",
+    "unseen_arc",
     "nominal_feature",
     "simulate_datum",
 ]
@@ -59,6 +62,9 @@ MAX_GAP_DEG = 60.0
 #: axis of a narrower arc tilts and moves with the noise: 0.003 rad, 0.04 mm on the NIST
 #: FTC 06's 7 mm holes seen over 140 deg)
 MAX_OPEN_DEG = 180.0
+#: a cylinder whose mesh corners leave a wider gap about its axis is a partial one by
+#: design (a slot end, a half-cylinder, a fillet); a whole one's corners are a segment apart
+PARTIAL_GAP_DEG = 90.0
 
 
 @dataclass
@@ -77,6 +83,10 @@ class DatumFeature:
     half_angle : the cone's half angle, rad (None for the others).
     radius : the cylinder's radius, mm (None for a plane).
     internal : a hole (material outside the cylinder), else a pin (None for a plane).
+    arc : a partial cylinder's design extent about its axis (the B-rep face's own
+        parameter range, as its mesh corners span it): ``(start, span)`` degrees in
+        :func:`~qifreport.metrology.gdt.form.axis_frame` of ``direction`` (a slot end
+        ``(a, 180)``); None: the whole circumference.
     """
 
     label: str
@@ -86,6 +96,7 @@ class DatumFeature:
     radius: float | None = None
     internal: bool | None = None
     half_angle: float | None = None
+    arc: tuple[float, float] | None = None
 
 
 @dataclass
@@ -166,7 +177,44 @@ def nominal_feature(label: str, V: np.ndarray, N: np.ndarray) -> DatumFeature:
     o, axis, r = least_squares_cylinder(V, o, axis, r)
     # a hole's outward normals point at its axis
     internal = bool(np.mean(np.einsum("ij,ij->i", N, (V - o) @ E)) < 0)
-    return DatumFeature(label, "cylinder", o, axis, r, internal)
+    return DatumFeature(label, "cylinder", o, axis, r, internal, arc=_design_arc(V, o, axis))
+
+
+def _design_arc(V: np.ndarray, origin: np.ndarray, axis: np.ndarray) -> tuple[float, float] | None:
+    """A partial cylinder's design extent (start, span) degrees about ``axis``: its mesh
+    corners ``V`` (k, 3) leave a gap wider than :data:`PARTIAL_GAP_DEG` (a face's
+    corners lie on its boundary, so they span its parameter range); None: a whole one."""
+    ang = np.sort(_angles(V, origin, axis))
+    gaps = np.diff(np.r_[ang, ang[0] + 360.0])
+    k = int(np.argmax(gaps))
+    if gaps[k] <= PARTIAL_GAP_DEG:
+        return None
+    return float(ang[(k + 1) % len(ang)]), float(360.0 - gaps[k])
+
+
+def _angles(P: np.ndarray, origin: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """(m,) angle of each point about ``axis`` through ``origin``, degrees in (-180, 180]."""
+    X = (np.asarray(P, float) - origin) @ axis_frame(axis).T
+    return np.degrees(np.arctan2(X[:, 1], X[:, 0]))
+
+
+def unseen_arc(P: np.ndarray, feature: DatumFeature) -> float:
+    """The widest angle (degrees) of a cylinder's design extent (:attr:`DatumFeature.arc`,
+    the whole circumference when None) with no point of ``P`` (m, 3) about its axis."""
+    if feature.arc is None:
+        return largest_gap(P, feature.origin, feature.direction)
+    start, span = feature.arc
+    phi = np.sort(np.mod(_angles(P, feature.origin, feature.direction) - start, 360.0))
+    phi = phi[phi <= span]
+    return float(np.max(np.diff(np.r_[0.0, phi, span])))
+
+
+def max_unseen_arc(feature: DatumFeature) -> float:
+    """The widest unseen arc (degrees) a cylinder's axis is established with:
+    :data:`MAX_OPEN_DEG` of a whole circumference, the same share of a partial one's
+    design extent (half of a slot end's 180 degrees)."""
+    span = 360.0 if feature.arc is None else feature.arc[1]
+    return MAX_OPEN_DEG * span / 360.0
 
 
 def _axis_point(V: np.ndarray, N: np.ndarray, axis: np.ndarray) -> np.ndarray:
@@ -394,12 +442,14 @@ def simulate_datum(
         return DatumSimulator(feature, o, n, None, len(P), form, method)
     if len(P) < 6:
         raise ValueError(f"datum {feature.label}: fewer than 6 points on its feature")
-    gap = largest_gap(P, feature.origin, feature.direction)
-    if gap > MAX_OPEN_DEG:
+    unseen = unseen_arc(P, feature)
+    if unseen > max_unseen_arc(feature):
         raise ValueError(
-            f"datum {feature.label}: its points leave {gap:.0f} deg of the circumference "
-            "unseen; no cylinder can be fitted"
+            f"datum {feature.label}: its points leave {unseen:.0f} deg of its "
+            f"{design_text(feature)} unseen (at most {max_unseen_arc(feature):.0f}); "
+            "no cylinder can be fitted"
         )
+    gap = largest_gap(P, feature.origin, feature.direction)
     if association == "least squares" or gap > MAX_GAP_DEG:
         # (an open arc: no mating cylinder is bounded; the least-squares one stands in)
         o, a, r = _ls_axis(P, feature, keep)
@@ -412,10 +462,14 @@ def simulate_datum(
     return DatumSimulator(feature, o, a, r, len(P), float(np.max(np.abs(rho - r))), method)
 
 
+def design_text(feature: DatumFeature) -> str:
+    """``'circumference'``, or a partial cylinder's ``'180 deg design arc'``."""
+    return "circumference" if feature.arc is None else f"{feature.arc[1]:.0f} deg design arc"
+
+
 def largest_gap(P: np.ndarray, origin: np.ndarray, axis: np.ndarray) -> float:
     """The widest angle (degrees) about ``axis`` through ``origin`` with no point of ``P``."""
-    X = (np.asarray(P, float) - origin) @ axis_frame(axis).T
-    ang = np.sort(np.degrees(np.arctan2(X[:, 1], X[:, 0])))
+    ang = np.sort(_angles(P, origin, axis))
     if len(ang) < 2:
         return 360.0
     return float(np.max(np.diff(np.r_[ang, ang[0] + 360.0])))

@@ -21,13 +21,14 @@ from qifreport.metrology.gdt.budgets import sampling_budget
 from qifreport.metrology.gdt.characteristic_types import (
     CharacteristicResult,
     CharacteristicSpec,
+    Unmeasurable,
     faces_text,
     fit_uncertainty,
     implausible,
     judge,
     not_measured,
 )
-from qifreport.metrology.gdt.datums import DatumFeature
+from qifreport.metrology.gdt.datums import DatumFeature, design_text, max_unseen_arc, unseen_arc
 from qifreport.metrology.gdt.form import (
     cone_draws,
     least_squares_cone,
@@ -59,6 +60,12 @@ def _cylinder_values(surf: MeasuredSurface, faces) -> tuple[dict, dict, np.ndarr
             {"diameter": 2 * feat.radius, "radius": feat.radius},
             {"diameter": 2 * r, "radius": r},
             sample.U,
+        )
+    unseen = unseen_arc(sample.S, feat)
+    if unseen > max_unseen_arc(feat):  # a radius from a narrow arc: not a reading
+        raise Unmeasurable(
+            f"faces {faces_text(faces)}: {unseen:.0f} deg of the cylinder's "
+            f"{design_text(feat)} unseen (at most {max_unseen_arc(feat):.0f})"
         )
     r = least_squares_cylinder(sample.S, feat.origin, feat.direction, feat.radius)[2]
     nom = {"diameter": 2 * feat.radius, "radius": feat.radius}

@@ -21,7 +21,12 @@ from qifreport.metrology.gdt.characteristic_types import (
     reading_text,
 )
 from qifreport.metrology.gdt.composite import free_rotations, minimax_offsets, orientation_only
-from qifreport.metrology.gdt.datums import MAX_OPEN_DEG, DatumFeature, largest_gap
+from qifreport.metrology.gdt.datums import (
+    DatumFeature,
+    design_text,
+    max_unseen_arc,
+    unseen_arc,
+)
 from qifreport.metrology.gdt.form import axis_frame, least_squares_cylinder, least_squares_sphere
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.metrology.gdt.measured_surface import FeatureSample, MeasuredSurface
@@ -84,8 +89,12 @@ def _axis_fit(
 ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
     """The least-squares axis of a cylinder's points: origin, unit direction (as the
     nominal's), radius, and its two ends over the measured length (2, 3)."""
-    if largest_gap(S, feat.origin, feat.direction) > MAX_OPEN_DEG:
-        raise Unmeasurable("too little of the cylinder's circumference measured")
+    unseen = unseen_arc(S, feat)
+    if unseen > max_unseen_arc(feat):
+        raise Unmeasurable(
+            f"too little of the cylinder's {design_text(feat)} measured: {unseen:.0f} deg "
+            f"of it unseen (at most {max_unseen_arc(feat):.0f})"
+        )
     o, a, r_ls = least_squares_cylinder(S, feat.origin, feat.direction, feat.radius)
     a = a if a @ feat.direction > 0 else -a
     z = (S - o) @ a

@@ -73,6 +73,8 @@ def characteristics_stage(
         d.point,
         scores.labels,
         scores.samples.vertex,
+        scores.points_ok,
+        scores.noise,
     )
     free_surf = None
     if d.free is not None and scores.free_uncertainty is not None:
@@ -108,21 +110,50 @@ def characteristics_stage(
 
 
 def _measured_surface(
-    V, F, V_reg, face_id, corner_normals, dev, U, P, C, cface, pdev, plabel, pvert
+    V,
+    F,
+    V_reg,
+    face_id,
+    corner_normals,
+    dev,
+    U,
+    P,
+    C,
+    cface,
+    pdev,
+    plabel,
+    pvert,
+    pok=None,
+    noise=0.0,
 ) -> MeasuredSurface:
     """The judged surface for the feature characteristics: the vertices' deviations, and
     the scan points carried back through the fixture's displacement at their closest
-    point (:class:`~qifreport.metrology.gdt.measured_surface.MeasuredSurface`)."""
+    point (:class:`~qifreport.metrology.gdt.measured_surface.MeasuredSurface`). A point's
+    expanded uncertainty is its nearest vertex's, and never below twice the scan's range
+    noise ``noise`` (mm): one point is not the average a vertex's fit is."""
     if len(P):
         bary = points_to_barycentric(V_reg[F[cface]], C)
         u = np.einsum("ij,ijk->ik", bary, (V_reg - V)[F[cface]])
         P0 = P - u
         PU = np.where(pvert >= 0, U[np.maximum(pvert, 0)], np.nan)
         PU = np.where(np.isfinite(PU), PU, np.nanmedian(U) if np.isfinite(U).any() else 0.0)
+        PU = np.maximum(PU, 2.0 * noise if np.isfinite(noise) else 0.0)
     else:
         P0, PU = P, np.empty(0)
     return MeasuredSurface(
-        V, F, face_id, corner_normals, dev.copy(), U, P0, np.asarray(plabel), np.asarray(pdev), PU
+        V,
+        F,
+        face_id,
+        corner_normals,
+        dev.copy(),
+        U,
+        P0,
+        np.asarray(plabel),
+        np.asarray(pdev),
+        PU,
+        None if pok is None else np.asarray(pok, dtype=bool),
+        None if pok is None else np.asarray(pvert, dtype=np.int64),
+        read_on_points=not len(P) or np.array_equal(V_reg, V),
     )
 
 

@@ -29,6 +29,7 @@ __all__ = [
     "perfect_scan",
     "plan_views",
     "brep_scan",
+    "exact_scan",
     "bump",
     "bump_site",
     "random_pose",
@@ -237,6 +238,20 @@ def brep_scan(
     )
 
 
+def _area_sample(
+    mesh: BrepSurfaceMesh, density: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform random points over the fine mesh's area, ``density`` per mm^2 on average:
+    the triangle of each point (m,) and its barycentric coordinates (m, 3)."""
+    V, F = mesh.V, mesh.F
+    n = rng.poisson(_areas(V, F) * density)
+    tri = np.repeat(np.arange(len(F)), n)
+    r1, r2 = rng.random(len(tri)), rng.random(len(tri))
+    flip = r1 + r2 > 1
+    r1[flip], r2[flip] = 1 - r1[flip], 1 - r2[flip]
+    return tri, np.c_[1 - r1 - r2, r1, r2]
+
+
 def surface_sample(
     shape, faces: list, spacing: float, *, seed: int = 0, mesh: BrepSurfaceMesh | None = None
 ) -> BrepScan:
@@ -246,17 +261,8 @@ def surface_sample(
     Returns a :class:`BrepScan` (``view`` -1, ``directions`` empty)."""
     if mesh is None:
         mesh = brep_surface_mesh(shape, faces, deflection=2e-4 * _diagonal(shape))
-    V, F = mesh.V, mesh.F
-    area = _areas(V, F)
-    rng = np.random.default_rng(seed)
-    n = rng.poisson(area / spacing**2)
-    n[n == 0] = (rng.random(int((n == 0).sum())) < (area[n == 0] / spacing**2)).astype(int)
-    tri = np.repeat(np.arange(len(F)), n)
-    r1, r2 = rng.random(len(tri)), rng.random(len(tri))
-    flip = r1 + r2 > 1
-    r1[flip], r2[flip] = 1 - r1[flip], 1 - r2[flip]
-    B = np.c_[1 - r1 - r2, r1, r2]
-    X = np.einsum("ij,ijk->ik", B, V[F[tri]])
+    tri, B = _area_sample(mesh, 1.0 / spacing**2, np.random.default_rng(seed))
+    X = np.einsum("ij,ijk->ik", B, mesh.V[mesh.F[tri]])
     uv = np.einsum("ij,ijk->ik", B, mesh.UV[tri])
     X = _on_surface(faces, mesh.face[tri], uv, X)
     return BrepScan(
@@ -266,6 +272,95 @@ def surface_sample(
         view=np.full(len(X), -1, dtype=np.int64),
         directions=np.zeros((0, 3)),
     )
+
+
+def exact_scan(
+    shape,
+    faces: list,
+    density: float,
+    *,
+    noise: float = 0.005,
+    seed: int = 0,
+    mesh: BrepSurfaceMesh | None = None,
+) -> BrepScan:
+    """An exact all-faces scan of a B-rep: points area-sampled at ``density`` per mm^2 on
+    average (Poisson per triangle of a fine mesh, uniform within it), each evaluated on its
+    own face's surface at its interpolated surface parameters (so it lies on the CAD
+    surface, not on a chord), then moved by Gaussian noise of sigma ``noise`` mm along the
+    surface's exact outward normal there. Every face of material is seen (no views, no
+    occlusion); the same ``seed`` gives the same scan.
+
+    Parameters
+    ----------
+    shape : ``TopoDS_Shape`` (mm).  faces : its faces in face-id order.
+    density : points per mm^2 of surface.  noise : normal noise sigma, mm.
+    seed : sampling and noise seed.  mesh : a :func:`brep_surface_mesh` to reuse.
+
+    Returns
+    -------
+    :class:`BrepScan`: ``P`` (m, 3), ``face``, ``normal`` the exact outward unit normal
+    (SCORING ONLY), ``view`` -1, ``directions`` empty.
+    """
+    if mesh is None:
+        mesh = brep_surface_mesh(shape, faces, deflection=2e-4 * _diagonal(shape))
+    rng = np.random.default_rng(seed)
+    tri, B = _area_sample(mesh, density, rng)
+    uv = np.einsum("ij,ijk->ik", B, mesh.UV[tri])
+    X, N = _on_surface_normal(faces, mesh.face[tri], uv, mesh.normal[tri])
+    chord = ~np.isfinite(X).all(axis=1)  # no surface parameters: the chord's point
+    X[chord] = np.einsum("ij,ijk->ik", B[chord], mesh.V[mesh.F[tri[chord]]])
+    P = X + (noise * rng.standard_normal(len(X)))[:, None] * N
+    return BrepScan(
+        P=P,
+        face=mesh.face[tri],
+        normal=N,
+        view=np.full(len(P), -1, dtype=np.int64),
+        directions=np.zeros((0, 3)),
+    )
+
+
+def _on_surface_normal(
+    faces: list, fid: np.ndarray, uv: np.ndarray, tri_normal: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's position (m, 3) and outward unit normal (m, 3) on its face's surface at
+    ``uv`` (m, 2): the normal turned to the face's orientation and to the side of its
+    triangle's (``tri_normal``, which also stands in where the surface has none, a cone's
+    apex). Positions without surface parameters are NaN."""
+    from OCP.BRep import BRep_Tool
+    from OCP.GeomAbs import GeomAbs_Plane
+    from OCP.GeomAdaptor import GeomAdaptor_Surface
+    from OCP.GeomLProp import GeomLProp_SLProps
+    from OCP.TopAbs import TopAbs_REVERSED
+
+    X = np.full((len(fid), 3), np.nan)
+    N = tri_normal.copy()
+    order = np.argsort(fid, kind="stable")
+    starts = np.flatnonzero(np.r_[True, fid[order][1:] != fid[order][:-1]])
+    for rows in np.split(order, starts[1:]) if len(order) else []:
+        face = faces[int(fid[rows[0]])]
+        surf = BRep_Tool.Surface_s(face)
+        sign = -1.0 if face.Orientation() == TopAbs_REVERSED else 1.0
+        rows = rows[np.isfinite(uv[rows]).all(axis=1)]
+        adaptor = GeomAdaptor_Surface(surf)
+        if len(rows) and adaptor.GetType() == GeomAbs_Plane:
+            pos = adaptor.Plane().Position()  # Value(u, v) = origin + u x + v y
+            o, ax, ay = (
+                np.array([d.X(), d.Y(), d.Z()])
+                for d in (pos.Location(), pos.XDirection(), pos.YDirection())
+            )
+            X[rows] = o + uv[rows, :1] * ax + uv[rows, 1:] * ay
+            N[rows] = sign * np.cross(ax, ay)  # dS/du x dS/dv, as GeomLProp's normal
+            continue
+        for r in rows:
+            props = GeomLProp_SLProps(surf, float(uv[r, 0]), float(uv[r, 1]), 1, 1e-9)
+            p = props.Value()
+            X[r] = (p.X(), p.Y(), p.Z())
+            if props.IsNormalDefined():
+                n = props.Normal()
+                N[r] = (sign * n.X(), sign * n.Y(), sign * n.Z())
+    flip = np.einsum("ij,ij->i", N, tri_normal) < 0
+    N[flip] *= -1.0
+    return X, N
 
 
 def plan_views(
