@@ -425,7 +425,7 @@ class InspectionResult:
         return (
             s is None
             or s.status in ("no rim", "conforming", "size error")
-            or (s.seen_fraction >= s.min_seen)
+            or (s.seen_fraction >= s.min_seen and not s.too_sparse)
         )
 
     @property
