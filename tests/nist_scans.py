@@ -126,8 +126,19 @@ def assert_conforms(doc: dict) -> None:
     assert reg["rigid"]["residual_scale_mm"] <= 2.0 * NOISE, reg["rigid"]
     measured = [z for z in pmi_zones(doc) if z["verdict"] != "NOT MEASURED"]
     assert all(z["verdict"] in ("PASS", "NOT ESTABLISHED") for z in measured)
+    # a zone is measured, or the scan is too sparse for its region criterion (issue 47: a
+    # minimum density per tolerance, 9 points per criterion area), said with the numbers
+    for z in pmi_zones(doc):
+        if z["verdict"] == "NOT MEASURED" and too_sparse(z):
+            m = z["measured"]
+            assert m["points_per_mm2"] < m["min_points_per_mm2"], (z["description"], m)
     if pmi_zones(doc):
-        assert measured, "no PMI-toleranced surface was measured"
+        assert measured or all(map(too_sparse, pmi_zones(doc))), "no surface measured"
+
+
+def too_sparse(z: dict) -> bool:
+    """The zone is not measured because the scan is too sparse for it."""
+    return any("scan too sparse" in r for r in z["measured"]["reasons"])
 
 
 def assert_not_measured_only_where_unseen(doc: dict, P: np.ndarray, face: np.ndarray) -> None:
@@ -142,7 +153,7 @@ def assert_not_measured_only_where_unseen(doc: dict, P: np.ndarray, face: np.nda
 
     spacing = float(np.median(cKDTree(P).query(P, k=2)[0][:, 1]))
     for z in pmi_zones(doc):
-        if z["verdict"] != "NOT MEASURED":
+        if z["verdict"] != "NOT MEASURED" or too_sparse(z):
             continue
         m = z["measured"]
         assert m["coverage"] >= m["min_coverage"], (z["description"], m["reasons"])
@@ -205,16 +216,17 @@ def cases(group: str) -> list:
     return _params(GROUPS[group], STILL_WRONG)
 
 
-#: the parts of each module whose bump test runs: in the suite (its 15-minute budget) CTC 01,
-#: whose bump is narrower than its mesh, and FTC 06 (in its own module), whose bump the
+#: the parts of each module whose bump test runs: in the suite (its 15-minute budget) CTC 03
+#: (CTC 01's 150,000-point scan is too sparse for its zones' region criterion: not measured),
+#: and FTC 06 (in its own module), whose bump the
 #: vertices see and the fixtured judgement keeps; with ``QIFREPORT_ALL_NIST_BUMPS=1`` also
-#: CTC 02 (measured: FAIL, a region 1.9 mm from the bump), CTC 03 (FAIL, 0.4 mm) and CTC 04
+#: CTC 01, CTC 02 (measured: FAIL, a region 1.9 mm from the bump) and CTC 04
 #: (:data:`BUMP_STILL_WRONG`). CTC 05 and FTC 08 have no well-scanned toleranced face under
 #: +/-0.4 mm passing on their perfect scan.
 BUMP_GROUPS = {
     "a": GROUPS["a"]
     if os.environ.get("QIFREPORT_ALL_NIST_BUMPS")
-    else [n for n in GROUPS["a"] if n.startswith("nist_ctc_01")],
+    else [n for n in GROUPS["a"] if n.startswith("nist_ctc_03")],
 }
 
 
