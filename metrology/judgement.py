@@ -27,10 +27,9 @@ import numpy as np
 
 from qifreport.errors import InputError
 from qifreport.metrology.acceptance.added import AddedMaterial
-from qifreport.metrology.acceptance.coverage import min_scan_density
 from qifreport.metrology.acceptance.resolution import Resolution
 from qifreport.metrology.deviation.edge_statistics import EdgeDeviation
-from qifreport.metrology.deviation.size import SizeEstimate, density_rule
+from qifreport.metrology.deviation.size import SizeEstimate
 from qifreport.metrology.stages.acceptance import Decisions, Measured, acceptance_stage
 from qifreport.metrology.stages.added import added_stage
 from qifreport.metrology.stages.characteristics import Characteristics, characteristics_stage
@@ -217,10 +216,10 @@ def judge(
     if measures_size(fit):
         t_edges = time.perf_counter()
         edges, size = (
-            trim_edge_stage(reg, nominal, ctx) if trim_edges is None else resolved(trim_edges)
+            trim_edge_stage(reg, nominal, ctx, params)
+            if trim_edges is None
+            else resolved(trim_edges)
         )
-        # the rim's density rule, as the toleranced surfaces' (the region criterion's area)
-        size = density_rule(size, edges, min_scan_density(params.max_region_area))
         timings["edges"] = time.perf_counter() - t_edges
     measured = Measured(nominal, deviations, scores, readings)
     decisions = acceptance_stage(reg, measured, ctx, params)

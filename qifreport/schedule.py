@@ -179,7 +179,7 @@ def judge_beside(
     trim = None
     if measures_size(fit):
         reg.scan_tree  # noqa: B018 - built once, before a child would build its own
-        trim = executor.submit(trim_edge_stage, reg, nominal, ctx)
+        trim = executor.submit(trim_edge_stage, reg, nominal, ctx, params)
     return judge(reg, fit, params, timings, ctx, nominal=nominal, trim_edges=trim, **options)
 
 

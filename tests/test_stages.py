@@ -52,7 +52,7 @@ def test_the_stages_one_by_one_give_the_judgement_and_the_inspection():
     scores = scoring_stage(reg, nominal, deviations, ctx, params, {})
     characteristics = characteristics_stage(reg, nominal, deviations, scores, ctx, params, {})
     readings = located_readings(reg, scores, characteristics, ctx)
-    edges, size = trim_edge_stage(reg, nominal, ctx)
+    edges, size = trim_edge_stage(reg, nominal, ctx, params)
     measured = Measured(nominal, deviations, scores, readings)
     decisions = acceptance_stage(reg, measured, ctx, params)
     assert np.array_equal(readings.deviation, res.deviation, equal_nan=True)

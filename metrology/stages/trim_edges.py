@@ -4,9 +4,11 @@ error read from it (:func:`trim_edge_stage`), where the fixture lets the size be
 
 from __future__ import annotations
 
+from qifreport.metrology.acceptance.coverage import min_scan_density
 from qifreport.metrology.deviation.edges import EdgeDeviation, edge_deviation
 from qifreport.metrology.deviation.part_class import part_class
-from qifreport.metrology.deviation.size import SizeEstimate, size_error
+from qifreport.metrology.deviation.size import SizeEstimate, density_rule, size_error
+from qifreport.metrology.params import InspectionParams
 from qifreport.registration.deformable.methods import method_spec
 from qifreport.registration.deformable.result import DeformResult
 
@@ -25,14 +27,16 @@ def measures_size(fit: DeformResult | None) -> bool:
 
 
 def trim_edge_stage(
-    reg: Registered, nominal: HeldNominal, ctx: JudgeContext
+    reg: Registered, nominal: HeldNominal, ctx: JudgeContext, params: InspectionParams
 ) -> tuple[EdgeDeviation, SizeEstimate]:
     """The trim-edge deviation of the seated scan ``reg`` along the nominal as held
     (``nominal``, :func:`~qifreport.metrology.stages.held.held_nominal`), and the size
     error read from it (:func:`edge_deviation`, :func:`size_error`): against the general
     half-width, along a solid's sharp creases (``ctx.solid``) or the mesh's open rim; the
     part's class (:func:`part_class`, of the nominal as prepared) says whether they are
-    judged."""
+    judged; a size read from a rim scanned more sparsely than the toleranced surfaces need
+    (the region criterion's area, ``params.max_region_area``) is not established
+    (:func:`density_rule`)."""
     edges = edge_deviation(
         nominal.V,
         reg.F,
@@ -44,4 +48,5 @@ def trim_edge_stage(
     )
     prepared = ctx.prepared
     edges.part = part_class(prepared.V, prepared.F, solid=ctx.solid, normals=prepared.ops.normals)
-    return edges, size_error(edges)
+    least = min_scan_density(params.max_region_area)
+    return edges, density_rule(size_error(edges), edges, least)
