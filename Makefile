@@ -91,7 +91,7 @@ demo: install system-deps
 # each worker's BLAS and OpenMP on one thread (two workers on two cores: a second thread per
 # worker would only spin against the other worker; the command line sets the same itself)
 test: install system-deps
-	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -q -n 2 --dist loadfile
+	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -q -n 2 --dist loadfile --durations=25
 
 lint: install
 	$(VENV)/bin/ruff check .

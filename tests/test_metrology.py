@@ -12,11 +12,10 @@ from trimesh.triangles import closest_point as triangle_closest_point
 
 from qifreport.metrology.acceptance.criteria import (
     DEFAULT_MAX_REGION_AREA,
-    coverage_ceiling_ok,
     evaluate,
     find_regions,
-    scan_area,
 )
+from qifreport.metrology.acceptance.scan_area import coverage_ceiling_ok, scan_area
 from qifreport.metrology.acceptance.statistics import deviation_statistics, tail_fractions
 from qifreport.metrology.deviation.closest import closest_points, data_referenced
 from qifreport.metrology.deviation.local_planes import nominal_referenced

@@ -13,8 +13,9 @@ from qifreport.metrology.acceptance.coverage import (
     plausible_uncertainty,
     zone_coverage,
 )
-from qifreport.metrology.acceptance.criteria import Acceptance, coverage_ceiling_ok, evaluate
+from qifreport.metrology.acceptance.criteria import Acceptance, evaluate
 from qifreport.metrology.acceptance.point_regions import ScanSamples, SurfacePoints
+from qifreport.metrology.acceptance.scan_area import coverage_ceiling_ok
 from qifreport.metrology.acceptance.statistics import DeviationStats, deviation_statistics
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.metrology.params import InspectionParams

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from qifreport.metrology.acceptance.bands import BandField, NotEvaluated
-from qifreport.metrology.acceptance.criteria import scan_area
+from qifreport.metrology.acceptance.scan_area import scan_area
 from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 from qifreport.metrology.prepared import PreparedPart
 from qifreport.registration.deformable.bending_basis import BendingBasis
