@@ -8,6 +8,7 @@ nothing of the inspection itself.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from qifreport.metrology.acceptance.coverage import DEFAULT_MIN_COVERAGE
@@ -128,7 +129,8 @@ class InspectionParams:
         :data:`qifreport.metrology.acceptance.decision.DECISION_RULES` (default ``"iso14253"``: PASS
         proven, FAIL proven, otherwise not established).
     scanner_uncertainty : the scanner's own expanded uncertainty (k = 2), mm, combined in
-        quadrature with each vertex's uncertainty from the range noise (0: none stated).
+        quadrature with each vertex's uncertainty from the range noise (0: none stated;
+        the scanner profile's surface term then stands for it, :attr:`surface_uncertainty`).
     scanner : the scanner's acceptance figures, the instrument terms of each
         characteristic's uncertainty budget (:mod:`qifreport.metrology.gdt.budgets`;
         default: the documented default scanner class).
@@ -169,6 +171,16 @@ class InspectionParams:
     fixture: str = "free"
     max_restraint_force: float | None = None
     restraint: RestraintCondition = field(default_factory=RestraintCondition)
+
+    @property
+    def surface_uncertainty(self) -> float:
+        """The instrument's expanded uncertainty (k = 2) of a surface point's deviation, mm:
+        :attr:`scanner_uncertainty` when stated, else the scanner profile's
+        :meth:`~qifreport.metrology.acceptance.scanner.ScannerProfile.surface_error` taken
+        as a rectangular distribution's half-width (``U = 2 MPE / sqrt(3)``, GUM 4.3.7)."""
+        if self.scanner_uncertainty > 0.0:
+            return float(self.scanner_uncertainty)
+        return 2.0 * self.scanner.surface_error() / math.sqrt(3.0)
 
     @property
     def held_condition(self) -> RestraintCondition:

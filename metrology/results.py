@@ -573,6 +573,8 @@ class InspectionResult:
             "verdict": self.verdict,
             "restraint": self.restraint_dict(),
             "scanner": self.params.scanner.label,
+            # the instrument's k = 2 term in every surface point's and vertex's U, mm
+            "instrument_surface_uncertainty_mm": self.params.surface_uncertainty,
             "warnings": self.trust_warnings(),
             "decided_by": self.decided_by(),
             "relaxed_guards": self.relaxed_guards(),

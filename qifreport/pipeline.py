@@ -36,6 +36,7 @@ from qifreport.errors import InputError
 from qifreport.metrology.acceptance.bands import ToleranceZone
 from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION, resample_mask
 from qifreport.metrology.acceptance.repeatability import apply as apply_repeatability
+from qifreport.metrology.gdt.budgets import registration_term
 from qifreport.metrology.inspection import (
     InspectionInputs,
     InspectionParams,
@@ -45,6 +46,7 @@ from qifreport.metrology.inspection import (
 from qifreport.metrology.model import Drawing, Part
 from qifreport.metrology.params import CLAMPS
 from qifreport.registration.linalg import default_backend
+from qifreport.registration.mesh import bounding_diagonal
 from qifreport.registration.pointcloud import read_scan
 from qifreport.registration.scan import Scan
 from qifreport.registration.thinning import ThinningReport, nominal_spacing, thin_scan
@@ -260,6 +262,11 @@ def resampled_runs(
         runs.append(inspect(res.V, res.F, res.P[keep], p, inputs, progress=progress))
     seconds = time.perf_counter() - t0
     apply_repeatability(res, runs, KEEP_FRACTION, seconds=seconds)
+    diagonal = bounding_diagonal(res.V)
+    by_key = [{q.spec.key: q.value for q in r.characteristics} for r in runs]
+    for i, c in enumerate(res.characteristics):
+        values = [v.get(c.spec.key) for v in by_key]
+        res.characteristics[i] = registration_term(c, values, params.decision_rule, diagonal)
     res.timings["repeatability"] = seconds
 
 

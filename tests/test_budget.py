@@ -190,3 +190,32 @@ def test_a_surface_with_a_u_wider_than_the_part_is_not_measured(ftc06):
     assert got.reasons[-1].startswith(
         "implausible uncertainty: U max 766.9 mm exceeds the part's 404.7 mm diagonal"
     ), got.reasons
+
+
+def test_resampled_registrations_add_their_spread_and_the_value_is_judged_again():
+    """A flatness of 0.090 against 0.100 with U 0.004 PASSes; read 0.090, 0.099, 0.081 and
+    0.093 over the resampled registrations (--seeds), its budget gains a registration term
+    of their standard deviation (0.0075 mm) and it is INDETERMINATE; a value no run reads
+    keeps its budget as it was."""
+    from qifreport.metrology.acceptance.budget import UncertaintyBudget
+    from qifreport.metrology.gdt.budgets import registration_term
+    from qifreport.metrology.gdt.characteristic_types import (
+        CharacteristicResult,
+        CharacteristicSpec,
+    )
+
+    def flatness() -> CharacteristicResult:
+        spec = CharacteristicSpec("G1", "flatness", "flat", None, np.array([0]), tolerance=0.1)
+        budget = UncertaintyBudget()
+        budget.add("sampling", 0.002, "points")
+        return CharacteristicResult(
+            spec, value=0.090, uncertainty=0.004, status="PASS", budget=budget
+        )
+
+    res = registration_term(flatness(), [0.099, 0.081, 0.093], "iso14253", 300.0)
+    terms = {t.name: t.u for t in res.budget.terms}
+    assert terms["registration"] == pytest.approx(np.std([0.09, 0.099, 0.081, 0.093], ddof=1))
+    assert res.uncertainty == pytest.approx(2 * math.hypot(0.002, terms["registration"]))
+    assert res.status == "INDETERMINATE"
+    alone = registration_term(flatness(), [None, None], "iso14253", 300.0)
+    assert [t.name for t in alone.budget.terms] == ["sampling"] and alone.status == "PASS"

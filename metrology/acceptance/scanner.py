@@ -102,6 +102,12 @@ class ScannerProfile:
         """The MPE of a form reading, mm: F for a plane when given, else PF."""
         return self.flatness if plane and self.flatness is not None else self.probing_form
 
+    def surface_error(self) -> float:
+        """The MPE of one surface point's position along the normal, mm: half the probing
+        size error PS (a sphere's radius error: the scanner's local bias of a surface
+        after its points are fitted)."""
+        return 0.5 * self.probing_size
+
     @property
     def label(self) -> str:
         """How the outputs name it (``'default scanner class (...)'`` without a profile)."""

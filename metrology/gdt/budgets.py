@@ -19,12 +19,16 @@ with datums              feature's distance from the model's origin (where the d
 =======================  ================================================================
 
 A length's temperature term (``alpha |T - 20| L``) is added when the profile gives the
-part's temperature and CTE. Lengths mm, angles degrees.
+part's temperature and CTE. With ``--seeds N`` (N >= 2) a **registration** term is added
+too (:func:`registration_term`): the value's spread over the resampled registrations.
+Without it the budget has no registration term and says so by its absence. Lengths mm,
+angles degrees.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -43,7 +47,7 @@ from qifreport.metrology.gdt.characteristic_types import (
 )
 from qifreport.metrology.gdt.measured_surface import MeasuredSurface
 
-__all__ = ["JUDGED", "apply_budget", "sampling_budget"]
+__all__ = ["JUDGED", "apply_budget", "registration_term", "sampling_budget"]
 
 #: the statuses the decision rule gives (re-judged with the budget's ``U``)
 JUDGED = ("PASS", "FAIL", "INDETERMINATE")
@@ -84,14 +88,49 @@ def apply_budget(
         if temp is not None:
             budget.add("temperature", *temp)
     res.budget = budget
-    res.uncertainty = budget.expanded
+    return _judged_again(res, rule, surf.diagonal)
+
+
+def registration_term(
+    res: CharacteristicResult, values: Sequence[float | None], rule: str, diagonal: float
+) -> CharacteristicResult:
+    """``res`` with its budget's **registration** term: the repeatability of the whole
+    measurement chain (pose, fixture, deviation, fit) over resampled registrations of the
+    scan (``--seeds``), the standard deviation of ``res.value`` and the resampled runs'
+    ``values`` (GUM 4.2, a Type A evaluation), and judged again by ``rule`` with the new
+    ``U`` (``diagonal``: the part's size, mm). A characteristic without a budget or a value,
+    or with fewer than two readings of it, is returned as it is.
+
+    Parameters
+    ----------
+    res : the reported run's result (its budget is added to in place).
+    values : the same characteristic's value in each resampled run, mm or deg (None: not
+        measured there).
+    """
+    if res.budget is None or res.value is None or res.status not in (*JUDGED, "BASIC"):
+        return res
+    got = [float(v) for v in values if v is not None and math.isfinite(v)]
+    if not got:
+        return res
+    u = float(np.std([float(res.value), *got], ddof=1))
+    res.budget.add(
+        "registration",
+        u,
+        f"standard deviation over the reported and {len(got)} resampled registrations (--seeds)",
+    )
+    return _judged_again(res, rule, diagonal)
+
+
+def _judged_again(res: CharacteristicResult, rule: str, diagonal: float) -> CharacteristicResult:
+    """``res`` with ``uncertainty`` its budget's ``U``, judged again by ``rule``."""
+    res.uncertainty = res.budget.expanded
     if res.status == "BASIC":
-        why = implausible(res, surf.diagonal)
+        why = implausible(res, diagonal)
         return res if why is None else not_measured(res.spec, why)
     s = res.spec
     lo, hi = (s.lower_limit, s.upper_limit) if s.kind == "dimension" else (None, res.limit)
     res.reason = ""
-    judge(res, rule, lo, hi, surf.diagonal)
+    judge(res, rule, lo, hi, diagonal)
     return res
 
 

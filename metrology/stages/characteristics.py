@@ -66,7 +66,7 @@ def characteristics_stage(
         face_id,
         corners,
         scores.deviation,
-        scores.uncertainty,
+        scores.own_uncertainty,
         reg.P,
         d.closest,
         d.face,
@@ -77,9 +77,9 @@ def characteristics_stage(
         scores.noise,
     )
     free_surf = None
-    if d.free is not None and scores.free_uncertainty is not None:
+    if d.free is not None and scores.own_free_uncertainty is not None:
         free_surf = _measured_surface(
-            V, F, V, face_id, corners, d.free, scores.free_uncertainty, *_no_points()
+            V, F, V, face_id, corners, d.free, scores.own_free_uncertainty, *_no_points()
         )
     cache: dict = {}
     zone_frames: dict[int, DatumFrameResult | None] = {}

@@ -36,8 +36,12 @@ class Scores:
     points_ok : (m,) bool the points that judge the surface (nearest vertex scored there,
         not added material).
     noise : the scan's range noise, mm.
-    uncertainty : (n,) expanded uncertainty of ``deviation``, mm.
+    uncertainty : (n,) expanded uncertainty of ``deviation``, mm, the instrument's surface
+        term included (what the surfaces' decisions use).
     free_uncertainty : (n,) that of the free state's deviation, mm; None: not measured.
+    own_uncertainty, own_free_uncertainty : the same without the instrument's term: the
+        measurement's own, which a characteristic's budget starts from before adding the
+        instrument term of its kind (:mod:`qifreport.metrology.gdt.budgets`).
     """
 
     deviation: np.ndarray
@@ -49,6 +53,8 @@ class Scores:
     noise: float
     uncertainty: np.ndarray
     free_uncertainty: np.ndarray | None
+    own_uncertainty: np.ndarray
+    own_free_uncertainty: np.ndarray | None
 
 
 def scoring_stage(
@@ -66,7 +72,8 @@ def scoring_stage(
     Parameters
     ----------
     reg, nominal, deviations : the earlier stages'.  ctx : the judgement's context.
-    params : the inspection's parameters (the scanner's stated uncertainty, mm).
+    params : the inspection's parameters (the instrument's surface term, mm:
+        :attr:`~qifreport.metrology.params.InspectionParams.surface_uncertainty`).
     timings : seconds per stage, added to ("scan points", "resolution").
     model_uncertainty : expanded uncertainties the hold adds, mm, (n,) per vertex and (m,)
         per scan point, combined in quadrature with the scanner's; None: none.
@@ -83,11 +90,14 @@ def scoring_stage(
     # a STEP nominal's scan points grouped by their B-rep face: a thin wall's two skins are
     # kept apart in the noise estimate and in the points' own values
     plabel = None if ctx.face_id is None else point_faces(d.face, ctx.face_id)
-    sys_vertices: float | np.ndarray = params.scanner_uncertainty
-    sys_points: float | np.ndarray = params.scanner_uncertainty
+    instrument = params.surface_uncertainty
+    sys_vertices: float | np.ndarray = instrument
+    sys_points: float | np.ndarray = instrument
+    own_vertices: float | np.ndarray = 0.0
     if model_uncertainty is not None:
-        sys_vertices = np.hypot(params.scanner_uncertainty, model_uncertainty[0])
-        sys_points = np.hypot(params.scanner_uncertainty, model_uncertainty[1])
+        sys_vertices = np.hypot(instrument, model_uncertainty[0])
+        sys_points = np.hypot(instrument, model_uncertainty[1])
+        own_vertices = model_uncertainty[0]
     t_pts = time.perf_counter()
     samples = scan_samples(
         nominal.V,
@@ -117,7 +127,11 @@ def scoring_stage(
         uncertainty=vertex_uncertainty(var_all, sys_vertices),
         free_uncertainty=None
         if d.free_variance is None
-        else vertex_uncertainty(d.free_variance, params.scanner_uncertainty),
+        else vertex_uncertainty(d.free_variance, instrument),
+        own_uncertainty=vertex_uncertainty(var_all, own_vertices),
+        own_free_uncertainty=None
+        if d.free_variance is None
+        else vertex_uncertainty(d.free_variance),
     )
 
 
