@@ -92,6 +92,11 @@ def apply_budget(
     lo, hi = (s.lower_limit, s.upper_limit) if s.kind == "dimension" else (None, res.limit)
     res.reason = ""
     judge(res, rule, lo, hi, surf.diagonal)
+    if res.status == "INDETERMINATE" and budget.terms:
+        top = max(budget.terms, key=lambda t: t.u)
+        res.reason += (
+            f"; its largest term: {top.name}, u {top.u:.2g} {res.spec.unit} ({top.source})"
+        )
     return res
 
 
