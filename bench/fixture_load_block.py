@@ -33,7 +33,7 @@ def bowed_scan(path: Path, bow: float) -> tuple[np.ndarray, int]:
     from OCP.GeomAbs import GeomAbs_Plane
     from OCP.GProp import GProp_GProps
 
-    from qifreport.simulate.brep_scan import perfect_scan
+    from qifreport.simulate.brep_scan import dome, perfect_scan
     from qifreport.step.reader import read_step
 
     part = read_step(path)
@@ -45,13 +45,7 @@ def bowed_scan(path: Path, bow: float) -> tuple[np.ndarray, int]:
         areas.append(props.Mass() if plane else 0.0)
     face = int(np.argmax(areas))
     scan, _ = perfect_scan(part.shape, part.faces, noise=0.01, points=150_000)
-    on = scan.face == face
-    P, n = scan.P.copy(), scan.normal[on]
-    c = P[on].mean(axis=0)
-    r = P[on] - c
-    r -= np.einsum("ij,ij->i", r, n)[:, None] * n
-    r2 = np.einsum("ij,ij->i", r, r)
-    P[on] += (bow * (1.0 - r2 / r2.max()))[:, None] * n
+    P, _ = dome(scan.P, scan.normal, scan.face, face, bow)
     return P, face
 
 

@@ -4,7 +4,8 @@ real part and drawing through the measurement a report runs:
 * D15, a 6.35 mm hole (6.1468 .. 6.5532), its scan putting it 1 um under its lower limit:
   the points' statistics alone (U of a few um) "prove" it out (FAIL); with the default
   scanner class's instrument term (PS 0.015 mm) it is INDETERMINATE, as ISO 14253-1 says of
-  a value within U of a limit. 0.1 mm under its limit it still FAILs;
+  a value within U of a limit, and says so (the limit, U, the budget's largest term). 0.1 mm
+  under its limit it still FAILs;
 * a scanner profile's figures drive the instrument term: doubling PS doubles it, and U
   follows as the terms' root-sum-square;
 * the budget's terms are in the characteristic's JSON, U their expanded total;
@@ -68,7 +69,12 @@ def test_a_hole_on_its_lower_limit_is_indeterminate_not_fail(ftc06):
     (res,), _ = measure_characteristics([spec], drawing.plan.datums, surf, "iso14253")
     assert res.value == bare.value
     assert res.status == "INDETERMINATE", (res.status, res.reason)
-    assert res.reason == ""
+    # it says why: the limit it lies within U of, and the budget's largest term
+    assert res.reason.startswith(
+        f"{res.value:.4g} within its uncertainty U 0.017 of the limit 6.1468"
+    )
+    assert "no reading could" not in res.reason
+    assert "its largest term: instrument" in res.reason and "PS 0.015 mm" in res.reason
     # U: PS 0.015 mm, rectangular, k = 2, with the sampling term in quadrature
     U_ps = 2 * DEFAULT_SCANNER.probing_size / math.sqrt(3)
     assert res.uncertainty == pytest.approx(math.hypot(U_ps, bare.uncertainty), rel=1e-9)
@@ -219,3 +225,17 @@ def test_resampled_registrations_add_their_spread_and_the_value_is_judged_again(
     assert res.status == "INDETERMINATE"
     alone = registration_term(flatness(), [None, None], "iso14253", 300.0)
     assert [t.name for t in alone.budget.terms] == ["sampling"] and alone.status == "PASS"
+
+
+def test_undecided_reason_says_when_no_reading_could_prove_conformance():
+    """A position 0.0013 with U 0.085 against a 0.05 zone (CTC 02's G3 under the default
+    scanner class): U alone exceeds the zone, which the reason says; a two-sided size
+    whose zone is wider than 2 U does not get that clause."""
+    from qifreport.metrology.gdt.characteristic_types import undecided_reason
+
+    wide = undecided_reason(0.0013, 0.085, None, 0.05)
+    assert wide.startswith("0.0013 within its uncertainty U 0.085 of the limit 0.05")
+    assert "no reading could prove conformance" in wide and wide.endswith("(ISO 14253-1)")
+    size = undecided_reason(34.99995, 0.0173, 35.0, 35.2)
+    assert "of the limit 35:" in size and "no reading could" not in size
+    assert "no reading could" in undecided_reason(10.0, 0.011, 9.99, 10.01)

@@ -104,3 +104,75 @@ def test_yield_in_presets_and_values():
     assert material("E=70000,nu=0.33,yield=240").yield_strength == 240.0
     with pytest.raises(ValueError):
         material("E=70000,nu=0.33,yield=-1")
+
+
+@pytest.fixture(scope="module")
+def ftc08_load():
+    """NIST FTC 08 (its note 5 states a restraint: the virtual fixture applies) as the
+    inspection prepares it for the fixture's load: its nominal mesh and its STEP solid's
+    gmsh tetrahedra, aluminium (:func:`qifreport.restraint.build_load_model`)."""
+    from qifreport.nominal import load_nominal
+    from qifreport.restraint import LoadSpec, build_load_model
+    from tests.conftest import shared_file
+
+    part, _ = load_nominal(
+        shared_file("step/nist/nist_ftc_08_asme1_ap242-e1.stp"), None, solid_mesh=True
+    )
+    solid = (part.solid_mesh.X, part.solid_mesh.T)
+    lm = build_load_model(part.V, part.F, LoadSpec("aluminium"), solid=solid, step=True)
+    assert not isinstance(lm, str), lm
+    return part.V, lm
+
+
+def _bend(V: np.ndarray, kappa: float) -> np.ndarray:
+    """A pure bend about y of curvature ``kappa`` 1/mm (sections turn with the neutral
+    plane at the part's mid-height): ``u_z = kappa x^2 / 2``, ``u_x = -kappa x (z - z0)``."""
+    x = V[:, 0] - V[:, 0].mean()
+    z = V[:, 2] - 0.5 * (V[:, 2].min() + V[:, 2].max())
+    d = np.zeros_like(V)
+    d[:, 2] = 0.5 * kappa * x**2
+    d[:, 0] = -kappa * x * z
+    return d
+
+
+def test_ftc08_restraint_beyond_the_limit_is_refused_with_its_forces(ftc08_load):
+    """The fixture-load stage (:func:`qifreport.metrology.inspection.with_fixture_load`,
+    as a fixtured inspection runs it) on a fitted field of FTC 08: a bend of 0.2 mm over
+    its 312 mm length (kappa 1.6e-5 / mm). Its energy lies below the bounding block's
+    plate energy (the part is that block less its pockets); the force to hold it exceeds
+    ``--max-restraint-force`` 100 N, so a PASS is refused, the forces named (equivalent
+    force, energy, correction, the most loaded contact, the limit's source) in the refusal
+    and the JSON block; with a limit above the force, nothing is refused for it."""
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    from qifreport.metrology.inspection import with_fixture_load
+
+    V, lm = ftc08_load
+    kappa = 2 * 0.2 / 156.0**2
+
+    def stage(d: np.ndarray, limit: float | None):
+        run = SimpleNamespace(
+            ctx=SimpleNamespace(fixture_load=lm),
+            params=SimpleNamespace(max_restraint_force=limit),
+            reg=SimpleNamespace(V=V),
+            timings={},
+        )
+        res = SimpleNamespace(fit=SimpleNamespace(V=V + d), fixture_load=None)
+        return with_fixture_load(res, run).fixture_load
+
+    load = stage(_bend(V, kappa), 100.0)
+    mat, (L, W, H) = MATERIALS["aluminium"], np.ptp(V, axis=0)
+    plate = 0.5 * mat.E * H**3 / (12 * (1 - mat.nu**2)) * kappa**2 * L * W
+    assert 0.05 * plate < load.energy < plate, (load.energy, plate)
+    assert load.over_force and load.equivalent_force > 100.0
+    why = next(r for r in load.refusals() if "N to hold" in r)
+    for figure in (load.equivalent_force, load.energy, load.max_correction, load.peak_pad_force):
+        assert f"{figure:.3g}" in why, (figure, why)
+    assert "100 N limit (--max-restraint-force)" in why
+    js = load.to_dict()
+    assert js["refused"] and js["over_limit"] and js["limit_N"] == 100.0
+    assert js["equivalent_force_N"] == pytest.approx(load.equivalent_force)
+    # a limit the force stays within refuses nothing for the force
+    within = replace(load).bounded(2 * load.equivalent_force, "--max-restraint-force")
+    assert not within.over_force and "N to hold" not in " ".join(within.refusals())

@@ -11,6 +11,11 @@ in ``test_nist_perfect_scan.py``, :func:`tests.nist_scans.check_perfect_scan`).
   conforms, so no fixture is applied (one forced on it, ``--always-fixture``, moves it by
   0.18 mm: ``bench/nist_perfect_scan.py``).
 
+* Datum A's face bowed 0.3 mm beyond its 0.254 mm flatness FAILs in the free state: the
+  drawing states no restraint (this rigid, machined part), so no virtual fixture is applied
+  to flatten it (one forced on it read that flatness 0.021 PASS, and would need 1.6e7 N:
+  ``bench/fixture_load_block.py``).
+
 FTC 06: its tightest zones (0.254 mm) are narrower than the bump.
 """
 
@@ -23,6 +28,8 @@ from tests.nist_scans import assert_conforms, cases, check_bump, check_perfect_s
 
 scans = pytest.fixture(scope="module")(scans_fixture)
 PART = "nist_ftc_06_asme1_ap242-e1.stp"
+#: FTC 06's datum A (B-rep face 45, its largest plane) and its flatness
+DATUM_A_FACE, DATUM_A_FLATNESS = 45, "G1"
 
 
 @pytest.mark.parametrize("name", cases("b"))
@@ -126,3 +133,28 @@ def test_perturbed_scans_measure_their_characteristics(scans):
     # the MMC bonus follows the measured size: 0.05 mm more than on the perfect scan's
     # worst member (its size 15.850)
     assert "MMC bonus" in g9["reading"]
+
+
+def test_datum_face_bowed_beyond_its_flatness_fails_free(scans):
+    """Datum A's face domed 0.3 mm (:func:`qifreport.simulate.brep_scan.dome`): its
+    flatness, 0.254 mm, is read on the free-state scan points at the dome's height and
+    FAILs, the part FAILs, and nothing was fixtured: the condition is the drawing's (free,
+    no restraint note), no fit, no fixture load."""
+    from qifreport.simulate.brep_scan import dome
+
+    s = scans(PART)
+    Q, h = dome(s.scan.P, s.scan.normal, s.scan.face, DATUM_A_FACE, 0.3)
+    doc = s.run(Q, "domed")
+    flat = next(c for c in doc["characteristics"] if c["key"] == DATUM_A_FLATNESS)
+    assert flat["faces"] == [DATUM_A_FACE] and flat["tolerance_mm"] == pytest.approx(0.254)
+    # the dome's height range bounds the flatness from above (plus the 10 um noise's
+    # extremes); a reading flattened by a fixture or a smoothed field would be far lower
+    assert flat["status"] == "FAIL", (flat["value"], flat["uncertainty"], flat["reason"])
+    assert 0.254 + flat["uncertainty"] < flat["value"] <= np.ptp(h) + 0.06, flat
+    assert "scan points" in flat["reading"], flat["reading"]
+    assert doc["verdict"] == "FAIL" and doc["_rc"] == 1, doc["decided_by"]
+    held = doc["restraint"]
+    assert (held["condition"], held["stated_by"], held["applied"]) == ("free", "drawing", False)
+    reg = doc["registration"]
+    assert reg["fixture"]["decision"] == "rigid only" and reg["fit"] is None, reg["fixture"]
+    assert reg.get("fixture_load") is None, reg.get("fixture_load")

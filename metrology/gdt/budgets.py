@@ -131,6 +131,11 @@ def _judged_again(res: CharacteristicResult, rule: str, diagonal: float) -> Char
     lo, hi = (s.lower_limit, s.upper_limit) if s.kind == "dimension" else (None, res.limit)
     res.reason = ""
     judge(res, rule, lo, hi, diagonal)
+    if res.status == "INDETERMINATE" and res.budget.terms:
+        top = max(res.budget.terms, key=lambda t: t.u)
+        res.reason += (
+            f"; its largest term: {top.name}, u {top.u:.2g} {res.spec.unit} ({top.source})"
+        )
     return res
 
 

@@ -43,6 +43,7 @@ __all__ = [
     "faces_text",
     "fit_uncertainty",
     "judge",
+    "undecided_reason",
     "implausible",
     "not_measured",
     "reading_text",
@@ -336,6 +337,26 @@ def judge(
             res.reason = f"{v:.4g} < {lo:g}" if v < lo else f"{v:.4g} > {hi:g}"
         else:
             res.reason = f"{v:.4g} > {hi:g}"
+    elif res.status == "INDETERMINATE":
+        res.reason = undecided_reason(v, U, lo, hi)
+
+
+def undecided_reason(v: float, U: float, lo: float | None, hi: float | None) -> str:
+    """Why a value ``v`` with expanded uncertainty ``U`` is neither proven within its
+    limits ``[lo, hi]`` (None: open) nor out of them (ISO 14253-1): the limit it lies
+    within ``U`` of, and, when the zone left after ``U`` is taken off is empty, that no
+    reading could prove conformance (a tolerance of zero or more: only its upper limit
+    bounds it, ``2 U`` of a two-sided zone)."""
+    near = [x for x in (lo, hi) if x is not None and abs(v - x) <= U]
+    limit = min(near, key=lambda x: abs(v - x)) if near else (hi if lo is None else lo)
+    why = f"{v:.4g} within its uncertainty U {U:.2g} of the limit {limit:g}"
+    if lo is not None and hi is not None:
+        unprovable = 2.0 * U >= hi - lo
+    else:
+        unprovable = lo is None and hi is not None and U >= hi
+    if unprovable:
+        why += " (U too wide for the zone: no reading could prove conformance)"
+    return why + ": conformance neither proven nor disproven (ISO 14253-1)"
 
 
 def zone_uncertainty(residuals: np.ndarray, U: np.ndarray) -> float:

@@ -95,12 +95,15 @@ def measure_flatness(spec, S, sample, feat, frame, sizes, surf, faces):
         raise Unmeasurable("flatness of a feature that is not a plane")
     unit = per_unit(spec.unit_basis)
     if unit is not None and unit[0] != "length":
-        # a unit area is a few mm wide: the scan points on the face when they are denser
-        on = np.isin(surf.P_face, np.asarray(list(faces), dtype=np.int64))
-        if on.sum() > len(S):
-            S, U = surf.P[on], surf.P_U[on]
-        else:
-            U = sample.U
+        # a unit area is a few mm wide: a surface read on vertices is read on the scan
+        # points on the face when they are denser; a sample of scan points is already the
+        # feature's own judging points, filtered (the face's other points include a
+        # neighbouring face's near the crease, read as a phantom 0.1 mm in one window)
+        U = sample.U
+        if sample.source != "scan points":
+            on = np.isin(surf.P_face, np.asarray(list(faces), dtype=np.int64))
+            if on.sum() > len(S):
+                S, U = surf.P[on], surf.P_U[on]
         return _flatness_per_area(S, U, feat, unit)
     return _form(flatness(S), sample.U, "minimum zone (least squares beside)")
 

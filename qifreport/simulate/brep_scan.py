@@ -32,6 +32,7 @@ __all__ = [
     "exact_scan",
     "bump",
     "bump_site",
+    "dome",
     "random_pose",
     "surface_sample",
     "toleranced_weight",
@@ -511,6 +512,30 @@ def bump(
     r2 = np.sum((P - centre) ** 2, axis=1)
     w = height * np.exp(-r2 / (2.0 * sigma * sigma)) * (face == on_face)
     return P + w[:, None] * normal
+
+
+def dome(
+    P: np.ndarray, normal: np.ndarray, face: np.ndarray, on_face: int, height: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Scan points with B-rep face ``on_face`` bowed outward by a parabolic dome: each of
+    its points moved along its outward normal by ``height (1 - r^2 / r_max^2)`` mm, ``r``
+    its distance in the face's tangent plane from the face points' centroid (``height``
+    at the centroid, 0 at the farthest point); the other points as they are.
+
+    Returns
+    -------
+    (m, 3) the new points, and (k,) the heights given to the face's k points, mm (their
+    range bounds the face's flatness from above; a centred dome's is that range).
+    """
+    on = face == on_face
+    n = normal[on]
+    r = P[on] - P[on].mean(axis=0)
+    r -= np.einsum("ij,ij->i", r, n)[:, None] * n
+    r2 = np.einsum("ij,ij->i", r, r)
+    h = height * (1.0 - r2 / r2.max())
+    Q = P.copy()
+    Q[on] += h[:, None] * n
+    return Q, h
 
 
 def random_pose(rng: np.random.Generator, centre: np.ndarray, shift: float) -> np.ndarray:
