@@ -33,7 +33,11 @@ interpolation: the fit carries the part's shape under it from the measurement ar
 so it grows only while that measurement encloses it (every vertex bordering it covered and
 flaggable); one that would reach a crease, a rim or unmeasured surface stays as it was
 (grown there, it would be extrapolated: the tangential motion of the faces beside it is
-not measured, and a held-out face strip reads that motion as deviation). If more than
+not measured, and a held-out face strip reads that motion as deviation). The refits drop
+no scored data: a scored vertex's measurement is held out (around a flag) or fitted at least
+at the first pass's Welsch width, never silently rejected by the refit's narrow robust
+weights (the fit under rejected data drifts, neither held out nor measured); only the
+unscored bands (``flaggable`` False) keep the narrow width. If more than
 ``max_flagged_fraction`` of the covered vertices are flagged, the fit has gone wrong
 rather than the part being all defect: the single-pass result is returned.
 """
@@ -162,12 +166,15 @@ GBCICPResult = DeformResult  # the shared result of every deformable method
 
 
 def _weights(
-    m: Match, p: GBCICPParams, hold: np.ndarray, width_floor: float = 0.0
+    m: Match, p: GBCICPParams, hold: np.ndarray, width_floor: float | np.ndarray = 0.0
 ) -> tuple[np.ndarray, float]:
+    """The data weights (Welsch x normal compatibility, nothing on ``hold``) and the robust
+    scale (mm) of the match ``m``; ``width_floor`` (mm, scalar or per row) floors the Welsch
+    width."""
     use = m.covered & ~hold
     scale = robust_scale(m.r[use]) if use.any() else 0.0
     scale = max(scale, 1e-6)
-    width = max(p.welsch * scale, width_floor)
+    width = np.maximum(p.welsch * scale, width_floor)
     welsch = np.exp(-(m.r**2) / (2.0 * width**2))
     compat = np.maximum(p.normal_floor, m.compat) * (m.compat >= p.normal_gate)
     return welsch * compat * use, scale
@@ -221,6 +228,9 @@ class _Fit:
     lam_from : stiffness the next full-resolution refit starts from.
     adjacency : (n, n) sparse bool vertex adjacency over the mesh edges (the hold-outs'
         borders), None until needed.
+    width_first : the first pass's final Welsch width floor, mm.
+    refit_floor : (n,) the refits' Welsch width floor per vertex, mm: ``width_first`` on
+        the scored vertices, 0 on the unscored bands; None before the refits.
     """
 
     p: GBCICPParams
@@ -243,6 +253,15 @@ class _Fit:
     C: np.ndarray | None = None
     lam_from: float = 0.0
     adjacency: sp.csr_matrix | None = None
+    width_first: float = 0.0
+    refit_floor: np.ndarray | None = None
+
+    def width_floor(self, floor: float, rows: np.ndarray | None = None) -> float | np.ndarray:
+        """The Welsch width floor (mm) of an iteration whose own floor is ``floor``: in a
+        refit, at least :attr:`refit_floor` (at ``rows`` (r,) when given)."""
+        if self.refit_floor is None:
+            return floor
+        return np.maximum(floor, self.refit_floor if rows is None else self.refit_floor[rows])
 
     def record(self, pass_no: int, lam: float, m: Match, delta: float, scale: float, hold):
         """Append one iteration to :attr:`history` (``hold`` (n,) or (r,) bool: the
@@ -290,14 +309,16 @@ class _Fit:
         def floor(lam):
             return width0 * (lam / lam_from) ** 0.25
 
-        w, scale = _weights(m, p, hold, floor(lam))
+        if pass_no == 1:
+            self.width_first = floor(lam_to)
+        w, scale = _weights(m, p, hold, self.width_floor(floor(lam)))
         cap = p.max_iter + p.settle_iter if iters is None else iters
         for _ in range(cap):
             e_new = self.full_step(lam, w, m.target)
             delta = float(np.abs(e_new - e).max())
             e = e_new
             m = self.match(self.V0 + e)
-            w, scale = _weights(m, p, hold, floor(max(lam * p.anneal, lam_to)))
+            w, scale = _weights(m, p, hold, self.width_floor(floor(max(lam * p.anneal, lam_to))))
             self.record(pass_no, lam, m, delta, scale, hold)
             lam, settle, done = _anneal(lam, lam_to, p.anneal, settle, delta, p)
             if done:
@@ -322,7 +343,8 @@ class _Fit:
         e_r = Phi_r @ C
         settle = 0
         for _ in range(p.max_iter + p.settle_iter):
-            w, scale = _weights(m, p, hold_r, width0 * (lam / lam_from) ** 0.25)
+            floor = self.width_floor(width0 * (lam / lam_from) ** 0.25, rows)
+            w, scale = _weights(m, p, hold_r, floor)
             aw = A_r * w
             use = aw > 0
             Pu = Phi_r[use]
@@ -524,6 +546,12 @@ def _band_limited_passes(fit: _Fit, flaggable: np.ndarray | None) -> _Passes:
             fallback, guard = True, (flagged_fraction, 1)
         else:
             hold = _holdout(fit.V0 + e, flagged, radius)
+            # no scored measurement is dropped silently: around a flag it is held out,
+            # elsewhere fitted at the first pass's width (a narrow refit width would drop
+            # the data of a face the first pass did not quite follow, and the fit there
+            # would drift, neither held out nor measured); the unscored bands keep the
+            # narrow width (on an edge the residual says where the edge slid)
+            fit.refit_floor = fit.width_first * (np.ones(n) if flaggable is None else flaggable)
             for pass_no in range(2, p.passes + 1):
                 e, m, w, scale = fit.refit(e, hold, pass_no)
                 passes = pass_no
