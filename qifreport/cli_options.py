@@ -279,8 +279,9 @@ def add_registration_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument(
         "--passes",
         type=int,
-        default=3,
-        help="GB-CICP passes: 1 = single pass, >=2 = band-limited scheme (default 3)",
+        default=12,
+        help="GB-CICP passes at most: 1 = single pass, >=2 = band-limited scheme, its "
+        "defect hold-outs grown until they settle (default 12)",
     )
     ap.add_argument(
         "--prealign",

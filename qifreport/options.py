@@ -217,7 +217,7 @@ class InspectOptions:
     edge_band: float | None = None
     boundary_band: float | None = None
     band_limit: float | None = None
-    passes: int = 3
+    passes: int = 12
     prealign: str = "auto"
     fail_on_added_material: bool = False
     method: str = "gbcicp"

@@ -22,11 +22,24 @@ Band-limited multi-pass scheme (paper Section 8.3.3). A first fit at band limit 
 leaves localized defects in the residual; vertices whose residual exceeds ``flag_k``
 robust scales of that first fit are flagged and the measurement within ``holdout_factor``
 coverage radii of them is withheld; the fit continues at the finer band limit ``l2``
-without ever seeing the defect, and repeats the flagging (against the same threshold:
-the refit's scale is the scanner's noise, over which any vertex count crosses
-``flag_k`` scales by chance) until no new vertex is flagged (at most ``passes``). If
-more than ``max_flagged_fraction`` of the covered vertices are flagged, the fit has gone
-wrong rather than the part being all defect: the single-pass result is returned.
+without ever seeing the defect. The first fit at ``l1`` follows most of a defect wider
+than ``l1`` (its residual is the defect's peak less what the fit absorbed), so a hold-out
+*grows until it settles*: after each refit, the held-out vertices whose residual exceeds
+the first pass's threshold (flag_k of its robust scale: a refit's own scale falls to the
+scanner's noise, which a few vertices in a thousand cross by chance) withhold the
+measurement around them too, until no hold-out grows (at most ``passes``). Only a
+hold-out grows, never a new flag elsewhere: noise seeds none. A hold-out is an
+interpolation: the fit carries the part's shape under it from the measurement around it,
+so it grows only while that measurement encloses it (every vertex bordering it covered and
+flaggable); one that would reach a crease, a rim or unmeasured surface stays as it was
+(grown there, it would be extrapolated: the tangential motion of the faces beside it is
+not measured, and a held-out face strip reads that motion as deviation). The refits drop
+no scored data: a scored vertex's measurement is held out (around a flag) or fitted at least
+at the first pass's Welsch width, never silently rejected by the refit's narrow robust
+weights (the fit under rejected data drifts, neither held out nor measured); only the
+unscored bands (``flaggable`` False) keep the narrow width. If more than
+``max_flagged_fraction`` of the covered vertices are flagged, the fit has gone wrong
+rather than the part being all defect: the single-pass result is returned.
 """
 
 from __future__ import annotations
@@ -38,6 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from qifreport.registration.deformable.bending_basis import BendingBasis, bending_basis, part_solver
@@ -50,7 +64,7 @@ from qifreport.registration.deformable.result import (
 )
 from qifreport.registration.icp import robust_scale
 from qifreport.registration.linalg import SPDSolver
-from qifreport.registration.mesh import MeshOperators, bounding_diagonal
+from qifreport.registration.mesh import MeshOperators, adjacency, bounding_diagonal
 from qifreport.registration.normals import pca_normals
 
 __all__ = [
@@ -87,7 +101,8 @@ class GBCICPParams:
     normal_floor : floor of the normal-compatibility factor (paper: 0.05).
     coverage_radius : a vertex is *covered* when its matched scan point lies within this
         tangential distance (mm). Default 1.5 x max(median edge, scan spacing).
-    passes : total passes (1 = single pass, the paper's default; 2-3 = band-limited scheme).
+    passes : most passes (1 = single pass, the paper's default; 2 or more: the band-limited
+        scheme, its hold-outs grown until they settle, the refits counted).
     flag_k : flag vertices with ``|residual| > flag_k`` robust scales (paper: 3) of the
         first pass (a refit's own scale, when larger).
     guard_floor : the guard (``max_flagged_fraction``) counts only the flagged vertices
@@ -133,7 +148,7 @@ class GBCICPParams:
     normal_gate: float = 0.5
     normal_floor: float = 0.05
     coverage_radius: float | None = None
-    passes: int = 3
+    passes: int = 12
     flag_k: float = 3.0
     guard_floor: float = 0.0
     holdout_factor: float = 1.5
@@ -151,12 +166,15 @@ GBCICPResult = DeformResult  # the shared result of every deformable method
 
 
 def _weights(
-    m: Match, p: GBCICPParams, hold: np.ndarray, width_floor: float = 0.0
+    m: Match, p: GBCICPParams, hold: np.ndarray, width_floor: float | np.ndarray = 0.0
 ) -> tuple[np.ndarray, float]:
+    """The data weights (Welsch x normal compatibility, nothing on ``hold``) and the robust
+    scale (mm) of the match ``m``; ``width_floor`` (mm, scalar or per row) floors the Welsch
+    width."""
     use = m.covered & ~hold
     scale = robust_scale(m.r[use]) if use.any() else 0.0
     scale = max(scale, 1e-6)
-    width = max(p.welsch * scale, width_floor)
+    width = np.maximum(p.welsch * scale, width_floor)
     welsch = np.exp(-(m.r**2) / (2.0 * width**2))
     compat = np.maximum(p.normal_floor, m.compat) * (m.compat >= p.normal_gate)
     return welsch * compat * use, scale
@@ -208,6 +226,11 @@ class _Fit:
     history : one dict per iteration (pass_no, lam, rms mm, delta mm, scale mm).
     C : (k, 3) modal coefficients, warm-started from pass to pass (modal), else None.
     lam_from : stiffness the next full-resolution refit starts from.
+    adjacency : (n, n) sparse bool vertex adjacency over the mesh edges (the hold-outs'
+        borders), None until needed.
+    width_first : the first pass's final Welsch width floor, mm.
+    refit_floor : (n,) the refits' Welsch width floor per vertex, mm: ``width_first`` on
+        the scored vertices, 0 on the unscored bands; None before the refits.
     """
 
     p: GBCICPParams
@@ -229,6 +252,16 @@ class _Fit:
     history: list[dict] = field(default_factory=list)
     C: np.ndarray | None = None
     lam_from: float = 0.0
+    adjacency: sp.csr_matrix | None = None
+    width_first: float = 0.0
+    refit_floor: np.ndarray | None = None
+
+    def width_floor(self, floor: float, rows: np.ndarray | None = None) -> float | np.ndarray:
+        """The Welsch width floor (mm) of an iteration whose own floor is ``floor``: in a
+        refit, at least :attr:`refit_floor` (at ``rows`` (r,) when given)."""
+        if self.refit_floor is None:
+            return floor
+        return np.maximum(floor, self.refit_floor if rows is None else self.refit_floor[rows])
 
     def record(self, pass_no: int, lam: float, m: Match, delta: float, scale: float, hold):
         """Append one iteration to :attr:`history` (``hold`` (n,) or (r,) bool: the
@@ -276,14 +309,16 @@ class _Fit:
         def floor(lam):
             return width0 * (lam / lam_from) ** 0.25
 
-        w, scale = _weights(m, p, hold, floor(lam))
+        if pass_no == 1:
+            self.width_first = floor(lam_to)
+        w, scale = _weights(m, p, hold, self.width_floor(floor(lam)))
         cap = p.max_iter + p.settle_iter if iters is None else iters
         for _ in range(cap):
             e_new = self.full_step(lam, w, m.target)
             delta = float(np.abs(e_new - e).max())
             e = e_new
             m = self.match(self.V0 + e)
-            w, scale = _weights(m, p, hold, floor(max(lam * p.anneal, lam_to)))
+            w, scale = _weights(m, p, hold, self.width_floor(floor(max(lam * p.anneal, lam_to))))
             self.record(pass_no, lam, m, delta, scale, hold)
             lam, settle, done = _anneal(lam, lam_to, p.anneal, settle, delta, p)
             if done:
@@ -308,7 +343,8 @@ class _Fit:
         e_r = Phi_r @ C
         settle = 0
         for _ in range(p.max_iter + p.settle_iter):
-            w, scale = _weights(m, p, hold_r, width0 * (lam / lam_from) ** 0.25)
+            floor = self.width_floor(width0 * (lam / lam_from) ** 0.25, rows)
+            w, scale = _weights(m, p, hold_r, floor)
             aw = A_r * w
             use = aw > 0
             Pu = Phi_r[use]
@@ -448,6 +484,7 @@ def _prepare(
         Phi_r=Phi_r,
         C=np.zeros((basis.Phi.shape[1], 3)) if modal else None,
         lam_from=lam_first,
+        adjacency=adjacency(F, n),
     )
 
 
@@ -483,9 +520,9 @@ def _counted(flags: np.ndarray, m: Match, p: GBCICPParams) -> int:
 
 
 def _band_limited_passes(fit: _Fit, flaggable: np.ndarray | None) -> _Passes:
-    """The first pass, then refits with the flagged vertices' surroundings withheld until
-    the flags stop changing (at most ``p.passes``); the single-pass result is kept when
-    the flagged fraction exceeds ``p.max_flagged_fraction`` (the guard)."""
+    """The first pass, then refits with the flagged vertices' surroundings withheld, each
+    hold-out grown until it settles (at most ``p.passes``); the single-pass result is kept
+    when the flagged fraction exceeds ``p.max_flagged_fraction`` (the guard)."""
     p, n = fit.p, len(fit.V0)
     hold = np.zeros(n, dtype=bool)
     passes, fallback = 1, False
@@ -501,32 +538,61 @@ def _band_limited_passes(fit: _Fit, flaggable: np.ndarray | None) -> _Passes:
     n_flagged = _counted(flagged, m, p)
     flagged_fraction = n_flagged / n_cov
     single = (e, m, w, scale)
+    # the measurement that can carry the fit under a hold-out: covered, flaggable vertices
+    enclosing = m.covered if flaggable is None else m.covered & flaggable
+    radius = p.coverage_radius * p.holdout_factor
     if p.passes > 1 and flagged.any():
         if flagged_fraction > p.max_flagged_fraction:
             fallback, guard = True, (flagged_fraction, 1)
         else:
+            hold = _holdout(fit.V0 + e, flagged, radius)
+            # no scored measurement is dropped silently: around a flag it is held out,
+            # elsewhere fitted at the first pass's width (a narrow refit width would drop
+            # the data of a face the first pass did not quite follow, and the fit there
+            # would drift, neither held out nor measured); the unscored bands keep the
+            # narrow width (on an edge the residual says where the edge slid)
+            fit.refit_floor = fit.width_first * (np.ones(n) if flaggable is None else flaggable)
             for pass_no in range(2, p.passes + 1):
-                hold = _holdout(fit.V0 + e, flagged, p.coverage_radius * p.holdout_factor)
                 e, m, w, scale = fit.refit(e, hold, pass_no)
                 passes = pass_no
-                # re-evaluate every flag against the refit: a defect the fit never saw keeps
-                # its residual; compliance the first pass could not follow has been fit. The
-                # threshold stays the first pass's: the refit's robust scale falls to the
-                # scanner's noise, and flag_k of it is crossed by chance on a few vertices in
-                # a thousand, each then withheld with its neighbourhood (which ones depends
-                # on the noise, so on the scan's density)
+                # the threshold stays the first pass's: the refit's robust scale falls to
+                # the scanner's noise, flag_k of which a few vertices in a thousand cross by
+                # chance (which ones depends on the noise, so on the scan's density)
                 new = _flag(m, p, max(scale, single[3]), flaggable)
-                n_new = _counted(new, m, p)
-                frac = max(n_flagged, n_new) / n_cov
+                frac = max(n_flagged, _counted(new, m, p)) / n_cov
                 if frac > p.max_flagged_fraction:
                     fallback, guard = True, (frac, pass_no)
                     e, m, w, scale = single
                     hold = np.zeros(n, dtype=bool)
                     break
-                if np.array_equal(new, flagged):
+                # a hold-out grows by its own vertices still beyond the threshold (a flag
+                # elsewhere seeds none), where the measurement still encloses it grown
+                flagged |= new & hold
+                grown = hold | _enclosed(
+                    fit.adjacency, hold | _holdout(fit.V0 + e, flagged, radius), enclosing
+                )
+                if not (grown & ~hold).any():
                     break
-                flagged, n_flagged = new, n_new
+                hold = grown
     return _Passes(e, m, w, scale, flagged, hold, passes, fallback, flagged_fraction, guard)
+
+
+def _enclosed(A: sp.csr_matrix, hold: np.ndarray, enclosing: np.ndarray) -> np.ndarray:
+    """The connected parts (over the mesh edges ``A`` (n, n)) of ``hold`` (n,) bool whose
+    bordering vertices are all ``enclosing`` (n,) bool: the hold-outs the measurement
+    around them carries the fit under."""
+    idx = np.flatnonzero(hold)
+    if len(idx) == 0:
+        return hold
+    k, part = connected_components(A[idx][:, idx], directed=False)
+    border = (A @ hold) & ~hold
+    # the parts a bordering vertex outside the enclosing measurement touches
+    _, col = A[np.flatnonzero(border & ~enclosing)][:, idx].nonzero()
+    open_part = np.zeros(k, dtype=bool)
+    open_part[part[col]] = True
+    out = np.zeros_like(hold)
+    out[idx[~open_part[part]]] = True
+    return out
 
 
 def gbcicp(
