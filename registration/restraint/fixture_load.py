@@ -93,6 +93,8 @@ class LoadModel:
         thickness it makes at the held nodes along their normals (zero rows off thin walls).
     description : what the model is (``"STEP solid, gmsh tetrahedra"``, a sheet's
         thickness), for the reports.
+    material_source : where the material came from (the operator, the drawing), for the
+        reports.
     """
 
     model: ElasticModel
@@ -101,6 +103,7 @@ class LoadModel:
     W: sp.csr_matrix
     thickness: sp.csr_matrix | None = None
     description: str = ""
+    material_source: str = ""
 
     @property
     def n_nominal(self) -> int:
@@ -131,7 +134,8 @@ class FixtureLoad:
         mm: the part's own form, which the fixture holds at the wall's mid-surface and no
         load can bend away (module docstring).
     yield_strength : the material's, MPa (None: not known).
-    material : the material's name.  model : the model's description.
+    material : the material's name.  material_source : where it came from (the operator's
+        ``--material``, the drawing).  model : the model's description.
     limit : the force limit the equivalent force is checked against, N, and
         ``limit_source`` where it comes from (set by :meth:`bounded`).
     reason : why the load is not established (``established`` False).
@@ -147,6 +151,7 @@ class FixtureLoad:
     thickness_change: float | None = None
     yield_strength: float | None = None
     material: str = ""
+    material_source: str = ""
     model: str = ""
     held_nodes: int = 0
     limit: float | None = None
@@ -203,6 +208,7 @@ class FixtureLoad:
         if not self.established:
             return f"fixture load not established: {self.reason}"
         ys = "yield not known" if self.yield_strength is None else f"yield {self.yield_strength:g}"
+        src = f" from the {self.material_source}" if self.material_source else ""
         thick = (
             ""
             if not self.thickness_change
@@ -212,7 +218,7 @@ class FixtureLoad:
             f"fixture load {self.equivalent_force:.3g} N ({self._force_status()}): "
             f"{self.energy:.3g} mJ over {self.max_correction:.3g} mm, peak contact "
             f"{self.peak_pad_force:.3g} N, stress {self.peak_stress:.3g} MPa ({ys}, "
-            f"{self.material}){thick}"
+            f"{self.material}{src}){thick}"
         )
 
     def short(self) -> str:
@@ -250,6 +256,7 @@ class FixtureLoad:
             "wall_thickness_change_mm": num(self.thickness_change),
             "yield_MPa": num(self.yield_strength),
             "material": self.material or None,
+            "material_source": self.material_source or None,
             "model": self.model or None,
             "held_nodes": int(self.held_nodes),
             "limit_N": num(self.limit),
@@ -323,6 +330,7 @@ def load_model(
     V: np.ndarray,
     F: np.ndarray,
     description: str = "",
+    material_source: str = "",
 ) -> LoadModel:
     """Prepare ``model`` (the part's elastic model) to take displacements given at the
     vertices of the nominal mesh ``(V, F)`` (mm, outward-wound triangles).
@@ -331,7 +339,7 @@ def load_model(
     the nominal, linear in that triangle; on a thin wall, the mean of that and the field at
     the opposite skin's point behind it (:func:`_opposite_skin`). A sheet's model (its
     skins at +/- half the thickness of a mid-surface nominal) takes the mid-surface's value
-    on both skins.
+    on both skins. ``description`` and ``material_source`` are for the reports.
 
     Raises
     ------
@@ -372,6 +380,7 @@ def load_model(
         W=(own - 0.5 * (wall @ own) + 0.5 * opposite).tocsr(),
         thickness=((wall @ own) - opposite).tocsr(),
         description=description,
+        material_source=material_source,
     )
 
 
@@ -585,6 +594,7 @@ def _load_of(lm: LoadModel, x: np.ndarray, target: np.ndarray) -> FixtureLoad:
         peak_stress=float(vertex_von_mises(model, x).max()),
         yield_strength=mat.yield_strength,
         material=mat.name,
+        material_source=lm.material_source,
         model=lm.description,
         held_nodes=len(lm.nodes),
         pad_forces=pad,
