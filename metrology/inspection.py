@@ -52,6 +52,7 @@ from qifreport.registration.normals import oriented_normals, refined_normals
 from qifreport.registration.pose.prealign import seat_scan
 from qifreport.registration.restraint.fixture_load import (
     DEFAULT_MAX_FORCE,
+    HOLD_SHARE,
     FixtureLoad,
     LoadModel,
     fixture_load,
@@ -89,6 +90,7 @@ __all__ = [
     "free_deviation",
     "free_state_stands",
     "free_state_zones",
+    "hold_misfit",
     "inspect",
     "inspection_context",
     "judge_as_held",
@@ -478,10 +480,27 @@ def with_fixture_load(res: InspectionResult, run: JudgeRun) -> InspectionResult:
     source = "--max-restraint-force"
     if limit is None:
         limit, source = DEFAULT_MAX_FORCE, "default: none stated"
-    load = fixture_load(lm, run.reg.V, res.fit.V - run.reg.V)
+    misfit, of = hold_misfit(run.ctx.bands.zones)
+    load = fixture_load(lm, run.reg.V, res.fit.V - run.reg.V, misfit, of)
     res.fixture_load = load.bounded(limit, source)
     run.timings["fixture load"] = time.perf_counter() - t0
     return res
+
+
+def hold_misfit(zones: list[ToleranceZone]) -> tuple[float, str]:
+    """The root-mean-square misfit, mm, the virtual fixture's load is measured within
+    (:func:`~qifreport.registration.restraint.fixture_load.least_energy_hold`), and what it
+    is a share of: :data:`~qifreport.registration.restraint.fixture_load.HOLD_SHARE` of
+    the tightest of the ``zones`` judged as held (not in the free state), or of the default
+    general band where none is."""
+    held = [z for z in zones if not z.free_state]
+    if not held:
+        width = 2.0 * DEFAULT_GENERAL_TOLERANCE
+        return HOLD_SHARE * width, f"{100 * HOLD_SHARE:g} % of the default band, {width:g} mm"
+    tightest = min(held, key=lambda z: z.width)
+    return HOLD_SHARE * tightest.width, (
+        f"{100 * HOLD_SHARE:g} % of the tightest zone held, {tightest.key} {tightest.width:g} mm"
+    )
 
 
 def free_state_zones(ctx: JudgeContext) -> bool:

@@ -30,6 +30,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Drawing",
+    "MaterialStatement",
     "Part",
     "RestraintStatement",
 ]
@@ -106,6 +107,29 @@ class RestraintStatement:
     source: str = "none"
 
 
+@dataclass(frozen=True)
+class MaterialStatement:
+    """The part's material as the drawing states it.
+
+    Attributes
+    ----------
+    text : the designation as written (``'ABS, UNFILLED'``).
+    preset : the elastic preset it names
+        (:func:`qifreport.registration.restraint.designation.preset_of`: a key of
+        :data:`qifreport.registration.restraint.elastic.MATERIALS`), None: none.
+    source : where it was read: ``"material designation"`` (an AP242 entity) or
+        ``"drawing note"`` (:func:`qifreport.step.material.material_note`).
+    """
+
+    text: str
+    preset: str | None = None
+    source: str = "drawing note"
+
+    def describe(self) -> str:
+        """Where the material came from, for the reports: ``drawing (note): ABS``."""
+        return f"drawing ({self.source}): {self.text}"
+
+
 @dataclass
 class Drawing:
     """What the part's drawing asks of it: tolerance zones, characteristics, datums.
@@ -124,6 +148,8 @@ class Drawing:
         ``--tolerance`` or the default set it); ``"operator"``, the ``--tolerance`` given
         with a mesh nominal, which carries none.
     restraint : what the drawing states about restraint (:class:`RestraintStatement`).
+    material : the part's material as the drawing states it (:class:`MaterialStatement`),
+        None when it states none (a mesh nominal: no drawing).
     """
 
     zones: list[ToleranceZone]
@@ -132,3 +158,4 @@ class Drawing:
     plan: CharacteristicPlan | None = None
     source: str = "pmi"
     restraint: RestraintStatement = field(default_factory=RestraintStatement)
+    material: MaterialStatement | None = None

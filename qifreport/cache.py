@@ -64,7 +64,7 @@ from .cache_trust import (
 )
 from .nominal import load_nominal
 from .options import NominalOptions
-from .restraint import build_load_model, build_restraint, with_limits
+from .restraint import build_load_model, build_restraint, with_drawing_material, with_limits
 
 __all__ = [
     "CACHE_FORMAT",
@@ -243,14 +243,18 @@ def build_state(
         mesher=options.mesher,
         solid=options.solid,
         solid_mesh=options.restraint is not None or _loads(options),
+        solid_mesh_for_material=options.fixture_load is not None,
     )
     restraint = fixture_load = None
     solid = None if part.solid_mesh is None else (part.solid_mesh.X, part.solid_mesh.T)
     if options.restraint is not None:
         restraint = build_restraint(part.V, part.F, options.restraint, solid=solid)
     if options.fixture_load is not None:
-        fixture_load = build_load_model(
-            part.V, part.F, options.fixture_load, solid=solid, step=part.face_id is not None
+        spec = with_drawing_material(options.fixture_load, drawing.material)
+        fixture_load = (
+            spec
+            if isinstance(spec, str)
+            else build_load_model(part.V, part.F, spec, solid=solid, step=part.face_id is not None)
         )
     part.solid_mesh = None  # in the models now: not kept in the cache entry
     if on_nominal is not None:

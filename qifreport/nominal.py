@@ -25,7 +25,7 @@ from qifreport.metrology.acceptance.bands import (
     zones_from_pmi,
 )
 from qifreport.metrology.gdt.pmi_plan import specs_from_pmi
-from qifreport.metrology.model import Drawing, Part, RestraintStatement
+from qifreport.metrology.model import Drawing, MaterialStatement, Part, RestraintStatement
 from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.mesh import (
     bounding_diagonal,
@@ -33,6 +33,7 @@ from qifreport.registration.mesh import (
     load_mesh,
     remove_unreferenced,
 )
+from qifreport.registration.restraint.designation import preset_of
 from qifreport.step.reader import STEP_SUFFIXES
 from qifreport.step.solids import SolidInfo, overlapping_pairs, pick_solid, solid_infos
 
@@ -61,6 +62,7 @@ def load_nominal(
     mesher: str = "gmsh",
     solid: str | None = None,
     solid_mesh: bool = False,
+    solid_mesh_for_material: bool = False,
 ) -> tuple[Part, Drawing]:
     """Read a STEP part (mesh + PMI zones and characteristics) or a mesh nominal (one general
     zone of ``tolerance``): the part and its drawing.
@@ -84,7 +86,10 @@ def load_nominal(
 
     ``solid_mesh``: also fill a STEP part's solid with tetrahedra (``Part.solid_mesh``,
     edge :data:`qifreport.restraint.SOLID_EDGE_SHARE` of its diagonal), for the elastic
-    model of a restrained inspection.
+    model of a restrained inspection. ``solid_mesh_for_material``: fill it too when the
+    drawing states a material that names a preset (:attr:`Drawing.material
+    <qifreport.metrology.model.Drawing.material>`: the virtual fixture's load is then
+    measured with it).
     """
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance > 0):
         raise InputError(f"--tolerance must be a positive length in mm, got {tolerance}")
@@ -98,6 +103,7 @@ def load_nominal(
             mesher=mesher,
             solid=solid,
             solid_mesh=solid_mesh,
+            solid_mesh_for_material=solid_mesh_for_material,
         )
     return _mesh_nominal(path, tolerance)
 
@@ -112,10 +118,12 @@ def _step_nominal(
     mesher: str,
     solid: str | None,
     solid_mesh: bool,
+    solid_mesh_for_material: bool = False,
 ) -> tuple[Part, Drawing]:
     """:func:`load_nominal` of a STEP file: tessellate the part (its solid ``solid``), seat
     the zones of its PMI on the faces kept (:func:`seat_faces`), the B-rep's corner normals,
-    the solid's tetrahedra when ``solid_mesh``."""
+    the solid's tetrahedra when ``solid_mesh`` (or ``solid_mesh_for_material`` and the
+    drawing's material names a preset)."""
     from qifreport.step.normals import corner_normals_exact
     from qifreport.step.reader import read_step
     from qifreport.step.supplemental import face_solids
@@ -158,6 +166,9 @@ def _step_nominal(
     t0 = time.perf_counter()
     normals = corner_normals_exact(step_part.faces, V, F, face_id)
     info["timings_s"]["corner normals"] = time.perf_counter() - t0
+    material = _material_statement(pmi)
+    if solid_mesh_for_material and material is not None and material.preset is not None:
+        solid_mesh = True
     tets = _solid_tetrahedra(step_part, chosen, diagonal) if solid_mesh else None
     if tets is not None:
         info["timings_s"]["solid tetrahedra"] = tets.seconds
@@ -180,8 +191,18 @@ def _step_nominal(
         plan=specs_from_pmi(pmi, step_part.face_index()),
         source="pmi",
         restraint=_restraint_statement(pmi),
+        material=material,
     )
     return part, drawing
+
+
+def _material_statement(pmi) -> MaterialStatement | None:
+    """The part's material as the STEP file states it (:attr:`PMI.material
+    <qifreport.step.pmi.PMI.material>`) and the preset it names, if any."""
+    note = getattr(pmi, "material", None)
+    if note is None:
+        return None
+    return MaterialStatement(note.text, preset_of(note.text), note.source)
 
 
 def _restraint_statement(pmi) -> RestraintStatement:

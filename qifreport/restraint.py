@@ -21,11 +21,12 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
+from qifreport.metrology.model import MaterialStatement
 from qifreport.registration.mesh import face_normals
 from qifreport.registration.restraint.clamps import Clamp, parse_clamps
 from qifreport.registration.restraint.elastic import Material, elastic_model, material, rigid_rank
@@ -35,9 +36,11 @@ from qifreport.registration.restraint.restrained import RestraintBasis, restrain
 from .errors import InputError
 
 __all__ = [
+    "OPERATOR_MATERIAL",
     "DEFAULT_PAD_RADIUS",
     "LoadSpec",
     "build_load_model",
+    "with_drawing_material",
     "RestraintSpec",
     "boundary_normals",
     "build_restraint",
@@ -480,17 +483,46 @@ def clamp_rows(part, clamps: tuple[Clamp, ...]) -> list[dict]:
     return rows
 
 
+#: where an operator's ``--material`` came from, in the reports
+OPERATOR_MATERIAL = "operator (--material)"
+
+
 @dataclass(frozen=True)
 class LoadSpec:
     """What the virtual fixture's load needs of the part (:func:`build_load_model`): its
-    material (``--material``) and, for a mesh nominal, its wall thickness (``--thickness``)."""
+    material (``--material``, else the drawing's: :func:`with_drawing_material`) and, for a
+    mesh nominal, its wall thickness (``--thickness``); ``material_source`` says where the
+    material came from."""
 
     material: str | None = None
     thickness: float | None = None
+    material_source: str = OPERATOR_MATERIAL
 
     def key(self) -> dict:
         """JSON-able, for the cache key."""
-        return {"material": self.material, "thickness": self.thickness}
+        return {
+            "material": self.material,
+            "thickness": self.thickness,
+            "material_source": self.material_source,
+        }
+
+
+def with_drawing_material(spec: LoadSpec, stated: MaterialStatement | None) -> LoadSpec | str:
+    """``spec`` with the drawing's material when the operator states none: the preset it
+    names, or why the load cannot be established (a material that names no preset is
+    never replaced by a near one). An operator's ``--material`` overrides the drawing's."""
+    if spec.material is not None or stated is None:
+        return spec
+    if stated.preset is None:
+        return (
+            f"material '{stated.text}' has no preset ({stated.source}; --material names "
+            "one or states its values)"
+        )
+    return replace(
+        spec,
+        material=stated.preset,
+        material_source=f"drawing ({stated.source} '{stated.text}')",
+    )
 
 
 def build_load_model(
@@ -529,7 +561,7 @@ def build_load_model(
     shell = RestraintSpec((), "", thickness=spec.thickness)
     X, T, kind = _elastic_solid(V, F, shell, solid)
     try:
-        lm = load_model(elastic_model(X, T, mat), V, F, kind)
+        lm = load_model(elastic_model(X, T, mat), V, F, kind, material_source=spec.material_source)
     except ValueError as exc:
         return f"the elastic model cannot take the fixture's displacement: {exc}"
     log.info(

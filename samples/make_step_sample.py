@@ -16,7 +16,9 @@ Datums and PMI (faces by their index in ``TopExp.MapShapes(solid, TopAbs_FACE)``
 * surface profile 0.5 mm |A|B| on the outer skin of the crown (the functional face);
 * flatness 0.2 mm on each flange underside;
 * the drawing note :data:`RESTRAINT_NOTE` (AP242 semantic text): the cover is a non-rigid
-  part (ISO 10579-NR), toleranced in its restrained condition at its datum targets.
+  part (ISO 10579-NR), toleranced in its restrained condition at its datum targets;
+* the drawing note :data:`MATERIAL_NOTE`: the cover is moulded in ABS (the virtual
+  fixture's load is measured on that material's elastic model).
 
 Usage: ``python samples/make_step_sample.py [OUT.step]`` (default ``samples/panel.step``).
 """
@@ -67,6 +69,9 @@ RESTRAINT_NOTE = (
     "   AT TARGETS A1-A4, DATUM FEATURES B AND C ENGAGED AT TARGETS\n"
     "   B1, C1-C2; RESTRAINT FORCE AT MOST 20 N PER TARGET."
 )
+
+#: the drawing's material note (:mod:`qifreport.step.material` reads its MATERIAL: line)
+MATERIAL_NOTE = "2. MATERIAL: ABS"
 
 PROFILE_ALL = 1.0  # mm, |A|B|C| on all faces
 PROFILE_SKIN = 0.5  # mm, |A|B| on the outer skin
@@ -240,7 +245,7 @@ def build_sample(step_path: str | Path = DEFAULT_PATH) -> dict:
         datums,
         PART_NAME,
         timestamp=TIMESTAMP,
-        notes=[RESTRAINT_NOTE],
+        notes=[RESTRAINT_NOTE, MATERIAL_NOTE],
     )
     skin = next(t for t in tolerances if t.name == "profile_skin").faces[0]
     return {

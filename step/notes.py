@@ -28,7 +28,7 @@ import re
 from .p21 import P21Model
 from .pmi import RestraintNote
 
-__all__ = ["restraint_note"]
+__all__ = ["drawing_texts", "restraint_note"]
 
 #: a restraint statement: the ISO 10579 non-rigid indication or a restraint word
 _RESTRAINT = re.compile(r"ISO\s*10579(?:\s*-\s*NR)?|\bRESTRAIN(?:ED|T|ING|S)?\b", re.IGNORECASE)
@@ -40,7 +40,7 @@ _NOTE_START = re.compile(r"^\s*\d{1,3}\s*[.)](?:\s|$)")
 MAX_EXCERPT = 400
 
 
-def _texts(model: P21Model) -> list[tuple[int, str]]:
+def drawing_texts(model: P21Model) -> list[tuple[int, str]]:
     """The file's texts in id order, each with its entity: the lines of each
     representation of descriptive items joined, then each descriptive item of no such
     representation, then each text literal."""
@@ -104,7 +104,7 @@ def restraint_note(model: P21Model) -> RestraintNote | None:
     -------
     RestraintNote or None
     """
-    for eid, text in _texts(model):
+    for eid, text in drawing_texts(model):
         for m in _RESTRAINT.finditer(text):
             if _DENIED.search(text[: m.start()]):
                 continue

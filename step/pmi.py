@@ -15,7 +15,15 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-__all__ = ["PMI", "Datum", "DatumRef", "Dimension", "GeometricTolerance", "RestraintNote"]
+__all__ = [
+    "PMI",
+    "Datum",
+    "DatumRef",
+    "Dimension",
+    "GeometricTolerance",
+    "MaterialNote",
+    "RestraintNote",
+]
 
 
 @dataclass
@@ -265,6 +273,24 @@ class RestraintNote:
 
 
 @dataclass
+class MaterialNote:
+    """The part's material as the drawing states it
+    (:func:`qifreport.step.material.material_note`).
+
+    Attributes
+    ----------
+    text : the designation, whitespace collapsed (``'ABS, UNFILLED'``), as written.
+    source : ``'material designation'`` (an AP242 ``MATERIAL_DESIGNATION``) or
+        ``'drawing note'`` (a note's ``MATERIAL:`` line).
+    step_id : the entity carrying it.
+    """
+
+    text: str
+    source: str
+    step_id: int
+
+
+@dataclass
 class PMI:
     """All semantic PMI of one STEP file.
 
@@ -283,6 +309,7 @@ class PMI:
         File-level problems (unreadable records, missing units ...).
     restraint : the first drawing note that states a restraint (ISO 10579-NR, "part
         restrained"), None when the file carries none.
+    material : the part's material as the file states it, None when it states none.
     """
 
     schema: str
@@ -293,6 +320,7 @@ class PMI:
     datums: list[Datum] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
     restraint: RestraintNote | None = None
+    material: MaterialNote | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-serialisable dictionary (:func:`dataclasses.asdict`)."""

@@ -18,7 +18,8 @@ AP214/AP203e2 ``DATUM_REFERENCE``) structures.
   DIMENSIONAL_CHARACTERISTIC_REPRESENTATION and their tolerance from PLUS_MINUS_TOLERANCE.
 * **Datums** give their label, datum features and target names.
 * **A restraint note** (ISO 10579-NR, "part restrained"), from the file's text
-  (:mod:`.notes`).
+  (:mod:`.notes`), and **the material** (a ``MATERIAL_DESIGNATION`` or a note's
+  ``MATERIAL:`` line, :mod:`.material`).
 
 This module reads those items, each kind by its own reader: datums (:mod:`.datums`),
 geometric tolerances (:mod:`.tolerances`) and dimensions (:mod:`.dimensions`). They stand on
@@ -38,6 +39,7 @@ import time
 from pathlib import Path
 
 from .dimensions import DimensionReader
+from .material import material_note
 from .notes import restraint_note
 from .p21 import P21Model, Ref
 from .pmi import PMI, Dimension, GeometricTolerance
@@ -120,6 +122,7 @@ def pmi_from_model(model: P21Model) -> PMI:
         datums=datums,
         problems=list(dict.fromkeys(r.problems + unread)),
         restraint=restraint_note(model),
+        material=material_note(model),
     )
     log.debug(
         "semantic PMI: %d tolerances (%.3f s), %d dimensions and %d datums (%.3f s)",

@@ -6,7 +6,12 @@ import numpy as np
 import pytest
 
 from qifreport.registration.restraint.elastic import MATERIALS, elastic_model, material
-from qifreport.registration.restraint.fixture_load import FixtureLoad, fixture_load, load_model
+from qifreport.registration.restraint.fixture_load import (
+    FixtureLoad,
+    fixture_load,
+    load_model,
+    without_rigid_motion,
+)
 
 
 def _plate(L: float, W: float, t: float, nx: int, ny: int):
@@ -80,6 +85,40 @@ def test_curved_shell_bends_as_shell_theory_says():
     plate = 0.5 * mat.E * t**3 / (12 * (1 - mat.nu**2)) * kappa**2 * L * W
     assert load.energy == pytest.approx(shell * plate, rel=0.06)
     assert load.thickness_change == pytest.approx(kappa * 62 * t * np.sin(62 / R), rel=0.1)
+
+
+def test_least_energy_hold_reads_an_elastic_field(steel_plate):
+    """The plate's own static response to a smooth self-equilibrated pressure (10 N
+    cos(2 pi x / L) on its top skin, less its mean): held exactly it reads the load's work;
+    within a misfit delta rms it reads the least energy of a state that close, for a
+    field of one bending shape (1 - delta / rho)^2 of it (rho: the held normal
+    displacements' rms), reached at a misfit within 5 % below delta. (The fields of the
+    theory tests above prescribe their curvature up to the free edges, which an elastic
+    plate cannot keep without edge moments: a misfit of 0.001 mm already relaxes 5 % of
+    their energy, so they are read on the exact hold.)"""
+    X, F, lm = steel_plate
+    model = lm.model
+    top = np.flatnonzero(X[:, 2] > 0)
+    p = np.cos(2 * np.pi * X[top, 0] / 100.0)
+    load = np.zeros(model.n_dofs)
+    load[model.vertex_dofs[top, 2]] = 10.0 * (p - p.mean())
+    a, b, c = (
+        int(np.argmin(np.linalg.norm(X - q, axis=1)))
+        for q in ((-50, -10, -1), (50, -10, -1), (-50, 10, -1))
+    )
+    sol = model.solve(fixed=[(a, 0), (a, 1), (a, 2), (b, 1), (b, 2), (c, 2)], load=load)
+    work = 0.5 * float(load @ sol.dofs)
+    u = model.displacement_at(sol, X)
+    target = np.einsum("ij,ij->i", lm.W @ without_rigid_motion(X, u), lm.normals)
+    rho = float(np.sqrt(np.mean(target**2)))
+    exact = fixture_load(lm, X, u)
+    assert exact.energy == pytest.approx(work, rel=1e-3) and exact.misfit == 0.0
+    for delta in (0.002, 0.01):
+        held = fixture_load(lm, X, u, delta, "test")
+        assert 0.95 * delta <= held.misfit <= delta
+        assert held.energy == pytest.approx(work * (1 - delta / rho) ** 2, rel=0.005)
+        assert held.to_dict()["hold_misfit_allowed_mm"] == delta
+        assert f"allowed {delta:.2g} mm: test" in held.describe()
 
 
 def test_refused_with_forces_named(steel_plate):

@@ -25,7 +25,13 @@ elastic model (:mod:`qifreport.registration.restraint.elastic`):
    normal, and faces narrower than the model resolves are left free (:func:`_held_nodes`):
    on the rim of a thin wall or a hole's wall the field of a smooth prior carries no
    rotation of the wall's section, and holding them would shear or stretch the wall, a
-   load no fixture applies;
+   load no fixture applies. The fit's field is not all elastic (its prior's smoothness is
+   not the part's stiffness): held exactly, its non-elastic residue is charged to the
+   fixture, often many times the load that bends the part into shape. The held state is
+   the least-energy one whose normal displacement at the held nodes lies within a stated
+   root-mean-square misfit of the fitted field (:func:`least_energy_hold`; the caller
+   states it, as a share of the tolerance the verdict rests on, :data:`HOLD_SHARE`), the
+   exact hold its limit at zero misfit;
 3. the strain energy, the reactions, the force a fixture pushing through the largest
    correction would need to store that energy (:attr:`FixtureLoad.equivalent_force`), and
    the peak von Mises stress against the material's yield strength.
@@ -42,18 +48,21 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
+from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import barycentric
 from qifreport.registration.restraint.elastic import ElasticModel
 
 __all__ = [
     "DEFAULT_MAX_FORCE",
     "FACE_ANGLE",
+    "HOLD_SHARE",
     "PAD_RADIUS",
     "THIN_WALL_SHARE",
     "FixtureLoad",
     "LoadModel",
     "boundary_faces",
     "fixture_load",
+    "least_energy_hold",
     "load_model",
     "vertex_von_mises",
     "without_rigid_motion",
@@ -70,6 +79,16 @@ DEFAULT_MAX_FORCE = 100.0
 
 #: the contact whose force is reported as the peak: an RPS pad of 10 mm diameter, mm
 PAD_RADIUS = 5.0
+
+#: the share of the tightest tolerance zone the held shape may miss the fitted one by, root
+#: mean square over the held nodes (the gauge-maker's rule: a gauge's own error within a
+#: tenth of the tolerance it checks)
+HOLD_SHARE = 0.1
+
+#: the least-energy hold's search: the misfit reached within this share below the one
+#: allowed, in at most :data:`HOLD_SOLVES` solves (the best one within the allowance kept)
+HOLD_REACH = 0.05
+HOLD_SOLVES = 12
 
 #: a wall is thin, its two skins held together at its mid-surface, when the opposite skin
 #: lies within this share of the part's diagonal (the thin-shell rule, thickness at most a
@@ -93,6 +112,8 @@ class LoadModel:
         thickness it makes at the held nodes along their normals (zero rows off thin walls).
     description : what the model is (``"STEP solid, gmsh tetrahedra"``, a sheet's
         thickness), for the reports.
+    material_source : where the material came from (the operator, the drawing), for the
+        reports.
     """
 
     model: ElasticModel
@@ -101,6 +122,7 @@ class LoadModel:
     W: sp.csr_matrix
     thickness: sp.csr_matrix | None = None
     description: str = ""
+    material_source: str = ""
 
     @property
     def n_nominal(self) -> int:
@@ -131,7 +153,11 @@ class FixtureLoad:
         mm: the part's own form, which the fixture holds at the wall's mid-surface and no
         load can bend away (module docstring).
     yield_strength : the material's, MPa (None: not known).
-    material : the material's name.  model : the model's description.
+    material : the material's name.  material_source : where it came from (the operator's
+        ``--material``, the drawing).  model : the model's description.
+    misfit_allowed : the root-mean-square normal misfit to the fitted field the held shape
+        was allowed at the held nodes, mm (0: held exactly), and ``misfit_source`` what it
+        is a share of; ``misfit`` the one reached, mm (:func:`least_energy_hold`).
     limit : the force limit the equivalent force is checked against, N, and
         ``limit_source`` where it comes from (set by :meth:`bounded`).
     reason : why the load is not established (``established`` False).
@@ -147,8 +173,12 @@ class FixtureLoad:
     thickness_change: float | None = None
     yield_strength: float | None = None
     material: str = ""
+    material_source: str = ""
     model: str = ""
     held_nodes: int = 0
+    misfit_allowed: float | None = None
+    misfit: float | None = None
+    misfit_source: str = ""
     limit: float | None = None
     limit_source: str = ""
     reason: str = ""
@@ -203,6 +233,7 @@ class FixtureLoad:
         if not self.established:
             return f"fixture load not established: {self.reason}"
         ys = "yield not known" if self.yield_strength is None else f"yield {self.yield_strength:g}"
+        src = f" from the {self.material_source}" if self.material_source else ""
         thick = (
             ""
             if not self.thickness_change
@@ -212,7 +243,17 @@ class FixtureLoad:
             f"fixture load {self.equivalent_force:.3g} N ({self._force_status()}): "
             f"{self.energy:.3g} mJ over {self.max_correction:.3g} mm, peak contact "
             f"{self.peak_pad_force:.3g} N, stress {self.peak_stress:.3g} MPa ({ys}, "
-            f"{self.material}){thick}"
+            f"{self.material}{src}){self._hold()}{thick}"
+        )
+
+    def _hold(self) -> str:
+        """How closely the held shape follows the fitted one (empty: held exactly)."""
+        if not self.misfit_allowed:
+            return ""
+        of = f": {self.misfit_source}" if self.misfit_source else ""
+        return (
+            f"; held within {self.misfit:.2g} mm rms of the fitted shape "
+            f"(allowed {self.misfit_allowed:.2g} mm{of})"
         )
 
     def short(self) -> str:
@@ -250,8 +291,12 @@ class FixtureLoad:
             "wall_thickness_change_mm": num(self.thickness_change),
             "yield_MPa": num(self.yield_strength),
             "material": self.material or None,
+            "material_source": self.material_source or None,
             "model": self.model or None,
             "held_nodes": int(self.held_nodes),
+            "hold_misfit_allowed_mm": num(self.misfit_allowed),
+            "hold_misfit_mm": num(self.misfit),
+            "hold_misfit_source": self.misfit_source or None,
             "limit_N": num(self.limit),
             "limit_source": self.limit_source or None,
             "over_limit": self.over_force,
@@ -323,6 +368,7 @@ def load_model(
     V: np.ndarray,
     F: np.ndarray,
     description: str = "",
+    material_source: str = "",
 ) -> LoadModel:
     """Prepare ``model`` (the part's elastic model) to take displacements given at the
     vertices of the nominal mesh ``(V, F)`` (mm, outward-wound triangles).
@@ -331,7 +377,7 @@ def load_model(
     the nominal, linear in that triangle; on a thin wall, the mean of that and the field at
     the opposite skin's point behind it (:func:`_opposite_skin`). A sheet's model (its
     skins at +/- half the thickness of a mid-surface nominal) takes the mid-surface's value
-    on both skins.
+    on both skins. ``description`` and ``material_source`` are for the reports.
 
     Raises
     ------
@@ -372,6 +418,7 @@ def load_model(
         W=(own - 0.5 * (wall @ own) + 0.5 * opposite).tocsr(),
         thickness=((wall @ own) - opposite).tocsr(),
         description=description,
+        material_source=material_source,
     )
 
 
@@ -509,26 +556,50 @@ def _free_rigid_motions(lm: LoadModel) -> np.ndarray:
     return out
 
 
-def fixture_load(lm: LoadModel, V: np.ndarray, d: np.ndarray) -> FixtureLoad:
+def fixture_load(
+    lm: LoadModel, V: np.ndarray, d: np.ndarray, misfit: float = 0.0, misfit_source: str = ""
+) -> FixtureLoad:
     """The load that holds the part in the nominal ``V`` (n, 3) mm displaced by ``d``
     (n, 3) mm (module docstring).
 
-    The held nodes' normal displacements are eliminated: the free degrees of freedom
-    (:func:`_held_basis`) minimise the strain energy, a symmetric positive definite
-    system (a rigid motion left free is held by pinning one degree of freedom, which
-    changes no energy: :func:`_pinned_out`).
+    Parameters
+    ----------
+    lm : the part's load model (:func:`load_model` on this mesh).
+    V, d : the nominal's vertices and the fitted displacement, (n, 3) mm.
+    misfit : the root-mean-square misfit to the fitted normal displacements the held shape
+        may keep at the held nodes, mm: the least-energy hold within it
+        (:func:`least_energy_hold`); 0 holds them exactly (:func:`_exact_hold`).
+    misfit_source : what ``misfit`` is a share of, for the reports.
 
     Returns
     -------
     FixtureLoad
-        Energy, equivalent force, reactions and peak stress (no limit set:
-        :meth:`FixtureLoad.bounded`).
+        Energy, equivalent force, reactions, peak stress and the misfit reached (no limit
+        set: :meth:`FixtureLoad.bounded`).
     """
-    model = lm.model
     if len(V) != lm.n_nominal:
         raise ValueError("the load model was built for another mesh of the part")
     d = without_rigid_motion(V, d)
     target = np.einsum("ij,ij->i", lm.W @ d, lm.normals)  # (m,) normal displacement, mm
+    if misfit > 0:
+        x, reached = least_energy_hold(lm, target, misfit)
+    else:
+        x, reached = _exact_hold(lm, target), 0.0
+    load = _load_of(lm, x, target)
+    load.misfit_allowed, load.misfit, load.misfit_source = float(misfit), reached, misfit_source
+    if lm.thickness is not None and lm.thickness.nnz:
+        change = np.einsum("ij,ij->i", lm.thickness @ d, lm.normals)
+        load.thickness_change = float(np.abs(change).max())
+    return load
+
+
+def _exact_hold(lm: LoadModel, target: np.ndarray) -> np.ndarray:
+    """(N,) the degrees of freedom of least strain energy with the held nodes' normal
+    displacements ``target`` (m,) mm: they are eliminated, the free degrees of freedom
+    (:func:`_held_basis`) minimise the strain energy, a symmetric positive definite system
+    (a rigid motion left free is held by pinning one degree of freedom, which changes no
+    energy: :func:`_pinned_out`)."""
+    model = lm.model
     vd = model.vertex_dofs[lm.nodes]  # (m, 3)
     x0 = np.zeros(model.n_dofs)
     x0[vd] = target[:, None] * lm.normals
@@ -542,12 +613,91 @@ def fixture_load(lm: LoadModel, V: np.ndarray, d: np.ndarray) -> FixtureLoad:
         )
     except RuntimeError as e:
         raise ValueError(f"the fixture's load cannot be solved ({e})") from None
-    x = x0 + B @ lu.solve(-(B.T @ (model.K @ x0)))
-    load = _load_of(lm, x, target)
-    if lm.thickness is not None and lm.thickness.nnz:
-        change = np.einsum("ij,ij->i", lm.thickness @ d, lm.normals)
-        load.thickness_change = float(np.abs(change).max())
-    return load
+    return x0 + B @ lu.solve(-(B.T @ (model.K @ x0)))
+
+
+def least_energy_hold(lm: LoadModel, target: np.ndarray, misfit: float) -> tuple[np.ndarray, float]:
+    """(N,) the degrees of freedom of least strain energy whose normal displacements at the
+    held nodes differ from ``target`` (m,) mm by at most ``misfit`` mm root mean square,
+    and the misfit reached, mm.
+
+    The state minimises ``x' K x / 2 + w |n . x - target|^2 / 2`` for the multiplier ``w``
+    (N/mm, a spring at each held node) at which the misfit is the one allowed: the misfit
+    falls as ``w`` grows (to zero, the exact hold, as ``w`` grows without bound), so ``w``
+    is searched for (:func:`_hold_search`), each solve refactorising one pattern
+    (:class:`~qifreport.registration.linalg.SPDSolver`). A target within ``misfit`` of a
+    rigid motion is held with almost no energy; one the search does not bracket within
+    :data:`HOLD_SOLVES` solves is held exactly.
+    """
+    model = lm.model
+    Bf, normal = _hold_basis(lm)
+    Kr = (Bf.T @ model.K @ Bf).tocsc()
+    springs = sp.diags(normal.astype(np.float64)).tocsc()
+    rhs = np.zeros(Bf.shape[1])
+    rhs[normal] = target
+    solver = SPDSolver()
+
+    def solve(w: float) -> tuple[np.ndarray, float]:
+        z = solver.factor(Kr + w * springs)(w * rhs)
+        return z, float(np.sqrt(np.mean((z[normal] - target) ** 2)))
+
+    stiffness = float(np.median(Kr.diagonal()[normal]))  # a held node's own, N/mm
+    found = _hold_search(solve, misfit, 1e-3 * stiffness)
+    if found is None:
+        return _exact_hold(lm, target), 0.0
+    z, reached = found
+    return Bf @ z, reached
+
+
+def _hold_search(solve, misfit: float, w0: float) -> tuple[np.ndarray, float] | None:
+    """The solution ``solve(w) -> (z, misfit reached)`` of the largest misfit within
+    ``misfit`` found (None: none within :data:`HOLD_SOLVES` solves).
+
+    From ``w0`` N/mm, steps in log w as if the misfit fell as ``1 / w`` (its rate where the
+    fitted field is nearly held; 1 to 3 decades a step) until the allowed misfit is
+    bracketed, then by false position on the log misfit against log w, each step kept
+    within the bracket's middle 80 % (bisection's guarantee); it stops at a misfit within
+    :data:`HOLD_REACH` below the allowed one. Below ``w0`` by twelve decades, a misfit still
+    within the allowance is taken: the target is nearly a rigid motion."""
+    aim = np.log(misfit * (1.0 - 0.5 * HOLD_REACH))
+    lo = hi = None  # (log w, log misfit): one beyond the allowance, one within
+    best = None
+    lw = np.log(w0)
+    for _ in range(HOLD_SOLVES):
+        z, r = solve(float(np.exp(lw)))
+        lr = np.log(max(r, 1e-300))
+        if r <= misfit:
+            hi, best = (lw, lr), (z, r)
+            if r >= (1.0 - HOLD_REACH) * misfit or lw < np.log(w0) - 12 * np.log(10.0):
+                break
+        else:
+            lo = (lw, lr)
+        if lo is None or hi is None:
+            step = lr - aim
+            lw += np.sign(step) * float(np.clip(abs(step), np.log(10.0), 3 * np.log(10.0)))
+            continue
+        t = (aim - lo[1]) / (hi[1] - lo[1]) if hi[1] != lo[1] else 0.5
+        lw = lo[0] + float(np.clip(t, 0.1, 0.9)) * (hi[0] - lo[0])
+    return best
+
+
+def _hold_basis(lm: LoadModel) -> tuple[sp.csr_matrix, np.ndarray]:
+    """(N, N - r) every degree of freedom, a held node's as its two tangential directions
+    (:func:`_held_basis`) and its normal, the r rigid motions the normals leave free pinned
+    out (:func:`_pinned_out`), and (N - r,) bool: the columns that are the held nodes'
+    normals, in the order of ``lm.nodes``."""
+    n, m = lm.model.n_dofs, len(lm.nodes)
+    vd = lm.model.vertex_dofs[lm.nodes]  # (m, 3)
+    normals = sp.csr_matrix(
+        (lm.normals.ravel(), (vd.ravel(), np.repeat(np.arange(m), 3))), shape=(n, m)
+    )
+    B = sp.hstack([_held_basis(lm), normals]).tocsr()
+    normal = np.zeros(B.shape[1], dtype=bool)
+    normal[-m:] = True
+    keep = _pinned_out(B.T @ _free_rigid_motions(lm))
+    if normal[keep].sum() != m:  # a rigid motion free of the normals moves none of them
+        raise ValueError("the fixture's load cannot be solved (a held normal pinned)")
+    return B[:, keep], normal[keep]
 
 
 def _pinned_out(rigid: np.ndarray) -> np.ndarray:
@@ -585,6 +735,7 @@ def _load_of(lm: LoadModel, x: np.ndarray, target: np.ndarray) -> FixtureLoad:
         peak_stress=float(vertex_von_mises(model, x).max()),
         yield_strength=mat.yield_strength,
         material=mat.name,
+        material_source=lm.material_source,
         model=lm.description,
         held_nodes=len(lm.nodes),
         pad_forces=pad,
