@@ -48,7 +48,7 @@ from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import rigid_icp
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import bounding_diagonal, median_edge_length
-from qifreport.registration.normals import oriented_normals, refined_normals
+from qifreport.registration.normals import one_skin_normals, oriented_normals
 from qifreport.registration.pose.prealign import seat_scan
 from qifreport.registration.restraint.fixture_load import (
     DEFAULT_MAX_FORCE,
@@ -358,10 +358,11 @@ def seat_rigidly(
     (:class:`~qifreport.metrology.stages.context.Registered`; its covered area is measured
     when first asked for, with the seated normals).
 
-    The normals (oriented consistently per connected sheet once; the inspection only
-    chooses each sheet's side against its nominal) do not depend on where the scan lies:
-    they are measured on the points as given and turned with the scan, then refitted on one
-    skin (:func:`seated_normals`). ``scan_normals``: ``(Ns, sheets)`` of
+    The scan's ``k``-nearest normals do not depend on where the scan lies: they are
+    measured on the points as given and turned with the scan, then refitted on one skin at a
+    length of the part and signed per connected sheet along the refitted normals
+    (:func:`seated_normals`; the inspection only chooses each sheet's side against its
+    nominal). ``scan_normals``: ``(Ns, sheets)`` of
     :func:`~qifreport.registration.normals.oriented_normals` on ``P`` with
     ``params.gbcicp.scan_normal_k``, when the caller measures them already: the values, or
     pending results (anything with ``result()``); default: measured here, after the rigid
@@ -386,8 +387,8 @@ def seat_rigidly(
     t0 = time.perf_counter()
     if scan_normals is None:
         scan_normals = oriented_normals(P, params.gbcicp.scan_normal_k)
-    Ns, sheets = resolved(scan_normals)
-    Ns = seated_normals(Pm, Ns @ rigid.R.T, V, F, prepared.ops.normals, tree)
+    Ns, _ = resolved(scan_normals)
+    Ns, sheets = seated_normals(Pm, Ns @ rigid.R.T, V, F, prepared.ops.normals, tree)
     timings["scan normals"] = time.perf_counter() - t0
     return Registered(
         V=V, F=F, P=Pm, rigid=rigid, seat=seat, scan_normals=Ns, sheets=sheets, diag=diag
@@ -396,15 +397,16 @@ def seat_rigidly(
 
 def seated_normals(
     P: np.ndarray, Ns: np.ndarray, V: np.ndarray, F: np.ndarray, normals: np.ndarray, tree: cKDTree
-) -> np.ndarray:
+) -> tuple[np.ndarray, np.ndarray]:
     """The seated scan's normals (m, 3) refitted on one skin within one median edge of the
-    nominal (:func:`~qifreport.registration.normals.refined_normals`, the prior each point's
-    nearest nominal vertex's normal): a length of the part, so that a sparser scan of the
-    same surface gets the same normals. ``P`` (m, 3) mm seated, ``Ns`` its signed normals,
-    ``V`` (n, 3) mm, ``F`` the nominal, ``normals`` (n, 3) its unit vertex normals,
-    ``tree``: ``cKDTree(V)``."""
+    nominal (the prior each point's nearest nominal vertex's normal) and signed per sheet
+    along them, with the sheet labels
+    (:func:`~qifreport.registration.normals.one_skin_normals`): a length of the part, so
+    that a sparser scan of the same surface gets the same normals and the same sheets.
+    ``P`` (m, 3) mm seated, ``Ns`` its signed normals, ``V`` (n, 3) mm, ``F`` the nominal,
+    ``normals`` (n, 3) its unit vertex normals, ``tree``: ``cKDTree(V)``."""
     _, near = tree.query(P, workers=-1)
-    return refined_normals(P, Ns, normals[near], median_edge_length(V, F))
+    return one_skin_normals(P, Ns, normals[near], median_edge_length(V, F))
 
 
 def default_zones(params: InspectionParams) -> list[ToleranceZone]:

@@ -25,6 +25,7 @@ __all__ = [
     "WALL_PROBES",
     "WALL_SAMPLE",
     "orient_normals_consistent",
+    "one_skin_normals",
     "oriented_normals",
     "pca_normals",
     "refined_normals",
@@ -349,6 +350,38 @@ def orient_normals_consistent(
     known |= votes != 0
     labels = np.where(known[labels], SIDE_KNOWN, labels)
     return out, labels
+
+
+def one_skin_normals(
+    P: np.ndarray,
+    Ns: np.ndarray,
+    prior: np.ndarray,
+    radius: float,
+    k: int = 10,
+    tree: cKDTree | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Scan normals (m, 3) refitted on one skin within ``radius`` mm
+    (:func:`refined_normals`), then signed consistently per sheet along them
+    (:func:`orient_normals_consistent`), and each point's sheet label.
+
+    The sheets are propagated over the refitted normals, not over the ``k``-nearest ones
+    ``Ns`` came from: where the ``k`` nearest neighbours reach beyond a thin wall's
+    thickness (a sparser scan of the same wall) their normals mix its two skins and turn by
+    tens of degrees, few neighbour pairs then pass the same-skin test, and the scan falls
+    apart into thousands of one-point sheets, each sided by its nearest nominal vertex,
+    which on a wall deflected by more than half its thickness lies on the other skin.
+    Refitted at a length of the part, the normals, and so the sheets, do not depend on the
+    scan's density.
+
+    Parameters
+    ----------
+    P : (m, 3) scan points, mm.  Ns : (m, 3) their unit normals, signed (the refit's first
+    guess of each side).  prior : (m, 3) unit approximate normals (the nominal's, the scan
+    seated on it).  radius : the refit's neighbourhood, mm, a length of the part.
+    k : neighbours of the propagation graph.  tree : ``cKDTree(P)``.
+    """
+    tree = tree or cKDTree(P)
+    return orient_normals_consistent(P, refined_normals(P, Ns, prior, radius, tree), k, tree)
 
 
 def oriented_normals(P: np.ndarray, k: int = 12) -> tuple[np.ndarray, np.ndarray]:

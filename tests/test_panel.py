@@ -116,21 +116,20 @@ def test_half_the_scan_gives_the_same_verdict(panel_results):
     assert res.fit.scale < 0.03  # the fit's robust residual: 0.067 before, 0.020 in full
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="on the elastic free state (samples/make_samples.py panel_elastic_warp) a third of "
-    "the points (seeds 0 and 1) FAILs where the full scan, a half and 40 % pass: the refit "
-    "passes flag 1.9 % of the nominal (0.2 % in full) around the flange corner at A1, the "
-    "fit stops at 2.25 mm of displacement (3.26 in full, 1.27 mm apart at (-80, -50)), the "
-    "whole part reads 67 % in tolerance, G1 0.41 / G2 0.36; a fixture finding, open",
-)
 def test_a_third_of_the_scan_gives_the_same_verdict(panel_results):
     """Density invariance at a third of the points (seeded), the virtual fixture applied.
     The refit passes flagged as defect candidates whatever exceeded 3 robust scales of
     their own residual (the scanner's noise): chance flags on the right flange's corner,
     5.6 mm withheld around each, left the fit unsupported there and G2 read 0.288 FAIL
     (0.146 in full); the thin wall's two skins merged in the scan-area estimate (69.6 %
-    of the nominal against 81.4 % scored: an over-fit, NOT ESTABLISHED)."""
+    of the nominal against 81.4 % scored: an over-fit, NOT ESTABLISHED). On the elastic
+    free state (about 3 mm of warp on the 1.8 mm wall) the scan's sheets were propagated
+    over its 12-nearest normals, which at a third of the points reach 2.1 mm, across the
+    wall: 67 % of them turned over 18 degrees, the scan fell into 13,026 sheets (142 in
+    full), each sided by its nearest nominal vertex, on the other skin where the wall is
+    deflected; the bottom skin of both flanges lost its data (859 vertices uncovered), the
+    fit stopped at 1.9 mm of displacement (3.2 in full) and read 64.9 % in tolerance, FAIL.
+    The sheets now follow the normals refitted on one skin at a length of the part."""
     part, drawing = load_nominal(ROOT / "samples/panel.step", None)
     P = read_scan(ROOT / "samples/panel_scan.ply").points
     rng = np.random.default_rng(0)
@@ -142,3 +141,6 @@ def test_a_third_of_the_scan_gives_the_same_verdict(panel_results):
     g2 = next(c for c in res.characteristics if c.spec.key == "G2")
     assert g2.value < 0.16, g2.value  # 0.134; 0.288 before
     assert res.scan_area > 0.9 * 32214  # the full scan's; 23,017 with the skins merged
+    # the fit follows the warp as in full: 3.29 mm against 3.26 (1.93 with the sheets
+    # propagated over the 12-nearest normals)
+    assert res.fit.max_displacement > 0.9 * panel_results["panel_scan"].fit.max_displacement
