@@ -104,9 +104,31 @@ def test_organic_mesh_at_its_own_vertices_passes(tmp_path):
     assert doc["edges"]["status"] == "no rim"
 
 
-def _box(size: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
-    m = trimesh.creation.box(extents=size).subdivide().subdivide()
+def _box(size: tuple[float, float, float], levels: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    m = trimesh.creation.box(extents=size)
+    for _ in range(levels):
+        m = m.subdivide()
     return np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, dtype=np.int64)
+
+
+def test_points_past_a_crease_do_not_score_the_face_below():
+    """A block whose real +x face stands 1 mm outside the nominal's, scanned on its top face
+    only (0.6 mm spacing, the mesh's edge): the top face's points past the nominal's crease
+    are closest to the +x face, +0 to +1 mm off it, and scored its vertices up to 1.2 mm
+    below the crease at +1.0 mm (23 vertices outside the crease band) before the rule. They
+    lie on the top face's plane, so they measure neither face: the +x face is not measured,
+    the top face reads its noise."""
+    V, F = _box((20.0, 20.0, 10.0), levels=5)
+    rng = np.random.default_rng(0)
+    grid = np.arange(-10.0, 11.0 + 1e-9, 0.6), np.arange(-10.0, 10.0 + 1e-9, 0.6)
+    x, y = np.meshgrid(*grid)
+    P = np.c_[x.ravel(), y.ravel(), 5.0 + rng.normal(0.0, NOISE, x.size)]
+    dev, _ = vertex_deviation(V, F, P, vertex_normals(V, F), None)
+    away = ~crease_band(V, F, 1.5 * median_edge_length(V, F), 45.0)
+    side = away & np.isclose(V[:, 0], 10.0)
+    top = away & np.isclose(V[:, 2], 5.0)
+    assert side.sum() > 500 and np.nanmax(np.abs(dev[side]), initial=0.0) <= 4 * NOISE
+    assert np.isfinite(dev[top]).all() and np.abs(dev[top]).max() <= 4 * NOISE
 
 
 def test_part_class_from_the_geometry():

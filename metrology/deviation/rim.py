@@ -20,10 +20,12 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from qifreport.metrology.deviation.closest import closest_points
+from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.mesh import edge_uses, face_normals, median_edge_length, vertex_normals
 
 __all__ = [
     "RimFrames",
+    "beyond_crease",
     "crease_frames",
     "rim_frames",
     "split_at_creases",
@@ -159,6 +161,18 @@ def rim_frames(
     )
 
 
+def _manifold_edges(F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The manifold edges of ``F`` (f, 3): (k, 2) their vertices and (k, 2) their two
+    triangles, in the order of :func:`~qifreport.registration.mesh.edge_uses`'s edges."""
+    E, count, of = edge_uses(F)
+    slot_edge = of.ravel()
+    slot_face = np.repeat(np.arange(len(F)), 3)
+    manifold = count[slot_edge] == 2
+    order = np.argsort(slot_edge[manifold], kind="stable")
+    faces = slot_face[manifold][order].reshape(-1, 2)  # the two triangles of each edge
+    return E[count == 2].astype(np.int64), faces
+
+
 def split_at_creases(
     V: np.ndarray, F: np.ndarray, crease_angle: float = 60.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -180,13 +194,8 @@ def split_at_creases(
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     nf = len(F)
-    _, count, of = edge_uses(F)
     fn = face_normals(V, F)
-    slot_edge = of.ravel()
-    slot_face = np.repeat(np.arange(nf), 3)
-    manifold = count[slot_edge] == 2
-    order = np.argsort(slot_edge[manifold], kind="stable")
-    faces = slot_face[manifold][order].reshape(-1, 2)  # the two triangles of each edge
+    faces = _manifold_edges(F)[1]
     smooth = np.einsum("ij,ij->i", fn[faces[:, 0]], fn[faces[:, 1]]) >= np.cos(
         np.deg2rad(crease_angle)
     )
@@ -252,3 +261,84 @@ def crease_frames(
         patch=pv[keep],
         mode="crease",
     )
+
+
+#: :func:`beyond_crease` tests a point against a crease within this many times its
+#: distance to its own patch (the points nearer the neighbour's extension lie within
+#: ``1 / sin(angle / 2)`` of it: 2.6 at a 45 degree crease)
+_CREASE_REACH = 3.0
+
+
+def beyond_crease(
+    V: np.ndarray,
+    F: np.ndarray,
+    patch: np.ndarray,
+    P: np.ndarray,
+    face: np.ndarray,
+    dist: np.ndarray,
+) -> np.ndarray:
+    """The points (m,) bool that lie nearer the extension of a neighbouring patch across a
+    crease than their own patch: not measurements of their own patch's surface.
+
+    A point's closest triangle is not always on the surface it was measured on: where the
+    nominal's crease lies inside the part's real one (a face the nominal sits too far in),
+    the neighbouring face's points beyond the crease are closest to the face below it and
+    read as material standing proud of it by their distance past the crease. Such a point
+    lies on (near) the neighbouring patch's plane extended past the crease. A point counts
+    for its own patch only when its distance to it, ``|dist|``, is at most its distance to
+    the plane of the other patch's triangle at every crease edge of its patch within
+    ``3 |dist|`` (a point on its own surface, ``dist`` ~ noise, passes everywhere but
+    within the noise of the crease line). The comparison is the bisector of the two faces:
+    beyond it the point is as much the neighbour's as its own.
+
+    Parameters
+    ----------
+    V : (n, 3) mm.  F : (f, 3).  patch : (f,) smooth patch of each triangle
+        (:func:`split_at_creases`): its boundaries are the creases.
+    P : (m, 3) scan points, mm.  face : (m,) their closest triangles (-1: none).
+    dist : (m,) their signed distances to them, mm (NaN: not used).
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    patch = np.asarray(patch, dtype=np.int64)
+    face = np.asarray(face, dtype=np.int64)
+    r = np.abs(np.asarray(dist, dtype=np.float64))
+    out = np.zeros(len(face), dtype=bool)
+    E, pair = _manifold_edges(F)
+    crease = patch[pair[:, 0]] != patch[pair[:, 1]]
+    E, pair = E[crease], pair[crease]
+    pts = np.flatnonzero((face >= 0) & np.isfinite(r))
+    if len(E) == 0 or len(pts) == 0:
+        return out
+    # samples along the crease edges, ``step`` apart at most: the candidate edges near a point
+    A, B = V[E[:, 0]], V[E[:, 1]]
+    step = 0.5 * median_edge_length(V, F)
+    per = np.ceil(np.linalg.norm(B - A, axis=1) / step).astype(np.int64) + 1
+    edge = np.repeat(np.arange(len(E)), per)
+    t = (np.arange(len(edge)) - np.repeat(np.cumsum(per) - per, per)) / np.maximum(per[edge] - 1, 1)
+    tree = cKDTree(A[edge] + t[:, None] * (B - A)[edge])
+    near, _ = tree.query(P[pts], k=1)
+    pts = pts[near <= _CREASE_REACH * r[pts] + step]
+    if len(pts) == 0:
+        return out
+    k = min(8, len(edge))
+    _, j = tree.query(P[pts], k=k)
+    pid = np.repeat(pts, k)
+    cand = unique_sorted(pid * len(E) + edge[j.reshape(-1)])
+    pid, e = cand // len(E), cand % len(E)
+    # the crease edges of the point's own patch within reach, and the other side's triangle
+    own = patch[face[pid]]
+    first = patch[pair[e, 0]] == own
+    other = np.where(first, pair[e, 1], pair[e, 0])
+    X = P[pid] - A[e]
+    AB = B[e] - A[e]
+    s = np.clip(
+        np.einsum("ij,ij->i", X, AB) / np.maximum(np.einsum("ij,ij->i", AB, AB), 1e-300), 0, 1
+    )
+    reach = np.linalg.norm(X - s[:, None] * AB, axis=1) <= _CREASE_REACH * r[pid]
+    fn = face_normals(V, F)[other]
+    solid = np.einsum("ij,ij->i", fn, fn) > 0.5  # not a degenerate triangle
+    mine = (first | (patch[pair[e, 1]] == own)) & reach & solid
+    nearer = np.abs(np.einsum("ij,ij->i", X, fn)) < r[pid]
+    out[pid[mine & nearer]] = True
+    return out

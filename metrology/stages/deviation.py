@@ -11,7 +11,7 @@ from qifreport.metrology.acceptance.coverage import unseen_neighbour_edges
 from qifreport.metrology.deviation.closest import beyond_rim, closest_points
 from qifreport.metrology.deviation.hygiene import MeshHygiene
 from qifreport.metrology.deviation.residual_fit import residual_referenced
-from qifreport.metrology.deviation.rim import split_at_creases
+from qifreport.metrology.deviation.rim import beyond_crease, split_at_creases
 from qifreport.metrology.deviation.surface import point_faces, surface_distance
 from qifreport.metrology.prepared import PreparedPart
 from qifreport.registration.deformable.result import orient_scan_normals
@@ -173,15 +173,20 @@ def vertex_deviation(
     (:func:`~qifreport.metrology.deviation.rim.split_at_creases`), a point counts for a vertex
     only where its outward normal (``scan_normals`` (m, 3), oriented; default its closest
     triangle's) lies within 60 degrees of the vertex's: not a thin wall's far skin, nor the
-    side of material the nominal does not have (a rib, reported as added material), and the
-    points beyond the open rim are left out. A plane fitted to the points would read a
-    curved surface's sag inside its ball as deviation (``r^2 / 4R``: 0.025 mm for a 2 mm
-    ball on a 40 mm radius); the points' own distances do not.
+    side of material the nominal does not have (a rib, reported as added material); the
+    points beyond the open rim are left out, and so are the points nearer the extension of
+    a neighbouring patch across a crease than their own patch
+    (:func:`~qifreport.metrology.deviation.rim.beyond_crease`: a neighbouring face's points
+    past a crease the nominal sits inside of, read against the face below them). A plane
+    fitted to the points would read a curved surface's sag inside its ball as deviation
+    (``r^2 / 4R``: 0.025 mm for a 2 mm ball on a 40 mm radius); the points' own distances
+    do not.
     """
     C, cface, pdev = closest_points(V, F, P) if closest is None else closest
     if face_id is None:  # a mesh nominal: the triangles are the surface
         labels = split_at_creases(V, F, crease_angle)[3]
-        residual = np.where(beyond_rim(V, F, C, cface), np.nan, pdev)
+        off = beyond_rim(V, F, C, cface) | beyond_crease(V, F, labels, P, cface, pdev)
+        residual = np.where(off, np.nan, pdev)
         return residual_referenced(
             V,
             F,
