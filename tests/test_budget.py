@@ -71,7 +71,7 @@ def test_a_hole_on_its_lower_limit_is_indeterminate_not_fail(ftc06):
     assert res.status == "INDETERMINATE", (res.status, res.reason)
     # it says why: the limit it lies within U of, and the budget's largest term
     assert res.reason.startswith(
-        f"{res.value:.4g} within its uncertainty U 0.017 of the limit 6.1468"
+        f"{res.value:.7g} within its uncertainty U 0.017 of the limit 6.1468"
     )
     assert "no reading could" not in res.reason
     assert "its largest term: instrument" in res.reason and "PS 0.015 mm" in res.reason
@@ -235,6 +235,8 @@ def test_undecided_reason_says_when_no_reading_could_prove_conformance():
 
     wide = undecided_reason(0.0013, 0.085, None, 0.05)
     assert wide.startswith("0.0013 within its uncertainty U 0.085 of the limit 0.05")
+    # the digits that tell a value from the limit it lies on
+    assert undecided_reason(35.0000194, 0.0173, 34.8, 35.0).startswith("35.00002 within")
     assert "no reading could prove conformance" in wide and wide.endswith("(ISO 14253-1)")
     size = undecided_reason(34.99995, 0.0173, 35.0, 35.2)
     assert "of the limit 35:" in size and "no reading could" not in size

@@ -349,7 +349,7 @@ def undecided_reason(v: float, U: float, lo: float | None, hi: float | None) -> 
     bounds it, ``2 U`` of a two-sided zone)."""
     near = [x for x in (lo, hi) if x is not None and abs(v - x) <= U]
     limit = min(near, key=lambda x: abs(v - x)) if near else (hi if lo is None else lo)
-    why = f"{v:.4g} within its uncertainty U {U:.2g} of the limit {limit:g}"
+    why = f"{v:.7g} within its uncertainty U {U:.2g} of the limit {limit:g}"
     if lo is not None and hi is not None:
         unprovable = 2.0 * U >= hi - lo
     else:
