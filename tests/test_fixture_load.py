@@ -191,8 +191,11 @@ def test_ftc08_restraint_beyond_the_limit_is_refused_with_its_forces(ftc08_load)
     kappa = 2 * 0.2 / 156.0**2
 
     def stage(d: np.ndarray, limit: float | None):
+        # a zone so tight that the hold is the exact one (within 0.1 um rms): its energy is
+        # then bounded by the block's plate energy (the least-energy hold has its own tests)
+        zone = SimpleNamespace(key="T", width=0.001, free_state=False)
         run = SimpleNamespace(
-            ctx=SimpleNamespace(fixture_load=lm),
+            ctx=SimpleNamespace(fixture_load=lm, bands=SimpleNamespace(zones=[zone])),
             params=SimpleNamespace(max_restraint_force=limit),
             reg=SimpleNamespace(V=V),
             timings={},
