@@ -123,7 +123,7 @@ def test_the_demo_panel_is_held_with_about_the_load_that_warped_it(tmp_path):
     exe = Path(sys.executable).with_name("qifreport")
     args = [ROOT / "samples/panel.step", ROOT / "samples/panel_scan.ply", "--out", out]
     r = subprocess.run(
-        [str(exe), *map(str, args), "--no-cache", "--json", "--no-pdf", "--no-qif"],
+        [str(exe), *map(str, args), "--json", "--no-pdf", "--no-qif"],
         capture_output=True,
         text=True,
     )

@@ -1,6 +1,8 @@
-"""A perfect scan of every NIST AP242 part, sampled from its own B-rep (issue 20, item 6):
-CTC 01-04 here, CTC 05, FTC 06 and FTC 08 in ``test_nist_bump_and_pose.py`` (two modules:
-they run on both workers).
+"""A perfect scan of the NIST AP242 parts, sampled from its own B-rep: CTC 01 and 03 here,
+CTC 05 and FTC 06 in ``test_nist_bump_and_pose.py`` (two modules: they run on both workers);
+CTC 02, CTC 04 and FTC 08 with ``QIFREPORT_ALL_NIST_SCANS=1`` (:data:`tests.nist_scans.OPT_IN`:
+their zones are as sparse as CTC 01's at this density, and FTC 08's exact scan runs in
+``test_nist_exact_scan.py``; ``python bench/nist_exact_scan.py`` sweeps every part).
 
 The scan is independent of the inspection's tessellation: points are evaluated on the exact
 B-rep surfaces (:func:`qifreport.simulate.brep_scan.perfect_scan`) from four views aimed at
