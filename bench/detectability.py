@@ -21,8 +21,8 @@ length):
   background (0.23 mm against the paper's 0.234-0.260 mm) in the mid-grid cell.
 * ``narrow`` single pass at the product default band limit (one coverage radius, ~2.3 mm
   here): the paper's ``l = 0.8 mm`` column, the first pass of the multi-pass scheme.
-* ``multi``  the product default: band-limited multi-pass scheme (``--passes``, default 3;
-  first pass at the default band limit, refits at half of it): the paper's two-pass
+* ``multi``  the product default: band-limited multi-pass scheme (``--passes``, a cap,
+  default 12; first pass at the default band limit, refits at half of it): the paper's two-pass
   ``0.8 -> 0.5 mm`` column.
 * ``matched`` (optional) single pass at ``--matched`` (default 7 mm), a band limit chosen to
   come near the background of the paper's 0.8 mm column (0.051 mm against 0.040-0.048 mm).
