@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import multiprocessing
 import sys
 import tempfile
 import time
@@ -522,7 +523,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.only:
         only = {int(x) for x in args.only.split(",")}
         plan = [c for c in plan if c[1] in only]
-    with ProcessPoolExecutor(max_workers=args.workers) as pool:
+    # spawned, not forked: the parent has built its truth models with threaded libraries
+    # (gmsh, BLAS), and a child forked from it blocks on a lock one of their threads held
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=args.workers, mp_context=spawn) as pool:
         pending = []
         for p, seed, kind in plan:
             s = setups[p]
