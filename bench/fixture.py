@@ -54,6 +54,7 @@ import multiprocessing
 import sys
 import tempfile
 import time
+import traceback
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -364,8 +365,10 @@ def _options(part_name, nominal_opts, clamps_csv, method, cache):
         return InspectOptions(
             cache_dir=cache, fixture="restrained", clamps=clamps_csv, **nominal_opts
         )
-    plain = {k: v for k, v in nominal_opts.items() if k not in ("material", "thickness")}
-    return InspectOptions(cache_dir=cache, fixture="free", rigid_only=(method == "rigid"), **plain)
+    # the free fixture takes the part's elastic model too (its load and compliant modes)
+    return InspectOptions(
+        cache_dir=cache, fixture="free", rigid_only=(method == "rigid"), **nominal_opts
+    )
 
 
 def _state(key, nominal, opts):
@@ -407,6 +410,7 @@ def run_product(task: dict) -> dict:
     try:
         res = inspect_state(P, state, job)
     except Exception as e:  # noqa: BLE001 -- a refusal is a result of the benchmark
+        traceback.print_exc()
         return {"verdict": "ERROR", "error": f"{type(e).__name__}: {e}", "seconds": 0.0}
     out = {
         "verdict": res.verdict,
@@ -420,6 +424,9 @@ def run_product(task: dict) -> dict:
     }
     if res.restraint is not None:
         out["force"] = np.asarray(res.restraint.force, dtype=float)
+    load = res.fixture_load
+    if load is not None and load.established:
+        out["beyond_modes_mm"] = load.max_departure
     return out
 
 
@@ -578,6 +585,7 @@ def main(argv: list[str] | None = None) -> int:
                 row["verdict"] = r["verdict"]
                 row["decided_by"] = r.get("decided_by", r.get("error", ""))
                 row["seconds"] = r["seconds"]
+                row["beyond_modes_mm"] = r.get("beyond_modes_mm", math.nan)
                 if r["verdict"] != "ERROR":
                     d = r["deviation"].astype(float)
                     ok = scored & np.isfinite(d)

@@ -47,7 +47,7 @@ from qifreport.registration.deformable.methods import METHODS, deform, method_sp
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import rigid_icp
 from qifreport.registration.linalg import SPDSolver
-from qifreport.registration.mesh import bounding_diagonal, median_edge_length
+from qifreport.registration.mesh import bounding_diagonal, median_edge_length, vertex_normals
 from qifreport.registration.normals import one_skin_normals, oriented_normals
 from qifreport.registration.pose.prealign import seat_scan
 from qifreport.registration.restraint.fixture_load import (
@@ -93,6 +93,7 @@ __all__ = [
     "hold_misfit",
     "inspect",
     "inspection_context",
+    "judged_in_modes",
     "judge_as_held",
     "lay_zone_bands",
     "seat_rigidly",
@@ -452,23 +453,27 @@ def fixture_and_judge(
 ) -> InspectionResult:
     """The virtual fixture (in ``basis``) and the judgement of the part as it holds it
     (``run.judge``), after the free state's judgement ``free`` that did not stand (None:
-    ``always_fixture``, not judged)."""
+    ``always_fixture``, not judged), with the load a physical fixture would need
+    (:func:`with_fixture_load`)."""
     fit = fixture_step(run, basis, run.progress)
     res = run.judge(
         run.reg, fit, run.params, run.timings, run.ctx, free_deviation=free_deviation(free)
     )
-    return with_fixture_load(with_free_state(res, free), run)
+    return with_fixture_load(with_free_state(res, free), run, free)
 
 
-def with_fixture_load(res: InspectionResult, run: JudgeRun) -> InspectionResult:
+def with_fixture_load(
+    res: InspectionResult, run: JudgeRun, free: InspectionResult | None = None
+) -> InspectionResult:
     """The fixtured judgement ``res`` with the load a physical fixture would need to hold
     the part in its virtual fixture's shape
     (:func:`~qifreport.registration.restraint.fixture_load.fixture_load` on the part's
     elastic model ``run.ctx.fixture_load``), checked against ``params.max_restraint_force``
-    (default :data:`~qifreport.registration.restraint.fixture_load.DEFAULT_MAX_FORCE`) and
-    the material's yield strength: beyond either, a PASS is not established
-    (:meth:`InspectionResult.trust_warnings`). Without a model the load is reported as not
-    established and the verdict stands (no model, no force to bound)."""
+    (default :data:`~qifreport.registration.restraint.fixture_load.DEFAULT_MAX_FORCE`), the
+    material's yield strength and the part's compliant modes (:func:`judged_in_modes`):
+    beyond any, a PASS is not established (:meth:`InspectionResult.trust_warnings`).
+    Without a model the load is reported as not established and the verdict stands (no
+    model, no force to bound). ``free``: the free state's judgement, when it was made."""
     if res.fit is None:
         return res
     t0 = time.perf_counter()
@@ -483,10 +488,61 @@ def with_fixture_load(res: InspectionResult, run: JudgeRun) -> InspectionResult:
     if limit is None:
         limit, source = DEFAULT_MAX_FORCE, "default: none stated"
     misfit, of = hold_misfit(run.ctx.bands.zones)
-    load = fixture_load(lm, run.reg.V, res.fit.V - run.reg.V, misfit, of)
+    try:
+        load = fixture_load(lm, run.reg.V, res.fit.V - run.reg.V, misfit, of)
+    except ValueError as e:  # a model the fitted field cannot be solved on
+        res.fixture_load = FixtureLoad.not_established(str(e))
+        return res
     res.fixture_load = load.bounded(limit, source)
     run.timings["fixture load"] = time.perf_counter() - t0
+    if res.passed and len(load.departure):
+        t0 = time.perf_counter()
+        load.beyond_modes = judged_in_modes(res, load, run, free)
+        run.timings["compliant modes"] = time.perf_counter() - t0
     return res
+
+
+def judged_in_modes(
+    res: InspectionResult, load: FixtureLoad, run: JudgeRun, free: InspectionResult | None = None
+) -> str:
+    """Why the passing fixtured judgement ``res`` rests on a correction outside the part's
+    compliant modes (empty: it does not).
+
+    The virtual fixture's smooth field follows whatever its prior allows: the part's
+    flexure, and also a dent or a bump wide enough for its bending basis. A fixture removes
+    the flexure, which lies in the part's lowest elastic modes; a plastic dent lies outside
+    them (the paper's Section 11). The part is judged again in the modal shape, the fitted
+    nominal moved along its normals by the remainder outside those modes
+    (:attr:`FixtureLoad.departure`); when that judgement does not pass, which of the two
+    shapes the part is held in decides the verdict, and the data do not say: the PASS is
+    not established, the failing reading named. A remainder within
+    :data:`~qifreport.registration.restraint.fixture_load.HOLD_SHARE` of the tightest zone
+    held cannot move a reading by more than a gauge's error: not judged again. ``free``:
+    the free state's judgement, whose deviation the free-state zones take."""
+    fit = res.fit
+    normals = vertex_normals(fit.V, run.reg.F)
+    along = np.einsum("ij,ij->i", load.departure, normals)
+    largest = float(np.abs(along).max())
+    misfit, _ = hold_misfit(run.ctx.bands.zones)
+    if largest <= misfit:
+        return ""
+    modal = run.judge(
+        run.reg,
+        replace(fit, V=fit.V + along[:, None] * normals),
+        run.params,
+        {},
+        run.ctx,
+        free_deviation=free_deviation(free),
+    )
+    if modal.passed:
+        return ""
+    failed = modal.decided_by()
+    return (
+        f"the virtual fixture's correction departs by up to {largest:.3g} mm from the part's "
+        f"{load.modes} compliant modes (its lowest elastic modes): held in them, it fails "
+        f"({failed[0] if failed else 'a criterion'}); a dent or bump the fixture absorbed, "
+        "or a restraint not stated: state the restraint (--clamps) to decide"
+    )
 
 
 def hold_misfit(zones: list[ToleranceZone]) -> tuple[float, str]:

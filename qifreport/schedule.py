@@ -272,8 +272,8 @@ def _free_state_beside_fixture(run: JudgeRun, executor) -> InspectionResult:
         # the free-state zones take its deviation; else the fixtured judgement goes first
         free = _take(pending, timings) if free_state_zones(ctx) else None
         res = run.judge(reg, fit, params, timings, ctx, free_deviation=free_deviation(free))
-        res = with_free_state(res, _take(pending, timings) if free is None else free)
-        return with_fixture_load(res, run)
+        free = _take(pending, timings) if free is None else free
+        return with_fixture_load(with_free_state(res, free), run, free)
     except _FreeStateStood:  # its fixture_decision is set (free_state_stands)
         free = pending.result()
         # taken when it was done already (between two fixture steps), or waited for

@@ -28,6 +28,7 @@ from .ordering import nested_dissection
 __all__ = [
     "have_cholmod",
     "default_backend",
+    "NotPositiveDefinite",
     "SPDSolver",
 ]
 
@@ -65,6 +66,10 @@ def default_backend() -> str:
             raise ValueError(f"{BACKEND_ENV}={chosen!r}: expected 'cholmod' or 'superlu'")
         return chosen
     return "cholmod" if have_cholmod() else "superlu"
+
+
+class NotPositiveDefinite(ValueError):
+    """A factorisation of :class:`SPDSolver` broke down."""
 
 
 class SPDSolver:
@@ -139,8 +144,19 @@ class SPDSolver:
 
     def factor(self, A: sp.spmatrix) -> Callable[[np.ndarray], np.ndarray]:
         """Factorise ``A`` (symmetric positive definite) and return ``solve(b)`` for (n,) or
-        (n, k) ``b``."""
-        A = sp.csc_matrix(A)
+        (n, k) ``b``.
+
+        Raises
+        ------
+        NotPositiveDefinite
+            The factorisation breaks down: ``A`` is not positive definite in floating
+            point (singular, or too ill-conditioned)."""
+        try:
+            return self._factor(sp.csc_matrix(A))
+        except (CholmodError, RuntimeError) as e:
+            raise NotPositiveDefinite(f"the matrix is not positive definite ({e})") from None
+
+    def _factor(self, A: sp.csc_matrix) -> Callable[[np.ndarray], np.ndarray]:
         if self.backend == "cholmod":
             if self._perm is not None:
                 return self._factor_cholmod_ordered(A)

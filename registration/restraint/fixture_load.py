@@ -34,7 +34,16 @@ elastic model (:mod:`qifreport.registration.restraint.elastic`):
    exact hold its limit at zero misfit;
 3. the strain energy, the reactions, the force a fixture pushing through the largest
    correction would need to store that energy (:attr:`FixtureLoad.equivalent_force`), and
-   the peak von Mises stress against the material's yield strength.
+   the peak von Mises stress against the material's yield strength;
+4. what of the fitted field lies outside the part's compliant modes
+   (:attr:`FixtureLoad.departure`): the fitted normal displacement at the held nodes is
+   fitted by the rigid motions and the part's lowest elastic modes within a decade of
+   frequency of its softest (:data:`MODE_DECADE`: a stiffness within a hundredfold), and
+   the remainder carried to the nominal's vertices. A fixture removes a compliant part's
+   flexure, which lies in those modes; a dent or bump does not, and a smooth field that
+   follows one puts it there (the paper's Section 11: "confining the admissible
+   deformation to the compliant, physically realizable modes of the part"). The caller
+   judges the part in that modal shape too (:mod:`qifreport.metrology.inspection`).
 
 Units: mm, N, MPa, mJ (N mm).
 """
@@ -48,20 +57,22 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.spatial import cKDTree
 
-from qifreport.registration.linalg import SPDSolver
+from qifreport.registration.linalg import NotPositiveDefinite, SPDSolver
 from qifreport.registration.mesh import barycentric
-from qifreport.registration.restraint.elastic import ElasticModel
+from qifreport.registration.restraint.elastic import ElasticModel, elastic_modes
 
 __all__ = [
     "DEFAULT_MAX_FORCE",
     "FACE_ANGLE",
     "HOLD_SHARE",
+    "MODE_DECADE",
     "PAD_RADIUS",
     "THIN_WALL_SHARE",
     "FixtureLoad",
     "LoadModel",
     "boundary_faces",
     "fixture_load",
+    "beyond_modes",
     "least_energy_hold",
     "load_model",
     "vertex_von_mises",
@@ -90,6 +101,13 @@ HOLD_SHARE = 0.1
 HOLD_REACH = 0.05
 HOLD_SOLVES = 12
 
+#: the part's compliant modes: its lowest elastic modes whose frequency is within this
+#: factor of the softest one's (a modal stiffness within its square, a hundredfold: what
+#: the force that bends the softest mode by a millimetre bends them by at least a
+#: hundredth of one), at most :data:`MODES_COMPUTED` of them
+MODE_DECADE = 10.0
+MODES_COMPUTED = 24
+
 #: a wall is thin, its two skins held together at its mid-surface, when the opposite skin
 #: lies within this share of the part's diagonal (the thin-shell rule, thickness at most a
 #: twentieth of the span)
@@ -110,6 +128,11 @@ class LoadModel:
         (on a thin wall, the mean of the node's skin and the opposite skin).
     thickness : (m, n) sparse: a field at the nominal's vertices to the change of the wall's
         thickness it makes at the held nodes along their normals (zero rows off thin walls).
+    back : (n, m) sparse: a field at the held nodes to its value at the nominal's vertices,
+        linear on the model's surface triangle closest to each vertex (over its held
+        corners; a zero row where none is held).
+    modes : (m, k) the normal displacement at the held nodes of each of the part's
+        compliant modes (:data:`MODE_DECADE`), unit columns; None: not computed.
     description : what the model is (``"STEP solid, gmsh tetrahedra"``, a sheet's
         thickness), for the reports.
     material_source : where the material came from (the operator, the drawing), for the
@@ -121,6 +144,8 @@ class LoadModel:
     normals: np.ndarray
     W: sp.csr_matrix
     thickness: sp.csr_matrix | None = None
+    back: sp.csr_matrix | None = None
+    modes: np.ndarray | None = None
     description: str = ""
     material_source: str = ""
 
@@ -161,6 +186,11 @@ class FixtureLoad:
     limit : the force limit the equivalent force is checked against, N, and
         ``limit_source`` where it comes from (set by :meth:`bounded`).
     reason : why the load is not established (``established`` False).
+    departure : (n, 3) mm at the nominal's vertices: the fitted shape's remainder outside
+        the part's compliant modes, the modal shape less the fitted one (empty: not
+        computed); ``modes`` how many compliant modes.
+    beyond_modes : why the verdict rests on that remainder (set by the caller, who judged
+        the part in the modal shape too): a refusal.
     """
 
     established: bool
@@ -183,6 +213,17 @@ class FixtureLoad:
     limit_source: str = ""
     reason: str = ""
     pad_forces: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
+    departure: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
+    modes: int = 0
+    beyond_modes: str = ""
+
+    @property
+    def max_departure(self) -> float | None:
+        """The largest distance, mm, between the modal shape and the fitted one at a
+        nominal vertex (None: not computed)."""
+        if not self.established or not len(self.departure):
+            return None
+        return float(np.linalg.norm(self.departure, axis=1).max())
 
     @classmethod
     def not_established(cls, reason: str) -> FixtureLoad:
@@ -219,6 +260,8 @@ class FixtureLoad:
                 f"peak {self.peak_pad_force:.3g} N on one 10 mm contact), above the "
                 f"{self.limit:g} N limit ({self.limit_source})"
             )
+        if self.beyond_modes:
+            out.append(self.beyond_modes)
         if self.beyond_yield:
             out.append(
                 f"the virtual fixture's correction is not elastic: it stresses the "
@@ -297,6 +340,9 @@ class FixtureLoad:
             "hold_misfit_allowed_mm": num(self.misfit_allowed),
             "hold_misfit_mm": num(self.misfit),
             "hold_misfit_source": self.misfit_source or None,
+            "compliant_modes": int(self.modes),
+            "beyond_modes_max_mm": num(self.max_departure),
+            "beyond_modes": self.beyond_modes or None,
             "limit_N": num(self.limit),
             "limit_source": self.limit_source or None,
             "over_limit": self.over_force,
@@ -402,6 +448,8 @@ def load_model(
     reach = THIN_WALL_SHARE * float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
     opposite = _opposite_skin(model, nodes, normals, V, F, reach)
     wall = sp.diags(np.asarray(opposite.sum(axis=1)).ravel())  # 1 on a thin wall's rows
+    back = _back_to_nominal(model.X, model.T, nodes, V)
+    modes = _compliant_modes(model, nodes, normals)
     return LoadModel(
         model=ElasticModel(
             X=model.X,
@@ -417,9 +465,60 @@ def load_model(
         normals=normals,
         W=(own - 0.5 * (wall @ own) + 0.5 * opposite).tocsr(),
         thickness=((wall @ own) - opposite).tocsr(),
+        back=back,
+        modes=modes,
         description=description,
         material_source=material_source,
     )
+
+
+def _back_to_nominal(
+    X: np.ndarray, T: np.ndarray, nodes: np.ndarray, V: np.ndarray
+) -> sp.csr_matrix:
+    """(n, m) sparse: a field at the held ``nodes`` (m,) of the model ``(X, T)`` to its value
+    at the nominal's vertices ``V`` (n, 3) mm: linear on the model's boundary triangle
+    closest to each vertex, over its held corners (renormalised; a zero row where none is)."""
+    import igl
+
+    f, _ = boundary_faces(X, T)
+    _, tri, C = igl.point_mesh_squared_distance(V, X, f)
+    tri = np.asarray(tri, dtype=np.int64)
+    w = np.clip(barycentric(X, f, tri, C), 0.0, None)
+    col = np.full(len(X), -1, dtype=np.int64)
+    col[nodes] = np.arange(len(nodes))
+    corner = col[f[tri]]  # (n, 3)
+    w = np.where(corner >= 0, w, 0.0)
+    total = w.sum(axis=1, keepdims=True)
+    w = np.divide(w, total, out=np.zeros_like(w), where=total > 1e-9)
+    keep = (corner >= 0) & (w > 0)
+    rows = np.repeat(np.arange(len(V)), 3).reshape(-1, 3)
+    return sp.csr_matrix((w[keep], (rows[keep], corner[keep])), shape=(len(V), len(nodes)))
+
+
+def _compliant_modes(model: ElasticModel, nodes: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(m, k) the normal displacement at the held ``nodes`` of the part's compliant modes
+    (:data:`MODE_DECADE`), each column of unit norm."""
+    omega2, phi = elastic_modes(model, MODES_COMPUTED)
+    keep = omega2 <= MODE_DECADE**2 * max(float(omega2[0]), 1e-300)
+    u = phi[:, keep][model.vertex_dofs[nodes]]  # (m, 3, k)
+    A = np.einsum("mjk,mj->mk", u, normals)
+    return A / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
+
+
+def beyond_modes(lm: LoadModel, target: np.ndarray) -> np.ndarray:
+    """(n, 3) mm at the nominal's vertices: the held nodes' normal displacements ``target``
+    (m,) mm fitted by least squares with the rigid motions and the part's compliant modes,
+    the fit less ``target`` (what a fixture that bends only those modes leaves of the
+    fitted shape, with the opposite sign), carried back along the nodes' normals."""
+    X = lm.model.X[lm.nodes]
+    c = X - X.mean(axis=0)
+    scale = max(float(np.abs(c).max()), 1e-12)
+    rigid = np.hstack([lm.normals, np.cross(c / scale, lm.normals)])
+    rigid /= np.maximum(np.linalg.norm(rigid, axis=0), 1e-300)
+    A = rigid if lm.modes is None else np.hstack([rigid, lm.modes])
+    coef, *_ = np.linalg.lstsq(A, target, rcond=1e-10)
+    rest = A @ coef - target
+    return np.asarray(lm.back @ (rest[:, None] * lm.normals))
 
 
 def _opposite_skin(
@@ -574,8 +673,9 @@ def fixture_load(
     Returns
     -------
     FixtureLoad
-        Energy, equivalent force, reactions, peak stress and the misfit reached (no limit
-        set: :meth:`FixtureLoad.bounded`).
+        Energy, equivalent force, reactions, peak stress, the misfit reached and the fitted
+        shape's remainder outside the compliant modes (no limit set:
+        :meth:`FixtureLoad.bounded`).
     """
     if len(V) != lm.n_nominal:
         raise ValueError("the load model was built for another mesh of the part")
@@ -587,6 +687,8 @@ def fixture_load(
         x, reached = _exact_hold(lm, target), 0.0
     load = _load_of(lm, x, target)
     load.misfit_allowed, load.misfit, load.misfit_source = float(misfit), reached, misfit_source
+    if lm.back is not None and lm.modes is not None:
+        load.departure, load.modes = beyond_modes(lm, target), lm.modes.shape[1]
     if lm.thickness is not None and lm.thickness.nnz:
         change = np.einsum("ij,ij->i", lm.thickness @ d, lm.normals)
         load.thickness_change = float(np.abs(change).max())
@@ -658,13 +760,20 @@ def _hold_search(solve, misfit: float, w0: float) -> tuple[np.ndarray, float] | 
     bracketed, then by false position on the log misfit against log w, each step kept
     within the bracket's middle 80 % (bisection's guarantee); it stops at a misfit within
     :data:`HOLD_REACH` below the allowed one. Below ``w0`` by twelve decades, a misfit still
-    within the allowance is taken: the target is nearly a rigid motion."""
+    within the allowance is taken: the target is nearly a rigid motion. A spring too weak
+    for the factorisation (the model not held in floating point) is raised a decade."""
     aim = np.log(misfit * (1.0 - 0.5 * HOLD_REACH))
     lo = hi = None  # (log w, log misfit): one beyond the allowance, one within
     best = None
     lw = np.log(w0)
     for _ in range(HOLD_SOLVES):
-        z, r = solve(float(np.exp(lw)))
+        try:
+            z, r = solve(float(np.exp(lw)))
+        except NotPositiveDefinite:  # springs too weak to hold the model in floating point
+            if lo is not None or hi is not None:
+                break
+            lw += np.log(10.0)
+            continue
         lr = np.log(max(r, 1e-300))
         if r <= misfit:
             hi, best = (lw, lr), (z, r)
