@@ -30,6 +30,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from qifreport.registration.arrays import unique_sorted
+from qifreport.registration.linalg import SPDSolver
 
 __all__ = [
     "GRAVITY",
@@ -588,6 +589,14 @@ def rigid_rank(points: np.ndarray, directions: np.ndarray, X: np.ndarray) -> int
     return int(np.linalg.matrix_rank(A, tol=1e-9))
 
 
+#: the shift of :func:`elastic_modes`' shift-invert, as a share of the model's largest
+#: eigenvalue (a plate's lowest elastic modes lie some 1e-10 to 1e-6 of it)
+SHIFT_SHARE = 1e-8
+
+#: the relative accuracy of :func:`elastic_modes`' frequencies (ARPACK's ``tol``)
+MODE_TOL = 1e-6
+
+
 def elastic_modes(model: ElasticModel, k: int) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` lowest elastic (non-rigid) vibration modes of the free part.
 
@@ -596,10 +605,21 @@ def elastic_modes(model: ElasticModel, k: int) -> tuple[np.ndarray, np.ndarray]:
     omega2 : (k,) squared angular frequencies, 1/s^2 (with the material's density).
     modes : (N, k) degrees of freedom of each mode, mass-normalised (``phi' M phi = 1``).
     """
-    M = model.mass()
-    # shift-invert below zero: K - sigma M is positive definite although K is singular
+    M = model.mass().tocsc()
+    K = model.K.tocsc()
+    # shift-invert below zero: K - sigma M is positive definite although K is singular. The
+    # shift is scaled to the model's spectrum (its largest eigenvalue is of the order of the
+    # largest ratio of their diagonals): a shift far below the lowest elastic mode, as a
+    # unit one is with a density in t/mm^3, leaves K - sigma M singular in floating point
+    # and the modes wrong
+    top = float(np.max(K.diagonal() / np.maximum(M.diagonal(), 1e-300)))
     v0 = np.random.default_rng(0).standard_normal(model.n_dofs)  # the same modes every run
-    w, phi = spla.eigsh(model.K.tocsc(), k=k + 6, M=M.tocsc(), sigma=-1.0, which="LM", v0=v0)
+    shift = SHIFT_SHARE * top
+    solve = SPDSolver().factor(K + shift * M)
+    inverse = spla.LinearOperator(K.shape, matvec=solve, dtype=np.float64)
+    w, phi = spla.eigsh(
+        K, k=k + 6, M=M, sigma=-shift, which="LM", v0=v0, OPinv=inverse, tol=MODE_TOL
+    )
     order = np.argsort(w)
     w, phi = w[order], phi[:, order]
     return w[6:], phi[:, 6:]
