@@ -18,7 +18,8 @@ The truth is :mod:`qifreport.simulate.fixture_truth`: the free shape clamped at 
 RPS points by another elastic model (finer or other mesh, Poisson's ratio 0.05 off, the
 wall's stiffness varying as a +/-10 % thickness, pads of the clamps' stated 5 mm), judged
 by the same rule (area and region criteria, same zones, on the vertices the product
-scored); a clamp over its limit is a FAIL. The product sees only a scan of the free shape
+scored; the drawing's flatness tolerances on their faces); a clamp over its limit is a
+FAIL. The product sees only a scan of the free shape
 (virtual scanner, 0.02 mm noise, views from both sides for the panel, from above for the
 shell), delivered in the part frame (a 1.8 mm wall scanned from both sides defeats the pose
 search from an arbitrary placement: the product refuses it, exit 2), and is run in up to
@@ -424,9 +425,26 @@ def run_product(task: dict) -> dict:
     }
     if res.restraint is not None:
         out["force"] = np.asarray(res.restraint.force, dtype=float)
+    out["flatness"] = _flatness_items(res, state.part)
     load = res.fixture_load
     if load is not None and load.established:
         out["beyond_modes_mm"] = load.max_departure
+    return out
+
+
+def _flatness_items(res, part) -> list[tuple[str, np.ndarray, float]]:
+    """The drawing's flatness tolerances the product judged: (key, the vertices of their
+    faces, the tolerance mm), for the truth to judge on its held shape too."""
+    face_id = getattr(part, "face_id", None)
+    if face_id is None:
+        return []
+    out = []
+    for c in res.characteristics:
+        spec = c.spec
+        if spec.kind != "flatness" or spec.tolerance is None or spec.faces is None:
+            continue
+        tri = np.isin(face_id, spec.faces)
+        out.append((spec.key, np.unique(part.F[tri]), float(spec.tolerance)))
     return out
 
 
@@ -444,7 +462,8 @@ def truth_verdict(
     """The physical fixture's verdict on the product's scored vertices (``e`` (n,) mm: the
     held truth's deviation along the nominal normals), the largest band exceedance (mm;
     < 0: inside every band by that much) and whether a clamp is over its limit (``limit``,
-    N, replaces the stated limits when finite)."""
+    N, replaces the stated limits when finite). The drawing's flatness tolerances the
+    product judged (``run["flatness"]``) are judged on the held truth too."""
     from qifreport.metrology.acceptance.criteria import evaluate
 
     e = np.where(scored, e, np.nan)
@@ -464,7 +483,22 @@ def truth_verdict(
         held.force[i] > (limit if math.isfinite(limit) else part.fx.clamps[i].max_force)
         for i in limited
     )
-    return ("FAIL" if (over or not acc.passed) else "PASS"), margin, over
+    flat_ok = all(_truth_flatness(part, e, idx) <= tol for _, idx, tol in run.get("flatness", []))
+    return ("FAIL" if (over or not acc.passed or not flat_ok) else "PASS"), margin, over
+
+
+def _truth_flatness(part: PartSetup, e: np.ndarray, idx: np.ndarray) -> float:
+    """The flatness, mm, of the held truth's surface at the vertices ``idx`` (``e`` (n,)
+    mm along the nominal normals, NaN where not scored): the range of the residuals to its
+    least-squares plane (at least the minimum zone's)."""
+    idx = idx[np.isfinite(e[idx])]
+    if len(idx) < 3:
+        return 0.0
+    Q = part.V[idx] + e[idx, None] * part.N[idx]
+    c = Q - Q.mean(axis=0)
+    normal = np.linalg.svd(c, full_matrices=False)[2][-1]
+    r = c @ normal
+    return float(r.max() - r.min())
 
 
 def main(argv: list[str] | None = None) -> int:

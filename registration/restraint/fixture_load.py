@@ -72,6 +72,7 @@ __all__ = [
     "LoadModel",
     "boundary_faces",
     "fixture_load",
+    "absorbed_width",
     "beyond_modes",
     "least_energy_hold",
     "load_model",
@@ -133,6 +134,9 @@ class LoadModel:
         corners; a zero row where none is held).
     modes : (m, k) the normal displacement at the held nodes of each of the part's
         compliant modes (:data:`MODE_DECADE`), unit columns; None: not computed.
+    absorbed_width : the narrowest Gaussian bump (sigma, mm) that its compliant modes
+        take more than half of (:func:`absorbed_width`): a defect this wide or wider the
+        virtual fixture can absorb unseen; None: not computed.
     description : what the model is (``"STEP solid, gmsh tetrahedra"``, a sheet's
         thickness), for the reports.
     material_source : where the material came from (the operator, the drawing), for the
@@ -146,6 +150,7 @@ class LoadModel:
     thickness: sp.csr_matrix | None = None
     back: sp.csr_matrix | None = None
     modes: np.ndarray | None = None
+    absorbed_width: float | None = None
     description: str = ""
     material_source: str = ""
 
@@ -188,7 +193,8 @@ class FixtureLoad:
     reason : why the load is not established (``established`` False).
     departure : (n, 3) mm at the nominal's vertices: the fitted shape's remainder outside
         the part's compliant modes, the modal shape less the fitted one (empty: not
-        computed); ``modes`` how many compliant modes.
+        computed); ``modes`` how many compliant modes; ``absorbed_width`` the narrowest
+        bump, sigma mm, they take more than half of (:attr:`LoadModel.absorbed_width`).
     beyond_modes : why the verdict rests on that remainder (set by the caller, who judged
         the part in the modal shape too): a refusal.
     """
@@ -215,6 +221,7 @@ class FixtureLoad:
     pad_forces: np.ndarray = field(default_factory=lambda: np.zeros(0), repr=False)
     departure: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
     modes: int = 0
+    absorbed_width: float | None = None
     beyond_modes: str = ""
 
     @property
@@ -286,7 +293,18 @@ class FixtureLoad:
             f"fixture load {self.equivalent_force:.3g} N ({self._force_status()}): "
             f"{self.energy:.3g} mJ over {self.max_correction:.3g} mm, peak contact "
             f"{self.peak_pad_force:.3g} N, stress {self.peak_stress:.3g} MPa ({ys}, "
-            f"{self.material}{src}){self._hold()}{thick}"
+            f"{self.material}{src}){self._hold()}{thick}{self._absorbed()}"
+        )
+
+    def _absorbed(self) -> str:
+        """What the virtual fixture cannot see: the defects its compliant modes take."""
+        if not self.modes:
+            return ""
+        if self.absorbed_width is None:
+            return f"; {self.modes} compliant modes"
+        return (
+            f"; {self.modes} compliant modes: a bump or dent of sigma >= "
+            f"{self.absorbed_width:g} mm lies mostly in them and the fixture may absorb it"
         )
 
     def _hold(self) -> str:
@@ -341,6 +359,7 @@ class FixtureLoad:
             "hold_misfit_mm": num(self.misfit),
             "hold_misfit_source": self.misfit_source or None,
             "compliant_modes": int(self.modes),
+            "absorbed_bump_sigma_mm": num(self.absorbed_width),
             "beyond_modes_max_mm": num(self.max_departure),
             "beyond_modes": self.beyond_modes or None,
             "limit_N": num(self.limit),
@@ -450,6 +469,7 @@ def load_model(
     wall = sp.diags(np.asarray(opposite.sum(axis=1)).ravel())  # 1 on a thin wall's rows
     back = _back_to_nominal(model.X, model.T, nodes, V)
     modes = _compliant_modes(model, nodes, normals)
+    absorbed = absorbed_width(model.X[nodes], normals, modes)
     return LoadModel(
         model=ElasticModel(
             X=model.X,
@@ -467,6 +487,7 @@ def load_model(
         thickness=((wall @ own) - opposite).tocsr(),
         back=back,
         modes=modes,
+        absorbed_width=absorbed,
         description=description,
         material_source=material_source,
     )
@@ -505,16 +526,54 @@ def _compliant_modes(model: ElasticModel, nodes: np.ndarray, normals: np.ndarray
     return A / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
 
 
+#: the Gaussian bump widths (sigma, mm) :func:`absorbed_width` tries, and the sites it
+#: tries them at (held nodes spread over the part)
+BUMP_SIGMAS = (1.0, 1.5, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0, 30.0, 50.0, 80.0)
+BUMP_SITES = 8
+
+
+def absorbed_width(X: np.ndarray, normals: np.ndarray, modes: np.ndarray) -> float | None:
+    """The narrowest Gaussian bump (sigma, mm, of :data:`BUMP_SIGMAS`) of which the part's
+    compliant modes take more than half: at the median of :data:`BUMP_SITES` held nodes
+    spread over the part (farthest-point order), the bump's height left outside the rigid
+    motions and ``modes`` at its centre is below half. ``X`` (m, 3) mm the held nodes,
+    ``normals`` (m, 3) theirs, ``modes`` (m, k). None: no width tried is taken so."""
+    A = _rigid_normals(X, normals)
+    if modes is not None:
+        A = np.hstack([A, modes])
+    Q, _ = np.linalg.qr(A)
+    sites = [0]
+    dist = np.linalg.norm(X - X[0], axis=1)
+    for _ in range(min(BUMP_SITES, len(X)) - 1):
+        sites.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, np.linalg.norm(X - X[sites[-1]], axis=1))
+    for sigma in BUMP_SIGMAS:
+        left = []
+        for j in sites:
+            r2 = np.sum((X - X[j]) ** 2, axis=1)
+            # a bump of the wall: both skins move along the site's normal
+            t = np.exp(-r2 / (2 * sigma**2)) * (normals @ normals[j])
+            left.append(abs(t[j] - Q[j] @ (Q.T @ t)))
+        if np.median(left) < 0.5:
+            return sigma
+    return None
+
+
+def _rigid_normals(X: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(m, 6) the normal displacement at nodes ``X`` (m, 3) mm of the six rigid motions,
+    unit columns."""
+    c = X - X.mean(axis=0)
+    scale = max(float(np.abs(c).max()), 1e-12)
+    rigid = np.hstack([normals, np.cross(c / scale, normals)])
+    return rigid / np.maximum(np.linalg.norm(rigid, axis=0), 1e-300)
+
+
 def beyond_modes(lm: LoadModel, target: np.ndarray) -> np.ndarray:
     """(n, 3) mm at the nominal's vertices: the held nodes' normal displacements ``target``
     (m,) mm fitted by least squares with the rigid motions and the part's compliant modes,
     the fit less ``target`` (what a fixture that bends only those modes leaves of the
     fitted shape, with the opposite sign), carried back along the nodes' normals."""
-    X = lm.model.X[lm.nodes]
-    c = X - X.mean(axis=0)
-    scale = max(float(np.abs(c).max()), 1e-12)
-    rigid = np.hstack([lm.normals, np.cross(c / scale, lm.normals)])
-    rigid /= np.maximum(np.linalg.norm(rigid, axis=0), 1e-300)
+    rigid = _rigid_normals(lm.model.X[lm.nodes], lm.normals)
     A = rigid if lm.modes is None else np.hstack([rigid, lm.modes])
     coef, *_ = np.linalg.lstsq(A, target, rcond=1e-10)
     rest = A @ coef - target
@@ -689,6 +748,7 @@ def fixture_load(
     load.misfit_allowed, load.misfit, load.misfit_source = float(misfit), reached, misfit_source
     if lm.back is not None and lm.modes is not None:
         load.departure, load.modes = beyond_modes(lm, target), lm.modes.shape[1]
+        load.absorbed_width = lm.absorbed_width
     if lm.thickness is not None and lm.thickness.nnz:
         change = np.einsum("ij,ij->i", lm.thickness @ d, lm.normals)
         load.thickness_change = float(np.abs(change).max())
