@@ -532,6 +532,7 @@ def build_load_model(
     *,
     solid: tuple[np.ndarray, np.ndarray] | None = None,
     step: bool = False,
+    modes: bool = True,
 ) -> LoadModel | str:
     """The part's elastic model for the virtual fixture's load
     (:func:`qifreport.registration.restraint.fixture_load.load_model`), or why there is none
@@ -542,6 +543,7 @@ def build_load_model(
     V : (n, 3) mm, F : (f, 3) the nominal's inspection mesh.  spec : material, thickness.
     solid : ``(X, T)`` a STEP solid's tetrahedra (mm); None for a mesh nominal, thickened
         by ``spec.thickness``.  step : the nominal is a STEP part (for the reason only).
+    modes : with the part's compliant modes (False: the load alone).
 
     Raises
     ------
@@ -561,7 +563,14 @@ def build_load_model(
     shell = RestraintSpec((), "", thickness=spec.thickness)
     X, T, kind = _elastic_solid(V, F, shell, solid)
     try:
-        lm = load_model(elastic_model(X, T, mat), V, F, kind, material_source=spec.material_source)
+        lm = load_model(
+            elastic_model(X, T, mat),
+            V,
+            F,
+            kind,
+            material_source=spec.material_source,
+            modes=modes,
+        )
     except ValueError as exc:
         return f"the elastic model cannot take the fixture's displacement: {exc}"
     log.info(

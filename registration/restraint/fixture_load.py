@@ -434,9 +434,13 @@ def load_model(
     F: np.ndarray,
     description: str = "",
     material_source: str = "",
+    *,
+    modes: bool = True,
 ) -> LoadModel:
     """Prepare ``model`` (the part's elastic model) to take displacements given at the
-    vertices of the nominal mesh ``(V, F)`` (mm, outward-wound triangles).
+    vertices of the nominal mesh ``(V, F)`` (mm, outward-wound triangles); ``modes``: with
+    the part's compliant modes (:func:`beyond_modes`; False: the load alone, without their
+    eigensolve).
 
     Each held surface node (:func:`_held_nodes`) takes the field at its closest point on
     the nominal, linear in that triangle; on a thin wall, the mean of that and the field at
@@ -468,8 +472,8 @@ def load_model(
     opposite = _opposite_skin(model, nodes, normals, V, F, reach)
     wall = sp.diags(np.asarray(opposite.sum(axis=1)).ravel())  # 1 on a thin wall's rows
     back = _back_to_nominal(model.X, model.T, nodes, V)
-    modes = _compliant_modes(model, nodes, normals)
-    absorbed = absorbed_width(model.X[nodes], normals, modes)
+    compliant = _compliant_modes(model, nodes, normals) if modes else None
+    absorbed = absorbed_width(model.X[nodes], normals, compliant) if modes else None
     return LoadModel(
         model=ElasticModel(
             X=model.X,
@@ -486,7 +490,7 @@ def load_model(
         W=(own - 0.5 * (wall @ own) + 0.5 * opposite).tocsr(),
         thickness=((wall @ own) - opposite).tocsr(),
         back=back,
-        modes=modes,
+        modes=compliant,
         absorbed_width=absorbed,
         description=description,
         material_source=material_source,
