@@ -36,10 +36,10 @@ elastic model (:mod:`qifreport.registration.restraint.elastic`):
    correction would need to store that energy (:attr:`FixtureLoad.equivalent_force`), and
    the peak von Mises stress against the material's yield strength;
 4. what of the fitted field lies outside the part's compliant modes
-   (:attr:`FixtureLoad.departure`): the fitted normal displacement at the held nodes is
-   fitted by the rigid motions and the part's lowest elastic modes within a decade of
-   frequency of its softest (:data:`MODE_DECADE`: a stiffness within a hundredfold), and
-   the remainder carried to the nominal's vertices. A fixture removes a compliant part's
+   (:attr:`FixtureLoad.departure`, :mod:`.compliant_modes`): the fitted normal displacement
+   at the held nodes is fitted by the rigid motions and the part's lowest elastic modes
+   within a decade of frequency of its softest (a stiffness within a hundredfold), and the
+   remainder carried to the nominal's vertices. A fixture removes a compliant part's
    flexure, which lies in those modes; a dent or bump does not, and a smooth field that
    follows one puts it there (the paper's Section 11: "confining the admissible
    deformation to the compliant, physically realizable modes of the part"). The caller
@@ -59,21 +59,24 @@ from scipy.spatial import cKDTree
 
 from qifreport.registration.linalg import NotPositiveDefinite, SPDSolver
 from qifreport.registration.mesh import barycentric
-from qifreport.registration.restraint.elastic import ElasticModel, elastic_modes
+from qifreport.registration.restraint.compliant_modes import (
+    absorbed_width,
+    back_to_nominal,
+    beyond_modes,
+    compliant_modes,
+)
+from qifreport.registration.restraint.elastic import ElasticModel
 
 __all__ = [
     "DEFAULT_MAX_FORCE",
     "FACE_ANGLE",
     "HOLD_SHARE",
-    "MODE_DECADE",
     "PAD_RADIUS",
     "THIN_WALL_SHARE",
     "FixtureLoad",
     "LoadModel",
     "boundary_faces",
     "fixture_load",
-    "absorbed_width",
-    "beyond_modes",
     "least_energy_hold",
     "load_model",
     "vertex_von_mises",
@@ -102,13 +105,6 @@ HOLD_SHARE = 0.1
 HOLD_REACH = 0.05
 HOLD_SOLVES = 12
 
-#: the part's compliant modes: its lowest elastic modes whose frequency is within this
-#: factor of the softest one's (a modal stiffness within its square, a hundredfold: what
-#: the force that bends the softest mode by a millimetre bends them by at least a
-#: hundredth of one), at most :data:`MODES_COMPUTED` of them
-MODE_DECADE = 10.0
-MODES_COMPUTED = 24
-
 #: a wall is thin, its two skins held together at its mid-surface, when the opposite skin
 #: lies within this share of the part's diagonal (the thin-shell rule, thickness at most a
 #: twentieth of the span)
@@ -133,10 +129,11 @@ class LoadModel:
         linear on the model's surface triangle closest to each vertex (over its held
         corners; a zero row where none is held).
     modes : (m, k) the normal displacement at the held nodes of each of the part's
-        compliant modes (:data:`MODE_DECADE`), unit columns; None: not computed.
+        compliant modes (:mod:`.compliant_modes`), unit columns; None: not computed.
     absorbed_width : the narrowest Gaussian bump (sigma, mm) that its compliant modes
         take more than half of (:func:`absorbed_width`): a defect this wide or wider the
-        virtual fixture can absorb unseen; None: not computed.
+        virtual fixture can absorb unseen (:func:`.compliant_modes.absorbed_width`); None:
+        not computed.
     description : what the model is (``"STEP solid, gmsh tetrahedra"``, a sheet's
         thickness), for the reports.
     material_source : where the material came from (the operator, the drawing), for the
@@ -439,8 +436,8 @@ def load_model(
 ) -> LoadModel:
     """Prepare ``model`` (the part's elastic model) to take displacements given at the
     vertices of the nominal mesh ``(V, F)`` (mm, outward-wound triangles); ``modes``: with
-    the part's compliant modes (:func:`beyond_modes`; False: the load alone, without their
-    eigensolve).
+    the part's compliant modes (:mod:`.compliant_modes`; False: the load alone, without
+    their eigensolve).
 
     Each held surface node (:func:`_held_nodes`) takes the field at its closest point on
     the nominal, linear in that triangle; on a thin wall, the mean of that and the field at
@@ -471,8 +468,8 @@ def load_model(
     reach = THIN_WALL_SHARE * float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
     opposite = _opposite_skin(model, nodes, normals, V, F, reach)
     wall = sp.diags(np.asarray(opposite.sum(axis=1)).ravel())  # 1 on a thin wall's rows
-    back = _back_to_nominal(model.X, model.T, nodes, V)
-    compliant = _compliant_modes(model, nodes, normals) if modes else None
+    back = back_to_nominal(model.X, boundary_faces(model.X, model.T)[0], nodes, V)
+    compliant = compliant_modes(model, nodes, normals) if modes else None
     absorbed = absorbed_width(model.X[nodes], normals, compliant) if modes else None
     return LoadModel(
         model=ElasticModel(
@@ -495,93 +492,6 @@ def load_model(
         description=description,
         material_source=material_source,
     )
-
-
-def _back_to_nominal(
-    X: np.ndarray, T: np.ndarray, nodes: np.ndarray, V: np.ndarray
-) -> sp.csr_matrix:
-    """(n, m) sparse: a field at the held ``nodes`` (m,) of the model ``(X, T)`` to its value
-    at the nominal's vertices ``V`` (n, 3) mm: linear on the model's boundary triangle
-    closest to each vertex, over its held corners (renormalised; a zero row where none is)."""
-    import igl
-
-    f, _ = boundary_faces(X, T)
-    _, tri, C = igl.point_mesh_squared_distance(V, X, f)
-    tri = np.asarray(tri, dtype=np.int64)
-    w = np.clip(barycentric(X, f, tri, C), 0.0, None)
-    col = np.full(len(X), -1, dtype=np.int64)
-    col[nodes] = np.arange(len(nodes))
-    corner = col[f[tri]]  # (n, 3)
-    w = np.where(corner >= 0, w, 0.0)
-    total = w.sum(axis=1, keepdims=True)
-    w = np.divide(w, total, out=np.zeros_like(w), where=total > 1e-9)
-    keep = (corner >= 0) & (w > 0)
-    rows = np.repeat(np.arange(len(V)), 3).reshape(-1, 3)
-    return sp.csr_matrix((w[keep], (rows[keep], corner[keep])), shape=(len(V), len(nodes)))
-
-
-def _compliant_modes(model: ElasticModel, nodes: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(m, k) the normal displacement at the held ``nodes`` of the part's compliant modes
-    (:data:`MODE_DECADE`), each column of unit norm."""
-    omega2, phi = elastic_modes(model, MODES_COMPUTED)
-    keep = omega2 <= MODE_DECADE**2 * max(float(omega2[0]), 1e-300)
-    u = phi[:, keep][model.vertex_dofs[nodes]]  # (m, 3, k)
-    A = np.einsum("mjk,mj->mk", u, normals)
-    return A / np.maximum(np.linalg.norm(A, axis=0), 1e-300)
-
-
-#: the Gaussian bump widths (sigma, mm) :func:`absorbed_width` tries, and the sites it
-#: tries them at (held nodes spread over the part)
-BUMP_SIGMAS = (1.0, 1.5, 2.0, 3.0, 5.0, 8.0, 12.0, 20.0, 30.0, 50.0, 80.0)
-BUMP_SITES = 8
-
-
-def absorbed_width(X: np.ndarray, normals: np.ndarray, modes: np.ndarray) -> float | None:
-    """The narrowest Gaussian bump (sigma, mm, of :data:`BUMP_SIGMAS`) of which the part's
-    compliant modes take more than half: at the median of :data:`BUMP_SITES` held nodes
-    spread over the part (farthest-point order), the bump's height left outside the rigid
-    motions and ``modes`` at its centre is below half. ``X`` (m, 3) mm the held nodes,
-    ``normals`` (m, 3) theirs, ``modes`` (m, k). None: no width tried is taken so."""
-    A = _rigid_normals(X, normals)
-    if modes is not None:
-        A = np.hstack([A, modes])
-    Q, _ = np.linalg.qr(A)
-    sites = [0]
-    dist = np.linalg.norm(X - X[0], axis=1)
-    for _ in range(min(BUMP_SITES, len(X)) - 1):
-        sites.append(int(np.argmax(dist)))
-        dist = np.minimum(dist, np.linalg.norm(X - X[sites[-1]], axis=1))
-    for sigma in BUMP_SIGMAS:
-        left = []
-        for j in sites:
-            r2 = np.sum((X - X[j]) ** 2, axis=1)
-            # a bump of the wall: both skins move along the site's normal
-            t = np.exp(-r2 / (2 * sigma**2)) * (normals @ normals[j])
-            left.append(abs(t[j] - Q[j] @ (Q.T @ t)))
-        if np.median(left) < 0.5:
-            return sigma
-    return None
-
-
-def _rigid_normals(X: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(m, 6) the normal displacement at nodes ``X`` (m, 3) mm of the six rigid motions,
-    unit columns."""
-    c = X - X.mean(axis=0)
-    scale = max(float(np.abs(c).max()), 1e-12)
-    rigid = np.hstack([normals, np.cross(c / scale, normals)])
-    return rigid / np.maximum(np.linalg.norm(rigid, axis=0), 1e-300)
-
-
-def beyond_modes(lm: LoadModel, target: np.ndarray) -> np.ndarray:
-    """(n, 3) mm at the nominal's vertices: the held nodes' normal displacements ``target``
-    (m,) mm fitted by least squares with the rigid motions and the part's compliant modes,
-    the fit less ``target`` (what a fixture that bends only those modes leaves of the
-    fitted shape, with the opposite sign), carried back along the nodes' normals."""
-    rigid = _rigid_normals(lm.model.X[lm.nodes], lm.normals)
-    A = rigid if lm.modes is None else np.hstack([rigid, lm.modes])
-    coef, *_ = np.linalg.lstsq(A, target, rcond=1e-10)
-    rest = A @ coef - target
-    return np.asarray(lm.back @ (rest[:, None] * lm.normals))
 
 
 def _opposite_skin(
@@ -751,7 +661,9 @@ def fixture_load(
     load = _load_of(lm, x, target)
     load.misfit_allowed, load.misfit, load.misfit_source = float(misfit), reached, misfit_source
     if lm.back is not None and lm.modes is not None:
-        load.departure, load.modes = beyond_modes(lm, target), lm.modes.shape[1]
+        X = lm.model.X[lm.nodes]
+        load.departure = beyond_modes(X, lm.normals, lm.modes, lm.back, target)
+        load.modes = lm.modes.shape[1]
         load.absorbed_width = lm.absorbed_width
     if lm.thickness is not None and lm.thickness.nnz:
         change = np.einsum("ij,ij->i", lm.thickness @ d, lm.normals)
