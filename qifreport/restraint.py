@@ -390,8 +390,10 @@ def clamps_from_pmi(path: Path, max_force: float | None = None) -> tuple[Clamp, 
     """The clamps of a STEP nominal's datum targets (``--clamps pmi``): each placed target
     is a contact at its placement. The primary datum's targets are the supports and clamps
     (restraining along the surface normal, ``n``); the others are locators restraining
-    their axis (``x``, ``y`` or ``z`` when it is one, else ``n``). A drawing gives no force
-    limit: ``max_force`` (N, ``--max-clamp-force``) is each one's.
+    their axis (``x``, ``y`` or ``z`` when it is one, else ``n``). Each one's force limit:
+    ``max_force`` (N, ``--max-clamp-force``), else the one the drawing's restraint note
+    states per contact (:attr:`qifreport.step.pmi.RestraintNote.force_limit`: "RESTRAINT
+    FORCE AT MOST 20 N PER TARGET"), else none.
 
     Raises
     ------
@@ -410,6 +412,11 @@ def clamps_from_pmi(path: Path, max_force: float | None = None) -> tuple[Clamp, 
         raise InputError(f"--clamps pmi: {Path(path).name} cannot be read: {exc}") from None
     if max_force is not None and not (math.isfinite(max_force) and max_force > 0):
         raise InputError(f"--max-clamp-force must be a positive force in N, got {max_force}")
+    stated = ""
+    note = pmi.restraint
+    if max_force is None and note is not None and note.force_limit is not None:
+        max_force = note.force_limit
+        stated = f"; limit from the drawing's note '{note.force_text}' (#{note.step_id})"
     primary = _primary_datum(pmi)
     clamps = []
     for d in pmi.datums:
@@ -427,7 +434,7 @@ def clamps_from_pmi(path: Path, max_force: float | None = None) -> tuple[Clamp, 
                     tuple(float(x) for x in t.position),
                     directions,
                     max_force,
-                    f"PMI datum target {t.name} (#{t.step_id}, {t.kind or 'target'})",
+                    f"PMI datum target {t.name} (#{t.step_id}, {t.kind or 'target'}){stated}",
                 )
             )
     if not clamps:

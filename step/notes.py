@@ -19,6 +19,11 @@ the restraint family ("RESTRAIN", "RESTRAINED", "RESTRAINT", "RESTRAINING") that
 the tolerance (:attr:`qifreport.step.pmi.GeometricTolerance.modifiers`); alone it states no
 restraint (it marks a tolerance that holds in the free state even where the rest is
 restrained), and datum targets alone state none either (a rigid part has them too).
+
+The note's force limit, when it states one (ISO 10579: "forces not exceeding those which
+can be expected under normal assembly conditions", which a drawing gives as a figure), is
+read from the same note (:func:`restraint_force`): a force word, then a bound ("AT MOST",
+"MAX", "MAXIMUM", "NOT TO EXCEED", "<=") and a value in N, kN or lbf, within one sentence.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ import re
 from .p21 import P21Model
 from .pmi import RestraintNote
 
-__all__ = ["drawing_texts", "restraint_note"]
+__all__ = ["drawing_texts", "restraint_force", "restraint_note"]
 
 #: a restraint statement: the ISO 10579 non-rigid indication or a restraint word
 _RESTRAINT = re.compile(r"ISO\s*10579(?:\s*-\s*NR)?|\bRESTRAIN(?:ED|T|ING|S)?\b", re.IGNORECASE)
@@ -36,6 +41,15 @@ _RESTRAINT = re.compile(r"ISO\s*10579(?:\s*-\s*NR)?|\bRESTRAIN(?:ED|T|ING|S)?\b"
 _DENIED = re.compile(r"\b(?:NOT|NO|WITHOUT|NEVER)\s+(?:\w+\s+)?$", re.IGNORECASE)
 #: the line that opens a numbered note ("5. DIMENSIONING ...", "2) ...")
 _NOTE_START = re.compile(r"^\s*\d{1,3}\s*[.)](?:\s|$)")
+#: a force limit: a force word, a bound, a value and its unit, within one sentence
+_FORCE = re.compile(
+    r"\bFORCES?\b[^.;]*?(?:AT\s+MOST|MAX(?:IMUM)?\.?|NOT\s+(?:TO\s+)?EXCEED(?:ING)?|<=|\u2264)"
+    r"\s*(\d+(?:\.\d+)?)\s*(KN|N|LBF)\b",
+    re.IGNORECASE,
+)
+#: the force units read, in N
+_FORCE_UNITS = {"N": 1.0, "KN": 1000.0, "LBF": 4.4482216152605}
+
 #: longest excerpt kept, characters
 MAX_EXCERPT = 400
 
@@ -108,9 +122,22 @@ def restraint_note(model: P21Model) -> RestraintNote | None:
         for m in _RESTRAINT.finditer(text):
             if _DENIED.search(text[: m.start()]):
                 continue
+            note = _excerpt(text, m.start())
+            force = restraint_force(note)
             return RestraintNote(
-                text=_excerpt(text, m.start()),
+                text=note,
                 phrase=" ".join(m.group(0).upper().split()),
                 step_id=eid,
+                force_limit=None if force is None else force[0],
+                force_text="" if force is None else force[1],
             )
     return None
+
+
+def restraint_force(note: str) -> tuple[float, str] | None:
+    """The force limit a restraint note states (module docstring), N, and the words it was
+    read from; None when it states none."""
+    m = _FORCE.search(note)
+    if m is None:
+        return None
+    return float(m.group(1)) * _FORCE_UNITS[m.group(2).upper()], " ".join(m.group(0).split())

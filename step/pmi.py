@@ -265,11 +265,16 @@ class RestraintNote:
     phrase : what was found, upper case: ``'ISO 10579-NR'``, ``'RESTRAINED'`` ...
     step_id : the entity carrying the text (a ``REPRESENTATION`` of its lines, a
         ``DESCRIPTIVE_REPRESENTATION_ITEM`` or a ``TEXT_LITERAL``).
+    force_limit : the restraint force the note allows per contact, N ("RESTRAINT FORCE AT
+        MOST 20 N PER TARGET"; :func:`qifreport.step.notes.restraint_force`), and
+        ``force_text`` the words it was read from; None / ``""``: the note states none.
     """
 
     text: str
     phrase: str
     step_id: int
+    force_limit: float | None = None
+    force_text: str = ""
 
 
 @dataclass

@@ -104,6 +104,14 @@ def test_clamps_from_the_pmi_follow_the_datum_precedence(tmp_path):
     }  # fmt: skip
     assert all(c.max_force == 20.0 for c in clamps.values())
     assert clamps["B1"].source.startswith("PMI datum target B1")
+    assert "drawing's note" not in clamps["B1"].source  # the operator's limit
+    # without the operator's, the limit the drawing's restraint note states per target
+    # ("RESTRAINT FORCE AT MOST 20 N PER TARGET"), named where each clamp comes from;
+    # the operator's own limit replaces it
+    from_note = clamps_from_pmi(PANEL)
+    assert [c.max_force for c in from_note] == [20.0] * 7
+    assert all("limit from the drawing's note 'FORCE AT MOST 20 N'" in c.source for c in from_note)
+    assert {c.max_force for c in clamps_from_pmi(PANEL, 15.0)} == {15.0}
     with pytest.raises(InputError, match="has no placed datum target"):
         clamps_from_pmi(_no_targets(tmp_path))
     with pytest.raises(InputError, match="is a mesh"):
@@ -124,7 +132,7 @@ def test_restrained_at_the_datum_targets_from_the_command_line(tmp_path):
     scan = ROOT / "samples" / "panel_scan_warped.ply"
     out = subprocess.run(
         [os.fsencode(EXE), PANEL, scan, "--clamps", "pmi", "--material", "abs",
-         "--max-clamp-force", "20", "--out", tmp_path, "--json", "--no-pdf", "--no-cache"],
+         "--out", tmp_path, "--json", "--no-pdf", "--no-cache"],
         capture_output=True, text=True,
     )  # fmt: skip
     assert out.returncode == 0, out.stdout + out.stderr
@@ -132,5 +140,8 @@ def test_restrained_at_the_datum_targets_from_the_command_line(tmp_path):
     r = rep["registration"]["restraint"]
     assert [c["name"] for c in r["clamps"]] == ["A1", "A2", "A3", "A4", "B1", "C1", "C2"]
     assert all(c["source"].startswith("PMI datum target") for c in r["clamps"])
+    # no --max-clamp-force: the drawing's 20 N per target, and the forces within it
+    assert all(c["max_force_N"] == 20.0 for c in r["clamps"])
+    assert all(c["force_N"] is not None and c["force_N"] <= 20.0 for c in r["clamps"])
     # the same hold as the clamps file's: held within 15 um rms of nominal
     assert rep["vertex_deviation"]["rms"] < 0.015

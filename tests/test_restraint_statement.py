@@ -154,3 +154,22 @@ def test_a_step_part_without_a_restraint_note_is_judged_in_its_free_state(tmp_pa
     assert attrs["restraint_condition"] == "free" and attrs["restraint_stated_by"] == "drawing"
     assert attrs["judged_condition"].startswith("FAIL in the free state")
     assert doc["qif"]["valid"] is True
+
+
+@pytest.mark.parametrize(
+    "note, force",
+    [
+        ("RESTRAINT FORCE AT MOST 20 N PER TARGET.", 20.0),
+        ("CLAMPING FORCES NOT TO EXCEED 0.5 KN.", 500.0),
+        ("APPLY A FORCE OF MAX. 10 lbf AT EACH CLAMP", 44.482216152605),
+        ("LOAD THE PART. FORCE AS REQUIRED. MAX 5 N", None),  # another sentence's bound
+        ("PART RESTRAINED AT DATUM TARGETS", None),
+    ],
+)
+def test_the_note_s_force_limit(note, force):
+    """A restraint note's force limit per contact (:func:`qifreport.step.notes.restraint_force`):
+    a force word, a bound and a value in N, kN or lbf within one sentence."""
+    from qifreport.step.notes import restraint_force
+
+    got = restraint_force(note)
+    assert (got is None) if force is None else got[0] == pytest.approx(force)
