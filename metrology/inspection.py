@@ -523,8 +523,7 @@ def judged_in_modes(
     normals = vertex_normals(fit.V, run.reg.F)
     along = np.einsum("ij,ij->i", load.departure, normals)
     largest = float(np.abs(along).max())
-    misfit, _ = hold_misfit(run.ctx.bands.zones)
-    if largest <= misfit:
+    if largest <= load.misfit_allowed:  # the hold's misfit (:func:`hold_misfit`)
         return ""
     modal = run.judge(
         run.reg,

@@ -87,16 +87,10 @@ def test_curved_shell_bends_as_shell_theory_says():
     assert load.thickness_change == pytest.approx(kappa * 62 * t * np.sin(62 / R), rel=0.1)
 
 
-def test_least_energy_hold_reads_an_elastic_field(steel_plate):
-    """The plate's own static response to a smooth self-equilibrated pressure (10 N
-    cos(2 pi x / L) on its top skin, less its mean): held exactly it reads the load's work;
-    within a misfit delta rms it reads the least energy of a state that close, for a
-    field of one bending shape (1 - delta / rho)^2 of it (rho: the held normal
-    displacements' rms), reached at a misfit within 5 % below delta. (The fields of the
-    theory tests above prescribe their curvature up to the free edges, which an elastic
-    plate cannot keep without edge moments: a misfit of 0.001 mm already relaxes 5 % of
-    their energy, so they are read on the exact hold.)"""
-    X, F, lm = steel_plate
+def _pressure_response(X: np.ndarray, lm) -> tuple[np.ndarray, float]:
+    """The steel plate's static response (n, 3) mm to a smooth self-equilibrated pressure,
+    10 N cos(2 pi x / 100) on its top skin less its mean, held statically determinate at
+    three corners, and the load's work, mJ."""
     model = lm.model
     top = np.flatnonzero(X[:, 2] > 0)
     p = np.cos(2 * np.pi * X[top, 0] / 100.0)
@@ -107,8 +101,20 @@ def test_least_energy_hold_reads_an_elastic_field(steel_plate):
         for q in ((-50, -10, -1), (50, -10, -1), (-50, 10, -1))
     )
     sol = model.solve(fixed=[(a, 0), (a, 1), (a, 2), (b, 1), (b, 2), (c, 2)], load=load)
-    work = 0.5 * float(load @ sol.dofs)
-    u = model.displacement_at(sol, X)
+    return model.displacement_at(sol, X), 0.5 * float(load @ sol.dofs)
+
+
+def test_least_energy_hold_reads_an_elastic_field(steel_plate):
+    """The plate's own static response to a smooth self-equilibrated pressure (10 N
+    cos(2 pi x / L) on its top skin, less its mean): held exactly it reads the load's work;
+    within a misfit delta rms it reads the least energy of a state that close, for a
+    field of one bending shape (1 - delta / rho)^2 of it (rho: the held normal
+    displacements' rms), reached at a misfit within 5 % below delta. (The fields of the
+    theory tests above prescribe their curvature up to the free edges, which an elastic
+    plate cannot keep without edge moments: a misfit of 0.001 mm already relaxes 5 % of
+    their energy, so they are read on the exact hold.)"""
+    X, F, lm = steel_plate
+    u, work = _pressure_response(X, lm)
     target = np.einsum("ij,ij->i", lm.W @ without_rigid_motion(X, u), lm.normals)
     rho = float(np.sqrt(np.mean(target**2)))
     exact = fixture_load(lm, X, u)
@@ -131,22 +137,13 @@ def test_compliant_modes_keep_a_flexure_and_leave_a_bump(steel_plate):
     from qifreport.registration.restraint.elastic import elastic_modes
 
     X, F, lm = steel_plate
-    model, mat = lm.model, MATERIALS["steel"]
+    mat = MATERIALS["steel"]
     t, L = 2.0, 100.0
     omega2, _ = elastic_modes(elastic_model(*_plate(L, 20.0, t, 20, 4)[:2], mat), 2)
     beam = 22.4 / L**2 * np.sqrt(mat.E * t**2 / (12 * mat.density))
     assert np.sqrt(omega2[0]) == pytest.approx(beam, rel=0.02)
     assert 4 <= lm.modes.shape[1] <= 12
-    top = np.flatnonzero(X[:, 2] > 0)
-    p = np.cos(2 * np.pi * X[top, 0] / L)
-    load = np.zeros(model.n_dofs)
-    load[model.vertex_dofs[top, 2]] = 10.0 * (p - p.mean())
-    a, b, c = (
-        int(np.argmin(np.linalg.norm(X - q, axis=1)))
-        for q in ((-50, -10, -1), (50, -10, -1), (-50, 10, -1))
-    )
-    sol = model.solve(fixed=[(a, 0), (a, 1), (a, 2), (b, 1), (b, 2), (c, 2)], load=load)
-    u = model.displacement_at(sol, X)
+    u, _ = _pressure_response(X, lm)
     flex = float(np.abs(without_rigid_motion(X, u)[:, 2]).max())
     assert fixture_load(lm, X, u, 0.001).max_departure < 0.01 * flex
     r2 = (X[:, 0] - 25.0) ** 2 + X[:, 1] ** 2
