@@ -100,11 +100,23 @@ class RestraintStatement:
     source : where it was read: ``"drawing note"`` (a note of the STEP file,
         :func:`qifreport.step.notes.restraint_note`), ``"drawing"`` (a STEP file that
         states none) or ``"none"`` (a mesh nominal: no drawing).
+    targets : the datum targets the statement holds the part at, each placed in the file
+        (:meth:`qifreport.step.pmi.PMI.held_targets`): the part is then held there, not in
+        a virtual fixture; ``()``: the statement names none, or names one the file does
+        not place (``unplaced``).
+    unplaced : targets the statement names that the file does not place.
     """
 
     stated: bool = False
     text: str = ""
     source: str = "none"
+    targets: tuple[str, ...] = ()
+    unplaced: tuple[str, ...] = ()
+
+    @property
+    def at_targets(self) -> bool:
+        """The drawing holds the part at datum targets the file places."""
+        return self.stated and bool(self.targets) and not self.unplaced
 
 
 @dataclass(frozen=True)

@@ -64,7 +64,13 @@ from .cache_trust import (
 )
 from .nominal import load_nominal
 from .options import NominalOptions
-from .restraint import build_load_model, build_restraint, with_drawing_material, with_limits
+from .restraint import (
+    build_load_model,
+    build_restraint,
+    restraint_with_drawing_material,
+    with_drawing_material,
+    with_limits,
+)
 
 __all__ = [
     "CACHE_FORMAT",
@@ -85,7 +91,7 @@ log = logging.getLogger(__name__)
 
 #: version of the entry layout, part of every key: an entry written by another layout of
 #: :class:`PartState` (or of anything it holds) is never read; bump it when that changes
-CACHE_FORMAT = 21
+CACHE_FORMAT = 22
 SUFFIX = ".qprep"
 
 
@@ -248,7 +254,8 @@ def build_state(
     restraint = fixture_load = None
     solid = None if part.solid_mesh is None else (part.solid_mesh.X, part.solid_mesh.T)
     if options.restraint is not None:
-        restraint = build_restraint(part.V, part.F, options.restraint, solid=solid)
+        held = restraint_with_drawing_material(options.restraint, drawing.material)
+        restraint = build_restraint(part.V, part.F, held, solid=solid)
     if options.fixture_load is not None:
         spec = with_drawing_material(options.fixture_load, drawing.material)
         fixture_load = (

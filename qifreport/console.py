@@ -128,6 +128,8 @@ def restraint_text(r: Restraint) -> str:
         if mat is None
         else f"{mat['name']}, E {mat['E_MPa']:g} MPa, nu {mat['nu']:g}"
     )
+    if mat is not None and str(m.get("material_source") or "").startswith("drawing"):
+        material += f", from the {m['material_source']}"
     g = m.get("gravity")
     weight = "" if g is None else f", under its own weight along ({g[0]:g}, {g[1]:g}, {g[2]:g})"
     lines = [

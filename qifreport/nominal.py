@@ -211,7 +211,8 @@ def _restraint_statement(pmi) -> RestraintStatement:
     note = getattr(pmi, "restraint", None)
     if note is None:
         return RestraintStatement(False, "", "drawing")
-    return RestraintStatement(True, note.text, "drawing note")
+    held, unplaced = pmi.held_targets()
+    return RestraintStatement(True, note.text, "drawing note", held, unplaced)
 
 
 def _plausibility(path: Path, pmi, diagonal: float, accept: bool) -> list:

@@ -44,6 +44,7 @@ from .restraint import (
     DEFAULT_PAD_RADIUS,
     LoadSpec,
     RestraintSpec,
+    drawing_clamps,
     gravity_direction,
     read_clamps,
 )
@@ -374,8 +375,10 @@ class InspectOptions:
     def restraint_condition(self, drawing: Drawing | None) -> RestraintCondition:
         """The condition the part is judged in and who stated it, decided here once: the
         operator's (``--restraint``, else ``--clamps``, ``--rigid-only``,
-        ``--always-fixture`` or ``--fixture``); else the drawing's (a restraint note:
-        virtual; a STEP drawing that states none: the free state, ASME Y14.5 / ISO 10579);
+        ``--always-fixture`` or ``--fixture``); else the drawing's (a restraint note that
+        holds the part at datum targets the file places: held there, as
+        :meth:`restraint_spec` reads them; another restraint note: the virtual fixture; a
+        STEP drawing that states none: the free state, ASME Y14.5 / ISO 10579);
         else, a mesh nominal having no drawing, the virtual fixture as the operator-level
         default."""
         if self.restraint is not None:
@@ -386,8 +389,16 @@ class InspectOptions:
         if flag is not None:
             return RestraintCondition(flag[0], STATED_BY_OPERATOR, flag[1])
         said = None if drawing is None else drawing.restraint
+        if said is not None and said.at_targets:
+            return RestraintCondition(CLAMPS, STATED_BY_NOTE, said.text)
         if said is not None and said.stated:
-            return RestraintCondition(VIRTUAL, STATED_BY_NOTE, said.text)
+            text = said.text
+            if said.unplaced:
+                text += (
+                    f" [the file does not place its target(s) {', '.join(said.unplaced)}: "
+                    "held in the virtual fixture; --clamps FILE states where it is held]"
+                )
+            return RestraintCondition(VIRTUAL, STATED_BY_NOTE, text)
         if said is not None and said.source != "none":  # a drawing that states none
             return RestraintCondition(
                 FREE,
@@ -456,8 +467,16 @@ class InspectOptions:
                     "--fixture restrained needs the clamps: --clamps FILE (CSV: name, x, y, "
                     "z, directions[, max_force_N])"
                 )
-            return None
-        clamps, source = read_clamps(self.clamps, nominal, self.max_clamp_force)
+            if nominal is None or self.restraint is not None or self._operator_flag():
+                return None
+            # the operator states nothing: the drawing's restraint note may hold the part
+            # at its datum targets (restraint_condition reads the same note)
+            found = drawing_clamps(nominal, self.max_clamp_force)
+            if found is None:
+                return None
+            clamps, source = found
+        else:
+            clamps, source = read_clamps(self.clamps, nominal, self.max_clamp_force)
         return RestraintSpec(
             clamps=clamps,
             source=source,

@@ -41,6 +41,7 @@ __all__ = [
     "LoadSpec",
     "build_load_model",
     "with_drawing_material",
+    "restraint_with_drawing_material",
     "RestraintSpec",
     "boundary_normals",
     "build_restraint",
@@ -49,6 +50,7 @@ __all__ = [
     "sheet_model_mesh",
     "clamp_rows",
     "clamps_from_pmi",
+    "drawing_clamps",
     "gravity_direction",
     "read_clamps_file",
     "with_limits",
@@ -84,7 +86,9 @@ class RestraintSpec:
     ----------
     clamps : the clamps (:class:`qifreport.registration.restraint.clamps.Clamp`).
     source : where they came from (``"clamps file NAME"``, ``"PMI datum targets"``).
-    material : the ``--material`` text, None when not stated (no forces then).
+    material : the ``--material`` text, else the drawing's preset
+        (:func:`restraint_with_drawing_material`); None when neither states one (no
+        forces then). ``material_source`` says which.
     thickness : a mesh nominal's wall thickness, mm (``--thickness``).
     pad_radius : each clamp's contact radius, mm.
     gravity : the direction of gravity while held (``--gravity``), None: no weight.
@@ -96,6 +100,7 @@ class RestraintSpec:
     thickness: float | None = None
     pad_radius: float = DEFAULT_PAD_RADIUS
     gravity: str | None = None
+    material_source: str = "operator (--material)"
 
     def key(self) -> dict:
         """JSON-able: what the restraint basis depends on (not the force limits: they are
@@ -258,6 +263,7 @@ def build_restraint(
         "model": kind,
         **basis.model,
         "material": None if spec.material is None else mat.to_dict(),
+        "material_source": None if spec.material is None else spec.material_source,
         "pad_radius_mm": spec.pad_radius,
         "clamps_source": spec.source,
         "gravity": None if load is None else gravity_direction(spec.gravity).tolist(),
@@ -386,14 +392,17 @@ def read_clamps(
     return read_clamps_file(Path(clamps), max_force), f"clamps file {Path(clamps).name}"
 
 
-def clamps_from_pmi(path: Path, max_force: float | None = None) -> tuple[Clamp, ...]:
+def clamps_from_pmi(
+    path: Path, max_force: float | None = None, only: tuple[str, ...] | None = None
+) -> tuple[Clamp, ...]:
     """The clamps of a STEP nominal's datum targets (``--clamps pmi``): each placed target
     is a contact at its placement. The primary datum's targets are the supports and clamps
     (restraining along the surface normal, ``n``); the others are locators restraining
     their axis (``x``, ``y`` or ``z`` when it is one, else ``n``). Each one's force limit:
     ``max_force`` (N, ``--max-clamp-force``), else the one the drawing's restraint note
     states per contact (:attr:`qifreport.step.pmi.RestraintNote.force_limit`: "RESTRAINT
-    FORCE AT MOST 20 N PER TARGET"), else none.
+    FORCE AT MOST 20 N PER TARGET"), else none. ``only``: the targets of these names
+    (the drawing's restraint note's, :func:`drawing_clamps`); None: every placed one.
 
     Raises
     ------
@@ -401,15 +410,56 @@ def clamps_from_pmi(path: Path, max_force: float | None = None) -> tuple[Clamp, 
         Not a STEP file, an unreadable one, or no placed datum target (naming the datums
         there are).
     """
+    if Path(path).suffix.lower() not in (".stp", ".step", ".p21"):
+        raise InputError(f"--clamps pmi: {Path(path).name} is a mesh, it has no datum targets")
+    pmi = _read_pmi(path, "--clamps pmi")
+    return _target_clamps(pmi, Path(path).name, max_force, only)
+
+
+def drawing_clamps(
+    path: Path, max_force: float | None = None
+) -> tuple[tuple[Clamp, ...], str] | None:
+    """The clamps a STEP drawing's restraint note holds the part at, and their source for
+    the reports: the placed datum targets it names (:meth:`qifreport.step.pmi.PMI.held_targets`,
+    "HELD ... AT TARGETS A1-A4, ... B1, C1-C2"), each as :func:`clamps_from_pmi` makes it;
+    None for a mesh, a note that names no target or one the file does not place (the
+    part is then judged as :meth:`qifreport.options.InspectOptions.restraint_condition`
+    says), or a file that cannot be read (reading the nominal says why)."""
     from qifreport.step.p21 import P21Error
     from qifreport.step.semantic import read_pmi_text
 
     if Path(path).suffix.lower() not in (".stp", ".step", ".p21"):
-        raise InputError(f"--clamps pmi: {Path(path).name} is a mesh, it has no datum targets")
+        return None
     try:
         pmi = read_pmi_text(path)
+    except (OSError, P21Error, ValueError):
+        return None
+    held, unplaced = pmi.held_targets()
+    if not held or unplaced:
+        return None
+    clamps = _target_clamps(pmi, Path(path).name, max_force, held)
+    note = pmi.restraint
+    return clamps, f"the drawing's restraint note (#{note.step_id}): datum targets " + ", ".join(
+        held
+    )
+
+
+def _read_pmi(path: Path, flag: str):
+    """The semantic PMI of a STEP file (:class:`InputError` naming ``flag`` when it cannot
+    be read)."""
+    from qifreport.step.p21 import P21Error
+    from qifreport.step.semantic import read_pmi_text
+
+    try:
+        return read_pmi_text(path)
     except (OSError, P21Error) as exc:
-        raise InputError(f"--clamps pmi: {Path(path).name} cannot be read: {exc}") from None
+        raise InputError(f"{flag}: {Path(path).name} cannot be read: {exc}") from None
+
+
+def _target_clamps(
+    pmi, name: str, max_force: float | None, only: tuple[str, ...] | None
+) -> tuple[Clamp, ...]:
+    """The clamps of the placed datum targets of ``pmi`` (:func:`clamps_from_pmi`)."""
     if max_force is not None and not (math.isfinite(max_force) and max_force > 0):
         raise InputError(f"--max-clamp-force must be a positive force in N, got {max_force}")
     stated = ""
@@ -422,6 +472,8 @@ def clamps_from_pmi(path: Path, max_force: float | None = None) -> tuple[Clamp, 
     for d in pmi.datums:
         for t in d.target_details:
             if t.position is None or t.direction is None:
+                continue
+            if only is not None and t.name not in only:
                 continue
             axis = np.abs(np.asarray(t.direction, dtype=float))
             if d.label == primary or axis.max() < 0.999:
@@ -440,7 +492,7 @@ def clamps_from_pmi(path: Path, max_force: float | None = None) -> tuple[Clamp, 
     if not clamps:
         labels = ", ".join(d.label for d in pmi.datums) or "none"
         raise InputError(
-            f"--clamps pmi: {Path(path).name} has no placed datum target (datums: {labels}); "
+            f"--clamps pmi: {name} has no placed datum target (datums: {labels}); "
             "give the clamps as --clamps FILE"
         )
     return tuple(clamps)
@@ -525,6 +577,21 @@ def with_drawing_material(spec: LoadSpec, stated: MaterialStatement | None) -> L
             f"material '{stated.text}' has no preset ({stated.source}; --material names "
             "one or states its values)"
         )
+    return replace(
+        spec,
+        material=stated.preset,
+        material_source=f"drawing ({stated.source} '{stated.text}')",
+    )
+
+
+def restraint_with_drawing_material(
+    spec: RestraintSpec, stated: MaterialStatement | None
+) -> RestraintSpec:
+    """``spec`` with the drawing's material when the operator states none and the drawing's
+    names a preset (the held shape is solved all the same without one; its forces are then
+    not known, and a force limit not checked: the verdict says so)."""
+    if spec.material is not None or stated is None or stated.preset is None:
+        return spec
     return replace(
         spec,
         material=stated.preset,

@@ -14,11 +14,11 @@ STEP nominal with semantic PMI (the product's main input):
   surface profile 1.0 mm on every face, 0.5 mm on the crown's outer skin, flatness 0.2 mm
   on the flanges).
 * ``panel_scan.ply``: its free state, made by the part's own elasticity
-  (:func:`panel_elastic_warp`: its static response to a few newtons on 10 mm pads, a
-  flange twist and a crown press, on a truth model; 5.9 mJ, 4.07 N equivalent, about 3 mm),
-  seen by 3 views from above and 3 from below (the part turned over: the 1.0 mm profile
-  applies to every face, so both skins must be measured), 0.02 mm noise. Out of tolerance
-  free, conforming held at its datum targets with a few newtons (the drawing states ABS).
+  (:func:`panel_target_warp`: a truth model held at the datum targets its drawing's
+  restraint note names, A2 and A3 lifted 1 mm: a flange twist), seen by 3 views from above
+  and 3 from below (the part turned over: the 1.0 mm profile applies to every face, so both
+  skins must be measured), 0.02 mm noise. Out of tolerance free, conforming held as the
+  drawing says (at those targets, within its 20 N per target; the drawing states ABS).
 * ``panel_scan_defect.ply``: the same with a 0.45 mm / sigma 6 mm bump on the crown: out of
   the 0.5 mm skin profile (T2, +/-0.25) over about 100 mm^2, inside the 1.0 mm one (T1).
 * ``panel_scan_warped.ply``: a free state made by the part's own elasticity
@@ -31,7 +31,9 @@ STEP nominal with semantic PMI (the product's main input):
 
 The demo scans were once made by an analytic field applied vertically, not a shape the
 part's elasticity makes (holding it needed about 212 N on the product's model); it remains
-:func:`panel_scan_set`'s default for a case without a ``warp``.
+:func:`panel_scan_set`'s default for a case without a ``warp``. They were then made by
+forces on the targets and a press on the crown: a shape the drawing's restraint (the
+targets) does not take back, so the part judged as its drawing says failed.
 
 Usage: ``python samples/make_samples.py [OUTDIR]``
 """
@@ -62,7 +64,7 @@ def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
     """Simulated free-state scans of the STEP panel, one per case (float32, mm).
 
     Each case is a dict with ``warp`` (the free state's displacement, a function of points
-    mm, :func:`panel_elastic_warp`; None: the analytic field of ``amplitude``, a fraction
+    mm, :func:`panel_target_warp`; None: the analytic field of ``amplitude``, a fraction
     of the diagonal, default 0.015, and ``field_seed``, None: the default coefficients,
     applied vertically), ``scan_seed`` (noise and dropout,
     default :data:`SEED`), ``defect`` (None or ``(a, sigma)`` mm, on the crown at
@@ -113,35 +115,15 @@ TRUTH_EDGE_SHARE = 1.0 / 60.0
 TRUTH_NU = 0.40
 TRUTH_PAD = 5.0
 
-
-#: the free state's generating load: a self-equilibrated set of forces, N, on 10 mm pads
-#: (:data:`TRUTH_PAD` radius), the part otherwise free. A twist of the flanges (+/-
-#: :data:`PANEL_TWIST` at the datum targets A1-A4, as a part warps after moulding) and the
-#: crown pressed down by :data:`PANEL_PRESS` at two points, the flanges taking it back at A1-A4
-PANEL_TWIST = 0.8
-PANEL_PRESS = 4.0
-#: the generating load's figures (:func:`panel_elastic_warp`'s, on the truth model): the
-#: forces' work, mJ, and the equivalent force, N: twice it over the field's largest normal
-#: correction at the inspection nominal's vertices, rigid motion removed (2.82 mm)
-PANEL_WARP_ENERGY = 5.91
-PANEL_WARP_FORCE = 4.19
-
-
-def panel_forces(twist: float = PANEL_TWIST, press: float = PANEL_PRESS) -> list[tuple]:
-    """The generating pads ``((x, y) mm, direction, force N)``: ``twist`` N up at A1 and
-    A4, down at A2 and A3 (the flanges' undersides, datum A's targets), ``press`` N split
-    over two points of the crown's skin pushed down (y = +/-25 mm) and taken back up by a
-    quarter at each target. Sum and moment zero: the part is free."""
-    fx, fy, up, down = 71.0, 42.0, (0.0, 0.0, 1.0), (0.0, 0.0, -1.0)
-    targets = {"A1": (-fx, -fy), "A2": (fx, -fy), "A3": (-fx, fy), "A4": (fx, fy)}
-    sign = {"A1": 1.0, "A2": -1.0, "A3": -1.0, "A4": 1.0}
-    out = []
-    for name, (x, y) in targets.items():
-        f = sign[name] * twist + press / 4.0
-        out.append(((x, y), up if f > 0 else down, abs(f)))
-    for y in (-25.0, 25.0):
-        out.append(((0.0, y), down, press / 2.0))
-    return out
+#: the demo scans' free state: the panel held at the datum targets its drawing's restraint
+#: note names (A1-A4 along the normal, B1 and C1-C2 along their axes) with A2 and A3 lifted
+#: (a twist of the flanges, as a part warps after moulding), on the truth model
+PANEL_TARGET_LIFTS = {"A2": 1.0, "A3": 1.0}
+#: that free state's figures (:func:`panel_target_warp`, on the truth model): its strain
+#: energy, mJ, and the equivalent force, N: twice it over the field's largest normal
+#: correction at the inspection nominal's vertices, rigid motion removed
+PANEL_WARP_ENERGY = 0.332
+PANEL_WARP_FORCE = 1.02
 
 
 def truth_model(step_path: Path):
@@ -157,46 +139,45 @@ def truth_model(step_path: Path):
     return elastic_model(tets.X, tets.T, Material("truth", 2300.0, TRUTH_NU, 1.05e-9))
 
 
-def pad_load(model, forces: list[tuple]) -> np.ndarray:
-    """(N,) the load vector of ``forces`` (:func:`panel_forces`): each force spread evenly
-    over the model's surface vertices within :data:`TRUTH_PAD` of its (x, y) on the skin
-    it presses (the outermost against its push, facing it within 45 degrees)."""
+def _held_solution(step_path: Path, model, clamps: list, lifts: dict[str, float]):
+    """The truth ``model`` held at ``clamps`` with ``lifts`` (mm along each one's first
+    direction; :func:`qifreport.simulate.physical.held_free_solution`), on 5 mm pads."""
+    from qifreport.metrology.deviation.closest import closest_points
+    from qifreport.registration.mesh import face_normals
     from qifreport.restraint import boundary_normals
+    from qifreport.simulate.physical import held_free_solution
+    from qifreport.step.reader import read_step
+    from qifreport.step.tessellate import tessellate
 
-    X = model.X
-    sn = boundary_normals(X, model.T)
-    load = np.zeros(model.n_dofs)
-    for (x, y), direction, force in forces:
-        facing = (np.linalg.norm(sn, axis=1) > 0) & (sn @ np.asarray(direction) < -0.7)
-        near = np.flatnonzero(facing & (np.linalg.norm(X[:, :2] - (x, y), axis=1) <= TRUTH_PAD))
-        z = X[near, 2].max() if direction[2] < 0 else X[near, 2].min()
-        pad = near[np.abs(X[near, 2] - z) < 0.5]
-        load[model.vertex_dofs[pad]] += force / len(pad) * np.asarray(direction)
-    return load
-
-
-def free_response(model, load: np.ndarray):
-    """The part's static response to the self-equilibrated ``load``, its rigid motions held
-    at three vertices far apart (which take no reaction: the load balances)."""
-    X = model.X
-    c = X.mean(axis=0)
-    a, b, e = (
-        int(np.argmin(np.linalg.norm(X - (c + off), axis=1)))
-        for off in ((-70.0, -40.0, 0.0), (70.0, -40.0, 0.0), (-70.0, 40.0, 0.0))
+    part = read_step(step_path, pmi=False)
+    m = tessellate(part.shape, part.faces, max_edge=PANEL_EDGE, deflection=0.01)
+    _, tri, _ = closest_points(m.V, m.F, np.array([c.position for c in clamps]))
+    sn = boundary_normals(model.X, model.T)
+    return held_free_solution(
+        model,
+        clamps,
+        face_normals(m.V, m.F)[tri],
+        lifts,
+        pad_radius=TRUTH_PAD,
+        surface=np.linalg.norm(sn, axis=1) > 0,
+        surface_normals=sn,
     )
-    return model.solve(fixed=[(a, 0), (a, 1), (a, 2), (b, 1), (b, 2), (e, 2)], load=load)
 
 
-def panel_elastic_warp(
-    step_path: Path, twist: float = PANEL_TWIST, press: float = PANEL_PRESS
+def panel_target_warp(
+    step_path: Path, lifts: dict[str, float] | None = None
 ) -> tuple[callable, dict]:
-    """The panel's free state as its elastic response to :func:`panel_forces` on the truth
-    model (:func:`truth_model`): the displacement field (a function of points, mm) and the
-    generating load: the forces and the strain energy (mJ, the forces' work)."""
+    """The demo panel's free state: the truth model (:func:`truth_model`) held at the datum
+    targets of its drawing (``--clamps pmi``'s clamps) with ``lifts`` (default
+    :data:`PANEL_TARGET_LIFTS`). Returns the displacement field (a function of points, mm)
+    and its strain energy (``energy_mJ``)."""
+    from qifreport.restraint import clamps_from_pmi
+
     model = truth_model(step_path)
-    load = pad_load(model, panel_forces(twist, press))
-    sol = free_response(model, load)
-    info = {"forces": panel_forces(twist, press), "energy_mJ": 0.5 * float(load @ sol.dofs)}
+    sol = _held_solution(
+        step_path, model, list(clamps_from_pmi(step_path)), lifts or PANEL_TARGET_LIFTS
+    )
+    info = {"energy_mJ": 0.5 * float(sol.dofs @ (model.K @ sol.dofs))}
 
     def field(points: np.ndarray) -> np.ndarray:
         return model.displacement_at(sol, points)
@@ -248,7 +229,7 @@ def panel_warped_scan(step_path: Path, clamps_path: Path) -> np.ndarray:
 
 def panel_scans(step_path: Path, out: Path) -> None:
     names = ("panel_scan.ply", "panel_scan_defect.ply")
-    warp, info = panel_elastic_warp(step_path)
+    warp, info = panel_target_warp(step_path)
     print(f"panel free state: {info['energy_mJ']:.3g} mJ of strain energy")
     scans = panel_scan_set(step_path, [{"warp": warp}, {"warp": warp, "defect": (0.45, 6.0)}])
     for name, P in zip(names, scans, strict=True):

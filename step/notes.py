@@ -24,6 +24,13 @@ The note's force limit, when it states one (ISO 10579: "forces not exceeding tho
 can be expected under normal assembly conditions", which a drawing gives as a figure), is
 read from the same note (:func:`restraint_force`): a force word, then a bound ("AT MOST",
 "MAX", "MAXIMUM", "NOT TO EXCEED", "<=") and a value in N, kN or lbf, within one sentence.
+
+Where the note holds the part, when it says so (:func:`restraint_targets`): the datum
+targets it names after the word "TARGET(S)" ("HELD ... AT TARGETS A1-A4, ... B1, C1-C2":
+A1, A2, A3, A4, B1, C1, C2; a range runs within one datum's letter), or all of them when it
+says the part is held at its datum targets without naming them ("AT THE DATUM TARGETS").
+A note that holds the part against its datum feature simulators (NIST FTC 08's note 5)
+names no target: where it is held is the simulators', not points of the part.
 """
 
 from __future__ import annotations
@@ -33,7 +40,7 @@ import re
 from .p21 import P21Model
 from .pmi import RestraintNote
 
-__all__ = ["drawing_texts", "restraint_force", "restraint_note"]
+__all__ = ["ALL_TARGETS", "drawing_texts", "restraint_force", "restraint_note", "restraint_targets"]
 
 #: a restraint statement: the ISO 10579 non-rigid indication or a restraint word
 _RESTRAINT = re.compile(r"ISO\s*10579(?:\s*-\s*NR)?|\bRESTRAIN(?:ED|T|ING|S)?\b", re.IGNORECASE)
@@ -49,6 +56,27 @@ _FORCE = re.compile(
 )
 #: the force units read, in N
 _FORCE_UNITS = {"N": 1.0, "KN": 1000.0, "LBF": 4.4482216152605}
+
+#: the targets a note holds the part at: the word TARGET(S), then a list of target labels
+#: (a datum letter or two and a number; a range "A1-A4", "A1 THRU A4", "A1 TO A4"),
+#: separated by commas, "AND" or "&"
+_LABEL = r"[A-Z]{1,2}\s?\d{1,3}"
+_RANGE = (
+    rf"{_LABEL}(?:\s*(?:-|\u2013|\bTHRU\b|\bTHROUGH\b|\bTO\b)\s*(?:[A-Z]{{1,2}}\s?)?\d{{1,3}})?"
+)
+_TARGET_LIST = re.compile(
+    rf"\bTARGETS?\b\s*((?:{_RANGE})(?:\s*(?:,|\bAND\b|&)\s*(?:{_RANGE}))*)", re.IGNORECASE
+)
+#: the note holds the part at its datum targets without naming them
+_AT_TARGETS = re.compile(r"\bAT\s+(?:THE\s+|ITS\s+|ALL\s+)?DATUM\s+TARGETS\b", re.IGNORECASE)
+_ONE = re.compile(
+    r"([A-Z]{1,2})\s?(\d{1,3})(?:\s*(?:-|\u2013|THRU|THROUGH|TO)\s*(?:([A-Z]{1,2})\s?)?(\d{1,3}))?",
+    re.IGNORECASE,
+)
+#: :func:`restraint_targets` for a note that holds the part at all its datum targets
+ALL_TARGETS = ("*",)
+#: the longest range of target numbers expanded
+MAX_RANGE = 50
 
 #: longest excerpt kept, characters
 MAX_EXCERPT = 400
@@ -130,6 +158,7 @@ def restraint_note(model: P21Model) -> RestraintNote | None:
                 step_id=eid,
                 force_limit=None if force is None else force[0],
                 force_text="" if force is None else force[1],
+                targets=restraint_targets(note),
             )
     return None
 
@@ -141,3 +170,27 @@ def restraint_force(note: str) -> tuple[float, str] | None:
     if m is None:
         return None
     return float(m.group(1)) * _FORCE_UNITS[m.group(2).upper()], " ".join(m.group(0).split())
+
+
+def restraint_targets(note: str) -> tuple[str, ...]:
+    """The datum targets a restraint note holds the part at (module docstring), upper case
+    in the note's order (``('A1', 'A2', 'A3', 'A4', 'B1', 'C1', 'C2')``); :data:`ALL_TARGETS`
+    when it says "at the datum targets" without naming them; ``()`` when it names none."""
+    names: list[str] = []
+    for m in _TARGET_LIST.finditer(note):
+        for one in _ONE.finditer(m.group(1)):
+            letter, first, other, last = one.groups()
+            letter = letter.upper()
+            if last is None:
+                numbers = [int(first)]
+            elif other is not None and other.upper() != letter:
+                numbers = []  # "A1-B2" is no range: neither end is trusted
+            else:
+                lo, hi = int(first), int(last)
+                numbers = list(range(lo, hi + 1)) if 0 <= hi - lo <= MAX_RANGE else []
+            for k in numbers:
+                if f"{letter}{k}" not in names:
+                    names.append(f"{letter}{k}")
+    if names:
+        return tuple(names)
+    return ALL_TARGETS if _AT_TARGETS.search(note) else ()

@@ -268,6 +268,9 @@ class RestraintNote:
     force_limit : the restraint force the note allows per contact, N ("RESTRAINT FORCE AT
         MOST 20 N PER TARGET"; :func:`qifreport.step.notes.restraint_force`), and
         ``force_text`` the words it was read from; None / ``""``: the note states none.
+    targets : the datum targets the note holds the part at, as it names them
+        (:func:`qifreport.step.notes.restraint_targets`: ``('A1', ..., 'C2')``; ``('*',)``
+        all of them; ``()`` none named).
     """
 
     text: str
@@ -275,6 +278,7 @@ class RestraintNote:
     step_id: int
     force_limit: float | None = None
     force_text: str = ""
+    targets: tuple[str, ...] = ()
 
 
 @dataclass
@@ -326,6 +330,26 @@ class PMI:
     problems: list[str] = field(default_factory=list)
     restraint: RestraintNote | None = None
     material: MaterialNote | None = None
+
+    def held_targets(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """The datum targets the restraint note holds the part at
+        (:attr:`RestraintNote.targets`) that the file places, and those it names but does
+        not place; ``((), ())`` without such a note. A note that holds the part "at the datum
+        targets" without naming them names every target the file has."""
+        note = self.restraint
+        if note is None or not note.targets:
+            return (), ()
+        placed = [
+            t.name
+            for d in self.datums
+            for t in d.target_details
+            if t.position is not None and t.direction is not None
+        ]
+        if note.targets == ("*",):
+            named = [t for d in self.datums for t in d.targets]
+            return tuple(placed), tuple(n for n in named if n not in placed)
+        held = tuple(n for n in note.targets if n in placed)
+        return held, tuple(n for n in note.targets if n not in placed)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-serialisable dictionary (:func:`dataclasses.asdict`)."""

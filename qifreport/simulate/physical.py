@@ -22,10 +22,10 @@ from dataclasses import replace
 import numpy as np
 
 from qifreport.registration.restraint.clamps import Clamp
-from qifreport.registration.restraint.elastic import ElasticModel
+from qifreport.registration.restraint.elastic import ElasticModel, ElasticSolution
 from qifreport.registration.restraint.restrained import clamp_pads
 
-__all__ = ["elastic_free_state"]
+__all__ = ["elastic_free_state", "held_free_solution"]
 
 
 def elastic_free_state(
@@ -54,6 +54,32 @@ def elastic_free_state(
         vertices (default all); ``surface_normals`` (N, 3) their normals: a pad touches
         only the vertices facing its clamp's surface within 45 degrees.
     """
+    sol = held_free_solution(
+        model,
+        clamps,
+        normals,
+        lifts,
+        pad_radius=pad_radius,
+        surface=surface,
+        surface_normals=surface_normals,
+        load=load,
+    )
+    return model.displacement_at(sol, points)
+
+
+def held_free_solution(
+    model: ElasticModel,
+    clamps: list[Clamp],
+    normals: np.ndarray,
+    lifts: dict[str, float],
+    *,
+    pad_radius: float,
+    surface: np.ndarray | None = None,
+    surface_normals: np.ndarray | None = None,
+    load: np.ndarray | None = None,
+) -> ElasticSolution:
+    """The model's solution behind :func:`elastic_free_state` (same parameters): its
+    displacements (``dofs``, mm) give the free state's strain energy, ``u K u / 2`` (mJ)."""
     pads, contacts = clamp_pads(model.X, clamps, normals, pad_radius, surface, surface_normals)
     first = {}
     for j, (k, _) in enumerate(contacts):  # each clamp's first direction is lifted
@@ -62,5 +88,4 @@ def elastic_free_state(
         replace(p, value=lifts.get(clamps[k].name, 0.0)) if first[k] == j else p
         for j, (p, (k, _)) in enumerate(zip(pads, contacts, strict=True))
     ]
-    sol = model.solve(pads=pads, load=load)
-    return model.displacement_at(sol, points)
+    return model.solve(pads=pads, load=load)
