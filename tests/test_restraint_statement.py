@@ -60,9 +60,40 @@ def test_a_denied_restraint_states_none_and_a_text_literal_is_read():
 
 
 def test_the_sample_panel_declares_its_restraint():
-    note = read_pmi_text(ROOT / "samples/panel.step").restraint
+    pmi = read_pmi_text(ROOT / "samples/panel.step")
+    note = pmi.restraint
     assert note is not None and note.phrase == "ISO 10579-NR"
     assert "APPLY WITH PART RESTRAINED" in note.text and "20 N" in note.text
+    # "AT TARGETS A1-A4, DATUM FEATURES B AND C ENGAGED AT TARGETS B1, C1-C2"
+    assert note.targets == ("A1", "A2", "A3", "A4", "B1", "C1", "C2")
+    assert pmi.held_targets() == (note.targets, ())
+
+
+@pytest.mark.parametrize(
+    "text, targets",
+    [
+        (
+            "HELD AT TARGETS A1 THRU A4 AND B1 & C1 TO C2.",
+            ("A1", "A2", "A3", "A4", "B1", "C1", "C2"),
+        ),
+        ("AT DATUM TARGETS A1, A2 AND A3; FORCE MAX 5 N", ("A1", "A2", "A3")),
+        ("PART HELD AT THE DATUM TARGETS.", ("*",)),
+        # FTC 08's note 5: held against the simulators, at no target
+        ("PLACE DATUM FEATURE A AGAINST DATUM FEATURE SIMULATOR A.", ()),
+        ("TARGET A1-B3", ()),  # no range across datums
+        ("TARGETS A1-A400", ()),  # nor one of 400 targets
+    ],
+)
+def test_the_targets_a_restraint_note_holds_the_part_at(text, targets):
+    from qifreport.step.notes import restraint_targets
+
+    assert restraint_targets(text) == targets
+
+
+def test_ftc08_note_holds_at_no_target():
+    pmi = read_pmi_text(next((ROOT.parent / "shared/step/nist").glob("*ftc_08*")))
+    assert pmi.restraint is not None and pmi.restraint.targets == ()
+    assert pmi.held_targets() == ((), ())
 
 
 def _drawing(said: RestraintStatement) -> Drawing:
@@ -70,6 +101,8 @@ def _drawing(said: RestraintStatement) -> Drawing:
 
 
 NOTE = RestraintStatement(True, "1. ISO 10579-NR. ...", "drawing note")
+AT_TARGETS = RestraintStatement(True, "... AT TARGETS A1-A3, B1, C1", "drawing note", ("A1",))
+UNPLACED = RestraintStatement(True, "... AT TARGETS A1-A3", "drawing note", ("A1",), ("A2",))
 NONE = RestraintStatement(False, "", "drawing")
 MESH = RestraintStatement()
 
@@ -78,6 +111,10 @@ MESH = RestraintStatement()
     ("options", "said", "expected"),
     [
         ({}, NOTE, ("virtual", "drawing note")),
+        ({}, AT_TARGETS, ("clamps", "drawing note")),
+        ({}, UNPLACED, ("virtual", "drawing note")),
+        ({"restraint": "virtual"}, AT_TARGETS, ("virtual", "operator")),
+        ({"rigid_only": True}, AT_TARGETS, ("free", "operator")),
         ({}, NONE, ("free", "drawing")),
         ({}, MESH, ("virtual", "default")),
         ({"restraint": "free"}, NOTE, ("free", "operator")),
@@ -97,6 +134,30 @@ def test_the_condition_is_decided_once_and_says_who_stated_it(options, said, exp
     assert got.statement  # the note, the option, or why the default applies
     params = InspectionParams(restraint=got)
     assert params.held_condition == got
+
+
+def test_a_note_naming_targets_the_file_does_not_place_says_so():
+    got = InspectOptions().restraint_condition(_drawing(UNPLACED))
+    assert "does not place its target(s) A2" in got.statement
+
+
+def test_the_drawing_s_targets_are_the_clamps_unless_the_operator_says_otherwise():
+    """The sample panel's note names its placed targets: with no option they are the
+    clamps, each limited by the note's 20 N (``--max-clamp-force`` overrides it); an
+    operator's condition (virtual, free, another clamps file) replaces them."""
+    panel = ROOT / "samples/panel.step"
+    spec = InspectOptions().restraint_spec(panel)
+    assert [c.name for c in spec.clamps] == ["A1", "A2", "A3", "A4", "B1", "C1", "C2"]
+    assert {c.max_force for c in spec.clamps} == {20.0}
+    assert spec.source.startswith("the drawing's restraint note (#1549)")
+    assert {
+        c.max_force for c in InspectOptions(max_clamp_force=5.0).restraint_spec(panel).clamps
+    } == {5.0}
+    for options in ({"restraint": "virtual"}, {"rigid_only": True}, {"fixture": "free"}):
+        assert InspectOptions(**options).restraint_spec(panel) is None
+    csv = InspectOptions(clamps=ROOT / "samples/panel_clamps.csv").restraint_spec(panel)
+    assert csv.source == "clamps file panel_clamps.csv"
+    assert InspectOptions().restraint_spec(ROOT / "samples/shell_nominal.ply") is None
 
 
 @pytest.mark.parametrize(

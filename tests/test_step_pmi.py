@@ -106,10 +106,11 @@ def test_cli_inspects_a_step_part_with_bands_from_its_pmi(tmp_path, capsys):
     scan = ROOT / "samples" / "panel_scan_defect.ply"
     code, out, err = _run(
         [str(step), str(scan), "--quiet", "--json", "--out", str(tmp_path), "--max-edge", "6"]
-        + ["--mesher", "brepmesh"],
+        + ["--mesher", "brepmesh", "--restraint", "virtual"],
         capsys,
     )
-    # BRepMesh's coarse tessellation (edges as long as the defect's sigma; gmsh's, evener at
+    # In the virtual fixture (its drawing holds it at its targets, where the bump shows
+    # whole): BRepMesh's coarse tessellation (edges as long as the defect's sigma; gmsh's, evener at
     # the same max edge, lets the fit take the bump down to 0.51 mm of added material, still
     # FAIL) lets the fit absorb most of the defect: the part must never PASS (measured:
     # FAIL, a 28 mm^2 region beside the absorbed bump; both profiles pass), and the
@@ -131,7 +132,7 @@ def test_cli_inspects_a_step_part_with_bands_from_its_pmi(tmp_path, capsys):
     assert s["acceptance"]["nominal_area"] < 0.5 * a["acceptance"]["nominal_area"]
     assert doc["verdict"] in ("FAIL", "NOT ESTABLISHED")
     added = doc["added_material"]
-    assert added["found"] and added["max_signed_mm"] > 0.7  # the 0.8 mm bump, proud
+    assert added["found"] and added["max_signed_mm"] > 0.5  # proud beyond the 1 mm band
     # the flanges' flatness tolerances are measured (issue 22), nothing is left unscored
     assert doc["not_evaluated"] == []
     flat = [c for c in doc["characteristics"] if c["kind"] == "flatness"]
