@@ -162,6 +162,9 @@ class Drawing:
     restraint : what the drawing states about restraint (:class:`RestraintStatement`).
     material : the part's material as the drawing states it (:class:`MaterialStatement`),
         None when it states none (a mesh nominal: no drawing).
+    warnings : exporter quirks the reader put right (bounds in reverse order), one line
+        each naming the item (:meth:`qifreport.step.pmi.PMI.reader_warnings`): every output
+        says them.
     """
 
     zones: list[ToleranceZone]
@@ -171,3 +174,4 @@ class Drawing:
     source: str = "pmi"
     restraint: RestraintStatement = field(default_factory=RestraintStatement)
     material: MaterialStatement | None = None
+    warnings: list[str] = field(default_factory=list)

@@ -145,6 +145,8 @@ class InspectionResult:
         zone around it.
     zones : per toleranced surface results (the general zone last).
     not_evaluated : PMI items listed but not scored.
+    drawing_warnings : exporter quirks the drawing's reader put right (bounds in reverse
+        order), one line each (:attr:`qifreport.metrology.model.Drawing.warnings`).
     bands : the zones laid on the mesh (per-vertex band of the combined map).
     rigid : the rigid alignment (pose of the scan as delivered -> nominal frame).
     fit : the virtual fixture's result (None with ``rigid_only``), from the method
@@ -210,6 +212,7 @@ class InspectionResult:
     timings: dict[str, float]
     zones: list[ZoneResult] = field(default_factory=list)
     not_evaluated: list[NotEvaluated] = field(default_factory=list)
+    drawing_warnings: list[str] = field(default_factory=list)
     bands: BandField | None = None
     energy: str = "hessian"
     edge_excluded_area: float = 0.0
@@ -576,6 +579,7 @@ class InspectionResult:
             # the instrument's k = 2 term in every surface point's and vertex's U, mm
             "instrument_surface_uncertainty_mm": self.params.surface_uncertainty,
             "warnings": self.trust_warnings(),
+            "drawing_warnings": list(self.drawing_warnings),
             "decided_by": self.decided_by(),
             "relaxed_guards": self.relaxed_guards(),
             "acceptance": self.acceptance.to_dict(),

@@ -150,6 +150,8 @@ def measurement_results_attrs(
     ra = Attrs().s("verdict", res.verdict)
     for k, line in enumerate(res.trust_warnings(), start=1):
         ra.s(f"warning_{k}", line)
+    for k, line in enumerate(res.drawing_warnings, start=1):
+        ra.s(f"drawing_warning_{k}", line)
     for k, line in enumerate(res.decided_by(), start=1):
         ra.s(f"decided_by_{k}", line)
     for k, line in enumerate(res.relaxed_guards(), start=1):

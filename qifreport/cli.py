@@ -46,6 +46,7 @@ from .cli_options import (
     add_prepare_arguments,
 )
 from .console import summary
+from .forked import in_fork
 from .jsonio import json_default
 from .options import InspectJob, InspectOptions
 from .pipeline import EXIT_ERROR, run_job
@@ -439,13 +440,15 @@ def _workers_alive() -> bool:
 
 def _raise_interrupted(signum: int, frame) -> None:
     """Raise :class:`Interrupted`, but not while worker threads still use the arrays the
-    main thread's frames own: unwinding then frees them under the workers (SIGSEGV). The
-    signal is kept and re-checked every 20 ms (SIGALRM) until the workers are done."""
+    main thread's frames own: unwinding then frees them under the workers (SIGSEGV), nor
+    inside ``os.fork`` (:func:`~qifreport.forked.in_fork`: its at-fork handlers print and
+    drop an exception). The signal is kept and re-checked every 20 ms (SIGALRM) until
+    then."""
     if signum == getattr(signal, "SIGALRM", None):
         if not _DEFERRED:
             return
         signum = _DEFERRED[0]
-    if _workers_alive() and hasattr(signal, "setitimer"):
+    if (_workers_alive() or in_fork()) and hasattr(signal, "setitimer"):
         if not _DEFERRED:
             _DEFERRED.append(signum)
         signal.setitimer(signal.ITIMER_REAL, 0.02)

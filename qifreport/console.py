@@ -113,6 +113,7 @@ def summary(res: InspectionResult) -> str:
     if res.size is not None:
         lines += res.size.reasons()[:1]
     lines += [f"warning: {w}" for w in res.trust_warnings()]
+    lines += [f"warning: drawing: {w}" for w in res.drawing_warnings]
     lines += [f"not measured: {w}" for w in res.not_measured()]
     lines += [f"note: {w}" for w in res.coverage_notes()]
     lines += [f"relaxed guard: {w}" for w in res.relaxed_guards()]

@@ -30,7 +30,7 @@ from typing import Any
 
 from .profile import peak_rss_bytes
 
-__all__ = ["ForkExecutor", "ForkedCall", "fork_executor"]
+__all__ = ["ForkExecutor", "ForkedCall", "fork_executor", "in_fork"]
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +45,18 @@ def _cpus() -> int:
 #: a child is given up (and the call made in the caller) when it has not answered within
 #: this many times the time the caller took until it asked (and at least the timeout)
 SLOWER = 5.0
+
+
+#: non-empty while the main thread is inside ``os.fork``: its at-fork handlers (logging's
+#: lock release) run Python code, and an exception a signal handler raises there is printed
+#: and dropped (:func:`in_fork`)
+_FORKING: list[bool] = []
+
+
+def in_fork() -> bool:
+    """Whether the main thread is inside ``os.fork`` (a signal handler that raises should
+    wait: :func:`qifreport.cli` defers it as it does for worker threads)."""
+    return bool(_FORKING)
 
 
 def fork_executor() -> ForkExecutor | None:
@@ -81,7 +93,11 @@ class ForkedCall:
             self._pid = -1
             return
         try:
-            pid = os.fork()
+            _FORKING.append(True)
+            try:
+                pid = os.fork()
+            finally:
+                _FORKING.clear()
         except OSError as e:  # no memory or no process slot to fork with
             os.close(read)
             os.close(write)

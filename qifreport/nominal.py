@@ -192,6 +192,7 @@ def _step_nominal(
         source="pmi",
         restraint=_restraint_statement(pmi),
         material=material,
+        warnings=pmi.reader_warnings() if pmi is not None else [],
     )
     return part, drawing
 

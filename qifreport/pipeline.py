@@ -354,6 +354,7 @@ def inspect_state(
         measures=measures,
         progress=None if bar is None else bar.update,
     )
+    res.drawing_warnings = list(drawing.warnings)
     if o.seeds > 1:
         with _stage(prof, f"repeatability ({o.seeds} resamplings)"):
             resampled_runs(res, params, part, drawing, o.seeds, bar, prepared=state.prepared)

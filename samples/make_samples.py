@@ -60,7 +60,9 @@ PANEL_EDGE = 2.5
 PANEL_DEFECT_AT = (25.0, 10.0, 9.3)
 
 
-def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
+def panel_scan_set(
+    step_path: Path, cases: list[dict], deflection: float | None = None
+) -> list[np.ndarray]:
     """Simulated free-state scans of the STEP panel, one per case (float32, mm).
 
     Each case is a dict with ``warp`` (the free state's displacement, a function of points
@@ -71,13 +73,15 @@ def panel_scan_set(step_path: Path, cases: list[dict]) -> list[np.ndarray]:
     :data:`PANEL_DEFECT_AT` shifted by ``defect_shift`` mm in x), ``pose`` (None or a
     ``(R, t)`` applied to the points: a scan delivered in the scanner's frame) and
     ``both_sides`` (default True: views from above and below; False: from above only, the
-    underside unmeasured).
+    underside unmeasured). ``deflection``: the chord tolerance of the surface scanned, mm
+    (None: the tessellator's default, whose chords on the crown lie up to about 0.1 mm
+    inside its arc; the demo scans use 0.01 mm, so that their surface is the part's).
     """
     from qifreport.step.reader import read_step
     from qifreport.step.tessellate import tessellate
 
     part = read_step(step_path, pmi=False)
-    m = tessellate(part.shape, part.faces, max_edge=PANEL_EDGE)
+    m = tessellate(part.shape, part.faces, max_edge=PANEL_EDGE, deflection=deflection)
     V, F = m.V, m.F
     diag = float(np.linalg.norm(np.ptp(V, axis=0)))
     skin = np.unique(m.F[m.face_id == _skin_face(m)])
@@ -233,7 +237,9 @@ def panel_scans(step_path: Path, out: Path) -> None:
     names = ("panel_scan.ply", "panel_scan_defect.ply")
     warp, info = panel_target_warp(step_path)
     print(f"panel free state: {info['energy_mJ']:.3g} mJ of strain energy")
-    scans = panel_scan_set(step_path, [{"warp": warp}, {"warp": warp, "defect": (0.45, 6.0)}])
+    scans = panel_scan_set(
+        step_path, [{"warp": warp}, {"warp": warp, "defect": (0.45, 6.0)}], deflection=0.01
+    )
     for name, P in zip(names, scans, strict=True):
         trimesh.PointCloud(P).export(out / name)
         print(f"{name}: {len(P)} points")

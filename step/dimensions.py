@@ -132,7 +132,13 @@ class DimensionReader(AspectFaceLinker):
                 dim.lower = lo.value
                 dim.upper = hi.value if hi else None
                 if dim.lower is not None and dim.upper is not None and dim.lower > dim.upper:
-                    dim.problems.append(f"#{rng.id}: lower bound above upper bound")
+                    # TOLERANCE_VALUE(+0.005, -0.005): the exporter wrote (upper, lower)
+                    dim.warnings.append(
+                        f"#{rng.id}: TOLERANCE_VALUE gives its bounds in reverse order "
+                        f"({dim.lower:+g}, {dim.upper:+g}): read as {dim.upper:+g} / "
+                        f"{dim.lower:+g}"
+                    )
+                    dim.lower, dim.upper = dim.upper, dim.lower
             elif rng.has("LIMITS_AND_FITS"):
                 lp = rng.part("LIMITS_AND_FITS")
                 dim.fit = "".join(text_of(x).strip() for x in lp[:3]) or None
@@ -180,11 +186,15 @@ class DimensionReader(AspectFaceLinker):
                 f"#{ent.id}: VALUE_RANGE with {len(values)} readable limit(s) of {len(members)}"
             )
             return
+        if lo.value > hi.value:
+            dim.warnings.append(
+                f"#{ent.id}: VALUE_RANGE names its lower limit {lo.value:g} above its upper "
+                f"limit {hi.value:g}: read as {hi.value:g} .. {lo.value:g}"
+            )
+            lo, hi = hi, lo
         dim.lower_limit, dim.upper_limit = lo.value, hi.value
         texts.append(f"lower limit {lo.text}")
         texts.append(f"upper limit {hi.text}")
-        if lo.value > hi.value:
-            dim.problems.append(f"#{ent.id}: lower limit above upper limit")
 
     def _other_measures(
         self, others: list[tuple[Entity, Measure, str]], dim: Dimension, texts: list[str]

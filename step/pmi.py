@@ -220,6 +220,9 @@ class Dimension:
         Faces of the dimensioned feature(s) (both ends of a location), sorted unique.
     problems : list of str
         Anything that could not be resolved.
+    warnings : list of str
+        An exporter's quirk the reader put right, named so every output can say it (bounds
+        given in reverse order: read as the interval they span).
     origin_face_step_ids, target_face_step_ids : list of int
         For a location: the faces of the relating (origin) and related (target) feature.
     value_text : str
@@ -248,6 +251,7 @@ class Dimension:
     qualifiers: list[str] = field(default_factory=list)
     face_step_ids: list[int] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
     origin_face_step_ids: list[int] = field(default_factory=list)
     target_face_step_ids: list[int] = field(default_factory=list)
     value_text: str = ""
@@ -330,6 +334,15 @@ class PMI:
     problems: list[str] = field(default_factory=list)
     restraint: RestraintNote | None = None
     material: MaterialNote | None = None
+
+    def reader_warnings(self) -> list[str]:
+        """The exporter quirks the reader put right, one line each naming the item
+        (:attr:`Dimension.warnings`)."""
+        return [
+            f"dimension {d.name or '#' + str(d.step_id)} (#{d.step_id}): {w}"
+            for d in self.dimensions
+            for w in d.warnings
+        ]
 
     def held_targets(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
         """The datum targets the restraint note holds the part at

@@ -105,6 +105,7 @@ def _dimension_row(d, idx: dict[int, int]) -> dict:
         "n_faces": len(faces),
         "faces": faces,
         "problems": list(d.problems),
+        "warnings": list(d.warnings),
     }
 
 
@@ -204,4 +205,6 @@ def pmi_table(part: StepPart) -> str:
         )
     df = pd.DataFrame(table)
     with pd.option_context("display.max_colwidth", 40, "display.width", 250):
-        return head + "\n" + df.to_string(index=False)
+        text = head + "\n" + df.to_string(index=False)
+    # an exporter's quirk put right, said whole (the table cuts its columns)
+    return "\n".join([text, *(f"warning: {w}" for w in pmi.reader_warnings())])

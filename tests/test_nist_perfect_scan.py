@@ -48,3 +48,69 @@ def test_bump_on_a_toleranced_face_fails_there(scans, name):
     # no restraint note: judged in the free state only, the bump where it is
     assert doc["restraint"]["condition"] == "free" and doc["registration"]["fit"] is None
     assert doc["registration"]["fixture"]["decision"] == "rigid only"
+
+
+#: CTC 01's hole 35 +0/-0.2 (#120): its PLUS_MINUS_TOLERANCE's TOLERANCE_VALUE (#58) names
+#: the lower bound (#72, -0.2) then the upper (#71, 0); an exporter that writes them the
+#: other way round
+CTC01_BOUNDS = ("#58=TOLERANCE_VALUE(#72,#71);", "#58=TOLERANCE_VALUE(#71,#72);")
+
+
+def test_reversed_bounds_are_read_as_their_interval_and_said_in_every_output(scans, tmp_path):
+    """An exporter quirk put right, never passed through: CTC 01 with its hole's bounds
+    written (0, -0.2) reads the interval they span, -0.2 .. 0, as the drawing means it; the
+    perfect scan's hole reads as on the true file (to 1 um); and ``pmi``, ``plan`` (whose
+    QIF then has MinValue <= MaxValue) and every output of the inspection (stdout, JSON,
+    QIF, PDF) say what was corrected."""
+    import json
+    import subprocess
+
+    from qifreport.step.semantic import read_pmi_text
+    from tests.nist_scans import EXE
+
+    scan = scans("nist_ctc_01_asme1_ap242-e1.stp")
+    text = scan.step.read_text(encoding="utf-8", errors="replace")
+    assert text.count(CTC01_BOUNDS[0]) == 1
+    step = tmp_path / "ctc01_reversed.stp"
+    step.write_text(text.replace(*CTC01_BOUNDS), encoding="utf-8")
+
+    dim = next(d for d in read_pmi_text(step).dimensions if d.step_id == 120)
+    assert (dim.lower, dim.upper) == (-0.2, 0.0)
+    assert len(dim.warnings) == 1 and "reverse order (+0, -0.2)" in dim.warnings[0]
+
+    pmi = subprocess.run([str(EXE), "pmi", str(step)], capture_output=True, text=True)
+    assert pmi.returncode == 0 and "warning: dimension" in pmi.stdout, pmi.stdout[-600:]
+    plan = subprocess.run(
+        [str(EXE), "plan", str(step), "--out", str(tmp_path)], capture_output=True, text=True
+    )
+    assert plan.returncode == 0 and "reverse order" in plan.stdout, plan.stdout + plan.stderr
+    from lxml import etree
+
+    qpl = etree.parse(str(next(tmp_path.glob("*.qif"))))
+    ns = {"q": "http://qifstandards.org/xsd/qif3"}
+    for item in qpl.iterfind(".//q:DiameterCharacteristicDefinition", ns):
+        lo = item.findtext(".//q:MinValue", namespaces=ns)
+        hi = item.findtext(".//q:MaxValue", namespaces=ns)
+        if lo is not None and hi is not None:
+            assert float(lo) <= float(hi), etree.tostring(item)[:400]
+
+    out = tmp_path / "run"
+    r = subprocess.run(
+        [str(EXE), str(step), str(scan.path), "--json", "--force", "--out", str(out)],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode in (0, 3), r.stdout + r.stderr[-1500:]
+    assert "warning: drawing: dimension" in r.stdout
+    doc = json.loads((out / f"{step.stem}.json").read_text())
+    assert len(doc["drawing_warnings"]) == 1 and "#58" in doc["drawing_warnings"][0]
+    assert b"drawing_warning_1" in (out / f"{step.stem}.qif").read_bytes()
+    pdf = subprocess.run(
+        ["pdftotext", str(out / f"{step.stem}.pdf"), "-"], capture_output=True, text=True
+    )
+    assert "corrected" in pdf.stdout.replace("\n", " ") or "reverse" in pdf.stdout, pdf.stdout
+    true = scan.run()
+    hole = [c for c in doc["characteristics"] if c["step_id"] == 120]
+    ref = [c for c in true["characteristics"] if c["step_id"] == 120]
+    assert hole and ref and hole[0]["status"] == ref[0]["status"]
+    assert abs(hole[0]["value"] - ref[0]["value"]) <= 0.001

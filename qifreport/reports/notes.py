@@ -73,6 +73,8 @@ def note_lines(res: InspectionResult, chain_floor: float | None) -> list[tuple[s
                 bool(h.non_manifold_edges or h.degenerate_faces or h.duplicate_faces),
             )
         )
+    for w in res.drawing_warnings:
+        out.append((f"Drawing read with a correction: {w}.", True))
     for w in res.trust_warnings():
         tail = " A pass is therefore not claimed (NOT ESTABLISHED)." if res.passed else ""
         out.append((f"Warning: {w}.{tail}", True))
