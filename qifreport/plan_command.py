@@ -75,8 +75,12 @@ def run(args: argparse.Namespace) -> int:
     atomic_write(out, qif_writer(build_plan(src), state))
     n = len(src.plan.specs) + sum(1 for z in zones if z.faces is not None or z.step_id is not None)
     print(f"plan: {out} ({n} characteristics; {state.get('message') or 'not validated'})")
-    for w in part.pmi.reader_warnings() if part.pmi is not None else []:
-        print(f"warning: {w}")
+    if part.pmi is not None:
+        from qifreport.step.plausibility import inch_numbers_under_mm
+
+        suspect = inch_numbers_under_mm(part.pmi)
+        for w in [*part.pmi.reader_warnings(), *([suspect] if suspect else [])]:
+            print(f"warning: {w}")
     if args.compare is None:
         return 0
     from qifreport.qif.mbd import compare_items, read_items

@@ -19,7 +19,12 @@ part (optional), a value is implausible when
   given: a zone wider than the wall itself bounds nothing on a thin wall. Automotive skins can
   have a profile zone above the sheet thickness; that is what accepting the values as read is
   for;
-* any of these values is negative or not finite.
+* any of these values is negative or not finite;
+* the geometric tolerances are all stated in millimetres while every length dimension of the
+  same file is in inches, and no tolerance reaches 0.254 mm (:data:`INCH_NUMBERS_BELOW`, 0.01
+  inch): an exporter that wrote the drawing's inch numbers under a millimetre unit (a NIST
+  CTC 03 edition: 0.005-0.08 "mm" beside inch dimensions), whose zones would read 25.4 times
+  too tight. Read as stated only when the user accepts the values as read.
 
 Zero is not flagged (a zero position tolerance at maximum material is a real callout), nor are
 angles, nominal values, or values the reader could not establish (``None``, which carry their
@@ -36,11 +41,16 @@ from .pmi import PMI
 
 __all__ = [
     "DIAGONAL_FRACTION",
+    "INCH_NUMBERS_BELOW",
     "implausible_tolerances",
+    "inch_numbers_under_mm",
 ]
 
 #: default largest plausible tolerance width, as a fraction of the part's diagonal
 DIAGONAL_FRACTION = 0.10
+
+#: mm: millimetre tolerances all below this beside inch dimensions look like inch numbers
+INCH_NUMBERS_BELOW = 0.254
 
 
 def _positive(name: str, value: object) -> float:
@@ -140,4 +150,38 @@ def implausible_tolerances(
                 src = f" (file: {dim.value_text!r})" if dim.value_text else ""
                 band = f"{what} {float(lo):g}..{float(hi):g}"
                 out.append(f"{label} {band}: {width:g} mm{src} is " + " and ".join(why))
+    mixed = inch_numbers_under_mm(pmi)
+    if mixed:
+        out.append(mixed)
     return out
+
+
+def _unit_of(value_text: str) -> str:
+    """``'mm'``, ``'inch'`` or ``''`` for the unit a value's file text names
+    (``'0.005 MILLI METRE'``, ``'0.25 INCH'``; limits after a ``;`` are the same unit)."""
+    parts = value_text.split(";", 1)[0].split(None, 1)
+    unit = parts[1].strip().lower() if len(parts) == 2 else ""
+    if "inch" in unit:
+        return "inch"
+    if unit in ("mm", "milli metre", "millimetre", "millimeter", "milli meter"):
+        return "mm"
+    return ""
+
+
+def inch_numbers_under_mm(pmi: PMI) -> str:
+    """Why the file's millimetre tolerances look like inch numbers (the module's last rule),
+    or ``""``: every geometric tolerance in mm, every length dimension in inch, none of
+    the tolerances reaching :data:`INCH_NUMBERS_BELOW`."""
+    tols = [(t, _unit_of(t.value_text or "")) for t in pmi.tolerances if t.value is not None]
+    dims = [_unit_of(d.value_text or "") for d in pmi.dimensions if d.unit == "mm" and d.value_text]
+    if not tols or not dims or any(u != "mm" for _, u in tols) or any(u != "inch" for u in dims):
+        return ""
+    values = [float(t.value) for t, _ in tols]
+    if max(values) >= INCH_NUMBERS_BELOW:
+        return ""
+    lo, hi = min(values), max(values)
+    return (
+        f"the {len(values)} geometric tolerances are stated in mm ({lo:g}-{hi:g} mm) while "
+        f"all {len(dims)} length dimensions are in inch: inch numbers under a millimetre "
+        f"unit would read 25.4 times too tight ({25.4 * lo:g}-{25.4 * hi:g} mm in inch)"
+    )

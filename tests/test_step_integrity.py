@@ -381,3 +381,51 @@ def test_cli_refuses_implausible_tolerances_unless_accepted(tmp_path):
     assert r.returncode in (0, 1, 3), r.stdout + r.stderr
     doc = json.loads((out / "panel_metres.json").read_text())
     assert len(doc["nominal"]["implausible_tolerances"]) == 4
+
+
+def _ctc03_inch_numbers_under_mm(tmp_path: Path) -> Path:
+    """NIST CTC 03 with its geometric tolerances' unit turned from its inch (#5918) into
+    its millimetre conversion unit (#5917): the inch numbers stay, under a mm unit (an
+    edition of that file was exported so)."""
+    text = shared_file("step/nist/nist_ctc_03_asme1_ap242-e2.stp").read_text(errors="replace")
+    magnitudes = set(re.findall(r"_TOLERANCE\('[^']*','[^']*',#(\d+)", text))
+    assert len(magnitudes) == 13
+    for i in magnitudes:
+        text = re.sub(
+            rf"#{i}=\((?:.|\n)*?\);", lambda m: m.group(0).replace(",#5918)", ",#5917)"), text
+        )
+    path = tmp_path / "ctc03_mm.stp"
+    path.write_text(text)
+    return path
+
+
+def test_inch_numbers_under_a_mm_unit_are_refused_unless_accepted(tmp_path):
+    """Tolerances 0.005-0.08 "mm" beside inch dimensions: the values are the drawing's inch
+    numbers (0.127-2.03 mm). ``pmi`` and ``plan`` warn, the inspection refuses with one line
+    naming the flag that reads them as stated; no shared NIST file is flagged."""
+    from qifreport.step.plausibility import inch_numbers_under_mm
+    from qifreport.step.semantic import read_pmi_text
+
+    for name in NIST:
+        assert inch_numbers_under_mm(read_pmi_text(shared_file(f"step/nist/{name}"))) == ""
+    step = _ctc03_inch_numbers_under_mm(tmp_path)
+    why = inch_numbers_under_mm(read_pmi_text(step))
+    assert "13 geometric tolerances are stated in mm (0.005-0.08 mm)" in why
+    assert "all 9 length dimensions are in inch" in why and "0.127-2.032 mm" in why
+    r = subprocess.run([str(EXE), "pmi", str(step)], capture_output=True, text=True)
+    assert r.returncode == 0 and "warning: the 13 geometric tolerances" in r.stdout
+    r = subprocess.run(
+        [str(EXE), "plan", str(step), "--out", str(tmp_path)], capture_output=True, text=True
+    )
+    assert r.returncode == 0 and "25.4 times too tight" in r.stdout, r.stdout + r.stderr
+    out = tmp_path / "o"
+    scan = ROOT / "samples" / "shell_scan.ply"
+    r = subprocess.run(
+        [str(EXE), str(step), str(scan), "--out", str(out), "--quiet"],
+        capture_output=True,
+        text=True,
+    )
+    err = r.stderr.strip()
+    assert r.returncode == 2 and len(err.splitlines()) == 1, err
+    assert "inch numbers under a millimetre unit" in err and "--accept-tolerance-as-read" in err
+    assert not out.exists()
