@@ -3,7 +3,7 @@ tolerance zone (:func:`acceptance_stage`, :func:`zone_result`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -157,6 +157,8 @@ def zone_result(
     excluded = deviations.excluded
     zcov = _coverage(V, F[mask], dz, z, az, excluded, min_coverage, params, advisory, n_points)
     zcov = plausible_uncertainty(zcov, zacc.uncertainty_mm[1], bounding_diagonal(V))
+    if z.datums and not located:
+        zcov = _frame_required(zcov, z, frame)
     return ZoneResult(
         zone=z,
         stats=zstats,
@@ -224,6 +226,19 @@ def _coverage(
         advisory_gaps=advisory,
         points=points,
     )
+
+
+def _frame_required(cov: Coverage, z: ToleranceZone, frame: DatumFrameResult | None) -> Coverage:
+    """``cov``, not measured: the zone references datums whose frame was not established
+    (ASME Y14.5, ISO 1101: a datum-referenced zone is located by its frame; read best fit
+    it would judge another requirement). The reason names the frame and what it lacked."""
+    lacked = "; ".join(frame.problems) if frame is not None and frame.problems else ""
+    why = (
+        f"datum frame |{'|'.join(z.datums)}| not established"
+        + (f" ({lacked})" if lacked else " (its datums are not defined on the part)")
+        + ": a datum-referenced tolerance is measured in its frame or not at all"
+    )
+    return replace(cov, measured=False, reasons=[*cov.reasons, why])
 
 
 def _zone_reading(z: ToleranceZone, frame: DatumFrameResult | None, located: bool) -> str:
