@@ -272,20 +272,20 @@ def _frame(seq) -> str:
 
 
 def compare_items(ours: list[MbdItem], theirs: list[MbdItem]) -> list[ItemMatch]:
-    """Pair two documents' items and list each pair's differences.
+    """Pair two documents' items by content and list each pair's differences.
 
-    Geometric tolerances pair by name (the PMI item's name, case and spaces ignored);
-    dimensions, which translators name each their own way, pair by type, nominal and limits,
-    then by nominal alone (both in document order). Returns their items in their order,
-    each with its partner, then ours that have none."""
+    Pairs are made in passes, each over every item still unpaired, from the closest match
+    to the loosest, so that an exact pair is never taken by a looser one made before it
+    (two tolerances of one name, a translator's own names):
+
+    * geometric tolerances: name, type, value and datums; then type, value and datums;
+      name, type and value; type and value; and last the name alone (names compared with
+      case and spaces ignored);
+    * dimensions, which translators name each their own way: type, unit, nominal and
+      limits; then unit and nominal.
+
+    Returns their items in their order, each with its partner, then ours that have none."""
     left = list(range(len(ours)))
-
-    def take(pred) -> int | None:
-        for k in left:
-            if pred(ours[k]):
-                left.remove(k)
-                return k
-        return None
 
     def key(s: str) -> str:
         return " ".join(s.lower().split())
@@ -293,44 +293,40 @@ def compare_items(ours: list[MbdItem], theirs: list[MbdItem]) -> list[ItemMatch]
     def same_value(x: float | None, y: float | None) -> bool:
         return _close(x, y) or (x is not None and y is not None and _close(x, y * INCH))
 
-    out: list[tuple[MbdItem, int | None]] = []
-    pending = []
-    for b in theirs:
-        if b.is_dimension:
-            pending.append(b)
-            continue
-        k = take(lambda a, b=b: not a.is_dimension and key(a.name) == key(b.name))
-        out.append((b, k))
-    # tolerances a translator named its own way: by type and value, the same frame first
-    for j, (b, k) in enumerate(out):
-        if k is None:
-            k = take(
-                lambda a, b=b: (
-                    a.type == b.type
-                    and same_value(a.tolerance, b.tolerance)
-                    and tuple(a.datums) == tuple(b.datums)
-                )
-            )
-            if k is None:
-                k = take(lambda a, b=b: a.type == b.type and same_value(a.tolerance, b.tolerance))
-            out[j] = (b, k)
-    for b in pending:
-        k = take(
-            lambda a, b=b: (
-                a.is_dimension
-                and a.unit == b.unit
-                and same_value(a.target, b.target)
-                and same_value(a.lower, b.lower)
-                and same_value(a.upper, b.upper)
-            )
-        )
-        if k is None:
-            k = take(
-                lambda a, b=b: (
-                    a.is_dimension and a.unit == b.unit and same_value(a.target, b.target)
-                )
-            )
-        out.append((b, k))
+    def tol(a: MbdItem, b: MbdItem) -> bool:
+        return not a.is_dimension and a.type == b.type and same_value(a.tolerance, b.tolerance)
+
+    def frame(a: MbdItem, b: MbdItem) -> bool:
+        return tuple(a.datums) == tuple(b.datums)
+
+    def named(a: MbdItem, b: MbdItem) -> bool:
+        return key(a.name) == key(b.name)
+
+    def dim(a: MbdItem, b: MbdItem) -> bool:
+        return a.is_dimension and a.unit == b.unit and same_value(a.target, b.target)
+
+    tolerance_passes = [
+        lambda a, b: named(a, b) and tol(a, b) and frame(a, b),
+        lambda a, b: tol(a, b) and frame(a, b),
+        lambda a, b: named(a, b) and tol(a, b),
+        tol,
+        lambda a, b: not a.is_dimension and named(a, b),
+    ]
+    dimension_passes = [
+        lambda a, b: dim(a, b) and same_value(a.lower, b.lower) and same_value(a.upper, b.upper),
+        dim,
+    ]
+    partner: list[int | None] = [None] * len(theirs)
+    for j_kind, passes in ((False, tolerance_passes), (True, dimension_passes)):
+        for pred in passes:
+            for j, b in enumerate(theirs):
+                if b.is_dimension != j_kind or partner[j] is not None:
+                    continue
+                k = next((k for k in left if pred(ours[k], b)), None)
+                if k is not None:
+                    left.remove(k)
+                    partner[j] = k
+    out = list(zip(theirs, partner, strict=True))
     matches = []
     for b, k in out:
         a = ours[k] if k is not None else None

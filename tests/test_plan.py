@@ -188,3 +188,19 @@ def test_plan_refuses_a_mesh_and_an_existing_file(plans, tmp_path, capsys):
     out = plans["panel.step"].parent
     assert main(["plan", str(ROOT / "samples/panel.step"), "--out", str(out)]) == 2
     assert "exists" in capsys.readouterr().err
+
+
+def test_compare_pairs_by_content_not_by_a_duplicate_name():
+    """Two position tolerances of one name (a translator's, or an exporter's duplicate):
+    each pairs with the one of the same value and frame, whatever their order; a
+    dimension pairs by its limits before its nominal alone."""
+    from qifreport.qif.mbd import MbdItem
+
+    a1 = MbdItem("Position.1", "Position", tolerance=0.1, datums=(("A", "NONE"),))
+    a2 = MbdItem("Position.1", "Position", tolerance=0.3, datums=(("A", "NONE"), ("B", "NONE")))
+    d1 = MbdItem("D1", "Diameter", target=10.0, lower=9.9, upper=10.1)
+    d2 = MbdItem("D2", "Diameter", target=10.0, lower=9.95, upper=10.05)
+    theirs = [a2, a1, d2, d1]
+    matches = compare_items([a1, a2, d1, d2], theirs)
+    assert [(m.theirs, m.ours) for m in matches] == [(a2, a2), (a1, a1), (d2, d2), (d1, d1)]
+    assert all(not m.differences for m in matches)
