@@ -126,7 +126,12 @@ def test_cli_inspects_a_step_part_with_bands_from_its_pmi(tmp_path, capsys):
     assert (a["lower_mm"], a["upper_mm"]) == (-0.5, 0.5) and a["datums"] == ["A", "B", "C"]
     assert (s["lower_mm"], s["upper_mm"]) == (-0.25, 0.25) and s["n_faces"] == 1
     for z in (a, s):
-        assert z["verdict"] in ("PASS", "FAIL")
+        # measured, or (the virtual fixture leaves its rim bands unscored, where datum
+        # target C2 lies) not measured for want of its datum frame, never read best fit
+        assert z["verdict"] in ("PASS", "FAIL") or (
+            z["verdict"] == "NOT MEASURED"
+            and "datum frame |A|B|C| not established" in "; ".join(z["measured"]["reasons"])
+        ), z["measured"]["reasons"]
         assert 0 < z["acceptance"]["scored_area"] <= z["acceptance"]["nominal_area"]
     # the skin zone is one face of the part: its area is a fraction of the whole
     assert s["acceptance"]["nominal_area"] < 0.5 * a["acceptance"]["nominal_area"]
