@@ -137,7 +137,11 @@ def test_a_third_of_the_scan_gives_the_same_verdict(panel_results):
     res = inspect(
         part.V, part.F, third, InspectionParams(always_fixture=True), part_inputs(part, drawing)
     )
-    assert res.verdict == panel_results["panel_scan"].verdict == "PASS", res.decided_by()
+    assert res.passed and panel_results["panel_scan"].passed, res.decided_by()
+    # in the virtual fixture the rim bands are unscored, where datum target C2 lies: the
+    # all-over profile |A|B|C| is not measured (never read best fit); the rest passes
+    assert res.verdict == "NOT MEASURED"
+    assert [w for w in res.not_measured() if "datum frame |A|B|C| not established" in w]
     g2 = next(c for c in res.characteristics if c.spec.key == "G2")
     assert g2.value < 0.16, g2.value  # 0.134; 0.288 before
     assert res.scan_area > 0.9 * 32214  # the full scan's; 23,017 with the skins merged

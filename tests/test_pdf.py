@@ -302,16 +302,19 @@ def test_statistics_equal_result_and_qif(reports, case):
     # per tolerance: key, profile value, in-band share and verdict as in the QIF
     for z in res.zones:
         c = q.characteristic(z.zone.key)
+        # a surface not measured (too little scored, or its datum frame not established)
+        # prints n/m
+        printed_status = {"NOT_MEASURED": "n/m"}.get(c.document.status, c.document.status)
         row = next(
             ln
             for ln in o.text.splitlines()  # the tolerance table's row
-            if ln.split()[:1] == [z.zone.key] and c.document.status in ln.split()
+            if ln.split()[:1] == [z.zone.key] and printed_status in ln.split()
         )
         cells = row.split()
         assert fmt_mm(profile_value(z)) == fmt_mm(c.document.attributes["profile_value_mm"])
         assert fmt_mm(profile_value(z)) in cells
         assert fmt_pct(c.document.attributes["in_tolerance_area_fraction"]) in cells
-        assert c.document.status in cells
+        assert printed_status in cells
     # two or three tolerances: each has its own column of the statistics table
     if 2 <= len(res.zones) <= 3:
         lines = o.text.splitlines()

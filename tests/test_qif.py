@@ -112,7 +112,7 @@ def _char_status(zone: dict, doc: dict) -> str:
     when the registration is not trusted (the summary's warnings)."""
     if zone["verdict"] == "PASS" and doc["warnings"]:
         return "INDETERMINATE"
-    return zone["verdict"]
+    return zone["verdict"].replace(" ", "_")  # NOT MEASURED: QIF's NOT_MEASURED
 
 
 def test_cli_verdicts_and_summaries(runs):

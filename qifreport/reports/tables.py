@@ -33,8 +33,9 @@ def _fmt_coord(x: float) -> str:
 
 def zone_status(res: InspectionResult, z: ZoneResult) -> str:
     """A toleranced surface's result as the reports print it: ``PASS``, ``FAIL``, ``n/m``
-    (not measured: too little of it scored) or ``n/e`` (its criteria are met but the
-    registration is not trusted, or it lies on a limit within the uncertainty)."""
+    (not measured: too little of it scored, or its datum frame not established) or ``n/e``
+    (its criteria are met but the registration is not trusted, or it lies on a limit
+    within the uncertainty)."""
     if not z.acceptance.scored_area > 0:
         return "n/m"
     if z.failed:
@@ -120,7 +121,8 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
         zones[i].status == "NOT MEASURED" or not zones[i].acceptance.scored_area > 0 for i in shown
     ):
         note = (
-            "n/m = not measured: too little of the surface scored (see the notes). " + note
+            "n/m = not measured: too little of the surface scored, or its datum frame not "
+            "established (see the notes). " + note
         ).strip()
     return Table(
         columns=cols,
