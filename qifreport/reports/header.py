@@ -107,8 +107,8 @@ def _criteria_lines(res: InspectionResult, width: float, size: float) -> list[st
                 z.zone.key for z in res.zones if not z.measured
             ]
             return [
-                "criteria met on what was scored,",
-                fit_text(f"too little scanned: {join_names(names, 4)}", width, size),
+                "criteria met on what was scored;",
+                fit_text(f"not measured: {join_names(names, 4)}", width, size),
             ]
         judged = [c for c in res.characteristics if c.status in ("PASS", "FAIL")]
         if judged:
@@ -223,6 +223,13 @@ def decision_lines(
                 False,
             )
         )
+    # what the operator relaxed qualifies every verdict: said here, where no note can
+    # push it off the page
+    relaxed = res.relaxed_guards()
+    if relaxed:
+        more = f"; + {len(relaxed) - 1} more (notes, QIF)" if len(relaxed) > 1 else ""
+        text = _display(f"Relaxed guard{'s' if len(relaxed) > 1 else ''}: {relaxed[0]}{more}")
+        lines += [(s, True) for s in wrap_text(text, width, 7.0)]
     return lines, len(shown)
 
 
