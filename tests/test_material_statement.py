@@ -212,8 +212,9 @@ def test_panel_drawing_material_sets_the_held_model(tmp_path):
     """Held at the targets its drawing's note names (no option), the part's elastic model is
     ABS from the drawing: its forces are known; a blend naming no preset leaves them
     unknown (the held shape does not depend on the modulus), and the note's force limit
-    then cannot be checked: the verdict says so."""
+    then cannot be checked (:meth:`InspectionResult.uncertain` says so)."""
     from qifreport.cache import build_state
+    from qifreport.restraint import restraint_with_drawing_material
 
     params = InspectionParams()
     path = _panel_with(tmp_path, "2. MATERIAL: ABS, UNFILLED.")
@@ -223,7 +224,8 @@ def test_panel_drawing_material_sets_the_held_model(tmp_path):
     assert state.restraint.model["material_source"] == "drawing (drawing note 'ABS, UNFILLED')"
     assert [c.max_force for c in state.restraint.clamps] == [20.0] * 7
 
-    blend = _panel_with(tmp_path, "2. MATERIAL: PC/ABS BLEND.")
-    state = build_state(blend, InspectOptions().nominal_options(blend), params, "x", complete=False)
-    assert state.restraint is not None and not state.restraint.forces_known
-    assert state.restraint.model["material"] is None
+    # a blend names no preset: the operator's spec is kept, without a material (the held
+    # model is then built with forces_known False, as any held part without one)
+    spec = InspectOptions().restraint_spec(path)
+    blend = MaterialStatement("PC/ABS BLEND", None, "drawing note")
+    assert restraint_with_drawing_material(spec, blend) is spec and spec.material is None
