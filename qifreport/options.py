@@ -467,7 +467,8 @@ class InspectOptions:
                     "--fixture restrained needs the clamps: --clamps FILE (CSV: name, x, y, "
                     "z, directions[, max_force_N])"
                 )
-            if nominal is None or self.restraint is not None or self._operator_flag():
+            # (every other statement of the operator returned above)
+            if nominal is None or self.restraint is not None:
                 return None
             # the operator states nothing: the drawing's restraint note may hold the part
             # at its datum targets (restraint_condition reads the same note)

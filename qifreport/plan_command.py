@@ -76,10 +76,9 @@ def run(args: argparse.Namespace) -> int:
     n = len(src.plan.specs) + sum(1 for z in zones if z.faces is not None or z.step_id is not None)
     print(f"plan: {out} ({n} characteristics; {state.get('message') or 'not validated'})")
     if part.pmi is not None:
-        from qifreport.step.plausibility import inch_numbers_under_mm
+        from qifreport.step.plausibility import file_warnings
 
-        suspect = inch_numbers_under_mm(part.pmi)
-        for w in [*part.pmi.reader_warnings(), *([suspect] if suspect else [])]:
+        for w in file_warnings(part.pmi):
             print(f"warning: {w}")
     if args.compare is None:
         return 0

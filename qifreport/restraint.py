@@ -77,6 +77,9 @@ _ON_SURFACE_SHARE = 0.01
 #: the material without ``--material``: the held shape does not depend on Young's modulus
 UNSTATED = Material("unstated", 1.0, 0.3, 0.0)
 
+#: where an operator's ``--material`` came from, in the reports (``material_source``)
+OPERATOR_MATERIAL = "operator (--material)"
+
 
 @dataclass(frozen=True)
 class RestraintSpec:
@@ -100,7 +103,7 @@ class RestraintSpec:
     thickness: float | None = None
     pad_radius: float = DEFAULT_PAD_RADIUS
     gravity: str | None = None
-    material_source: str = "operator (--material)"
+    material_source: str = OPERATOR_MATERIAL
 
     def key(self) -> dict:
         """JSON-able: what the restraint basis depends on (not the force limits: they are
@@ -542,10 +545,6 @@ def clamp_rows(part, clamps: tuple[Clamp, ...]) -> list[dict]:
     return rows
 
 
-#: where an operator's ``--material`` came from, in the reports
-OPERATOR_MATERIAL = "operator (--material)"
-
-
 @dataclass(frozen=True)
 class LoadSpec:
     """What the virtual fixture's load needs of the part (:func:`build_load_model`): its
@@ -577,11 +576,7 @@ def with_drawing_material(spec: LoadSpec, stated: MaterialStatement | None) -> L
             f"material '{stated.text}' has no preset ({stated.source}; --material names "
             "one or states its values)"
         )
-    return replace(
-        spec,
-        material=stated.preset,
-        material_source=f"drawing ({stated.source} '{stated.text}')",
-    )
+    return _with_drawing_preset(spec, stated)
 
 
 def restraint_with_drawing_material(
@@ -592,6 +587,12 @@ def restraint_with_drawing_material(
     not known, and a force limit not checked: the verdict says so)."""
     if spec.material is not None or stated is None or stated.preset is None:
         return spec
+    return _with_drawing_preset(spec, stated)
+
+
+def _with_drawing_preset(spec, stated: MaterialStatement):
+    """``spec`` (a :class:`LoadSpec` or :class:`RestraintSpec`) with the preset the drawing's
+    material names, its source said."""
     return replace(
         spec,
         material=stated.preset,

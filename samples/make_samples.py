@@ -195,7 +195,6 @@ def panel_warped_scan(step_path: Path, clamps_path: Path) -> np.ndarray:
     """The panel's elastic free state (module docstring), scanned (float32, mm)."""
     from qifreport.registration.restraint.clamps import parse_clamps
     from qifreport.registration.restraint.elastic import Material, elastic_model
-    from qifreport.simulate.physical import elastic_free_state
     from qifreport.step.gmsh_mesh import gmsh_solid_mesh
     from qifreport.step.reader import read_step
     from qifreport.step.tessellate import tessellate
@@ -208,27 +207,8 @@ def panel_warped_scan(step_path: Path, clamps_path: Path) -> np.ndarray:
     tets = gmsh_solid_mesh(part.shape, TRUTH_EDGE_SHARE * diag)
     model = elastic_model(tets.X, tets.T, Material("truth", 2300.0, TRUTH_NU, 1.05e-9))
     clamps = parse_clamps(clamps_path.read_text(encoding="utf-8"))
-    from qifreport.metrology.deviation.closest import closest_points
-
-    pos = np.array([c.position for c in clamps])
-    _, tri, _ = closest_points(V, F, pos)
-    from qifreport.registration.mesh import face_normals
-
-    n = face_normals(V, F)[tri]
-    from qifreport.restraint import boundary_normals
-
-    sn = boundary_normals(tets.X, tets.T)
-    surface = np.linalg.norm(sn, axis=1) > 0
-    Vs = V + elastic_free_state(
-        model,
-        clamps,
-        n,
-        PANEL_LIFTS,
-        V,
-        pad_radius=TRUTH_PAD,
-        surface=surface,
-        surface_normals=sn,
-    )
+    sol = _held_solution(step_path, model, clamps, PANEL_LIFTS)
+    Vs = V + model.displacement_at(sol, V)
     spec = ScanSpec(directions=turntable_views(both_sides=True), noise=0.02, seed=SEED)
     return virtual_scan(Vs, F, spec).P.astype(np.float32)
 

@@ -38,9 +38,9 @@ from __future__ import annotations
 import re
 
 from .p21 import P21Model
-from .pmi import RestraintNote
+from .pmi import ALL_TARGETS, RestraintNote
 
-__all__ = ["ALL_TARGETS", "drawing_texts", "restraint_force", "restraint_note", "restraint_targets"]
+__all__ = ["drawing_texts", "restraint_force", "restraint_note", "restraint_targets"]
 
 #: a restraint statement: the ISO 10579 non-rigid indication or a restraint word
 _RESTRAINT = re.compile(r"ISO\s*10579(?:\s*-\s*NR)?|\bRESTRAIN(?:ED|T|ING|S)?\b", re.IGNORECASE)
@@ -73,8 +73,6 @@ _ONE = re.compile(
     r"([A-Z]{1,2})\s?(\d{1,3})(?:\s*(?:-|\u2013|THRU|THROUGH|TO)\s*(?:([A-Z]{1,2})\s?)?(\d{1,3}))?",
     re.IGNORECASE,
 )
-#: :func:`restraint_targets` for a note that holds the part at all its datum targets
-ALL_TARGETS = ("*",)
 #: the longest range of target numbers expanded
 MAX_RANGE = 50
 

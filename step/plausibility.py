@@ -42,6 +42,7 @@ from .pmi import PMI
 __all__ = [
     "DIAGONAL_FRACTION",
     "INCH_NUMBERS_BELOW",
+    "file_warnings",
     "implausible_tolerances",
     "inch_numbers_under_mm",
 ]
@@ -185,3 +186,11 @@ def inch_numbers_under_mm(pmi: PMI) -> str:
         f"all {len(dims)} length dimensions are in inch: inch numbers under a millimetre "
         f"unit would read 25.4 times too tight ({25.4 * lo:g}-{25.4 * hi:g} mm in inch)"
     )
+
+
+def file_warnings(pmi: PMI) -> list[str]:
+    """What ``pmi`` and ``plan`` warn of, one line each: the exporter quirks the reader put
+    right (:meth:`~qifreport.step.pmi.PMI.reader_warnings`) and the inch numbers a mm unit
+    may carry (:func:`inch_numbers_under_mm`; the inspection refuses those)."""
+    suspect = inch_numbers_under_mm(pmi)
+    return [*pmi.reader_warnings(), *([suspect] if suspect else [])]

@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 __all__ = [
+    "ALL_TARGETS",
     "PMI",
     "Datum",
     "DatumRef",
@@ -24,6 +25,10 @@ __all__ = [
     "MaterialNote",
     "RestraintNote",
 ]
+
+
+#: :attr:`RestraintNote.targets` of a note that holds the part at all its datum targets
+ALL_TARGETS = ("*",)
 
 
 @dataclass
@@ -273,8 +278,8 @@ class RestraintNote:
         MOST 20 N PER TARGET"; :func:`qifreport.step.notes.restraint_force`), and
         ``force_text`` the words it was read from; None / ``""``: the note states none.
     targets : the datum targets the note holds the part at, as it names them
-        (:func:`qifreport.step.notes.restraint_targets`: ``('A1', ..., 'C2')``; ``('*',)``
-        all of them; ``()`` none named).
+        (:func:`qifreport.step.notes.restraint_targets`: ``('A1', ..., 'C2')``;
+        :data:`ALL_TARGETS` all of them; ``()`` none named).
     """
 
     text: str
@@ -358,7 +363,7 @@ class PMI:
             for t in d.target_details
             if t.position is not None and t.direction is not None
         ]
-        if note.targets == ("*",):
+        if note.targets == ALL_TARGETS:
             named = [t for d in self.datums for t in d.targets]
             return tuple(placed), tuple(n for n in named if n not in placed)
         held = tuple(n for n in note.targets if n in placed)

@@ -207,8 +207,6 @@ def pmi_table(part: StepPart) -> str:
     with pd.option_context("display.max_colwidth", 40, "display.width", 250):
         text = head + "\n" + df.to_string(index=False)
     # an exporter's quirk put right, or one suspected, said whole (the table cuts its columns)
-    from .plausibility import inch_numbers_under_mm
+    from .plausibility import file_warnings
 
-    suspect = inch_numbers_under_mm(pmi)
-    warnings = [*pmi.reader_warnings(), *([suspect] if suspect else [])]
-    return "\n".join([text, *(f"warning: {w}" for w in warnings)])
+    return "\n".join([text, *(f"warning: {w}" for w in file_warnings(pmi))])

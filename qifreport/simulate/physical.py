@@ -79,7 +79,7 @@ def held_free_solution(
     load: np.ndarray | None = None,
 ) -> ElasticSolution:
     """The model's solution behind :func:`elastic_free_state` (same parameters): its
-    displacements (``dofs``, mm) give the free state's strain energy, ``u K u / 2`` (mJ)."""
+    ``energy`` is the free state's strain energy (mJ), its ``pad_forces`` the clamps' (N)."""
     pads, contacts = clamp_pads(model.X, clamps, normals, pad_radius, surface, surface_normals)
     first = {}
     for j, (k, _) in enumerate(contacts):  # each clamp's first direction is lifted
