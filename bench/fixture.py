@@ -407,9 +407,9 @@ def run_product(task: dict) -> dict:
         with_limits(state.restraint, spec)
     job = InspectJob(nominal=task["nominal"], scan=Path("case.ply"), options=opts)
     t0 = time.perf_counter()
-    P, _ = scan_input(Scan(np.asarray(task["P"], dtype=np.float64)), state.part)
+    P, _, stray = scan_input(Scan(np.asarray(task["P"], dtype=np.float64)), state.part)
     try:
-        res = inspect_state(P, state, job)
+        res = inspect_state(P, state, job, stray=stray)
     except Exception as e:  # noqa: BLE001 -- a refusal is a result of the benchmark
         traceback.print_exc()
         return {"verdict": "ERROR", "error": f"{type(e).__name__}: {e}", "seconds": 0.0}

@@ -49,6 +49,7 @@ from qifreport.registration.icp import rigid_icp
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import bounding_diagonal, median_edge_length, vertex_normals
 from qifreport.registration.normals import one_skin_normals, oriented_normals
+from qifreport.registration.outliers import StrayPoints, without_stray
 from qifreport.registration.pose.prealign import seat_scan
 from qifreport.registration.restraint.fixture_load import (
     DEFAULT_MAX_FORCE,
@@ -97,8 +98,10 @@ __all__ = [
     "judge_as_held",
     "lay_zone_bands",
     "seat_rigidly",
+    "surface_points",
     "with_fixture_load",
     "with_free_state",
+    "with_stray",
 ]
 
 log = logging.getLogger(__name__)
@@ -174,6 +177,9 @@ class InspectionInputs:
         (:func:`qifreport.registration.deformable.bending_basis.bending_basis`), to reuse it across
         scans of one part; computed when needed if omitted.
     scan_units : the unit the user declared for the scan file (for the units hint only).
+    stray : the stray points the caller left out of the scan already
+        (:func:`qifreport.registration.outliers.without_stray`, e.g. before starting its
+        normals); None: :func:`inspect` leaves them out itself (:func:`surface_points`).
     fixture_load : the part's elastic model for the virtual fixture's load
         (:func:`qifreport.registration.restraint.fixture_load.load_model` on this mesh), or
         why there is none (a sentence naming what is needed); None: none given. A fixtured
@@ -191,6 +197,16 @@ class InspectionInputs:
     basis: BendingBasis | None = None
     scan_units: str | None = None
     fixture_load: LoadModel | str | None = None
+    stray: StrayPoints | None = None
+
+
+def surface_points(P: np.ndarray, inputs: InspectionInputs) -> tuple[np.ndarray, StrayPoints]:
+    """The scan points ``P`` (m, 3) mm an inspection judges, those in a surface patch, and
+    the stray ones left out (:mod:`qifreport.registration.outliers`): ``inputs.stray`` when
+    the caller left them out already, else found here."""
+    if inputs.stray is not None:
+        return P, inputs.stray
+    return without_stray(P)
 
 
 def inspect(
@@ -225,9 +241,17 @@ def inspect(
     inputs = InspectionInputs() if inputs is None else inputs
     timings: dict[str, float] = {}
     prepared, basis = checked_part(V, F, P, params, inputs, timings)
+    P, stray = surface_points(P, inputs)
     reg = seat_rigidly(V, F, P, params, prepared, timings)
     run = inspection_context(reg, params, inputs, prepared, basis, timings, progress)
-    return judge_as_held(run, inputs.restraint)
+    return with_stray(judge_as_held(run, inputs.restraint), stray)
+
+
+def with_stray(res: InspectionResult, stray: StrayPoints) -> InspectionResult:
+    """The result with the stray points left out of its scan recorded (they bear on its
+    verdict: :attr:`~qifreport.metrology.results.InspectionResult.stray`)."""
+    res.stray = stray
+    return res
 
 
 @dataclass(frozen=True)

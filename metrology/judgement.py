@@ -158,6 +158,7 @@ def assemble_result(
         size=s.size,
         characteristics=s.characteristics.results,
         frames=s.characteristics.frames,
+        spikes=s.scores.samples.spike,
     )
 
 

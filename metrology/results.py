@@ -29,6 +29,7 @@ from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.deformable.methods import METHODS, method_label, method_spec
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import RigidResult
+from qifreport.registration.outliers import StrayPoints
 from qifreport.registration.pose.prealign import PrealignResult
 from qifreport.registration.restraint.fixture_load import FixtureLoad
 from qifreport.registration.restraint.restrained import Restraint
@@ -193,6 +194,12 @@ class InspectionResult:
         fixture's shape (:class:`qifreport.registration.restraint.fixture_load.FixtureLoad`;
         a fixtured result only): above its force limit or beyond the material's yield
         strength, a PASS is not established.
+    stray : the scan points left out as stray (in no surface patch,
+        :func:`qifreport.registration.outliers.stray_points`); above the outlier model's
+        limit the verdict is NOT ESTABLISHED, a FAIL included. None: not looked for.
+    spikes : (m,) bool, the scan points of ``P`` alone off their neighbourhood's surface
+        (:mod:`qifreport.metrology.acceptance.point_regions`): they judge nothing and are
+        in no scan-point statistic. None: not looked for.
     """
 
     V: np.ndarray
@@ -235,6 +242,8 @@ class InspectionResult:
     fixture_load: FixtureLoad | None = None
     characteristics: list[CharacteristicResult] = field(default_factory=list)
     frames: list[DatumFrameResult] = field(default_factory=list)
+    stray: StrayPoints | None = None
+    spikes: np.ndarray | None = None
 
     @property
     def condition(self) -> RestraintCondition:
@@ -376,6 +385,9 @@ class InspectionResult:
           fixture could hold the part so.
         """
         out = []
+        refusal = None if self.stray is None else self.stray.refusal()
+        if refusal is not None:
+            out.append(refusal)
         if self.fixture_load is not None:
             out += self.fixture_load.refusals()
         r = self.restraint
@@ -459,6 +471,14 @@ class InspectionResult:
         bands near creases and rims; a solid's size check, reported only), one line each,
         whether or not it was measured."""
         out = []
+        if self.stray is not None and self.stray.count and not self.stray.over_limit:
+            out.append(f"scan: {self.stray.describe()}")
+        n_spikes = 0 if self.spikes is None else int(self.spikes.sum())
+        if n_spikes:
+            out.append(
+                f"scan: {n_spikes} point(s) alone off their neighbourhood's surface (a stray "
+                "point near it, or a one-point burr) judge nothing"
+            )
         if self.coverage is not None:
             out += [f"whole part: {w}" for w in self.coverage.warnings]
         for z in self.zones:
@@ -532,7 +552,11 @@ class InspectionResult:
         ``FAIL`` when a criterion fails on what was scored (rejected either way; warnings
         and unmeasured surfaces are reported); otherwise ``NOT ESTABLISHED`` when the
         registration cannot be trusted (:meth:`trust_warnings`), ``NOT MEASURED`` when a
-        surface was not measured (:meth:`not_measured`); ``PASS`` only when none of these."""
+        surface was not measured (:meth:`not_measured`); ``PASS`` only when none of these.
+        More stray points than the outlier model is stated for leave even a FAIL NOT
+        ESTABLISHED (:attr:`stray`): the data cannot decide."""
+        if self.stray is not None and self.stray.over_limit:
+            return "NOT ESTABLISHED"
         if not self.passed:
             return "FAIL"
         if not self.established or self.uncertain():
@@ -540,8 +564,10 @@ class InspectionResult:
         return "PASS" if self.measured else "NOT MEASURED"
 
     def decided_by(self) -> list[str]:
-        """What failed the part (empty when it passed), one line each."""
-        out = []
+        """What failed the part (empty when it passed), one line each; first, when there
+        are more stray points than the outlier model is stated for, that refusal."""
+        refusal = None if self.stray is None else self.stray.refusal()
+        out = [] if refusal is None else [f"not established: {refusal}"]
         if self.acceptance.decision == "FAIL":
             out += [f"whole part: {r}" for r in _fail_reasons(self.acceptance)]
         for z in self.zones:
@@ -560,7 +586,7 @@ class InspectionResult:
             if c.status == "FAIL"
         ]
         if self.passed:
-            out += [f"not established: {w}" for w in self.trust_warnings()]
+            out += [f"not established: {w}" for w in self.trust_warnings() if w != refusal]
             out += [f"not established: {w}" for w in self.uncertain()]
             out += [f"not measured: {w}" for w in self.not_measured()]
         return out
@@ -590,6 +616,8 @@ class InspectionResult:
             "vertex_deviation": self.vertex_stats.to_dict(),
             "point_deviation": self.point_stats.to_dict(),
             "added_material": None if self.added is None else self.added.to_dict(),
+            "stray_points": None if self.stray is None else self.stray.to_dict(),
+            "spike_points": None if self.spikes is None else int(self.spikes.sum()),
             "coverage": {
                 "scored_area_mm2": self.acceptance.scored_area,
                 "nominal_area_mm2": self.acceptance.nominal_area,

@@ -172,6 +172,11 @@ def measurement_results_attrs(
         ra.s(f"not_evaluated_{k}", f"{ne.kind} {ne.name}{ref}: {ne.reason}")
     ra.i("nominal_vertices", len(res.V)).i("nominal_triangles", len(res.F))
     ra.i("scan_points", len(res.P))
+    if res.stray is not None:
+        ra.i("stray_points_left_out", res.stray.count).d("stray_points_share", res.stray.share)
+        ra.d("stray_points_limit", res.stray.limit)
+    if res.spikes is not None:
+        ra.i("spike_points_left_out", int(res.spikes.sum()))
     for stage, sec in res.timings.items():
         ra.d(f"time_{stage}_s", sec)
     ra.s("nominal_sha256", nominal_sha256).s("scan_sha256", scan_sha256)

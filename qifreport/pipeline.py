@@ -47,6 +47,7 @@ from qifreport.metrology.model import Drawing, Part
 from qifreport.metrology.params import CLAMPS
 from qifreport.registration.linalg import default_backend
 from qifreport.registration.mesh import bounding_diagonal
+from qifreport.registration.outliers import StrayPoints, without_stray
 from qifreport.registration.pointcloud import read_scan
 from qifreport.registration.scan import Scan
 from qifreport.registration.thinning import ThinningReport, nominal_spacing, thin_scan
@@ -319,11 +320,13 @@ def inspect_state(
     prof: Profiler | None = None,
     executor=None,
     measures: ScanMeasures | None = None,
+    stray: StrayPoints | None = None,
 ) -> InspectionResult:
     """Inspect the scan points ``P`` (mm) against a prepared part, with the job's options
     (the repeatability runs included); ``executor``: where side work of the inspection runs
     beside its main line, ``measures``: the scan's normals and area started already on
-    ``P`` (:func:`qifreport.schedule.inspect_beside`)."""
+    ``P`` (:func:`qifreport.schedule.inspect_beside`), ``stray``: the stray points
+    :func:`scan_input` left out of ``P`` (None: the inspection looks for them)."""
     o = job.options
     part, drawing = state.part, state.drawing
     # the condition the part is judged in, and who stated it: the operator's, else the
@@ -343,6 +346,7 @@ def inspect_state(
         # the --min-coverage rules apply to this inspection's zones
         zones=zones_with_coverage(drawing.zones, o.zone_min_coverage),
         scan_units=o.scan_units,
+        stray=stray,
     )
     res = inspect_beside(
         part.V,
@@ -526,15 +530,19 @@ def plan_output(
     return path, qif_writer(build_plan(src), {})
 
 
-def scan_input(scan: Scan, part: Part) -> tuple[np.ndarray, ThinningReport]:
+def scan_input(scan: Scan, part: Part) -> tuple[np.ndarray, ThinningReport, StrayPoints]:
     """The points (m, 3) mm an inspection uses of a scan read against a part: thinned to the
-    part's mesh grid when far denser (:mod:`qifreport.registration.thinning`), and the
-    report (logged, one INFO line)."""
+    part's mesh grid when far denser (:mod:`qifreport.registration.thinning`), then without
+    its stray points (:mod:`qifreport.registration.outliers`), with the two reports (logged,
+    one INFO line each). Give the stray points to the inspection
+    (:attr:`~qifreport.metrology.inspection.InspectionInputs.stray`)."""
     P, report = thin_scan(
         scan.points, nominal_spacing(part.V, part.F), points_read=scan.points_read
     )
     log.info("%s: %s", scan.name, report.describe())
-    return P, report
+    P, stray = without_stray(P)
+    log.info("%s: %s", scan.name, stray.describe())
+    return P, report, stray
 
 
 @dataclass
@@ -599,7 +607,7 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
         # start as soon as the mesh is known, beside the preparation of a new part (one
         # CPU's work); its area is measured once seated, on one skin at a time
         with _stage(prof, "thin scan"):  # the points read are let go once thinned
-            scan["P"], scan["report"] = scan_input(scan.pop("read"), part)
+            scan["P"], scan["report"], scan["stray"] = scan_input(scan.pop("read"), part)
         scan["measures"] = start_scan_measures(scan["P"], params, beside)
 
     try:
@@ -623,7 +631,14 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     t_inspect = time.perf_counter()
     with progress_bar("virtual fixturing", enabled=progress) as bar:
         res = inspect_state(
-            P, state, job, bar=bar, prof=prof, executor=beside, measures=scan["measures"]
+            P,
+            state,
+            job,
+            bar=bar,
+            prof=prof,
+            executor=beside,
+            measures=scan["measures"],
+            stray=scan["stray"],
         )
     if prof is not None:
         prof.add_stages(t_inspect, res.timings, prefix="inspect: ")

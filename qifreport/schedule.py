@@ -38,8 +38,10 @@ from qifreport.metrology.inspection import (
     inspection_context,
     judge_as_held,
     seat_rigidly,
+    surface_points,
     with_fixture_load,
     with_free_state,
+    with_stray,
 )
 from qifreport.metrology.judgement import judge
 from qifreport.metrology.params import VIRTUAL
@@ -137,6 +139,10 @@ def inspect_beside(
         raise ValueError("the scan measures were started on other points than these")
     with _stopped_on_failure(measures):
         prepared, basis = checked_part(V, F, P, params, inputs, timings)
+        P, stray = surface_points(P, inputs)
+    if measures is not None and measures.P is not P:  # started before the stray points left
+        measures.cancel()
+        measures = None
     if measures is None:
         measures = start_scan_measures(P, params, executor)
     try:
@@ -145,11 +151,11 @@ def inspect_beside(
         measures.cancel()
     run = inspection_context(reg, params, inputs, prepared, basis, timings, progress)
     if executor is None:
-        return judge_as_held(run, inputs.restraint)
+        return with_stray(judge_as_held(run, inputs.restraint), stray)
     run = replace(run, judge=functools.partial(judge_beside, executor))
     if _held_as_asked(params) or not fixture_likely(reg.rigid, run.zones):
-        return judge_as_held(run, inputs.restraint)
-    return _free_state_beside_fixture(run, executor)
+        return with_stray(judge_as_held(run, inputs.restraint), stray)
+    return with_stray(_free_state_beside_fixture(run, executor), stray)
 
 
 @contextlib.contextmanager

@@ -227,7 +227,7 @@ def test_samples_are_not_thinned(nominal, scan):
     """The normal-density samples keep every point: their results do not change."""
     part, _ = load_nominal(SAMPLES / nominal, 0.5)
     read = read_scan(SAMPLES / scan)
-    Q, rep = scan_input(read, part)
+    Q, rep, _ = scan_input(read, part)
     assert Q is read.points and not rep.thinned
     assert rep.points_used == read.points_read == read.n
     assert rep.points_per_voxel < MIN_POINTS_PER_VOXEL / 2  # a wide margin

@@ -119,6 +119,7 @@ def test_point_groups_of_nested_sets_reuse_the_links_and_equal_a_fresh_grouping(
         vertex=np.zeros(len(P), dtype=np.int64),
         spacing=0.7,
         tree=cKDTree(P),
+        spike=np.zeros(len(P), dtype=bool),
     )
     score = rng.uniform(0, 1, len(P))
     wide = np.flatnonzero(score > 0.3)  # the band reduced: the most points out

@@ -135,3 +135,27 @@ def test_bump_fails_the_flatness_of_its_face(exact):
     # the bump's height read on the points, and the noise's
     assert 0.48 <= after["value"] <= 0.5 + 8 * NOISE, after
     assert doc["_rc"] == 1 and doc["verdict"] == "FAIL"
+
+
+def test_stray_points_change_no_reading_of_the_perfect_part(exact):
+    """0.5 % stray points in the scan's box grown 40 % (CTC 01 once read a hole's position
+    as 32.83 mm on them, and a basic 85 mm as 79.94): every characteristic reads as on the
+    clean scan, and the verdict is the clean scan's."""
+    from tests.test_stray_points import with_stray
+
+    scan = exact.scan(FTC08, 2.0)
+    clean = exact.run(FTC08, scan.P, "ftc08_2")
+    doc = exact.run(FTC08, with_stray(scan.P, 0.005, seed=2), "ftc08_2_stray")
+    assert (doc["verdict"], doc["_rc"]) == (clean["verdict"], clean["_rc"]), doc["decided_by"]
+    assert 0.004 < doc["stray_points"]["share"] <= 0.005
+    before = {c["key"]: c for c in clean["characteristics"]}
+    after = {c["key"]: c for c in doc["characteristics"]}
+    assert before.keys() == after.keys()
+    moved = [
+        (k, before[k]["value"], c["value"])
+        for k, c in after.items()
+        if c["status"] != before[k]["status"]
+        or (c["value"] is None) != (before[k]["value"] is None)
+        or (c["value"] is not None and abs(c["value"] - before[k]["value"]) > 0.01)
+    ]
+    assert not moved, moved

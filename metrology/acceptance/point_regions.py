@@ -28,6 +28,14 @@ per
 point), as on the vertices: none then on CTC 02's on-limit faces, while a 0.5 mm defect
 against a 0.25 mm zone is proven with a margin of twenty such ``U`` at 10 um noise.
 
+A point that disagrees with its neighbourhood's median by more than :data:`SPIKE_SIGMAS`
+times the face's robust scatter (and :data:`SPIKE_FLOOR` mm), with fewer than
+:data:`MIN_SPIKE_PATCH` such points linked within :data:`LINK` spacings, is a **spike**: a
+stray point closer to the surface than the scan's own outlier model reaches
+(:mod:`qifreport.registration.outliers`), or a single-point burr. It judges nothing (a
+feature's form read on the points would take its height whole); a defect, seen by several
+points together, is kept.
+
 Each region is returned as a :class:`qifreport.metrology.acceptance.criteria.Region` on the nominal
 vertices nearest to its points (for the views and the repeatability map), with the
 points' own area, peak, peak location and centroid.
@@ -53,6 +61,13 @@ __all__ = ["ScanSamples", "SurfacePoints", "linked_groups", "point_areas", "scan
 DEFAULT_K = 9
 #: two out-of-tolerance points belong to one region when closer than this many spacings
 LINK = 3.0
+#: a point this many robust scatters of its face from its neighbourhood's median is a spike
+#: candidate (module docstring)
+SPIKE_SIGMAS = 6.0
+#: and at least this far from it, mm (an exact scan's scatter is a few micrometres)
+SPIKE_FLOOR = 0.02
+#: the fewest candidates linked within :data:`LINK` spacings that are material, not spikes
+MIN_SPIKE_PATCH = 4
 
 
 @dataclass
@@ -67,6 +82,8 @@ class ScanSamples:
     vertex : (m,) the nominal vertex nearest to each point's closest point (-1: none).
     spacing : the scan's median point spacing.
     tree : a k-d tree of ``P`` (the points' areas, the added-material pass).
+    spike : (m,) bool, the points that disagree alone with their neighbourhood (module
+        docstring): they judge nothing.
     """
 
     P: np.ndarray
@@ -75,6 +92,7 @@ class ScanSamples:
     vertex: np.ndarray
     spacing: float
     tree: cKDTree
+    spike: np.ndarray
     _area: np.ndarray | None = None
     #: the links of the last point set grouped: (distance, its points, the pairs as
     #: positions in it, each scan point's position in it or -1)
@@ -238,6 +256,7 @@ def scan_samples(
     t = F[np.maximum(cface, 0)]
     d2 = ((V[t] - C[:, None, :]) ** 2).sum(axis=2)
     vertex[ok] = t[ok, np.argmin(d2[ok], axis=1)]
+    candidate = np.zeros(m, dtype=bool)
     order = np.argsort(label[ok], kind="stable")
     ids = np.flatnonzero(ok)[order]
     lab = label[ids]
@@ -251,7 +270,15 @@ def scan_samples(
         s = 1.4826 * np.median(np.abs(r[group] - med)) * np.sqrt(kk / (kk - 1.0))
         value[group] = med
         var[group] = 0.5 * np.pi * s * s / kk
+        candidate[group] = np.abs(r[group] - med) > max(SPIKE_SIGMAS * s, SPIKE_FLOOR)
     tree = cKDTree(P) if tree is None else tree
-    spacing = median_spacing(P, tree, probes=5000) if m > 1 else 0.0
+    spacing = max(median_spacing(P, tree, probes=5000) if m > 1 else 0.0, 1e-9)
     U = np.sqrt(4.0 * var + np.asarray(systematic, dtype=np.float64) ** 2)
-    return ScanSamples(P=P, value=value, U=U, vertex=vertex, spacing=max(spacing, 1e-9), tree=tree)
+    spike = np.zeros(m, dtype=bool)
+    cand = np.flatnonzero(candidate)
+    if len(cand):
+        groups = linked_groups(P[cand], LINK * spacing)
+        spike[cand] = np.bincount(groups)[groups] < MIN_SPIKE_PATCH
+    return ScanSamples(
+        P=P, value=value, U=U, vertex=vertex, spacing=spacing, tree=tree, spike=spike
+    )

@@ -77,7 +77,9 @@ def acceptance_stage(
     deviations, scores, readings = m.deviations, m.scores, m.readings
     general_half, dev_all = ctx.general_half, readings.deviation
     vstats = deviation_statistics(dev_all, weights=area, threshold=general_half)
-    pstats = deviation_statistics(deviations.point, threshold=general_half)
+    # the scan points' statistics are over the points that judge something: not a spike
+    spiked = np.where(scores.samples.spike, np.nan, deviations.point)
+    pstats = deviation_statistics(spiked, threshold=general_half)
     points = _surface_points(
         scores.samples,
         scores.points_ok,

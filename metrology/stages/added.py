@@ -23,8 +23,9 @@ def added_stage(
     params: InspectionParams,
 ) -> AddedMaterial:
     """The added material (:func:`added_material`): scan points standing proud of the
-    nominal beyond the whole part's band; points beyond its rim are not proud of it."""
-    pdev_in = np.where(deviations.beyond_rim, np.nan, deviations.point)
+    nominal beyond the whole part's band; points beyond its rim are not proud of it, nor
+    is a spike (a point alone off its neighbourhood: no surface patch of material)."""
+    pdev_in = np.where(deviations.beyond_rim | scores.samples.spike, np.nan, deviations.point)
     return added_material(
         reg.P,
         pdev_in,

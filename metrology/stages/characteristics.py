@@ -71,7 +71,8 @@ def characteristics_stage(
         d.closest,
         d.face,
         d.point,
-        scores.labels,
+        # a spike lies on no feature (a feature's form read on the points takes it whole)
+        None if scores.labels is None else np.where(scores.samples.spike, -1, scores.labels),
         scores.samples.vertex,
         scores.points_ok,
         scores.noise,

@@ -34,7 +34,7 @@ class Scores:
     labels : (m,) B-rep face of each scan point (-1: none); None: a mesh nominal.
     samples : the scan points' local values and uncertainties.
     points_ok : (m,) bool the points that judge the surface (nearest vertex scored there,
-        not added material).
+        not added material, not a spike).
     noise : the scan's range noise, mm.
     uncertainty : (n,) expanded uncertainty of ``deviation``, mm, the instrument's surface
         term included (what the surfaces' decisions use).
@@ -152,4 +152,5 @@ def _points_judging(
     # --fail-on-added-material), as the vertex measure's robust fit drops it too
     with np.errstate(invalid="ignore"):
         pts_ok &= ~(samples.value > general_half)
-    return pts_ok
+    # a spike (a stray point near the surface, a burr of one point) judges nothing
+    return pts_ok & ~samples.spike

@@ -124,7 +124,7 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
             scan_file = Path(td) / item.scan.name
             scan_file.write_bytes(task.scan_bytes)
             scan = read_scan(scan_file, units=job.options.scan_units)
-            P, scan_report = scan_input(scan, state.part)
+            P, scan_report, stray = scan_input(scan, state.part)
             del scan  # the inspection uses its thinned points
             this = replace(
                 job,
@@ -135,7 +135,7 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
                 json=True,
                 export_mesh=None,
             )
-            res = inspect_state(P, state, this)
+            res = inspect_state(P, state, this, stray=stray)
             finished = datetime.now(timezone.utc)
             digests = {"nominal": state.nominal_sha256, "scan": task.scan_sha256}
             writers, _ = output_writers(
