@@ -373,6 +373,8 @@ class InspectionResult:
         * the measurement scatter (range noise, fit residual) is too large to resolve a
           tolerance zone (:mod:`qifreport.metrology.acceptance.resolution`: 2 sigma <= width / 4);
         * ``--passes 1``: the single-pass fit has no two-pass guard;
+        * a virtual fixture that flags no defect candidates (NICP, CPD, RBF-FEM): what it
+          bends away is not seen;
         * the part's size cannot be established from its rim or trim edges
           (:mod:`qifreport.metrology.deviation.size`: too little of the rim seen, or a scale too
           uncertain or too close to the limit to decide);
@@ -414,6 +416,12 @@ class InspectionResult:
                 f"{100 * fit.guard_fraction:.1f} % of the covered surface as anomalous "
                 f"(limit {100 * limit:.0f} %), so the "
                 "band-limited refit fell back to the single-pass fit"
+            )
+        if self.fit is not None and not method_spec(self.fit.method).flags_defects:
+            out.append(
+                f"the virtual fixture {method_label(self.fit.method)} flags no defect "
+                "candidates: a defect it bends out of the part goes unseen, so a pass is not "
+                "claimed (a baseline for comparison; the default GB-CICP flags them)"
             )
         if (
             self.fit is not None

@@ -237,7 +237,7 @@ def build_state(
     judges the free state first needs it only when the free state does not conform; it is
     then built by the fixture, and a cache entry's stored by :func:`store_basis`), with or
     without ``complete``. ``on_nominal``: called with the part once it is read, before
-    it is prepared (:func:`part_state`).
+    its elastic models are built and it is prepared (:func:`part_state`).
     """
     t0 = time.perf_counter()
     part, drawing = load_nominal(
@@ -251,6 +251,8 @@ def build_state(
         solid_mesh=options.restraint is not None or _loads(options),
         solid_mesh_for_material=options.fixture_load is not None,
     )
+    if on_nominal is not None:  # the mesh is known: what needs only it starts (or stops) now
+        on_nominal(part)
     restraint = fixture_load = None
     solid = None if part.solid_mesh is None else (part.solid_mesh.X, part.solid_mesh.T)
     if options.restraint is not None:
@@ -264,8 +266,6 @@ def build_state(
             else build_load_model(part.V, part.F, spec, solid=solid, step=part.face_id is not None)
         )
     part.solid_mesh = None  # in the models now: not kept in the cache entry
-    if on_nominal is not None:
-        on_nominal(part)
     if complete:
         prepared = prepare_part(part.V, part.F, params, basis=not lazy_basis)
     else:

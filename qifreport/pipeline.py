@@ -41,6 +41,7 @@ from qifreport.metrology.inspection import (
     InspectionInputs,
     InspectionParams,
     InspectionResult,
+    check_units,
     inspect,
 )
 from qifreport.metrology.model import Drawing, Part
@@ -530,12 +531,18 @@ def plan_output(
     return path, qif_writer(build_plan(src), {})
 
 
-def scan_input(scan: Scan, part: Part) -> tuple[np.ndarray, ThinningReport, StrayPoints]:
-    """The points (m, 3) mm an inspection uses of a scan read against a part: thinned to the
-    part's mesh grid when far denser (:mod:`qifreport.registration.thinning`), then without
-    its stray points (:mod:`qifreport.registration.outliers`), with the two reports (logged,
-    one INFO line each). Give the stray points to the inspection
+def scan_input(
+    scan: Scan, part: Part, scan_units: str | None = None
+) -> tuple[np.ndarray, ThinningReport, StrayPoints]:
+    """The points (m, 3) mm an inspection uses of a scan read against a part: its extent
+    checked against the part's (other units, another part: ``InputError`` naming the unit,
+    ``scan_units`` the one the user declared, for the hint), thinned to the part's mesh grid
+    when far denser (:mod:`qifreport.registration.thinning`), then without its stray points
+    (:mod:`qifreport.registration.outliers`), with the two reports (logged, one INFO line
+    each). Give the stray points to the inspection
     (:attr:`~qifreport.metrology.inspection.InspectionInputs.stray`)."""
+    # before the thinning: a scan in metres would fall into one cell of the part's grid
+    check_units(part.V, scan.points, scan_units)
     P, report = thin_scan(
         scan.points, nominal_spacing(part.V, part.F), points_read=scan.points_read
     )
@@ -607,7 +614,9 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
         # start as soon as the mesh is known, beside the preparation of a new part (one
         # CPU's work); its area is measured once seated, on one skin at a time
         with _stage(prof, "thin scan"):  # the points read are let go once thinned
-            scan["P"], scan["report"], scan["stray"] = scan_input(scan.pop("read"), part)
+            scan["P"], scan["report"], scan["stray"] = scan_input(
+                scan.pop("read"), part, o.scan_units
+            )
         scan["measures"] = start_scan_measures(scan["P"], params, beside)
 
     try:

@@ -370,3 +370,20 @@ def test_trimesh_log_does_not_reach_the_console(tmp_path, caplog):
         load_mesh(f)
     assert len(P) == len(grid_mesh()[0])  # the distinct corners (STL repeats them)
     assert not [r for r in caplog.records if r.name.startswith("trimesh")], caplog.text
+
+
+def test_a_scan_in_metres_is_named_before_it_is_thinned(tmp_path):
+    """The panel's scan written in metres (0.19 "mm" across): the unit check runs before
+    the thinning, which would put it in one cell of the part's grid (the message was
+    "scan extent 0 mm" with divide-by-zero warnings)."""
+    import trimesh
+
+    P = np.asarray(trimesh.load(SAMPLES / "panel_scan.ply").vertices) / 1000.0
+    f = tmp_path / "scan.npy"
+    np.save(f, P)
+    out = tmp_path / "out"
+    r = run(SAMPLES / "panel.step", f, "--out", out)
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "use --scan-units m" in lines[0] and "0.189" in lines[0]
+    assert "Warning" not in r.stderr and not (out.exists() and any(out.iterdir()))

@@ -124,7 +124,7 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
             scan_file = Path(td) / item.scan.name
             scan_file.write_bytes(task.scan_bytes)
             scan = read_scan(scan_file, units=job.options.scan_units)
-            P, scan_report, stray = scan_input(scan, state.part)
+            P, scan_report, stray = scan_input(scan, state.part, job.options.scan_units)
             del scan  # the inspection uses its thinned points
             this = replace(
                 job,
