@@ -240,14 +240,21 @@ class FaceLocator:
         return math.atan2((d @ np.cross(z, x)) / b, (d @ x) / a)
 
     def _spline(self, ent: Entity, n: int = _SPLINE_SAMPLES) -> np.ndarray:
-        """Sample a (rational) B_SPLINE_CURVE_WITH_KNOTS over its whole parameter range."""
-        base = ent.part("B_SPLINE_CURVE") or ent.part("B_SPLINE_CURVE_WITH_KNOTS")
-        if ent.parts is None:  # simple: name, degree, points, form, closed, si, mults, knots
+        """Sample a (rational) B_SPLINE_CURVE_WITH_KNOTS over its whole parameter range.
+
+        A simple instance's parameters are its name, degree, points, form, closed, self-
+        intersecting, then the multiplicities and knots; a complex one's B_SPLINE_CURVE part
+        holds degree, points, form, closed and self-intersecting (its name is in its
+        REPRESENTATION_ITEM part), the knots in the B_SPLINE_CURVE_WITH_KNOTS part and the
+        weights in a RATIONAL_B_SPLINE_CURVE part (I-DEAS writes circles so)."""
+        if ent.parts is None:
+            base = ent.params
             degree, pts = int(base[1]), base[2]
             mults, knots = base[6], base[7]
             weights = None
         else:
-            degree, pts = int(base[1]), base[2]
+            base = ent.part("B_SPLINE_CURVE")
+            degree, pts = int(base[0]), base[1]
             kp = ent.part("B_SPLINE_CURVE_WITH_KNOTS")
             mults, knots = kp[0], kp[1]
             wp = ent.part("RATIONAL_B_SPLINE_CURVE")
@@ -313,7 +320,14 @@ class FaceLocator:
                 p[1], (p[2], p[3]), bool(p[4].value) if isinstance(p[4], Enum) else True
             )
         if ent.has("B_SPLINE_CURVE_WITH_KNOTS"):
-            pts = self._spline(ent)
+            try:
+                pts = self._spline(ent)
+            except (TypeError, ValueError, IndexError, AttributeError):
+                # a spline written otherwise than the standard says: not located
+                log.debug(
+                    "B-spline curve #%s not sampled: parameters not as AP242 writes them", ref
+                )
+                return None
             if ends is not None:
                 i0 = int(np.argmin(np.linalg.norm(pts - ends[0], axis=1)))
                 i1 = int(np.argmin(np.linalg.norm(pts - ends[1], axis=1)))

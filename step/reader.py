@@ -508,10 +508,17 @@ def _solid_names(st, solids: list) -> list[str]:
 
 
 def _label_name(lab) -> str:
-    """An XDE label's ``TDataStd_Name`` ('' when it has none)."""
+    """An XDE label's ``TDataStd_Name`` ('' when it has none).
+
+    OCP's ``FindAttribute`` takes the process down (SIGSEGV) on a label without the
+    attribute (an unnamed solid of a multi-solid export), so it is asked only where
+    ``IsAttribute`` says the attribute is there."""
     from OCP.TDataStd import TDataStd_Name
 
+    gid = TDataStd_Name.GetID_s()
+    if not lab.IsAttribute(gid):
+        return ""
     attr = TDataStd_Name()
-    if lab.FindAttribute(TDataStd_Name.GetID_s(), attr):
+    if lab.FindAttribute(gid, attr):
         return attr.Get().ToExtString().strip()
     return ""

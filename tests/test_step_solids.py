@@ -165,3 +165,33 @@ def test_an_assembly_places_its_instances(files):
     doc = json.loads((out / "assembly.json").read_text())
     assert doc["nominal"]["solid"] == {"index": 1, "name": "plate", "of": 2}
     assert doc["verdict"] != "FAIL" and doc["vertex_deviation"]["max_abs"] < 0.1
+
+
+def test_unnamed_solids_of_one_product_are_read_not_a_crash(tmp_path):
+    """One product whose shape is two unnamed solids (as a SolidWorks multi-body export
+    writes them): their XDE labels have no name, and OCP's ``FindAttribute`` on such a label
+    killed ``pmi`` and ``plan`` with SIGSEGV (exit 139)."""
+    from OCP.BRep import BRep_Builder
+    from OCP.STEPCAFControl import STEPCAFControl_Writer
+    from OCP.STEPControl import STEPControl_AsIs
+    from OCP.TCollection import TCollection_ExtendedString
+    from OCP.TDocStd import TDocStd_Document
+    from OCP.TopoDS import TopoDS_Compound
+    from OCP.XCAFDoc import XCAFDoc_DocumentTool
+
+    builder, compound = BRep_Builder(), TopoDS_Compound()
+    builder.MakeCompound(compound)
+    builder.Add(compound, _box((0, 0, 0), (100, 40, 5)))
+    builder.Add(compound, _box(*PLATE))
+    doc = TDocStd_Document(TCollection_ExtendedString("XmlOcaf"))
+    XCAFDoc_DocumentTool.ShapeTool_s(doc.Main()).AddShape(compound, False, False)
+    writer = STEPCAFControl_Writer()
+    writer.Transfer(doc, STEPControl_AsIs)
+    path = tmp_path / "bodies.stp"
+    writer.Write(str(path))
+    text = path.read_text()
+    assert text.count("MANIFOLD_SOLID_BREP('',") == 2 and text.count("PRODUCT(") == 1
+    r = run("pmi", path, "--json")
+    assert r.returncode == 0, (r.returncode, r.stderr[-500:])
+    part = read_step(path)
+    assert part.n_solids == 2 and part.solid_names == ["", ""]

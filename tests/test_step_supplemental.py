@@ -126,3 +126,39 @@ def test_a_tolerance_on_a_face_off_the_solid_is_listed_not_dropped():
     (t2,) = skipped
     assert "on solid 1, not on the solid inspected (0)" in t2.reason
     assert len(sup) == 1 and sup[0]["footprint_area_mm2"] > 0
+
+
+def test_a_complex_rational_b_spline_circle_is_sampled_on_its_circle():
+    """I-DEAS writes a circle as a complex instance (BOUNDED_CURVE, B_SPLINE_CURVE,
+    B_SPLINE_CURVE_WITH_KNOTS, RATIONAL_B_SPLINE_CURVE, ...): its B_SPLINE_CURVE part has no
+    name, so its degree is the first parameter (read as the second, ``int()`` of the point
+    list stopped ``pmi`` with a TypeError). A curve that cannot be read is not located."""
+    from qifreport.step.brep_geometry import FaceLocator
+    from qifreport.step.p21 import P21Model, Ref
+    from qifreport.step.units import MeasureReader
+
+    pts = [(1.5, 0.5), (2.366025403784449, 0.5), (1.933012701892205, 1.25), (1.5, 2.0)]
+    pts += [(1.066987298107795, 1.25), (0.633974596215551, 0.5), (1.5, 0.5)]
+    body = "".join(
+        f"#{10 + i}=CARTESIAN_POINT('',({x!r},{y!r},0.0));" for i, (x, y) in enumerate(pts)
+    )
+    refs = ",".join(f"#{10 + i}" for i in range(len(pts)))
+    body += (
+        f"#30=(BOUNDED_CURVE()B_SPLINE_CURVE(2,({refs}),.CIRCULAR_ARC.,.T.,.U.)"
+        "B_SPLINE_CURVE_WITH_KNOTS((3,2,2,3),(0.0,0.33333333333333,0.66666666666667,1.0),"
+        ".UNSPECIFIED.)CURVE()GEOMETRIC_REPRESENTATION_ITEM()"
+        "RATIONAL_B_SPLINE_CURVE((1.0,0.5,1.0,0.5,1.0,0.5,1.0))REPRESENTATION_ITEM('E13'));"
+        "#31=VERTEX_POINT('',#10);#32=VERTEX_POINT('',#13);"
+        # the same curve written with a wrong parameter count: not located, no exception
+        f"#33=(BOUNDED_CURVE()B_SPLINE_CURVE(({refs}))B_SPLINE_CURVE_WITH_KNOTS((3,2,2,3))"
+        "CURVE()REPRESENTATION_ITEM('bad'));"
+    )
+    locator = FaceLocator(MeasureReader(P21Model.from_text(f"DATA;{body}ENDSEC;")))
+    piece = locator.curve(Ref(30))
+    r = np.linalg.norm(piece.points[:, :2] - [1.5, 1.0], axis=1)
+    assert (
+        len(piece.points) > 20
+        and np.allclose(r, 0.5, atol=1e-9)
+        and np.allclose(piece.points[:, 2], 0)
+    )
+    assert locator.curve(Ref(33)) is None
