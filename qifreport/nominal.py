@@ -298,7 +298,10 @@ def _mesh_nominal(path: Path, tolerance: float | None) -> tuple[Part, Drawing]:
     F, flipped, unorientable = consistent_winding(V, F)
     if flipped:
         log.warning(
-            "%s: %d triangle(s) wound against their neighbours were turned over", path.name, flipped
+            "%s: %d triangle(s) turned over (wound against their neighbours, or a closed "
+            "surface wound inward)",
+            path.name,
+            flipped,
         )
     if unorientable:
         log.warning(

@@ -32,6 +32,7 @@ __all__ = [
     "bending_operator",
     "boundary_vertices",
     "bounding_diagonal",
+    "NEARLY_CLOSED",
     "consistent_winding",
     "crease_band",
     "edge_uses",
@@ -277,13 +278,22 @@ def edge_uses(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return E, count, inv.ravel().reshape(3, len(F)).T
 
 
+#: a piece with open edges whose area vectors sum to less than this share of its area is
+#: closed but for holes, and is turned outward (:func:`consistent_winding`)
+NEARLY_CLOSED = 0.1
+
+
 def consistent_winding(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, int, int]:
     """Make the triangles' winding consistent across every manifold edge.
 
     Two triangles sharing an edge are consistent when they traverse it in opposite
     directions. Each connected piece is oriented by the choice that flips the least area,
     then a *closed* piece (no open or non-manifold edge) is turned outward (positive signed
-    volume). A piece that cannot be oriented (a Moebius-like strip) is left as it is.
+    volume), and so is a *nearly closed* one: a surface with holes (a scanned reconstruction
+    open where the scanner did not see) whose area vectors sum to under
+    :data:`NEARLY_CLOSED` of its area (a closed surface's sum to zero, an open sheet's to
+    most of its area), its volume taken about its own centroid. A piece that cannot be
+    oriented (a Moebius-like strip) is left as it is.
 
     Parameters
     ----------
@@ -334,9 +344,25 @@ def consistent_winding(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, int, i
     np.logical_or.at(open_edge, face, count[e] != 2)
     has_open = np.bincount(piece, weights=open_edge, minlength=n_lab) > 0
     X0, X1, X2 = V[out[:, 0]], V[out[:, 1]], V[out[:, 2]]
-    vol = np.einsum("ij,ij->i", X0, np.cross(X1, X2)) / 6.0
+    # about each piece's area centroid: an open piece's volume depends on the origin
+    piece_area = np.bincount(piece, weights=area, minlength=n_lab)
+    centroid = (
+        np.stack(
+            [
+                np.bincount(piece, weights=area * (X0 + X1 + X2)[:, k] / 3.0, minlength=n_lab)
+                for k in range(3)
+            ],
+            axis=1,
+        )
+        / np.maximum(piece_area, 1e-300)[:, None]
+    )
+    c = centroid[piece]
+    vol = np.einsum("ij,ij->i", X0 - c, np.cross(X1 - c, X2 - c)) / 6.0
     piece_vol = np.bincount(piece, weights=vol, minlength=n_lab)
-    inward = ~has_open[piece] & (piece_vol[piece] < 0) & ~bad
+    A = 0.5 * np.cross(X1 - X0, X2 - X0)
+    vec = np.stack([np.bincount(piece, weights=A[:, k], minlength=n_lab) for k in range(3)], axis=1)
+    closed = ~has_open | (np.linalg.norm(vec, axis=1) < NEARLY_CLOSED * piece_area)
+    inward = closed[piece] & (piece_vol[piece] < 0) & ~bad
     out[inward] = out[inward][:, [0, 2, 1]]
     changed = np.any(out != F, axis=1)
     return out, int(changed.sum()), int(bad.sum())
