@@ -159,6 +159,28 @@ def test_summary_frame_orders_the_characteristic_columns():
     assert list(df["status_G1"]) == ["PASS", ""]
 
 
+def test_summary_csv_cells_a_spreadsheet_would_run_are_text():
+    """A serial number or scan id that starts like a formula (= + - @) is written with a
+    leading apostrophe (CSV injection); numbers, negative ones included, are numbers."""
+    import io
+
+    import pandas as pd
+
+    from qifreport.batch.summaries import csv_safe
+
+    base = {"seq": 1, "verdict": "PASS", "scan_sha256": "x", "profile_T1_mm": -0.2}
+    rows = [
+        {**base, "id": '=HYPERLINK("http://x")', "serial": "@SUM(A1)"},
+        {**base, "id": "b", "serial": "+1-555"},
+        {**base, "id": "c", "serial": "SN-7"},
+    ]
+    text = csv_safe(summary_frame([{"row": r} for r in rows])).to_csv(index=False)
+    back = pd.read_csv(io.StringIO(text), keep_default_na=False)
+    assert list(back["id"]) == ['\'=HYPERLINK("http://x")', "b", "c"]
+    assert list(back["serial"]) == ["'@SUM(A1)", "'+1-555", "SN-7"]
+    assert list(back["profile_T1_mm"]) == [-0.2, -0.2, -0.2]
+
+
 # ---------------------------------------------------------------------------- the batch
 
 

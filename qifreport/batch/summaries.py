@@ -25,7 +25,14 @@ from ..cache import PartState
 from ..pipeline import qif_writer
 from .plan import ScanItem, safe_id
 
-__all__ = ["COLUMNS", "summary_frame", "trend_characteristics", "write_summaries"]
+__all__ = [
+    "COLUMNS",
+    "FORMULA_STARTS",
+    "csv_safe",
+    "summary_frame",
+    "trend_characteristics",
+    "write_summaries",
+]
 
 log = logging.getLogger("qifreport.batch")
 
@@ -84,6 +91,27 @@ def summary_frame(records: list[dict]):
     return df
 
 
+#: a CSV text cell starting with one of these is a formula to a spreadsheet (CSV injection:
+#: ``=HYPERLINK(...)`` in a serial number or a file name)
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+
+
+def csv_safe(df):
+    """The table with every text cell a spreadsheet would run as a formula (it starts with
+    one of :data:`FORMULA_STARTS`) prefixed with an apostrophe, which spreadsheets show as
+    text; numbers, a negative one included, are left as they are."""
+    from pandas.api.types import is_numeric_dtype
+
+    out = df.copy()
+    for col in out.columns:
+        if not is_numeric_dtype(out[col]):
+            out[col] = [
+                "'" + v if isinstance(v, str) and v.startswith(FORMULA_STARTS) else v
+                for v in out[col]
+            ]
+    return out
+
+
 def write_summaries(
     out: Path, items: list[ScanItem], records: list[dict], states: dict, page: str, changed: bool
 ) -> list[Path]:
@@ -98,10 +126,11 @@ def write_summaries(
         stem = safe_id(nom.stem)
         per_part.append((nom, st, out / f"{stem}_statistics.qif", out / f"{stem}_trend.pdf"))
         files += per_part[-1][2:]
-    if not changed and all(f.is_file() for f in files) and _same_rows(files[0], df):
+    safe = csv_safe(df)
+    if not changed and all(f.is_file() for f in files) and _same_rows(files[0], safe):
         return files
     writers = [
-        (files[0], lambda p: df.to_csv(p, index=False)),
+        (files[0], lambda p: safe.to_csv(p, index=False)),
         (files[1], lambda p: df.to_parquet(p, index=False)),
     ]
     for nom, st, qif_path, pdf_path in per_part:
