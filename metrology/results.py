@@ -337,12 +337,18 @@ class InspectionResult:
         return None if self.edges is not None and not self.edges.judged else self.size
 
     @property
+    def part_failed(self) -> bool:
+        """The whole part's criteria fail on what was scored (nothing scored fails nothing:
+        it is not measured, :meth:`not_measured`)."""
+        return self.acceptance.scored_area > 0 and self.acceptance.decision == "FAIL"
+
+    @property
     def passed(self) -> bool:
         """No criterion fails on what was scored: the whole surface and every toleranced
         surface pass their area and region criteria (and, with ``fail_on_added_material``, no
         proud scan region exceeds the limit). Whether enough was scored is :attr:`measured`."""
         return bool(
-            self.acceptance.decision != "FAIL"
+            not self.part_failed
             and not any(z.failed for z in self.zones)
             and (self.added is None or self.added.passed)
             and (self.judged_size is None or not self.judged_size.flagged)
@@ -457,7 +463,8 @@ class InspectionResult:
         :mod:`qifreport.metrology.acceptance.coverage`), and the rim seen enough for the size
         check."""
         return (
-            (self.coverage is None or self.coverage.measured)
+            self.acceptance.scored_area > 0
+            and (self.coverage is None or self.coverage.measured)
             and all(z.measured for z in self.zones)
             and self.size_seen
         )
@@ -465,6 +472,13 @@ class InspectionResult:
     def not_measured(self) -> list[str]:
         """Why a surface is not measured, one line each (empty when all are)."""
         out = []
+        if not self.acceptance.scored_area > 0 and (
+            self.coverage is None or self.coverage.measured
+        ):
+            out.append(
+                "whole part: no vertex scored (no scan point lies near the part's surface "
+                "as it was seated or held): no statistic exists to judge"
+            )
         if self.coverage is not None and not self.coverage.measured:
             out += [f"whole part: {r}" for r in self.coverage.reasons]
         for z in self.zones:
@@ -576,7 +590,7 @@ class InspectionResult:
         are more stray points than the outlier model is stated for, that refusal."""
         refusal = None if self.stray is None else self.stray.refusal()
         out = [] if refusal is None else [f"not established: {refusal}"]
-        if self.acceptance.decision == "FAIL":
+        if self.part_failed:
             out += [f"whole part: {r}" for r in _fail_reasons(self.acceptance)]
         for z in self.zones:
             if z.failed:

@@ -80,6 +80,29 @@ def test_a_surface_scanned_too_sparsely_for_its_region_criterion_is_not_measured
     assert zone_coverage(V, F, dev, A, none, 0.0, 0.5).measured  # not counted: no rule
 
 
+def test_nothing_scored_is_not_measured_never_a_fail(shell, shell_case):
+    """A judgement with no vertex scored (a hold that put the scan nowhere near the part)
+    has NaN statistics: NOT MEASURED with that reason, never FAIL on them."""
+    from dataclasses import replace
+
+    V, F = shell
+    res = inspect(V, F, shell_case.P, InspectionParams(tolerance=0.5))
+    assert res.verdict == "PASS"
+    empty = replace(
+        res.acceptance,
+        scored_area=0.0,
+        coverage=0.0,
+        in_tolerance_fraction=float("nan"),
+        area_ok=False,
+        passed=False,
+    )
+    assert empty.decision == "FAIL"  # the surface's own rule: nothing scored passes nothing
+    nothing = replace(res, acceptance=empty)
+    assert nothing.verdict == "NOT MEASURED" and not nothing.part_failed
+    assert any("no vertex scored" in r for r in nothing.not_measured())
+    assert any("no vertex scored" in r for r in nothing.decided_by())
+
+
 def test_a_sparse_scan_of_the_shell_is_not_measured_as_too_sparse(shell, shell_case):
     """A seeded 15 % of the shell's scan (about 0.3 points/mm^2) is NOT MEASURED, "scan too
     sparse", with its real density; never a verdict from too few points."""
