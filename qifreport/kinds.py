@@ -23,8 +23,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 __all__ = [
+    "APPLIED_EVERYWHERE",
     "FAMILIES",
     "KINDS",
+    "MATERIAL_REQUIREMENTS",
     "CharacteristicKind",
     "QifRules",
     "StatisticsRule",
@@ -35,6 +37,8 @@ __all__ = [
     "register_kind",
     "registered",
     "resolve",
+    "unapplied_material",
+    "unapplied_modifiers",
     "unregister_kind",
 ]
 
@@ -142,6 +146,10 @@ class CharacteristicKind:
     qif : its QIF definition's elements.
     statistics : how a batch's statistics carry it; None: not carried.
     label : its name in reports (default: the name with spaces).
+    modifiers : the drawing's modifiers its measurement applies besides those every kind
+        applies (:data:`APPLIED_EVERYWHERE`); with any other one the characteristic is
+        not measured (:func:`unapplied_modifiers`), except a material requirement, whose
+        bonus can only widen the zone (:data:`MATERIAL_REQUIREMENTS`).
     """
 
     name: str
@@ -161,6 +169,7 @@ class CharacteristicKind:
     qif: QifRules = field(default_factory=QifRules)
     statistics: StatisticsRule | None = field(default_factory=StatisticsRule)
     label: str = ""
+    modifiers: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.family not in FAMILIES:
@@ -189,11 +198,21 @@ class CharacteristicKind:
         return resolve(self.measure)
 
 
+#: the modifiers every kind applies: free state (judged on the free state's surface)
+APPLIED_EVERYWHERE = ("free_state",)
+#: material requirements: their bonus widens the zone, so a kind that does not apply them
+#: reads against the stricter zone: its PASS stands, a FAIL is not established
+MATERIAL_REQUIREMENTS = ("maximum_material_requirement", "least_material_requirement")
+#: the extents a profile's faces already carry (the file lists every face of the extent)
+_EXTENTS = ("all_around", "all_over", "between", "continuous_feature")
+
 _M = "qifreport.metrology.gdt"
 _FORM = dict(family="form", datums="never")
 _ORIENTATION = dict(
     family="orientation",
     measure=f"{_M}.geometric:measure_orientation",
+    # a plane's tangent plane (T) is held in the zone, not its surface
+    modifiers=("tangent_plane",),
     qif=QifRules(datum_frame=True, material_condition=True, zone_shape="planar"),
 )
 _COAXIAL = dict(
@@ -216,6 +235,7 @@ KINDS: dict[str, CharacteristicKind] = {
             datums="optional",
             band=True,
             whole_part=True,
+            modifiers=_EXTENTS,
             qif_type="SurfaceProfile",
             statistics=StatisticsRule(worst_deviations=True, from_results=True),
         ),
@@ -226,6 +246,7 @@ KINDS: dict[str, CharacteristicKind] = {
             xcaf_type="ProfileOfLine",
             datums="optional",
             measure_whole=f"{_M}.geometric:measure_line_profile",
+            modifiers=("all_around", "between"),
             qif_type="LineProfile",
             qif=QifRules(outer_disposition=True, section_vector=True),
             statistics=StatisticsRule(worst_deviations=True),
@@ -237,6 +258,8 @@ KINDS: dict[str, CharacteristicKind] = {
             xcaf_type="Flatness",
             measure=f"{_M}.geometric:measure_flatness",
             measured_per_unit=("area",),
+            # coplanar faces are one feature (MeasuredSurface.features)
+            modifiers=("continuous_feature",),
             qif_type="Flatness",
             qif=QifRules(per_unit=("area",)),
         ),
@@ -277,6 +300,7 @@ KINDS: dict[str, CharacteristicKind] = {
             measure=f"{_M}.location:measure_position",
             measure_pattern=f"{_M}.location:measure_position_pattern",
             diametral=True,
+            modifiers=MATERIAL_REQUIREMENTS,
             qif_type="Position",
             qif=QifRules(
                 datum_frame=True,
@@ -332,6 +356,24 @@ KINDS: dict[str, CharacteristicKind] = {
         ),
     )
 }
+
+
+def unapplied_modifiers(kind: str, modifiers: list[str]) -> list[str]:
+    """The drawing's ``modifiers`` (as the PMI reads them: ``"tangent_plane"``,
+    ``"projected 10.795 mm"``) that a characteristic of ``kind`` does not apply, material
+    requirements apart (:data:`MATERIAL_REQUIREMENTS`); a kind qifreport does not know
+    applies none."""
+    k = lookup_kind(kind)
+    applied = APPLIED_EVERYWHERE + MATERIAL_REQUIREMENTS + (() if k is None else k.modifiers)
+    return [m for m in modifiers if m.split()[0] not in applied]
+
+
+def unapplied_material(kind: str, modifiers: list[str]) -> list[str]:
+    """The material requirements among ``modifiers`` a characteristic of ``kind`` does not
+    apply (read regardless of feature size: a stricter zone than the drawing's)."""
+    k = lookup_kind(kind)
+    own = () if k is None else k.modifiers
+    return [m for m in modifiers if m in MATERIAL_REQUIREMENTS and m not in own]
 
 
 def lookup_kind(name: str | None) -> CharacteristicKind | None:

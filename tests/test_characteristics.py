@@ -257,3 +257,61 @@ def test_perpendicularity_to_a_datum_from_one_target_area(ctc02):
     got = _measure(part, drawing, dev)["G5"]
     assert got.value == pytest.approx(0.10, rel=0.10), got.reading
     assert got.status == "PASS"
+
+
+def _measure_one(part, drawing, spec, dev: np.ndarray):
+    res, _ = measure_characteristics(
+        [spec], drawing.plan.datums, exact_surface(part, dev), "iso14253"
+    )
+    return res[0]
+
+
+def test_every_modifier_is_applied_or_the_item_is_not_measured(part, drawing):
+    """The drawing's modifiers on FTC 06's perpendicularity G11 (face 44 to A, B):
+
+    * tangent plane (T): the plane resting on the high points is held in the zone: a face
+      tilted 0.05 mm with a 0.08 mm dip in its middle reads 0.05 (its surface 0.08 more);
+    * a statistical tolerance (ST), a projected zone on a position: not applied by
+      qifreport, so not measured, naming the modifier (never a plain reading);
+    * maximum material requirement on an orientation (no bonus applied there): a reading
+      within the zone without the bonus stands (said), one beyond it is not established.
+    """
+    from dataclasses import replace
+
+    from qifreport.kinds import unapplied_material, unapplied_modifiers
+
+    assert unapplied_modifiers("parallelism", ["free_state", "tangent_plane"]) == []
+    assert unapplied_modifiers("position", ["projected 10.795 mm"]) == ["projected 10.795 mm"]
+    assert unapplied_modifiers("flatness", ["statistical_tolerance"]) == ["statistical_tolerance"]
+    assert unapplied_material("position", ["maximum_material_requirement"]) == []
+    mmr = ["maximum_material_requirement"]
+    assert unapplied_material("perpendicularity", mmr) == mmr
+
+    surf = exact_surface(part, np.zeros(len(part.V)))
+    v = surf.own_vertices([44])
+    y, X = surf.V[v, 1], surf.V[v]
+    centre = X.mean(axis=0)
+    dip = 0.08 * np.exp(-np.sum((X - centre) ** 2, axis=1) / (2 * 3.0**2))
+    dev = np.zeros(len(part.V))
+    dev[v] = 0.05 * (y - y.min()) / np.ptp(y) - dip
+    g11 = _spec(drawing, "G11")
+    plain = _measure_one(part, drawing, g11, dev)
+    tangent = _measure_one(part, drawing, replace(g11, modifiers=["tangent_plane"]), dev)
+    assert plain.value > 0.08, plain.value  # the dip counts on the surface
+    assert tangent.value == pytest.approx(0.05, abs=0.005), tangent.reading
+    assert "tangent plane" in tangent.reading
+
+    st = _measure_one(part, drawing, replace(g11, modifiers=["statistical_tolerance"]), dev)
+    assert st.status == "NOT_MEASURED" and "statistical tolerance" in st.reason
+    position = next(s for s in drawing.plan.specs if s.kind == "position")
+    projected = replace(position, modifiers=["projected 10.795 mm"])
+    pr = _measure_one(part, drawing, projected, np.zeros(len(part.V)))
+    assert pr.status == "NOT_MEASURED" and "projected 10.795 mm" in pr.reason
+
+    tilt = np.zeros(len(part.V))
+    tilt[v] = 0.05 * (y - y.min()) / np.ptp(y)
+    held = _measure_one(part, drawing, replace(g11, modifiers=mmr), tilt)
+    assert held.status == "PASS" and "without its bonus" in held.reading
+    beyond = replace(g11, modifiers=mmr, tolerance=0.02)
+    out = _measure_one(part, drawing, beyond, tilt)
+    assert out.status == "NOT_MEASURED" and "bonus" in out.reason

@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from qifreport.errors import InputError
-from qifreport.kinds import kind_label, lookup_kind
+from qifreport.kinds import kind_label, lookup_kind, unapplied_modifiers
 from qifreport.registration.arrays import unique_sorted
 
 __all__ = [
@@ -306,6 +306,16 @@ def _profile_zone(
     faces = sorted({face_index[s] for s in tol.face_step_ids if s in face_index})
     if not faces and not is_whole:
         return NotEvaluated(tol.type, tol.name, tol.step_id, "no B-rep face could be associated")
+    unapplied = unapplied_modifiers(tol.type, tol.modifiers)
+    if unapplied:
+        what = ", ".join(m.replace("_", " ") for m in unapplied)
+        return NotEvaluated(
+            tol.type,
+            tol.name,
+            tol.step_id,
+            f"modifier {what} not applied by qifreport: a band without it would be another "
+            "requirement",
+        )
     try:
         lo, hi = profile_band(tol.value, tol.unequal_displacement)
     except ValueError as exc:

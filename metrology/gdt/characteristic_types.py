@@ -89,6 +89,8 @@ class CharacteristicSpec:
         Cylinder.1'"``: a cosmetic thread, its model a tap-drill hole), ``''`` for none.
     drawn : a location dimension between curves drawn on faces (supplemental geometry,
         e.g. construction lines), not between the faces.
+    max_value : the zone's maximum (a MAX tolerance, ``1.016 (M) MAX 1.143``), mm: a
+        material bonus never widens the zone beyond it; None: none stated.
     """
 
     key: str
@@ -114,6 +116,7 @@ class CharacteristicSpec:
     composite: str = ""
     thread: str = ""
     drawn: bool = False
+    max_value: float | None = None
 
     @property
     def free_state(self) -> bool:

@@ -43,7 +43,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from qifreport.kinds import CharacteristicKind, kind_label, lookup_kind, resolve
+from qifreport.kinds import (
+    CharacteristicKind,
+    kind_label,
+    lookup_kind,
+    resolve,
+    unapplied_material,
+    unapplied_modifiers,
+)
 from qifreport.metrology.acceptance.scanner import DEFAULT_SCANNER, ScannerProfile
 from qifreport.metrology.gdt.budgets import apply_budget, sampling_budget
 from qifreport.metrology.gdt.characteristic_types import (
@@ -107,11 +114,36 @@ def measure_characteristics(
         surf = free_surface if spec.free_state and free_surface is not None else surface
         frame = frame_of(spec.datums, datums, surf, frames)
         res = apply_budget(_measure(spec, surf, frame, rule, sizes, areas), scanner, surf, rule)
+        res = _without_material_bonus(spec, res)
         soft = [p for p in spec.problems if "simulated regardless" in p]
         if soft and res.status != "NOT_MEASURED":  # a datum at MMC/LMC: said in the reading
             res.reading = "; ".join([res.reading, *soft]) if res.reading else "; ".join(soft)
         results.append(res)
     return results, list(frames.values())
+
+
+def _without_material_bonus(
+    spec: CharacteristicSpec, res: CharacteristicResult
+) -> CharacteristicResult:
+    """A characteristic whose material requirement its kind does not apply was read
+    against the zone without its bonus, a stricter one: a PASS stands (said in its reading),
+    anything else is not measured."""
+    missing = unapplied_material(spec.kind, spec.modifiers)
+    if not missing or res.status == "NOT_MEASURED":
+        return res
+    what = ", ".join(m.replace("_", " ") for m in missing)
+    if res.status == "PASS":
+        note = f"{what}: read regardless of feature size, without its bonus (a stricter zone)"
+        res.reading = f"{res.reading}; {note}" if res.reading else note
+        return res
+    value = "a reading" if res.value is None else f"{res.value:.4g}"
+    out = not_measured(
+        spec,
+        f"{value} read without the {what} bonus, which qifreport does not apply "
+        "to this kind: beyond the zone without it, not established with it",
+    )
+    out.direction = res.direction
+    return out
 
 
 def _measure(
@@ -127,6 +159,13 @@ def _measure(
     hard = [p for p in spec.problems if "simulated regardless" not in p]
     if hard:
         return not_measured(spec, "; ".join(hard))
+    unapplied = unapplied_modifiers(spec.kind, spec.modifiers)
+    if unapplied and spec.kind != "dimension":
+        return not_measured(
+            spec,
+            f"modifier {', '.join(m.replace('_', ' ') for m in unapplied)} not applied by "
+            "qifreport: a reading without it would be another requirement",
+        )
     if spec.kind == "dimension":
         try:
             return measure_dimension(spec, surf, rule, areas)

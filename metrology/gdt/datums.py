@@ -43,6 +43,7 @@ __all__ = [
     "unseen_arc",
     "nominal_feature",
     "simulate_datum",
+    "tangent_plane",
 ]
 
 #: re-linearisations of a simulator's programme and the motion (mm at the feature's
@@ -286,7 +287,7 @@ def _lp(c, A_ub, b_ub, k, bounds=None):
     return res.x
 
 
-def _tangent_plane(
+def tangent_plane(
     P: np.ndarray, normal: np.ndarray, keep: list[np.ndarray]
 ) -> tuple[np.ndarray, np.ndarray]:
     """The constrained L-infinity tangent plane (point, outward normal) of ``P`` (m, 3):
@@ -430,7 +431,7 @@ def simulate_datum(
         if len(P) < 3:
             raise ValueError(f"datum {feature.label}: fewer than 3 points on its feature")
         if association == "tangent":
-            o, n = _tangent_plane(P, feature.direction, keep)
+            o, n = tangent_plane(P, feature.direction, keep)
             method = "tangent plane"
         else:
             n = _ls_plane(P, feature.direction, keep)

@@ -38,7 +38,7 @@ from qifreport.metrology.gdt.characteristic_types import (
     not_measured,
     zone_uncertainty,
 )
-from qifreport.metrology.gdt.datums import DatumFeature
+from qifreport.metrology.gdt.datums import DatumFeature, tangent_plane
 from qifreport.metrology.gdt.form import (
     axis_frame,
     cylindricity,
@@ -264,11 +264,18 @@ def measure_straightness(spec, S, sample, feat, frame, sizes, surf, faces):
 def measure_orientation(spec, S, sample, feat, frame, sizes, surf, faces):
     if feat.kind == "sphere":
         raise Unmeasurable(f"{spec.kind} of a sphere")
+    tangent = "tangent_plane" in spec.modifiers
+    if tangent and feat.kind != "plane":
+        raise Unmeasurable(f"tangent plane modifier on a {feat.kind}")
     if feat.kind == "plane":
         n = feat.direction
+        how = "planes at the nominal orientation in the frame"
+        if tangent:  # (T): the plane contacting the high points, not the surface, is held
+            o_t, n_t = tangent_plane(S, n, [])
+            S = S - np.outer((S - o_t) @ n_t, n_t)
+            how = "the tangent plane (contacting the high points) over the feature, " + how
         w = S @ n
         rot = _free_rotation(frame)
-        how = "planes at the nominal orientation in the frame"
         if rot is not None and abs(rot @ n) < 1 - 1e-9:
             u = S @ np.cross(rot, n)
 

@@ -121,7 +121,12 @@ def _material_bonus(spec, S, o, a, r_ls, feat: DatumFeature, sizes, faces) -> tu
         actual = 2 * r_ls
         bonus = hi - actual if feat.internal else actual - lo
     bonus = max(bonus, 0.0)
-    return bonus, f"; {'MMC' if mmc else 'LMC'} bonus {bonus:.4f} mm (size {actual:.4f} mm)"
+    cap = ""
+    if spec.max_value is not None and spec.tolerance is not None:
+        limit = max(spec.max_value - spec.tolerance, 0.0)
+        if bonus > limit:
+            bonus, cap = limit, f", held to the MAX {spec.max_value:g} mm"
+    return bonus, f"; {'MMC' if mmc else 'LMC'} bonus {bonus:.4f} mm (size {actual:.4f} mm{cap})"
 
 
 def _axis_location(spec, S, sample, feat: DatumFeature, sizes, faces, position: bool):

@@ -148,6 +148,7 @@ def _tolerance_spec(
         zone_form=tol.zone_form,
         unit_basis=tol.unit_basis,
         composite=composite_segment(tol, pmi.tolerances),
+        max_value=tol.max_value,
     )
     if tol.value is None:
         spec.problems.append("tolerance value could not be established")
