@@ -221,6 +221,24 @@ def test_a_dent_cut_out_of_the_scan_is_never_a_pass(shell, shell_case_defect):
     assert any(v == "NOT MEASURED" for _, v in verdicts), verdicts
 
 
+def _mesh_run(nominal, scan, out):
+    """The CLI on a mesh nominal (tolerance 0.5 mm, no cache): the process and its JSON."""
+    r = run(
+        nominal,
+        scan,
+        "--tolerance",
+        "0.5",
+        "--out",
+        out,
+        "--json",
+        "--no-pdf",
+        "--no-cache",
+        "--quiet",
+    )
+    assert r.returncode in (0, 1, 3), r.stdout + r.stderr
+    return r, json.loads((out / f"{nominal.stem}.json").read_text())
+
+
 def test_flipped_triangles_are_turned_back_at_load(shell, tmp_path):
     V, F = shell
     rng = np.random.default_rng(11)
@@ -232,20 +250,8 @@ def test_flipped_triangles_are_turned_back_at_load(shell, tmp_path):
     assert np.array_equal(H, F)
     nominal = tmp_path / "flipped.ply"
     trimesh.Trimesh(V, G, process=False).export(nominal)
-    r = run(
-        nominal,
-        SAMPLES / "shell_scan_defect.ply",
-        "--tolerance",
-        "0.5",
-        "--out",
-        tmp_path / "o",
-        "--json",
-        "--no-pdf",
-        "--no-cache",
-        "--quiet",
-    )
+    r, doc = _mesh_run(nominal, SAMPLES / "shell_scan_defect.ply", tmp_path / "o")
     assert r.returncode == 1, r.stdout + r.stderr  # the defect fails, as on the clean nominal
-    doc = json.loads((tmp_path / "o" / "flipped.json").read_text())
     assert doc["nominal"]["winding"] == {"flipped_triangles": len(k), "unorientable_triangles": 0}
     assert doc["coverage"]["coverage"] > 0.85  # not read as creases
     assert doc["coverage"]["edge_excluded_area_mm2"] == 0.0
@@ -401,20 +407,8 @@ def test_a_closed_surface_with_holes_wound_inward_is_turned_outward(tmp_path):
     P = 40.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
     P += rng.normal(0, 0.01, P.shape)
     np.save(tmp_path / "scan.npy", P)
-    r = run(
-        nominal,
-        tmp_path / "scan.npy",
-        "--tolerance",
-        "0.5",
-        "--out",
-        tmp_path / "o",
-        "--json",
-        "--no-pdf",
-        "--no-cache",
-        "--quiet",
-    )
+    r, doc = _mesh_run(nominal, tmp_path / "scan.npy", tmp_path / "o")
     assert r.returncode in (0, 3), r.stdout + r.stderr
-    doc = json.loads((tmp_path / "o" / "ball.json").read_text())
     assert doc["nominal"]["winding"]["flipped_triangles"] == len(H)
     # scored all round, outside the chords by their sag (0.03 mm on these 2.4 mm edges)
     assert doc["coverage"]["coverage"] > 0.95 and 0.0 < doc["vertex_deviation"]["mean"] < 0.05
