@@ -613,6 +613,45 @@ class InspectionResult:
             out += [f"not measured: {w}" for w in self.not_measured()]
         return out
 
+    def registration_dict(self) -> dict:
+        """The JSON summary's ``registration`` block: the fixture's decision, the restraint,
+        the load, the seat, the rigid fit and the virtual fixture's fit."""
+        fit = self.fit
+        own = None if fit is None else method_spec(fit.method).params_field
+        return {
+            "energy": self.energy,
+            "fixture": {
+                "decision": self.fixture_decision,
+                "free_state_verdict": self.free_state,
+                "free_state_decided_by": list(self.free_state_decided_by),
+            },
+            "restraint": None if self.restraint is None else self.restraint.to_dict(),
+            "fixture_load": None if self.fixture_load is None else self.fixture_load.to_dict(),
+            "prealign": None if self.prealign is None else _prealign_dict(self.prealign),
+            "rigid": {
+                "R": self.rigid.R.tolist(),
+                "t_mm": self.rigid.t.tolist(),
+                "rms_mm": self.rigid.rms,
+                "residual_scale_mm": self.rigid.scale,
+                "inlier_fraction": self.rigid.inlier_fraction,
+                "iterations": self.rigid.iterations,
+            },
+            # the fit under its parameters' name too (the GB-CICP record: "gbcicp")
+            **{
+                m.params_field: _fit_dict(fit) if own == m.params_field else None
+                for m in METHODS.values()
+                if m.params_field is not None
+            },
+            "fit": None
+            if fit is None
+            else {
+                "method": fit.method,
+                "label": method_label(fit.method),
+                **_fit_dict(fit),
+                "params": _params_dict(fit.params),
+            },
+        }
+
     def to_dict(self) -> dict:
         """JSON-ready summary: verdict, statistics, regions, registration and parameters."""
         fit = self.fit
@@ -649,39 +688,7 @@ class InspectionResult:
                 "edge_excluded_area_mm2": self.edge_excluded_area,
                 "measured": None if self.coverage is None else self.coverage.to_dict(),
             },
-            "registration": {
-                "energy": self.energy,
-                "fixture": {
-                    "decision": self.fixture_decision,
-                    "free_state_verdict": self.free_state,
-                    "free_state_decided_by": list(self.free_state_decided_by),
-                },
-                "restraint": None if self.restraint is None else self.restraint.to_dict(),
-                "fixture_load": None if self.fixture_load is None else self.fixture_load.to_dict(),
-                "prealign": None if self.prealign is None else _prealign_dict(self.prealign),
-                "rigid": {
-                    "R": self.rigid.R.tolist(),
-                    "t_mm": self.rigid.t.tolist(),
-                    "rms_mm": self.rigid.rms,
-                    "residual_scale_mm": self.rigid.scale,
-                    "inlier_fraction": self.rigid.inlier_fraction,
-                    "iterations": self.rigid.iterations,
-                },
-                # the fit under its parameters' name too (the GB-CICP record: "gbcicp")
-                **{
-                    m.params_field: _fit_dict(fit) if own == m.params_field else None
-                    for m in METHODS.values()
-                    if m.params_field is not None
-                },
-                "fit": None
-                if fit is None
-                else {
-                    "method": fit.method,
-                    "label": method_label(fit.method),
-                    **_fit_dict(fit),
-                    "params": _params_dict(fit.params),
-                },
-            },
+            "registration": self.registration_dict(),
             "parameters": p,
             "repeatability": (None if self.repeatability is None else self.repeatability.to_dict()),
             "measurement": None if self.resolution is None else self.resolution.to_dict(),

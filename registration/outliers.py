@@ -6,11 +6,15 @@ The outlier model (:func:`stray_points`) needs no registration, so the seat, the
 and the virtual fixture are spared them too:
 
 * two points are **linked** when each is among the other's :data:`LINK_NEIGHBOURS` nearest
-  or the nearer is, and they are at most :data:`LINK_SPACINGS` median point spacings apart;
-* a **surface patch** is a connected set of linked points; one of at least
-  :data:`MIN_PATCH_POINTS` points is measured material (a rib, a flash, a clamp in the
-  scan: what the inspection judges as added material or as deviation);
-* every point of a smaller patch is **stray**: counted, reported, and given to no stage.
+  (mutual neighbours: a sparse strip of a grazing view links within itself, while a point
+  off a surface has surface points as its nearest but is none of theirs), at most
+  :data:`LINK_SPACINGS` median point spacings apart;
+* a **surface patch** is a connected set of linked points sampled like a surface: at
+  least :data:`MIN_PATCH_POINTS` points whose median link is at most
+  :data:`PATCH_LINK_SPACINGS` median spacings (a scanned surface links at about 2, a
+  cloud of stray points dense enough to link at 9-16): measured material (a rib, a flash,
+  a clamp in the scan: what the inspection judges as added material or as deviation);
+* every other point is **stray**: counted, reported, and given to no stage.
 
 A stray point closer to a surface than the link distance joins that surface's patch: the
 measured surface's own robust reading of its points (the features' form filter, the
@@ -36,6 +40,7 @@ __all__ = [
     "LINK_NEIGHBOURS",
     "LINK_SPACINGS",
     "MIN_PATCH_POINTS",
+    "PATCH_LINK_SPACINGS",
     "STRAY_LIMIT",
     "StrayPoints",
     "stray_points",
@@ -44,12 +49,15 @@ __all__ = [
 
 #: nearest neighbours a point is linked to (within :data:`LINK_SPACINGS`)
 LINK_NEIGHBOURS = 8
-#: the longest link, in median point spacings: a scan's density may fall fivefold (grazing
-#: views, the edge of a view) and stay one surface
-LINK_SPACINGS = 5.0
+#: the longest link, in median point spacings: a scan's density falls tenfold and more
+#: on grazing views and at the edge of a view (a simulated two-view scan: strips 1.2-5 mm
+#: from the rest at a 0.24 mm median spacing) and stays one surface
+LINK_SPACINGS = 25.0
 #: the fewest points of a surface patch: fewer are stray (at the sample scans' 0.38 mm
-#: spacing, about 3 mm^2 of surface)
-MIN_PATCH_POINTS = 20
+#: spacing, about 1.5 mm^2 of surface)
+MIN_PATCH_POINTS = 10
+#: the longest median link of a surface patch, in median point spacings
+PATCH_LINK_SPACINGS = 5.0
 #: the largest share of stray points the outlier model is stated for: up to it, stray points
 #: never change a verdict; above it, the verdict is not established
 STRAY_LIMIT = 0.02
@@ -149,10 +157,28 @@ def stray_points(
     near = (d[:, 1:] <= link) & (j[:, 1:] < m)
     rows = np.repeat(np.arange(m), k - 1)[near.ravel()]
     cols = j[:, 1:][near]
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(m, m))
-    _, label = connected_components(graph, directed=False)
-    size = np.bincount(label)
-    return StrayPoints(size[label] < min_patch, spacing, link, min_patch)
+    directed = coo_matrix((d[:, 1:][near], (rows, cols)), shape=(m, m)).tocsr()
+    mutual = directed.multiply(directed.T > 0).tocoo()
+    n, label = connected_components(mutual, directed=False)
+    size = np.bincount(label, minlength=n)
+    surface = (size >= min_patch) & (
+        _median_link(mutual, label, n) <= PATCH_LINK_SPACINGS * spacing
+    )
+    return StrayPoints(~surface[label], spacing, link, min_patch)
+
+
+def _median_link(links, label: np.ndarray, n: int) -> np.ndarray:
+    """(n,) the median length of each component's links (a sparse COO matrix of link
+    lengths, mm; ``inf`` for a component without one)."""
+    group = label[links.row]
+    order = np.lexsort((links.data, group))
+    group, length = group[order], links.data[order]
+    count = np.bincount(group, minlength=n)
+    mid = np.searchsorted(group, np.arange(n)) + count // 2
+    out = np.full(n, np.inf)
+    has = count > 0
+    out[has] = length[mid[has]]
+    return out
 
 
 def without_stray(P: np.ndarray, **options) -> tuple[np.ndarray, StrayPoints]:

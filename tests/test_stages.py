@@ -66,4 +66,7 @@ def test_the_stages_one_by_one_give_the_judgement_and_the_inspection():
     assert not same(given, res)
     whole = inspect(V, F, P, params)
     assert whole.fixture_decision == "rigid only"
+    # a clean scan: no stray point left out, so the same points judged, the same numbers
+    assert whole.stray is not None and whole.stray.count == 0
+    whole.stray = None
     assert not same(whole, res)

@@ -46,7 +46,6 @@ def test_the_model_leaves_out_points_in_no_patch_and_keeps_a_small_rib():
     P = np.vstack([surface, rib, far])
     s = stray_points(P)
     truth = np.r_[np.zeros(len(surface) + len(rib), bool), np.ones(len(far), bool)]
-    # far points within the link of another far point or of the rib may join them: a few
     assert not s.mask[: len(surface)].any()
     assert not s.mask[len(surface) : len(surface) + len(rib)].any()
     assert s.mask[truth].mean() > 0.97
@@ -82,12 +81,13 @@ def test_one_percent_stray_points_leave_the_conforming_panel_as_it_was(panel_run
     clean, stray = panel_runs("panel_scan.ply", 0.0), panel_runs("panel_scan.ply", 0.01)
     assert clean["verdict"] == "PASS" and clean["_rc"] == 0
     assert stray["verdict"] == "PASS" and stray["_rc"] == 0, stray["decided_by"]
-    # the stray points left out: most of those added (the rest lie near the sheet, where the
-    # seated spike test takes them), none of the clean scan's
+    # the stray points left out: over half of those added, none of the clean scan's; the
+    # rest lie near the sheet, within the surface's links, and judge nothing as spikes
     assert clean["stray_points"]["count"] == 0
     added = round(0.01 * stray["scan_input"]["points_used"] / 1.01)
-    assert 0.7 * added < stray["stray_points"]["count"] <= added
-    assert stray["spike_points"] < 0.3 * added + 10
+    assert 0.5 * added < stray["stray_points"]["count"] <= added
+    spikes = stray["spike_points"] - clean["spike_points"]
+    assert 0.9 * added < stray["stray_points"]["count"] + spikes <= 1.05 * added
     a, b = _flatness(clean), _flatness(stray)
     assert a.keys() == b.keys() and a
     for k in a:  # the flange flatness once read 0.64-3.1 mm on one stray point
