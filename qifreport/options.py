@@ -553,10 +553,16 @@ class InspectJob:
                 )
             seen[key] = kind
 
+    @property
+    def base(self) -> Path:
+        """The outputs' path without a suffix: ``out / stem`` (the nominal's stem unless
+        ``stem`` is given)."""
+        return self.out / (self.nominal.stem if self.stem is None else self.stem)
+
     def output_paths(self) -> dict[str, Path]:
         """The files this job writes: ``qif``, ``pdf``, ``html``, ``json``, ``mesh`` (those
         asked for)."""
-        stem = self.nominal.stem if self.stem is None else self.stem
+        stem = self.base.name
         o = self.options
         out = {
             "qif": None if o.no_qif else self.out / f"{stem}.qif",

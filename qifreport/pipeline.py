@@ -204,6 +204,19 @@ def progress_bar(
         bar.close()
 
 
+#: the reports a run may write under its base name (:meth:`InspectJob.output_paths`)
+REPORT_SUFFIXES = (".qif", ".pdf", ".html", ".json")
+
+
+def stale_siblings(job: InspectJob) -> list[Path]:
+    """The reports under the job's base name that it will not write and that exist (an
+    earlier run's PDF beside this run's QIF would read as this run's): refused without
+    ``force``, removed once this run's outputs are published with it."""
+    outputs = set(job.output_paths().values())
+    siblings = (job.out / f"{job.base.name}{s}" for s in REPORT_SUFFIXES)
+    return [p for p in siblings if p not in outputs and p.is_file()]
+
+
 def check_job(job: InspectJob) -> None:
     """Refuse before any work: bad options, a missing input, an output that exists (without
     ``force``) or a directory that cannot be written."""
@@ -220,6 +233,12 @@ def check_job(job: InspectJob) -> None:
             raise InputError(
                 f"output exists: {plan} is not the plan of {job.nominal.name} by this "
                 "qifreport (use --force to overwrite)"
+            )
+    for path in stale_siblings(job):
+        if not job.force:
+            raise InputError(
+                f"output exists: {path}, an earlier run's, would stand beside this run's "
+                "outputs as if it were one of them (use --force to replace the set)"
             )
     for path in job.output_paths().values():
         if path.exists() and not job.force:
@@ -667,9 +686,13 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
         finished,
         scan_report=scan_report,
     )
+    stale = stale_siblings(job)
     with _stage(prof, "write outputs"):  # all outputs or none
         reports = [paths[k] for k in ("pdf", "html") if k in paths]
         atomic_write_many(outputs, executor=beside, beside=reports)
+    for path in stale:  # --force: the set is this run's alone
+        path.unlink(missing_ok=True)
+        log.warning("removed %s, an earlier run's report this run does not write", path)
     if prof is not None and beside is not None:
         prof.children.extend(beside.peaks)
     return JobOutcome(res, paths, qif_state, cache)

@@ -387,3 +387,22 @@ def test_a_scan_in_metres_is_named_before_it_is_thinned(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and "use --scan-units m" in lines[0] and "0.189" in lines[0]
     assert "Warning" not in r.stderr and not (out.exists() and any(out.iterdir()))
+
+
+def test_a_run_owns_the_whole_set_of_reports_under_its_name(tmp_path):
+    """An earlier run's PDF beside this run's QIF would read as this run's report: without
+    --force the run is refused (nothing written), with it the stale PDF is removed once
+    this run's outputs are published."""
+    out = tmp_path / "out"
+    scan, nominal = SAMPLES / "shell_scan.ply", SAMPLES / "shell_nominal.ply"
+    first = run(nominal, scan, "--tolerance", "0.5", "--out", out, "--no-qif", "--quiet")
+    assert first.returncode == 0, first.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["shell_nominal.pdf"]
+    again = ("--tolerance", "0.5", "--out", out, "--no-pdf", "--quiet")
+    refused = run(nominal, scan, *again)
+    assert refused.returncode == 2 and "shell_nominal.pdf" in refused.stderr
+    assert len(refused.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in out.iterdir()) == ["shell_nominal.pdf"]
+    forced = run(nominal, scan, *again, "--force")
+    assert forced.returncode == 0, forced.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["shell_nominal.qif"]
