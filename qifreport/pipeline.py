@@ -76,7 +76,9 @@ __all__ = [
     "qif_writer",
     "resampled_runs",
     "run_job",
+    "remove_stale",
     "scan_input",
+    "stale_siblings",
     "write_ply_with_scalar",
 ]
 
@@ -215,6 +217,14 @@ def stale_siblings(job: InspectJob) -> list[Path]:
     outputs = set(job.output_paths().values())
     siblings = (job.out / f"{job.base.name}{s}" for s in REPORT_SUFFIXES)
     return [p for p in siblings if p not in outputs and p.is_file()]
+
+
+def remove_stale(paths: list[Path]) -> None:
+    """Remove an earlier run's reports (:func:`stale_siblings`) once this run's are
+    published with ``--force``: the set under the name is this run's alone."""
+    for path in paths:
+        path.unlink(missing_ok=True)
+        log.warning("removed %s, an earlier run's report this run does not write", path)
 
 
 def check_job(job: InspectJob) -> None:
@@ -690,9 +700,7 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     with _stage(prof, "write outputs"):  # all outputs or none
         reports = [paths[k] for k in ("pdf", "html") if k in paths]
         atomic_write_many(outputs, executor=beside, beside=reports)
-    for path in stale:  # --force: the set is this run's alone
-        path.unlink(missing_ok=True)
-        log.warning("removed %s, an earlier run's report this run does not write", path)
+    remove_stale(stale)
     if prof is not None and beside is not None:
         prof.children.extend(beside.peaks)
     return JobOutcome(res, paths, qif_state, cache)

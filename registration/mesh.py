@@ -343,29 +343,29 @@ def consistent_winding(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, int, i
     open_edge = np.zeros(nf, dtype=bool)
     np.logical_or.at(open_edge, face, count[e] != 2)
     has_open = np.bincount(piece, weights=open_edge, minlength=n_lab) > 0
-    X0, X1, X2 = V[out[:, 0]], V[out[:, 1]], V[out[:, 2]]
-    # about each piece's area centroid: an open piece's volume depends on the origin
-    piece_area = np.bincount(piece, weights=area, minlength=n_lab)
-    centroid = (
-        np.stack(
-            [
-                np.bincount(piece, weights=area * (X0 + X1 + X2)[:, k] / 3.0, minlength=n_lab)
-                for k in range(3)
-            ],
-            axis=1,
-        )
-        / np.maximum(piece_area, 1e-300)[:, None]
-    )
-    c = centroid[piece]
-    vol = np.einsum("ij,ij->i", X0 - c, np.cross(X1 - c, X2 - c)) / 6.0
-    piece_vol = np.bincount(piece, weights=vol, minlength=n_lab)
-    A = 0.5 * np.cross(X1 - X0, X2 - X0)
-    vec = np.stack([np.bincount(piece, weights=A[:, k], minlength=n_lab) for k in range(3)], axis=1)
-    closed = ~has_open | (np.linalg.norm(vec, axis=1) < NEARLY_CLOSED * piece_area)
+    piece_vol, closed = _pieces_volume(V, out, piece, n_lab, area, has_open)
     inward = closed[piece] & (piece_vol[piece] < 0) & ~bad
     out[inward] = out[inward][:, [0, 2, 1]]
     changed = np.any(out != F, axis=1)
     return out, int(changed.sum()), int(bad.sum())
+
+
+def _pieces_volume(
+    V: np.ndarray, F: np.ndarray, piece: np.ndarray, n: int, area: np.ndarray, has_open: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each of the ``n`` pieces' signed volume (mm^3) about its own area centroid (an open
+    piece's depends on the origin), and whether it is closed or nearly so (no open edge, or
+    area vectors summing to under :data:`NEARLY_CLOSED` of its area)."""
+    X0, X1, X2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    piece_area = np.bincount(piece, weights=area, minlength=n)
+    mid = area[:, None] * (X0 + X1 + X2) / 3.0
+    centroid = np.stack([np.bincount(piece, weights=mid[:, k], minlength=n) for k in range(3)], 1)
+    c = (centroid / np.maximum(piece_area, 1e-300)[:, None])[piece]
+    vol = np.einsum("ij,ij->i", X0 - c, np.cross(X1 - c, X2 - c)) / 6.0
+    A = 0.5 * np.cross(X1 - X0, X2 - X0)
+    vec = np.stack([np.bincount(piece, weights=A[:, k], minlength=n) for k in range(3)], axis=1)
+    closed = ~has_open | (np.linalg.norm(vec, axis=1) < NEARLY_CLOSED * piece_area)
+    return np.bincount(piece, weights=vol, minlength=n), closed
 
 
 def boundary_vertices(F: np.ndarray, n: int) -> np.ndarray:

@@ -30,6 +30,9 @@ NOT_CARRIED = {
     "drawn",
     "dim_type",
     "unit_basis",
+    # a MAX tolerance caps the bonus in the measurement; QIF's MaximumToleranceValue is not
+    # written yet
+    "max_value",
 }
 
 
