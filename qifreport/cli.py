@@ -36,7 +36,13 @@ import threading
 from collections.abc import Callable
 
 from qifreport import __version__
-from qifreport.errors import InputError, Interrupted, raise_if_interrupted
+from qifreport.errors import (
+    InputError,
+    Interrupted,
+    pending_interrupt,
+    raise_if_interrupted,
+    require_file,
+)
 
 from .cache import default_cache_dir, part_state, sha256
 from .cli_options import (
@@ -202,8 +208,7 @@ def _run_pmi(args: argparse.Namespace) -> int:
 
 
 def _run_prepare(args: argparse.Namespace) -> int:
-    if not args.nominal.is_file():
-        raise InputError(f"nominal file not found: {args.nominal}")
+    require_file(args.nominal, "nominal")
     o = inspect_options(args)
     state, outcome = part_state(
         args.nominal,
@@ -352,24 +357,34 @@ def _guard(fn: Callable[[], int], verbose: bool) -> int:
         # finalisation) can crash in an extension caught mid-computation (SIGSEGV seen after
         # the one-line message under load)
         exc.leave()
-    except InputError as exc:
+    except Exception as exc:
+        # a signal that a library turned into its own error (lxml's schema parser reports
+        # a Ctrl-C as an XMLSchemaParseError) is still the signal
+        intr = pending_interrupt(exc)
+        if intr is not None:
+            intr.leave()
+        return _error_exit(exc, verbose)
+
+
+def _error_exit(exc: Exception, verbose: bool) -> int:
+    """The one line of an error, and its exit code (2)."""
+    if isinstance(exc, InputError):
         print(f"qifreport: error: {exc}", file=sys.stderr)
         return EXIT_ERROR
-    except (OSError, MemoryError) as exc:
+    if isinstance(exc, (OSError, MemoryError)):
         print(f"qifreport: error: {type(exc).__name__}: {exc}", file=sys.stderr)
         return EXIT_ERROR
-    except Exception as exc:  # a bug must never read as "part failed" (exit 1)
-        log.debug("internal error", exc_info=True)
-        print(
-            f"qifreport: internal error: {type(exc).__name__}: {exc} (run with -v for the "
-            "traceback)",
-            file=sys.stderr,
-        )
-        if verbose:
-            import traceback
+    # a bug must never read as "part failed" (exit 1)
+    log.debug("internal error", exc_info=True)
+    print(
+        f"qifreport: internal error: {type(exc).__name__}: {exc} (run with -v for the traceback)",
+        file=sys.stderr,
+    )
+    if verbose:
+        import traceback
 
-            traceback.print_exc()
-        return EXIT_ERROR
+        traceback.print_exc()
+    return EXIT_ERROR
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -391,10 +406,8 @@ def main(argv: list[str] | None = None) -> int:
     with _blas_threads():
         rc = _guard(run, verbose)
     if Interrupted.received:
-        # a signal that arrived after the work was done: leave without the finalisation
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(rc)
+        # a signal that arrived after the work was done: the outputs stand, the exit says so
+        Interrupted(Interrupted.received[0]).leave(written=True)
     sys.exit(rc)
 
 

@@ -7,13 +7,17 @@ downstream one.
 
 import os
 import signal
+import stat
 import sys
+from pathlib import Path
 
 __all__ = [
     "InputError",
     "Interrupted",
+    "file_problem",
     "pending_interrupt",
     "raise_if_interrupted",
+    "require_file",
 ]
 
 
@@ -40,10 +44,13 @@ class Interrupted(KeyboardInterrupt):
         self.name = signal.Signals(signum).name
         Interrupted.received.append(signum)
 
-    def leave(self) -> None:
+    def leave(self, written: bool = False) -> None:
         """End the process now: the command's one line on stderr, exit ``128 + signal``
-        (no finalisation: an extension caught mid-computation can crash in it)."""
-        print(f"qifreport: interrupted by {self.name}: nothing written", file=sys.stderr)
+        (no finalisation: an extension caught mid-computation can crash in it).
+
+        ``written``: the signal came after the outputs were published (they stand)."""
+        done = "after the outputs were written" if written else "nothing written"
+        print(f"qifreport: interrupted by {self.name}: {done}", file=sys.stderr)
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(128 + self.signum)
@@ -64,3 +71,46 @@ def raise_if_interrupted() -> None:
     """Raise :class:`Interrupted` again if a signal arrived earlier and was swallowed."""
     if Interrupted.received:
         raise Interrupted(Interrupted.received[0])
+
+
+#: the kinds of file that are not regular files, as a user would name them
+_SPECIAL_KINDS = (
+    (stat.S_ISDIR, "a folder"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISFIFO, "a named pipe"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def file_problem(path: Path | str, what: str) -> str | None:
+    """Why ``path`` cannot be read as the ``what`` input file (one line), or None when it is
+    a regular file (a symbolic link to one included).
+
+    A special file (``/dev/zero``, a named pipe, a folder) is named by its kind: reading one
+    never ends or reads nothing useful.
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return f"{what} file not found: {path}"
+    except OSError as exc:
+        return f"{what} file {path} cannot be read: {exc.strerror or exc}"
+    if stat.S_ISREG(mode):
+        return None
+    kind = next((name for test, name in _SPECIAL_KINDS if test(mode)), "a special file")
+    return f"{what} {path} is {kind}, not a regular file"
+
+
+def require_file(path: Path | str, what: str) -> Path:
+    """``path`` as a :class:`~pathlib.Path` when it is a regular file.
+
+    Raises
+    ------
+    InputError
+        Missing, unreadable or a special file (:func:`file_problem`'s line).
+    """
+    problem = file_problem(path, what)
+    if problem is not None:
+        raise InputError(problem)
+    return Path(path)

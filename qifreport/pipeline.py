@@ -32,7 +32,7 @@ import numpy as np
 
 from qifreport import __version__
 from qifreport.atomic_io import atomic_write_many, output_lock, remove_stale_temps
-from qifreport.errors import InputError
+from qifreport.errors import InputError, require_file
 from qifreport.metrology.acceptance.bands import ToleranceZone
 from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION, resample_mask
 from qifreport.metrology.acceptance.repeatability import apply as apply_repeatability
@@ -232,9 +232,7 @@ def check_job(job: InspectJob) -> None:
     ``force``) or a directory that cannot be written."""
     job.check()
     for name in ("nominal", "scan"):
-        path = getattr(job, name)
-        if not path.is_file():
-            raise InputError(f"{name} file not found: {path}")
+        require_file(getattr(job, name), name)
     plan = plan_path(job, job.out)
     if plan is not None and plan.exists() and not job.force:
         from qifreport.qif.plan import plan_qpid, read_qpid

@@ -14,7 +14,7 @@ import argparse
 from pathlib import Path
 
 from .atomic_io import atomic_write
-from .errors import InputError
+from .errors import InputError, require_file
 
 __all__ = ["add_arguments", "comparison_table", "run"]
 
@@ -51,12 +51,11 @@ def run(args: argparse.Namespace) -> int:
     from .pipeline import qif_writer
 
     step: Path = args.step
-    if not step.is_file():
-        raise InputError(f"STEP file not found: {step}")
+    require_file(step, "STEP")
     if step.suffix.lower() not in STEP_SUFFIXES:
         raise InputError(f"{step.name} is not a STEP file (.stp, .step): a plan needs its PMI")
-    if args.compare is not None and not args.compare.is_file():
-        raise InputError(f"QIF file to compare with not found: {args.compare}")
+    if args.compare is not None:
+        require_file(args.compare, "QIF to compare with")
     out = args.out / plan_file_name(step.stem)
     if out.exists() and not args.force:
         raise InputError(f"{out} exists (use --force to overwrite)")

@@ -21,7 +21,7 @@ import trimesh
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from qifreport.errors import InputError
+from qifreport.errors import InputError, require_file
 
 from .arrays import unique_sorted
 
@@ -127,8 +127,7 @@ def load_mesh(path: str | Path, weld_tol: float = 1e-6) -> tuple[np.ndarray, np.
     from .pointcloud import check_declared_counts, one_line, read_trimesh
 
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"nominal mesh not found: {path}")
+    require_file(path, "nominal mesh")
     if path.suffix.lower() not in MESH_SUFFIXES:
         raise InputError(
             f"{path.name}: unsupported nominal format {path.suffix!r} (use STL, PLY, OBJ or OFF)"

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from qifreport.errors import InputError
+from qifreport.errors import InputError, require_file
 
 from .scan import Scan
 
@@ -183,8 +183,7 @@ def read_scan(path: str | Path, units: str | None = None, *, deduplicate: bool =
     path = Path(path)
     if units is not None and units not in SCAN_UNITS:
         raise InputError(f"unknown scan units {units!r} (use {', '.join(SCAN_UNITS)})")
-    if not path.is_file():
-        raise InputError(f"scan not found: {path}")
+    require_file(path, "scan")
     suffix = path.suffix.lower()
     if suffix not in SCAN_SUFFIXES:
         raise InputError(

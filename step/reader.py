@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qifreport.errors import InputError
+from qifreport.errors import InputError, require_file
 
 from .integrity import SOLID_TYPES, check_integrity
 from .p21 import P21Error, P21Model
@@ -317,8 +317,7 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
 
 def _check_header(path: Path) -> None:
     """Refuse a missing file or one that does not start with the Part 21 header."""
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
+    require_file(path, "STEP")
     with open(path, "rb") as fh:
         head = fh.read(64)
     if not head.lstrip().startswith(b"ISO-10303-21"):

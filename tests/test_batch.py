@@ -172,9 +172,53 @@ def test_plan_folders_globs_and_manifest(scans, tmp_path):
     assert items[2].id == "SN_002_b"  # made a safe file name
     with pytest.raises(InputError, match="no file matches"):
         plan(NOMINAL, [str(tmp_path / "*.e57")])
-    bad = tmp_path / "bad.csv"
-    bad.write_text("file,serial\na.ply,1\n")
-    assert plan(NOMINAL, [str(bad)])[0].scan == bad  # not a manifest: a (CSV) scan
+    points = tmp_path / "points.csv"
+    points.write_text("x (mm),y (mm),z (mm)\n1,2,3\n")
+    assert plan(NOMINAL, [str(points)])[0].scan == points  # not a manifest: a (CSV) scan
+
+
+def test_a_bad_manifest_is_refused_naming_its_line_or_column(tmp_path, caplog):
+    """A manifest's problem is one line naming the line or the column, never a row read
+    wrong: an unclosed quote swallowed the rest of the file into one scan name, a misspelt
+    ``serail`` lost every serial number, a first line of names without ``scan`` was read as
+    a point cloud."""
+    m = tmp_path / "m.csv"
+    cases = {
+        'scan,serial\na.ply,1\n"b.ply,2\nc.ply,3\n': r"m.csv line 3: a quote is never closed",
+        "scan,serial\na.ply,1\nb.ply,2,x\n": r"m.csv line 3: 1 more cell\(s\) than columns \('x'\)",
+        "scan,serail\na.ply,1\n": r"column 'serail' is not one of .* \(did you mean 'serial'",
+        "scan,serial\na.ply,1\n,2\n": r"m.csv line 3: empty 'scan'",
+    }
+    for text, match in cases.items():
+        m.write_text(text)
+        with pytest.raises(InputError, match=match):
+            plan(NOMINAL, [str(m)])
+    m.write_text("file,serial\na.ply,1\n")
+    with pytest.raises(InputError, match=r"neither a point cloud .* no 'scan' column"):
+        plan(NOMINAL, [str(m)])
+    m.write_text("scan,operator\na.ply,Ann\n")
+    assert plan(NOMINAL, [str(m)])[0].scan == tmp_path / "a.ply"
+    assert "column 'operator' is not read" in caplog.text
+
+
+@pytest.mark.slow
+def test_a_special_file_in_a_manifest_is_an_error_row_named_by_its_kind(tmp_path):
+    """``/dev/zero`` and a named pipe are refused by kind (reading either never ends), as
+    rows of the batch: the summary lists them, no statistics of nothing is written and the
+    command ends with its account, not an internal error."""
+    pipe = tmp_path / "pipe.ply"
+    os.mkfifo(pipe)
+    m = tmp_path / "m.csv"
+    m.write_text(f"scan,serial\n/dev/zero,Z-1\n{pipe},P-1\n{tmp_path},D-1\n")
+    out = tmp_path / "out"
+    rc, stdout, stderr = finish(batch(m, "--out", out, "--jobs", "1"), timeout=300)
+    assert rc == 1 and "internal error" not in stderr, stdout + stderr
+    assert "3 scans: 0 PASS, 0 FAIL, 0 NOT ESTABLISHED, 3 ERROR" in stdout, stdout
+    df = pd.read_csv(out / "summary.csv", keep_default_na=False).set_index("id")
+    assert df.loc["Z-1", "error"] == "scan /dev/zero is a character device, not a regular file"
+    assert df.loc["P-1", "error"] == f"scan {pipe} is a named pipe, not a regular file"
+    assert df.loc["D-1", "error"] == f"scan {tmp_path} is a folder, not a regular file"
+    assert not list(out.glob("*_statistics.qif")) and not list(out.glob("*_trend.pdf"))
 
 
 @pytest.mark.slow

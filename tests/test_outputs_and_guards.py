@@ -242,3 +242,30 @@ def test_a_signal_an_import_turned_into_another_error_is_still_the_signal(monkey
     Interrupted.received.append(int(signal.SIGINT))
     got = pending_interrupt(ImportError("numpy: could not import module datetime"))
     assert got is not None and got.signum == signal.SIGINT and got.name == "SIGINT"
+
+
+@pytest.mark.parametrize("after", [False, True])
+def test_a_signal_a_library_turned_into_its_error_ends_the_run_as_the_signal(after):
+    """lxml's schema parser reports a Ctrl-C as an ``XMLSchemaParseError``: the command
+    still ends as interrupted (one line, exit 130), never as an internal error (exit 2). A
+    signal after the outputs were published ends with exit 130 too, saying they stand."""
+    code = f"""
+import sys
+from qifreport import cli
+from qifreport.errors import Interrupted
+
+def run():
+    Interrupted.received.append(2)
+    if {after}:
+        return 0
+    raise RuntimeError("Failed to parse the XML resource")
+
+rc = cli._guard(run, verbose=False)
+if Interrupted.received:
+    Interrupted(Interrupted.received[0]).leave(written=True)
+sys.exit(rc)
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    done = "after the outputs were written" if after else "nothing written"
+    assert r.returncode == 130, (r.returncode, r.stderr)
+    assert r.stderr.splitlines() == [f"qifreport: interrupted by SIGINT: {done}"], r.stderr

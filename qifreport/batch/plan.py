@@ -13,6 +13,7 @@ a warning, when the two agree; one scan cannot be two parts, so two different se
 from __future__ import annotations
 
 import csv
+import difflib
 import glob
 import hashlib
 import logging
@@ -26,6 +27,9 @@ from qifreport.registration.pointcloud import SCAN_SUFFIXES
 __all__ = ["ScanItem", "plan", "read_manifest", "safe_id"]
 
 log = logging.getLogger("qifreport.batch")
+
+#: the columns a manifest may have (``scan`` required)
+MANIFEST_COLUMNS = ("scan", "serial", "nominal")
 
 #: a planned row: scan, serial ("" if none), nominal, where it was named (for messages)
 _Row = tuple[Path, str, Path, str]
@@ -67,38 +71,74 @@ def read_manifest(path: Path, nominal: Path) -> list[tuple[Path, str, Path]]:
 
 
 def _manifest_rows(path: Path, nominal: Path) -> list[_Row]:
-    """:func:`read_manifest`'s rows, each with its line (``"manifest.csv line 3"``)."""
+    """:func:`read_manifest`'s rows, each with its line (``"manifest.csv line 3"``).
+
+    Raises
+    ------
+    InputError
+        Naming the line: an unclosed quote, more cells than columns, an empty ``scan``; or
+        the manifest: no ``scan`` column, a column that misspells a known one.
+    """
     base = path.parent
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
-            reader = csv.DictReader(fh)
-            cols = [c.strip().lower() for c in (reader.fieldnames or [])]
-            if "scan" not in cols:
-                raise InputError(
-                    f"manifest {path} has no 'scan' column (columns: {', '.join(cols) or 'none'})"
-                )
-            rows = []
-            for k, raw in enumerate(reader, start=2):
-                row = {
-                    str(a).strip().lower(): (b or "").strip()
-                    for a, b in raw.items()
-                    if a is not None
-                }
-                if not row.get("scan"):
-                    raise InputError(f"manifest {path} line {k}: empty 'scan'")
-                scan = Path(row["scan"])
-                nom = Path(row["nominal"]) if row.get("nominal") else nominal
-                rows.append(
-                    (
-                        scan if scan.is_absolute() else base / scan,
-                        row.get("serial", ""),
-                        nom if nom.is_absolute() or nom is nominal else base / nom,
-                        f"{path.name} line {k}",
-                    )
-                )
+            reader = csv.DictReader(fh, strict=True)
+            _check_columns(path, [c.strip().lower() for c in (reader.fieldnames or [])])
+            rows: list[_Row] = []
+            done = reader.line_num  # the last line of the records read so far
+            try:
+                for raw in reader:
+                    rows.append(_manifest_row(path, base, nominal, raw, reader.line_num))
+                    done = reader.line_num
+            except csv.Error as exc:
+                why = "a quote is never closed" if "end of data" in str(exc) else str(exc)
+                raise InputError(f"manifest {path} line {done + 1}: {why}") from None
     except UnicodeDecodeError as exc:
         raise InputError(f"manifest {path} is not UTF-8 text") from exc
+    except csv.Error as exc:
+        raise InputError(f"manifest {path} line 1: {exc}") from None
     return rows
+
+
+def _check_columns(path: Path, cols: list[str]) -> None:
+    """Refuse a manifest without a ``scan`` column or with a misspelt known column (a
+    ``serail`` column would lose every serial number); warn of other columns, not read."""
+    if "scan" not in cols:
+        raise InputError(
+            f"manifest {path} has no 'scan' column (columns: {', '.join(cols) or 'none'})"
+        )
+    for c in cols:
+        if c in MANIFEST_COLUMNS:
+            continue
+        near = difflib.get_close_matches(c, MANIFEST_COLUMNS, n=1, cutoff=0.7)
+        if near:
+            raise InputError(
+                f"manifest {path}: column {c!r} is not one of {', '.join(MANIFEST_COLUMNS)} "
+                f"(did you mean {near[0]!r}?)"
+            )
+        log.warning(
+            "manifest %s: column %r is not read (only %s)", path, c, ", ".join(MANIFEST_COLUMNS)
+        )
+
+
+def _manifest_row(path: Path, base: Path, nominal: Path, raw: dict, line: int) -> _Row:
+    """One manifest record (``raw`` from :class:`csv.DictReader`, ending on ``line``)."""
+    if raw.get(None):
+        raise InputError(
+            f"manifest {path} line {line}: {len(raw[None])} more cell(s) than columns "
+            f"({', '.join(map(repr, raw[None]))})"
+        )
+    row = {str(a).strip().lower(): (b or "").strip() for a, b in raw.items() if a is not None}
+    if not row.get("scan"):
+        raise InputError(f"manifest {path} line {line}: empty 'scan'")
+    scan = Path(row["scan"])
+    nom = Path(row["nominal"]) if row.get("nominal") else nominal
+    return (
+        scan if scan.is_absolute() else base / scan,
+        row.get("serial", ""),
+        nom if nom.is_absolute() or nom is nominal else base / nom,
+        f"{path.name} line {line}",
+    )
 
 
 def safe_id(s: str) -> str:
@@ -179,10 +219,33 @@ def _each_scan_once(rows: list[_Row]) -> list[tuple[Path, str, Path]]:
 
 
 def _looks_like_manifest(p: Path) -> bool:
-    """A CSV whose first line names a ``scan`` column (a CSV point cloud has numbers)."""
+    """A CSV whose first line names a ``scan`` column; a CSV point cloud starts with numbers
+    or names x, y, z columns.
+
+    Raises
+    ------
+    InputError
+        A first line of names that is neither (``file,serial``): a manifest without its
+        ``scan`` column.
+    """
     try:
         with open(p, encoding="utf-8-sig", errors="replace") as fh:
             first = fh.readline()
     except OSError:
         return False
-    return "scan" in [c.strip().lower() for c in first.split(",")]
+    cells = [c.strip().strip("\"'").strip().lower() for c in first.split("#", 1)[0].split(",")]
+    if "scan" in cells:
+        return True
+    names = [c for c in cells if c]
+    if not names or any(_NUMBER.fullmatch(c) for c in names):
+        return False
+    if sum(bool(_AXIS.fullmatch(c)) for c in names) >= 3:
+        return False
+    raise InputError(
+        f"{p} is neither a point cloud (no x, y, z columns) nor a manifest: no 'scan' "
+        f"column (columns: {', '.join(names)})"
+    )
+
+
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?")
+_AXIS = re.compile(r"[xyz](\W.*|_.*)?")

@@ -16,7 +16,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from qifreport.errors import InputError
+from qifreport.errors import InputError, file_problem
 
 from ..cache import PartState, part_state, sha256
 from ..options import InspectJob, InspectOptions
@@ -106,8 +106,8 @@ def run_batch(opts: BatchOptions) -> BatchReport:
     states: dict[Path, PartState | str] = {}
     outcomes = {}
     for nom in dict.fromkeys(i.nominal for i in items):
-        if not nom.is_file():
-            states[nom] = f"nominal file not found: {nom}"
+        if file_problem(nom, "nominal"):
+            states[nom] = file_problem(nom, "nominal")
             continue
         try:
             states[nom], outcomes[str(nom)] = part_state(
@@ -129,10 +129,8 @@ def run_batch(opts: BatchOptions) -> BatchReport:
                 out, item, "", TaskResult(item.id, False, {}, error_row(item, "", st), error=st)
             )
             continue
-        if not item.scan.is_file():
-            sd, err = "", f"scan file not found: {item.scan}"
-        else:
-            sd, err = sha256(item.scan), ""
+        err = file_problem(item.scan, "scan") or ""
+        sd = "" if err else sha256(item.scan)
         digest = record_digest(sd, st.nominal_sha256, item, o)
         rec = None if opts.force else read_record(out, item, digest)
         if rec is not None and (rec["ok"] or (rec.get("final") and not opts.retry_failed)):

@@ -121,10 +121,15 @@ def write_summaries(
     files = [out / "summary.csv", out / "summary.parquet"]
     per_part = []
     for nom, st in states.items():
-        if isinstance(st, str):
-            continue
         stem = safe_id(nom.stem)
-        per_part.append((nom, st, out / f"{stem}_statistics.qif", out / f"{stem}_trend.pdf"))
+        part_files = (out / f"{stem}_statistics.qif", out / f"{stem}_trend.pdf")
+        if isinstance(st, str) or not any(r["ok"] and r["nominal"] == str(nom) for r in records):
+            for f in part_files:  # no scan of this part inspected: no statistics, no trend
+                if f.is_file():
+                    f.unlink()
+                    log.warning("removed %s: no scan of %s was inspected", f, nom.name)
+            continue
+        per_part.append((nom, st, *part_files))
         files += per_part[-1][2:]
     safe = csv_safe(df)
     if not changed and all(f.is_file() for f in files) and _same_rows(files[0], safe):
