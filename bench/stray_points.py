@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from qifreport.registration.pointcloud import read_scan
+from qifreport.simulate.scanner import with_stray_points
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"
@@ -37,16 +38,6 @@ CASES: dict[str, tuple[str, str, tuple[str, ...]]] = {
     "panel_defect": ("panel.step", "panel_scan_defect.ply", ()),
     "shell": ("shell_nominal.ply", "shell_scan.ply", ("--tolerance", "0.5")),
 }
-
-
-def with_stray(P: np.ndarray, share: float, seed: int) -> np.ndarray:
-    """``P`` (m, 3) mm with ``share * m`` uniform points in its box grown 40 %, shuffled."""
-    rng = np.random.default_rng(seed)
-    lo, hi = P.min(axis=0), P.max(axis=0)
-    c, h = (lo + hi) / 2, (hi - lo) / 2 * 1.4
-    Q = np.vstack([P, rng.uniform(c - h, c + h, size=(int(round(share * len(P))), 3))])
-    rng.shuffle(Q)
-    return Q
 
 
 def run(nominal: Path, scan: Path, out: Path, extra: tuple[str, ...]) -> dict:
@@ -73,7 +64,7 @@ def main() -> None:
             P = read_scan(SAMPLES / scan).points
             for share in shares:
                 path = Path(td) / f"{name}_{share:g}.npy"
-                np.save(path, with_stray(P, share, a.seed) if share else P)
+                np.save(path, with_stray_points(P, share, a.seed) if share else P)
                 doc = run(SAMPLES / nominal, path, Path(td) / path.stem, extra)
                 stray = (doc.get("stray_points") or {}).get("count", 0)
                 flat = {

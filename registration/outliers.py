@@ -102,7 +102,9 @@ class StrayPoints:
         return (
             f"{self.count} stray point(s), {100 * self.share:.2f} % of the scan, left out "
             f"(in no surface patch of {self.min_patch}+ points linked within "
-            f"{self.link:.2g} mm; the model holds up to {100 * self.limit:g} %)"
+            f"{self.link:.2g} mm whose median link is at most "
+            f"{PATCH_LINK_SPACINGS * self.spacing:.2g} mm; the model holds up to "
+            f"{100 * self.limit:g} %)"
         )
 
     def refusal(self) -> str | None:

@@ -141,11 +141,11 @@ def test_stray_points_change_no_reading_of_the_perfect_part(exact):
     """0.5 % stray points in the scan's box grown 40 % (CTC 01 once read a hole's position
     as 32.83 mm on them, and a basic 85 mm as 79.94): every characteristic reads as on the
     clean scan, and the verdict is the clean scan's."""
-    from tests.test_stray_points import with_stray
+    from qifreport.simulate.scanner import with_stray_points
 
     scan = exact.scan(FTC08, 2.0)
     clean = exact.run(FTC08, scan.P, "ftc08_2")
-    doc = exact.run(FTC08, with_stray(scan.P, 0.005, seed=2), "ftc08_2_stray")
+    doc = exact.run(FTC08, with_stray_points(scan.P, 0.005, seed=2), "ftc08_2_stray")
     assert (doc["verdict"], doc["_rc"]) == (clean["verdict"], clean["_rc"]), doc["decided_by"]
     assert 0.004 < doc["stray_points"]["share"] <= 0.005
     before = {c["key"]: c for c in clean["characteristics"]}

@@ -18,21 +18,11 @@ import pytest
 import trimesh
 
 from qifreport.registration.outliers import MIN_PATCH_POINTS, STRAY_LIMIT, stray_points
+from qifreport.simulate.scanner import with_stray_points
 from tests.conftest import ROOT
 from tests.nist_scans import run_cli
 
 PANEL = ROOT / "samples" / "panel.step"
-
-
-def with_stray(P: np.ndarray, share: float, seed: int) -> np.ndarray:
-    """``P`` with ``share`` of its count added as uniform points in its box grown 40 %."""
-    rng = np.random.default_rng(seed)
-    lo, hi = P.min(axis=0), P.max(axis=0)
-    c, h = (lo + hi) / 2, (hi - lo) / 2 * 1.4
-    S = rng.uniform(c - h, c + h, size=(int(round(share * len(P))), 3))
-    Q = np.vstack([P, S])
-    rng.shuffle(Q)
-    return Q
 
 
 def test_the_model_leaves_out_points_in_no_patch_and_keeps_a_small_rib():
@@ -66,7 +56,7 @@ def panel_runs(tmp_path_factory):
         if (scan, share) not in docs:
             P = np.asarray(trimesh.load(ROOT / "samples" / scan).vertices)
             path = tmp / f"{Path(scan).stem}_{share:g}.npy"
-            np.save(path, with_stray(P, share, seed=1) if share else P)
+            np.save(path, with_stray_points(P, share, seed=1) if share else P)
             docs[scan, share] = run_cli(PANEL, path, tmp / path.stem)
         return docs[scan, share]
 

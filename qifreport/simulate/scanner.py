@@ -29,6 +29,7 @@ __all__ = [
     "ScanSpec",
     "SimulatedScan",
     "virtual_scan",
+    "with_stray_points",
 ]
 
 log = logging.getLogger(__name__)
@@ -294,3 +295,25 @@ def virtual_scan(V: np.ndarray, F: np.ndarray, spec: ScanSpec | None = None) -> 
         directions=dirs,
         true_normals=np.concatenate(out_n),
     )
+
+
+def with_stray_points(P: np.ndarray, share: float, seed: int) -> np.ndarray:
+    """``P`` with ``share * len(P)`` stray points added, uniform in its bounding box grown
+    40 % (reflections, dust, fixture parts a real scan holds), in shuffled order.
+
+    Parameters
+    ----------
+    P : (m, 3) float, scan points, mm.
+    share : stray points per scan point (0.01: 1 %).
+    seed : random seed.
+
+    Returns
+    -------
+    (m + round(share * m), 3) float, mm.
+    """
+    rng = np.random.default_rng(seed)
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    c, h = (lo + hi) / 2, (hi - lo) / 2 * 1.4
+    Q = np.vstack([P, rng.uniform(c - h, c + h, size=(int(round(share * len(P))), 3))])
+    rng.shuffle(Q)
+    return Q
