@@ -276,6 +276,11 @@ def _restraint_attrs(ra: Attrs, r) -> None:
     if "pad_radius_mm" in model:
         ra.d("restraint_pad_radius_mm", model["pad_radius_mm"])
     ra.s("restraint_clamps_source", str(model.get("clamps_source", "")))
+    held = model.get("clamp_set") or {}
+    if held:
+        ra.s("restraint_clamp_set", str(held["kind"]))
+        ra.b("restraint_removes_flex", bool(held["removes_flex"]))
+        ra.d("restraint_motion_per_mm_misread", float(held["motion_per_mm_misread"]))
     ra.i("restraint_clamps", len(r.clamps))
     src = r.offset_sources or [""] * len(r.clamps)
     for k, (c, off, f, s) in enumerate(

@@ -91,7 +91,7 @@ log = logging.getLogger(__name__)
 
 #: version of the entry layout, part of every key: an entry written by another layout of
 #: :class:`PartState` (or of anything it holds) is never read; bump it when that changes
-CACHE_FORMAT = 24
+CACHE_FORMAT = 25
 SUFFIX = ".qprep"
 
 

@@ -138,6 +138,9 @@ def restraint_text(r: Restraint) -> str:
         f"by the part's elastic model ({m.get('model', '')}; {material}){weight}, judged as "
         "held (no virtual fixture)"
     ]
+    held = m.get("clamp_set") or {}
+    if held.get("statement"):
+        lines.append(f"  clamp set: {held['statement']}")
     src = r.offset_sources or [""] * len(r.clamps)
     for c, off, f, s in zip(r.clamps, r.offsets, r.force, src, strict=True):
         force = f"{f:.3g} N" if r.forces_known else "force not known"

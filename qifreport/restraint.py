@@ -28,8 +28,9 @@ import numpy as np
 
 from qifreport.metrology.model import MaterialStatement
 from qifreport.registration.mesh import face_normals
+from qifreport.registration.restraint.clamp_set import ClampSet, classify_clamp_set
 from qifreport.registration.restraint.clamps import Clamp, parse_clamps
-from qifreport.registration.restraint.elastic import Material, elastic_model, material, rigid_rank
+from qifreport.registration.restraint.elastic import Material, elastic_model, material
 from qifreport.registration.restraint.fixture_load import LoadModel, boundary_faces, load_model
 from qifreport.registration.restraint.restrained import RestraintBasis, restraint_basis
 
@@ -45,6 +46,7 @@ __all__ = [
     "RestraintSpec",
     "boundary_normals",
     "build_restraint",
+    "clamp_set",
     "PMI_CLAMPS",
     "read_clamps",
     "sheet_model_mesh",
@@ -244,6 +246,7 @@ def build_restraint(
     clamps = list(spec.clamps)
     mat = spec.elastic_material()
     normals = _held_normals(V, F, clamps)
+    held = clamp_set(V, clamps, normals, spec.pad_radius)
     X, T, kind = _elastic_solid(V, F, spec, solid)
     model = elastic_model(X, T, mat)
     load = _gravity_load(spec, mat, model)
@@ -269,6 +272,7 @@ def build_restraint(
         "material_source": None if spec.material is None else spec.material_source,
         "pad_radius_mm": spec.pad_radius,
         "clamps_source": spec.source,
+        "clamp_set": {**held.to_dict(), "statement": held.describe()},
         "gravity": None if load is None else gravity_direction(spec.gravity).tolist(),
         "seconds": time.perf_counter() - t0,
     }
@@ -286,7 +290,7 @@ def build_restraint(
 
 def _held_normals(V: np.ndarray, F: np.ndarray, clamps: list) -> np.ndarray:
     """(c, 3) the surface normal at each clamp; InputError for a clamp off the part's
-    surface or clamps that leave a rigid motion free."""
+    surface."""
     pos = np.array([c.position for c in clamps], dtype=np.float64)
     diag = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
     dist, normals = _closest_normals(V, F, pos)
@@ -298,15 +302,28 @@ def _held_normals(V: np.ndarray, F: np.ndarray, clamps: list) -> np.ndarray:
                 f"from the part's surface (at most {limit:.3g} mm): its file is in another "
                 "frame, or names another part's point"
             )
-    dirs = [(p, e) for c, p, n in zip(clamps, pos, normals, strict=True) for e in c.axes(n)]
-    free = 6 - rigid_rank(np.array([d[0] for d in dirs]), np.array([d[1] for d in dirs]), V)
-    if free:
-        raise InputError(
-            f"the clamps leave {free} rigid motion(s) of the part free: a restrained "
-            "inspection needs them to hold all six (3-2-1: e.g. three along the normal, two "
-            "along one in-plane axis, one along the other)"
-        )
     return normals
+
+
+def clamp_set(V: np.ndarray, clamps: list, normals: np.ndarray, pad_radius: float) -> ClampSet:
+    """What ``clamps`` hold of the part ``V`` (n, 3) mm, their surface ``normals`` (c, 3) and
+    pads of ``pad_radius`` mm (:func:`classify_clamp_set`).
+
+    Raises
+    ------
+    InputError
+        A set that leaves a rigid motion free or holds one too weakly to place the part
+        (naming it).
+    """
+    pos = np.array([c.position for c in clamps], dtype=np.float64)
+    rows = [(p, e) for c, p, n in zip(clamps, pos, normals, strict=True) for e in c.axes(n)]
+    cs = classify_clamp_set(
+        np.array([r[0] for r in rows]), np.array([r[1] for r in rows]), V, pad_radius
+    )
+    why = cs.refusal()
+    if why is not None:
+        raise InputError(why)
+    return cs
 
 
 def _elastic_solid(

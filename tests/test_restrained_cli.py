@@ -129,6 +129,9 @@ def test_restrained_the_dent_fails_where_it_is_and_the_part_passes(shell_case):
     assert min(g["peak"] for g in regions) == pytest.approx(-1.0, abs=0.15)
     clamps = doc["registration"]["restraint"]["clamps"]
     assert [c["name"] for c in clamps] == ["A1", "A2", "A3", "A4", "B1", "C1"]
+    held = doc["registration"]["restraint"]["model"]["clamp_set"]
+    assert (held["kind"], held["directions"], held["removes_flex"]) == ("over-constrained", 7, True)
+    assert held["motion_per_mm_misread"] < 2.0 and b"clamp set: over-constrained" in r.stdout
     assert all(c["force_N"] is not None for c in clamps)
     assert b"restrained (ISO 10579)" in r.stdout
     # the auditor's page says how the part was held
@@ -175,6 +178,7 @@ def test_a_part_beyond_its_clamp_force_is_not_restrainable(shell_case):
         (("--clamps", "{bad}"), "line 2: directions 'q'"),
         (("--clamps", "{off}"), "from the part's surface"),
         (("--clamps", "{few}"), "rigid motion(s) of the part free"),
+        (("--clamps", "{weak}"), "the clamps hold a slide along x and a slide along y too"),
         (("--clamps", "{ok}", "--material", "unobtainium"), "unknown material"),
         (("--clamps", "{ok}", "--material", "pp"), "needs its wall thickness"),
         (("--clamps", "{ok}", "--gravity", "up"), "--gravity must be an axis"),
@@ -188,6 +192,9 @@ def test_a_restrained_run_refuses_bad_input_with_one_line(shell_case, tmp_path, 
         "bad": "name,x,y,z,directions\nA1,0,0,0,q\n",
         "off": ok + "Z9,0,0,500,n,\n",
         "few": "\n".join(ok.splitlines()[:5]) + "\n",
+        # the four corners' normals and two more at the long sides' middles (vertices)
+        "weak": "\n".join(ok.splitlines()[:5])
+        + "\nN5,-0.7522,-48.9726,6.6927,n\nN6,-0.7522,48.9726,6.6338,n\n",
         "ok": ok,
     }
     resolved = []

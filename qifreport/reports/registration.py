@@ -64,6 +64,13 @@ def _rigid_rows(res: InspectionResult) -> list[list[str]]:
     ]
 
 
+#: a clamp set's kind on the page
+_CLAMP_SET_WORDS = {
+    "kinematic": "kinematic (3-2-1): free shape, located",
+    "over-constrained": "over-constrained (N-2-1): held shape",
+}
+
+
 def _restraint_rows(res: InspectionResult) -> list[list[str]]:
     """The restrained condition: clamps, material, clamp forces, the clamps over their
     limit."""
@@ -83,6 +90,9 @@ def _restraint_rows(res: InspectionResult) -> list[list[str]]:
             f"{r.total_force:.3g} / {r.force.max():.3g}" if r.forces_known else "not known",
         ],
     ]
+    held = r.model_info.get("clamp_set") or {}
+    if held:
+        rows.append(["Clamp set", _CLAMP_SET_WORDS.get(held["kind"], held["kind"])])
     if r.over_limit:
         rows.append(["Not restrainable at", ", ".join(r.over_limit)])
     return rows
