@@ -72,6 +72,7 @@ from .results import (
     ZoneResult,
 )
 from .stages.context import JudgeContext, Registered
+from .stages.rim_seat import seat_on_rim
 
 __all__ = [
     "FREE_STATE_CONFORMS",
@@ -399,6 +400,7 @@ def seat_rigidly(
     t0 = time.perf_counter()
     tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
     rigid = rigid_icp(V, prepared.ops.normals, P, R0=seat.R, t0=seat.t, tree=tree)
+    rigid, on_rim = seat_on_rim(V, F, prepared.ops.normals, P, rigid, params.tolerance or 0.5)
     Pm = rigid.apply(P)
     timings["rigid"] = time.perf_counter() - t0
     diag = bounding_diagonal(V)
@@ -416,7 +418,15 @@ def seat_rigidly(
     Ns, sheets = seated_normals(Pm, Ns @ rigid.R.T, V, F, prepared.ops.normals, tree)
     timings["scan normals"] = time.perf_counter() - t0
     return Registered(
-        V=V, F=F, P=Pm, rigid=rigid, seat=seat, scan_normals=Ns, sheets=sheets, diag=diag
+        V=V,
+        F=F,
+        P=Pm,
+        rigid=rigid,
+        seat=seat,
+        scan_normals=Ns,
+        sheets=sheets,
+        diag=diag,
+        rim_seat=on_rim,
     )
 
 

@@ -148,6 +148,7 @@ def assemble_result(
         energy=ctx.energy,
         edge_excluded_area=float(area[near_crease].sum()) if near_crease is not None else 0.0,
         prealign=reg.seat,
+        rim_seat=None if reg.rim_seat is None else reg.rim_seat.to_dict(),
         added=s.added,
         hygiene=d.hygiene,
         basis=s.nominal.basis,

@@ -224,6 +224,7 @@ class InspectionResult:
     energy: str = "hessian"
     edge_excluded_area: float = 0.0
     prealign: PrealignResult | None = None
+    rim_seat: dict | None = None
     added: AddedMaterial | None = None
     hygiene: MeshHygiene | None = None
     repeatability: Repeatability | None = None
@@ -635,6 +636,7 @@ class InspectionResult:
                 "residual_scale_mm": self.rigid.scale,
                 "inlier_fraction": self.rigid.inlier_fraction,
                 "iterations": self.rigid.iterations,
+                "rim_seat": self.rim_seat,
             },
             # the fit under its parameters' name too (the GB-CICP record: "gbcicp")
             **{

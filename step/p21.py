@@ -266,8 +266,9 @@ _STRING_OR_COMMENT = re.compile(r"('[^']*(?:''[^']*)*')|/\*.*?\*/", re.S)
 _STRING = re.compile(r"'[^']*(?:''[^']*)*'")
 _REF = re.compile(r"#(\d+)")
 _LEADING_KEYWORD = re.compile(r"\s*([A-Za-z_][A-Za-z0-9_]*)")
-_SECTION = re.compile(r"\b(HEADER|DATA|ENDSEC)\b\s*(\([^;]*\))?\s*;")
-_TRAILER = re.compile(r"\s*END-ISO-10303-21\s*;")
+#: the section keywords, in any case (Part 21 spells them in capitals; OCCT reads ``Data;``)
+_SECTION = re.compile(r"\b(HEADER|DATA|ENDSEC)\b\s*(\([^;]*\))?\s*;", re.IGNORECASE)
+_TRAILER = re.compile(r"\s*END-ISO-10303-21\s*;", re.IGNORECASE)
 _CONTROL = re.compile(r"\\(X2|X4)\\([0-9A-Fa-f]*)\\X0\\|\\X\\([0-9A-Fa-f]{2})|\\S\\(.)|\\P.\\|\\\\")
 
 
@@ -500,7 +501,7 @@ class P21Model:
                 header = _parse_header(text[pos : m.start()])
             elif section == "DATA":
                 data_parts.append(text[pos : m.start()])
-            kw = m.group(1)
+            kw = m.group(1).upper()
             section = None if kw == "ENDSEC" else kw
             pos = m.end()
         data_closed = section != "DATA"

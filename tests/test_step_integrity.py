@@ -113,6 +113,23 @@ def test_a_clean_file_reads():
     assert {"p21_read", "integrity", "xde_read"} <= set(part.timings)
 
 
+def test_section_keywords_in_mixed_case_read_as_in_capitals(tmp_path):
+    """OCCT's own test file ``bug31000_InSensitive.stp`` writes ``Header;``, ``Data;``,
+    ``EndSec;`` and ``End-ISO-10303-21;``: OCCT reads it, and so does the text check before
+    it (it once refused it as having "no DATA section")."""
+    from qifreport.step.reader import read_step
+
+    text = PANEL.read_text(encoding="utf-8")
+    for kw, mixed in (("HEADER;", "Header;"), ("DATA;", "Data;"), ("ENDSEC;", "EndSec;")):
+        text = re.sub(rf"^{kw}", mixed, text, flags=re.M)
+    text = text.replace("END-ISO-10303-21;", "End-ISO-10303-21;")
+    assert "DATA;" not in text and "Data;" in text
+    p = tmp_path / "mixed.step"
+    p.write_text(text, encoding="utf-8")
+    part = read_step(p)
+    assert part.n_solids == 1 and len(part.faces) == 15 and len(part.pmi.tolerances) == 4
+
+
 # ------------------------------------------------------------------------------------------
 # damaged files are refused by read_step
 

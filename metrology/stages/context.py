@@ -18,6 +18,7 @@ from qifreport.metrology.acceptance.bands import BandField, NotEvaluated
 from qifreport.metrology.acceptance.scan_area import scan_area
 from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 from qifreport.metrology.prepared import PreparedPart
+from qifreport.metrology.stages.rim_seat import RimSeat
 from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.icp import RigidResult
 from qifreport.registration.pose.prealign import PrealignResult
@@ -38,6 +39,7 @@ class Registered:
     scan_normals: np.ndarray
     sheets: np.ndarray
     diag: float
+    rim_seat: RimSeat | None = None
 
     @functools.cached_property
     def scan_tree(self) -> cKDTree:
