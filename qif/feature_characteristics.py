@@ -310,7 +310,8 @@ def _tolerance_definition(
     s: CharacteristicSpec, drf_ids: dict[DrfKey, str]
 ) -> list[etree._Element]:
     """A geometric tolerance's definition elements after its name: the tolerance value,
-    datum reference frame, material condition, zone shape and disposition its kind's QIF
+    datum reference frame, material condition, zone shape, MAX tolerance and disposition its
+    kind's QIF
     rules (:class:`qifreport.kinds.QifRules`) ask for, in the schema's order."""
     rules = _rules(s)
     out = _tolerance_value(s, rules)
@@ -328,6 +329,8 @@ def _tolerance_definition(
         else:
             shape = E.PlanarZone() if rules.zone_shape == "planar" else E.NonDiametricalZone()
         out.append(E.ZoneShape(shape))
+    if rules.max_tolerance and s.max_value is not None:
+        out.append(E.MaximumToleranceValue(dec(s.max_value)))
     if rules.outer_disposition:
         out.append(E.OuterDisposition(dec(0.5 * (s.tolerance or 0.0))))
     return out

@@ -371,6 +371,7 @@ def _spec(qif_type: str, e: _Elements, drf_labels: dict[str, list[str]]) -> Char
         modifiers=str(da.get("modifiers", "")).split(),
         basic=d is not None and d.find(f"{_Q}NonTolerance") is not None,
         unit_basis=unit_basis,
+        max_value=_num(child_text(d, "q:MaximumToleranceValue")),
     )
 
 

@@ -30,7 +30,7 @@ from typing import Any
 
 from lxml import etree
 
-from qifreport.errors import InputError
+from qifreport.errors import InputError, file_kind
 from qifreport.schemas import QIF_XSD_DIR, SCHEMA_DIR
 
 __all__ = [
@@ -48,7 +48,6 @@ __all__ = [
     "SchemasUnavailable",
     "checks_dir",
     "dsig_path",
-    "file_kind",
     "format_size",
     "is_remote_dsig",
     "local_name",
@@ -286,35 +285,6 @@ def xml_parser(resolver: etree.Resolver | None = None) -> etree.XMLParser:
 
 # ---------------------------------------------------------------------------------------------
 # helpers on instance documents
-
-
-_KINDS = (
-    (stat.S_ISDIR, "a directory"),
-    (stat.S_ISCHR, "a character device"),
-    (stat.S_ISBLK, "a block device"),
-    (stat.S_ISFIFO, "a FIFO"),
-    (stat.S_ISSOCK, "a socket"),
-)
-
-
-def file_kind(st: os.stat_result) -> str:
-    """What a file is, for a message: ``"a regular file"``, ``"a FIFO"``...
-
-    Parameters
-    ----------
-    st : os.stat_result
-        Its status (:func:`os.stat`).
-
-    Returns
-    -------
-    str
-    """
-    if stat.S_ISREG(st.st_mode):
-        return "a regular file"
-    for test, kind in _KINDS:
-        if test(st.st_mode):
-            return kind
-    return "an unknown kind of file"
 
 
 def format_size(n: int) -> str:

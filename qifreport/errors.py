@@ -14,6 +14,7 @@ from pathlib import Path
 __all__ = [
     "InputError",
     "Interrupted",
+    "file_kind",
     "file_problem",
     "pending_interrupt",
     "raise_if_interrupted",
@@ -73,33 +74,44 @@ def raise_if_interrupted() -> None:
         raise Interrupted(Interrupted.received[0])
 
 
-#: the kinds of file that are not regular files, as a user would name them
+#: the kinds of file that are not regular files, as a message names them
 _SPECIAL_KINDS = (
-    (stat.S_ISDIR, "a folder"),
+    (stat.S_ISDIR, "a directory"),
     (stat.S_ISCHR, "a character device"),
     (stat.S_ISBLK, "a block device"),
-    (stat.S_ISFIFO, "a named pipe"),
+    (stat.S_ISFIFO, "a FIFO"),
     (stat.S_ISSOCK, "a socket"),
 )
+
+
+def file_kind(st: os.stat_result) -> str:
+    """What a file is, for a message: ``"a regular file"``, ``"a FIFO"``, ``"a directory"``...
+
+    Parameters
+    ----------
+    st : its status (:func:`os.stat`).
+    """
+    if stat.S_ISREG(st.st_mode):
+        return "a regular file"
+    return next((name for test, name in _SPECIAL_KINDS if test(st.st_mode)), "a special file")
 
 
 def file_problem(path: Path | str, what: str) -> str | None:
     """Why ``path`` cannot be read as the ``what`` input file (one line), or None when it is
     a regular file (a symbolic link to one included).
 
-    A special file (``/dev/zero``, a named pipe, a folder) is named by its kind: reading one
+    A special file (``/dev/zero``, a FIFO, a directory) is named by its kind: reading one
     never ends or reads nothing useful.
     """
     try:
-        mode = os.stat(path).st_mode
+        st = os.stat(path)
     except FileNotFoundError:
         return f"{what} file not found: {path}"
     except OSError as exc:
         return f"{what} file {path} cannot be read: {exc.strerror or exc}"
-    if stat.S_ISREG(mode):
+    if stat.S_ISREG(st.st_mode):
         return None
-    kind = next((name for test, name in _SPECIAL_KINDS if test(mode)), "a special file")
-    return f"{what} {path} is {kind}, not a regular file"
+    return f"{what} {path} is {file_kind(st)}, not a regular file"
 
 
 def require_file(path: Path | str, what: str) -> Path:

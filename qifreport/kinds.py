@@ -75,6 +75,8 @@ class QifRules:
         known direction the item is a ``UserDefinedAttribute``.
     per_unit : the per-unit zones its definition can state (``"length"``: a
         ``ToleranceZonePerUnitLength``; ``"area"``: a ``ToleranceZonePerUnitArea``).
+    max_tolerance : its definition can state a MAX tolerance (``MaximumToleranceValue``,
+        the zone's cap when a bonus is available).
     """
 
     datum_frame: bool = False
@@ -85,6 +87,7 @@ class QifRules:
     outer_disposition: bool = False
     section_vector: bool = False
     per_unit: tuple[str, ...] = ()
+    max_tolerance: bool = False
 
 
 @dataclass(frozen=True)
@@ -213,7 +216,9 @@ _ORIENTATION = dict(
     measure=f"{_M}.geometric:measure_orientation",
     # a plane's tangent plane (T) is held in the zone, not its surface
     modifiers=("tangent_plane",),
-    qif=QifRules(datum_frame=True, material_condition=True, zone_shape="planar"),
+    qif=QifRules(
+        datum_frame=True, material_condition=True, zone_shape="planar", max_tolerance=True
+    ),
 )
 _COAXIAL = dict(
     family="location",
@@ -261,7 +266,7 @@ KINDS: dict[str, CharacteristicKind] = {
             # coplanar faces are one feature (MeasuredSurface.features)
             modifiers=("continuous_feature",),
             qif_type="Flatness",
-            qif=QifRules(per_unit=("area",)),
+            qif=QifRules(per_unit=("area",), max_tolerance=True),
         ),
         CharacteristicKind(
             "straightness",
@@ -270,7 +275,7 @@ KINDS: dict[str, CharacteristicKind] = {
             xcaf_type="Straightness",
             measure=f"{_M}.geometric:measure_straightness",
             qif_type="Straightness",
-            qif=QifRules(zone_shape="non-diametrical", per_unit=("length",)),
+            qif=QifRules(zone_shape="non-diametrical", per_unit=("length",), max_tolerance=True),
         ),
         CharacteristicKind(
             "roundness",
@@ -308,6 +313,7 @@ KINDS: dict[str, CharacteristicKind] = {
                 zone_shape="non-diametrical",
                 spherical_zone=True,
                 bonus=True,
+                max_tolerance=True,
             ),
         ),
         *(

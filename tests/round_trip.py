@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from qifreport.kinds import lookup_kind
 from qifreport.metrology.gdt.characteristic_types import CharacteristicResult
 from qifreport.metrology.gdt.geometric import per_unit
 from qifreport.qif.feature_characteristics import qif_status
@@ -30,9 +31,6 @@ NOT_CARRIED = {
     "drawn",
     "dim_type",
     "unit_basis",
-    # a MAX tolerance caps the bonus in the measurement; QIF's MaximumToleranceValue is not
-    # written yet
-    "max_value",
 }
 
 
@@ -78,9 +76,13 @@ def assert_same_spec(w: CharacteristicResult, r: CharacteristicResult) -> None:
     assert per_unit(rs.unit_basis) == per_unit(ws.unit_basis), (what, rs.unit_basis)
     carried = {f.name for f in dataclasses.fields(ws)} - NOT_CARRIED
     checked = {"key", "kind", "name", "datums", "modifiers", "tolerance", "unit", "basic"}
-    checked |= {"nominal", "lower_limit", "upper_limit", "step_id"}
+    checked |= {"nominal", "lower_limit", "upper_limit", "step_id", "max_value"}
     assert carried <= checked, carried - checked  # a new field: say how it is carried
     assert rs.step_id == ws.step_id, what
+    kind = lookup_kind(ws.kind)
+    if kind is not None and kind.qif.max_tolerance:  # MaximumToleranceValue
+        assert (rs.max_value is None) == (ws.max_value is None), what
+        assert ws.max_value is None or abs(rs.max_value - ws.max_value) <= 1e-7, what
 
 
 def assert_same_result(w: CharacteristicResult, r: CharacteristicResult) -> None:

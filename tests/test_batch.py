@@ -203,7 +203,7 @@ def test_a_bad_manifest_is_refused_naming_its_line_or_column(tmp_path, caplog):
 
 @pytest.mark.slow
 def test_a_special_file_in_a_manifest_is_an_error_row_named_by_its_kind(tmp_path):
-    """``/dev/zero`` and a named pipe are refused by kind (reading either never ends), as
+    """``/dev/zero``, a FIFO and a directory are refused by kind (reading either never ends), as
     rows of the batch: the summary lists them, no statistics of nothing is written and the
     command ends with its account, not an internal error."""
     pipe = tmp_path / "pipe.ply"
@@ -216,8 +216,8 @@ def test_a_special_file_in_a_manifest_is_an_error_row_named_by_its_kind(tmp_path
     assert "3 scans: 0 PASS, 0 FAIL, 0 NOT ESTABLISHED, 3 ERROR" in stdout, stdout
     df = pd.read_csv(out / "summary.csv", keep_default_na=False).set_index("id")
     assert df.loc["Z-1", "error"] == "scan /dev/zero is a character device, not a regular file"
-    assert df.loc["P-1", "error"] == f"scan {pipe} is a named pipe, not a regular file"
-    assert df.loc["D-1", "error"] == f"scan {tmp_path} is a folder, not a regular file"
+    assert df.loc["P-1", "error"] == f"scan {pipe} is a FIFO, not a regular file"
+    assert df.loc["D-1", "error"] == f"scan {tmp_path} is a directory, not a regular file"
     assert not list(out.glob("*_statistics.qif")) and not list(out.glob("*_trend.pdf"))
 
 

@@ -552,3 +552,67 @@ def test_outputs_are_all_or_nothing(tmp_path):
         ]
     )
     assert (tmp_path / "a.qif").read_text() == "qif" and (tmp_path / "b.txt").read_text() == "new"
+
+
+def test_a_max_tolerance_is_written_as_its_maximum_tolerance_value_and_read_back(tmp_path):
+    """A position ``1.016 (M) MAX 1.143`` caps its bonus at 1.143 mm: the definition states
+    it as ``MaximumToleranceValue`` (after ``ZoneShape``, as the XSD orders them), the
+    document is valid, and the reader gives the cap back."""
+    from lxml import etree
+
+    from qifreport.metrology.gdt.characteristic_types import (
+        CharacteristicResult,
+        CharacteristicSpec,
+    )
+    from qifreport.qif.definitions import Sections
+    from qifreport.qif.feature_characteristics import (
+        characteristic_definition,
+        characteristic_measurement,
+    )
+    from qifreport.qif.lxml_validator import validate_lxml
+    from qifreport.qif.xmlkit import E, Ids, id_array, qpid
+
+    spec = CharacteristicSpec(
+        key="G7",
+        kind="position",
+        name="hole pattern",
+        step_id=11,
+        faces=np.array([0]),
+        tolerance=1.016,
+        modifiers=["maximum_material_requirement"],
+        max_value=1.143,
+    )
+    c = CharacteristicResult(spec, value=0.9, uncertainty=0.01, status="PASS")
+    ids, zs = Ids(), Sections()
+    actual_id, mr_id = ids(), ids()
+    _, ci, fm = characteristic_definition(zs, spec, ids, {}, result=c, actual_id=actual_id)
+    meas = characteristic_measurement(c, ids, ci, fm, actual_id)
+    root = E.QIFDocument(
+        E.QPId(qpid()),
+        zs.features(),
+        zs.characteristics(ids()),
+        E.Results(
+            E.MeasurementResultsSet(
+                E.MeasurementResults(
+                    E.MeasuredCharacteristics(E.CharacteristicMeasurements(meas, n="1")),
+                    E.InspectionStatus(E.InspectionStatusEnum("PASS")),
+                    id_array("ActualComponentIds", [actual_id]),
+                    id=mr_id,
+                ),
+                n="1",
+            )
+        ),
+        versionQIF="3.0.0",
+        idMax=str(ids.max),
+    )
+    path = tmp_path / "max.qif"
+    path.write_bytes(etree.tostring(root, xml_declaration=True, encoding="UTF-8"))
+    # the content model holds (the bare document defines no actual component: its keyrefs
+    # are the only findings)
+    findings = validate_lxml(path)
+    assert [f for f in findings if not f.rule.startswith("keyref")] == [], findings
+    text = path.read_text()
+    assert "<MaximumToleranceValue>1.1430</MaximumToleranceValue>" in text
+    assert text.index("</ZoneShape>") < text.index("<MaximumToleranceValue>")
+    (back,) = read_results(path).characteristics
+    assert back.spec.max_value == pytest.approx(1.143) and back.spec.tolerance == 1.016
