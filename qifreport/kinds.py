@@ -305,7 +305,8 @@ KINDS: dict[str, CharacteristicKind] = {
             measure=f"{_M}.location:measure_position",
             measure_pattern=f"{_M}.location:measure_position_pattern",
             diametral=True,
-            modifiers=MATERIAL_REQUIREMENTS,
+            # a projected zone: over its height beyond the feature's open end
+            modifiers=(*MATERIAL_REQUIREMENTS, "projected"),
             qif_type="Position",
             qif=QifRules(
                 datum_frame=True,

@@ -271,8 +271,8 @@ def test_every_modifier_is_applied_or_the_item_is_not_measured(part, drawing):
 
     * tangent plane (T): the plane resting on the high points is held in the zone: a face
       tilted 0.05 mm with a 0.08 mm dip in its middle reads 0.05 (its surface 0.08 more);
-    * a statistical tolerance (ST), a projected zone on a position: not applied by
-      qifreport, so not measured, naming the modifier (never a plain reading);
+    * a statistical tolerance (ST): not applied by qifreport, so not measured, naming the
+      modifier (never a plain reading); a projected zone on a position is applied;
     * maximum material requirement on an orientation (no bonus applied there): a reading
       within the zone without the bonus stands (said), one beyond it is not established.
     """
@@ -281,7 +281,8 @@ def test_every_modifier_is_applied_or_the_item_is_not_measured(part, drawing):
     from qifreport.kinds import unapplied_material, unapplied_modifiers
 
     assert unapplied_modifiers("parallelism", ["free_state", "tangent_plane"]) == []
-    assert unapplied_modifiers("position", ["projected 10.795 mm"]) == ["projected 10.795 mm"]
+    assert unapplied_modifiers("position", ["projected 10.795 mm"]) == []
+    assert unapplied_modifiers("profile", ["projected 10.795 mm"]) == ["projected 10.795 mm"]
     assert unapplied_modifiers("flatness", ["statistical_tolerance"]) == ["statistical_tolerance"]
     assert unapplied_material("position", ["maximum_material_requirement"]) == []
     mmr = ["maximum_material_requirement"]
@@ -303,10 +304,10 @@ def test_every_modifier_is_applied_or_the_item_is_not_measured(part, drawing):
 
     st = _measure_one(part, drawing, replace(g11, modifiers=["statistical_tolerance"]), dev)
     assert st.status == "NOT_MEASURED" and "statistical tolerance" in st.reason
-    position = next(s for s in drawing.plan.specs if s.kind == "position")
-    projected = replace(position, modifiers=["projected 10.795 mm"])
-    pr = _measure_one(part, drawing, projected, np.zeros(len(part.V)))
-    assert pr.status == "NOT_MEASURED" and "projected 10.795 mm" in pr.reason
+    pattern = next(s for s in drawing.plan.specs if s.kind == "position")
+    pr = _measure_one(part, drawing, replace(pattern, modifiers=["projected 10.795 mm"]), dev)
+    # each hole of the pattern projected on its own (the test below tilts one)
+    assert pr.status == "PASS" and "projected 10.795 mm" in pr.reading, pr.reason
 
     tilt = np.zeros(len(part.V))
     tilt[v] = 0.05 * (y - y.min()) / np.ptp(y)
@@ -315,3 +316,36 @@ def test_every_modifier_is_applied_or_the_item_is_not_measured(part, drawing):
     beyond = replace(g11, modifiers=mmr, tolerance=0.02)
     out = _measure_one(part, drawing, beyond, tilt)
     assert out.status == "NOT_MEASURED" and "bonus" in out.reason
+
+
+def test_a_projected_zone_reads_the_axis_beyond_the_hole(part, drawing):
+    """FTC 06's hole G13 (6.35 mm, faces 14 and 15) tilted 0.032 rad about its mouth, with a
+    projected zone of 10.795 mm (as an FTC drawing states one): inside itself the hole reads
+    2 x 0.032 x its depth; over the projected height beyond the mouth 2 x 0.032 x 10.795 =
+    0.691 mm, a FAIL against 0.381 (it once read the hole alone, 0.444 PASS). The other end
+    of the through hole reads more, so both ends agree. Untilted, the zone PASSes at 0."""
+    from dataclasses import replace
+
+    g13 = _spec(drawing, "G13")
+    surf = exact_surface(part, np.zeros(len(part.V)))
+    feat = surf.nominal(g13.faces)
+    v = surf.own_vertices(g13.faces)
+    X = surf.V[v]
+    z = (X - feat.origin) @ feat.direction
+    mouth = feat.origin + z.max() * feat.direction
+    e = np.cross(feat.direction, [1.0, 0.0, 0.0])
+    e /= np.linalg.norm(e)
+    theta = 0.032
+    u = theta * np.cross(e, X - mouth)  # the hole turned about its mouth
+    radial = (X - feat.origin) - np.outer(z, feat.direction)
+    radial /= np.linalg.norm(radial, axis=1, keepdims=True)
+    dev = np.zeros(len(part.V))
+    dev[v] = np.einsum("ij,ij->i", u, -radial)  # a hole's surface faces its axis
+    plain = _measure_one(part, drawing, g13, dev)
+    projected = replace(g13, modifiers=["projected 10.795 mm"])
+    pr = _measure_one(part, drawing, projected, dev)
+    assert plain.value == pytest.approx(2 * theta * np.ptp(z), rel=0.05), plain.reading
+    assert pr.value == pytest.approx(2 * theta * 10.795, rel=0.1), pr.reading
+    assert pr.status == "FAIL" and "projected 10.795 mm beyond either end" in pr.reading
+    straight = _measure_one(part, drawing, projected, np.zeros(len(part.V)))
+    assert straight.status == "PASS" and straight.value < 0.01, straight.reading

@@ -30,6 +30,7 @@ from qifreport.metrology.gdt.datums import (
 from qifreport.metrology.gdt.form import axis_frame, least_squares_cylinder, least_squares_sphere
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.metrology.gdt.measured_surface import FeatureSample, MeasuredSurface
+from qifreport.metrology.gdt.projected import projected_axis, projected_height
 
 __all__ = ["measure_coaxiality", "measure_position", "measure_position_pattern"]
 
@@ -45,6 +46,9 @@ def measure_position_pattern(
     """A position measured on its features together: a composite lower segment's pattern
     (:func:`_pattern_position`), a width feature's center plane (two opposed planes,
     :func:`_center_plane`); None when it is neither (each feature is then measured)."""
+    pattern = spec.composite == "lower" or len(members) == 2
+    if pattern and any(m.startswith("projected") for m in spec.modifiers):
+        return not_measured(spec, "projected tolerance zone on a pattern or a center plane")
     if spec.composite == "lower":
         return _pattern_position(spec, surf, members, frame, rule, sizes)
     if len(members) == 2:
@@ -55,6 +59,8 @@ def measure_position_pattern(
 def measure_position(spec, S, sample, feat, frame, sizes, surf, faces):
     """Position of one feature: a sphere's centre, a plane's farthest point, an axis at
     both ends, from true position (diametral; an axis with its MMC/LMC bonus)."""
+    if feat.kind in ("sphere", "plane") and projected_height(spec.modifiers) is not None:
+        raise Unmeasurable(f"projected tolerance zone on a {feat.kind}: it projects an axis")
     if feat.kind == "sphere":  # a spherical zone about the true centre
         c, _ = least_squares_sphere(S)
         return (
@@ -73,7 +79,7 @@ def measure_position(spec, S, sample, feat, frame, sizes, surf, faces):
             ("surface from true position (2 x farthest)"),
             0.0,
         )
-    return _axis_location(spec, S, sample, feat, sizes, faces, position=True)
+    return _axis_location(spec, S, sample, feat, sizes, faces, position=True, surf=surf)
 
 
 def measure_coaxiality(spec, S, sample, feat, frame, sizes, surf, faces):
@@ -129,22 +135,28 @@ def _material_bonus(spec, S, o, a, r_ls, feat: DatumFeature, sizes, faces) -> tu
     return bonus, f"; {'MMC' if mmc else 'LMC'} bonus {bonus:.4f} mm (size {actual:.4f} mm{cap})"
 
 
-def _axis_location(spec, S, sample, feat: DatumFeature, sizes, faces, position: bool):
-    """An axis from true position at both ends of its measured length, diametral; the
-    axis is the least-squares cylinder's (ISO 14405's default association: a tangent
-    mating cylinder rests on a few extreme points, and on the partial arc a scan sees of
-    a hole it tilts with them), the mating size the largest inscribed (smallest
-    circumscribed) cylinder about that axis (never more bonus than the true envelope)."""
+def _axis_location(spec, S, sample, feat: DatumFeature, sizes, faces, position: bool, surf=None):
+    """An axis from true position at both ends of its measured length, diametral (a
+    position with a projected zone: over its height beyond the feature's open end,
+    :func:`~qifreport.metrology.gdt.projected.projected_axis`); the axis is the
+    least-squares cylinder's (ISO 14405's default association: a tangent mating cylinder
+    rests on a few extreme points, and on the partial arc a scan sees of a hole it tilts
+    with them), the mating size the largest inscribed (smallest circumscribed) cylinder
+    about that axis (never more bonus than the true envelope)."""
+    height = projected_height(spec.modifiers) if position else None
     o, a, r_ls, ends = _axis_fit(S, feat)
     E = np.eye(3) - np.outer(feat.direction, feat.direction)
     off = np.linalg.norm((ends - feat.origin) @ E, axis=1)
     value = 2 * float(off.max())
     how = "axis (least squares) from true position at both ends"
-    bonus = 0.0
+    bonus, more, lever = 0.0, "", 1.0
     if position:
         bonus, more = _material_bonus(spec, S, o, a, r_ls, feat, sizes, faces)
-        how += more
-    return value, None, 2 * fit_uncertainty(sample.U, 4), how, bonus
+    if height is not None:
+        zone = (spec.tolerance or 0.0) + bonus
+        stations = tuple((ends - feat.origin) @ feat.direction)
+        value, how, lever = projected_axis(o, a, feat, surf, faces, height, zone, stations)
+    return value, None, 2 * lever * fit_uncertainty(sample.U, 4), how + more, bonus
 
 
 def _pattern_position(
