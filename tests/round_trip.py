@@ -127,3 +127,41 @@ def assert_same_budget(w: CharacteristicResult, r: CharacteristicResult) -> None
     assert r.budget.scanner == w.budget.scanner, what
     got = [(t.name, t.u, t.source) for t in r.budget.terms]
     assert got == [(t.name, t.u, t.source) for t in w.budget.terms], (what, got)
+
+
+def one_characteristic_document(c: CharacteristicResult) -> bytes:
+    """A bare QIF results document holding the one characteristic ``c`` (its feature, its
+    definition, nominal, item and measurement), written by the product's builders; it
+    defines no actual component (its keyrefs are the only schema findings)."""
+    from lxml import etree
+
+    from qifreport.qif.definitions import Sections
+    from qifreport.qif.feature_characteristics import (
+        characteristic_definition,
+        characteristic_measurement,
+    )
+    from qifreport.qif.xmlkit import E, Ids, id_array, qpid
+
+    ids, zs = Ids(), Sections()
+    actual_id, mr_id = ids(), ids()
+    _, ci, fm = characteristic_definition(zs, c.spec, ids, {}, result=c, actual_id=actual_id)
+    meas = characteristic_measurement(c, ids, ci, fm, actual_id)
+    root = E.QIFDocument(
+        E.QPId(qpid()),
+        zs.features(),
+        zs.characteristics(ids()),
+        E.Results(
+            E.MeasurementResultsSet(
+                E.MeasurementResults(
+                    E.MeasuredCharacteristics(E.CharacteristicMeasurements(meas, n="1")),
+                    E.InspectionStatus(E.InspectionStatusEnum(c.status)),
+                    id_array("ActualComponentIds", [actual_id]),
+                    id=mr_id,
+                ),
+                n="1",
+            )
+        ),
+        versionQIF="3.0.0",
+        idMax=str(ids.max),
+    )
+    return etree.tostring(root, xml_declaration=True, encoding="UTF-8")

@@ -558,19 +558,12 @@ def test_a_max_tolerance_is_written_as_its_maximum_tolerance_value_and_read_back
     """A position ``1.016 (M) MAX 1.143`` caps its bonus at 1.143 mm: the definition states
     it as ``MaximumToleranceValue`` (after ``ZoneShape``, as the XSD orders them), the
     document is valid, and the reader gives the cap back."""
-    from lxml import etree
-
     from qifreport.metrology.gdt.characteristic_types import (
         CharacteristicResult,
         CharacteristicSpec,
     )
-    from qifreport.qif.definitions import Sections
-    from qifreport.qif.feature_characteristics import (
-        characteristic_definition,
-        characteristic_measurement,
-    )
     from qifreport.qif.lxml_validator import validate_lxml
-    from qifreport.qif.xmlkit import E, Ids, id_array, qpid
+    from tests.round_trip import one_characteristic_document
 
     spec = CharacteristicSpec(
         key="G7",
@@ -583,30 +576,8 @@ def test_a_max_tolerance_is_written_as_its_maximum_tolerance_value_and_read_back
         max_value=1.143,
     )
     c = CharacteristicResult(spec, value=0.9, uncertainty=0.01, status="PASS")
-    ids, zs = Ids(), Sections()
-    actual_id, mr_id = ids(), ids()
-    _, ci, fm = characteristic_definition(zs, spec, ids, {}, result=c, actual_id=actual_id)
-    meas = characteristic_measurement(c, ids, ci, fm, actual_id)
-    root = E.QIFDocument(
-        E.QPId(qpid()),
-        zs.features(),
-        zs.characteristics(ids()),
-        E.Results(
-            E.MeasurementResultsSet(
-                E.MeasurementResults(
-                    E.MeasuredCharacteristics(E.CharacteristicMeasurements(meas, n="1")),
-                    E.InspectionStatus(E.InspectionStatusEnum("PASS")),
-                    id_array("ActualComponentIds", [actual_id]),
-                    id=mr_id,
-                ),
-                n="1",
-            )
-        ),
-        versionQIF="3.0.0",
-        idMax=str(ids.max),
-    )
     path = tmp_path / "max.qif"
-    path.write_bytes(etree.tostring(root, xml_declaration=True, encoding="UTF-8"))
+    path.write_bytes(one_characteristic_document(c))
     # the content model holds (the bare document defines no actual component: its keyrefs
     # are the only findings)
     findings = validate_lxml(path)

@@ -226,44 +226,17 @@ def _summarised(tmp_path: Path, res: CharacteristicResult):
     written by the product's builders, read back and summarised."""
     from lxml import etree
 
-    from qifreport.qif.definitions import Sections
-    from qifreport.qif.feature_characteristics import (
-        characteristic_definition,
-        characteristic_measurement,
-        qif_type,
-    )
+    from qifreport.qif.feature_characteristics import qif_type
     from qifreport.qif.reader import read_results
     from qifreport.qif.statistics import build_statistics, summarize
-    from qifreport.qif.xmlkit import E, Ids, id_array, qpid
+    from tests.round_trip import one_characteristic_document
 
     assert qif_type(res.spec) == "Sphericity"
     paths = []
     for k, value in enumerate((res.value, res.value + 0.004, res.value - 0.003)):
         c = CharacteristicResult(res.spec, value=value, uncertainty=0.002, status="PASS")
-        ids, zs = Ids(), Sections()
-        actual_id, mr_id = ids(), ids()
-        _, ci, fm = characteristic_definition(zs, c.spec, ids, {}, result=c, actual_id=actual_id)
-        meas = characteristic_measurement(c, ids, ci, fm, actual_id)
-        root = E.QIFDocument(
-            E.QPId(qpid()),
-            zs.features(),
-            zs.characteristics(ids()),
-            E.Results(
-                E.MeasurementResultsSet(
-                    E.MeasurementResults(
-                        E.MeasuredCharacteristics(E.CharacteristicMeasurements(meas, n="1")),
-                        E.InspectionStatus(E.InspectionStatusEnum("PASS")),
-                        id_array("ActualComponentIds", [actual_id]),
-                        id=mr_id,
-                    ),
-                    n="1",
-                )
-            ),
-            versionQIF="3.0.0",
-            idMax=str(ids.max),
-        )
         path = tmp_path / f"scan_{k}.qif"
-        path.write_bytes(etree.tostring(root, xml_declaration=True, encoding="UTF-8"))
+        path.write_bytes(one_characteristic_document(c))
         paths.append(path)
     results = [read_results(p) for p in paths]
     created = datetime(2026, 3, 1, tzinfo=timezone.utc)
