@@ -229,6 +229,9 @@ def _registration_attrs(ra: Attrs, res: InspectionResult) -> None:
     ra.i("rigid_iterations", rigid.iterations)
     ra.s("rigid_rotation", " ".join(xml_double(v) for v in np.asarray(rigid.R).ravel()))
     ra.d3("rigid_translation_mm", rigid.t)
+    seat = res.rim_seat or {}
+    if seat.get("rounds"):  # the slide and turn the open rim took back from the rigid fit
+        ra.d3("rim_seat_slide_mm", seat["slide_mm"]).d("rim_seat_turn_deg", seat["turn_deg"])
     ra.s("fixture_decision", res.fixture_decision)
     c = res.condition  # the condition judged in, who stated it, what the free state gave
     ra.s("restraint_condition", c.condition).s("restraint_stated_by", c.stated_by)
