@@ -110,7 +110,7 @@ def test_new_cache_is_private_and_entries_authenticated(small):
     assert kst.st_size == KEY_BYTES == 32
     assert not stat.S_IMODE(os.stat(outcome.path).st_mode) & 0o077
     header, payload = split(outcome.path)
-    assert header["format"] == CACHE_FORMAT == 24
+    assert header["format"] == CACHE_FORMAT == 25
     assert header["key"] == state.key
     assert header["hmac"] == entry_mac(key.read_bytes(), header, payload)
     # the secret is the user's: another secret gives another HMAC
