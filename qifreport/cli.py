@@ -406,8 +406,9 @@ def main(argv: list[str] | None = None) -> int:
     with _blas_threads():
         rc = _guard(run, verbose)
     if Interrupted.received:
-        # a signal that arrived after the work was done: the outputs stand, the exit says so
-        Interrupted(Interrupted.received[0]).leave(written=True)
+        # a signal that arrived after the work was done: its outputs stand (an error wrote
+        # none), the exit says so
+        Interrupted(Interrupted.received[0]).leave(written=rc != EXIT_ERROR)
     sys.exit(rc)
 
 
