@@ -106,8 +106,8 @@ def run_batch(opts: BatchOptions) -> BatchReport:
     states: dict[Path, PartState | str] = {}
     outcomes = {}
     for nom in dict.fromkeys(i.nominal for i in items):
-        if file_problem(nom, "nominal"):
-            states[nom] = file_problem(nom, "nominal")
+        if problem := file_problem(nom, "nominal"):
+            states[nom] = problem
             continue
         try:
             states[nom], outcomes[str(nom)] = part_state(

@@ -167,12 +167,11 @@ def classify_clamp_set(
     pad_radius : the clamps' contact radius, mm (reported).
     """
     A, _, _ = rigid_motion_matrix(points, directions, X)
-    s = np.linalg.svd(A, compute_uv=False) if len(A) else np.zeros(0)
-    s = np.concatenate([s, np.zeros(max(0, 6 - len(s)))])[:6]
+    sv, vt = np.linalg.svd(A, full_matrices=False)[1:] if len(A) else (np.zeros(0), None)
+    s = np.concatenate([sv, np.zeros(max(0, 6 - len(sv)))])[:6]
     rank = int(np.sum(s > 1e-9 * max(float(s[0]), 1e-300)))
     weak: tuple[str, ...] = ()
     if rank == 6 and s[-1] < WEAKEST_HOLD:
-        _, sv, vt = np.linalg.svd(A)
         weak = tuple(_motion_words(v) for v, x in zip(vt, sv, strict=True) if x < WEAKEST_HOLD)
     return ClampSet(
         directions=len(points),

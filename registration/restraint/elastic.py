@@ -31,6 +31,7 @@ import scipy.sparse.linalg as spla
 
 from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.linalg import SPDSolver
+from qifreport.registration.restraint.clamp_set import rigid_motion_matrix
 
 __all__ = [
     "GRAVITY",
@@ -581,11 +582,7 @@ def rigid_rank(points: np.ndarray, directions: np.ndarray, X: np.ndarray) -> int
     problem is then regular)."""
     if len(points) == 0:
         return 0
-    c = points - X.mean(axis=0)
-    scale = max(float(np.abs(c).max()), 1e-12)
-    # translation t and rotation w move a point by t + w x c; its component along e is
-    # e . t + (c x e) . w
-    A = np.hstack([directions, np.cross(c / scale, directions)])
+    A, _, _ = rigid_motion_matrix(points, directions, X)
     return int(np.linalg.matrix_rank(A, tol=1e-9))
 
 
