@@ -34,6 +34,7 @@ from qifreport.metrology.stages.acceptance import Decisions, Measured, acceptanc
 from qifreport.metrology.stages.added import added_stage
 from qifreport.metrology.stages.characteristics import Characteristics, characteristics_stage
 from qifreport.metrology.stages.context import JudgeContext, Registered
+from qifreport.metrology.stages.detectable import detectable_stage
 from qifreport.metrology.stages.deviation import Deviations, deviation_stage
 from qifreport.metrology.stages.held import HeldNominal, held_nominal
 from qifreport.metrology.stages.readings import Readings, located_readings
@@ -160,6 +161,7 @@ def assemble_result(
         characteristics=s.characteristics.results,
         frames=s.characteristics.frames,
         spikes=s.scores.samples.spike,
+        detectable=decisions.detectable,
     )
 
 
@@ -225,6 +227,7 @@ def judge(
         timings["edges"] = time.perf_counter() - t_edges
     measured = Measured(nominal, deviations, scores, readings)
     decisions = acceptance_stage(reg, measured, ctx, params)
+    decisions = detectable_stage(reg, fit, measured, decisions, ctx, params, timings)
     added = added_stage(reg, deviations, scores, ctx, params)
     timings["metrology"] = time.perf_counter() - t0
     scatter = residual_scatter(

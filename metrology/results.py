@@ -20,6 +20,7 @@ from qifreport.metrology.acceptance.criteria import DEFAULT_MAX_REGION_AREA, Acc
 from qifreport.metrology.acceptance.repeatability import Repeatability
 from qifreport.metrology.acceptance.resolution import Resolution
 from qifreport.metrology.acceptance.statistics import DeviationStats
+from qifreport.metrology.deviation.detectable import Detectable
 from qifreport.metrology.deviation.edge_statistics import EdgeDeviation
 from qifreport.metrology.deviation.hygiene import MeshHygiene
 from qifreport.metrology.deviation.size import SizeEstimate
@@ -78,6 +79,8 @@ class ZoneResult:
     reading : where the zone was laid: ``'best fit'`` (no datums: a form control), or in
         the datum reference frame the tolerance names (ASME Y14.5-2018 11.2.1:
         ``'datum frame |A|B|C|'``), or ``'best fit (datum frame not established: ...)'``.
+    detectable : the dent its region criterion is sure to catch
+        (:mod:`qifreport.metrology.deviation.detectable`); None: not probed.
     """
 
     zone: ToleranceZone
@@ -87,6 +90,7 @@ class ZoneResult:
     deviation: np.ndarray | None = None
     coverage: Coverage | None = None
     reading: str = "best fit"
+    detectable: Detectable | None = None
 
     @property
     def measured(self) -> bool:
@@ -126,6 +130,7 @@ class ZoneResult:
             "deviation": self.stats.to_dict(),
             "acceptance": self.acceptance.to_dict(),
             "measured": None if self.coverage is None else self.coverage.to_dict(),
+            "detectable": None if self.detectable is None else self.detectable.to_dict(),
         }
 
 
@@ -200,6 +205,8 @@ class InspectionResult:
     spikes : (m,) bool, the scan points of ``P`` alone off their neighbourhood's surface
         (:mod:`qifreport.metrology.acceptance.point_regions`): they judge nothing and are
         in no scan-point statistic. None: not looked for.
+    detectable : the dent the whole part's region criterion is sure to catch
+        (:mod:`qifreport.metrology.deviation.detectable`); None: not probed.
     """
 
     V: np.ndarray
@@ -245,6 +252,7 @@ class InspectionResult:
     frames: list[DatumFrameResult] = field(default_factory=list)
     stray: StrayPoints | None = None
     spikes: np.ndarray | None = None
+    detectable: Detectable | None = None
 
     @property
     def condition(self) -> RestraintCondition:
@@ -672,6 +680,7 @@ class InspectionResult:
             "decided_by": self.decided_by(),
             "relaxed_guards": self.relaxed_guards(),
             "acceptance": self.acceptance.to_dict(),
+            "detectable": None if self.detectable is None else self.detectable.to_dict(),
             "tolerances": [z.to_dict() for z in self.zones],
             "not_evaluated": [n.to_dict() for n in self.not_evaluated],
             "characteristics": [c.to_dict() for c in self.characteristics],

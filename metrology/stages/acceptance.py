@@ -17,6 +17,7 @@ from qifreport.metrology.acceptance.criteria import Acceptance, evaluate
 from qifreport.metrology.acceptance.point_regions import ScanSamples, SurfacePoints
 from qifreport.metrology.acceptance.scan_area import coverage_ceiling_ok
 from qifreport.metrology.acceptance.statistics import DeviationStats, deviation_statistics
+from qifreport.metrology.deviation.detectable import Detectable
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.results import ZoneResult
@@ -53,6 +54,8 @@ class Decisions:
     zones : each zone's result.
     coverage : the whole part's measured coverage.
     coverage_ceiling_ok : coverage does not exceed scan area / nominal area.
+    detectable : the whole part's detectable dent
+        (:func:`~qifreport.metrology.stages.detectable.detectable_stage`; None before it).
     """
 
     vertex_stats: DeviationStats
@@ -61,6 +64,7 @@ class Decisions:
     zones: list[ZoneResult]
     coverage: Coverage
     coverage_ceiling_ok: bool
+    detectable: Detectable | None = None
 
 
 def acceptance_stage(
