@@ -233,19 +233,8 @@ def judge(
     scatter = residual_scatter(
         reg, fit, deviations, scores, readings, decisions.zones, restrained=free is not None
     )
-    stages = Stages(
-        nominal,
-        deviations,
-        scores,
-        characteristics,
-        readings,
-        decisions,
-        added,
-        scatter,
-        edges,
-        size,
-    )
-    return assemble_result(reg, fit, params, ctx, timings, stages)
+    stages = (nominal, deviations, scores, characteristics, readings, decisions, added, scatter)
+    return assemble_result(reg, fit, params, ctx, timings, Stages(*stages, edges, size))
 
 
 def resolved(value: Any) -> Any:
