@@ -515,10 +515,26 @@ class InspectionResult:
         for z in self.zones:
             if z.coverage is not None:
                 out += [f"{z.zone.key}: {w}" for w in z.coverage.warnings]
+        out += self.detectability_notes()
         if self.judged_size is None and self.size is not None and self.size.status != "conforming":
             # a solid's faces measure its size themselves: the trim-edge check is reported
             what = self.edges.part.describe()
             out += [f"size ({what}: reported, not judged): {r}" for r in self.size.reasons()]
+        return out
+
+    def detectability_notes(self) -> list[str]:
+        """What the region criteria can see: the whole part's detectable dent, and the
+        surfaces whose region criterion is below detection (one line for them all)."""
+        out = []
+        if self.detectable is not None:
+            out.append(f"whole part: {self.detectable.line()}")
+            if self.detectable.below_detection:
+                out.append(f"whole part: {self.detectable.blind()}")
+        blind = [z.zone.key for z in self.zones if z.detectable and z.detectable.below_detection]
+        if blind:
+            out.append(
+                f"region criterion below what this scan and mesh detect on {', '.join(blind)}"
+            )
         return out
 
     def relaxed_guards(self) -> list[str]:

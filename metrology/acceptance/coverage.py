@@ -17,11 +17,17 @@ criteria count:
     ``max_region_area`` = 100 mm^2, a 11 mm disk: scans routinely lose patches that size at
     clamp pads and reflections);
   - a patch *together with the out-of-tolerance vertices it touches* may not exceed
-    ``max_region_area`` when the deviation around it already leaves the inner half of the
-    band (``|dev - centre| > half-width / 2`` on a scored vertex bordering it, or an
-    out-of-tolerance vertex in it): a defect is smooth, and a dent cut out of the scan
-    leaves its shoulders around the hole. A dent cut out of the scan is not a conforming
-    dent; a clamp hole on conforming material is.
+    ``max_region_area`` when the deviation around it leaves the inner three quarters of the
+    band (``|dev - centre| > half-width / 4``, :data:`HIDING_EXCESS`, on a scored vertex
+    bordering it, or an out-of-tolerance vertex in it): a defect is smooth, and a dent cut
+    out of the scan leaves its shoulders around the hole. A dent cut out of the scan is not
+    a conforming dent; a clamp hole on conforming material is. The vertices read *across* a
+    hole in the scan (scored, with no scan point within the deviation's first ball: their
+    reading is the wider ball's extrapolation from the hole's rim, ``read_across``) count
+    as part of the patch here: a dent's core cut out of the scan is read from its shoulders
+    and so under the band. Measured on the shell: a 1 mm dent whose core (its points within
+    5.6 mm) was cut out leaves a 51 mm^2 patch with 0.15 mm (29 % of the half-band) around
+    it, a conforming scan cut the same way 0.01 mm (2 %).
   Beside a drawing's own tolerances, qifreport's *default* band (no requirement of the
   drawing, a screen for gross errors on the faces it does not tolerance) takes the first gap
   rule as a warning only (``advisory_gaps``): it is judged where it was measured, and the
@@ -63,6 +69,7 @@ from qifreport.registration.mesh import adjacency
 __all__ = [
     "DEFAULT_MIN_COVERAGE",
     "GAP_AREA_FACTOR",
+    "HIDING_EXCESS",
     "MAX_EXCLUDED_SHARE",
     "Coverage",
     "min_scan_density",
@@ -76,6 +83,9 @@ __all__ = [
 DEFAULT_MIN_COVERAGE = 0.70
 #: the default largest unmeasured patch, in units of the region criterion's area
 GAP_AREA_FACTOR = 4.0
+#: the deviation around an unmeasured patch, in half-bands, beyond which the patch could
+#: hide a failing region (the second gap rule)
+HIDING_EXCESS = 0.25
 #: share of a zone's area left out by design (crease and rim bands) above which the
 #: result warns
 MAX_EXCLUDED_SHARE = 0.30
@@ -200,6 +210,7 @@ def zone_coverage(
     max_gap_area: float | None = None,
     advisory_gaps: bool = False,
     points: int | None = None,
+    read_across: np.ndarray | None = None,
 ) -> Coverage:
     """The coverage, gap and density rules on one toleranced surface (module docstring).
 
@@ -218,6 +229,8 @@ def zone_coverage(
         tolerances), judged where it was measured. The coverage rule and the second gap
         rule (a patch that could hide a failing region) still decide.
     points : the scan points judging the surface (None: no density rule, e.g. a free state).
+    read_across : (n,) bool, the scored vertices read across a hole in the scan (no point
+        within the deviation's first ball): part of a patch for the second gap rule.
 
     Returns
     -------
@@ -244,8 +257,18 @@ def zone_coverage(
     patches = unmeasured_patches(V, F, gap, area, adj)
     g_area, g_cen = patches[0] if patches else (0.0, None)
     reasons = _coverage_rule(total, cov, e_area, min_coverage)
+    hiding = gap if read_across is None else gap | (scored & read_across)
     gap_reasons, warnings = _gap_rules(
-        adj, V, gap, out, excess, area, patches, max_gap_area, max_region_area, advisory_gaps
+        adj,
+        V,
+        (gap, hiding),
+        out,
+        excess,
+        area,
+        patches,
+        max_gap_area,
+        max_region_area,
+        advisory_gaps,
     )
     reasons += gap_reasons
     density = points / s_area if points is not None and s_area > 0 else math.nan
@@ -308,7 +331,7 @@ def _coverage_rule(total: float, cov: float, e_area: float, min_coverage: float)
 def _gap_rules(
     adj,
     V: np.ndarray,
-    gap: np.ndarray,
+    gaps: tuple[np.ndarray, np.ndarray],
     out: np.ndarray,
     excess: np.ndarray,
     area: np.ndarray,
@@ -321,7 +344,9 @@ def _gap_rules(
     of a surface: its reasons and warnings. The largest patch beyond ``max_gap_area``, mm^2,
     is a reason (a warning with ``advisory_gaps``); else, or with ``advisory_gaps``, a patch
     that with the out-of-tolerance area it touches could hide a failing region
-    (:func:`_hiding_patch`) is."""
+    (:func:`_hiding_patch`) is. ``gaps``: the unmeasured vertices, and those with the
+    vertices read across a hole (the second rule's patches)."""
+    gap, hiding = gaps
     g_area, g_cen = patches[0] if patches else (0.0, None)
     reasons: list[str] = []
     warnings: list[str] = []
@@ -336,7 +361,7 @@ def _gap_rules(
         else:
             reasons.append(text)
     if g_area <= max_gap_area or advisory_gaps:
-        hidden = _hiding_patch(adj, V, gap, out, excess, area, max_region_area)
+        hidden = _hiding_patch(adj, V, hiding, out, excess, area, max_region_area)
         if hidden is not None:
             a, cen, peak = hidden
             x, y, z = cen
@@ -354,8 +379,9 @@ def _hiding_patch(A, V, gap, out, excess, area, max_region_area):
     ``(area_mm2, centroid, peak_excess)``, or None.
 
     Components of ``gap | out`` over the vertex adjacency ``A`` that hold a gap vertex; each one's
-    area (the patch and the out-of-tolerance vertices joined to it) and the largest
-    ``excess`` (``|dev - centre| / half-width``) on it and on the scored vertices bordering it.
+    area (the patch, the out-of-tolerance vertices joined to it and the ring of vertices
+    bordering it, which are read from one side of the hole) and the largest ``excess``
+    (``|dev - centre| / half-width``) on it and on that ring.
     """
     sel = gap | out
     idx = np.flatnonzero(sel)
@@ -367,11 +393,14 @@ def _hiding_patch(A, V, gap, out, excess, area, max_region_area):
     has_gap = np.bincount(label, weights=gap[idx].astype(float), minlength=k) > 0
     # bordering scored vertices: the neighbours of each component's vertices
     rows = A[idx].tocoo()
+    ring = ~sel[rows.col]
+    pairs = np.unique(np.stack([label[rows.row[ring]], rows.col[ring]]), axis=1)
+    tot += np.bincount(pairs[0], weights=area[pairs[1]], minlength=k)
     nb_excess = excess[rows.col]
     peak = np.zeros(k)
     np.maximum.at(peak, label[rows.row], nb_excess)
     np.maximum.at(peak, label, excess[idx])
-    bad = has_gap & (tot > max_region_area) & (peak > 0.5)
+    bad = has_gap & (tot > max_region_area) & (peak > HIDING_EXCESS)
     if not bad.any():
         return None
     j = int(np.argmax(np.where(bad, tot, -1.0)))

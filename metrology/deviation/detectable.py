@@ -18,10 +18,16 @@ fixed, so they are probed, not assumed:
   ball fit reads the rest on the scan's own points. What the product reads of a failing
   region of the limit's size is :attr:`Detectable.read_area_mm2`.
 * **The decision.** A region criterion is established only where the product can tell a
-  failing region from a passing one: a surface whose largest region is within the area the
-  probe lost (``A - read``) of the limit is not proven in (NOT ESTABLISHED, like a reading
-  within its uncertainty, ISO 14253-1); a surface on which the critical dent reads no region
-  at all has a region criterion below what this scan and mesh can detect.
+  failing region from a passing one: a failing region of the limit's size reads as
+  ``A x read share``, and a surface whose largest region reads at least that is not proven
+  in (NOT ESTABLISHED, like a reading within its uncertainty, ISO 14253-1).
+* **Below detection.** A surface on which the critical dent reads no region at all has a
+  region criterion below what this scan and mesh detect. This is stated in every output,
+  not yet a verdict: on a STEP part meshed at 3-4 mm edges the vertex reading's ball
+  (1.5 edges) reads a proud dent of the limit's size short of the band, and the scan points,
+  which would read it, take a point proud beyond the part's band as added material
+  (reported, not judged). Meshing the nominal from the region limit is the step that lets
+  this statement become a verdict.
 * **The detectable dent** stated per surface: the shallowest dent of width ``sigma_A``
   read beyond the band, ``(t + U) / g`` (``g`` the read share of its peak, ``U`` the
   surface's median expanded uncertainty).
@@ -37,15 +43,18 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from qifreport.metrology.acceptance.criteria import Acceptance
+from qifreport.metrology.acceptance.point_regions import DEFAULT_K, point_areas
 from qifreport.metrology.acceptance.statistics import json_float
-from qifreport.metrology.deviation.residual_fit import residual_referenced
+from qifreport.metrology.deviation.residual_fit import ball_radius, residual_referenced
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import MeshOperators
+from qifreport.registration.scan import median_spacing
 
 __all__ = [
     "Detectable",
     "FixtureProbe",
+    "ScanReading",
     "critical_depth",
     "detectable_dent",
     "interior_vertex",
@@ -150,14 +159,16 @@ class Detectable:
 
     Attributes
     ----------
-    sigma_mm : the probed dent's width, ``sqrt(limit / pi)`` (Eq. 16 convention).
-    depth_mm : its depth, the critical one (its true out-of-band region is the limit).
+    sigma_mm : the probed dent's width (Eq. 16 convention).
+    depth_mm : its depth, the critical one (its out-of-band disk is the limit's area).
     read_peak_mm : the largest deviation the product reads of it.
-    read_area_mm2 : the out-of-band area it reads of it.
+    true_area_mm2 : its out-of-band area on the surface (the limit, less what of the disk
+        lies off the surface).
+    read_area_mm2 : the out-of-band area the product reads of it.
     limit_mm2 : the region criterion's limit.
     smallest_depth_mm : the shallowest dent of width ``sigma_mm`` read beyond the band
-        (``(t + U) / g``; inf when the dent reads nothing).
-    absorbed_by : what reads it short: the deviation's ball fit, and the virtual fixture
+        (``(t + U) / g``, ``g`` the read share of the peak; inf when it reads nothing).
+    absorbed_by : what reads it short: the deviation's reading, and the virtual fixture
         when one held the part.
     site : (3,) where it was probed, mm.
     """
@@ -165,6 +176,7 @@ class Detectable:
     sigma_mm: float
     depth_mm: float
     read_peak_mm: float
+    true_area_mm2: float
     read_area_mm2: float
     limit_mm2: float
     smallest_depth_mm: float
@@ -172,30 +184,51 @@ class Detectable:
     site: tuple[float, float, float]
 
     @property
-    def lost_area_mm2(self) -> float:
-        """The area of a failing region of the limit's size the product does not read."""
-        return max(self.limit_mm2 - self.read_area_mm2, 0.0)
+    def read_share(self) -> float:
+        """The share of a region's area the product reads (at most 1; NaN: no region)."""
+        if not self.true_area_mm2 > 0:
+            return math.nan
+        return min(self.read_area_mm2 / self.true_area_mm2, 1.0)
+
+    @property
+    def passing_below_mm2(self) -> float:
+        """The largest region read that proves the region criterion: a failing region of
+        the limit's size reads as ``limit x read share``."""
+        share = self.read_share
+        return self.limit_mm2 if not math.isfinite(share) else self.limit_mm2 * share
+
+    @property
+    def below_detection(self) -> bool:
+        """The critical dent reads no region at all: the region criterion is below what
+        this scan and mesh detect on the surface."""
+        return self.read_share == 0.0
+
+    def blind(self) -> str:
+        """The statement of a region criterion below detection (empty: it is not)."""
+        if not self.below_detection:
+            return ""
+        return (
+            f"region criterion below what this scan and mesh detect: a dent of sigma "
+            f"{self.sigma_mm:.2g} mm and {self.depth_mm:.3g} mm deep, whose region is the "
+            f"{self.limit_mm2:g} mm^2 limit, reads no region (read peak "
+            f"{self.read_peak_mm:.3g} mm; {self.absorbed_by}); a proud one beyond the part's "
+            "band is reported as added material"
+        )
 
     def doubt(self, largest: float) -> str:
         """Why a surface whose largest out-of-band region reads ``largest`` mm^2 is not
-        proven to meet its region criterion (empty: it is)."""
-        if largest > self.limit_mm2:
+        proven to meet its region criterion (empty: it is, or no region was read)."""
+        share = self.read_share
+        if not (0.0 < largest <= self.limit_mm2) or not (math.isfinite(share) and share > 0):
             return ""
-        size = (
-            f"a dent of sigma {self.sigma_mm:.2g} mm and {self.depth_mm:.3g} mm whose region "
-            f"is the {self.limit_mm2:g} mm^2 limit"
-        )
-        if self.read_area_mm2 <= 0.0:
+        # a region read as large as a failing one's reading may be that one: not proven in
+        # (the mesh's vertex areas read neighbouring depths alike)
+        if largest >= self.passing_below_mm2 - 1e-9:
             return (
-                f"region criterion below what this scan and mesh detect: {size} reads no "
-                f"region (read peak {self.read_peak_mm:.3g} mm; {self.absorbed_by})"
-            )
-        # a region read as large as the critical dent's may be the critical dent or a
-        # deeper one (the mesh's vertex areas read both the same): not proven in
-        if largest >= self.limit_mm2 - self.lost_area_mm2 - 1e-9 and largest > 0:
-            return (
-                f"a region of {largest:.1f} mm^2 cannot be told from a failing one: {size} "
-                f"reads as {self.read_area_mm2:.1f} mm^2 ({self.absorbed_by})"
+                f"a region of {largest:.1f} mm^2 cannot be told from a failing one: a dent of "
+                f"sigma {self.sigma_mm:.2g} mm and {self.depth_mm:.3g} mm deep reads "
+                f"{100 * share:.0f} % of its region's area ({self.absorbed_by}), so a "
+                f"{self.limit_mm2:g} mm^2 region reads as {self.passing_below_mm2:.1f} mm^2"
             )
         return ""
 
@@ -205,9 +238,11 @@ class Detectable:
             "sigma_mm": json_float(self.sigma_mm),
             "critical_depth_mm": json_float(self.depth_mm),
             "read_peak_mm": json_float(self.read_peak_mm),
+            "true_area_mm2": json_float(self.true_area_mm2),
             "read_area_mm2": json_float(self.read_area_mm2),
+            "read_share": json_float(self.read_share),
             "limit_mm2": json_float(self.limit_mm2),
-            "lost_area_mm2": json_float(self.lost_area_mm2),
+            "passing_below_mm2": json_float(self.passing_below_mm2),
             "smallest_depth_mm": json_float(self.smallest_depth_mm),
             "absorbed_by": self.absorbed_by,
             "site_mm": [json_float(x) for x in self.site],
@@ -215,24 +250,119 @@ class Detectable:
 
     def line(self) -> str:
         """One line for the console and the report."""
+        share = self.read_share
+        read = "n/a" if not math.isfinite(share) else f"{100 * share:.0f} %"
         return (
             f"detects a dent of sigma {self.sigma_mm:.2g} mm from {self.smallest_depth_mm:.3g} "
-            f"mm deep; a failing {self.limit_mm2:g} mm^2 region reads "
-            f"{self.read_area_mm2:.1f} mm^2"
+            f"mm deep; a region's area read at {read}"
         )
 
 
-def interior_vertex(V: np.ndarray, scored: np.ndarray) -> int | None:
-    """The scored vertex farthest from every unscored one (``scored`` (n,) bool): a
-    surface's most interior measured vertex. None when nothing is scored."""
+def interior_vertex(
+    V: np.ndarray, scored: np.ndarray, border: np.ndarray | None = None
+) -> int | None:
+    """The scored vertex farthest from every unscored one and every ``border`` vertex
+    (``scored``, ``border`` (n,) bool; the border: the mesh's open boundary, the B-rep's
+    face edges): a surface's most interior measured vertex. None when nothing is
+    scored."""
     idx = np.flatnonzero(scored)
     if not len(idx):
         return None
-    rest = np.flatnonzero(~scored)
+    rest = np.flatnonzero(~scored if border is None else ~scored | border)
     if not len(rest):
         return int(idx[0])
     dist, _ = cKDTree(V[rest]).query(V[idx])
     return int(idx[int(np.argmax(dist))])
+
+
+@dataclass(frozen=True)
+class ScanReading:
+    """How the scan is read, for a probe (mm).
+
+    Attributes
+    ----------
+    tree : ``cKDTree(P)``.  spacing : the scan's median point spacing.
+    ball : the deviation's first ball radius
+        (:func:`~qifreport.metrology.deviation.residual_fit.ball_radius`).
+    labels : (f,) each triangle's face (a B-rep face, or a smooth patch; zeros: one).
+    point_label : (m,) each point's face (its closest triangle's; -1: none, not read).
+    """
+
+    tree: cKDTree
+    spacing: float
+    ball: float
+    labels: np.ndarray
+    point_label: np.ndarray
+
+    @classmethod
+    def of(
+        cls,
+        V: np.ndarray,
+        F: np.ndarray,
+        P: np.ndarray,
+        tree: cKDTree | None = None,
+        labels: np.ndarray | None = None,
+        point_label: np.ndarray | None = None,
+    ) -> ScanReading:
+        """The reading of the scan ``P`` (m, 3) on ``(V, F)``; one face when ``labels``
+        (f,) and ``point_label`` (m,) are not given."""
+        tree = cKDTree(P) if tree is None else tree
+        one = labels is None or point_label is None
+        return cls(
+            tree=tree,
+            spacing=max(median_spacing(P, tree) if len(P) > 1 else 0.0, 1e-9),
+            ball=ball_radius(V, F, P, tree),
+            labels=np.zeros(len(F), dtype=np.int64) if one else np.asarray(labels, np.int64),
+            point_label=np.zeros(len(P), np.int64) if one else np.asarray(point_label, np.int64),
+        )
+
+
+@dataclass(frozen=True)
+class _Patch:
+    """The surface about a probe site: its vertices and triangles within reach, and the
+    scan points there (mm)."""
+
+    V: np.ndarray
+    F: np.ndarray
+    normals: np.ndarray
+    area: np.ndarray
+    vertex: np.ndarray
+    P: np.ndarray
+    neighbours: np.ndarray
+    on_surface: np.ndarray
+    tree: cKDTree
+
+    labels: np.ndarray
+    point_label: np.ndarray
+
+    @classmethod
+    def about(cls, V, F, P, normals, area, x0, reach, scan: ScanReading) -> _Patch:
+        vin = np.linalg.norm(V - x0, axis=1) <= reach
+        keep = vin[F].all(axis=1)
+        Fs = F[keep]
+        vertex = np.flatnonzero(vin)
+        remap = np.full(len(V), -1, dtype=np.int64)
+        remap[vertex] = np.arange(len(vertex))
+        pin = np.flatnonzero((np.linalg.norm(P - x0, axis=1) <= reach) & (scan.point_label >= 0))
+        Pn = P[pin]
+        tree = cKDTree(V[vertex])
+        k = min(DEFAULT_K, len(Pn))
+        nb = cKDTree(Pn).query(Pn, k=k)[1].reshape(len(Pn), -1) if k else np.empty((0, 1), int)
+        As = area[vertex]
+        on = As[tree.query(Pn)[1]] > 0 if len(Pn) else np.zeros(0, dtype=bool)
+        return cls(
+            V[vertex],
+            remap[Fs],
+            normals[vertex],
+            As,
+            vertex,
+            Pn,
+            nb,
+            on,
+            tree,
+            scan.labels[keep],
+            scan.point_label[pin],
+        )
 
 
 def detectable_dent(
@@ -242,11 +372,11 @@ def detectable_dent(
     normals: np.ndarray,
     area: np.ndarray,
     site: int,
-    half_width: float,
-    max_region_area: float,
-    uncertainty: float = 0.0,
+    band: tuple[float, float, float],
     fixture: FixtureProbe | None = None,
     sigma: float | None = None,
+    scan: ScanReading | None = None,
+    proud_limit: float = math.inf,
 ) -> Detectable:
     """The critical dent of one surface, probed at vertex ``site`` (module docstring).
 
@@ -255,51 +385,97 @@ def detectable_dent(
     V : (n, 3) the held nominal, mm.  F : (f, 3).  P : (m, 3) the scan's points, mm.
     normals : (n, 3) unit vertex normals.  area : (n,) vertex areas of the surface, mm^2
         (0 off it).
-    half_width : the band's half-width, mm.  max_region_area : the region limit, mm^2.
-    uncertainty : the surface's median expanded uncertainty, mm.
+    band : the band's half-width (mm), the region limit (mm^2) and the surface's median
+        expanded uncertainty (mm).
     fixture : the virtual fixture's last pass (None: the part is judged as seated or held
-        by its clamps, and only the ball fit reads the dent short).
+        by its clamps, and only the reading reads the dent short).
     sigma : the dent's width, mm (Eq. 16); default the limit's own, ``sqrt(A / pi)``.
+    scan : how the scan is read (its tree, spacing, ball and face labels); made here when
+        not given.
+    proud_limit : the part's own half-band, mm: a point proud beyond it is added material.
+
+    The area read is the larger of the vertices' (each a ball fit) and the scan points'
+    (each the median of its :data:`~qifreport.metrology.acceptance.point_regions.DEFAULT_K`
+    nearest, with the area it stands for), as the region criterion judges both. The dent
+    is proud, the harder case: a point standing proud beyond the band is judged as added
+    material, not in a region (``metrology/stages/scoring.py``), so the points read only
+    a band tighter than the part's.
     """
-    sigma = math.sqrt(max_region_area / math.pi) if sigma is None else float(sigma)
-    a = critical_depth(half_width, max_region_area, sigma)
+    half_width, limit, uncertainty = band
+    sigma = math.sqrt(limit / math.pi) if sigma is None else float(sigma)
+    a = critical_depth(half_width, limit, sigma)
     x0 = V[site]
-    reach = 3.0 * sigma + 4.0 * _edge(V, F)
-    near_p = np.flatnonzero(np.linalg.norm(P - x0, axis=1) <= reach)
-    Pn = P[near_p]
-    by = "the deviation's ball fit"
-    absorbed = None
+    scan = ScanReading.of(V, F, P) if scan is None else scan
+    patch = _Patch.about(V, F, P, normals, area, x0, 3.0 * sigma + 4.0 * _edge(V, F), scan)
+    h = None
     if fixture is not None:
         h = fixture.absorbed(a * np.exp(-np.sum((V - x0) ** 2, axis=1) / sigma**2))
-        tree = cKDTree(V)
-        by = "the virtual fixture and the deviation's ball fit"
-
-        def absorbed(shift):
-            return h[tree.query(Pn - shift)[1]]
-
-    peak, read_area = math.inf, math.inf
+        h = h[patch.vertex]
+    peak, share, true_area = math.inf, math.inf, 0.0
     # the dent centred on the vertex and between vertices: a region's area on the mesh
     # depends on where the dent falls among the vertices, and the least read counts
     for c in _centres(V, F, site):
-        r = a * np.exp(-np.sum((Pn - c) ** 2, axis=1) / sigma**2)
-        if absorbed is not None:
-            r = r - absorbed(c - x0)
-        read = _ball_read(V, F, Pn, r, normals)
-        on = np.isfinite(read) & (area > 0)
-        peak = min(peak, float(np.max(read[on])) if on.any() else 0.0)
-        read_area = min(read_area, float(area[on & (read > half_width)].sum()))
+        d = a * np.exp(-np.sum((patch.P - c) ** 2, axis=1) / sigma**2)
+        r = d if h is None else d - h[patch.tree.query(patch.P - (c - x0))[1]]
+        p, on_vertices = _read(patch, r, half_width, scan)
+        on_points = _read_points(patch, r, half_width, scan, proud_limit)
+        inside = d > half_width
+        on_share = float(np.mean(patch.on_surface[inside])) if inside.any() else 0.0
+        t_area = limit * on_share
+        peak = min(peak, p)
+        if t_area > 0 and max(on_vertices, on_points) / t_area < share:
+            share, true_area = max(on_vertices, on_points) / t_area, t_area
     g = peak / a if a > 0 else 0.0
-    smallest = (half_width + uncertainty) / g if g > 0 else math.inf
     return Detectable(
         sigma_mm=sigma,
         depth_mm=a,
         read_peak_mm=peak,
-        read_area_mm2=read_area,
-        limit_mm2=float(max_region_area),
-        smallest_depth_mm=smallest,
-        absorbed_by=by,
+        true_area_mm2=true_area,
+        read_area_mm2=share * true_area if true_area > 0 else 0.0,
+        limit_mm2=float(limit),
+        smallest_depth_mm=(half_width + uncertainty) / g if g > 0 else math.inf,
+        absorbed_by="the deviation's reading"
+        if fixture is None
+        else "the virtual fixture and the deviation's reading",
         site=tuple(float(x) for x in x0),
     )
+
+
+def _read(
+    patch: _Patch, r: np.ndarray, half_width: float, scan: ScanReading
+) -> tuple[float, float]:
+    """The largest vertex reading (mm) and the area read beyond ``half_width`` (mm^2)
+    of the patch's points with residuals ``r`` (k,) mm, each vertex a ball fit of the
+    points on its own faces."""
+    if not len(patch.F):
+        return 0.0, 0.0
+    read = residual_referenced(
+        patch.V,
+        patch.F,
+        patch.P,
+        r,
+        patch.normals,
+        patch.point_label,
+        patch.labels,
+        radius=scan.ball,
+        robust=False,
+    )
+    on = np.isfinite(read) & (patch.area > 0)
+    if not on.any():
+        return 0.0, 0.0
+    return float(np.max(read[on])), float(patch.area[on & (read > half_width)].sum())
+
+
+def _read_points(
+    patch: _Patch, r: np.ndarray, half_width: float, scan: ScanReading, proud_limit: float
+) -> float:
+    """The area (mm^2) the patch's points with residuals ``r`` (k,) mm read beyond
+    ``half_width`` and within ``proud_limit`` (mm; beyond it a point is added material)."""
+    if not len(r):
+        return 0.0
+    med = np.median(r[patch.neighbours], axis=1)
+    out = patch.P[(med > half_width) & (med <= proud_limit) & patch.on_surface]
+    return float(point_areas(scan.tree, out, scan.spacing).sum()) if len(out) else 0.0
 
 
 def with_detectable(acc: Acceptance, det: Detectable | None) -> Acceptance:
@@ -327,14 +503,3 @@ def _edge(V: np.ndarray, F: np.ndarray) -> float:
     """The mesh's median edge length, mm."""
     e = np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1)
     return float(np.median(e)) if len(e) else 0.0
-
-
-def _ball_read(
-    V: np.ndarray, F: np.ndarray, P: np.ndarray, r: np.ndarray, normals: np.ndarray
-) -> np.ndarray:
-    """(n,) the deviation the ball fit reads from the points ``P`` (k, 3) mm whose
-    residuals are ``r`` (k,) mm, one smooth surface (no B-rep face split), NaN unread."""
-    labels = np.zeros(len(F), dtype=np.int64)
-    return residual_referenced(
-        V, F, P, r, normals, np.zeros(len(P), dtype=np.int64), labels, variance=False
-    )

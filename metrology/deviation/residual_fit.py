@@ -24,6 +24,7 @@ from qifreport.registration.nearest import ball_pairs
 from qifreport.registration.scan import median_spacing
 
 __all__ = [
+    "ball_radius",
     "residual_referenced",
 ]
 
@@ -42,6 +43,7 @@ def residual_referenced(
     max_centroid_offset: float | None = 0.5,
     variance: bool = False,
     point_normals: np.ndarray | None = None,
+    robust: bool = True,
 ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Signed deviation (n,) mm of every nominal vertex from the scan points' own residuals.
 
@@ -78,6 +80,8 @@ def residual_referenced(
         points centred on the vertex), ``s^2`` the points' scatter about the fit pooled with
         the median of the vertex's B-rep face (its lowest-numbered one); NaN where unscored
         (:func:`qifreport.metrology.acceptance.decision.vertex_uncertainty`).
+    robust : leave out the points more than 5 robust sigmas off their neighbourhood
+        (False: every point counts, for residuals known to be clean, a probe's).
     """
     V, F = as_mesh(V, F)
     P = as_points(P)
@@ -99,7 +103,8 @@ def residual_referenced(
     m = int(np.max(labels)) + 1
     own = unique_sorted(F.astype(np.int64) * m + np.asarray(labels, dtype=np.int64)[:, None])
     facing = None if point_normals is None else np.asarray(point_normals, dtype=np.float64)
-    args = (V, P, r, N, sel, tree, min_points, own, m, np.asarray(point_label, np.int64), facing)
+    labels_p = np.asarray(point_label, np.int64)
+    args = (V, P, r, N, sel, tree, min_points, own, m, labels_p, facing, robust)
     # a second, twice as wide ball for the vertices the first left unscored (surfaces seen
     # at a grazing angle, where the points are sparser than the median spacing)
     for ball in (radius, 2.0 * radius):
@@ -108,6 +113,13 @@ def residual_referenced(
     if not variance:
         return dev
     return dev, pooled_variance(h, sse, dof, _first_faces(own, m, n))
+
+
+def ball_radius(V: np.ndarray, F: np.ndarray, P: np.ndarray, tree: cKDTree | None = None) -> float:
+    """The first ball radius, mm, :func:`residual_referenced` reads the vertices of
+    ``(V, F)`` with from the points ``P`` (m, 3) mm by default (``tree``: ``cKDTree(P)``)."""
+    P = as_points(P)
+    return _ball_radius(V, F, P, cKDTree(P) if tree is None else tree, None)
 
 
 def _ball_radius(
@@ -166,6 +178,7 @@ def _residual_fit(
     m,
     point_label,
     facing,
+    robust,
     verts,
     radius,
     max_centroid_offset,
@@ -186,7 +199,12 @@ def _residual_fit(
         idx, vrt = idx[same_side], vrt[same_side]
     if len(idx) == 0:
         return none
-    idx, vrt, rr = _without_outliers(idx, vrt, r)
+    if robust:
+        idx, vrt, rr = _without_outliers(idx, vrt, r)
+    else:
+        order = np.argsort(vrt, kind="stable")
+        idx, vrt = idx[order], vrt[order]
+        rr = r[idx]
     # rows gathered by np.take (qifreport.registration.arrays)
     Q = np.take(P, idx, axis=0)
     Q -= np.take(V, vrt, axis=0)

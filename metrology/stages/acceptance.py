@@ -18,6 +18,7 @@ from qifreport.metrology.acceptance.point_regions import ScanSamples, SurfacePoi
 from qifreport.metrology.acceptance.scan_area import coverage_ceiling_ok
 from qifreport.metrology.acceptance.statistics import DeviationStats, deviation_statistics
 from qifreport.metrology.deviation.detectable import Detectable
+from qifreport.metrology.deviation.residual_fit import ball_radius
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.results import ZoneResult
@@ -29,7 +30,7 @@ from .held import HeldNominal
 from .readings import Readings
 from .scoring import Scores
 
-__all__ = ["Decisions", "Measured", "acceptance_stage", "zone_result"]
+__all__ = ["Decisions", "Measured", "acceptance_stage", "read_across", "zone_result"]
 
 
 @dataclass(frozen=True)
@@ -95,12 +96,24 @@ def acceptance_stage(
     advisory = any(z.source == "default" for z in bands.zones) and any(
         z.faces is not None for z in bands.zones
     )
+    across = read_across(reg, m.nominal.V)
     zones = [
-        zone_result(i, reg, m, ctx, params, advisory=advisory) for i in range(len(bands.zones))
+        zone_result(i, reg, m, ctx, params, advisory=advisory, across=across)
+        for i in range(len(bands.zones))
     ]
     excluded, n_points = deviations.excluded, int(scores.points_ok.sum())
     whole = _coverage(
-        V, F, dev_all, bands, area, excluded, params.min_coverage, params, advisory, n_points
+        V,
+        F,
+        dev_all,
+        bands,
+        area,
+        excluded,
+        params.min_coverage,
+        params,
+        advisory,
+        n_points,
+        across,
     )
     whole = plausible_uncertainty(whole, acc.uncertainty_mm[1], bounding_diagonal(V))
     # the ceiling catches a deformable fit that met points of other features; a B-rep's free
@@ -128,12 +141,14 @@ def zone_result(
     params: InspectionParams,
     *,
     advisory: bool = False,
+    across: np.ndarray | None = None,
 ) -> ZoneResult:
     """The result of zone ``i`` of ``ctx.bands``: its deviation (the free state's for a
     free-state zone of a held part; in its datum frame when located), statistics, area and
     region criteria (on its scan points too, unless the free state's), and measured
     coverage (``advisory``: its gaps reported, not failed, for qifreport's default band
-    beside a drawing's zones)."""
+    beside a drawing's zones; ``across``: the vertices read across a hole in the scan,
+    :func:`read_across`)."""
     V, F, normals = reg.V, reg.F, ctx.prepared.ops.normals
     deviations, scores, readings = m.deviations, m.scores, m.readings
     z, mask = ctx.bands.zones[i], ctx.bands.tri_masks[i]
@@ -161,7 +176,9 @@ def zone_result(
     min_coverage = params.min_coverage if z.min_coverage is None else z.min_coverage
     advisory = advisory and z.source == "default"
     excluded = deviations.excluded
-    zcov = _coverage(V, F[mask], dz, z, az, excluded, min_coverage, params, advisory, n_points)
+    zcov = _coverage(
+        V, F[mask], dz, z, az, excluded, min_coverage, params, advisory, n_points, across
+    )
     zcov = plausible_uncertainty(zcov, zacc.uncertainty_mm[1], bounding_diagonal(V))
     if z.datums and not located:
         zcov = _frame_required(zcov, z, frame)
@@ -214,10 +231,11 @@ def _coverage(
     params: InspectionParams,
     advisory: bool,
     points: int | None,
+    across: np.ndarray | None = None,
 ) -> Coverage:
     """:func:`zone_coverage` of the surface ``F`` in ``band`` with the inspection's region
-    and gap limits (``advisory``: its gaps reported only) and its ``points`` scan points
-    (None: no density rule)."""
+    and gap limits (``advisory``: its gaps reported only), its ``points`` scan points
+    (None: no density rule) and the vertices read ``across`` a hole in the scan."""
     return zone_coverage(
         V,
         F,
@@ -231,7 +249,19 @@ def _coverage(
         max_gap_area=params.max_gap_area,
         advisory_gaps=advisory,
         points=points,
+        read_across=across,
     )
+
+
+def read_across(reg: Registered, V: np.ndarray) -> np.ndarray:
+    """(n,) bool: the vertices of the held nominal ``V`` (n, 3) mm with no point of the
+    seated scan within half the deviation's first ball
+    (:func:`~qifreport.metrology.deviation.residual_fit.ball_radius`, at least 2.5 point
+    spacings): a vertex scored there is read across a hole in the scan, from its rim."""
+    tree = reg.scan_tree
+    r = 0.5 * ball_radius(V, reg.F, reg.P, tree)
+    d, _ = tree.query(V, distance_upper_bound=r)
+    return ~np.isfinite(d)
 
 
 def _frame_required(cov: Coverage, z: ToleranceZone, frame: DatumFrameResult | None) -> Coverage:

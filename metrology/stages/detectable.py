@@ -14,6 +14,7 @@ from qifreport.metrology.acceptance.bands import zone_vertex_areas
 from qifreport.metrology.deviation.detectable import (
     Detectable,
     FixtureProbe,
+    ScanReading,
     detectable_dent,
     interior_vertex,
     with_detectable,
@@ -21,6 +22,7 @@ from qifreport.metrology.deviation.detectable import (
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.results import ZoneResult
 from qifreport.registration.deformable.result import DeformResult
+from qifreport.registration.mesh import boundary_vertices
 
 from .acceptance import Decisions, Measured
 from .context import JudgeContext, Registered
@@ -44,84 +46,101 @@ def detectable_stage(
     """``decisions`` with each surface's detectable dent and its region criterion guarded
     by it (:func:`~qifreport.metrology.deviation.detectable.with_detectable`): the whole
     part's, and every zone's. The virtual fixture's absorption is probed on the fixtured
-    surfaces; a free-state zone, a seated or a clamped part are read short by the ball fit
+    surfaces; a free-state zone, a seated or a clamped part are read short by the reading
     alone. Its seconds go to ``timings["detectable"]``."""
     t0 = time.perf_counter()
     held = m.nominal
     probe = None
     if fit is not None and held.held:
         probe = FixtureProbe.of(fit, ctx.prepared.ops)
-    dev = m.readings.deviation
-    area = ctx.prepared.ops.area
+    labels = point_label = None
+    if ctx.face_id is not None:
+        labels = np.asarray(ctx.face_id, dtype=np.int64)
+        face = m.deviations.face
+        point_label = np.where(face >= 0, labels[np.maximum(face, 0)], -1)
+    scan = ScanReading.of(held.V, reg.F, reg.P, reg.scan_tree, labels, point_label)
+    prober = _Prober(reg, held.V, held.normals, params, ctx.general_half, _border(reg.F, ctx))
+    prober.scan = scan
     acc = decisions.acceptance
-    u = _median_u(acc.uncertainty_mm)
-    whole = _probe(reg, held.V, held.normals, area, dev, ctx.general_half, params, probe, u)
-    acc = with_detectable(acc, whole)
-    zones = [_zone(zr, i, reg, held, ctx, params, probe) for i, zr in enumerate(decisions.zones)]
+    whole = prober(ctx.prepared.ops.area, m.readings.deviation, ctx.general_half, probe, acc)
+    zones = []
+    for i, zr in enumerate(decisions.zones):
+        if zr.deviation is None:
+            zones.append(zr)
+            continue
+        az = zone_vertex_areas(reg.V, reg.F, ctx.bands.tri_masks[i])
+        fixture = probe if zr.fixtured else None
+        det = prober(az, zr.deviation, zr.zone.half_width, fixture, zr.acceptance)
+        zones.append(zr if det is None else _guarded(zr, det))
     if timings is not None:
         timings["detectable"] = time.perf_counter() - t0
-    return replace(decisions, acceptance=acc, zones=zones, detectable=whole)
+    return replace(decisions, acceptance=with_detectable(acc, whole), zones=zones, detectable=whole)
 
 
-def _zone(
-    zr: ZoneResult,
-    i: int,
-    reg: Registered,
-    held,
-    ctx: JudgeContext,
-    params: InspectionParams,
-    probe: FixtureProbe | None,
-) -> ZoneResult:
-    """The zone result ``zr`` (zone ``i``) with its detectable dent and guard."""
-    if zr.deviation is None or not np.isfinite(zr.deviation).any():
-        return zr
-    az = zone_vertex_areas(reg.V, reg.F, ctx.bands.tri_masks[i])
-    det = _probe(
-        reg,
-        held.V,
-        held.normals,
-        az,
-        zr.deviation,
-        zr.zone.half_width,
-        params,
-        probe if zr.fixtured else None,
-        _median_u(zr.acceptance.uncertainty_mm),
-    )
-    if det is None:
-        return zr
+def _border(F: np.ndarray, ctx: JudgeContext) -> np.ndarray:
+    """(n,) bool: the vertices on the mesh's open boundary or on a B-rep face's edge."""
+    n = len(ctx.prepared.ops.area)
+    border = boundary_vertices(F, n)
+    if ctx.face_id is not None:
+        fid = np.repeat(np.asarray(ctx.face_id, dtype=np.int64), 3)
+        lo = np.full(n, np.iinfo(np.int64).max)
+        hi = np.full(n, -1)
+        np.minimum.at(lo, F.ravel(), fid)
+        np.maximum.at(hi, F.ravel(), fid)
+        border |= lo < hi
+    return border
+
+
+def _guarded(zr: ZoneResult, det: Detectable) -> ZoneResult:
+    """The zone result ``zr`` with its detectable dent ``det`` and its region guard."""
     return replace(zr, acceptance=with_detectable(zr.acceptance, det), detectable=det)
 
 
-def _probe(
-    reg: Registered,
-    V: np.ndarray,
-    normals: np.ndarray,
-    area: np.ndarray,
-    dev: np.ndarray,
-    half_width,
-    params: InspectionParams,
-    probe: FixtureProbe | None,
-    uncertainty: float,
-) -> Detectable | None:
-    """The binding detectable dent over :data:`WIDTHS` of the surface ``area`` > 0 scored
-    in ``dev``, or None (nothing scored, or no single band to probe)."""
-    t = float(np.min(half_width)) if np.ndim(half_width) else float(half_width)
-    if not (math.isfinite(t) and t > 0):
-        return None
-    site = interior_vertex(V, np.isfinite(dev) & (area > 0))
-    if site is None:
-        return None
-    limit = params.max_region_area
-    sigma_a = math.sqrt(limit / math.pi)
-    found = [
-        detectable_dent(
-            V, reg.F, reg.P, normals, area, site, t, limit, uncertainty, probe, sigma=k * sigma_a
-        )
-        for k in WIDTHS
-    ]
-    return max(found, key=lambda d: d.lost_area_mm2)
+class _Prober:
+    """The binding detectable dent of a surface over :data:`WIDTHS`, one probe per site,
+    band and fixture (the whole part and a zone over all of it share theirs)."""
+
+    def __init__(self, reg, V, normals, params: InspectionParams, general_half: float, border):
+        self.reg, self.V, self.normals, self.border = reg, V, normals, border
+        self.limit = params.max_region_area
+        self.general_half = general_half
+        self.scan: ScanReading | None = None
+        self.seen: dict[tuple, Detectable] = {}
+
+    def __call__(self, area, dev, half_width, fixture, acc) -> Detectable | None:
+        """The binding dent of the surface ``area`` > 0 scored in ``dev``, or None
+        (nothing scored, or no band to probe)."""
+        t = float(np.min(half_width)) if np.ndim(half_width) else float(half_width)
+        if not (math.isfinite(t) and t > 0):
+            return None
+        site = interior_vertex(self.V, np.isfinite(dev) & (area > 0), self.border)
+        if site is None:
+            return None
+        u = float(acc.uncertainty_mm[0]) if math.isfinite(acc.uncertainty_mm[0]) else 0.0
+        key = (site, t, round(u, 6), fixture is not None, float(area.sum()))
+        if key not in self.seen:
+            sigma_a = math.sqrt(self.limit / math.pi)
+            found = [
+                detectable_dent(
+                    self.V,
+                    self.reg.F,
+                    self.reg.P,
+                    self.normals,
+                    area,
+                    site,
+                    (t, self.limit, u),
+                    fixture,
+                    sigma=k * sigma_a,
+                    scan=self.scan,
+                    proud_limit=self.general_half,
+                )
+                for k in WIDTHS
+            ]
+            self.seen[key] = min(found, key=_share)
+        return self.seen[key]
 
 
-def _median_u(u: tuple[float, float]) -> float:
-    """The median expanded uncertainty of a surface, mm (0 when not known)."""
-    return float(u[0]) if math.isfinite(u[0]) else 0.0
+def _share(d: Detectable) -> float:
+    """The read share of a probed dent, the binding one the least (no region: last)."""
+    share = d.read_share
+    return share if math.isfinite(share) else math.inf
