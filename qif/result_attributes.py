@@ -126,6 +126,20 @@ def coverage_attrs(a: Attrs, cov, prefix: str = "") -> None:
         a.s(f"{prefix}not_measured_reason_{k}", reason)
 
 
+def detectable_attrs(a: Attrs, det, prefix: str = "") -> None:
+    """Add what a surface's region criterion can see (``det``:
+    :class:`qifreport.metrology.deviation.detectable.Detectable`, or None: nothing is
+    added): the probed dent, the share of a region's area read, the largest region that
+    proves the criterion and the shallowest dent read beyond the band."""
+    if det is None:
+        return
+    a.d(f"{prefix}detectable_dent_sigma_mm", det.sigma_mm)
+    a.d(f"{prefix}detectable_dent_depth_mm", det.smallest_depth_mm)
+    a.d(f"{prefix}region_read_share", det.read_share)
+    a.d(f"{prefix}region_passing_below_mm2", det.passing_below_mm2)
+    a.b(f"{prefix}region_criterion_below_detection", det.below_detection)
+
+
 def measurement_results_attrs(
     res: InspectionResult, nominal_sha256: str, scan_sha256: str
 ) -> Attrs:
@@ -159,6 +173,7 @@ def measurement_results_attrs(
     stats_attrs(ra, res.vertex_stats)
     acceptance_attrs(ra, res.acceptance, res.V)
     coverage_attrs(ra, res.coverage)
+    detectable_attrs(ra, res.detectable)
     stats_attrs(ra, res.point_stats, prefix="scan_points_")
     if res.added is not None:
         _added_attrs(ra, res.added)

@@ -137,6 +137,7 @@ from .result_attributes import (
     MAX_REGIONS_LISTED,
     acceptance_attrs,
     coverage_attrs,
+    detectable_attrs,
     measurement_results_attrs,
     stats_attrs,
 )
@@ -487,6 +488,7 @@ def _characteristic_measurement(
     stats_attrs(ma, z.stats)
     acceptance_attrs(ma, z.acceptance, res.V)
     coverage_attrs(ma, z.coverage)
+    detectable_attrs(ma, z.detectable)
     if res.repeatability is not None:
         sp = next((x for x in res.repeatability.surfaces[1:] if x.key == z.zone.key), None)
         if sp is not None:

@@ -19,6 +19,7 @@ from qifreport.metrology.inspection import (
 from qifreport.metrology.judgement import judge
 from qifreport.metrology.stages.acceptance import Measured, acceptance_stage
 from qifreport.metrology.stages.characteristics import characteristics_stage
+from qifreport.metrology.stages.detectable import detectable_stage
 from qifreport.metrology.stages.deviation import deviation_stage
 from qifreport.metrology.stages.held import held_nominal
 from qifreport.metrology.stages.readings import located_readings
@@ -55,6 +56,7 @@ def test_the_stages_one_by_one_give_the_judgement_and_the_inspection():
     edges, size = trim_edge_stage(reg, nominal, ctx, params)
     measured = Measured(nominal, deviations, scores, readings)
     decisions = acceptance_stage(reg, measured, ctx, params)
+    decisions = detectable_stage(reg, None, measured, decisions, ctx, params)
     assert np.array_equal(readings.deviation, res.deviation, equal_nan=True)
     assert np.array_equal(deviations.point, res.point_deviation, equal_nan=True)
     assert not same(decisions.acceptance, res.acceptance)

@@ -239,8 +239,7 @@ def zone_coverage(
     n = len(V)
     if max_gap_area is None:
         max_gap_area = GAP_AREA_FACTOR * max_region_area
-    c = np.broadcast_to(np.asarray(center, dtype=np.float64), (n,))
-    h = np.broadcast_to(np.asarray(half_width, dtype=np.float64), (n,))
+    c, h = (np.broadcast_to(np.asarray(x, dtype=np.float64), (n,)) for x in (center, half_width))
     on = area > 0
     scored = on & np.isfinite(dev)
     excl = on & ~scored & excluded
@@ -248,31 +247,19 @@ def zone_coverage(
     with np.errstate(invalid="ignore"):
         excess = np.where(scored, np.abs(dev - c) / h, 0.0)
     out = scored & (excess > 1.0)
-    total = float(area[on].sum())
-    s_area = float(area[scored].sum())
-    e_area = float(area[excl].sum())
-    u_area = float(area[gap].sum())
+    total, s_area, e_area, u_area = (float(area[x].sum()) for x in (on, scored, excl, gap))
     cov = s_area / total if total > 0 else math.nan
     adj = adjacency(F, n)
     patches = unmeasured_patches(V, F, gap, area, adj)
     g_area, g_cen = patches[0] if patches else (0.0, None)
     reasons = _coverage_rule(total, cov, e_area, min_coverage)
     hiding = gap if read_across is None else gap | (scored & read_across)
+    limits = (max_gap_area, max_region_area)
     gap_reasons, warnings = _gap_rules(
-        adj,
-        V,
-        (gap, hiding),
-        out,
-        excess,
-        area,
-        patches,
-        max_gap_area,
-        max_region_area,
-        advisory_gaps,
+        adj, V, (gap, hiding), out, excess, area, patches, limits, advisory_gaps
     )
-    reasons += gap_reasons
     density = points / s_area if points is not None and s_area > 0 else math.nan
-    reasons += _density_rule(density, max_region_area)
+    reasons += gap_reasons + _density_rule(density, max_region_area)
     warnings += _excluded_share_warning(total, e_area)
     return Coverage(
         area=total,
@@ -336,8 +323,7 @@ def _gap_rules(
     excess: np.ndarray,
     area: np.ndarray,
     patches: list[tuple[float, np.ndarray]],
-    max_gap_area: float,
-    max_region_area: float,
+    limits: tuple[float, float],
     advisory_gaps: bool,
 ) -> tuple[list[str], list[str]]:
     """The two gap rules (module docstring) on the unmeasured ``patches`` (largest first)
@@ -345,8 +331,10 @@ def _gap_rules(
     is a reason (a warning with ``advisory_gaps``); else, or with ``advisory_gaps``, a patch
     that with the out-of-tolerance area it touches could hide a failing region
     (:func:`_hiding_patch`) is. ``gaps``: the unmeasured vertices, and those with the
-    vertices read across a hole (the second rule's patches)."""
+    vertices read across a hole (the second rule's patches); ``limits``: ``max_gap_area``
+    and ``max_region_area``, mm^2."""
     gap, hiding = gaps
+    max_gap_area, max_region_area = limits
     g_area, g_cen = patches[0] if patches else (0.0, None)
     reasons: list[str] = []
     warnings: list[str] = []

@@ -36,7 +36,7 @@ fixed, so they are probed, not assumed:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -86,6 +86,7 @@ class FixtureProbe:
     threshold : the first pass's flag threshold (``flag_k`` robust scales), mm.
     holdout_radius : the radius withheld around a flagged vertex, mm.
     refits : whether the fixture refitted (its band-limited scheme ran).
+    cache : the first pass's factorisation, once made.
     """
 
     V0: np.ndarray
@@ -97,13 +98,15 @@ class FixtureProbe:
     threshold: float
     holdout_radius: float
     refits: bool
+    cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def of(cls, fit: DeformResult, ops: MeshOperators) -> FixtureProbe | None:
-        """The probe of a GB-CICP ``fit`` with the band-limit parametrisation (None for
-        another method or parametrisation: their absorption is not probed)."""
+        """The probe of a band-limited fit (GB-CICP's parameters: a band limit and a refit
+        band limit, no ``lambda0``); None for another method or parametrisation, whose
+        absorption is not probed."""
         p = fit.params
-        if fit.method != "gbcicp" or getattr(p, "lambda0", None) is not None:
+        if getattr(p, "band_limit_refit", None) is None or getattr(p, "lambda0", None) is not None:
             return None
         first = [h["scale"] for h in fit.history if h.get("pass_no") == 1]
         w = np.asarray(fit.weights, dtype=np.float64).copy()
@@ -122,18 +125,26 @@ class FixtureProbe:
             refits=fit.passes > 1 and not fit.fallback,
         )
 
-    def _fitted(self, solver: SPDSolver, lam: float, w: np.ndarray, d: np.ndarray) -> np.ndarray:
+    def _factor(self, solver: SPDSolver, lam: float, w: np.ndarray):
+        """The solve of ``(A W + lam Q + eps) x = b`` for the weights ``w`` (n,)."""
         Aw = self.ops.area * w
         eps = 1e-9 * self.band_limit**4 * self.ops.M
-        return solver.factor((sp.diags(Aw) + lam * self.ops.Q + eps).tocsc())(Aw * d)
+        return solver.factor((sp.diags(Aw) + lam * self.ops.Q + eps).tocsc())
+
+    def _first(self) -> tuple[SPDSolver, object]:
+        """The solver and the first pass's factorisation, made once per probe."""
+        if "first" not in self.cache:
+            solver = SPDSolver(points=self.V0)
+            self.cache["first"] = (solver, self._factor(solver, self.band_limit**4, self.weights))
+        return self.cache["first"]
 
     def absorbed(self, d: np.ndarray) -> np.ndarray:
         """(n,) the part of the normal dent ``d`` (n,) mm the fixture follows, mm: its
         first pass at the band limit, then, where that leaves the dent beyond the flag
         threshold, the refit with the flagged vertices' surroundings withheld, grown while
         a withheld vertex stays beyond it."""
-        solver = SPDSolver(points=self.V0)
-        h = self._fitted(solver, self.band_limit**4, self.weights, d)
+        solver, first = self._first()
+        h = first(self.ops.area * self.weights * d)
         flagged = self.covered & (np.abs(d - h) > self.threshold)
         if not (self.refits and flagged.any()):
             return h
@@ -147,7 +158,8 @@ class FixtureProbe:
             if (grown == hold).all():
                 break
             hold = grown
-            h = self._fitted(solver, self.band_limit_refit**4, self.weights * ~hold, d)
+            w = self.weights * ~hold
+            h = self._factor(solver, self.band_limit_refit**4, w)(self.ops.area * w * d)
             seeds = hold & (np.abs(d - h) > self.threshold)
         return h
 

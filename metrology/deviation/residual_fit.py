@@ -89,10 +89,7 @@ def residual_referenced(
     N = np.asarray(normals, dtype=np.float64)
     use = np.isfinite(P).all(axis=1) & np.isfinite(r)
     n = len(V)
-    dev = np.full(n, np.nan)
-    h = np.full(n, np.nan)
-    sse = np.zeros(n)
-    dof = np.zeros(n)
+    dev, h, sse, dof = np.full(n, np.nan), np.full(n, np.nan), np.zeros(n), np.zeros(n)
     if not use.any():
         return (dev, h) if variance else dev
     sel = np.flatnonzero(use)
@@ -103,16 +100,13 @@ def residual_referenced(
     m = int(np.max(labels)) + 1
     own = unique_sorted(F.astype(np.int64) * m + np.asarray(labels, dtype=np.int64)[:, None])
     facing = None if point_normals is None else np.asarray(point_normals, dtype=np.float64)
-    labels_p = np.asarray(point_label, np.int64)
-    args = (V, P, r, N, sel, tree, min_points, own, m, labels_p, facing, robust)
+    args = (V, P, r, N, sel, tree, min_points, own, m, np.asarray(point_label), facing, robust)
     # a second, twice as wide ball for the vertices the first left unscored (surfaces seen
     # at a grazing angle, where the points are sparser than the median spacing)
     for ball in (radius, 2.0 * radius):
         if not _fit_unscored(args, ball, max_centroid_offset, dev, h, sse, dof):
             break
-    if not variance:
-        return dev
-    return dev, pooled_variance(h, sse, dof, _first_faces(own, m, n))
+    return (dev, pooled_variance(h, sse, dof, _first_faces(own, m, n))) if variance else dev
 
 
 def ball_radius(V: np.ndarray, F: np.ndarray, P: np.ndarray, tree: cKDTree | None = None) -> float:
@@ -199,12 +193,7 @@ def _residual_fit(
         idx, vrt = idx[same_side], vrt[same_side]
     if len(idx) == 0:
         return none
-    if robust:
-        idx, vrt, rr = _without_outliers(idx, vrt, r)
-    else:
-        order = np.argsort(vrt, kind="stable")
-        idx, vrt = idx[order], vrt[order]
-        rr = r[idx]
+    idx, vrt, rr = _without_outliers(idx, vrt, r) if robust else _by_vertex(idx, vrt, r)
     # rows gathered by np.take (qifreport.registration.arrays)
     Q = np.take(P, idx, axis=0)
     Q -= np.take(V, vrt, axis=0)
@@ -311,6 +300,14 @@ def _own_face_pairs(
         seen_of = np.bincount(unique_sorted(key[keep]) // m, minlength=n)
     whole = (seen_of == faces_of)[vrt]
     return idx[whole], vrt[whole]
+
+
+def _by_vertex(
+    idx: np.ndarray, vrt: np.ndarray, r: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs sorted by vertex, every point kept: points, vertices, residuals (mm)."""
+    order = np.argsort(vrt, kind="stable")
+    return idx[order], vrt[order], r[idx[order]]
 
 
 def _without_outliers(

@@ -15,7 +15,8 @@ a library user can run them one by one and look at each output:
 6. :func:`.trim_edges.trim_edge_stage` -- the trim edges and the size (independent of 2-5:
    a caller may start it beside them);
 7. :func:`.acceptance.acceptance_stage` -- area, region and coverage criteria on the whole
-   part and on each zone;
+   part and on each zone; :func:`.detectable.detectable_stage` -- what each region criterion
+   can see, and the regions it cannot tell from a failing one;
 8. :func:`.added.added_stage` -- added material; :func:`.resolution.residual_scatter` -- the
    resolution.
 

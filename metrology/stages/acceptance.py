@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.sparse.csgraph import connected_components
 
 from qifreport.metrology.acceptance.bands import BandField, ToleranceZone, zone_vertex_areas
 from qifreport.metrology.acceptance.coverage import (
@@ -22,7 +23,7 @@ from qifreport.metrology.deviation.residual_fit import ball_radius
 from qifreport.metrology.gdt.frames import DatumFrameResult
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.results import ZoneResult
-from qifreport.registration.mesh import bounding_diagonal
+from qifreport.registration.mesh import adjacency, bounding_diagonal
 
 from .context import JudgeContext, Registered
 from .deviation import Deviations
@@ -30,7 +31,17 @@ from .held import HeldNominal
 from .readings import Readings
 from .scoring import Scores
 
-__all__ = ["Decisions", "Measured", "acceptance_stage", "read_across", "zone_result"]
+__all__ = [
+    "MIN_HOLE_VERTICES",
+    "Decisions",
+    "Measured",
+    "acceptance_stage",
+    "read_across",
+    "zone_result",
+]
+
+#: the fewest vertices, joined by mesh edges, that make a hole in the scan
+MIN_HOLE_VERTICES = 3
 
 
 @dataclass(frozen=True)
@@ -257,11 +268,18 @@ def read_across(reg: Registered, V: np.ndarray) -> np.ndarray:
     """(n,) bool: the vertices of the held nominal ``V`` (n, 3) mm with no point of the
     seated scan within half the deviation's first ball
     (:func:`~qifreport.metrology.deviation.residual_fit.ball_radius`, at least 2.5 point
-    spacings): a vertex scored there is read across a hole in the scan, from its rim."""
+    spacings), in groups of at least :data:`MIN_HOLE_VERTICES` joined by mesh edges: a
+    vertex scored there is read across a hole in the scan, from its rim (a lone one is a
+    sparse spot of a randomly sampled scan, not a hole)."""
     tree = reg.scan_tree
     r = 0.5 * ball_radius(V, reg.F, reg.P, tree)
-    d, _ = tree.query(V, distance_upper_bound=r)
-    return ~np.isfinite(d)
+    far = ~np.isfinite(tree.query(V, distance_upper_bound=r)[0])
+    idx = np.flatnonzero(far)
+    if not len(idx):
+        return far
+    _, label = connected_components(adjacency(reg.F, len(V))[idx][:, idx], directed=False)
+    far[idx] = np.bincount(label)[label] >= MIN_HOLE_VERTICES
+    return far
 
 
 def _frame_required(cov: Coverage, z: ToleranceZone, frame: DatumFrameResult | None) -> Coverage:

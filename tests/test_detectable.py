@@ -1,0 +1,154 @@
+"""What the measurement can see, stated and used (``metrology/deviation/detectable.py``).
+
+The shell's simulator (seed 5) with a proud Gaussian dent ``a exp(-r^2 / sigma^2)``: its
+out-of-band disk beyond 0.5 mm is ``pi sigma^2 ln(a / 0.5)`` mm^2 against the 25 mm^2
+region limit. The deviation's reading (a ball fit about each vertex, 2.3 mm here) and the
+virtual fixture read such a dent short: a 0.8 mm dent of sigma 4.24 mm (26.6 mm^2 of the
+surface beyond the band: it fails) read as a 20.1 mm^2 region and PASSed. The product now
+probes what it reads of a failing region of the limit's size (18.3 mm^2 of 25 here) and
+does not prove a region that reads as large as that.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from qifreport.metrology.deviation.detectable import (
+    Detectable,
+    ScanReading,
+    critical_depth,
+    detectable_dent,
+)
+from qifreport.metrology.inspection import InspectionParams, inspect
+from qifreport.registration.mesh import vertex_areas, vertex_normals
+from qifreport.simulate.cases import defect_site, make_case
+from qifreport.simulate.shapes import thin_shell
+
+PARAMS = InspectionParams(tolerance=0.5)
+
+
+@pytest.fixture(scope="module")
+def shell():
+    return thin_shell()
+
+
+def _judged(shell, defect=None, cut: float = 0.0):
+    """The shell (seed 5) with ``defect`` (a, sigma) mm, its points within ``cut`` mm of
+    the defect site removed, judged."""
+    V, F = shell
+    case = make_case(V, F, generator="analytic", amplitude=0.02, seed=5, defect=defect)
+    P = case.P
+    if cut:
+        x0 = case.V_scanned[defect_site(V)]
+        P = P[np.linalg.norm(P - x0, axis=1) > cut]
+    return inspect(V, F, P, PARAMS)
+
+
+def test_the_critical_dent_fills_the_region_limit():
+    sigma = math.sqrt(25.0 / math.pi)
+    a = critical_depth(0.5, 25.0, sigma)
+    assert a == pytest.approx(0.5 * math.e)
+    assert math.pi * sigma**2 * math.log(a / 0.5) == pytest.approx(25.0)
+
+
+def test_a_fine_reading_reads_the_dent_and_a_coarse_one_states_it_cannot():
+    """A 60 mm flat plate scanned at 0.25 mm: meshed at 1 mm the ball (1.5 mm) reads most
+    of a dent of the limit's size; meshed at 6 mm the ball (9 mm) reads no region of it."""
+    g = np.arange(0.0, 60.0 + 1e-9, 0.25)
+    X, Y = np.meshgrid(g, g)
+    P = np.c_[X.ravel(), Y.ravel(), np.zeros(X.size)]
+    shares = []
+    for step in (1.0, 6.0):
+        k = np.arange(0.0, 60.0 + 1e-9, step)
+        VX, VY = np.meshgrid(k, k)
+        V = np.c_[VX.ravel(), VY.ravel(), np.zeros(VX.size)]
+        n = len(k)
+        i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1))
+        a = (j * n + i).ravel()
+        F = np.r_[np.c_[a, a + 1, a + n + 1], np.c_[a, a + n + 1, a + n]]
+        site = int(np.argmin(np.linalg.norm(V - [30.0, 30.0, 0.0], axis=1)))
+        det = detectable_dent(
+            V,
+            F,
+            P,
+            vertex_normals(V, F),
+            vertex_areas(V, F),
+            site,
+            (0.5, 25.0, 0.0),
+            scan=ScanReading.of(V, F, P),
+            proud_limit=0.5,
+        )
+        assert det.true_area_mm2 == pytest.approx(25.0)
+        shares.append(det.read_share)
+    fine, coarse = shares
+    assert 0.6 < fine <= 1.0, shares
+    assert coarse == 0.0, shares
+
+
+def test_a_region_is_not_proven_when_it_reads_as_a_failing_ones_reading():
+    det = Detectable(
+        sigma_mm=4.2,
+        depth_mm=0.78,
+        read_peak_mm=0.64,
+        true_area_mm2=25.0,
+        read_area_mm2=18.3,
+        limit_mm2=25.0,
+        smallest_depth_mm=0.62,
+        absorbed_by="the deviation's reading",
+        site=(0.0, 0.0, 0.0),
+    )
+    assert det.passing_below_mm2 == pytest.approx(18.3)
+    assert det.doubt(15.4) == ""
+    assert "cannot be told from a failing one" in det.doubt(20.1)
+    assert det.doubt(30.0) == ""  # a region over the limit fails on its own
+    assert det.doubt(0.0) == ""
+
+
+@pytest.mark.slow
+def test_the_shell_states_what_it_sees_and_keeps_a_conforming_pass(shell):
+    res = _judged(shell)
+    assert res.verdict == "PASS", res.decided_by()
+    det = res.detectable
+    assert det is not None and 0.5 < det.read_share < 1.0, det
+    assert 2.0 < det.sigma_mm < 4.5 and det.smallest_depth_mm > 0.5
+    d = res.to_dict()
+    assert d["detectable"]["read_share"] == pytest.approx(det.read_share)
+    assert all(z["detectable"] is not None for z in d["tolerances"])
+    assert any(n.startswith("whole part: detects a dent") for n in res.coverage_notes())
+
+
+@pytest.mark.slow
+def test_a_dent_read_short_of_failing_is_not_established(shell):
+    """0.8 mm at sigma 4.24 mm: 26.6 mm^2 beyond the band (fails); read 20.1 mm^2."""
+    res = _judged(shell, (0.8, 4.243))
+    assert res.verdict == "NOT ESTABLISHED", res.decided_by()
+    assert any("cannot be told from a failing one" in r for r in res.decided_by())
+    assert 15.0 < res.acceptance.largest_region_area <= 25.0
+
+
+@pytest.mark.slow
+def test_a_dent_well_within_the_limit_still_passes(shell):
+    """1.0 mm at sigma 3 mm: 19.6 mm^2 beyond the band (passes); read 15.4 mm^2."""
+    res = _judged(shell, (1.0, 3.0))
+    assert res.verdict == "PASS", res.decided_by()
+    assert 0.0 < res.acceptance.largest_region_area < res.detectable.passing_below_mm2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cut", [5.6, 3.0])
+def test_a_dent_whose_core_is_cut_out_of_the_scan_is_not_measured(shell, cut):
+    """A 1 mm dent (sigma 4.24 mm, it fails) with its points within ``cut`` mm removed:
+    5.6 mm leaves a 51 mm^2 hole with 0.15 mm around it (29 % of the half-band); 3 mm
+    leaves a hole the wider ball reads across, from its rim at 0.48 mm. Both PASSed."""
+    res = _judged(shell, (1.0, 4.243), cut=cut)
+    assert res.verdict == "NOT MEASURED", res.decided_by()
+    assert any("could hide one" in r for r in res.decided_by())
+
+
+@pytest.mark.slow
+def test_a_conforming_scan_with_the_same_hole_passes(shell):
+    res = _judged(shell, None, cut=5.6)
+    assert res.verdict == "PASS", res.decided_by()
