@@ -10,7 +10,10 @@ region read, the read share the product states for itself and the verdict. A cel
 *wrong* when a dent beyond the limit PASSes or one within it FAILs; NOT ESTABLISHED is the
 honest answer near the limit.
 
-    python bench/dent_verdicts.py [--seed 5] [--std 2,3,4,5] [--depths 0.5,0.8,1.0,1.2]
+    python bench/dent_verdicts.py [--seed 5] [--std 2,3,4,5] [--depths 0.5,0.8,1.0,1.2] [--sunk]
+
+``--sunk`` lays the dents into the material (the scan points then read them too: a point
+proud beyond the band is judged as added material, a sunk one is not).
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ def cell(V, F, a: float, sigma: float, seed: int) -> dict:
     """One dent judged: its true area, what was read and the verdict."""
     case = make_case(V, F, generator="analytic", amplitude=0.02, seed=seed, defect=(a, sigma))
     res = inspect(V, F, case.P, InspectionParams(tolerance=HALF))
-    true = math.pi * sigma**2 * math.log(a / HALF) if a > HALF else 0.0
+    true = math.pi * sigma**2 * math.log(abs(a) / HALF) if abs(a) > HALF else 0.0
     det = res.detectable
     wrong = (res.verdict == "PASS" and true > LIMIT) or (res.verdict == "FAIL" and true <= LIMIT)
     return {
@@ -51,10 +54,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--std", default="2,3,4,5", help="dent widths as standard deviations, mm")
     ap.add_argument("--depths", default="0.5,0.8,1.0,1.2", help="dent depths, mm")
+    ap.add_argument("--sunk", action="store_true", help="dents into the material")
     args = ap.parse_args(argv)
+    sign = -1.0 if args.sunk else 1.0
     V, F = thin_shell()
     rows = [
-        cell(V, F, float(a), math.sqrt(2.0) * float(s), args.seed)
+        cell(V, F, sign * float(a), math.sqrt(2.0) * float(s), args.seed)
         for s in args.std.split(",")
         for a in args.depths.split(",")
     ]
