@@ -38,6 +38,7 @@ __all__ = [
     "edge_uses",
     "edges",
     "face_normals",
+    "label_boundary_vertices",
     "load_mesh",
     "median_edge_length",
     "MeshOperators",
@@ -373,6 +374,17 @@ def boundary_vertices(F: np.ndarray, n: int) -> np.ndarray:
     mask = np.zeros(n, dtype=bool)
     mask[E[count == 1].ravel()] = True
     return mask
+
+
+def label_boundary_vertices(F: np.ndarray, labels: np.ndarray, n: int) -> np.ndarray:
+    """Boolean mask (n,) of vertices shared by triangles of different ``labels`` (f,):
+    the edges between a B-rep's faces (or any labelled patches)."""
+    lo = np.full(n, np.iinfo(np.int64).max)
+    hi = np.full(n, -1)
+    fid = np.repeat(np.asarray(labels, dtype=np.int64), 3)
+    np.minimum.at(lo, F.ravel(), fid)
+    np.maximum.at(hi, F.ravel(), fid)
+    return lo < hi
 
 
 @dataclass(frozen=True)

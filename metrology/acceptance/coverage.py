@@ -64,7 +64,7 @@ from scipy.sparse.csgraph import connected_components
 
 from qifreport.metrology.acceptance.point_regions import DEFAULT_K
 from qifreport.metrology.acceptance.statistics import json_float
-from qifreport.registration.mesh import adjacency
+from qifreport.registration.mesh import adjacency, label_boundary_vertices
 
 __all__ = [
     "DEFAULT_MIN_COVERAGE",
@@ -415,14 +415,9 @@ def unseen_neighbour_edges(F: np.ndarray, face_id: np.ndarray, dev: np.ndarray) 
     dev : (n,) deviation, mm, NaN where unscored.
     """
     n = len(dev)
-    lo = np.full(n, np.iinfo(np.int64).max)
-    hi = np.full(n, -1)
-    fid = np.repeat(np.asarray(face_id, dtype=np.int64), 3)
-    np.minimum.at(lo, F.ravel(), fid)
-    np.maximum.at(hi, F.ravel(), fid)
     scored = np.isfinite(dev)
     beside = (adjacency(F, n) @ scored.astype(np.int64)) > 0
-    return (lo < hi) & ~scored & beside
+    return label_boundary_vertices(F, face_id, n) & ~scored & beside
 
 
 def plausible_uncertainty(cov: Coverage, u_max: float, diagonal: float) -> Coverage:

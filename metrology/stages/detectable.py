@@ -22,15 +22,16 @@ from qifreport.metrology.deviation.detectable import (
 from qifreport.metrology.params import InspectionParams
 from qifreport.metrology.results import ZoneResult
 from qifreport.registration.deformable.result import DeformResult
-from qifreport.registration.mesh import boundary_vertices
+from qifreport.registration.mesh import boundary_vertices, label_boundary_vertices
 
 from .acceptance import Decisions, Measured
 from .context import JudgeContext, Registered
+from .held import HeldNominal
 
 __all__ = ["WIDTHS", "detectable_stage"]
 
 #: the probed dent widths, in units of the region limit's own width ``sqrt(A / pi)``: the
-#: binding one (the larger area read short) is kept
+#: binding one (the least read share) is kept
 WIDTHS = (1.0, 1.5)
 
 
@@ -59,8 +60,7 @@ def detectable_stage(
         face = m.deviations.face
         point_label = np.where(face >= 0, labels[np.maximum(face, 0)], -1)
     scan = ScanReading.of(held.V, reg.F, reg.P, reg.scan_tree, labels, point_label)
-    prober = _Prober(reg, held.V, held.normals, params, ctx.general_half, _border(reg.F, ctx))
-    prober.scan = scan
+    prober = _Prober(reg, held, scan, params, ctx.general_half, _border(reg.F, ctx))
     acc = decisions.acceptance
     whole = prober(ctx.prepared.ops.area, m.readings.deviation, ctx.general_half, probe, acc)
     zones = []
@@ -82,12 +82,7 @@ def _border(F: np.ndarray, ctx: JudgeContext) -> np.ndarray:
     n = len(ctx.prepared.ops.area)
     border = boundary_vertices(F, n)
     if ctx.face_id is not None:
-        fid = np.repeat(np.asarray(ctx.face_id, dtype=np.int64), 3)
-        lo = np.full(n, np.iinfo(np.int64).max)
-        hi = np.full(n, -1)
-        np.minimum.at(lo, F.ravel(), fid)
-        np.maximum.at(hi, F.ravel(), fid)
-        border |= lo < hi
+        border |= label_boundary_vertices(F, ctx.face_id, n)
     return border
 
 
@@ -100,11 +95,19 @@ class _Prober:
     """The binding detectable dent of a surface over :data:`WIDTHS`, one probe per site,
     band and fixture (the whole part and a zone over all of it share theirs)."""
 
-    def __init__(self, reg, V, normals, params: InspectionParams, general_half: float, border):
-        self.reg, self.V, self.normals, self.border = reg, V, normals, border
+    def __init__(
+        self,
+        reg: Registered,
+        held: HeldNominal,
+        scan: ScanReading,
+        params: InspectionParams,
+        general_half: float,
+        border: np.ndarray,
+    ):
+        self.reg, self.V, self.normals = reg, held.V, held.normals
+        self.scan, self.border = scan, border
         self.limit = params.max_region_area
         self.general_half = general_half
-        self.scan: ScanReading | None = None
         self.seen: dict[tuple, Detectable] = {}
 
     def __call__(self, area, dev, half_width, fixture, acc) -> Detectable | None:
