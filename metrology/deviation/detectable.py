@@ -46,9 +46,10 @@ from qifreport.metrology.acceptance.criteria import Acceptance
 from qifreport.metrology.acceptance.point_regions import DEFAULT_K, point_areas
 from qifreport.metrology.acceptance.statistics import json_float
 from qifreport.metrology.deviation.residual_fit import ball_radius, residual_referenced
+from qifreport.registration.deformable.gbcicp import MASS_REGULARISATION, holdout
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.linalg import SPDSolver
-from qifreport.registration.mesh import MeshOperators
+from qifreport.registration.mesh import MeshOperators, median_edge_length
 from qifreport.registration.scan import median_spacing
 
 __all__ = [
@@ -128,7 +129,7 @@ class FixtureProbe:
     def _factor(self, solver: SPDSolver, lam: float, w: np.ndarray):
         """The solve of ``(A W + lam Q + eps) x = b`` for the weights ``w`` (n,)."""
         Aw = self.ops.area * w
-        eps = 1e-9 * self.band_limit**4 * self.ops.M
+        eps = MASS_REGULARISATION * self.band_limit**4 * self.ops.M
         return solver.factor((sp.diags(Aw) + lam * self.ops.Q + eps).tocsc())
 
     def _first(self) -> tuple[SPDSolver, object]:
@@ -148,13 +149,10 @@ class FixtureProbe:
         flagged = self.covered & (np.abs(d - h) > self.threshold)
         if not (self.refits and flagged.any()):
             return h
-        tree = cKDTree(self.V0)
         hold = np.zeros(len(d), dtype=bool)
         seeds = flagged
         for _ in range(HOLDOUT_ROUNDS):
-            grown = hold.copy()
-            for near in tree.query_ball_point(self.V0[seeds], self.holdout_radius):
-                grown[near] = True
+            grown = hold | holdout(self.V0, seeds, self.holdout_radius)
             if (grown == hold).all():
                 break
             hold = grown
@@ -293,9 +291,11 @@ class ScanReading:
 
     Attributes
     ----------
-    tree : ``cKDTree(P)``.  spacing : the scan's median point spacing.
+    tree : ``cKDTree(P)``.  spacing : the scan's median point spacing (the one the point
+        regions take their areas from).
     ball : the deviation's first ball radius
         (:func:`~qifreport.metrology.deviation.residual_fit.ball_radius`).
+    edge : the mesh's median edge length.
     labels : (f,) each triangle's face (a B-rep face, or a smooth patch; zeros: one).
     point_label : (m,) each point's face (its closest triangle's; -1: none, not read).
     """
@@ -303,6 +303,7 @@ class ScanReading:
     tree: cKDTree
     spacing: float
     ball: float
+    edge: float
     labels: np.ndarray
     point_label: np.ndarray
 
@@ -315,15 +316,21 @@ class ScanReading:
         tree: cKDTree | None = None,
         labels: np.ndarray | None = None,
         point_label: np.ndarray | None = None,
+        spacing: float | None = None,
     ) -> ScanReading:
         """The reading of the scan ``P`` (m, 3) on ``(V, F)``; one face when ``labels``
-        (f,) and ``point_label`` (m,) are not given."""
+        (f,) and ``point_label`` (m,) are not given; ``spacing``: the point regions' own
+        (:attr:`~qifreport.metrology.acceptance.point_regions.ScanSamples.spacing`), else
+        measured here."""
         tree = cKDTree(P) if tree is None else tree
         one = labels is None or point_label is None
+        if spacing is None:
+            spacing = max(median_spacing(P, tree) if len(P) > 1 else 0.0, 1e-9)
         return cls(
             tree=tree,
-            spacing=max(median_spacing(P, tree) if len(P) > 1 else 0.0, 1e-9),
+            spacing=spacing,
             ball=ball_radius(V, F, P, tree),
+            edge=median_edge_length(V, F),
             labels=np.zeros(len(F), dtype=np.int64) if one else np.asarray(labels, np.int64),
             point_label=np.zeros(len(P), np.int64) if one else np.asarray(point_label, np.int64),
         )
@@ -418,7 +425,7 @@ def detectable_dent(
     a = critical_depth(half_width, limit, sigma)
     x0 = V[site]
     scan = ScanReading.of(V, F, P) if scan is None else scan
-    patch = _Patch.about(V, F, P, normals, area, x0, 3.0 * sigma + 4.0 * _edge(V, F), scan)
+    patch = _Patch.about(V, F, P, normals, area, x0, 3.0 * sigma + 4.0 * scan.edge, scan)
     h = None
     if fixture is not None:
         h = fixture.absorbed(a * np.exp(-np.sum((V - x0) ** 2, axis=1) / sigma**2))
@@ -509,9 +516,3 @@ def _centres(V: np.ndarray, F: np.ndarray, site: int) -> list[np.ndarray]:
         return [V[site]]
     other = tri[0][tri[0] != site][0]
     return [V[site], 0.5 * (V[site] + V[other]), V[tri[0]].mean(axis=0)]
-
-
-def _edge(V: np.ndarray, F: np.ndarray) -> float:
-    """The mesh's median edge length, mm."""
-    e = np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1)
-    return float(np.median(e)) if len(e) else 0.0

@@ -59,7 +59,8 @@ def detectable_stage(
         labels = np.asarray(ctx.face_id, dtype=np.int64)
         face = m.deviations.face
         point_label = np.where(face >= 0, labels[np.maximum(face, 0)], -1)
-    scan = ScanReading.of(held.V, reg.F, reg.P, reg.scan_tree, labels, point_label)
+    spacing = m.scores.samples.spacing
+    scan = ScanReading.of(held.V, reg.F, reg.P, reg.scan_tree, labels, point_label, spacing)
     prober = _Prober(reg, held, scan, params, ctx.general_half, _border(reg.F, ctx))
     acc = decisions.acceptance
     whole = prober(ctx.prepared.ops.area, m.readings.deviation, ctx.general_half, probe, acc)

@@ -68,14 +68,20 @@ from qifreport.registration.mesh import MeshOperators, adjacency, bounding_diago
 from qifreport.registration.normals import pca_normals
 
 __all__ = [
+    "MASS_REGULARISATION",
     "GBCICPParams",
     "GBCICPResult",
     "gbcicp",
+    "holdout",
     "resolve_params",
 ]
 
 
 log = logging.getLogger(__name__)
+
+#: the mass regularisation of every full-resolution system, in units of the first pass's
+#: stiffness: it keeps the system definite where no data reaches
+MASS_REGULARISATION = 1e-9
 
 
 @dataclass
@@ -465,7 +471,7 @@ def _prepare(
         rows = np.arange(0, n, stride)
         Phi_r = basis.Phi[rows]
     # a whisper of mass regularisation keeps the system definite where no data reaches
-    eps = 1e-9 * lam_first * (ops.M if p.lambda0 is None else sp.eye(n))
+    eps = MASS_REGULARISATION * lam_first * (ops.M if p.lambda0 is None else sp.eye(n))
     return _Fit(
         p=p,
         V0=V0,
@@ -545,7 +551,7 @@ def _band_limited_passes(fit: _Fit, flaggable: np.ndarray | None) -> _Passes:
         if flagged_fraction > p.max_flagged_fraction:
             fallback, guard = True, (flagged_fraction, 1)
         else:
-            hold = _holdout(fit.V0 + e, flagged, radius)
+            hold = holdout(fit.V0 + e, flagged, radius)
             # no scored measurement is dropped silently: around a flag it is held out,
             # elsewhere fitted at the first pass's width (a narrow refit width would drop
             # the data of a face the first pass did not quite follow, and the fit there
@@ -569,7 +575,7 @@ def _band_limited_passes(fit: _Fit, flaggable: np.ndarray | None) -> _Passes:
                 # elsewhere seeds none), where the measurement still encloses it grown
                 flagged |= new & hold
                 grown = hold | _enclosed(
-                    fit.adjacency, hold | _holdout(fit.V0 + e, flagged, radius), enclosing
+                    fit.adjacency, hold | holdout(fit.V0 + e, flagged, radius), enclosing
                 )
                 if not (grown & ~hold).any():
                     break
@@ -669,7 +675,7 @@ def gbcicp(
     )
 
 
-def _holdout(X: np.ndarray, flagged: np.ndarray, radius: float) -> np.ndarray:
+def holdout(X: np.ndarray, flagged: np.ndarray, radius: float) -> np.ndarray:
     """Vertices within ``radius`` (mm) of any flagged vertex."""
     hold = np.zeros(len(X), dtype=bool)
     if flagged.any():
