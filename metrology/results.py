@@ -81,6 +81,8 @@ class ZoneResult:
         ``'datum frame |A|B|C|'``), or ``'best fit (datum frame not established: ...)'``.
     detectable : the dent its region criterion is sure to catch
         (:mod:`qifreport.metrology.deviation.detectable`); None: not probed.
+    judged : the zone takes part in the verdict; False for qifreport's default band beside
+        a drawing (no requirement of the drawing: reported, status ``REPORTED``).
     """
 
     zone: ToleranceZone
@@ -91,6 +93,7 @@ class ZoneResult:
     coverage: Coverage | None = None
     reading: str = "best fit"
     detectable: Detectable | None = None
+    judged: bool = True
 
     @property
     def measured(self) -> bool:
@@ -113,7 +116,10 @@ class ZoneResult:
     def status(self) -> str:
         """``FAIL`` (a criterion fails on what was scored: rejected whatever was not seen),
         ``NOT MEASURED`` (too little of the surface scored to judge it, or none), ``NOT
-        ESTABLISHED`` (on a zone limit within the measurement uncertainty), or ``PASS``."""
+        ESTABLISHED`` (on a zone limit within the measurement uncertainty), or ``PASS``;
+        ``REPORTED`` when the zone is not judged (:attr:`judged`)."""
+        if not self.judged:
+            return "REPORTED"
         if self.failed:
             return "FAIL"
         if not self.measured:
@@ -125,6 +131,7 @@ class ZoneResult:
             **self.zone.to_dict(),
             "description": self.zone.describe(),
             "verdict": self.status,
+            "judged": self.judged,
             "fixtured": self.fixtured,
             "reading": self.reading,
             "deviation": self.stats.to_dict(),
@@ -329,7 +336,8 @@ class InspectionResult:
         no fixture bends out of a part (its compliance is smooth at the mesh's scale; a
         virtual one would only distort the rest of a stiff part), so the part fails
         whatever a fixture would do."""
-        accs = [self.acceptance] + [z.acceptance for z in self.zones if z.measured]
+        accs = [self.acceptance] if self.whole_part_judged else []
+        accs += [z.acceptance for z in self.judged_zones if z.measured]
         return bool(
             any(a.decision == "FAIL" for a in accs)
             and all(a.nominal_decision in ("PASS", "UNCERTAIN") for a in accs)
@@ -346,10 +354,23 @@ class InspectionResult:
         return None if self.edges is not None and not self.edges.judged else self.size
 
     @property
+    def judged_zones(self) -> list[ZoneResult]:
+        """The zones that take part in the verdict (:attr:`ZoneResult.judged`)."""
+        return [z for z in self.zones if z.judged]
+
+    @property
+    def whole_part_judged(self) -> bool:
+        """The whole part's criteria take part in the verdict: not when its general band is
+        qifreport's default beside a drawing (the drawing's zones are each judged on their
+        own faces; the whole part is reported)."""
+        return all(z.judged for z in self.zones)
+
+    @property
     def part_failed(self) -> bool:
         """The whole part's criteria fail on what was scored (nothing scored fails nothing:
-        it is not measured, :meth:`not_measured`)."""
-        return self.acceptance.scored_area > 0 and self.acceptance.decision == "FAIL"
+        it is not measured, :meth:`not_measured`), when they are judged."""
+        a = self.acceptance
+        return self.whole_part_judged and a.scored_area > 0 and a.decision == "FAIL"
 
     @property
     def passed(self) -> bool:
@@ -358,7 +379,7 @@ class InspectionResult:
         proud scan region exceeds the limit). Whether enough was scored is :attr:`measured`."""
         return bool(
             not self.part_failed
-            and not any(z.failed for z in self.zones)
+            and not any(z.failed for z in self.judged_zones)
             and (self.added is None or self.added.passed)
             and (self.judged_size is None or not self.judged_size.flagged)
             and not self.not_restrainable()
@@ -473,8 +494,8 @@ class InspectionResult:
         check."""
         return (
             self.acceptance.scored_area > 0
-            and (self.coverage is None or self.coverage.measured)
-            and all(z.measured for z in self.zones)
+            and (self.coverage is None or self.coverage.measured or not self.whole_part_judged)
+            and all(z.measured for z in self.judged_zones)
             and self.size_seen
         )
 
@@ -488,9 +509,9 @@ class InspectionResult:
                 "whole part: no vertex scored (no scan point lies near the part's surface "
                 "as it was seated or held): no statistic exists to judge"
             )
-        if self.coverage is not None and not self.coverage.measured:
+        if self.coverage is not None and not self.coverage.measured and self.whole_part_judged:
             out += [f"whole part: {r}" for r in self.coverage.reasons]
-        for z in self.zones:
+        for z in self.judged_zones:
             if not z.measured:
                 out += [f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.coverage.reasons]
         if not self.size_seen:
@@ -577,9 +598,9 @@ class InspectionResult:
         """The surfaces whose conformance is neither proven nor disproven within the
         measurement uncertainty (:mod:`qifreport.metrology.acceptance.decision`), one line each."""
         out = []
-        if self.acceptance.decision == "UNCERTAIN":
+        if self.acceptance.decision == "UNCERTAIN" and self.whole_part_judged:
             out += [f"whole part: {r}" for r in self.acceptance.uncertain_reasons]
-        for z in self.zones:
+        for z in self.judged_zones:
             if z.uncertain:
                 out += [
                     f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.acceptance.uncertain_reasons
@@ -617,7 +638,7 @@ class InspectionResult:
         out = [] if refusal is None else [f"not established: {refusal}"]
         if self.part_failed:
             out += [f"whole part: {r}" for r in _fail_reasons(self.acceptance)]
-        for z in self.zones:
+        for z in self.judged_zones:
             if z.failed:
                 out += [
                     f"{z.zone.key} {z.zone.describe()}: {r}" for r in _fail_reasons(z.acceptance)
@@ -698,6 +719,7 @@ class InspectionResult:
             "acceptance": self.acceptance.to_dict(),
             "detectable": None if self.detectable is None else self.detectable.to_dict(),
             "tolerances": [z.to_dict() for z in self.zones],
+            "whole_part_judged": self.whole_part_judged,
             "not_evaluated": [n.to_dict() for n in self.not_evaluated],
             "characteristics": [c.to_dict() for c in self.characteristics],
             "datum_frames": [f.to_dict() for f in self.frames],

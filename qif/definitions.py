@@ -21,11 +21,12 @@ from lxml import etree
 from qifreport import __version__
 from qifreport.metrology.acceptance.bands import ToleranceZone
 
-from .xmlkit import Attrs, E, Ids, dec, id_array, qpid, token
+from .xmlkit import Attrs, E, Ids, dec, id_array, token
 
 __all__ = [
     "CONFORMS",
     "DOES_NOT_CONFORM",
+    "PartIds",
     "Sections",
     "acceptance_definition",
     "datum_definitions",
@@ -36,12 +37,23 @@ __all__ = [
     "drf_name",
     "face_attrs",
     "feature_definition",
+    "feature_measurement",
     "file_units",
+    "product",
     "profile_definition",
     "profile_feature_name",
     "software_definitions",
     "standards_definitions",
 ]
+
+#: what a profile zone that is not the drawing's is, by its source
+NOT_FROM_DRAWING = {
+    "general": "Not from the drawing: the general band the operator stated (--tolerance).",
+    "default": (
+        "Not from the drawing: qifreport's default band on the faces no tolerance covers; "
+        "beside a drawing it is reported, not judged (status UNDEFINED)."
+    ),
+}
 
 #: the values of a profile's acceptance characteristic (a UserDefinedAttribute)
 CONFORMS, DOES_NOT_CONFORM = "CONFORMS", "DOES_NOT_CONFORM"
@@ -79,6 +91,48 @@ class Sections:
             E.CharacteristicNominals(*self.cnoms, n=str(len(self.cnoms))),
             E.CharacteristicItems(*self.citems, n=str(len(self.citems))),
         )
+
+
+@dataclass
+class PartIds:
+    """Ids of the part, its component and its assembly path."""
+
+    part: str
+    component: str
+    asm_path: str
+
+
+def product(
+    part_name: str,
+    part: PartIds,
+    zs: Sections,
+    dids: dict[str, str],
+    drf_ids: dict[DrfKey, str],
+    ids: Ids,
+) -> etree._Element:
+    """``Product``: the part (its feature and characteristic nominals, datums, frames), its
+    component and assembly path; the part's and component's UUIDs from ``ids``."""
+    lists = [
+        ("FeatureNominalIds", zs.fnom_ids),
+        ("CharacteristicNominalIds", zs.cnom_ids),
+        ("DatumDefinitionIds", list(dids.values())),
+        ("DatumReferenceFrameIds", list(drf_ids.values())),
+    ]
+    part_el = E.Part(
+        E.Header(E.Name(part_name)),
+        E.UUID(ids.uuid(part.part, "part")),
+        *[id_array(name, values) for name, values in lists if values],
+        id=part.part,
+    )
+    component = E.Component(
+        E.UUID(ids.uuid(part.component, "component")), E.Part(E.Id(part.part)), id=part.component
+    )
+    return E.Product(
+        E.PartSet(part_el, n="1"),
+        E.ComponentSet(component, n="1"),
+        E.RootPart(E.Id(part.part)),
+        E.AsmPaths(E.AsmPath(id_array("ComponentIds", [part.component]), id=part.asm_path), n="1"),
+    )
 
 
 def standards_definitions(standard: tuple[str, str, str], std_id: str) -> etree._Element:
@@ -247,26 +301,32 @@ def feature_definition(
     fd, fn, fi = ids(), ids(), ids()
     zs.fnom_ids.append(fn)
     zs.fdefs.append(E.OtherSurfaceFeatureDefinition(id=fd))
-    nom = [fa.element(), E.Name(fname), E.UUID(qpid()), E.FeatureDefinitionId(fd)]
+    nom = [fa.element(), E.Name(fname), E.UUID(ids.uuid(fn, "feature-nominal"))]
+    nom.append(E.FeatureDefinitionId(fd))
     zs.fnoms.append(E.OtherSurfaceFeatureNominal(*[x for x in nom if x is not None], id=fn))
     zs.fitems.append(
         E.OtherSurfaceFeatureItem(
             E.FeatureNominalId(fn),
             E.FeatureName(fname),
-            E.UUID(qpid()),
+            E.UUID(ids.uuid(fi, "feature-item")),
             E.DeterminationMode(E.Checked(E.CheckDetails(E.Measured()))),
             id=fi,
         )
     )
-    fm = None
-    if actual_id is not None:
-        fm = ids()
-        zs.fmeas.append(
-            E.OtherSurfaceFeatureMeasurement(
-                E.FeatureItemId(fi), E.FeatureName(fname), E.ActualComponentId(actual_id), id=fm
-            )
-        )
+    fm = None if actual_id is None else feature_measurement(zs, fi, fname, actual_id, ids)
     return fn, fi, fm
+
+
+def feature_measurement(zs: Sections, fi: str, fname: str, actual_id: str, ids: Ids) -> str:
+    """The measurement of the surface feature item ``fi`` on the inspected part
+    ``actual_id``, appended to ``zs``; returns its id."""
+    fm = ids()
+    zs.fmeas.append(
+        E.OtherSurfaceFeatureMeasurement(
+            E.FeatureItemId(fi), E.FeatureName(fname), E.ActualComponentId(actual_id), id=fm
+        )
+    )
+    return fm
 
 
 def profile_feature_name(zone: ToleranceZone) -> str:
@@ -298,6 +358,8 @@ def profile_definition(
     if zone.composite:
         da.s("composite_segment", zone.composite)
     text = f"{zone.describe()}. {rule}." if rule else f"{zone.describe()}."
+    if zone.source != "pmi":
+        text += f" {NOT_FROM_DRAWING[zone.source]}"
     cdef = [da.element(), E.Description(text), E.Name(token(zone.name))]
     if zone.free_state:
         cdef.append(E.FreeState("true"))
@@ -321,7 +383,9 @@ def profile_definition(
     zs.citems.append(
         E.SurfaceProfileCharacteristicItem(
             E.Name(token(zone.name)),
-            E.CharacteristicDesignator(E.Designator(zone.key), E.UUID(qpid())),
+            E.CharacteristicDesignator(
+                E.Designator(zone.key), E.UUID(ids.uuid(ci, "characteristic-item"))
+            ),
             id_array("FeatureItemIds", [fi]),
             E.CharacteristicNominalId(cn),
             id=ci,
@@ -360,7 +424,10 @@ def acceptance_definition(
     zs.citems.append(
         E.UserDefinedAttributeCharacteristicItem(
             E.Name(name),
-            E.CharacteristicDesignator(E.Designator(f"{zone.key}_ACCEPTANCE"), E.UUID(qpid())),
+            E.CharacteristicDesignator(
+                E.Designator(f"{zone.key}_ACCEPTANCE"),
+                E.UUID(ids.uuid(ci, "characteristic-item")),
+            ),
             id_array("FeatureItemIds", [fi]),
             E.CharacteristicNominalId(cn),
             id=ci,

@@ -52,7 +52,7 @@ from qifreport.metrology.gdt.geometric import per_unit
 
 from .definitions import DrfKey, Sections, drf_key, face_attrs, feature_definition
 from .uncertainty import budget_attributes, uncertainty_attributes
-from .xmlkit import Attrs, E, Ids, dec, id_array, qpid, token
+from .xmlkit import Attrs, E, Ids, dec, id_array, token
 
 __all__ = [
     "ANGULAR_DIMENSION_KINDS",
@@ -233,7 +233,9 @@ def characteristic_definition(
         E(
             f"{t}CharacteristicItem",
             E.Name(name),
-            E.CharacteristicDesignator(E.Designator(s.key), E.UUID(qpid())),
+            E.CharacteristicDesignator(
+                E.Designator(s.key), E.UUID(ids.uuid(ci, "characteristic-item"))
+            ),
             id_array("FeatureItemIds", [fi]),
             E.CharacteristicNominalId(cn),
             id=ci,

@@ -31,6 +31,8 @@ from qifreport.metrology.acceptance.bands import ToleranceZone
 from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 
 from .definitions import (
+    DrfKey,
+    PartIds,
     Sections,
     acceptance_definition,
     datum_definitions,
@@ -40,20 +42,26 @@ from .definitions import (
     face_attrs,
     feature_definition,
     file_units,
+    product,
     profile_definition,
     profile_feature_name,
     software_definitions,
     standards_definitions,
 )
-from .feature_characteristics import characteristic_definition
-from .xmlkit import SCHEMA_LOCATION, XSI, E, Ids, id_array, qpid, token, xml_time
+from .feature_characteristics import characteristic_definition, qif_type
+from .xmlkit import SCHEMA_LOCATION, XSI, E, Ids, token, xml_time
 
 __all__ = [
+    "PlanItem",
+    "PlanSections",
     "PlanSource",
     "build_plan",
+    "drawing_zones",
+    "more_frames",
     "plan_file_name",
     "plan_qpid",
     "plan_reference",
+    "plan_sections",
     "read_qpid",
 ]
 
@@ -102,52 +110,103 @@ class PlanSource:
     standard: tuple[str, str, str] = ("ASME", "Y14.5", "2018")
 
 
-def build_plan(src: PlanSource, created: datetime | None = None) -> etree._ElementTree:
-    """The QIF 3.0 plan document of a part (an lxml tree; write it with
-    :func:`qifreport.qif.writer.write_qif`)."""
-    created = created or datetime.now(timezone.utc)
-    ids = Ids()
+@dataclass
+class PlanItem:
+    """One drawing item's elements in a plan: its surface feature (name, nominal and item
+    ids) and its characteristic item id and QIF type."""
+
+    feature_name: str
+    feature_nominal: str
+    feature_item: str
+    characteristic_item: str
+    qif_type: str
+
+
+@dataclass
+class PlanSections:
+    """The sections of a part's plan and the ids they hold: every document that carries the
+    plan (the plan itself, the results of each inspection of the part) builds them first,
+    with :class:`~qifreport.qif.xmlkit.Ids` namespaced by the plan's QPId, so each element
+    of the plan has the same id and UUID in all of them.
+
+    Attributes
+    ----------
+    std_id, sw_id : the tolerancing standard's and qifreport's ids.
+    dids, drf_ids : the datums' and datum reference frames' ids.
+    datum_features : datum label -> the feature nominal id of its datum feature.
+    part : the part's, component's and assembly path's ids.
+    zs : the features and characteristics (a results document appends its own).
+    zones, specs : profile zone key / feature characteristic key -> its :class:`PlanItem`.
+    """
+
+    std_id: str
+    sw_id: str
+    dids: dict[str, str]
+    drf_ids: dict[DrfKey, str]
+    datum_features: dict[str, str]
+    part: PartIds
+    zs: Sections
+    zones: dict[str, PlanItem] = field(default_factory=dict)
+    specs: dict[str, PlanItem] = field(default_factory=dict)
+
+
+def drawing_zones(zones: list[ToleranceZone]) -> list[ToleranceZone]:
+    """The profile zones the drawing states (the general zone only when a whole-part
+    profile of the PMI sets it, not the command line's or the default band)."""
+    return [z for z in zones if z.faces is not None or z.step_id is not None]
+
+
+def plan_sections(src: PlanSource, ids: Ids) -> PlanSections:
+    """The plan's sections (:class:`PlanSections`), ids handed out by ``ids`` in a fixed
+    order: standard, software, datums and frames, part, datum features, profiles, feature
+    characteristics."""
     std_id, sw_id = ids(), ids()
     specs = src.plan.specs
-    # the general zone is the drawing's only when a whole-part profile of the PMI sets it
-    zones = [z for z in src.zones if z.faces is not None or z.step_id is not None]
+    zones = drawing_zones(src.zones)
     cited = [drf_key(z.datums, z.datum_materials) for z in zones]
     cited += [drf_key(s.datums, s.datum_materials) for s in specs]
     dids, drf_ids = datum_ids(src.datums, cited, ids)
-
-    zs = Sections()
-    part_id, component_id, asm_id = ids(), ids(), ids()
-    datum_features = {}
+    part = PartIds(part=ids(), component=ids(), asm_path=ids())
+    ps = PlanSections(std_id, sw_id, dids, drf_ids, {}, part, Sections())
     for label, d in src.plan.datums.items():
         if label not in dids or not len(d.faces):
             continue
         fa = face_attrs(d.faces, src.face_step_ids)
-        fn, _, _ = feature_definition(zs, token(f"DATUM_FEATURE_{label}"), fa, ids)
-        datum_features[label] = fn
+        fn, _, _ = feature_definition(ps.zs, token(f"DATUM_FEATURE_{label}"), fa, ids)
+        ps.datum_features[label] = fn
     for z in zones:
         fa = face_attrs(z.faces, src.face_step_ids)
-        fn, fi, _ = feature_definition(zs, profile_feature_name(z), fa, ids)
-        profile_definition(zs, z, src.rule or "", drf_ids, ids, fn, fi)
+        fname = profile_feature_name(z)
+        fn, fi, _ = feature_definition(ps.zs, fname, fa, ids)
+        ci = profile_definition(ps.zs, z, src.rule or "", drf_ids, ids, fn, fi)
+        ps.zones[z.key] = PlanItem(fname, fn, fi, ci, "SurfaceProfile")
         if src.rule:
-            acceptance_definition(zs, z, src.rule, ids, fn, fi)
+            acceptance_definition(ps.zs, z, src.rule, ids, fn, fi)
     for s in specs:
-        characteristic_definition(zs, s, ids, drf_ids, src.face_step_ids)
+        n_fnom = len(ps.zs.fnom_ids)
+        fi, ci, _ = characteristic_definition(ps.zs, s, ids, drf_ids, src.face_step_ids)
+        fname = token(f"FEATURE_{s.key}")
+        ps.specs[s.key] = PlanItem(fname, ps.zs.fnom_ids[n_fnom], fi, ci, qif_type(s))
+    return ps
 
-    part_el = E.Part(
-        E.Header(E.Name(src.part_name)),
-        E.UUID(qpid()),
-        *([id_array("FeatureNominalIds", zs.fnom_ids)] if zs.fnom_ids else []),
-        *([id_array("CharacteristicNominalIds", zs.cnom_ids)] if zs.cnom_ids else []),
-        *([id_array("DatumDefinitionIds", dids.values())] if dids else []),
-        *([id_array("DatumReferenceFrameIds", drf_ids.values())] if drf_ids else []),
-        id=part_id,
-    )
-    product = E.Product(
-        E.PartSet(part_el, n="1"),
-        E.ComponentSet(E.Component(E.UUID(qpid()), E.Part(E.Id(part_id)), id=component_id), n="1"),
-        E.RootPart(E.Id(part_id)),
-        E.AsmPaths(E.AsmPath(id_array("ComponentIds", [component_id]), id=asm_id), n="1"),
-    )
+
+def more_frames(ps: PlanSections, cited: list[DrfKey], ids: Ids) -> None:
+    """Give the datums and datum reference frames ``cited`` that the plan has not their ids
+    (after the plan's: a results document's own frames)."""
+    for key in cited:
+        for lab, _ in key:
+            if lab not in ps.dids:
+                ps.dids[lab] = ids()
+        if key and key not in ps.drf_ids:
+            ps.drf_ids[key] = ids()
+
+
+def build_plan(src: PlanSource, created: datetime | None = None) -> etree._ElementTree:
+    """The QIF 3.0 plan document of a part (an lxml tree; write it with
+    :func:`qifreport.qif.writer.write_qif`)."""
+    created = created or datetime.now(timezone.utc)
+    ids = Ids(namespace=plan_qpid(src.nominal_sha256))
+    ps = plan_sections(src, ids)
     header = E.Header(
         E.Application(E.Name("qifreport"), E.Organization("qifreport project")),
         E.Description(
@@ -155,18 +214,19 @@ def build_plan(src: PlanSource, created: datetime | None = None) -> etree._Eleme
             f"(SHA-256 {src.nominal_sha256}): every PMI item of the drawing"
         ),
     )
+    zs = ps.zs
     children = [
         E.QPId(plan_qpid(src.nominal_sha256)),
         E.Version(E.TimeCreated(xml_time(created))),
         header,
-        standards_definitions(src.standard, std_id),
-        software_definitions(sw_id),
+        standards_definitions(src.standard, ps.std_id),
+        software_definitions(ps.sw_id),
         file_units(),
-        datum_definitions(dids, datum_features),
-        datum_reference_frames(drf_ids, dids, referenced="NOMINAL"),
-        product,
+        datum_definitions(ps.dids, ps.datum_features),
+        datum_reference_frames(ps.drf_ids, ps.dids, referenced="NOMINAL"),
+        product(src.part_name, ps.part, zs, ps.dids, ps.drf_ids, ids),
         zs.features() if zs.fdefs else None,
-        zs.characteristics(std_id) if zs.cdefs else None,
+        zs.characteristics(ps.std_id) if zs.cdefs else None,
         E.Plan(E.UnorderedPlanRoot(E.Steps(E.MeasureEvaluateAll(), n="1"))),
     ]
     root = E.QIFDocument(

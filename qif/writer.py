@@ -6,7 +6,11 @@ per inspection, written with lxml. What goes where:
 =========================================  ==================================================
 ``Header``, ``SoftwareDefinitions``         qifreport and its version, author/organization
 ``ExternalQIFReferences``                   a STEP nominal's QIF plan (:mod:`.plan`), by its
-                                            QPId and file name ``<stem>_plan.qif``
+                                            QPId and file name ``<stem>_plan.qif``; the
+                                            document carries that plan in full, each of its
+                                            elements with the plan document's id and UUID
+                                            (:func:`~.plan.plan_sections` runs first), and
+                                            measures its items
 ``AlgorithmDefinitions``                    rigid alignment and the virtual fixture (GB-CICP
                                             or the ``--method`` baseline), with their
                                             parameters (JSON)
@@ -22,9 +26,10 @@ per inspection, written with lxml. What goes where:
 ``Features``                                one ``OtherSurfaceFeature`` per toleranced surface
                                             (its B-rep faces as STEP entity ids, an Attribute)
 ``Characteristics``                         one ``SurfaceProfileCharacteristic`` per profile
-                                            tolerance of the PMI, plus the general tolerance
-                                            (the command line's, or the default) on the faces
-                                            no profile covers; beside each, its acceptance
+                                            tolerance of the PMI (the plan's items), plus the
+                                            general tolerance (the command line's, or the
+                                            default: "not from the drawing") on the faces no
+                                            profile covers; beside each, its acceptance
                                             rule's decision (a ``UserDefinedAttribute``
                                             characteristic ``<key>_ACCEPTANCE``); then the
                                             drawing's feature tolerances and dimensions as
@@ -95,6 +100,7 @@ import numpy as np
 from lxml import etree
 
 from qifreport.jsonio import json_default
+from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 from qifreport.metrology.inspection import (
     FREE_STATE_CONFORMS,
     FREE_STATE_LOCAL_DEFECTS,
@@ -107,16 +113,16 @@ from qifreport.registration.deformable.methods import method_spec
 from .definitions import (
     CONFORMS,
     DOES_NOT_CONFORM,
-    DrfKey,
     Sections,
     acceptance_definition,
     datum_definitions,
-    datum_ids,
     datum_reference_frames,
     drf_key,
     face_attrs,
     feature_definition,
+    feature_measurement,
     file_units,
+    product,
     profile_definition,
     profile_feature_name,
     software_definitions,
@@ -126,8 +132,16 @@ from .feature_characteristics import (
     characteristic_definition,
     characteristic_measurement,
     qif_status,
+    qif_type,
 )
-from .plan import plan_reference
+from .plan import (
+    PlanSections,
+    PlanSource,
+    more_frames,
+    plan_qpid,
+    plan_reference,
+    plan_sections,
+)
 from .profile_characteristics import (
     acceptance_characteristic,
     profile_characteristic,
@@ -189,6 +203,9 @@ class Provenance:
     nominal_info : description of the nominal (format, tessellation, PMI counts).
     author, organization, operator, serial_number : options of the command line.
     standard : (organization, designator, year) of the tolerancing standard.
+    plan : the part's plan (a STEP nominal's drawing, :mod:`.plan`): the results carry it
+        with the plan document's ids and UUIDs and measure its items; None: no drawing to
+        refer to.
     """
 
     part_name: str
@@ -206,6 +223,7 @@ class Provenance:
     operator: str | None = None
     serial_number: str | None = None
     standard: tuple[str, str, str] = ("ASME", "Y14.5", "2018")
+    plan: PlanSource | None = None
 
 
 def acceptance_rule(min_fraction: float, max_region_area: float) -> str:
@@ -232,40 +250,29 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
     lxml.etree._ElementTree
         Write it with :func:`write_qif`.
     """
-    ids = Ids()  # ids are handed out in document order: the sections are built in it
-
-    # -- definitions that others reference: standard, software, algorithms, units
-    std_id, sw_id = ids(), ids()
-    standards = standards_definitions(prov.standard, std_id)
-    software = software_definitions(sw_id)
-    rigid_alg_id, fit_alg_id = ids(), ids()
-    algorithms = _algorithm_definitions(res, sw_id, rigid_alg_id, fit_alg_id)
-    units = file_units()
-
-    # -- datums and datum reference frames
+    # -- the plan first, with the same ids and UUIDs as the plan document
+    src = prov.plan if prov.plan is not None else _without_drawing(prov)
+    ids = Ids(namespace=plan_qpid(src.nominal_sha256) if prov.plan is not None else None)
+    ps = plan_sections(src, ids)
     cited = [drf_key(z.zone.datums, z.zone.datum_materials) for z in res.zones]
     cited += [drf_key(c.spec.datums, c.spec.datum_materials) for c in res.characteristics]
-    dids, drf_ids = datum_ids(prov.datums, cited, ids)
-    datum_defs = datum_definitions(dids)
-    drfs = datum_reference_frames(drf_ids, dids)
+    more_frames(ps, cited, ids)
 
-    # -- the instrument: the scanner whose figures the uncertainty budgets used
+    # -- definitions only the results have: algorithms, the instrument, the inspected part
+    rigid_alg_id, fit_alg_id = ids(), ids()
+    algorithms = _algorithm_definitions(res, ps.sw_id, rigid_alg_id, fit_alg_id)
     device_id = ids()
     resources = measurement_resources(res.params.scanner, device_id)
+    actual_id = ids()
 
-    # -- one surface feature and one characteristic per zone
+    # -- the measurements, on the plan's items (the rest: items of the results' own)
     rule = acceptance_rule(res.params.min_fraction, res.params.max_region_area)
-    part = _PartIds(part=ids(), component=ids(), asm_path=ids(), actual=ids())
-    zs = _sections(res, prov.face_step_ids, ids, rule, drf_ids, part.actual, device_id)
-    product = _product(prov.part_name, part, zs, dids, drf_ids)
-    features = zs.features()
-    characteristics = zs.characteristics(std_id)
-
-    # -- results
-    results = _results(res, prov, sw_id, zs, part, ids)
+    zs = ps.zs
+    _measurements(res, ps, prov.face_step_ids, ids, rule, actual_id, device_id)
+    results = _results(res, prov, ps.sw_id, zs, ps.part.asm_path, actual_id, ids)
     # a STEP nominal's plan (qifreport plan), by its QPId
     plan_ref = None
-    if prov.face_step_ids is not None:
+    if prov.plan is not None:
         plan_ref = plan_reference(Path(prov.nominal_path).stem, prov.nominal_sha256, ids())
 
     children = [
@@ -273,16 +280,16 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
         E.Version(E.TimeCreated(xml_time(prov.finished))),
         _header(prov),
         plan_ref,
-        standards,
-        software,
+        standards_definitions(prov.standard, ps.std_id),
+        software_definitions(ps.sw_id),
         algorithms,
-        units,
-        datum_defs,
-        drfs,
+        file_units(),
+        datum_definitions(ps.dids, ps.datum_features),
+        datum_reference_frames(ps.drf_ids, ps.dids),
         resources,
-        product,
-        features,
-        characteristics,
+        product(prov.part_name, ps.part, zs, ps.dids, ps.drf_ids, ids),
+        zs.features(),
+        zs.characteristics(ps.std_id),
         results,
     ]
     root = E.QIFDocument(
@@ -395,64 +402,65 @@ def _fixture_name(res) -> str:
     return "none (rigid only)"
 
 
-@dataclass
-class _PartIds:
-    """Ids of the part, its component and assembly path, and the inspected actual part."""
+def _without_drawing(prov: Provenance) -> PlanSource:
+    """The plan of a part whose inspection has no drawing to refer to (a mesh nominal): no
+    item, the datums of the provenance."""
+    return PlanSource(
+        part_name=prov.part_name,
+        nominal_path=prov.nominal_path,
+        nominal_sha256=prov.nominal_sha256,
+        zones=[],
+        plan=CharacteristicPlan(),
+        datums=list(prov.datums),
+        face_step_ids=prov.face_step_ids,
+    )
 
-    part: str
-    component: str
-    asm_path: str
-    actual: str
 
-
-def _sections(
+def _measurements(
     res: InspectionResult,
+    ps: PlanSections,
     face_step_ids: np.ndarray | None,
     ids: Ids,
     rule: str,
-    drf_ids: dict[DrfKey, str],
     actual_id: str,
-    device_id: str | None = None,
-) -> Sections:
-    """The features and characteristics of the inspection: each zone's (:func:`_add_zone`),
-    then each feature characteristic's definition, nominal, item and measurement (naming
-    the scanner ``device_id`` when it has an uncertainty budget)."""
-    zs = Sections()
-    for z in res.zones:
-        _add_zone(zs, z, res, ids, rule, drf_ids, actual_id, face_step_ids)
-    for c in res.characteristics:
-        fi, ci, fm = characteristic_definition(
-            zs,
-            c.spec,
-            ids,
-            drf_ids,
-            face_step_ids,
-            direction=c.direction,
-            result=c,
-            actual_id=actual_id,
-        )
-        zs.cmeas.append(characteristic_measurement(c, ids, ci, fm, actual_id, device_id))
-    return zs
-
-
-def _add_zone(
-    zs: Sections,
-    z: ZoneResult,
-    res: InspectionResult,
-    ids: Ids,
-    rule: str,
-    drf_ids: dict[DrfKey, str],
-    actual_id: str,
-    face_step_ids: np.ndarray | None,
+    device_id: str,
 ) -> None:
-    """One zone's surface feature and profile characteristic (definition, nominal, item,
-    measurement) and its acceptance characteristic."""
-    fa = face_attrs(z.zone.faces, face_step_ids)
-    fn, fi, fm = feature_definition(zs, profile_feature_name(z.zone), fa, ids, actual_id)
-    ci = profile_definition(zs, z.zone, rule, drf_ids, ids, fn, fi)
-    zs.cmeas.append(_characteristic_measurement(z, res, ci, fm, actual_id, ids()))
-    ci = acceptance_definition(zs, z.zone, rule, ids, fn, fi)
-    zs.cmeas.append(_acceptance_measurement(z, res, ci, fm, actual_id, ids()))
+    """Every zone's and feature characteristic's measurements, appended to ``ps.zs``: on
+    the plan's items where the drawing states them; a zone or characteristic the plan has
+    not (the command line's or the default band, an item read as another QIF type) gets its
+    own definition, nominal and item first. Each zone's acceptance characteristic is the
+    results' own."""
+    zs = ps.zs
+    for z in res.zones:
+        item = ps.zones.get(z.zone.key)
+        if item is None:
+            fa = face_attrs(z.zone.faces, face_step_ids)
+            fname = profile_feature_name(z.zone)
+            fn, fi, fm = feature_definition(zs, fname, fa, ids, actual_id)
+            ci = profile_definition(zs, z.zone, rule, ps.drf_ids, ids, fn, fi)
+        else:
+            fn, fi, ci = item.feature_nominal, item.feature_item, item.characteristic_item
+            fm = feature_measurement(zs, fi, item.feature_name, actual_id, ids)
+        zs.cmeas.append(_characteristic_measurement(z, res, ci, fm, actual_id, ids()))
+        ci = acceptance_definition(zs, z.zone, rule, ids, fn, fi)
+        zs.cmeas.append(_acceptance_measurement(z, res, ci, fm, actual_id, ids()))
+    for c in res.characteristics:
+        item = ps.specs.get(c.spec.key)
+        if item is not None and item.qif_type == qif_type(c.spec, c.direction):
+            ci = item.characteristic_item
+            fm = feature_measurement(zs, item.feature_item, item.feature_name, actual_id, ids)
+        else:
+            _, ci, fm = characteristic_definition(
+                zs,
+                c.spec,
+                ids,
+                ps.drf_ids,
+                face_step_ids,
+                direction=c.direction,
+                result=c,
+                actual_id=actual_id,
+            )
+        zs.cmeas.append(characteristic_measurement(c, ids, ci, fm, actual_id, device_id))
 
 
 def _acceptance_measurement(
@@ -464,7 +472,7 @@ def _acceptance_measurement(
     the strict reading, so neither contradicts its own value."""
     c = acceptance_characteristic(z, res.established)
     meas = [
-        E.Status(E.CharacteristicStatusEnum(qif_status(c))),
+        E.Status(E.CharacteristicStatusEnum(_status(z, c))),
         E.CharacteristicItemId(ci),
         id_array("FeatureMeasurementIds", [fm]),
         E.ActualComponentId(actual_id),
@@ -474,6 +482,12 @@ def _acceptance_measurement(
     if c.status in ("PASS", "FAIL"):
         meas.append(E.Value(CONFORMS if c.status == "PASS" else DOES_NOT_CONFORM))
     return E.UserDefinedAttributeCharacteristicMeasurement(*meas, id=cm)
+
+
+def _status(z: ZoneResult, c) -> str:
+    """A zone's characteristic status: as measured, or ``UNDEFINED`` for a zone the verdict
+    does not judge (qifreport's default band beside a drawing: no requirement, reported)."""
+    return qif_status(c) if z.judged else "UNDEFINED"
 
 
 def _characteristic_measurement(
@@ -495,9 +509,10 @@ def _characteristic_measurement(
             ma.i("repeatability_regions", sp.n_regions)
             ma.i("repeatability_persistent_regions", sp.n_persistent)
     ma.s("reading", c.reading)
+    ma.b("judged", z.judged)
     meas = [
         ma.element(),
-        E.Status(E.CharacteristicStatusEnum(qif_status(c))),
+        E.Status(E.CharacteristicStatusEnum(_status(z, c))),
         E.CharacteristicItemId(ci),
         id_array("FeatureMeasurementIds", [fm]),
         E.ActualComponentId(actual_id),
@@ -511,35 +526,14 @@ def _characteristic_measurement(
     return E.SurfaceProfileCharacteristicMeasurement(*[x for x in meas if x is not None], id=cm)
 
 
-def _product(
-    part_name: str,
-    part: _PartIds,
-    zs: Sections,
-    datum_ids: dict[str, str],
-    drf_ids: dict[DrfKey, str],
-) -> etree._Element:
-    """``Product``: the part (its features, characteristics, datums), component, path."""
-    part_el = E.Part(
-        E.Header(E.Name(part_name)),
-        E.UUID(qpid()),
-        id_array("FeatureNominalIds", zs.fnom_ids),
-        id_array("CharacteristicNominalIds", zs.cnom_ids),
-        *([id_array("DatumDefinitionIds", datum_ids.values())] if datum_ids else []),
-        *([id_array("DatumReferenceFrameIds", drf_ids.values())] if drf_ids else []),
-        id=part.part,
-    )
-    return E.Product(
-        E.PartSet(part_el, n="1"),
-        E.ComponentSet(
-            E.Component(E.UUID(qpid()), E.Part(E.Id(part.part)), id=part.component), n="1"
-        ),
-        E.RootPart(E.Id(part.part)),
-        E.AsmPaths(E.AsmPath(id_array("ComponentIds", [part.component]), id=part.asm_path), n="1"),
-    )
-
-
 def _results(
-    res: InspectionResult, prov: Provenance, sw_id: str, zs: Sections, part: _PartIds, ids: Ids
+    res: InspectionResult,
+    prov: Provenance,
+    sw_id: str,
+    zs: Sections,
+    asm_path: str,
+    actual_id: str,
+    ids: Ids,
 ) -> etree._Element:
     """``Results``: one ``MeasurementResults`` (attributes, traceability, the input files,
     the measured features and characteristics, the status) and the actual component."""
@@ -558,7 +552,7 @@ def _results(
         E.MeasuredFeatures(*zs.fmeas, n=str(len(zs.fmeas))),
         E.MeasuredCharacteristics(E.CharacteristicMeasurements(*zs.cmeas, n=str(len(zs.cmeas)))),
         E.InspectionStatus(E.InspectionStatusEnum(verdict)),
-        id_array("ActualComponentIds", [part.actual]),
+        id_array("ActualComponentIds", [actual_id]),
         id=ids(),
     )
     actual = [E.SerialNumber(prov.serial_number)] if prov.serial_number else []
@@ -569,8 +563,8 @@ def _results(
                 E.ActualComponent(
                     *actual,
                     E.Status(E.InspectionStatusEnum(verdict)),
-                    E.AsmPathId(part.asm_path),
-                    id=part.actual,
+                    E.AsmPathId(asm_path),
+                    id=actual_id,
                 ),
                 n="1",
             ),

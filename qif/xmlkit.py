@@ -51,15 +51,25 @@ E = ElementMaker(namespace=NS, nsmap={None: NS, "xsi": XSI})
 class Ids:
     """Sequential QIF ids (1, 2, ...); ``max`` is the document's ``idMax``.
 
-    Calling the object returns the next id, as text.
+    Calling the object returns the next id, as text. :meth:`uuid` gives an element's UUID:
+    with a ``namespace`` (a plan's QPId) the same element of the same plan gets the same
+    UUID in every document that carries it; without one, a random UUID.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, namespace: str | None = None) -> None:
         self.max = 0
+        self.namespace = None if namespace is None else uuid.UUID(namespace)
 
     def __call__(self) -> str:
         self.max += 1
         return str(self.max)
+
+    def uuid(self, element_id: str, what: str) -> str:
+        """The UUID of the element ``element_id`` (its QIF id) of kind ``what`` (e.g.
+        ``"characteristic-item"``)."""
+        if self.namespace is None:
+            return qpid()
+        return str(uuid.uuid5(self.namespace, f"{what}:{element_id}"))
 
 
 def qpid() -> str:

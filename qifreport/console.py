@@ -75,6 +75,7 @@ def summary(res: InspectionResult) -> str:
             f"{100 * za.in_tolerance_fraction:.1f} % in band, largest region "
             f"{za.largest_region_area:.1f} mm^2, max |dev| {zs.max_abs:.3f} mm{cov}"
             + ("" if z.fixtured else " (free state)")
+            + ("" if z.judged else " (not from the drawing: reported, not judged)")
         )
     if res.not_evaluated:
         lines.append(

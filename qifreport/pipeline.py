@@ -422,6 +422,7 @@ def _provenance(
         organization=o.organization,
         operator=o.operator,
         serial_number=job.serial,
+        plan=plan_source(part, drawing, job, digests["nominal"]),
     )
 
 
@@ -539,14 +540,26 @@ def plan_output(
     """The writer of the part's QIF plan (:mod:`qifreport.qif.plan`), which the results
     document names: None for a mesh nominal, or when the plan of this STEP file by this
     version is there already (same QPId: every scan of a batch shares it)."""
-    from qifreport.qif.plan import PlanSource, build_plan, plan_qpid, read_qpid
+    from qifreport.qif.plan import build_plan, plan_qpid, read_qpid
 
     path = plan_path(job, out_dir)
-    if path is None or part.face_step_ids is None or drawing.plan is None:
+    src = plan_source(part, drawing, job, nominal_sha256)
+    if path is None or src is None:
         return None
     if path.is_file() and read_qpid(path) == plan_qpid(nominal_sha256):
         return None
-    src = PlanSource(
+    return path, qif_writer(build_plan(src), {})
+
+
+def plan_source(part: Part, drawing: Drawing, job: InspectJob, nominal_sha256: str):
+    """The part's plan (:class:`qifreport.qif.plan.PlanSource`): its drawing's zones,
+    characteristics and datums; None for a part without a drawing to refer to (a mesh
+    nominal)."""
+    from qifreport.qif.plan import PlanSource
+
+    if part.face_step_ids is None or drawing.plan is None:
+        return None
+    return PlanSource(
         part_name=job.nominal.stem,
         nominal_path=str(job.nominal),
         nominal_sha256=nominal_sha256,
@@ -555,7 +568,6 @@ def plan_output(
         datums=drawing.datums,
         face_step_ids=part.face_step_ids,
     )
-    return path, qif_writer(build_plan(src), {})
 
 
 def scan_input(

@@ -24,7 +24,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.nist_scans import assert_conforms, cases, check_bump, check_perfect_scan, scans_fixture
+from tests.nist_scans import (
+    assert_conforms,
+    cases,
+    check_bump,
+    check_perfect_scan,
+    pmi_zones,
+    scans_fixture,
+)
+from tests.plan_refs import assert_refers_to_plan
 
 scans = pytest.fixture(scope="module")(scans_fixture)
 PART = "nist_ftc_06_asme1_ap242-e1.stp"
@@ -82,6 +90,10 @@ def test_feature_characteristics_read_by_independent_consumers(scans, pyxb_qif, 
     assert {c["key"] for c in doc["characteristics"]} <= designators
     assert len(doc["characteristics"]) == 40
     assert not [c for c in doc["characteristics"] if c["status"] == "FAIL"]
+    # the results carry the plan written beside them, with its ids and UUIDs, and measure
+    # each of its items (tests/plan_refs.py resolves every reference)
+    n = assert_refers_to_plan(qif, qif.with_name(f"{s.step.stem}_plan.qif"))
+    assert n["plan_items"] == 40 + len(pmi_zones(doc))
 
 
 def _char(doc: dict, key: str) -> dict:

@@ -30,9 +30,17 @@ Real OCP reading, real gmsh meshing, the real CLI.
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
-from tests.nist_scans import bump_cases, cases, check_bump, check_perfect_scan, scans_fixture
+from tests.nist_scans import (
+    bump_cases,
+    cases,
+    check_bump,
+    check_perfect_scan,
+    pmi_zones,
+    scans_fixture,
+)
 
 scans = pytest.fixture(scope="module")(scans_fixture)
 
@@ -114,3 +122,49 @@ def test_reversed_bounds_are_read_as_their_interval_and_said_in_every_output(sca
     ref = [c for c in true["characteristics"] if c["step_id"] == 120]
     assert hole and ref and hole[0]["status"] == ref[0]["status"]
     assert abs(hole[0]["value"] - ref[0]["value"]) <= 0.001
+
+
+def _uncovered_spot(s, doc: dict) -> tuple[int, np.ndarray]:
+    """(B-rep face, centre) of a well-scanned spot on a face that no tolerance or dimension
+    of the drawing names (the centre of the face's densest 4.5 mm disk)."""
+    from scipy.spatial import cKDTree
+
+    named = {f for z in pmi_zones(doc) for f in z["faces"]}
+    named |= {f for c in doc["characteristics"] for f in c["faces"]}
+    best = (0, -1, None)
+    for f in sorted(set(np.unique(s.scan.face).tolist()) - named):
+        pts = s.scan.P[s.scan.face == f]
+        if len(pts) < 50:
+            continue
+        n = cKDTree(pts).query_ball_point(pts, 4.5, return_length=True)
+        if n.max() > best[0]:
+            best = (int(n.max()), f, pts[int(np.argmax(n))])
+    assert best[1] >= 0, "every face is named by the drawing"
+    return best[1], best[2]
+
+
+def test_default_band_beside_a_drawing_is_reported_not_judged(scans):
+    """CTC 01's drawing leaves faces untoleranced and has no general profile: qifreport's
+    default +/-0.5 mm band on them is no requirement. A 1.5 mm x sigma 4 mm dent in such a face
+    reads beyond that band (its zone REPORTED, judged false, with the bump in its reading)
+    and does not fail the part; asked for with ``--tolerance 0.5``, the same band judges it
+    and the part FAILs there."""
+    from qifreport.simulate.brep_scan import bump
+
+    s = scans("nist_ctc_01_asme1_ap242-e1.stp")
+    doc = s.run()
+    face, centre = _uncovered_spot(s, doc)
+    Q = bump(s.scan.P, s.scan.normal, s.scan.face, centre, face, -1.5, 4.0)
+    bumped = s.run(Q, "default-bump")
+    general = next(z for z in bumped["tolerances"] if z["key"] == "general")
+    assert general["source"] == "default" and not general["judged"], general["description"]
+    assert general["verdict"] == "REPORTED" and not bumped["whole_part_judged"]
+    # read on the scan points (this scan is sparse for the vertices' reading)
+    peaks = [r["peak"] for r in general["acceptance"]["regions"]]
+    assert peaks and min(peaks) < -0.6, general["acceptance"]["regions"]
+    assert bumped["verdict"] != "FAIL" and bumped["_rc"] != 1, bumped["decided_by"]
+    assert not [r for r in bumped["decided_by"] if "general" in r or "whole part" in r]
+    asked = s.run(Q, "default-bump-asked", "--tolerance", "0.5")
+    general = next(z for z in asked["tolerances"] if z["key"] == "general")
+    assert general["source"] == "general" and general["judged"] and general["verdict"] == "FAIL"
+    assert asked["verdict"] == "FAIL" and asked["_rc"] == 1 and asked["whole_part_judged"]

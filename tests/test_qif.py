@@ -26,6 +26,7 @@ from qifreport.qif.reader import read_results
 from qifreport.qif.writer import DECIMAL_PLACES, NS
 from tests.conftest import ROOT, assert_valid_summary
 from tests.consumers import assert_read_by_independent_consumers
+from tests.plan_refs import assert_refers_to_plan
 
 Q = f"{{{NS}}}"
 
@@ -295,6 +296,9 @@ def test_step_part_one_characteristic_per_profile_tolerance(runs):
     ref = root.find(f"{Q}ExternalQIFReferences/{Q}ExternalQIFDocument")
     assert ref.findtext(f"{Q}QPId") == plan_qpid(doc["inputs"]["nominal"]["sha256"])
     assert ref.findtext(f"{Q}URI") == "panel_plan.qif"
+    # ... and carry it: the plan's elements with its ids and UUIDs, each item measured
+    n = assert_refers_to_plan(path, path.with_name("panel_plan.qif"))
+    assert n["plan_items"] == 4 and n["references"] > 90
     # each surface names its B-rep faces by STEP entity id too
     step_text = (ROOT / "samples/panel.step").read_text().replace(" ", "")
     for f in root.iter(f"{Q}OtherSurfaceFeatureNominal"):

@@ -201,6 +201,7 @@ def zone_result(
         deviation=dz,
         coverage=zcov,
         reading=_zone_reading(z, frame, located),
+        judged=not (z.source == "default" and ctx.drawing_decides),
     )
 
 

@@ -102,3 +102,11 @@ class JudgeContext:
         "beyond every band" (per-zone fractions use their own band)."""
         general = [z for z in self.bands.zones if z.faces is None]
         return general[0].half_width if general else max(z.half_width for z in self.bands.zones)
+
+    @property
+    def drawing_decides(self) -> bool:
+        """The part's drawing states its requirements (a PMI profile, a feature
+        characteristic, or a PMI item it lists as not evaluated): qifreport's default band
+        is none of them, so it is reported, not judged (a ``--tolerance`` band is)."""
+        pmi = any(z.source == "pmi" for z in self.bands.zones)
+        return bool(pmi or (self.plan is not None and self.plan.specs) or self.not_evaluated)

@@ -35,7 +35,10 @@ def zone_status(res: InspectionResult, z: ZoneResult) -> str:
     """A toleranced surface's result as the reports print it: ``PASS``, ``FAIL``, ``n/m``
     (not measured: too little of it scored, or its datum frame not established) or ``n/e``
     (its criteria are met but the registration is not trusted, or it lies on a limit
-    within the uncertainty)."""
+    within the uncertainty); ``info`` for a zone the verdict does not judge (qifreport's
+    default band beside a drawing)."""
+    if not z.judged:
+        return "info"
     if not z.acceptance.scored_area > 0:
         return "n/m"
     if z.failed:
@@ -95,11 +98,11 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
                 fmt_smm(s.min_neg),
             ]
         )
-        emph.append(z.failed)
+        emph.append(z.failed and z.judged)
     note = ""
     rest = [i for i in range(len(zones)) if i not in set(shown)]
     if rest:
-        nf = sum(1 for i in rest if zones[i].failed)
+        nf = sum(1 for i in rest if zones[i].failed and zones[i].judged)
         nu = sum(1 for i in rest if zones[i].uncertain and not zones[i].failed)
         keys = join_names([zones[i].zone.key for i in rest], 8)
         note = (
@@ -116,6 +119,11 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
     elif any(zones[i].uncertain for i in shown):
         note = (
             "n/e = not established: on the zone limit within the measurement uncertainty. " + note
+        ).strip()
+    if any(not zones[i].judged for i in shown):
+        note = (
+            "info = qifreport's default band on faces the drawing does not tolerance: "
+            "reported, not judged. " + note
         ).strip()
     if any(
         zones[i].status == "NOT MEASURED" or not zones[i].acceptance.scored_area > 0 for i in shown
