@@ -17,9 +17,10 @@ from qifreport.simulate.shapes import thin_shell
 FIN_LENGTH, FIN_HEIGHT = 30.0, 4.0  # mm: a rib the nominal does not model
 
 
-def _with_fin(case) -> tuple[np.ndarray, np.ndarray, float]:
+def _with_fin(case, lift: float = 0.0) -> tuple[np.ndarray, np.ndarray, float]:
     """The scan plus a rib standing 4 mm proud of the free-state surface near its middle,
-    sampled at the scan's own spacing (one sheet of points, 0.02 mm noise)."""
+    sampled at the scan's own spacing (one sheet of points, 0.02 mm noise); ``lift`` mm
+    raises it off the surface (an object in the scan, standing apart from the part)."""
     V, P = case.V_scanned, case.P
     N = vertex_normals(V, case.F)
     c0 = np.median(P, axis=0)
@@ -29,7 +30,7 @@ def _with_fin(case) -> tuple[np.ndarray, np.ndarray, float]:
     u /= np.linalg.norm(u)
     h = float(np.median(cKDTree(P).query(P[::50], k=2)[0][:, 1]))  # scan spacing, mm
     s, z = np.meshgrid(np.arange(-FIN_LENGTH / 2, FIN_LENGTH / 2, h), np.arange(0.3, FIN_HEIGHT, h))
-    fin = c + s.reshape(-1, 1) * u + z.reshape(-1, 1) * n
+    fin = c + s.reshape(-1, 1) * u + (z.reshape(-1, 1) + lift) * n
     fin += 0.02 * np.random.default_rng(1).standard_normal(fin.shape)
     return np.vstack([P, fin]), c + 0.5 * FIN_HEIGHT * n, len(fin) * h * h
 
@@ -45,6 +46,7 @@ def fin_results():
     out["fin_judged"] = inspect(
         V, F, P_fin, InspectionParams(tolerance=0.5, fail_on_added_material=True)
     )
+    out["apart"] = inspect(V, F, _with_fin(case, lift=6.0)[0], InspectionParams(tolerance=0.5))
     return out
 
 
@@ -70,8 +72,11 @@ def test_added_material_is_localised_and_reported(fin_results):
     expect = fin_results["fin_area"] * (FIN_HEIGHT - 0.5) / (FIN_HEIGHT - 0.3)
     assert 0.5 * expect < top.area < 2.0 * expect, (top.area, expect)
     assert 3.0 < top.peak < FIN_HEIGHT + 0.5
-    # reported, not judged by default; judged on request
-    assert fin.added.found and fin.added.passed and fin.verdict == fin_results["clean"].verdict
+    # the rib stands on the surface, continuous with it: the part's own material, judged by
+    # the surface it stands on (a proud region there), and reported as added material
+    assert fin.added.found and fin.added.passed and fin.verdict == "FAIL"
+    proud = [r for r in fin.acceptance.regions if r.sign > 0]
+    assert proud and np.linalg.norm(proud[0].centroid - fin_results["centre"]) < 5.0
     judged = fin_results["fin_judged"]
     assert judged.verdict == "FAIL"
     assert any(r.startswith("added material:") for r in judged.decided_by())
@@ -97,3 +102,13 @@ def test_added_material_regions_are_connected_components():
     assert np.allclose(a.regions[0].centroid, [15.0, 15.0, 0.0], atol=1e-9)
     assert a.regions[1].peak == 2.0 and a.found and a.passed  # not judged unless asked
     assert not added_material(P, dev, 0.5, 1800.0, 25.0, fail_on=True).passed
+
+
+def test_an_object_standing_apart_does_not_crash_the_fixture(fin_results):
+    """The same rib lifted 6 mm off the surface (an object in the scan that does not touch
+    the part). The scan's sides are then read wrong and no vertex is scored; the virtual
+    fixture, which then matches nothing, keeps its shape (it crashed on NaN before) and the
+    part is NOT MEASURED, never judged on what was not seen."""
+    apart = fin_results["apart"]
+    assert apart.verdict == "NOT MEASURED", apart.decided_by()
+    assert apart.added.found

@@ -54,9 +54,11 @@ def test_the_critical_dent_fills_the_region_limit():
     assert math.pi * sigma**2 * math.log(a / 0.5) == pytest.approx(25.0)
 
 
-def test_a_fine_reading_reads_the_dent_and_a_coarse_one_states_it_cannot():
-    """A 60 mm flat plate scanned at 0.25 mm: meshed at 1 mm the ball (1.5 mm) reads most
-    of a dent of the limit's size; meshed at 6 mm the ball (9 mm) reads no region of it."""
+def test_the_points_read_the_dent_the_coarse_vertices_cannot():
+    """A 60 mm flat plate scanned at 0.25 mm, a proud dent of the limit's size: meshed at
+    1 mm the vertices' ball (1.5 mm) reads its peak; meshed at 6 mm the ball (9 mm) reads
+    it far short of the band. The scan points read most of its region on both meshes: a
+    point proud beyond the band, continuous with the surface, is judged there."""
     g = np.arange(0.0, 60.0 + 1e-9, 0.25)
     X, Y = np.meshgrid(g, g)
     P = np.c_[X.ravel(), Y.ravel(), np.zeros(X.size)]
@@ -79,13 +81,12 @@ def test_a_fine_reading_reads_the_dent_and_a_coarse_one_states_it_cannot():
             site,
             (0.5, 25.0, 0.0),
             scan=ScanReading.of(V, F, P),
-            proud_limit=0.5,
         )
         assert det.true_area_mm2 == pytest.approx(25.0)
-        shares.append(det.read_share)
-    fine, coarse = shares
-    assert 0.6 < fine <= 1.0, shares
-    assert coarse == 0.0, shares
+        shares.append((det.read_share, det.read_peak_mm))
+    (fine, fine_peak), (coarse, coarse_peak) = shares
+    assert fine_peak > 1.0 and coarse_peak < 0.5, shares
+    assert 0.8 < fine <= 1.0 and 0.8 < coarse <= 1.0, shares
 
 
 def test_a_region_is_not_proven_when_it_reads_as_a_failing_ones_reading():
@@ -112,7 +113,7 @@ def test_the_shell_states_what_it_sees_and_keeps_a_conforming_pass(shell):
     res = _judged(shell)
     assert res.verdict == "PASS", res.decided_by()
     det = res.detectable
-    assert det is not None and 0.5 < det.read_share < 1.0, det
+    assert det is not None and 0.5 < det.read_share <= 1.0, det
     assert 2.0 < det.sigma_mm < 4.5 and det.smallest_depth_mm > 0.5
     d = res.to_dict()
     assert d["detectable"]["read_share"] == pytest.approx(det.read_share)
@@ -121,12 +122,14 @@ def test_the_shell_states_what_it_sees_and_keeps_a_conforming_pass(shell):
 
 
 @pytest.mark.slow
-def test_a_dent_read_short_of_failing_is_not_established(shell):
-    """0.8 mm at sigma 4.24 mm: 26.6 mm^2 beyond the band (fails); read 20.1 mm^2."""
+def test_a_dent_just_over_the_limit_is_not_passed(shell):
+    """0.8 mm at sigma 4.24 mm: 26.6 mm^2 beyond the band (fails); its points, proud ones
+    included, read 29 mm^2, within the measurement uncertainty of the limit: NOT
+    ESTABLISHED (before proud points were judged it read 20.1 mm^2 and was held back only
+    by the detectable dent's doubt)."""
     res = _judged(shell, (0.8, 4.243))
     assert res.verdict == "NOT ESTABLISHED", res.decided_by()
-    assert any("cannot be told from a failing one" in r for r in res.decided_by())
-    assert 15.0 < res.acceptance.largest_region_area <= 25.0
+    assert 25.0 < res.acceptance.largest_region_area < 35.0
 
 
 @pytest.mark.slow

@@ -168,3 +168,26 @@ def test_default_band_beside_a_drawing_is_reported_not_judged(scans):
     general = next(z for z in asked["tolerances"] if z["key"] == "general")
     assert general["source"] == "general" and general["judged"] and general["verdict"] == "FAIL"
     assert asked["verdict"] == "FAIL" and asked["_rc"] == 1 and asked["whole_part_judged"]
+
+
+def test_proud_bump_continuous_with_the_surface_is_judged(scans):
+    """A 1.5 mm x sigma 4 mm bump standing proud of a CTC 01 face, judged by a general band
+    of +/-0.5 mm asked for with ``--tolerance``: its points beyond the band are the part's
+    own material (continuous with its surface), so the band's region criterion reads them
+    and the part FAILs there. Before, every point proud beyond the part's band was added
+    material, reported only: the bump's core left out, its shoulders in the band, PASS."""
+    from qifreport.simulate.brep_scan import bump
+
+    s = scans("nist_ctc_01_asme1_ap242-e1.stp")
+    face, centre = _uncovered_spot(s, s.run())
+    Q = bump(s.scan.P, s.scan.normal, s.scan.face, centre, face, 1.5, 4.0)
+    doc = s.run(Q, "proud-bump", "--tolerance", "0.5")
+    general = next(z for z in doc["tolerances"] if z["key"] == "general")
+    assert general["verdict"] == "FAIL", general["acceptance"]
+    near = [
+        r
+        for r in general["acceptance"]["regions"]
+        if r["sign"] > 0 and np.linalg.norm(np.array(r["centroid"]) - centre) < 4.0
+    ]
+    assert near and near[0]["area"] > 25.0 and near[0]["peak"] > 1.0, near
+    assert doc["verdict"] == "FAIL" and doc["_rc"] == 1

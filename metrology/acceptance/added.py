@@ -29,10 +29,15 @@ from qifreport.metrology.acceptance.statistics import json_float
 from qifreport.registration.scan import median_spacing
 
 __all__ = [
+    "LINK",
     "added_material",
     "AddedMaterial",
     "AddedRegion",
+    "attached_to_surface",
 ]
+
+#: two points are linked when closer than this many median scan spacings
+LINK = 3.0
 
 
 @dataclass
@@ -143,7 +148,7 @@ def added_material(
     max_region_area: float,
     *,
     fail_on: bool = False,
-    link: float = 3.0,
+    link: float = LINK,
     tree: cKDTree | None = None,
 ) -> AddedMaterial:
     """Tail statistics and proud regions of the data-referenced deviation.
@@ -207,4 +212,29 @@ def added_material(
             )
         )
     out.regions = sorted(regions, key=lambda r: -r.area)
+    return out
+
+
+def attached_to_surface(
+    P: np.ndarray, proud: np.ndarray, surface: np.ndarray, tree: cKDTree, spacing: float
+) -> np.ndarray:
+    """(m,) bool: the proud points that are the part's own material, continuous with its
+    surface: each connected group of ``proud`` points (linked within :data:`LINK` scan
+    spacings) with a ``surface`` point within that distance of one of its points. A
+    group standing apart (an object in the scan that does not touch the part) is not.
+
+    Parameters
+    ----------
+    P : (m, 3) scan points, mm.  proud, surface : (m,) bool, disjoint.
+    tree : ``cKDTree(P)``.  spacing : the scan's median point spacing, mm.
+    """
+    out = np.zeros(len(P), dtype=bool)
+    idx = np.flatnonzero(proud)
+    if len(idx) == 0 or not surface.any():
+        return out
+    link = LINK * spacing
+    labels = linked_groups(P[idx], link)
+    near = tree.query_ball_point(P[idx], link, workers=-1)
+    touches = np.array([bool(surface[nb].any()) for nb in near])
+    out[idx] = np.isin(labels, np.unique(labels[touches]))
     return out

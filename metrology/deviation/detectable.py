@@ -24,10 +24,9 @@ fixed, so they are probed, not assumed:
 * **Below detection.** A surface on which the critical dent reads no region at all has a
   region criterion below what this scan and mesh detect. This is stated in every output,
   not yet a verdict: on a STEP part meshed at 3-4 mm edges the vertex reading's ball
-  (1.5 edges) reads a proud dent of the limit's size short of the band, and the scan points,
-  which would read it, take a point proud beyond the part's band as added material
-  (reported, not judged). Meshing the nominal from the region limit is the step that lets
-  this statement become a verdict.
+  (1.5 edges) reads a dent of the limit's size short of the band, and the scan points
+  read it only where the scan is dense enough. Meshing the nominal from the region limit
+  is the step that lets this statement become a verdict.
 * **The detectable dent** stated per surface: the shallowest dent of width ``sigma_A``
   read beyond the band, ``(t + U) / g`` (``g`` the read share of its peak, ``U`` the
   surface's median expanded uncertainty).
@@ -221,8 +220,7 @@ class Detectable:
             f"region criterion below what this scan and mesh detect: a dent of sigma "
             f"{self.sigma_mm:.2g} mm and {self.depth_mm:.3g} mm deep, whose region is the "
             f"{self.limit_mm2:g} mm^2 limit, reads no region (read peak "
-            f"{self.read_peak_mm:.3g} mm; {self.absorbed_by}); a proud one beyond the part's "
-            "band is reported as added material"
+            f"{self.read_peak_mm:.3g} mm; {self.absorbed_by})"
         )
 
     def doubt(self, largest: float) -> str:
@@ -395,7 +393,6 @@ def detectable_dent(
     fixture: FixtureProbe | None = None,
     sigma: float | None = None,
     scan: ScanReading | None = None,
-    proud_limit: float = math.inf,
 ) -> Detectable:
     """The critical dent of one surface, probed at vertex ``site`` (module docstring).
 
@@ -411,14 +408,12 @@ def detectable_dent(
     sigma : the dent's width, mm (Eq. 16); default the limit's own, ``sqrt(A / pi)``.
     scan : how the scan is read (its tree, spacing, ball and face labels); made here when
         not given.
-    proud_limit : the part's own half-band, mm: a point proud beyond it is added material.
 
     The area read is the larger of the vertices' (each a ball fit) and the scan points'
     (each the median of its :data:`~qifreport.metrology.acceptance.point_regions.DEFAULT_K`
     nearest, with the area it stands for), as the region criterion judges both. The dent
-    is proud, the harder case: a point standing proud beyond the band is judged as added
-    material, not in a region (``metrology/stages/scoring.py``), so the points read only
-    a band tighter than the part's.
+    is proud: continuous with the surface, its points are judged in the surface's regions
+    however far they stand (``metrology/stages/scoring.py``).
     """
     half_width, limit, uncertainty = band
     sigma = math.sqrt(limit / math.pi) if sigma is None else float(sigma)
@@ -437,7 +432,7 @@ def detectable_dent(
         d = a * np.exp(-np.sum((patch.P - c) ** 2, axis=1) / sigma**2)
         r = d if h is None else d - h[patch.tree.query(patch.P - (c - x0))[1]]
         p, on_vertices = _read(patch, r, half_width, scan)
-        on_points = _read_points(patch, r, half_width, scan, proud_limit)
+        on_points = _read_points(patch, r, half_width, scan)
         inside = d > half_width
         on_share = float(np.mean(patch.on_surface[inside])) if inside.any() else 0.0
         t_area = limit * on_share
@@ -485,15 +480,13 @@ def _read(
     return float(np.max(read[on])), float(patch.area[on & (read > half_width)].sum())
 
 
-def _read_points(
-    patch: _Patch, r: np.ndarray, half_width: float, scan: ScanReading, proud_limit: float
-) -> float:
+def _read_points(patch: _Patch, r: np.ndarray, half_width: float, scan: ScanReading) -> float:
     """The area (mm^2) the patch's points with residuals ``r`` (k,) mm read beyond
-    ``half_width`` and within ``proud_limit`` (mm; beyond it a point is added material)."""
+    ``half_width``."""
     if not len(r):
         return 0.0
     med = np.median(r[patch.neighbours], axis=1)
-    out = patch.P[(med > half_width) & (med <= proud_limit) & patch.on_surface]
+    out = patch.P[(med > half_width) & patch.on_surface]
     return float(point_areas(scan.tree, out, scan.spacing).sum()) if len(out) else 0.0
 
 

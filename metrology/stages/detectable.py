@@ -61,7 +61,7 @@ def detectable_stage(
         point_label = np.where(face >= 0, labels[np.maximum(face, 0)], -1)
     spacing = m.scores.samples.spacing
     scan = ScanReading.of(held.V, reg.F, reg.P, reg.scan_tree, labels, point_label, spacing)
-    prober = _Prober(reg, held, scan, params, ctx.general_half, _border(reg.F, ctx))
+    prober = _Prober(reg, held, scan, params, _border(reg.F, ctx))
     acc = decisions.acceptance
     whole = prober(ctx.prepared.ops.area, m.readings.deviation, ctx.general_half, probe, acc)
     zones = []
@@ -102,13 +102,11 @@ class _Prober:
         held: HeldNominal,
         scan: ScanReading,
         params: InspectionParams,
-        general_half: float,
         border: np.ndarray,
     ):
         self.reg, self.V, self.normals = reg, held.V, held.normals
         self.scan, self.border = scan, border
         self.limit = params.max_region_area
-        self.general_half = general_half
         self.seen: dict[tuple, Detectable] = {}
 
     def __call__(self, area, dev, half_width, fixture, acc) -> Detectable | None:
@@ -136,7 +134,6 @@ class _Prober:
                     fixture,
                     sigma=k * sigma_a,
                     scan=self.scan,
-                    proud_limit=self.general_half,
                 )
                 for k in WIDTHS
             ]

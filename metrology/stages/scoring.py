@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from qifreport.metrology.acceptance.added import attached_to_surface
 from qifreport.metrology.acceptance.decision import vertex_uncertainty
 from qifreport.metrology.acceptance.point_regions import ScanSamples, scan_samples
 from qifreport.metrology.acceptance.resolution import range_noise
@@ -139,18 +140,22 @@ def _points_judging(
     samples: ScanSamples, dev_all: np.ndarray, free_v: np.ndarray | None, general_half: float
 ) -> np.ndarray:
     """(m,) bool: the scan points that judge the surface. A point judges a surface where
-    its nearest vertex is scored there (the same crease and rim bands); the free-state
-    zones of a held judgement are the free state's (no points)."""
+    its nearest vertex is scored there (the same crease and rim bands), unless it is a
+    spike or proud material standing apart from the part; the free-state zones of a held
+    judgement are the free state's (no points)."""
     pvert = samples.vertex
     dev_pts = np.where(pvert >= 0, dev_all[np.maximum(pvert, 0)], np.nan)
     if free_v is not None:
         dev_pts[free_v[np.maximum(pvert, 0)]] = np.nan
-    pts_ok = (pvert >= 0) & np.isfinite(dev_pts)
-    # a point standing proud beyond the whole part's band is added material (a rib, a
-    # boss, flash, a clamp in the scan): judged by its own policy
-    # (:mod:`qifreport.metrology.acceptance.added`, reported unless
-    # --fail-on-added-material), as the vertex measure's robust fit drops it too
-    with np.errstate(invalid="ignore"):
-        pts_ok &= ~(samples.value > general_half)
     # a spike (a stray point near the surface, a burr of one point) judges nothing
-    return pts_ok & ~samples.spike
+    pts_ok = (pvert >= 0) & np.isfinite(dev_pts) & ~samples.spike
+    # a point standing proud beyond the whole part's band is material the nominal does not
+    # have: where it is continuous with the part's surface (a bump, flash, a rib) its
+    # surface judges it; standing apart (an object in the scan) it is added material,
+    # judged by its own policy (:mod:`qifreport.metrology.acceptance.added`)
+    with np.errstate(invalid="ignore"):
+        proud = pts_ok & (samples.value > general_half)
+    apart = proud & ~attached_to_surface(
+        samples.P, proud, pts_ok & ~proud, samples.tree, samples.spacing
+    )
+    return pts_ok & ~apart

@@ -310,7 +310,9 @@ class _Fit:
         # graduated non-convexity in the first pass: the Welsch width starts at the largest
         # residual and shrinks with the smoothing length, so compliance the rigid pose left
         # (millimetres) is followed before the robust weights start rejecting outliers
-        width0 = float(np.percentile(np.abs(m.r[m.covered]), 99)) if pass_no == 1 else 0.0
+        width0 = 0.0
+        if pass_no == 1 and m.covered.any():
+            width0 = float(np.percentile(np.abs(m.r[m.covered]), 99))
 
         def floor(lam):
             return width0 * (lam / lam_from) ** 0.25
@@ -320,6 +322,8 @@ class _Fit:
         w, scale = _weights(m, p, hold, self.width_floor(floor(lam)))
         cap = p.max_iter + p.settle_iter if iters is None else iters
         for _ in range(cap):
+            if not (w > 0).any():
+                break  # no scan point to follow: the shape stays as it is
             e_new = self.full_step(lam, w, m.target)
             delta = float(np.abs(e_new - e).max())
             e = e_new
@@ -353,6 +357,8 @@ class _Fit:
             w, scale = _weights(m, p, hold_r, floor)
             aw = A_r * w
             use = aw > 0
+            if not use.any():
+                break  # no scan point to follow: the coefficients stay as they are
             Pu = Phi_r[use]
             G = Pu.T @ (aw[use, None] * Pu)
             G[np.diag_indices_from(G)] += lam * self.basis.mu + 1e-12 * max(np.trace(G), 1e-300)
