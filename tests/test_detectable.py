@@ -134,7 +134,7 @@ def test_a_dent_just_over_the_limit_is_not_passed(shell):
 
 @pytest.mark.slow
 def test_a_dent_well_within_the_limit_still_passes(shell):
-    """1.0 mm at sigma 3 mm: 19.6 mm^2 beyond the band (passes); read 15.4 mm^2."""
+    """1.0 mm at sigma 3 mm: 19.6 mm^2 beyond the band (passes); read 21.8 mm^2."""
     res = _judged(shell, (1.0, 3.0))
     assert res.verdict == "PASS", res.decided_by()
     assert 0.0 < res.acceptance.largest_region_area < res.detectable.passing_below_mm2
