@@ -133,9 +133,11 @@ TANGENT_PARALLEL = 0.95
 WALL_PROBES = (0.3, 0.45, 0.7, 1.0, 1.5, 2.2, 3.2, 4.5)
 WALL_CONE = 0.4
 WALL_PARALLEL = 0.9
-#: a sheet's side is the scan's own when this many of its (sampled) points see a wall
-#: behind them and this share of those agree on the side
+#: a sheet's side is the scan's own when this many of its (sampled) points, and this
+#: share of them, see a wall behind them and this share of those agree on the side (a
+#: few points that see another object of the scan decide nothing for a whole sheet)
 WALL_MIN_POINTS = 10
+WALL_MIN_SHARE = 0.05
 WALL_AGREEMENT = 0.9
 #: points looked from (every m // WALL_SAMPLE-th), each voting for its sheet
 WALL_SAMPLE = 30_000
@@ -303,7 +305,10 @@ def _outward_sheets(
     pos = np.bincount(labels, weights=sides > 0, minlength=n_comp)
     neg = np.bincount(labels, weights=sides < 0, minlength=n_comp)
     seen = pos + neg
-    known = (seen >= WALL_MIN_POINTS) & (np.maximum(pos, neg) >= WALL_AGREEMENT * seen)
+    probed = np.bincount(labels[probe], minlength=n_comp)
+    known = (seen >= np.maximum(WALL_MIN_POINTS, WALL_MIN_SHARE * probed)) & (
+        np.maximum(pos, neg) >= WALL_AGREEMENT * seen
+    )
     inward = known & (neg > pos)
     out[inward[labels]] *= -1.0
     return known
