@@ -102,12 +102,17 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
     note = ""
     rest = [i for i in range(len(zones)) if i not in set(shown)]
     if rest:
+        nr = sum(1 for i in rest if not zones[i].judged)
         nf = sum(1 for i in rest if zones[i].failed and zones[i].judged)
-        nu = sum(1 for i in rest if zones[i].uncertain and not zones[i].failed)
+        nu = sum(1 for i in rest if zones[i].uncertain and not zones[i].failed and zones[i].judged)
         keys = join_names([zones[i].zone.key for i in rest], 8)
+        counts = zip(
+            (nf, nu, len(rest) - nf - nu - nr, nr), ("FAIL", "n/e", "PASS", "info"), strict=True
+        )
+        said = ", ".join(f"{n} {what}" for n, what in counts if n) or "none"
         note = (
             f"+ {len(rest)} more tolerance{'s' if len(rest) != 1 else ''} not listed "
-            f"({nf} FAIL, {f'{nu} n/e, ' if nu else ''}{len(rest) - nf - nu} PASS): {keys} "
+            f"({said}): {keys} "
             "\u2014 every tolerance is in "
             "the QIF file"
         )
