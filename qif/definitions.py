@@ -301,8 +301,12 @@ def feature_definition(
     fd, fn, fi = ids(), ids(), ids()
     zs.fnom_ids.append(fn)
     zs.fdefs.append(E.OtherSurfaceFeatureDefinition(id=fd))
-    nom = [fa.element(), E.Name(fname), E.UUID(ids.uuid(fn, "feature-nominal"))]
-    nom.append(E.FeatureDefinitionId(fd))
+    nom = [
+        fa.element(),
+        E.Name(fname),
+        E.UUID(ids.uuid(fn, "feature-nominal")),
+        E.FeatureDefinitionId(fd),
+    ]
     zs.fnoms.append(E.OtherSurfaceFeatureNominal(*[x for x in nom if x is not None], id=fn))
     zs.fitems.append(
         E.OtherSurfaceFeatureItem(

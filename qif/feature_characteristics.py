@@ -59,6 +59,7 @@ __all__ = [
     "DIMENSION_KINDS",
     "LINEAR_DIMENSION_KINDS",
     "characteristic_definition",
+    "spec_feature_name",
     "characteristic_measurement",
     "kind_of_qif_type",
     "material_condition",
@@ -178,6 +179,11 @@ def material_condition(mods: list[str]) -> str:
     return material_boundary(mods)
 
 
+def spec_feature_name(spec: CharacteristicSpec) -> str:
+    """The name of the surface feature a PMI item is measured on."""
+    return token(f"FEATURE_{spec.key}")
+
+
 def characteristic_definition(
     zs: Sections,
     spec: CharacteristicSpec,
@@ -198,7 +204,7 @@ def characteristic_definition(
     Returns the feature item, characteristic item and feature measurement ids."""
     s = spec
     t = qif_type(s, direction)
-    fname = token(f"FEATURE_{s.key}")
+    fname = spec_feature_name(s)
     fa = face_attrs(s.faces, face_step_ids)
     fn, fi, fm = feature_definition(zs, fname, fa, ids, actual_id)
     cd, cn, ci = ids(), ids(), ids()

@@ -48,7 +48,7 @@ from .definitions import (
     software_definitions,
     standards_definitions,
 )
-from .feature_characteristics import characteristic_definition, qif_type
+from .feature_characteristics import characteristic_definition, qif_type, spec_feature_name
 from .xmlkit import SCHEMA_LOCATION, XSI, E, Ids, token, xml_time
 
 __all__ = [
@@ -183,10 +183,9 @@ def plan_sections(src: PlanSource, ids: Ids) -> PlanSections:
         if src.rule:
             acceptance_definition(ps.zs, z, src.rule, ids, fn, fi)
     for s in specs:
-        n_fnom = len(ps.zs.fnom_ids)
         fi, ci, _ = characteristic_definition(ps.zs, s, ids, drf_ids, src.face_step_ids)
-        fname = token(f"FEATURE_{s.key}")
-        ps.specs[s.key] = PlanItem(fname, ps.zs.fnom_ids[n_fnom], fi, ci, qif_type(s))
+        fn = ps.zs.fnom_ids[-1]  # the feature nominal it has just defined
+        ps.specs[s.key] = PlanItem(spec_feature_name(s), fn, fi, ci, qif_type(s))
     return ps
 
 

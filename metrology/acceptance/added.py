@@ -216,7 +216,7 @@ def added_material(
 
 
 def attached_to_surface(
-    P: np.ndarray, proud: np.ndarray, surface: np.ndarray, tree: cKDTree, spacing: float
+    P: np.ndarray, proud: np.ndarray, surface: np.ndarray, spacing: float
 ) -> np.ndarray:
     """(m,) bool: the proud points that are the part's own material, continuous with its
     surface: each connected group of ``proud`` points (linked within :data:`LINK` scan
@@ -226,7 +226,7 @@ def attached_to_surface(
     Parameters
     ----------
     P : (m, 3) scan points, mm.  proud, surface : (m,) bool, disjoint.
-    tree : ``cKDTree(P)``.  spacing : the scan's median point spacing, mm.
+    spacing : the scan's median point spacing, mm.
     """
     out = np.zeros(len(P), dtype=bool)
     idx = np.flatnonzero(proud)
@@ -234,7 +234,8 @@ def attached_to_surface(
         return out
     link = LINK * spacing
     labels = linked_groups(P[idx], link)
-    near = tree.query_ball_point(P[idx], link, workers=-1)
-    touches = np.array([bool(surface[nb].any()) for nb in near])
+    # the nearest surface point of each proud point, if one lies within the link
+    d, _ = cKDTree(P[surface]).query(P[idx], distance_upper_bound=link, workers=-1)
+    touches = np.isfinite(d)
     out[idx] = np.isin(labels, np.unique(labels[touches]))
     return out

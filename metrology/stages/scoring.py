@@ -155,7 +155,5 @@ def _points_judging(
     # judged by its own policy (:mod:`qifreport.metrology.acceptance.added`)
     with np.errstate(invalid="ignore"):
         proud = pts_ok & (samples.value > general_half)
-    apart = proud & ~attached_to_surface(
-        samples.P, proud, pts_ok & ~proud, samples.tree, samples.spacing
-    )
+    apart = proud & ~attached_to_surface(samples.P, proud, pts_ok & ~proud, samples.spacing)
     return pts_ok & ~apart

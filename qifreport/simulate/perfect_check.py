@@ -76,11 +76,12 @@ def review_perfect_scan(doc: dict, sigma: float) -> PerfectScanReview:
     (module docstring)."""
     out = PerfectScanReview(verdict=doc["verdict"])
     for z in doc["tolerances"]:
-        reported = z["verdict"] == "REPORTED"  # not judged: a finding only when it reads out
-        if reported and (z.get("acceptance") or {}).get("decision") == "PASS":
-            pass
-        elif z["verdict"] != "PASS":
-            acc = z.get("acceptance") or {}
+        acc = z.get("acceptance") or {}
+        # a zone not judged (REPORTED) is a finding only when it reads out of its band
+        reads_in = z["verdict"] == "PASS" or (
+            z["verdict"] == "REPORTED" and acc.get("decision") == "PASS"
+        )
+        if not reads_in:
             reasons = (acc.get("reasons") or []) + (acc.get("uncertain_reasons") or [])
             reasons += (z.get("measured") or {}).get("reasons") or []
             out.findings.append(
@@ -89,7 +90,7 @@ def review_perfect_scan(doc: dict, sigma: float) -> PerfectScanReview:
         dev = (z.get("deviation") or {}).get("max_abs")
         if dev is None:
             continue
-        U = (z.get("acceptance") or {}).get("uncertainty_max_mm") or 0.0
+        U = acc.get("uncertainty_max_mm") or 0.0
         bound = 4.0 * sigma + U
         if dev - bound > out.worst_dev - out.worst_bound:
             out.worst_key, out.worst_dev, out.worst_bound = z["key"], dev, bound
