@@ -307,6 +307,9 @@ def group_batch(results: list[QIFResults]) -> dict[str, list[Observation]]:
                 log.debug("%s (%s) left out: no statistics of this type", designator_of(c), t)
                 continue
             key = designator_of(c)
+            if c.spec.composite == "lower":
+                left_out.setdefault(key, "a composite frame's lower segment: not carried")
+                continue
             src = sources.get(c.document.id, Source(None))
             if not from_results(t) and src.spec is None:
                 left_out.setdefault(key, f"{t}: {src.reason}")

@@ -31,7 +31,8 @@ def _num(el: etree._Element | None) -> float | None:
 
 def status_contradictions(root: etree._Element) -> list[str]:
     """Every characteristic measurement of ``root`` (a ``QIFDocument``) with status
-    ``PASS`` and a numeric ``Value`` outside its limits, as ``'<tag> <id>: ...'`` lines."""
+    ``PASS`` and a numeric ``Value`` outside its limits (or a composite segment's),
+    as ``'<tag> <id>: ...'`` lines."""
     by_id = {el.get("id"): el for el in root.iter() if el.get("id") is not None}
     out = []
     for m in root.iter():
@@ -54,6 +55,7 @@ def status_contradictions(root: etree._Element) -> list[str]:
         )
         if definition is None:
             continue
+        out += _segment_contradictions(tag, m, definition)
         tol = _num(definition.find(f"{_Q}ToleranceValue"))
         if tol is not None:
             limit = tol + (_num(m.find(f"{_Q}Bonus")) or 0.0)
@@ -69,4 +71,25 @@ def status_contradictions(root: etree._Element) -> list[str]:
             out.append(f"{tag} {m.get('id')}: PASS with value {value} > {target + hi}")
         if lo is not None and value < target + lo - _SLACK:
             out.append(f"{tag} {m.get('id')}: PASS with value {value} < {target + lo}")
+    return out
+
+
+def _segment_contradictions(tag: str, m: etree._Element, definition: etree._Element) -> list[str]:
+    """A composite frame's segments (:mod:`qifreport.qif.composite`) whose ``PASS`` has a
+    value beyond the segment's tolerance."""
+    limits = {
+        etree.QName(d).localname.removesuffix("Definition"): _num(d.find(f"{_Q}ToleranceValue"))
+        for d in definition
+        if isinstance(d.tag, str) and "CompositeSegment" in etree.QName(d).localname
+    }
+    out = []
+    for seg in m:
+        name = etree.QName(seg).localname if isinstance(seg.tag, str) else ""
+        if "CompositeSegment" not in name:
+            continue
+        if seg.findtext(f"{_Q}Status/{_Q}CharacteristicStatusEnum") != "PASS":
+            continue
+        value, limit = _num(seg.find(f"{_Q}Value")), limits.get(name.removesuffix("Measurement"))
+        if value is not None and limit is not None and value > limit + _SLACK:
+            out.append(f"{tag} {m.get('id')} {name}: PASS with value {value} > tolerance {limit}")
     return out

@@ -21,6 +21,7 @@ from lxml import etree
 from qifreport import __version__
 from qifreport.metrology.acceptance.bands import ToleranceZone
 
+from .modifiers import extent, modifier_flags
 from .xmlkit import Attrs, E, Ids, dec, id_array, token
 
 __all__ = [
@@ -365,14 +366,14 @@ def profile_definition(
     if zone.source != "pmi":
         text += f" {NOT_FROM_DRAWING[zone.source]}"
     cdef = [da.element(), E.Description(text), E.Name(token(zone.name))]
-    if zone.free_state:
-        cdef.append(E.FreeState("true"))
+    cdef += modifier_flags(zone.modifiers + (["free_state"] if zone.free_state else []))
     cdef.append(E.ToleranceValue(dec(zone.width)))
     if not math.isclose(zone.center, 0.0, abs_tol=1e-12):
         # ASME UZ: the part of the zone outside the material (toward +normal) = upper
         cdef.append(E.UnequallyDisposedZone(dec(zone.upper)))
     if zone.datums:
         cdef.append(E.DatumReferenceFrameId(drf_ids[drf_key(zone.datums, zone.datum_materials)]))
+    cdef.append(extent(zone.modifiers))
     zs.cdefs.append(
         E.SurfaceProfileCharacteristicDefinition(*[x for x in cdef if x is not None], id=cd)
     )

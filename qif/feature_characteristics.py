@@ -51,6 +51,7 @@ from qifreport.metrology.gdt.characteristic_types import (
 from qifreport.metrology.gdt.geometric import per_unit
 
 from .definitions import DrfKey, Sections, drf_key, face_attrs, feature_definition
+from .modifiers import extent, modifier_flags, projected_value
 from .uncertainty import budget_attributes, uncertainty_attributes
 from .xmlkit import Attrs, E, Ids, dec, id_array, token
 
@@ -218,8 +219,7 @@ def characteristic_definition(
         da.s("composite_segment", _COMPOSITE[s.composite])
     name = token(s.name)
     cdef = [da.element(), E.Description(_describe(s, result)), E.Name(name)]
-    if s.free_state:
-        cdef.append(E.FreeState("true"))
+    cdef += modifier_flags(s.modifiers)
     if t == "UserDefinedAttribute":
         cdef.append(E.WhatToMeasure(f"{kind_label(s.kind)} {s.limits_text()}"))
     elif s.kind == "dimension":
@@ -337,11 +337,17 @@ def _tolerance_definition(
         else:
             shape = E.PlanarZone() if rules.zone_shape == "planar" else E.NonDiametricalZone()
         out.append(E.ZoneShape(shape))
+    if rules.tangent_plane and "tangent_plane" in s.modifiers:
+        out.append(E.TangentPlane("true"))
     if rules.max_tolerance and s.max_value is not None:
         out.append(E.MaximumToleranceValue(dec(s.max_value)))
+    if rules.projected:
+        out.append(projected_value(s.modifiers))
     if rules.outer_disposition:
         out.append(E.OuterDisposition(dec(0.5 * (s.tolerance or 0.0))))
-    return out
+    if rules.extent:
+        out.append(extent(s.modifiers))
+    return [x for x in out if x is not None]
 
 
 def _tolerance_value(s: CharacteristicSpec, rules: QifRules) -> list[etree._Element]:

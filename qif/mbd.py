@@ -13,6 +13,7 @@ lists every field that differs.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -78,6 +79,15 @@ class MbdItem:
     material : ``MaterialCondition`` (MAXIMUM, LEAST, NONE ...) or None.
     zone : the ``ZoneShape`` (``DiametricalZone``, ``PlanarZone`` ...) or None.
     designator : its ``CharacteristicDesignator``, if any.
+    flags : the modifiers its definition states as elements set true (``FreeState``,
+        ``StatisticalCharacteristic``, ``CommonZone``, ``UnitedOrContinuousFeature``,
+        ``TangentPlane``), sorted.
+    projected : a projected zone's height (``ProjectedToleranceZoneValue``), mm.
+    extent : a profile's ``Extent`` (``ALL_AROUND``, ``ALL_OVER``, another's text);
+        ``UNDEFINED`` is read as none.
+    segments : a composite frame's further segments (``SecondCompositeSegment...``), in
+        order, each as an item of the same type with its tolerance, datums, material
+        condition and zone.
     """
 
     name: str
@@ -91,6 +101,10 @@ class MbdItem:
     material: str | None = None
     zone: str | None = None
     designator: str | None = None
+    flags: tuple[str, ...] = ()
+    projected: float | None = None
+    extent: str | None = None
+    segments: tuple[MbdItem, ...] = ()
 
     @property
     def is_dimension(self) -> bool:
@@ -192,24 +206,66 @@ def read_items(path: str | Path, *, skip_user_defined: bool = True) -> list[MbdI
         )
         item.target = _value(nom.find("q:TargetValue", _Q), angular, mm, deg)
         if d is not None:
-            item.tolerance = _value(d.find("q:ToleranceValue", _Q), False, mm, deg)
-            tol = d.find("q:Tolerance", _Q)
-            if tol is not None:
-                hi = _value(tol.find("q:MaxValue", _Q), angular, mm, deg)
-                lo = _value(tol.find("q:MinValue", _Q), angular, mm, deg)
-                limit = (tol.findtext("q:DefinedAsLimit", namespaces=_Q) or "").strip() == "true"
-                base = 0.0 if limit else (item.target or 0.0)
-                item.upper = None if hi is None else base + hi
-                item.lower = None if lo is None else base + lo
-            frame = d.findtext("q:DatumReferenceFrameId", namespaces=_Q)
-            if frame is not None:
-                item.datums = frames.get(frame.strip(), ())
-            mc = d.findtext("q:MaterialCondition", namespaces=_Q)
-            item.material = mc.strip() if mc else None
-            zone = d.find("q:ZoneShape/*", _Q)
-            item.zone = etree.QName(zone).localname if zone is not None else None
+            _read_definition(item, d, frames, angular, mm, deg)
+            item.segments = tuple(
+                _read_definition(MbdItem(item.name, t), seg, frames, False, mm, deg)
+                for seg in d
+                if _SEGMENT.match(etree.QName(seg).localname)
+            )
         out.append(item)
     return out
+
+
+#: a composite frame's further segment in a definition
+_SEGMENT = re.compile(r"^(Second|Third|Fourth)CompositeSegment\w+Definition$")
+#: the definition's boolean modifier elements (:mod:`qifreport.qif.modifiers`)
+_FLAGS = (
+    "FreeState",
+    "StatisticalCharacteristic",
+    "CommonZone",
+    "UnitedOrContinuousFeature",
+    "TangentPlane",
+)
+
+
+def _read_definition(
+    item: MbdItem,
+    d: etree._Element,
+    frames: dict[str, tuple[tuple[str, str], ...]],
+    angular: bool,
+    mm: float,
+    deg: float,
+) -> MbdItem:
+    """Complete ``item`` from its characteristic definition (or a composite segment's)
+    ``d``: tolerance or limits, frame, material condition, zone, modifiers; returns it."""
+    item.tolerance = _value(d.find("q:ToleranceValue", _Q), False, mm, deg)
+    tol = d.find("q:Tolerance", _Q)
+    if tol is not None:
+        hi = _value(tol.find("q:MaxValue", _Q), angular, mm, deg)
+        lo = _value(tol.find("q:MinValue", _Q), angular, mm, deg)
+        limit = (tol.findtext("q:DefinedAsLimit", namespaces=_Q) or "").strip() == "true"
+        base = 0.0 if limit else (item.target or 0.0)
+        item.upper = None if hi is None else base + hi
+        item.lower = None if lo is None else base + lo
+    frame = d.findtext("q:DatumReferenceFrameId", namespaces=_Q)
+    if frame is not None:
+        item.datums = frames.get(frame.strip(), ())
+    mc = d.findtext("q:MaterialCondition", namespaces=_Q)
+    item.material = mc.strip() if mc else None
+    zone = d.find("q:ZoneShape/*", _Q)
+    item.zone = etree.QName(zone).localname if zone is not None else None
+    item.flags = tuple(
+        sorted(f for f in _FLAGS if (d.findtext(f"q:{f}", namespaces=_Q) or "").strip() == "true")
+    )
+    projected = d.find("q:ProjectedToleranceZoneValue", _Q)
+    if projected is None:
+        projected = d.find("q:ProjectedToleranceZone", _Q)
+    item.projected = _value(projected, False, mm, deg)
+    ext = d.findtext("q:Extent/q:ExtentEnum", namespaces=_Q) or d.findtext(
+        "q:Extent/q:OtherExtent", namespaces=_Q
+    )
+    item.extent = ext.strip() if ext and ext.strip() != "UNDEFINED" else None
+    return item
 
 
 #: how many mm the value of a document that labels inch values as mm is short by
@@ -264,6 +320,19 @@ def _differences(a: MbdItem, b: MbdItem) -> list[FieldDifference]:
             out.append(FieldDifference("material", a.material or "-", b.material or "-"))
         if a.zone != b.zone:
             out.append(FieldDifference("zone", a.zone or "-", b.zone or "-"))
+        if not _close(a.projected, b.projected):
+            out.append(FieldDifference("projected", _g(a.projected), _g(b.projected)))
+        if a.extent != b.extent:
+            out.append(FieldDifference("extent", a.extent or "-", b.extent or "-"))
+        if len(a.segments) != len(b.segments):
+            out.append(FieldDifference("segments", str(len(a.segments)), str(len(b.segments))))
+        for k, (x, y) in enumerate(zip(a.segments, b.segments, strict=False)):
+            out += [
+                FieldDifference(f"segment {k + 2} {d.field}", d.ours, d.theirs, d.note)
+                for d in _differences(x, y)
+            ]
+    if a.flags != b.flags:
+        out.append(FieldDifference("modifiers", " ".join(a.flags), " ".join(b.flags)))
     return out
 
 

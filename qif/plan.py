@@ -30,6 +30,7 @@ from qifreport import __version__
 from qifreport.metrology.acceptance.bands import ToleranceZone
 from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 
+from .composite import ORDINALS, SEGMENT_TYPES, fold_definition
 from .definitions import (
     DrfKey,
     PartIds,
@@ -63,6 +64,7 @@ __all__ = [
     "plan_reference",
     "plan_sections",
     "read_qpid",
+    "segment_uppers",
 ]
 
 #: the namespace of qifreport's derived QPIds (uuid5)
@@ -113,13 +115,16 @@ class PlanSource:
 @dataclass
 class PlanItem:
     """One drawing item's elements in a plan: its surface feature (name, nominal and item
-    ids) and its characteristic item id and QIF type."""
+    ids) and its characteristic item id and QIF type; a composite frame's lower segment is
+    segment ``segment`` (2, 3, 4) of its upper segment's characteristic item
+    (:mod:`qifreport.qif.composite`)."""
 
     feature_name: str
     feature_nominal: str
     feature_item: str
     characteristic_item: str
     qif_type: str
+    segment: int = 1
 
 
 @dataclass
@@ -174,19 +179,54 @@ def plan_sections(src: PlanSource, ids: Ids) -> PlanSections:
         fa = face_attrs(d.faces, src.face_step_ids)
         fn, _, _ = feature_definition(ps.zs, token(f"DATUM_FEATURE_{label}"), fa, ids)
         ps.datum_features[label] = fn
-    for z in zones:
+    uppers = segment_uppers(zones, lambda z: "SurfaceProfile")
+    for z in sorted(zones, key=lambda z: z.key in uppers):  # upper segments first
         fa = face_attrs(z.faces, src.face_step_ids)
         fname = profile_feature_name(z)
         fn, fi, _ = feature_definition(ps.zs, fname, fa, ids)
         ci = profile_definition(ps.zs, z, src.rule or "", drf_ids, ids, fn, fi)
-        ps.zones[z.key] = PlanItem(fname, fn, fi, ci, "SurfaceProfile")
+        item = PlanItem(fname, fn, fi, ci, "SurfaceProfile")
+        ps.zones[z.key] = _item_or_segment(ps.zs, ps.zones, uppers.get(z.key), item)
         if src.rule:
             acceptance_definition(ps.zs, z, src.rule, ids, fn, fi)
-    for s in specs:
+    uppers = segment_uppers(specs, qif_type)
+    for s in sorted(specs, key=lambda s: s.key in uppers):
         fi, ci, _ = characteristic_definition(ps.zs, s, ids, drf_ids, src.face_step_ids)
         fn = ps.zs.fnom_ids[-1]  # the feature nominal it has just defined
-        ps.specs[s.key] = PlanItem(spec_feature_name(s), fn, fi, ci, qif_type(s))
+        item = PlanItem(spec_feature_name(s), fn, fi, ci, qif_type(s))
+        ps.specs[s.key] = _item_or_segment(ps.zs, ps.specs, uppers.get(s.key), item)
     return ps
+
+
+def segment_uppers(items: list, type_of) -> dict[str, str]:
+    """Each composite lower segment among ``items`` (zones or specs) whose upper segment is
+    among them, of a QIF type with composite segments (``type_of(item)``): lower key ->
+    upper key."""
+    by_step = {x.step_id: x for x in items if x.composite == "upper" and x.step_id is not None}
+    out = {}
+    for x in items:
+        up = by_step.get(x.composite_of) if x.composite == "lower" else None
+        if up is not None and type_of(x) == type_of(up) and type_of(x) in SEGMENT_TYPES:
+            out[x.key] = up.key
+    return out
+
+
+def _item_or_segment(
+    zs: Sections, items: dict[str, PlanItem], upper: str | None, item: PlanItem
+) -> PlanItem:
+    """The plan item of the characteristic just defined (``item``); a lower segment of
+    ``upper`` (its key) is folded into the upper's characteristic as its next segment
+    (:func:`qifreport.qif.composite.fold_definition`) and refers to the upper's item."""
+    if upper is None:
+        return item
+    up = items[upper]
+    ci = up.characteristic_item
+    n = 1 + max(it.segment for it in items.values() if it.characteristic_item == ci)
+    if n not in ORDINALS:
+        return item  # a fifth segment: QIF has none, the segment stays its own
+    fold_definition(zs, ci, up.qif_type, n)
+    item.characteristic_item, item.segment = ci, n
+    return item
 
 
 def more_frames(ps: PlanSections, cited: list[DrfKey], ids: Ids) -> None:

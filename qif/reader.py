@@ -26,7 +26,7 @@ centroid and peak location. A feature's faces are not read (``faces`` empty).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from decimal import Decimal
 from pathlib import Path
 
@@ -41,6 +41,7 @@ from qifreport.metrology.gdt.characteristic_types import (
     DocumentRecord,
 )
 
+from .composite import segment_attributes, segment_elements
 from .feature_characteristics import kind_of_qif_type, status_from_qif
 from .uncertainty import budget_from_attributes
 from .writer import NS
@@ -449,6 +450,68 @@ def _characteristic(
     return c
 
 
+def _segments(
+    m: etree._Element,
+    upper: CharacteristicResult,
+    by_id: dict,
+    drf_labels: dict[str, list[str]],
+    ours: bool,
+) -> list[CharacteristicResult]:
+    """The lower segments of composite frame ``m`` (:mod:`qifreport.qif.composite`), each
+    as its own characteristic result after ``upper`` (the frame's first segment, whose own
+    status this sets back from the frame's)."""
+    found = segment_elements(m, "Measurement")
+    if not found:
+        return []
+    upper.spec.composite = "upper"
+    attrs = upper.document.attributes if upper.document is not None else {}
+    if "segment_1_status" in attrs:
+        upper.status = status_from_qif(str(attrs["segment_1_status"]))
+        if upper.status != "FAIL":
+            upper.reason = str(attrs.get("not_measured_reason", ""))
+    e = _Elements.of(m, by_id, ours)
+    definitions = {} if e.definition is None else dict(segment_elements(e.definition, "Definition"))
+    out = []
+    for n, seg in found:
+        d = definitions.get(n)
+        da = segment_attributes(e.definition_attrs, n)
+        sa = segment_attributes(attrs, n)
+        step_id = da.get("step_entity_id")
+        spec = replace(
+            upper.spec,
+            key=child_text(d, "q:CharacteristicDesignator/q:Designator") or "",
+            step_id=step_id if isinstance(step_id, int) else None,
+            tolerance=_num(child_text(d, "q:ToleranceValue")),
+            datums=list(drf_labels.get(child_text(d, "q:DatumReferenceFrameId"), [])),
+            modifiers=str(da.get("modifiers", "")).split(),
+            max_value=_num(child_text(d, "q:MaximumToleranceValue")),
+            composite="lower",
+            composite_of=upper.spec.step_id,
+        )
+        status = child_text(seg, "q:Status/q:CharacteristicStatusEnum")
+        c = CharacteristicResult(
+            spec,
+            value=_num(child_text(seg, "q:Value")),
+            status=status_from_qif(status),
+            reason=str(sa.get("non_conformance", "")),
+            bonus=_attr_float(sa, "Bonus") or 0.0,
+            direction=upper.direction,
+            worst_positive=_attr_float(sa, "WorstPositiveDeviation"),
+            worst_negative=_attr_float(sa, "WorstNegativeDeviation"),
+            document=DocumentRecord(
+                type=upper.document.type if upper.document is not None else "",
+                id=f"{m.get('id')}/{n}",  # the frame's measurement, segment n
+                status=status,
+                description=str(da.get("description", "")) or None,
+                attributes=sa,
+            ),
+        )
+        if ours:
+            _ours(c, sa, _Elements(e.item, e.nominal, d, da))
+        out.append(c)
+    return out
+
+
 def _software_version(root: etree._Element) -> str | None:
     """The version of qifreport among the document's software definitions (the last), if any."""
     sw_version = None
@@ -478,7 +541,10 @@ def read_results(path: Path | str) -> QIFResults:
     drf_labels = _datum_labels(root, by_id)
     ours = child_text(root, "q:Header/q:Application/q:Name") == "qifreport"
     cms = mr.find(f"{_Q}MeasuredCharacteristics/{_Q}CharacteristicMeasurements")
-    chars = [_characteristic(m, by_id, drf_labels, ours) for m in (cms if cms is not None else [])]
+    chars = []
+    for m in cms if cms is not None else []:
+        c = _characteristic(m, by_id, drf_labels, ours)
+        chars += [c, *_segments(m, c, by_id, drf_labels, ours)]
 
     attrs = read_attributes(mr)
     inputs = [

@@ -28,6 +28,7 @@ from .batch_summary import (
     qif_type_of,
     statistics_rule,
 )
+from .composite import segment_elements
 from .definitions import Sections, feature_definition
 from .reader import QIFResults
 from .xmlkit import NS, Attrs, E, Ids, id_array, token, xml_time
@@ -124,14 +125,16 @@ def feature_copies(
     """Copies of a feature characteristic's definition and nominal from its first results
     document, with the ids ``cd`` and ``cn``: the nominal refers to the definition ``cd`` and
     the feature nominal ``fn``; the definition without its ``DatumReferenceFrameId`` (this
-    document has no datums) and with the first clause of its description (the rest says how
-    that one scan was read)."""
+    document has no datums) or a composite's lower segments (not carried), and with the
+    first clause of its description (the rest says how that one scan was read)."""
     src = obs[0].source
     assert src.definition is not None and src.nominal is not None
     cdef, cnom = copy.deepcopy(src.definition), copy.deepcopy(src.nominal)
     cdef.set("id", cd)
     for drf in cdef.findall(f"{_Q}DatumReferenceFrameId"):
         cdef.remove(drf)
+    for _, segment in segment_elements(cdef, "Definition"):
+        cdef.remove(segment)  # a composite's lower segments are not carried
     desc = cdef.find(f"{_Q}Description")
     if desc is not None and desc.text:
         desc.text = characteristic_description(obs[0].char) or desc.text

@@ -91,6 +91,7 @@ document order, each made by its own builder below.
 
 from __future__ import annotations
 
+import copy
 import json
 from dataclasses import asdict, dataclass, field, is_dataclass
 from datetime import datetime
@@ -110,6 +111,7 @@ from qifreport.metrology.inspection import (
 )
 from qifreport.registration.deformable.methods import method_spec
 
+from .composite import fold_measurement
 from .definitions import (
     CONFORMS,
     DOES_NOT_CONFORM,
@@ -135,6 +137,7 @@ from .feature_characteristics import (
     qif_type,
 )
 from .plan import (
+    PlanItem,
     PlanSections,
     PlanSource,
     more_frames,
@@ -431,6 +434,7 @@ def _measurements(
     own definition, nominal and item first. Each zone's acceptance characteristic is the
     results' own."""
     zs = ps.zs
+    lowers: list[tuple[PlanItem, etree._Element]] = []  # composite lower segments
     for z in res.zones:
         item = ps.zones.get(z.zone.key)
         if item is None:
@@ -441,12 +445,15 @@ def _measurements(
         else:
             fn, fi, ci = item.feature_nominal, item.feature_item, item.characteristic_item
             fm = feature_measurement(zs, fi, item.feature_name, actual_id, ids)
-        zs.cmeas.append(_characteristic_measurement(z, res, ci, fm, actual_id, ids()))
+        m = _characteristic_measurement(z, res, ci, fm, actual_id, ids())
+        _append_or_hold(zs, lowers, item, m)
         ci = acceptance_definition(zs, z.zone, rule, ids, fn, fi)
         zs.cmeas.append(_acceptance_measurement(z, res, ci, fm, actual_id, ids()))
     for c in res.characteristics:
         item = ps.specs.get(c.spec.key)
-        if item is not None and item.qif_type == qif_type(c.spec, c.direction):
+        if item is not None and item.qif_type != qif_type(c.spec, c.direction):
+            item = None  # read as another type than the plan's: the results' own item
+        if item is not None:
             ci = item.characteristic_item
             fm = feature_measurement(zs, item.feature_item, item.feature_name, actual_id, ids)
         else:
@@ -460,7 +467,47 @@ def _measurements(
                 result=c,
                 actual_id=actual_id,
             )
-        zs.cmeas.append(characteristic_measurement(c, ids, ci, fm, actual_id, device_id))
+        m = characteristic_measurement(c, ids, ci, fm, actual_id, device_id)
+        _append_or_hold(zs, lowers, item, m)
+    _fold_segments(zs, lowers, ids)
+
+
+def _fold_segments(zs: Sections, lowers: list[tuple[PlanItem, etree._Element]], ids: Ids) -> None:
+    """Fold each composite lower segment's measurement into its frame's (the upper
+    segment's, :func:`qifreport.qif.composite.fold_measurement`)."""
+    item_of = f"{{{NS}}}CharacteristicItemId"
+    by_item = {x.findtext(item_of): x for x in zs.cmeas}
+    for item, m in lowers:
+        upper = by_item.get(m.findtext(item_of))
+        if upper is None:  # the upper segment is not measured: the frame is not
+            why = "the composite frame's upper segment is not measured"
+            upper = _not_measured_frame(m, why, ids())
+            zs.cmeas.append(upper)
+            by_item[m.findtext(item_of)] = upper
+        fold_measurement(upper, m, item.qif_type, item.segment)
+
+
+def _append_or_hold(zs: Sections, lowers: list, item: PlanItem | None, m: etree._Element) -> None:
+    """Append measurement ``m`` to the document's, or hold it to fold into its composite
+    frame's upper segment when its plan item is a lower segment."""
+    if item is not None and item.segment > 1:
+        lowers.append((item, m))
+    else:
+        zs.cmeas.append(m)
+
+
+def _not_measured_frame(m: etree._Element, why: str, cm: str) -> etree._Element:
+    """A composite frame's measurement (id ``cm``) without its upper segment: ``m``'s item,
+    features and part, status ``NOT_ANALYZED`` for reason ``why``."""
+    keep = ("CharacteristicItemId", "FeatureMeasurementIds", "ActualComponentId")
+    kids = [copy.deepcopy(x) for x in m if etree.QName(x).localname in keep]
+    return E(
+        m.tag,
+        Attrs().s("not_measured_reason", why).element(),
+        E.Status(E.CharacteristicStatusEnum("NOT_ANALYZED")),
+        *kids,
+        id=cm,
+    )
 
 
 def _acceptance_measurement(

@@ -77,6 +77,10 @@ class QifRules:
         ``ToleranceZonePerUnitLength``; ``"area"``: a ``ToleranceZonePerUnitArea``).
     max_tolerance : its definition can state a MAX tolerance (``MaximumToleranceValue``,
         the zone's cap when a bonus is available).
+    tangent_plane : its definition can state a tangent plane (``TangentPlane``).
+    projected : its definition can state a projected zone's height
+        (``ProjectedToleranceZoneValue``).
+    extent : its definition can state a profile's extent (``Extent``: all around ...).
     """
 
     datum_frame: bool = False
@@ -88,6 +92,9 @@ class QifRules:
     section_vector: bool = False
     per_unit: tuple[str, ...] = ()
     max_tolerance: bool = False
+    tangent_plane: bool = False
+    projected: bool = False
+    extent: bool = False
 
 
 @dataclass(frozen=True)
@@ -217,7 +224,12 @@ _ORIENTATION = dict(
     # a plane's tangent plane (T) is held in the zone, not its surface
     modifiers=("tangent_plane",),
     qif=QifRules(
-        datum_frame=True, material_condition=True, zone_shape="planar", max_tolerance=True
+        datum_frame=True,
+        material_condition=True,
+        zone_shape="planar",
+        max_tolerance=True,
+        tangent_plane=True,
+        projected=True,
     ),
 )
 _COAXIAL = dict(
@@ -253,7 +265,7 @@ KINDS: dict[str, CharacteristicKind] = {
             measure_whole=f"{_M}.geometric:measure_line_profile",
             modifiers=("all_around", "between"),
             qif_type="LineProfile",
-            qif=QifRules(outer_disposition=True, section_vector=True),
+            qif=QifRules(outer_disposition=True, section_vector=True, extent=True),
             statistics=StatisticsRule(worst_deviations=True),
         ),
         CharacteristicKind(
@@ -315,6 +327,7 @@ KINDS: dict[str, CharacteristicKind] = {
                 spherical_zone=True,
                 bonus=True,
                 max_tolerance=True,
+                projected=True,
             ),
         ),
         *(

@@ -55,4 +55,37 @@ def assert_refers_to_plan(results: Path, plan: Path) -> dict[str, int]:
         if _local(m).endswith("CharacteristicMeasurement")
     }
     assert items <= measured, f"plan items with no measurement: {sorted(items - measured)}"
-    return {"plan_elements": len(pid), "references": len(refs), "plan_items": len(items)}
+    segments = _assert_segments_measured(r, p, rid)
+    return {
+        "plan_elements": len(pid),
+        "references": len(refs),
+        "plan_items": len(items),
+        "segments": segments,
+    }
+
+
+def _segments(el: etree._Element, what: str) -> list[etree._Element]:
+    return [x for x in el if "CompositeSegment" in _local(x) and _local(x).endswith(what)]
+
+
+def _assert_segments_measured(r: etree._Element, p: etree._Element, rid: dict) -> int:
+    """Each composite segment of the plan is carried with its designator and UUID, and the
+    measurement of its characteristic has a segment measurement for it; returns how many."""
+    item_of = {}  # definition id -> the results' measurement of its item
+    for m in r.iter(f"{Q}*"):
+        if _local(m).endswith("CharacteristicMeasurement"):
+            item = rid[m.findtext(f"{Q}CharacteristicItemId").strip()]
+            nominal = rid[item.findtext(f"{Q}CharacteristicNominalId").strip()]
+            item_of[nominal.findtext(f"{Q}CharacteristicDefinitionId").strip()] = m
+    n = 0
+    for d in p.iter(f"{Q}*"):
+        segs = _segments(d, "Definition") if _local(d).endswith("CharacteristicDefinition") else []
+        if not segs:
+            continue
+        carried = _segments(rid[d.get("id")], "Definition")
+        path = f"{Q}CharacteristicDesignator/{Q}UUID"
+        assert [x.findtext(path) for x in carried] == [x.findtext(path) for x in segs]
+        m = item_of[d.get("id")]
+        assert len(_segments(m, "Measurement")) == len(segs), f"definition {d.get('id')}"
+        n += len(segs)
+    return n

@@ -76,9 +76,10 @@ def assert_same_spec(w: CharacteristicResult, r: CharacteristicResult) -> None:
     assert per_unit(rs.unit_basis) == per_unit(ws.unit_basis), (what, rs.unit_basis)
     carried = {f.name for f in dataclasses.fields(ws)} - NOT_CARRIED
     checked = {"key", "kind", "name", "datums", "modifiers", "tolerance", "unit", "basic"}
-    checked |= {"nominal", "lower_limit", "upper_limit", "step_id", "max_value"}
+    checked |= {"nominal", "lower_limit", "upper_limit", "step_id", "max_value", "composite_of"}
     assert carried <= checked, carried - checked  # a new field: say how it is carried
     assert rs.step_id == ws.step_id, what
+    assert rs.composite_of == ws.composite_of, what  # a lower segment's frame
     kind = lookup_kind(ws.kind)
     if kind is not None and kind.qif.max_tolerance:  # MaximumToleranceValue
         assert (rs.max_value is None) == (ws.max_value is None), what

@@ -271,8 +271,9 @@ def test_every_modifier_is_applied_or_the_item_is_not_measured(part, drawing):
 
     * tangent plane (T): the plane resting on the high points is held in the zone: a face
       tilted 0.05 mm with a 0.08 mm dip in its middle reads 0.05 (its surface 0.08 more);
-    * a statistical tolerance (ST): not applied by qifreport, so not measured, naming the
-      modifier (never a plain reading); a projected zone on a position is applied;
+    * a statistical tolerance (ST), on a tolerance or a dimension: not applied by qifreport
+      (its process requirement is no one part's), so not measured, naming the modifier
+      (never a plain reading); a projected zone on a position is applied;
     * maximum material requirement on an orientation (no bonus applied there): a reading
       within the zone without the bonus stands (said), one beyond it is not established.
     """
@@ -303,6 +304,11 @@ def test_every_modifier_is_applied_or_the_item_is_not_measured(part, drawing):
     assert "tangent plane" in tangent.reading
 
     st = _measure_one(part, drawing, replace(g11, modifiers=["statistical_tolerance"]), dev)
+    assert st.status == "NOT_MEASURED" and "statistical tolerance" in st.reason
+    # so is a dimension's (CTC 05 states one as a 'statistical' dimensional note)
+    size = next(s for s in drawing.plan.specs if s.kind == "dimension" and s.lower_limit)
+    assert _measure_one(part, drawing, size, dev).status != "NOT_MEASURED"
+    st = _measure_one(part, drawing, replace(size, modifiers=["statistical_tolerance"]), dev)
     assert st.status == "NOT_MEASURED" and "statistical tolerance" in st.reason
     pattern = next(s for s in drawing.plan.specs if s.kind == "position")
     pr = _measure_one(part, drawing, replace(pattern, modifiers=["projected 10.795 mm"]), dev)

@@ -93,7 +93,28 @@ def test_feature_characteristics_read_by_independent_consumers(scans, pyxb_qif, 
     # the results carry the plan written beside them, with its ids and UUIDs, and measure
     # each of its items (tests/plan_refs.py resolves every reference)
     n = assert_refers_to_plan(qif, qif.with_name(f"{s.step.stem}_plan.qif"))
-    assert n["plan_items"] == 40 + len(pmi_zones(doc))
+    # its four composite profiles are one characteristic each, the lower segment QIF's
+    # second segment (tests/plan_refs.py: carried and measured)
+    from qifreport.qif.composite import frame_status
+    from qifreport.qif.feature_characteristics import qif_status
+    from qifreport.qif.reader import read_results
+
+    read = read_results(qif).characteristics
+    lowers = [k for k, c in enumerate(read) if c.spec.composite == "lower"]
+    assert len(lowers) == n["segments"] == 4
+    assert n["plan_items"] == 40 + len(pmi_zones(doc)) - len(lowers)
+    # read back, each lower segment is its own result again, after its frame's upper one,
+    # as the summary has it
+    zones = {z["key"]: z for z in doc["tolerances"]}
+    for k in lowers:
+        c, up = read[k], read[k - 1]
+        assert up.spec.step_id == c.spec.composite_of and up.spec.kind == c.spec.kind
+        assert c.spec.tolerance == pytest.approx(zones[c.spec.key]["width_mm"])
+        assert c.stats.rms == pytest.approx(zones[c.spec.key]["deviation"]["rms"], rel=1e-6)
+        assert (c.status == "NOT_MEASURED") == (zones[c.spec.key]["verdict"] == "NOT MEASURED")
+        # the frame's status is its worst segment's
+        statuses = {qif_status(up), qif_status(c), up.document.status}
+        assert up.document.status == frame_status(sorted(statuses))
 
 
 def _char(doc: dict, key: str) -> dict:

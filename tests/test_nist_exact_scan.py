@@ -66,8 +66,9 @@ class ExactScans:
             )
         return self.scans[name, density]
 
-    def run(self, name: str, P: np.ndarray, tag: str) -> dict:
-        """The CLI's JSON summary of ``P`` in the free state, its exit code as ``_rc``."""
+    def run(self, name: str, P: np.ndarray, tag: str, qif: bool = False) -> dict:
+        """The CLI's JSON summary of ``P`` in the free state, its exit code as ``_rc``
+        (``qif``: its QIF results written too)."""
         if tag not in self.docs:
             step = shared_file(f"step/nist/{name}")
             out = self.tmp / tag
@@ -77,7 +78,7 @@ class ExactScans:
                 step,
                 out / "scan.npy",
                 out,
-                "--no-qif",
+                *([] if qif else ["--no-qif"]),
                 "--rigid-only",
                 "--cache",
                 str(self.tmp / "cache"),
@@ -159,3 +160,71 @@ def test_stray_points_change_no_reading_of_the_perfect_part(exact):
         or (c["value"] is not None and abs(c["value"] - before[k]["value"]) > 0.01)
     ]
     assert not moved, moved
+
+
+def test_composite_lower_segment_fails_its_frame_in_the_qif(exact):
+    """FTC 08's composite position ``Feature Control Frame (28)`` (1.016 (M) over the
+    pattern of ten holes, 0.508 (M) relating them): two holes of its exact scan moved
+    0.35 mm apart, each away from the other. The pattern stays located (upper segment
+    PASS), the holes no longer relate (lower segment FAIL, ~0.70 mm: test_composite.py
+    reads the same on exact fields). The QIF states one characteristic: its status the
+    frame's FAIL, the lower segment QIF's ``SecondCompositeSegmentPositionMeasurement``
+    with its FAIL and value, the upper's own PASS kept; read back, the two segments are
+    the summary's two results."""
+    from lxml import etree
+
+    from qifreport.qif.consistency import status_contradictions
+    from qifreport.qif.reader import read_results
+
+    scan = exact.scan(FTC08, 2.0)
+    perfect = exact.run(FTC08, scan.P, "ftc08_2")
+    frame = [c for c in perfect["characteristics"] if c["name"] == "Feature Control Frame (28)"]
+    assert [c["status"] for c in frame] == ["PASS", "PASS"], [c["reason"] for c in frame]
+    upper = next(c for c in frame if c["composite"] == "upper")
+    P, N, face = scan.P.copy(), scan.normal, scan.face
+    axis = np.linalg.svd(N[np.isin(face, upper["faces"])], full_matrices=False)[2][-1]
+    across = np.cross(axis, [1.0, 0.0, 0.0])
+    across /= np.linalg.norm(across)
+    holes = upper["faces"]  # one B-rep face per hole of the pattern
+    assert len(holes) == 10
+    centre = [P[face == f].mean(axis=0) @ across for f in holes]
+    a, b = holes[int(np.argmin(centre))], holes[int(np.argmax(centre))]
+    P[face == a] -= 0.35 * across
+    P[face == b] += 0.35 * across
+    doc = exact.run(FTC08, P, "ftc08_2_pattern_apart", qif=True)
+    got = {c["composite"]: c for c in doc["characteristics"] if c["name"] == upper["name"]}
+    assert got["upper"]["status"] == "PASS", got["upper"]["reading"]
+    assert got["lower"]["status"] == "FAIL" and got["lower"]["value"] == pytest.approx(
+        0.70, rel=0.15
+    ), got["lower"]["reading"]
+    assert doc["verdict"] == "FAIL" and doc["_rc"] == 1
+
+    qif = exact.tmp / "ftc08_2_pattern_apart" / f"{Path(FTC08).stem}.qif"
+    root = etree.parse(str(qif)).getroot()
+    q = "{http://qifstandards.org/xsd/qif3}"
+    designated = {
+        d.findtext(f"{q}Designator"): d.getparent()
+        for d in root.iter(f"{q}CharacteristicDesignator")
+    }
+    # the lower segment has no characteristic of its own: its designator is its segment's
+    assert etree.QName(designated[got["lower"]["key"]]).localname == (
+        "SecondCompositeSegmentPositionDefinition"
+    )
+    (m,) = [
+        m
+        for m in root.iter(f"{q}PositionCharacteristicMeasurement")
+        if m.find(f"{q}SecondCompositeSegmentPositionMeasurement") is not None
+        and m.findtext(f"{q}CharacteristicItemId") == designated[got["upper"]["key"]].get("id")
+    ]
+    assert m.findtext(f"{q}Status/{q}CharacteristicStatusEnum") == "FAIL"
+    seg = m.find(f"{q}SecondCompositeSegmentPositionMeasurement")
+    assert seg.findtext(f"{q}Status/{q}CharacteristicStatusEnum") == "FAIL"
+    assert float(seg.findtext(f"{q}Value")) == pytest.approx(got["lower"]["value"], abs=1e-4)
+    assert float(m.findtext(f"{q}Value")) == pytest.approx(got["upper"]["value"], abs=1e-4)
+    assert status_contradictions(root) == []
+    read = {c.spec.key: c for c in read_results(qif).characteristics}
+    for c in got.values():
+        r = read[c["key"]]
+        assert (r.status, r.spec.composite) == (c["status"], c["composite"])
+        assert r.value == pytest.approx(c["value"], abs=1e-4)
+        assert r.spec.tolerance == pytest.approx(c["tolerance_mm"])

@@ -77,6 +77,18 @@ KNOWN = {
         )
         for f in ("target", "lower", "upper")
     },
+    # FTC 06's composite profiles: the lower segment's 0.01 is the inch value (0.254 mm)
+    **{
+        ("ftc_06", f"Position surfacic profile.{k}", "segment 2 tolerance"): INCH
+        for k in (9, 10, 11, 12)
+    },
+    # FTC 08's composite positions: the STEP file gives both segments
+    # MAXIMUM_MATERIAL_REQUIREMENT (e.g. #11468 and #11483 of FCF (28)); the translation
+    # writes the lower segment's MaterialCondition NONE
+    **{
+        ("ftc_08", f"Feature Control Frame ({k})", "segment 2 material"): "MMC in the STEP file"
+        for k in (28, 38, 41, 46, 50)
+    },
     ("ftc_06", "Linear Size.1", "type"): "location",
     ("ftc_06", "Linear Size.15", "type"): "location",
     ("ftc_06", "Linear Size.14", "type"): "location",
@@ -100,7 +112,7 @@ def _model(step: str) -> str:
 def plans(tmp_path_factory) -> dict[str, Path]:
     out = tmp_path_factory.mktemp("plans")
     paths = {}
-    for step in [*MODELS, "panel.step"]:
+    for step in [*MODELS, "nist_ctc_04_asme1_ap242-e1.stp", "panel.step"]:
         src = ROOT / "samples" / step if step == "panel.step" else shared_file(f"step/nist/{step}")
         assert main(["plan", str(src), "--out", str(out)]) == 0
         paths[step] = out / plan_file_name(src.stem)
@@ -116,7 +128,7 @@ def test_plan_matches_the_independent_translation(plans, step):
     seen = set()
     for m in matches:
         if m.theirs is None:
-            continue  # ours only: a composite's second segment, an item without a value
+            continue  # ours only: an item without a value
         assert m.ours is not None, f"{model}: {m.theirs.name} has no partner in the plan"
         for d in m.differences:
             key = (model, m.theirs.name, d.field)
@@ -137,10 +149,33 @@ def test_composite_segments_and_datum_modifiers_in_ftc_08(plans):
         by_name.setdefault(it.name, []).append(it)
     # a datum at its maximum material boundary, as drawn (|D|G(M)|)
     assert by_name["Feature Control Frame (34)"][0].datums == (("D", "NONE"), ("G", "MAXIMUM"))
-    # a composite position: both segments, the upper one first
-    seg = by_name["Feature Control Frame (28)"]
-    assert [s.tolerance for s in seg] == pytest.approx([1.016, 0.508])
-    assert all(s.material == "MAXIMUM" for s in seg)
+    # a composite position: one characteristic, its lower segment QIF's second segment
+    (frame,) = by_name["Feature Control Frame (28)"]
+    assert frame.tolerance == pytest.approx(1.016)
+    (lower,) = frame.segments
+    assert lower.tolerance == pytest.approx(0.508)
+    assert frame.material == lower.material == "MAXIMUM"
+    assert lower.datums == frame.datums == (("D", "NONE"), ("B", "NONE"), ("C", "NONE"))
+    # every composite frame of the file: 5 positions and a profile, each with one segment
+    composite = [it for it in ours if it.segments]
+    assert sorted(it.type for it in composite) == ["Position"] * 5 + ["SurfaceProfile"]
+    assert all(len(it.segments) == 1 for it in composite)
+
+
+def test_modifiers_are_written_as_qif_elements(plans):
+    """The drawing's modifiers as QIF's elements, not only as free-text attributes: a
+    projected zone's height (CTC 04: position 0.75 (P) 50), tangent plane, free state and
+    all around (FTC 08), a statistical dimension (CTC 05)."""
+    ctc04 = read_items(plans["nist_ctc_04_asme1_ap242-e1.stp"])
+    assert [(it.type, it.projected) for it in ctc04 if it.projected] == [("Position", 50.0)]
+    ftc08 = read_items(plans["nist_ftc_08_asme1_ap242-e1.stp"])
+    flags = [f for it in ftc08 for f in it.flags]
+    assert flags.count("TangentPlane") == 3 and flags.count("FreeState") == 5
+    around = [it for it in ftc08 if it.extent == "ALL_AROUND"]
+    assert len(around) == 5 and {it.type for it in around} == {"SurfaceProfile"}
+    ctc05 = read_items(plans["nist_ctc_05_asme1_ap242-e1.stp"])
+    (st,) = [it for it in ctc05 if "StatisticalCharacteristic" in it.flags]
+    assert st.upper - st.lower == pytest.approx(2 * 0.008 * 25.4)
 
 
 def test_per_unit_area_flatness_in_ctc_03(plans):

@@ -93,3 +93,22 @@ def test_residual_referenced_in_blocks_of_vertices_is_the_same(monkeypatch):
     assert len(V) > 5 * 17 and np.isfinite(whole[0]).sum() > 100
     for a, b in zip(whole, blocks, strict=True):
         assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_points_on_a_face_the_mesh_does_not_hold_are_not_its_own():
+    """A patch of a part (the detectable-defect probe's) sees points labelled with a
+    B-rep face beyond its own: they are no vertex's own points, and the fit reads the
+    rest as before (it indexed past its table and crashed the process)."""
+    V, F = _cylinder()
+    lab = np.zeros(len(F), dtype=np.int64)
+    N = vertex_normals(V, F)
+    P = _points(0.1, seed=4)
+    C, face, d = closest_points(V, F, P)
+    r = d - curved_offset(V, F, C, face, corner_normals(V, F, lab))
+    point_label = lab[face].copy()
+    whole = residual_referenced(V, F, P, r, N, point_label, lab)
+    point_label[::5] = 7  # a face the patch does not hold
+    some = residual_referenced(V, F, P, r, N, point_label, lab)
+    inner = (V[:, 2] > 6.0) & (V[:, 2] < H - 6.0)
+    assert np.isfinite(some[inner]).all()
+    assert np.abs(some[inner] - whole[inner]).max() < 0.01

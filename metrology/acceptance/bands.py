@@ -60,6 +60,7 @@ __all__ = [
     "DEFAULT_GENERAL_TOLERANCE",
     "BandField",
     "composite_segment",
+    "composite_upper",
     "lay_bands",
     "material_boundary",
     "NotEvaluated",
@@ -92,6 +93,18 @@ def composite_segment(tol, tolerances) -> str:
     if tol.value is None or not values:
         return ""
     return "upper" if tol.value >= max(values) else "lower"
+
+
+def composite_upper(tol, tolerances) -> int | None:
+    """The STEP entity id of the upper segment of the composite frame whose lower segment
+    is ``tol`` (None: ``tol`` is not a lower segment). ``tolerances``: every tolerance of
+    the PMI."""
+    if composite_segment(tol, tolerances) != "lower":
+        return None
+    by_id = {t.step_id: t for t in tolerances}
+    group = [by_id[i] for i in tol.composite_with if i in by_id]
+    upper = [t for t in group if composite_segment(t, tolerances) == "upper"]
+    return upper[0].step_id if upper else None
 
 
 def material_boundary(modifiers: list[str]) -> str:
@@ -131,6 +144,8 @@ class ToleranceZone:
         (:func:`material_boundary`), same order as ``datums``.
     composite : ``'upper'``/``'lower'`` segment of a composite profile
         (:func:`composite_segment`), ``''`` for a single-segment one.
+    composite_of : a lower segment's upper segment, by STEP entity id
+        (:func:`composite_upper`); None for any other zone.
     """
 
     key: str
@@ -149,6 +164,7 @@ class ToleranceZone:
     triangles: np.ndarray | None = None
     datum_materials: list[str] = field(default_factory=list)
     composite: str = ""
+    composite_of: int | None = None
 
     @property
     def center(self) -> float:
@@ -338,6 +354,7 @@ def _profile_zone(
             material_boundary(d.modifiers) for d in sorted(tol.datums, key=lambda d: d.precedence)
         ],
         composite=composite_segment(tol, tolerances),
+        composite_of=composite_upper(tol, tolerances),
     )
 
 

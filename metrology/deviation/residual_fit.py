@@ -96,8 +96,9 @@ def residual_referenced(
     tree = cKDTree(P[sel])
     radius = _ball_radius(V, F, P[sel], tree, radius)
     min_points = max(int(min_points), 1)
-    # the (vertex, B-rep face) pairs of the mesh, as sorted keys vertex * m + face
-    m = int(np.max(labels)) + 1
+    # the (vertex, B-rep face) pairs of the mesh, as sorted keys vertex * m + face; a
+    # point may be labelled with a face the mesh does not hold (a patch of a part)
+    m = int(max(np.max(labels), np.max(point_label, initial=-1))) + 1
     own = unique_sorted(F.astype(np.int64) * m + np.asarray(labels, dtype=np.int64)[:, None])
     facing = None if point_normals is None else np.asarray(point_normals, dtype=np.float64)
     args = (V, P, r, N, sel, tree, min_points, own, m, np.asarray(point_label), facing, robust)

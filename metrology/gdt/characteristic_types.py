@@ -85,6 +85,7 @@ class CharacteristicSpec:
         ``'per rectangular area 6.35 mm x 6.35 mm'``), None for a whole-feature tolerance.
     composite : ``'upper'`` or ``'lower'`` segment of a composite feature control frame
         (:func:`qifreport.metrology.acceptance.bands.composite_segment`), ``''`` for none.
+    composite_of : a lower segment's upper segment, by STEP entity id; None for any other.
     thread : the supplemental geometry a dimension of a thread is given on (``"'Thread
         Cylinder.1'"``: a cosmetic thread, its model a tap-drill hole), ``''`` for none.
     drawn : a location dimension between curves drawn on faces (supplemental geometry,
@@ -114,6 +115,7 @@ class CharacteristicSpec:
     datum_materials: list[str] = field(default_factory=list)
     unit_basis: str | None = None
     composite: str = ""
+    composite_of: int | None = None
     thread: str = ""
     drawn: bool = False
     max_value: float | None = None

@@ -160,7 +160,7 @@ def _measure(
     if hard:
         return not_measured(spec, "; ".join(hard))
     unapplied = unapplied_modifiers(spec.kind, spec.modifiers)
-    if unapplied and spec.kind != "dimension":
+    if unapplied:
         return not_measured(
             spec,
             f"modifier {', '.join(m.replace('_', ' ') for m in unapplied)} not applied by "

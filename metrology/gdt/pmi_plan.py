@@ -14,7 +14,11 @@ from functools import partial
 import numpy as np
 
 from qifreport.kinds import lookup_kind
-from qifreport.metrology.acceptance.bands import composite_segment, material_boundary
+from qifreport.metrology.acceptance.bands import (
+    composite_segment,
+    composite_upper,
+    material_boundary,
+)
 from qifreport.metrology.gdt.characteristic_types import CharacteristicSpec
 from qifreport.metrology.gdt.frames import DatumSpec, TargetSpec
 from qifreport.registration.arrays import unique_sorted
@@ -148,6 +152,7 @@ def _tolerance_spec(
         zone_form=tol.zone_form,
         unit_basis=tol.unit_basis,
         composite=composite_segment(tol, pmi.tolerances),
+        composite_of=composite_upper(tol, pmi.tolerances),
         max_value=tol.max_value,
     )
     if tol.value is None:
@@ -188,6 +193,8 @@ def _dimension_spec(key: str, dim, faces_of: FacesOf) -> CharacteristicSpec:
         upper_limit=hi,
         unit=dim.unit,
         basic=any(q in ("basic", "reference") for q in dim.qualifiers),
+        # a statistical tolerance (ST), as a geometric tolerance states it: not applied
+        modifiers=["statistical_tolerance"] if "statistical" in dim.qualifiers else [],
         origin_faces=faces_of(dim.origin_face_step_ids) if dim.origin_face_step_ids else None,
         target_faces=faces_of(dim.target_face_step_ids) if dim.target_face_step_ids else None,
         thread=next((m.group(1) for n in dim.face_notes if (m := _THREAD.search(n))), ""),
