@@ -123,7 +123,10 @@ def fold_definition(zs: Sections, upper_ci: str, qif_type: str, n: int) -> None:
     MAX tolerance and projected height; its attributes prefixed ``segment_<n>_``."""
     lower, item = zs.cdefs.pop(), zs.citems.pop()
     zs.cnoms.pop()
-    zs.cnom_ids.pop()
+    cn = zs.cnom_ids.pop()
+    for cns in zs.separate.values():  # the frame's upper segment states it
+        if cn in cns:
+            cns.remove(cn)
     upper = _definition_of(zs, upper_ci)
     kind = SEGMENT_TYPES[qif_type]
     found = {_local(el): el for el in lower}

@@ -19,6 +19,7 @@ import numpy as np
 from lxml import etree
 
 from qifreport import __version__
+from qifreport.kinds import SEPARATE
 from qifreport.metrology.acceptance.bands import ToleranceZone
 
 from .modifiers import extent, modifier_flags
@@ -75,6 +76,8 @@ class Sections:
     cmeas: list[etree._Element] = field(default_factory=list)
     fnom_ids: list[str] = field(default_factory=list)
     cnom_ids: list[str] = field(default_factory=list)
+    #: the characteristic nominals that are separate requirements (SEP REQT), by frame
+    separate: dict[DrfKey, list[str]] = field(default_factory=dict)
 
     def features(self) -> etree._Element:
         """``Features``: definitions, nominals, items."""
@@ -85,13 +88,30 @@ class Sections:
         )
 
     def characteristics(self, std_id: str) -> etree._Element:
-        """``Characteristics``: the standard, definitions, nominals, items."""
-        return E.Characteristics(
+        """``Characteristics``: the standard, definitions, nominals, items, and the separate
+        requirements (SEP REQT) per frame as ``SimultaneousRequirementGroups`` (``SEP_REQ``)."""
+        groups = [
+            E.SimultaneousRequirementGroup(
+                id_array("CharacteristicNominalIds", cns), E.Requirement("SEP_REQ")
+            )
+            for cns in self.separate.values()
+            if cns
+        ]
+        out = E.Characteristics(
             E.FormalStandardId(std_id),
             E.CharacteristicDefinitions(*self.cdefs, n=str(len(self.cdefs))),
             E.CharacteristicNominals(*self.cnoms, n=str(len(self.cnoms))),
             E.CharacteristicItems(*self.citems, n=str(len(self.citems))),
         )
+        if groups:
+            out.append(E.SimultaneousRequirementGroups(*groups, n=str(len(groups))))
+        return out
+
+    def mark_separate(self, modifiers: list[str], key: DrfKey, cn: str) -> None:
+        """Count characteristic nominal ``cn`` (frame ``key``) among the separate
+        requirements when its ``modifiers`` say SEP REQT."""
+        if SEPARATE in modifiers:
+            self.separate.setdefault(key, []).append(cn)
 
 
 @dataclass
@@ -354,6 +374,7 @@ def profile_definition(
     nominal and item (its designator) on the feature ``fn``/``fi``; returns the item id."""
     cd, cn, ci = ids(), ids(), ids()
     zs.cnom_ids.append(cn)
+    zs.mark_separate(zone.modifiers, drf_key(zone.datums, zone.datum_materials), cn)
     da = Attrs().s("key", zone.key).s("source", zone.source)
     da.d("lower_mm", zone.lower).d("upper_mm", zone.upper)
     if zone.step_id is not None:

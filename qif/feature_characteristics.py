@@ -210,6 +210,7 @@ def characteristic_definition(
     fn, fi, fm = feature_definition(zs, fname, fa, ids, actual_id)
     cd, cn, ci = ids(), ids(), ids()
     zs.cnom_ids.append(cn)
+    zs.mark_separate(s.modifiers, drf_key(s.datums, s.datum_materials), cn)
     da = Attrs().s("key", s.key)
     if s.step_id is not None:
         da.i("step_entity_id", s.step_id)

@@ -81,7 +81,8 @@ class MbdItem:
     designator : its ``CharacteristicDesignator``, if any.
     flags : the modifiers its definition states as elements set true (``FreeState``,
         ``StatisticalCharacteristic``, ``CommonZone``, ``UnitedOrContinuousFeature``,
-        ``TangentPlane``), sorted.
+        ``TangentPlane``) and ``SeparateRequirement`` when a ``SEP_REQ`` simultaneous
+        requirement group names it, sorted.
     projected : a projected zone's height (``ProjectedToleranceZoneValue``), mm.
     extent : a profile's ``Extent`` (``ALL_AROUND``, ``ALL_OVER``, another's text);
         ``UNDEFINED`` is read as none.
@@ -191,6 +192,14 @@ def read_items(path: str | Path, *, skip_user_defined: bool = True) -> list[MbdI
     defs = {
         d.get("id"): d for d in root.iterfind("q:Characteristics/q:CharacteristicDefinitions/*", _Q)
     }
+    separate = {
+        cn
+        for g in root.iterfind(
+            "q:Characteristics/q:SimultaneousRequirementGroups/q:SimultaneousRequirementGroup", _Q
+        )
+        if (g.findtext("q:Requirement", namespaces=_Q) or "").strip() == "SEP_REQ"
+        for cn in (x.text.strip() for x in g.iterfind("q:CharacteristicNominalIds/q:Id", _Q))
+    }
     out = []
     for nom in root.iterfind("q:Characteristics/q:CharacteristicNominals/*", _Q):
         t = etree.QName(nom).localname.removesuffix("CharacteristicNominal")
@@ -212,6 +221,8 @@ def read_items(path: str | Path, *, skip_user_defined: bool = True) -> list[MbdI
                 for seg in d
                 if _SEGMENT.match(etree.QName(seg).localname)
             )
+        if nom.get("id") in separate:
+            item.flags = tuple(sorted((*item.flags, "SeparateRequirement")))
         out.append(item)
     return out
 

@@ -24,6 +24,7 @@ from typing import Any
 
 __all__ = [
     "APPLIED_EVERYWHERE",
+    "SEPARATE",
     "FAMILIES",
     "KINDS",
     "MATERIAL_REQUIREMENTS",
@@ -215,6 +216,10 @@ APPLIED_EVERYWHERE = ("free_state",)
 MATERIAL_REQUIREMENTS = ("maximum_material_requirement", "least_material_requirement")
 #: the extents a profile's faces already carry (the file lists every face of the extent)
 _EXTENTS = ("all_around", "all_over", "between", "continuous_feature")
+#: a separate requirement (SEP REQT): each characteristic in its own frame placement. The
+#: datum features are simulated regardless of material boundary, so every characteristic
+#: of a frame has that frame's one placement: separate and simultaneous read the same
+SEPARATE = "separate_requirement"
 
 _M = "qifreport.metrology.gdt"
 _FORM = dict(family="form", datums="never")
@@ -252,7 +257,7 @@ KINDS: dict[str, CharacteristicKind] = {
             datums="optional",
             band=True,
             whole_part=True,
-            modifiers=_EXTENTS,
+            modifiers=(*_EXTENTS, SEPARATE),
             qif_type="SurfaceProfile",
             statistics=StatisticsRule(worst_deviations=True, from_results=True),
         ),
@@ -318,7 +323,7 @@ KINDS: dict[str, CharacteristicKind] = {
             measure_pattern=f"{_M}.location:measure_position_pattern",
             diametral=True,
             # a projected zone: over its height beyond the feature's open end
-            modifiers=(*MATERIAL_REQUIREMENTS, "projected"),
+            modifiers=(*MATERIAL_REQUIREMENTS, "projected", SEPARATE),
             qif_type="Position",
             qif=QifRules(
                 datum_frame=True,

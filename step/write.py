@@ -55,6 +55,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import OCP.XCAFDimTolObjects as xcaf_dimtol
 from OCP.APIHeaderSection import APIHeaderSection_MakeHeader
 from OCP.BRepBuilderAPI import BRepBuilderAPI_Transform
 from OCP.gp import gp_Ax2, gp_Dir, gp_Pnt
@@ -192,6 +193,10 @@ class PMISpecDatum:
     targets: list[PMISpecTarget] = field(default_factory=list)
 
 
+#: the XDE name of a tolerance modifier, before its title-cased AP242 name
+_MODIFIER = "XCAFDimTolObjects_GeomToleranceModif_"
+
+
 @dataclass
 class PMISpecTolerance:
     """A geometric tolerance.
@@ -211,6 +216,10 @@ class PMISpecTolerance:
     name : str
         Identifier, written as the name of the ``GEOMETRIC_TOLERANCE`` and of its
         ``SHAPE_ASPECT``; empty gives ``"<type>_<n>"`` (n = 1-based position in the list).
+    modifiers : list of str
+        AP242 tolerance modifiers, lower case (``"separate_requirement"``,
+        ``"free_state"``, ``"tangent_plane"`` ...), written as the tolerance's
+        ``GEOMETRIC_TOLERANCE_WITH_MODIFIERS``.
     """
 
     type: str
@@ -218,6 +227,7 @@ class PMISpecTolerance:
     faces: list[int]
     datums: list[str] = field(default_factory=list)
     name: str = ""
+    modifiers: list[str] = field(default_factory=list)
 
 
 def write_step_with_pmi(
@@ -361,6 +371,9 @@ def _validate(
             check_faces(what, t.faces)
         if len(set(t.datums)) != len(t.datums):
             raise ValueError(f"{what}: repeated datum in {t.datums}")
+        for m in t.modifiers:
+            if not hasattr(xcaf_dimtol, _MODIFIER + m.title()):
+                raise ValueError(f"{what}: unknown modifier {m!r}")
         for lab in t.datums:
             if lab not in labels:
                 raise ValueError(f"{what}: datum {lab!r} is not defined")
@@ -474,6 +487,8 @@ class _XdeGdt:
         obj.SetType(TOLERANCE_TYPES[t.type])
         obj.SetValue(float(t.value))
         obj.SetTypeOfValue(XCAFDimTolObjects_GeomToleranceTypeValue_None)
+        for m in t.modifiers:
+            obj.AddModifier(getattr(xcaf_dimtol, _MODIFIER + m.title()))
         attr.SetObject(obj)
         # The writer names the tolerance's SHAPE_ASPECT with the words after the first.
         TDataStd_Name.Set_s(lab, TCollection_ExtendedString(f"{t.type} {name}"))

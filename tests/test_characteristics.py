@@ -273,7 +273,9 @@ def test_every_modifier_is_applied_or_the_item_is_not_measured(part, drawing):
       tilted 0.05 mm with a 0.08 mm dip in its middle reads 0.05 (its surface 0.08 more);
     * a statistical tolerance (ST), on a tolerance or a dimension: not applied by qifreport
       (its process requirement is no one part's), so not measured, naming the modifier
-      (never a plain reading); a projected zone on a position is applied;
+      (never a plain reading); a projected zone on a position is applied, and a separate
+      requirement (its frame's one placement: the datums are simulated regardless of
+      material boundary, so separate and simultaneous read the same);
     * maximum material requirement on an orientation (no bonus applied there): a reading
       within the zone without the bonus stands (said), one beyond it is not established.
     """
@@ -314,6 +316,11 @@ def test_every_modifier_is_applied_or_the_item_is_not_measured(part, drawing):
     pr = _measure_one(part, drawing, replace(pattern, modifiers=["projected 10.795 mm"]), dev)
     # each hole of the pattern projected on its own (the test below tilts one)
     assert pr.status == "PASS" and "projected 10.795 mm" in pr.reading, pr.reason
+    # a separate requirement: the frame's one placement (datums regardless of material
+    # boundary), the same reading as the simultaneous one
+    plain_pattern = _measure_one(part, drawing, pattern, dev)
+    sep = _measure_one(part, drawing, replace(pattern, modifiers=["separate_requirement"]), dev)
+    assert (sep.status, sep.value) == (plain_pattern.status, plain_pattern.value), sep.reason
 
     tilt = np.zeros(len(part.V))
     tilt[v] = 0.05 * (y - y.min()) / np.ptp(y)
