@@ -222,9 +222,27 @@ def test_composite_lower_segment_fails_its_frame_in_the_qif(exact):
     assert float(seg.findtext(f"{q}Value")) == pytest.approx(got["lower"]["value"], abs=1e-4)
     assert float(m.findtext(f"{q}Value")) == pytest.approx(got["upper"]["value"], abs=1e-4)
     assert status_contradictions(root) == []
-    read = {c.spec.key: c for c in read_results(qif).characteristics}
+    results = read_results(qif)
+    read = {c.spec.key: c for c in results.characteristics}
     for c in got.values():
         r = read[c["key"]]
         assert (r.status, r.spec.composite) == (c["status"], c["composite"])
         assert r.value == pytest.approx(c["value"], abs=1e-4)
         assert r.spec.tolerance == pytest.approx(c["tolerance_mm"])
+    # batch statistics carry the frame's upper segment (its definition without the
+    # segments, whose frame the statistics document has not) and leave the lower out
+    from datetime import datetime, timezone
+
+    from qifreport.qif.statistics import build_statistics, write_statistics
+    from qifreport.qif.validate import validate
+
+    stats = exact.tmp / "ftc08_stats.qif"
+    tree = build_statistics(
+        [results, results], part_name="ftc08", created=datetime.now(timezone.utc)
+    )
+    write_statistics(stats, tree)
+    assert validate(stats, strict=True).valid
+    text = stats.read_text()
+    assert "CompositeSegment" not in text
+    designators = {d.text for d in tree.getroot().iter(f"{q}Designator")}
+    assert got["upper"]["key"] in designators and got["lower"]["key"] not in designators
