@@ -64,7 +64,6 @@ __all__ = [
     "plan_reference",
     "plan_sections",
     "read_qpid",
-    "segment_uppers",
 ]
 
 #: the namespace of qifreport's derived QPIds (uuid5)
@@ -179,7 +178,7 @@ def plan_sections(src: PlanSource, ids: Ids) -> PlanSections:
         fa = face_attrs(d.faces, src.face_step_ids)
         fn, _, _ = feature_definition(ps.zs, token(f"DATUM_FEATURE_{label}"), fa, ids)
         ps.datum_features[label] = fn
-    uppers = segment_uppers(zones, lambda z: "SurfaceProfile")
+    uppers = _segment_uppers(zones, lambda z: "SurfaceProfile")
     for z in sorted(zones, key=lambda z: z.key in uppers):  # upper segments first
         fa = face_attrs(z.faces, src.face_step_ids)
         fname = profile_feature_name(z)
@@ -189,7 +188,7 @@ def plan_sections(src: PlanSource, ids: Ids) -> PlanSections:
         ps.zones[z.key] = _item_or_segment(ps.zs, ps.zones, uppers.get(z.key), item)
         if src.rule:
             acceptance_definition(ps.zs, z, src.rule, ids, fn, fi)
-    uppers = segment_uppers(specs, qif_type)
+    uppers = _segment_uppers(specs, qif_type)
     for s in sorted(specs, key=lambda s: s.key in uppers):
         fi, ci, _ = characteristic_definition(ps.zs, s, ids, drf_ids, src.face_step_ids)
         fn = ps.zs.fnom_ids[-1]  # the feature nominal it has just defined
@@ -198,7 +197,7 @@ def plan_sections(src: PlanSource, ids: Ids) -> PlanSections:
     return ps
 
 
-def segment_uppers(items: list, type_of) -> dict[str, str]:
+def _segment_uppers(items: list, type_of) -> dict[str, str]:
     """Each composite lower segment among ``items`` (zones or specs) whose upper segment is
     among them, of a QIF type with composite segments (``type_of(item)``): lower key ->
     upper key."""
