@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from lxml import etree
 
+from .composite import segment_elements
 from .xsd import QIF_NS
 
 __all__ = ["status_contradictions"]
@@ -78,18 +79,15 @@ def _segment_contradictions(tag: str, m: etree._Element, definition: etree._Elem
     """A composite frame's segments (:mod:`qifreport.qif.composite`) whose ``PASS`` has a
     value beyond the segment's tolerance."""
     limits = {
-        etree.QName(d).localname.removesuffix("Definition"): _num(d.find(f"{_Q}ToleranceValue"))
-        for d in definition
-        if isinstance(d.tag, str) and "CompositeSegment" in etree.QName(d).localname
+        n: _num(d.find(f"{_Q}ToleranceValue"))
+        for n, d in segment_elements(definition, "Definition")
     }
     out = []
-    for seg in m:
-        name = etree.QName(seg).localname if isinstance(seg.tag, str) else ""
-        if "CompositeSegment" not in name:
-            continue
+    for n, seg in segment_elements(m, "Measurement"):
         if seg.findtext(f"{_Q}Status/{_Q}CharacteristicStatusEnum") != "PASS":
             continue
-        value, limit = _num(seg.find(f"{_Q}Value")), limits.get(name.removesuffix("Measurement"))
+        value, limit = _num(seg.find(f"{_Q}Value")), limits.get(n)
         if value is not None and limit is not None and value > limit + _SLACK:
+            name = etree.QName(seg).localname
             out.append(f"{tag} {m.get('id')} {name}: PASS with value {value} > tolerance {limit}")
     return out

@@ -13,12 +13,13 @@ lists every field that differs.
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from lxml import etree
 
+from .composite import segment_elements
+from .modifiers import FLAG_ELEMENTS
 from .xmlkit import NS
 
 __all__ = ["FieldDifference", "ItemMatch", "MbdItem", "compare_items", "read_items"]
@@ -218,25 +219,12 @@ def read_items(path: str | Path, *, skip_user_defined: bool = True) -> list[MbdI
             _read_definition(item, d, frames, angular, mm, deg)
             item.segments = tuple(
                 _read_definition(MbdItem(item.name, t), seg, frames, False, mm, deg)
-                for seg in d
-                if _SEGMENT.match(etree.QName(seg).localname)
+                for _, seg in segment_elements(d, "Definition")
             )
         if nom.get("id") in separate:
             item.flags = tuple(sorted((*item.flags, "SeparateRequirement")))
         out.append(item)
     return out
-
-
-#: a composite frame's further segment in a definition
-_SEGMENT = re.compile(r"^(Second|Third|Fourth)CompositeSegment\w+Definition$")
-#: the definition's boolean modifier elements (:mod:`qifreport.qif.modifiers`)
-_FLAGS = (
-    "FreeState",
-    "StatisticalCharacteristic",
-    "CommonZone",
-    "UnitedOrContinuousFeature",
-    "TangentPlane",
-)
 
 
 def _read_definition(
@@ -266,7 +254,11 @@ def _read_definition(
     zone = d.find("q:ZoneShape/*", _Q)
     item.zone = etree.QName(zone).localname if zone is not None else None
     item.flags = tuple(
-        sorted(f for f in _FLAGS if (d.findtext(f"q:{f}", namespaces=_Q) or "").strip() == "true")
+        sorted(
+            f
+            for f in FLAG_ELEMENTS
+            if (d.findtext(f"q:{f}", namespaces=_Q) or "").strip() == "true"
+        )
     )
     projected = d.find("q:ProjectedToleranceZoneValue", _Q)
     if projected is None:

@@ -29,7 +29,7 @@ from qifreport.metrology.gdt.projected import projected_height
 
 from .xmlkit import E, dec
 
-__all__ = ["extent", "modifier_flags", "projected_value"]
+__all__ = ["FLAG_ELEMENTS", "extent", "modifier_flags", "projected_value"]
 
 #: modifier -> the boolean element of ``CharacteristicDefinitionBaseType``, schema order
 _FLAGS = (
@@ -38,12 +38,20 @@ _FLAGS = (
     ("common_zone", "CommonZone"),
     ("continuous_feature", "UnitedOrContinuousFeature"),
 )
+#: every boolean element a definition states a modifier with (an orientation's
+#: ``TangentPlane`` too)
+FLAG_ELEMENTS = (*(tag for _, tag in _FLAGS), "TangentPlane")
+
+
+def _words(modifiers: list[str]) -> set[str]:
+    """The modifiers' names (a projected zone's ``projected 10.795 mm``: ``projected``)."""
+    return {m.split()[0] for m in modifiers if m.strip()}
 
 
 def modifier_flags(modifiers: list[str]) -> list[etree._Element]:
     """The base definition's boolean elements (``FreeState``, ``StatisticalCharacteristic``
     ...) the ``modifiers`` set, in the schema's order (after the ``Name``)."""
-    words = {m.split()[0] for m in modifiers if m.strip()}
+    words = _words(modifiers)
     return [E(tag, "true") for mod, tag in _FLAGS if mod in words]
 
 
@@ -59,7 +67,7 @@ def projected_value(modifiers: list[str]) -> etree._Element | None:
 
 def extent(modifiers: list[str]) -> etree._Element | None:
     """A profile's ``Extent`` (all around, all over, between), None for none stated."""
-    words = {m.split()[0] for m in modifiers if m.strip()}
+    words = _words(modifiers)
     if "all_around" in words:
         return E.Extent(E.ExtentEnum("ALL_AROUND"))
     if "all_over" in words:

@@ -416,13 +416,12 @@ def _attr_float(attrs: dict, name: str) -> float | None:
 
 
 def _characteristic(
-    m: etree._Element, by_id: dict, drf_labels: dict[str, list[str]], ours: bool
+    m: etree._Element, e: _Elements, drf_labels: dict[str, list[str]], ours: bool
 ) -> CharacteristicResult:
-    """The characteristic measurement ``m`` with its item, nominal and definition (found in
-    ``by_id``) and its datum labels; with the rest of qifreport's results when the document
-    is ``ours``."""
+    """The characteristic measurement ``m`` with its item, nominal and definition ``e``
+    and its datum labels; with the rest of qifreport's results when the document is
+    ``ours``."""
     qif_type = etree.QName(m).localname.removesuffix("CharacteristicMeasurement")
-    e = _Elements.of(m, by_id, ours)
     status = child_text(m, "q:Status/q:CharacteristicStatusEnum") or child_text(
         m, "q:Status/q:OtherCharacteristicStatus"
     )
@@ -452,14 +451,15 @@ def _characteristic(
 
 def _segments(
     m: etree._Element,
+    e: _Elements,
     upper: CharacteristicResult,
-    by_id: dict,
     drf_labels: dict[str, list[str]],
     ours: bool,
 ) -> list[CharacteristicResult]:
-    """The lower segments of composite frame ``m`` (:mod:`qifreport.qif.composite`), each
-    as its own characteristic result after ``upper`` (the frame's first segment, whose own
-    status this sets back from the frame's)."""
+    """The lower segments of composite frame ``m`` (its item, nominal and definition
+    ``e``; :mod:`qifreport.qif.composite`), each as its own characteristic result after
+    ``upper`` (the frame's first segment, whose own status this sets back from the
+    frame's)."""
     found = segment_elements(m, "Measurement")
     if not found:
         return []
@@ -469,7 +469,6 @@ def _segments(
         upper.status = status_from_qif(str(attrs["segment_1_status"]))
         if upper.status != "FAIL":
             upper.reason = str(attrs.get("not_measured_reason", ""))
-    e = _Elements.of(m, by_id, ours)
     definitions = {} if e.definition is None else dict(segment_elements(e.definition, "Definition"))
     out = []
     for n, seg in found:
@@ -543,8 +542,9 @@ def read_results(path: Path | str) -> QIFResults:
     cms = mr.find(f"{_Q}MeasuredCharacteristics/{_Q}CharacteristicMeasurements")
     chars = []
     for m in cms if cms is not None else []:
-        c = _characteristic(m, by_id, drf_labels, ours)
-        chars += [c, *_segments(m, c, by_id, drf_labels, ours)]
+        e = _Elements.of(m, by_id, ours)
+        c = _characteristic(m, e, drf_labels, ours)
+        chars += [c, *_segments(m, e, c, drf_labels, ours)]
 
     attrs = read_attributes(mr)
     inputs = [
