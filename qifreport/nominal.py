@@ -124,7 +124,7 @@ def _step_nominal(
     the zones of its PMI on the faces kept (:func:`seat_faces`), the B-rep's corner normals,
     the solid's tetrahedra when ``solid_mesh`` (or ``solid_mesh_for_material`` and the
     drawing's material names a preset)."""
-    from qifreport.step.normals import corner_normals_exact
+    from qifreport.step.normals import corner_normals_exact, corner_normals_of_faces
     from qifreport.step.reader import read_step
     from qifreport.step.supplemental import face_solids
     from qifreport.step.tessellate import shape_diagonal
@@ -138,11 +138,15 @@ def _step_nominal(
         diagonal = float(np.linalg.norm(picked.hi - picked.lo))
     if max_edge is None:
         max_edge = diagonal / 60.0
+    if step_part.tessellated:  # the file's own triangles: no surface for gmsh to mesh
+        mesher = "brepmesh"
     mesh = _tessellate(step_part, mesher, deflection, max_edge)
     zones, skipped = zones_from_pmi(pmi, step_part.face_index(), tolerance)
     V, F, face_id = mesh.V, mesh.F, mesh.face_id
     supplemental: list[dict] = []
     face_solid = face_solids(step_part.shape, step_part.faces)
+    if step_part.tessellated:  # a tessellated shell is the part: no face is supplemental
+        face_solid[:] = 0
     if chosen is not None or (face_solid < 0).any():
         V, F, face_id, zones, skipped, supplemental = seat_faces(
             V,
@@ -164,11 +168,19 @@ def _step_nominal(
         info["solid"] = {"index": chosen, "name": picked.name, "of": step_part.n_solids}
     datums = [d.label for d in pmi.datums] if pmi is not None else []
     t0 = time.perf_counter()
-    normals = corner_normals_exact(step_part.faces, V, F, face_id)
+    if step_part.tessellated:  # its faces have no surface: their triangles' normals
+        normals = corner_normals_of_faces(V, F, face_id)
+    else:
+        normals = corner_normals_exact(step_part.faces, V, F, face_id)
     info["timings_s"]["corner normals"] = time.perf_counter() - t0
     material = _material_statement(pmi)
     if solid_mesh_for_material and material is not None and material.preset is not None:
         solid_mesh = True
+    if solid_mesh and step_part.tessellated:
+        raise InputError(
+            f"{path.name}: a tessellated part (triangles, no solid): the restrained "
+            "inspection needs its solid for the elastic model; use the B-rep edition"
+        )
     tets = _solid_tetrahedra(step_part, chosen, diagonal) if solid_mesh else None
     if tets is not None:
         info["timings_s"]["solid tetrahedra"] = tets.seconds
@@ -258,6 +270,7 @@ def _step_info(
         "length_unit": getattr(pmi, "length_unit", None),
         "b_rep_faces": len(step_part.faces),
         "solids": step_part.n_solids,
+        "tessellated": step_part.tessellated,
         "tessellation": {
             "mesher": mesher,
             "deflection_mm": mesh.deflection,

@@ -24,9 +24,19 @@ log = logging.getLogger(__name__)
 
 __all__ = ["FACE_TYPES", "FaceLocator"]
 
-#: topological faces accepted as targets of a face association
+#: topological faces accepted as targets of a face association (with AP242's triangulated
+#: faces, the faces of a tessellated part)
 FACE_TYPES = frozenset(
-    {"ADVANCED_FACE", "FACE_SURFACE", "FACE", "ORIENTED_FACE", "SUBFACE", "CONNECTED_FACE_SUB_SET"}
+    {
+        "ADVANCED_FACE",
+        "FACE_SURFACE",
+        "FACE",
+        "ORIENTED_FACE",
+        "SUBFACE",
+        "CONNECTED_FACE_SUB_SET",
+        "TRIANGULATED_FACE",
+        "COMPLEX_TRIANGULATED_FACE",
+    }
 )
 
 _ROTATIONAL = ("cylinder", "cone", "sphere", "torus")

@@ -36,7 +36,15 @@ LOCATION_TYPES = (
     "DIMENSIONAL_LOCATION_WITH_DATUM_FEATURE",
 )
 #: shells and solids whose faces are all meant
-_SHELL_TYPES = frozenset({"CLOSED_SHELL", "OPEN_SHELL", "ORIENTED_CLOSED_SHELL"})
+_SHELL_TYPES = frozenset(
+    {
+        "CLOSED_SHELL",
+        "OPEN_SHELL",
+        "ORIENTED_CLOSED_SHELL",
+        "TESSELLATED_SHELL",
+        "TESSELLATED_SOLID",
+    }
+)
 _SOLID_TYPES = frozenset({"MANIFOLD_SOLID_BREP", "BREP_WITH_VOIDS"})
 #: usages linking a shape aspect to representation items; DRAUGHTING_MODEL_ITEM_ASSOCIATION is
 #: also an ITEM_IDENTIFIED_REPRESENTATION_USAGE but points at presentation, so it is excluded

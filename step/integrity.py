@@ -24,8 +24,10 @@ The checks, in the order they are reported:
     truncations show here, as forward references to the lost part.
 ``no_solid``
     the file must define a solid OCCT builds: a ``MANIFOLD_SOLID_BREP`` or one of its
-    subtypes (:data:`SOLID_TYPES`), and use it: the solid is an item of a representation (the
-    usual ``ADVANCED_BREP_SHAPE_REPRESENTATION``) that is the shape of a product -- named by a
+    subtypes (:data:`SOLID_TYPES`), or an AP242 tessellated solid or shell
+    (:data:`TESSELLATED_TYPES`, read as faces that carry only their triangles), and use it:
+    the solid is an item of a representation (the usual
+    ``ADVANCED_BREP_SHAPE_REPRESENTATION``) that is the shape of a product -- named by a
     ``SHAPE_DEFINITION_REPRESENTATION`` directly or through representation relationships (or
     the ``REPRESENTATION_MAP`` / ``MAPPED_ITEM`` of an assembly). A
     ``SHELL_BASED_SURFACE_MODEL`` -- even of a ``CLOSED_SHELL`` -- is read by OCCT as a shell,
@@ -62,6 +64,7 @@ from .p21 import P21Error, P21Model
 
 __all__ = [
     "SOLID_TYPES",
+    "TESSELLATED_TYPES",
     "IntegrityProblem",
     "check_integrity",
     "integrity_problems",
@@ -74,6 +77,8 @@ SOLID_TYPES: tuple[str, ...] = (
     "FACETED_BREP",
     "FACETED_BREP_AND_BREP_WITH_VOIDS",
 )
+#: tessellated shapes (AP242): OCCT reads their triangulated faces as faces without a surface
+TESSELLATED_TYPES: tuple[str, ...] = ("TESSELLATED_SOLID", "TESSELLATED_SHELL")
 
 _STRING = re.compile(r"'[^']*(?:''[^']*)*'")
 _REF = re.compile(r"#(\d+)")
@@ -242,12 +247,16 @@ def _with_word(model: P21Model, word: str, upper_only: bool) -> Iterator[tuple[i
 
 
 def _solid_ids(model: P21Model, upper_only: bool) -> list[int]:
-    wanted = set(SOLID_TYPES)
-    return [
-        eid
-        for eid, _ in _with_word(model, "BREP", upper_only)
-        if wanted.intersection(_types(model, eid))
-    ]
+    """The solids, and the tessellated solids and shells, of the file."""
+    out = []
+    for word, types in (("BREP", SOLID_TYPES), ("TESSELLATED_S", TESSELLATED_TYPES)):
+        wanted = set(types)
+        out += [
+            e
+            for e, _ in _with_word(model, word, upper_only)
+            if wanted.intersection(_types(model, e))
+        ]
+    return out
 
 
 def _referrers_of(model: P21Model, eid: int) -> list[int]:
@@ -325,7 +334,7 @@ def _solids(model: P21Model) -> list[IntegrityProblem]:
                 "no_solid",
                 "no solid in the STEP file: it defines no "
                 + ", ".join(SOLID_TYPES[:-1])
-                + f" or {SOLID_TYPES[-1]} ("
+                + f", {SOLID_TYPES[-1]} or tessellated shape ("
                 + (
                     f"only surfaces: {n_surf} shells and faces)"
                     if n_surf

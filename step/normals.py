@@ -16,7 +16,7 @@ import logging
 
 import numpy as np
 
-__all__ = ["corner_normals_exact"]
+__all__ = ["corner_normals_exact", "corner_normals_of_faces"]
 
 log = logging.getLogger(__name__)
 
@@ -83,3 +83,25 @@ def corner_normals_exact(
     if bad:
         log.info("no surface normal at %d triangle corners (apex or pole): mesh normals there", bad)
     return out
+
+
+def corner_normals_of_faces(V: np.ndarray, F: np.ndarray, face_id: np.ndarray) -> np.ndarray:
+    """Unit normals (f, 3, 3) at each triangle's corners, averaged (by area) over the
+    triangles of the same face around the corner: a tessellated part's normals, whose faces
+    have no surface to evaluate. An edge between two faces keeps each face's own normal.
+
+    Parameters
+    ----------
+    V : (n, 3) mm.  F : (f, 3) outward triangles.  face_id : (f,) face of each triangle.
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    face_id = np.asarray(face_id, dtype=np.int64)
+    tri_n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # length: 2 x area
+    m = int(face_id.max()) + 1 if len(face_id) else 1
+    key = (F * m + face_id[:, None]).ravel()
+    pairs, inverse = np.unique(key, return_inverse=True)
+    N = np.zeros((len(pairs), 3))
+    np.add.at(N, inverse, np.repeat(tri_n, 3, axis=0))
+    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+    return N[inverse].reshape(len(F), 3, 3)

@@ -42,7 +42,7 @@ import numpy as np
 
 from qifreport.errors import InputError, require_file
 
-from .integrity import SOLID_TYPES, check_integrity
+from .integrity import SOLID_TYPES, TESSELLATED_TYPES, check_integrity
 from .p21 import P21Error, P21Model
 
 __all__ = [
@@ -102,6 +102,8 @@ class StepPart:
     faces : list of ``TopoDS_Face``; the list index is the face id.
     face_step_ids : (n_faces,) int64, STEP entity id of each face, -1 if unknown.
     n_solids : number of solids in the shape.
+    tessellated : whether the part is an AP242 tessellated shape (triangulated faces, no
+        solid and no surface: :func:`read_step` lets it through for its PMI and its mesh).
     solid_names : the name of each solid (its XDE label's, '' when none), in the order of
         ``TopExp.MapShapes(shape, TopAbs_SOLID)`` (:mod:`qifreport.step.solids`).
     pmi : :class:`qifreport.step.pmi.PMI`, semantic PMI read from the text (values in mm / deg).
@@ -119,6 +121,7 @@ class StepPart:
     xde: XdeSummary
     timings: dict[str, float] = field(default_factory=dict)
     solid_names: list[str] = field(default_factory=list)
+    tessellated: bool = False
 
     def face_index(self) -> dict[int, int]:
         """Map STEP entity id -> face id."""
@@ -312,6 +315,7 @@ def read_step(path: str | Path, *, pmi: bool = True) -> StepPart:
         pmi=pmi_data,
         xde=xde,
         timings=timings,
+        tessellated=not solids and _tessellated(p21),
     )
 
 
@@ -409,6 +413,8 @@ def _faces_and_solids(shape, path: Path, p21: P21Model, occt: _OcctMessages):
         )
     smap = TopTools_IndexedMapOfShape()
     TopExp.MapShapes_s(shape, TopAbs_SOLID, smap)
+    if smap.Size() == 0 and _tessellated(p21):
+        return faces, []  # an AP242 tessellated part: its faces are triangles, no solid
     if smap.Size() == 0:
         n = sum(len(p21.by_type(t)) for t in SOLID_TYPES)
         raise InputError(
@@ -416,6 +422,11 @@ def _faces_and_solids(shape, path: Path, p21: P21Model, occt: _OcctMessages):
             f"file's {n} solid records gave none ({occt.first() or 'no message'})"
         )
     return faces, [smap.FindKey(i) for i in range(1, smap.Size() + 1)]
+
+
+def _tessellated(p21: P21Model) -> bool:
+    """Whether the file's shape is an AP242 tessellated solid or shell."""
+    return any(p21.by_type(t) for t in TESSELLATED_TYPES)
 
 
 def _face_step_ids(reader, p21: P21Model, faces: list, path: Path) -> np.ndarray:

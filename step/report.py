@@ -157,7 +157,9 @@ def pmi_table(part: StepPart) -> str:
     pmi = part.pmi
     rows = pmi_rows(part)
     head = (
-        f"{part.path.name}: {len(part.faces)} faces, {part.n_solids} solid(s); "
+        f"{part.path.name}: {len(part.faces)} faces, "
+        + ("tessellated (triangles, no B-rep); " if part.tessellated else "")
+        + f"{part.n_solids} solid(s); "
         f"length unit {pmi.length_unit if pmi else '?'}; "
         f"{sum(r['item'] == 'tolerance' for r in rows)} tolerances, "
         f"{sum(r['item'] == 'dimension' for r in rows)} dimensions, "
