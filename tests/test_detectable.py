@@ -16,11 +16,13 @@ import math
 import numpy as np
 import pytest
 
+from qifreport.metrology.acceptance.criteria import Acceptance
 from qifreport.metrology.deviation.detectable import (
     Detectable,
     ScanReading,
     critical_depth,
     detectable_dent,
+    with_detectable,
 )
 from qifreport.metrology.inspection import InspectionParams, inspect
 from qifreport.registration.mesh import vertex_areas, vertex_normals
@@ -155,3 +157,39 @@ def test_a_dent_whose_core_is_cut_out_of_the_scan_is_not_measured(shell, cut):
 def test_a_conforming_scan_with_the_same_hole_passes(shell):
     res = _judged(shell, None, cut=5.6)
     assert res.verdict == "PASS", res.decided_by()
+
+
+def test_a_region_criterion_below_detection_is_not_proven_in():
+    """A surface whose critical dent reads no region (a failing region would read as none)
+    is not proven to meet its region criterion, however clean it reads."""
+    acc = Acceptance(
+        tolerance=0.5,
+        min_fraction=0.95,
+        max_region_area=25.0,
+        scored_area=1000.0,
+        nominal_area=1000.0,
+        coverage=1.0,
+        in_tolerance_fraction=1.0,
+        area_ok=True,
+        passed=True,
+        decision_rule="iso14253",
+        proven_in=True,
+        proven_out=False,
+    )
+    blind = Detectable(
+        sigma_mm=4.2,
+        depth_mm=0.78,
+        read_peak_mm=0.46,
+        true_area_mm2=25.0,
+        read_area_mm2=0.0,
+        limit_mm2=25.0,
+        smallest_depth_mm=math.inf,
+        absorbed_by="the deviation's reading",
+        site=(0.0, 0.0, 0.0),
+    )
+    assert blind.below_detection
+    out = with_detectable(acc, blind)
+    assert acc.decision == "PASS" and out.decision == "UNCERTAIN"
+    assert "below what this scan and mesh detect" in out.uncertain_reasons[-1]
+    seen = Detectable(**{**blind.__dict__, "read_area_mm2": 25.0, "read_peak_mm": 0.78})
+    assert with_detectable(acc, seen).decision == "PASS"

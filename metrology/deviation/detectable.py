@@ -22,11 +22,10 @@ fixed, so they are probed, not assumed:
   ``A x read share``, and a surface whose largest region reads at least that is not proven
   in (NOT ESTABLISHED, like a reading within its uncertainty, ISO 14253-1).
 * **Below detection.** A surface on which the critical dent reads no region at all has a
-  region criterion below what this scan and mesh detect. This is stated in every output,
-  not yet a verdict: on a STEP part meshed at 3-4 mm edges the vertex reading's ball
-  (1.5 edges) reads a dent of the limit's size short of the band, and the scan points
-  read it only where the scan is dense enough. Meshing the nominal from the region limit
-  is the step that lets this statement become a verdict.
+  region criterion below what this scan and mesh detect: it is not proven in (NOT
+  ESTABLISHED, never PASS), the reason stated in every output. The scan points read a
+  dent of the limit's size where the scan is dense enough; a sparse scan, or a fixture
+  that absorbs the dent, leaves it unread.
 * **The detectable dent** stated per surface: the shallowest dent of width ``sigma_A``
   read beyond the band, ``(t + U) / g`` (``g`` the read share of its peak, ``U`` the
   surface's median expanded uncertainty).
@@ -492,10 +491,12 @@ def _read_points(patch: _Patch, r: np.ndarray, half_width: float, scan: ScanRead
 
 def with_detectable(acc: Acceptance, det: Detectable | None) -> Acceptance:
     """``acc`` not proven in when its region criterion cannot tell its largest region
-    from a failing one (:meth:`Detectable.doubt`); unchanged otherwise."""
+    from a failing one (:meth:`Detectable.doubt`), or is below what the scan and mesh
+    detect (:meth:`Detectable.blind`: a failing region would read as none); unchanged
+    otherwise."""
     if det is None or acc.proven_in is False:
         return acc
-    why = det.doubt(acc.largest_region_area)
+    why = det.doubt(acc.largest_region_area) or det.blind()
     if not why:
         return acc
     return replace(acc, proven_in=False, uncertain_reasons=[*acc.uncertain_reasons, why])
