@@ -602,13 +602,16 @@ class InspectionResult:
         return not self.trust_warnings()
 
     def uncertain(self) -> list[str]:
-        """The surfaces whose conformance is neither proven nor disproven within the
-        measurement uncertainty (:mod:`qifreport.metrology.acceptance.decision`), one line each."""
+        """The measured surfaces whose conformance is neither proven nor disproven within
+        the measurement uncertainty (:mod:`qifreport.metrology.acceptance.decision`), one
+        line each."""
         out = []
-        if self.acceptance.decision == "UNCERTAIN" and self.whole_part_judged:
+        # a surface not measured is that, whatever its reading's uncertainty
+        part_measured = self.coverage is None or self.coverage.measured
+        if self.acceptance.decision == "UNCERTAIN" and self.whole_part_judged and part_measured:
             out += [f"whole part: {r}" for r in self.acceptance.uncertain_reasons]
         for z in self.judged_zones:
-            if z.uncertain:
+            if z.uncertain and z.measured:
                 out += [
                     f"{z.zone.key} {z.zone.describe()}: {r}" for r in z.acceptance.uncertain_reasons
                 ]

@@ -4,7 +4,7 @@ every 40th point (0.05 points/mm^2 against the 0.36 a 25 mm^2 region needs).
 Thinned so, the conforming panel FAILed: two of its restraint pads were read from three or
 four points each, on the far skin of the thin wall (-0.41 mm against +0.51 at full
 density), and the hold bent the part into a 2,092 mm^2 region. A surface that fails the
-density rule now neither passes nor fails (NOT MEASURED, the verdict NOT ESTABLISHED); at
+density rule now neither passes nor fails (NOT MEASURED); at
 full density the verdicts are unchanged (the demo's PASS and FAIL)."""
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def _inspect(scan: Path, out: Path) -> tuple[int, dict]:
 @pytest.mark.parametrize("name", ["panel_scan.ply", "panel_scan_defect.ply"])
 def test_a_scan_too_sparse_to_read_the_part_decides_nothing(name, tmp_path):
     rc, doc = _inspect(_thinned(name, tmp_path), tmp_path / "out")
-    assert rc == 3 and doc["verdict"] == "NOT ESTABLISHED", doc["decided_by"]
+    assert rc == 3 and doc["verdict"] == "NOT MEASURED", doc["decided_by"]
     cov = doc["coverage"]["measured"]
     assert cov["points_per_mm2"] < 0.1 and cov["min_points_per_mm2"] == pytest.approx(0.36)
     assert any("scan too sparse" in r for r in cov["reasons"])
