@@ -44,3 +44,35 @@ def test_a_corner_view_leaves_the_seat_to_the_rigid_fit(conforming):
     res = inspect(V, F, P[d <= np.quantile(d, 0.3)], InspectionParams(tolerance=0.5))
     assert res.rim_seat["rounds"] == 0 and res.rim_seat["slide_mm"] == [0.0, 0.0, 0.0]
     assert res.verdict == "NOT ESTABLISHED", res.decided_by()
+
+
+@pytest.mark.slow
+def test_a_turned_panel_scan_is_refused_not_judged_in_another_pose(tmp_path):
+    """The panel sample's scan (a 1.8 mm wall, both skins) turned and shifted: the search
+    finds two poses 180 deg apart that fit alike (the panel is nearly symmetric) and cannot
+    tell the part's. It refuses (exit 2, one line naming both reasons) rather than judge
+    the part in a pose it cannot back."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import trimesh
+
+    from tests.conftest import ROOT
+
+    P = np.asarray(trimesh.load(ROOT / "samples" / "panel_scan.ply").vertices)
+    R = Rotation.from_euler("xyz", [35, -20, 110], degrees=True).as_matrix()
+    scan = tmp_path / "turned.ply"
+    trimesh.PointCloud(P @ R.T + np.array([120.0, -45.0, 300.0])).export(scan)
+    exe = Path(sys.executable).with_name("qifreport")
+    r = subprocess.run(
+        [str(exe), str(ROOT / "samples" / "panel.step"), str(scan), "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=900,
+    )
+    assert r.returncode == 2, r.stdout + r.stderr
+    (line,) = r.stderr.strip().splitlines()
+    assert "1.80 mm wall" in line and "fits as well (a near-symmetric part)" in line, line
+    assert "--prealign never" in line
+    assert not list(tmp_path.glob("panel.*")), "no output of a refused run"

@@ -398,20 +398,33 @@ def _check_accepted(
 
 
 def _scanned_wall(
-    model: PreparedModel, S: np.ndarray, best: Candidate, tau: float, p: PrealignParams
+    model: PreparedModel,
+    S: np.ndarray,
+    best: Candidate,
+    tau: float,
+    p: PrealignParams,
+    rival: Candidate | None = None,
 ) -> float:
     """The median wall thickness (mm) of the model where the posed scan sample ``S``
     (s, 3) mm lands; with ``p.refuse_thin_wall``, :class:`PoseNotEstablished` when it is
-    thinner than the gate ``tau`` (mm): a one-sided scan then fits either skin."""
+    thinner than the gate ``tau`` (mm): a one-sided scan then fits either skin. ``rival``:
+    a basin that fits about as well as ``best``, named in the message (a near-symmetric
+    part: the gate cannot tell the two apart either)."""
     at = unique_sorted(model.tree.query(S @ best.R.T + best.t)[1])
     th = wall_thickness(model.V, model.N, at, radius=tau, tree=model.tree)
     wall = float(np.median(th))
     if p.refuse_thin_wall and wall < tau:
+        also = ""
+        if rival is not None:
+            dd, dt = pose_distance(rival.R, rival.t, best.R, best.t, S.mean(axis=0))
+            also = (
+                f", and a pose {dd:.0f} deg / {dt:.1f} mm away fits as well (a near-symmetric part)"
+            )
         raise PoseNotEstablished(
             f"the scan lies on a {wall:.2f} mm wall (median), thinner than the "
-            f"{tau:.2f} mm pose gate: a one-sided scan fits either skin and the search cannot "
-            "tell which side was scanned; deliver the scan in the part frame (--prealign "
-            "never)"
+            f"{tau:.2f} mm pose gate: a one-sided scan fits either skin{also}, and the search "
+            "cannot tell which pose is the part's; deliver the scan in the part frame "
+            "(--prealign never)"
         )
     return wall
 
@@ -483,7 +496,7 @@ def prealign(
     seconds = time.perf_counter() - t_start
     inliers = int(round(best.inlier_fraction * len(P)))
     _check_accepted(best, len(P), n_starts, tau, p, n_matches, best_ransac)
-    wall = _scanned_wall(model, S, best, tau, p)
+    wall = _scanned_wall(model, S, best, tau, p, rivals[0] if rivals else None)
     if rivals:
         _warn_ambiguous(rivals[0], best, S, tau)
     method = "descriptor" if "descriptor" in best.sources else "restart"
