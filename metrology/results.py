@@ -103,14 +103,8 @@ class ZoneResult:
     @property
     def failed(self) -> bool:
         """A criterion fails on what was scored, under the decision rule (a surface the scan
-        never saw fails none, nor one scanned too sparsely to read it:
-        :attr:`Coverage.too_sparse <qifreport.metrology.acceptance.coverage.Coverage.too_sparse>`;
-        :mod:`qifreport.metrology.acceptance.decision`)."""
-        return (
-            self.acceptance.scored_area > 0
-            and self.acceptance.decision == "FAIL"
-            and not (self.coverage is not None and self.coverage.too_sparse)
-        )
+        never saw fails none; :mod:`qifreport.metrology.acceptance.decision`)."""
+        return self.acceptance.scored_area > 0 and self.acceptance.decision == "FAIL"
 
     @property
     def uncertain(self) -> bool:
@@ -376,8 +370,7 @@ class InspectionResult:
         """The whole part's criteria fail on what was scored (nothing scored fails nothing:
         it is not measured, :meth:`not_measured`), when they are judged."""
         a = self.acceptance
-        sparse = self.coverage is not None and self.coverage.too_sparse
-        return self.whole_part_judged and a.scored_area > 0 and a.decision == "FAIL" and not sparse
+        return self.whole_part_judged and a.scored_area > 0 and a.decision == "FAIL"
 
     @property
     def passed(self) -> bool:

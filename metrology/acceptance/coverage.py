@@ -37,10 +37,7 @@ criteria count:
   point's median (:mod:`qifreport.metrology.acceptance.point_regions`), else a failing
   region of that size is not seen on the points: the surface's points per mm^2 of its
   scored area must reach ``DEFAULT_K / max_region_area`` (0.36 for 25 mm^2;
-  :func:`min_scan_density`). Below it the surface is NOT MEASURED, "scan too sparse", and
-  unlike a surface short of coverage it does not FAIL on what it read either: points that
-  far apart misread the part itself (their normals span several features, a pad's few
-  points may lie on the far skin of a thin wall), so a failing reading is not proof. The
+  :func:`min_scan_density`). Below it the surface is NOT MEASURED, "scan too sparse". The
   rule is stated by the drawing's region size, not by the scan's spacing. (Each vertex's
   own reading needs points within its ball, about 1.5 mesh edges: a vertex without them
   is unscored, and the coverage rule counts it.)
@@ -134,13 +131,6 @@ class Coverage:
     @property
     def excluded_share(self) -> float:
         return self.excluded_area / self.area if self.area > 0 else math.nan
-
-    @property
-    def too_sparse(self) -> bool:
-        """The density rule fails: the scan's points are too far apart to read a region of
-        the criterion's size, nor to read one for certain (a surface read on them neither
-        passes nor fails)."""
-        return bool(self.density < self.min_density)
 
     def to_dict(self) -> dict:
         c = self.largest_gap_centroid
