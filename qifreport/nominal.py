@@ -130,6 +130,11 @@ def _step_nominal(
     from qifreport.step.tessellate import shape_diagonal
 
     step_part = read_step(path)
+    if solid_mesh and step_part.tessellated:
+        raise InputError(
+            f"{path.name}: a tessellated part (triangles, no solid): the restrained "
+            "inspection needs its solid for the elastic model; use the B-rep edition"
+        )
     pmi = step_part.pmi
     diagonal = shape_diagonal(step_part.shape)
     implausible = _plausibility(path, pmi, diagonal, accept_tolerance_as_read)
@@ -174,13 +179,10 @@ def _step_nominal(
         normals = corner_normals_exact(step_part.faces, V, F, face_id)
     info["timings_s"]["corner normals"] = time.perf_counter() - t0
     material = _material_statement(pmi)
-    if solid_mesh_for_material and material is not None and material.preset is not None:
+    # a tessellated part has no solid to fill: the fixture's load is then not measured
+    wanted = material is not None and material.preset is not None and not step_part.tessellated
+    if solid_mesh_for_material and wanted:
         solid_mesh = True
-    if solid_mesh and step_part.tessellated:
-        raise InputError(
-            f"{path.name}: a tessellated part (triangles, no solid): the restrained "
-            "inspection needs its solid for the elastic model; use the B-rep edition"
-        )
     tets = _solid_tetrahedra(step_part, chosen, diagonal) if solid_mesh else None
     if tets is not None:
         info["timings_s"]["solid tetrahedra"] = tets.seconds

@@ -69,6 +69,7 @@ def write_tessellated_with_pmi(
     part_name: str = "part",
     *,
     deflection: float = 0.05,
+    notes: Sequence[str] = (),
 ) -> Path:
     """Write ``shape`` as a tessellated AP242 file (mm) with its datums and tolerances.
 
@@ -80,6 +81,7 @@ def write_tessellated_with_pmi(
         indices name faces of ``shape`` in ``TopExp.MapShapes`` order.
     part_name : the product's name.
     deflection : mm, the chordal deflection of the triangulation.
+    notes : drawing notes, as :func:`~qifreport.step.write.write_step_with_pmi` writes them.
 
     Returns
     -------
@@ -89,7 +91,9 @@ def write_tessellated_with_pmi(
     with tempfile.TemporaryDirectory() as tmp:
         brep_path = Path(tmp) / "brep.stp"
         tess_path = Path(tmp) / "tess.stp"
-        write_step_with_pmi(shape, brep_path, tolerances, datums, part_name, timestamp="")
+        write_step_with_pmi(
+            shape, brep_path, tolerances, datums, part_name, timestamp="", notes=notes
+        )
         _write_triangulated(shape, tess_path, deflection)
         text = _joined(P21Model.read(brep_path), tess_path.read_text())
     atomic_write(path, lambda tmp_path: Path(tmp_path).write_text(text))

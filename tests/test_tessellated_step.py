@@ -4,7 +4,8 @@ on its own triangles (the file's mesh is the nominal).
 
 The files are written by :func:`qifreport.step.write_tessellated.write_tessellated_with_pmi`
 and :func:`qifreport.step.write.write_step_with_pmi` from one block, 60 x 40 x 20 mm: its top
-face flat within 0.1, its +x side a 0.4 profile to datum A (the bottom face)."""
+face flat within 0.1, its +x side a 0.4 profile to datum A (the bottom face); the
+tessellated edition's drawing names its material."""
 
 from __future__ import annotations
 
@@ -49,7 +50,9 @@ def editions(tmp_path_factory) -> dict[str, Path]:
     shape = BRepPrimAPI_MakeBox(*SIZE).Shape()
     write_step_with_pmi(shape, d / "block.stp", tolerances, datums, "block", timestamp="")
     tolerances, datums = _spec()
-    write_tessellated_with_pmi(shape, d / "block_tg.stp", tolerances, datums, "block")
+    write_tessellated_with_pmi(
+        shape, d / "block_tg.stp", tolerances, datums, "block", notes=["1. MATERIAL: ABS"]
+    )
     return {"brep": d / "block.stp", "tessellated": d / "block_tg.stp"}
 
 
@@ -131,6 +134,9 @@ def test_its_plan_is_the_b_rep_edition_s(editions, tmp_path):
 
 def test_inspected_on_its_own_triangles(editions, tmp_path):
     step = editions["tessellated"]
+    # its drawing names a material: the virtual fixture's load would be measured on the
+    # solid, which a tessellated part has not; the inspection goes on without it
+    assert read_step(step).pmi.material.text == "ABS"
     rc, good = _inspect(step, _scan(tmp_path / "good.ply"), tmp_path / "good")
     assert rc == 0 and good["verdict"] == "PASS"
     assert good["nominal"]["tessellated"] is True
