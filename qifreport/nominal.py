@@ -124,9 +124,7 @@ def _step_nominal(
     the zones of its PMI on the faces kept (:func:`seat_faces`), the B-rep's corner normals,
     the solid's tetrahedra when ``solid_mesh`` (or ``solid_mesh_for_material`` and the
     drawing's material names a preset)."""
-    from qifreport.step.normals import corner_normals_exact, corner_normals_of_faces
     from qifreport.step.reader import read_step
-    from qifreport.step.supplemental import face_solids
     from qifreport.step.tessellate import shape_diagonal
 
     step_part = read_step(path)
@@ -149,9 +147,7 @@ def _step_nominal(
     zones, skipped = zones_from_pmi(pmi, step_part.face_index(), tolerance)
     V, F, face_id = mesh.V, mesh.F, mesh.face_id
     supplemental: list[dict] = []
-    face_solid = face_solids(step_part.shape, step_part.faces)
-    if step_part.tessellated:  # a tessellated shell is the part: no face is supplemental
-        face_solid[:] = 0
+    face_solid = _face_solids(step_part)
     if chosen is not None or (face_solid < 0).any():
         V, F, face_id, zones, skipped, supplemental = seat_faces(
             V,
@@ -173,10 +169,7 @@ def _step_nominal(
         info["solid"] = {"index": chosen, "name": picked.name, "of": step_part.n_solids}
     datums = [d.label for d in pmi.datums] if pmi is not None else []
     t0 = time.perf_counter()
-    if step_part.tessellated:  # its faces have no surface: their triangles' normals
-        normals = corner_normals_of_faces(V, F, face_id)
-    else:
-        normals = corner_normals_exact(step_part.faces, V, F, face_id)
+    normals = _corner_normals(step_part, V, F, face_id)
     info["timings_s"]["corner normals"] = time.perf_counter() - t0
     material = _material_statement(pmi)
     # a tessellated part has no solid to fill: the fixture's load is then not measured
@@ -209,6 +202,26 @@ def _step_nominal(
         warnings=pmi.reader_warnings() if pmi is not None else [],
     )
     return part, drawing
+
+
+def _face_solids(step_part: StepPart) -> np.ndarray:
+    """(n_faces,) the solid of each face (:func:`qifreport.step.supplemental.face_solids`);
+    a tessellated part's shell is the part itself: every face is its (no supplemental)."""
+    from qifreport.step.supplemental import face_solids
+
+    if step_part.tessellated:
+        return np.zeros(len(step_part.faces), dtype=np.int64)
+    return face_solids(step_part.shape, step_part.faces)
+
+
+def _corner_normals(step_part: StepPart, V: np.ndarray, F: np.ndarray, face_id: np.ndarray):
+    """(f, 3, 3) outward normals at the triangles' corners: the B-rep's exact ones, or a
+    tessellated part's triangles' own (its faces have no surface)."""
+    from qifreport.step.normals import corner_normals_exact, corner_normals_of_faces
+
+    if step_part.tessellated:
+        return corner_normals_of_faces(V, F, face_id)
+    return corner_normals_exact(step_part.faces, V, F, face_id)
 
 
 def _material_statement(pmi) -> MaterialStatement | None:

@@ -51,11 +51,8 @@ def corner_normals_exact(
     out = np.full((len(F), 3, 3), np.nan)
     tri_n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
     # one evaluation per (vertex, face) pair
-    m = int(face_id.max()) + 1 if len(face_id) else 1
-    key = (F * m + face_id[:, None]).ravel()
-    pairs, inverse = np.unique(key, return_inverse=True)
-    pv, pf = pairs // m, pairs % m
-    N = np.full((len(pairs), 3), np.nan)
+    pv, pf, inverse = _corner_pairs(F, face_id)
+    N = np.full((len(pv), 3), np.nan)
     order = np.argsort(pf, kind="stable")
     starts = np.flatnonzero(np.r_[True, np.diff(pf[order]) != 0])
     for group in np.split(order, starts[1:]):
@@ -98,10 +95,16 @@ def corner_normals_of_faces(V: np.ndarray, F: np.ndarray, face_id: np.ndarray) -
     F = np.asarray(F, dtype=np.int64)
     face_id = np.asarray(face_id, dtype=np.int64)
     tri_n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # length: 2 x area
-    m = int(face_id.max()) + 1 if len(face_id) else 1
-    key = (F * m + face_id[:, None]).ravel()
-    pairs, inverse = np.unique(key, return_inverse=True)
-    N = np.zeros((len(pairs), 3))
+    pv, _, inverse = _corner_pairs(F, face_id)
+    N = np.zeros((len(pv), 3))
     np.add.at(N, inverse, np.repeat(tri_n, 3, axis=0))
     N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
     return N[inverse].reshape(len(F), 3, 3)
+
+
+def _corner_pairs(F: np.ndarray, face_id: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct (vertex, face) pairs of the triangles' corners: their vertices (p,),
+    faces (p,), and each corner's pair, ``inverse`` (3 f,) in ``F.ravel()`` order."""
+    m = int(face_id.max()) + 1 if len(face_id) else 1
+    pairs, inverse = np.unique((F * m + face_id[:, None]).ravel(), return_inverse=True)
+    return pairs // m, pairs % m, inverse

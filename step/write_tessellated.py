@@ -24,7 +24,7 @@ from __future__ import annotations
 import os
 import re
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from pathlib import Path
 
 from OCP.BRep import BRep_Builder, BRep_Tool
@@ -170,7 +170,7 @@ def _replacements(brep: P21Model, tess: P21Model) -> dict[int, int]:
     return out
 
 
-def _closure(model: P21Model, roots: Sequence[int], stop: set[int] = frozenset()) -> set[int]:
+def _closure(model: P21Model, roots: Sequence[int], stop: Collection[int] = ()) -> set[int]:
     """Ids reached from ``roots`` by references (not through ``stop``)."""
     seen: set[int] = set()
     todo = list(roots)
