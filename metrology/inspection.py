@@ -41,7 +41,7 @@ from qifreport.metrology.acceptance.bands import (
     symmetric_zone,
 )
 from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
-from qifreport.metrology.restraint.held import hold_scan
+from qifreport.metrology.restraint.held import hold_scan, hold_too_far
 from qifreport.registration.deformable.bending_basis import BendingBasis
 from qifreport.registration.deformable.methods import METHODS, deform, method_spec
 from qifreport.registration.deformable.result import DeformResult
@@ -692,6 +692,9 @@ def _restrained(run: JudgeRun, restraint: RestraintBasis) -> InspectionResult:
         tree=prepared.model.tree if prepared.model is not None else None,
         normal_k=params.gbcicp.scan_normal_k,
     )
+    far = hold_too_far(held, bounding_diagonal(reg.V))
+    if far is not None:
+        raise InputError(far)
     if "free fit" in held.seconds:
         timings[params.method] = held.seconds.pop("free fit")
     timings.update(held.seconds)

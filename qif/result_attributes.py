@@ -307,6 +307,8 @@ def _restraint_attrs(ra: Attrs, r) -> None:
         ra.s(f"clamp_{k}_name", c.name).s(f"clamp_{k}_directions", c.directions)
         ra.d3(f"clamp_{k}_position_mm", c.position)
         ra.d(f"clamp_{k}_free_state_offset_mm", float(off))
+        if r.offset_uncertainty is not None and r.offset_uncertainty[k - 1] > 0:
+            ra.d(f"clamp_{k}_free_state_offset_U_mm", float(r.offset_uncertainty[k - 1]))
         if s:
             ra.s(f"clamp_{k}_offset_source", s)
         if r.forces_known:

@@ -143,13 +143,15 @@ def restraint_text(r: Restraint) -> str:
     if held.get("statement"):
         lines.append(f"  clamp set: {held['statement']}")
     src = r.offset_sources or [""] * len(r.clamps)
-    for c, off, f, s in zip(r.clamps, r.offsets, r.force, src, strict=True):
+    unc = r.offset_uncertainty if r.offset_uncertainty is not None else [0.0] * len(r.clamps)
+    for c, off, f, s, u in zip(r.clamps, r.offsets, r.force, src, unc, strict=True):
         force = f"{f:.3g} N" if r.forces_known else "force not known"
         limit = "" if c.max_force is None else f" (limit {c.max_force:g} N)"
         over = " OVER LIMIT" if c.name in r.over_limit else ""
         seen = "" if s in ("", "scan") else f" [{s}]"
         lines.append(
-            f"  clamp {c.name:<6} {c.directions:<3} offset {off:+.3f} mm{seen}  "
+            f"  clamp {c.name:<6} {c.directions:<3} offset {off:+.3f}"
+            f"{f' +/- {u:.3f}' if u > 0 else ''} mm{seen}  "
             f"{force}{limit}{over}"
         )
     if r.forces_known:

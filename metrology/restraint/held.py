@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.stats import t as student_t
 
 from qifreport.metrology.deviation.closest import closest_points
 from qifreport.metrology.deviation.surface import surface_distance
@@ -35,6 +36,7 @@ from qifreport.registration.restraint.restrained import (
 )
 
 __all__ = [
+    "FAR_HOLD",
     "LOCATOR_GATE",
     "LOCATOR_PATCH",
     "MODEL_UNCERTAINTY",
@@ -48,6 +50,8 @@ __all__ = [
     "HeldScan",
     "clamp_readings",
     "hold_scan",
+    "hold_too_far",
+    "median_uncertainty",
     "seat_held",
     "seat_motions",
 ]
@@ -366,6 +370,12 @@ def _held(
     k_model = 2.0 * MODEL_UNCERTAINTY
     u_v = k_model * np.linalg.norm(held.u, axis=1)
     u_p = k_model * np.linalg.norm(moved, axis=1)
+    u_read = np.where([s == SOURCE_SCAN for s in offs.sources], offs.readings.uncertainty(), 0.0)
+    held.offset_uncertainty = u_read
+    read_v, read_p = _reading_spread(
+        restraint, offsets, u_read, held, moved, (V, cface, C), normals, tri_n[cface]
+    )
+    u_v, u_p = np.hypot(u_v, read_v), np.hypot(u_p, read_p)
     if np.any(xi) and np.any(~offs.read):
         # a pin whose axis lies in its surface's plane cannot be read from any scan, nor
         # a stop the scan did not see: the placement along it is an estimate, which the
@@ -388,6 +398,34 @@ def _held(
         u_vertex=u_v,
         u_point=u_p,
     )
+
+
+def _reading_spread(
+    restraint: RestraintBasis,
+    offsets: np.ndarray,
+    u_read: np.ndarray,
+    held: Restraint,
+    moved: np.ndarray,
+    on: tuple[np.ndarray, np.ndarray, np.ndarray],
+    normals: np.ndarray,
+    point_normals: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """How far the clamps' reading uncertainties ``u_read`` (c,) mm move the held part:
+    (n,) at the nominal's vertices along their ``normals`` and (m,) at the scan points
+    along ``point_normals`` (their closest points' triangles), mm, each clamp's offset
+    moved by its uncertainty in turn, the responses added in quadrature. ``on``: the
+    nominal's vertices, the points' closest triangles and closest points; ``held`` and
+    ``moved`` (m, 3) the hold at ``offsets`` (c,) and its displacement at the points."""
+    V, cface, C = on
+    sq_v, sq_p = np.zeros(len(V)), np.zeros(len(C))
+    for k in np.flatnonzero(np.asarray(u_read) > 0):
+        o = np.array(offsets, dtype=np.float64)
+        o[k] += u_read[k]
+        other = restraint.apply(o)
+        sq_v += np.einsum("ij,ij->i", normals, other.u - held.u) ** 2
+        dp = other.on_triangles(V, cface, C) - moved
+        sq_p += np.einsum("ij,ij->i", point_normals, dp) ** 2
+    return np.sqrt(sq_v), np.sqrt(sq_p)
 
 
 def seat_held(
@@ -539,6 +577,12 @@ class ClampReadings:
         idx = self.index[k]
         return np.einsum("ij,ij->i", self.n[k], self.P[idx] - self.C[k]) + self.corr[k]
 
+    def uncertainty(self) -> np.ndarray:
+        """(c,) expanded uncertainty of each clamp's offset, mm: the standard error of the
+        median of its readings (:func:`median_uncertainty`; 0: fewer than 3 readings, the
+        offset is not read from them)."""
+        return np.array([median_uncertainty(self.values(k)) for k in range(len(self.index))])
+
     def offsets(self, R: np.ndarray | None = None, t: np.ndarray | None = None) -> np.ndarray:
         """(c,) the clamps' offsets, mm (the median over each pad; NaN: fewer than 3
         points), the free state moved by ``R p + t`` (tangent planes: exact for a seat's
@@ -550,6 +594,47 @@ class ClampReadings:
             Q = self.P[idx] if R is None else self.P[idx] @ R.T + t
             out[k] = pad_mean(np.einsum("ij,ij->i", self.n[k], Q - self.C[k]) + self.corr[k])
         return out
+
+
+#: the held scan is nowhere near the part when the hold moves its points a median of more
+#: than this share of the part's bounding diagonal (a clamp set or reading that no physical
+#: fixture could apply to this scan)
+FAR_HOLD = 0.1
+
+
+def hold_too_far(held: HeldScan, diagonal: float) -> str | None:
+    """Why the hold ``held`` places the scan nowhere near the part (None: it does not):
+    the median distance, mm, its points were moved by the clamps is above
+    :data:`FAR_HOLD` of the part's bounding ``diagonal`` (mm)."""
+    moved = float(np.median(np.linalg.norm(held.P - held.P_free, axis=1)))
+    if not np.isfinite(moved):
+        return "the restrained hold gives no finite displacement: check the clamps"
+    if moved <= FAR_HOLD * diagonal:
+        return None
+    return (
+        f"the clamps move the held scan a median {moved:.1f} mm, more than "
+        f"{FAR_HOLD:.0%} of the part's {diagonal:.0f} mm diagonal: the hold places the "
+        "scan nowhere near the part (check the clamps' positions and directions)"
+    )
+
+
+def median_uncertainty(values: np.ndarray) -> float:
+    """Expanded uncertainty, mm, of the median of a pad's readings ``values`` (r,) mm.
+
+    The median's standard error, ``1.2533 sigma / sqrt(r)``, with ``sigma`` the readings'
+    robust spread (interquartile range / 1.349), times Student's t at 95 % for ``r - 1``
+    degrees of freedom (at least 2, the coverage of the other contributions). A pad read
+    from a few points of both skins of a thin wall (a sparse scan whose normals there face
+    either way) spreads its readings over the wall's thickness: its median is then known
+    to a millimetre, not to the scan's noise, and the held deviations say so. 0 for fewer
+    than 3 readings (the offset is not read from them)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if len(v) < 3:
+        return 0.0
+    sigma = float(np.subtract(*np.percentile(v, [75, 25]))) / 1.349
+    k = max(2.0, float(student_t.ppf(0.975, len(v) - 1)))
+    return k * 1.2533 * sigma / np.sqrt(len(v))
 
 
 def clamp_readings(

@@ -80,6 +80,8 @@ class Restraint:
         on Young's modulus, the forces do (reported as unknown, no limit checked).
     seat : (6,) the rigid motion ``(omega, t)`` (rad, mm) the free state was given before
         it was held, when the caller seated it (:func:`rigid_motion`).
+    offset_uncertainty : (c,) expanded (k = 2) uncertainty of each offset read from the
+        points under its pad, mm (0: not read there), when the caller says.
     solution, model : the elastic solution and model (:func:`restrain` only).
     """
 
@@ -95,6 +97,7 @@ class Restraint:
     over_limit: list[str] = field(default_factory=list)
     offset_sources: list[str] = field(default_factory=list)
     seat: np.ndarray | None = None
+    offset_uncertainty: np.ndarray | None = None
     forces_known: bool = True
     model_info: dict = field(default_factory=dict)
     solution: ElasticSolution | None = field(default=None, repr=False)
@@ -128,18 +131,24 @@ class Restraint:
 
     def to_dict(self) -> dict:
         src = self.offset_sources or [None] * len(self.clamps)
+        unc = (
+            np.zeros(len(self.clamps))
+            if self.offset_uncertainty is None
+            else np.asarray(self.offset_uncertainty, dtype=np.float64)
+        )
         return {
             "clamps": [
                 c.to_dict()
                 | {
                     "free_state_offset_mm": None if not np.isfinite(o) else float(o),
                     "offset_source": s,
+                    "free_state_offset_U_mm": float(u),
                     "force_N": float(f) if self.forces_known else None,
                     "force_vector_N": [float(x) for x in fv] if self.forces_known else None,
                     "over_limit": c.name in self.over_limit,
                 }
-                for c, o, f, fv, s in zip(
-                    self.clamps, self.offsets, self.force, self.forces, src, strict=True
+                for c, o, f, fv, s, u in zip(
+                    self.clamps, self.offsets, self.force, self.forces, src, unc, strict=True
                 )
             ],
             "total_force_N": self.total_force if self.forces_known else None,
