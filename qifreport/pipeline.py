@@ -66,9 +66,11 @@ __all__ = [
     "EXIT_FAIL",
     "EXIT_NOT_ESTABLISHED",
     "EXIT_PASS",
+    "Inspected",
     "JobOutcome",
     "check_job",
     "exit_code",
+    "inspect_job",
     "inspect_state",
     "output_writers",
     "part_inputs",
@@ -79,6 +81,7 @@ __all__ = [
     "remove_stale",
     "scan_input",
     "stale_siblings",
+    "summary_document",
     "write_ply_with_scalar",
 ]
 
@@ -434,10 +437,28 @@ def _json_writer(
     scan_report: ThinningReport | None,
     qif_state: dict | None,
 ) -> Writer:
-    """The writer of the JSON summary (``schemas/summary-1.schema.json``): the inspection's
-    :meth:`~qifreport.metrology.results.InspectionResult.to_dict` with the software, the
-    nominal, the inputs and their ``digests``, the ``scan_report`` and the QIF's
-    ``qif_state`` (filled by the QIF writer, which runs first)."""
+    """The writer of the JSON summary (:func:`summary_document` with the QIF's
+    ``qif_state``, filled by the QIF writer, which runs first)."""
+    doc = summary_document(res, part, job, digests, scan_report)
+
+    def write_json(p: Path) -> None:  # runs after the QIF writer: its state is known
+        if qif_state is not None:
+            doc["qif"] = qif_state
+        p.write_text(json.dumps(finite(doc), indent=2, default=json_default, allow_nan=False))
+
+    return write_json
+
+
+def summary_document(
+    res: InspectionResult,
+    part: Part,
+    job: InspectJob,
+    digests: dict[str, str],
+    scan_report: ThinningReport | None,
+) -> dict:
+    """The JSON summary (``schemas/summary-1.schema.json``) but its ``qif`` block: the
+    inspection's :meth:`~qifreport.metrology.results.InspectionResult.to_dict` with the
+    software, the nominal, the inputs and their ``digests`` and the ``scan_report``."""
     doc = res.to_dict()
     doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}
     doc["software"] = {
@@ -452,13 +473,7 @@ def _json_writer(
     }
     if scan_report is not None:
         doc["scan_input"] = scan_report.to_dict()
-
-    def write_json(p: Path) -> None:  # runs after the QIF writer: its state is known
-        if qif_state is not None:
-            doc["qif"] = qif_state
-        p.write_text(json.dumps(finite(doc), indent=2, default=json_default, allow_nan=False))
-
-    return write_json
+    return doc
 
 
 def output_writers(
@@ -635,18 +650,79 @@ def run_job(job: InspectJob, *, progress: bool = True, prof: Profiler | None = N
         ) from None
 
 
+@dataclass
+class Inspected:
+    """One inspection done, before any output is written (:func:`inspect_job`).
+
+    Attributes
+    ----------
+    result : the inspection.  state : the part's prepared state (its part and drawing).
+    digests : the inputs' SHA-256 (``nominal``, ``scan``).
+    started, finished : when it ran (UTC).  scan_report : how the scan was read and thinned.
+    cache : how the part was obtained.
+    """
+
+    result: InspectionResult
+    state: PartState
+    digests: dict[str, str]
+    started: datetime
+    finished: datetime
+    scan_report: ThinningReport | None
+    cache: CacheOutcome
+
+    def writers(
+        self, job: InspectJob, paths: dict[str, Path] | None = None
+    ) -> tuple[list[tuple[Path, Writer]], dict | None]:
+        """:func:`output_writers` of this inspection for ``job``'s outputs (``paths``:
+        ``job.output_paths()`` unless given)."""
+        return output_writers(
+            self.result,
+            self.state.part,
+            self.state.drawing,
+            job,
+            job.output_paths() if paths is None else paths,
+            self.digests,
+            self.started,
+            self.finished,
+            scan_report=self.scan_report,
+        )
+
+
 def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOutcome:
     for tmp in remove_stale_temps(list(job.output_paths().values())):
         log.warning("removed a temporary file an interrupted run left: %s", tmp)
+    # one command, one scan: a second CPU measures the scan beside the part's preparation,
+    # judges the free state beside the fixture and renders the reports beside the QIF (a
+    # batch's processes fill the CPUs already)
+    beside = None if job.options.one_process else fork_executor()
+    done = inspect_job(job, progress=progress, prof=prof, beside=beside)
+    paths = job.output_paths()
+    outputs, qif_state = done.writers(job, paths)
+    stale = stale_siblings(job)
+    with _stage(prof, "write outputs"):  # all outputs or none
+        reports = [paths[k] for k in ("pdf", "html") if k in paths]
+        atomic_write_many(outputs, executor=beside, beside=reports)
+    remove_stale(stale)
+    if prof is not None and beside is not None:
+        prof.children.extend(beside.peaks)
+    return JobOutcome(done.result, paths, qif_state, done.cache)
+
+
+def inspect_job(
+    job: InspectJob,
+    *,
+    progress: bool = True,
+    prof: Profiler | None = None,
+    beside: Any = None,
+) -> Inspected:
+    """Read ``job``'s scan, prepare its part (through the cache) and inspect: everything
+    :func:`run_job` does but write. ``beside``: a :func:`~qifreport.forked.fork_executor`
+    for the work a second CPU does beside the main one (None: one process)."""
     o = job.options
     started = datetime.now(timezone.utc)
     with _stage(prof, "load scan"):  # first: a bad scan is reported before any heavy work
         scan: dict = {"read": read_scan(job.scan, units=o.scan_units)}
     nominal_options, params = o.nominal_options(job.nominal), o.inspection_params()
-    # one command, one scan: a second CPU measures the scan beside the part's preparation,
-    # judges the free state beside the fixture and renders the reports beside the QIF (a
-    # batch's processes fill the CPUs already)
-    beside = None if o.one_process else fork_executor()
 
     def nominal_read(part: Part) -> None:
         # the scan's own normals need only its points, thinned to the nominal's grid: they
@@ -675,11 +751,10 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
             scan["measures"].cancel()
         raise
     log.info("%s", cache.describe())
-    P, scan_report = scan["P"], scan["report"]
     t_inspect = time.perf_counter()
     with progress_bar("virtual fixturing", enabled=progress) as bar:
         res = inspect_state(
-            P,
+            scan["P"],
             state,
             job,
             bar=bar,
@@ -692,25 +767,12 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
         prof.add_stages(t_inspect, res.timings, prefix="inspect: ")
     if res.fit is not None:
         store_basis(state, cache, res.basis, nominal_options, params, o.cache_dir)
-    finished = datetime.now(timezone.utc)
-    digests = {"nominal": state.nominal_sha256, "scan": sha256(job.scan)}
-    paths = job.output_paths()
-    outputs, qif_state = output_writers(
-        res,
-        state.part,
-        state.drawing,
-        job,
-        paths,
-        digests,
-        started,
-        finished,
-        scan_report=scan_report,
+    return Inspected(
+        result=res,
+        state=state,
+        digests={"nominal": state.nominal_sha256, "scan": sha256(job.scan)},
+        started=started,
+        finished=datetime.now(timezone.utc),
+        scan_report=scan["report"],
+        cache=cache,
     )
-    stale = stale_siblings(job)
-    with _stage(prof, "write outputs"):  # all outputs or none
-        reports = [paths[k] for k in ("pdf", "html") if k in paths]
-        atomic_write_many(outputs, executor=beside, beside=reports)
-    remove_stale(stale)
-    if prof is not None and beside is not None:
-        prof.children.extend(beside.peaks)
-    return JobOutcome(res, paths, qif_state, cache)

@@ -11,12 +11,13 @@ item of the other document has its partner with no difference, 1 otherwise, 2 on
 from __future__ import annotations
 
 import argparse
+from dataclasses import dataclass
 from pathlib import Path
 
 from .atomic_io import atomic_write
 from .errors import InputError, require_file
 
-__all__ = ["add_arguments", "comparison_table", "run"]
+__all__ = ["PlanWritten", "add_arguments", "comparison_table", "run", "write_plan"]
 
 
 def add_arguments(ap: argparse.ArgumentParser) -> None:
@@ -42,23 +43,59 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Write the plan of ``args.step``; compare it when asked. Returns the exit code."""
-    from qifreport.metrology.acceptance.bands import zones_from_pmi
-    from qifreport.metrology.gdt.pmi_plan import specs_from_pmi
-    from qifreport.qif.plan import PlanSource, build_plan, plan_file_name
-    from qifreport.step.reader import STEP_SUFFIXES, read_step
-
-    from .cache import sha256
-    from .pipeline import qif_writer
+    from qifreport.qif.plan import plan_file_name
 
     step: Path = args.step
     require_file(step, "STEP")
-    if step.suffix.lower() not in STEP_SUFFIXES:
-        raise InputError(f"{step.name} is not a STEP file (.stp, .step): a plan needs its PMI")
     if args.compare is not None:
         require_file(args.compare, "QIF to compare with")
     out = args.out / plan_file_name(step.stem)
     if out.exists() and not args.force:
         raise InputError(f"{out} exists (use --force to overwrite)")
+    written = write_plan(step, out)
+    state = written.validation
+    print(
+        f"plan: {out} ({written.items} characteristics; {state.get('message') or 'not validated'})"
+    )
+    for w in written.warnings:
+        print(f"warning: {w}")
+    if args.compare is None:
+        return 0
+    from qifreport.qif.mbd import compare_items, read_items
+
+    matches = compare_items(read_items(out), read_items(args.compare))
+    print(comparison_table(matches, args.compare.name))
+    differ = [m for m in matches if m.theirs is not None and (m.ours is None or m.differences)]
+    return 1 if differ else 0
+
+
+@dataclass(frozen=True)
+class PlanWritten:
+    """A plan written (:func:`write_plan`): its ``path``, the number of characteristics it
+    ``items``, its schema ``validation`` (``valid``, ``message``) and the drawing's
+    ``warnings`` (sentences)."""
+
+    path: Path
+    items: int
+    validation: dict
+    warnings: tuple[str, ...]
+
+
+def write_plan(step: Path, out: Path) -> PlanWritten:
+    """Write the QIF 3.0 measurement plan of the STEP part ``step`` (its semantic PMI's
+    zones, characteristics and datums) to ``out`` (atomically, overwriting)
+    (:class:`~qifreport.errors.InputError`: not a readable STEP file)."""
+    from qifreport.metrology.acceptance.bands import zones_from_pmi
+    from qifreport.metrology.gdt.pmi_plan import specs_from_pmi
+    from qifreport.qif.plan import PlanSource, build_plan
+    from qifreport.step.reader import STEP_SUFFIXES, read_step
+
+    from .cache import sha256
+    from .pipeline import qif_writer
+
+    require_file(step, "STEP")
+    if step.suffix.lower() not in STEP_SUFFIXES:
+        raise InputError(f"{step.name} is not a STEP file (.stp, .step): a plan needs its PMI")
     part = read_step(step)
     zones, _ = zones_from_pmi(part.pmi, part.face_index(), None)
     src = PlanSource(
@@ -73,20 +110,12 @@ def run(args: argparse.Namespace) -> int:
     state: dict = {}
     atomic_write(out, qif_writer(build_plan(src), state))
     n = len(src.plan.specs) + sum(1 for z in zones if z.faces is not None or z.step_id is not None)
-    print(f"plan: {out} ({n} characteristics; {state.get('message') or 'not validated'})")
+    warnings: tuple[str, ...] = ()
     if part.pmi is not None:
         from qifreport.step.plausibility import file_warnings
 
-        for w in file_warnings(part.pmi):
-            print(f"warning: {w}")
-    if args.compare is None:
-        return 0
-    from qifreport.qif.mbd import compare_items, read_items
-
-    matches = compare_items(read_items(out), read_items(args.compare))
-    print(comparison_table(matches, args.compare.name))
-    differ = [m for m in matches if m.theirs is not None and (m.ours is None or m.differences)]
-    return 1 if differ else 0
+        warnings = tuple(file_warnings(part.pmi))
+    return PlanWritten(out, n, state, warnings)
 
 
 def comparison_table(matches, other: str) -> str:
