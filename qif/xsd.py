@@ -57,6 +57,7 @@ __all__ = [
     "refuse_doctype",
     "schema_dir",
     "strip_ns",
+    "schema_advice",
     "xml_parser",
 ]
 
@@ -76,11 +77,22 @@ ENV_CHECKS_DIR = "QIFREPORT_CHECKS_DIR"
 MAX_DOCUMENT_BYTES = 100 * 1024 * 1024
 #: the repository root in an editable install (``../shared`` may sit beside it)
 REPO_ROOT = SCHEMA_DIR.parent
-_HOWTO = (
-    "run `make install` with ../shared present (it copies the official XSDs to "
-    f"{QIF_XSD_DIR}), or set QIFREPORT_XSD_DIR to a folder holding QIFApplications/ "
-    f"and QIFLibrary/ (an installed wheel: or copy those two folders into {QIF_XSD_DIR})"
-)
+
+
+def schema_advice() -> str:
+    """How to give qifreport the QIF schemas, for the way it was installed: a source
+    checkout (``make install`` copies them from ``../shared``) or a wheel (pip: point
+    ``QIFREPORT_XSD_DIR`` at them, or copy them into the package)."""
+    env = (
+        f"set {ENV_XSD_DIR} to a folder holding QIFApplications/ and QIFLibrary/ (the "
+        "official QIF 3.0 XSDs)"
+    )
+    if (REPO_ROOT / "Makefile").is_file() and (REPO_ROOT / "pyproject.toml").is_file():
+        return (
+            "run `make install` with ../shared beside the checkout (it copies the official "
+            f"XSDs to {QIF_XSD_DIR}), or {env}"
+        )
+    return f"{env}, or copy those two folders into {QIF_XSD_DIR}"
 
 
 class SchemasUnavailable(Exception):
@@ -145,7 +157,7 @@ def schema_dir() -> Path:
             return p.resolve()
         raise SchemasUnavailable(
             f"QIF 3.0 XSD schemas not found: {ENV_XSD_DIR}={env} has no {ROOT_XSD.as_posix()}; "
-            f"{_HOWTO}"
+            f"{schema_advice()}"
         )
     candidates = [QIF_XSD_DIR, REPO_ROOT.parent / "shared" / "qif" / "xsd"]
     for p in candidates:
@@ -154,7 +166,7 @@ def schema_dir() -> Path:
     raise SchemasUnavailable(
         "QIF 3.0 XSD schemas not found (looked in "
         + ", ".join(map(str, candidates))
-        + f" and {ENV_XSD_DIR} is not set); {_HOWTO}"
+        + f" and {ENV_XSD_DIR} is not set); {schema_advice()}"
     )
 
 

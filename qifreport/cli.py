@@ -34,6 +34,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable
+from pathlib import Path
 
 from qifreport import __version__
 from qifreport.errors import (
@@ -113,12 +114,25 @@ def _run_inspect(args: argparse.Namespace) -> int:
         out=args.out,
         options=inspect_options(args),
         serial=args.serial,
-        json=args.json,
+        json=args.json is True,
         export_mesh=args.export_mesh,
         force=args.force,
     )
     prof = Profiler().start() if args.profile else None
     outcome = run_job(job, progress=not args.quiet, prof=prof)
+    with _reader_may_leave():  # the verdict stands whoever reads it
+        _print_outcome(args, job, outcome, prof)
+    return outcome.exit_code
+
+
+def _print_outcome(args: argparse.Namespace, job: InspectJob, outcome, prof) -> None:
+    """The inspection on stdout: its summary (or with ``--json -`` its JSON document), the
+    profile when asked, where the QIF went."""
+    from qifreport.qif.xsd import schema_advice
+
+    if args.json == "-":  # the summary document instead of the text
+        print(json.dumps(outcome.summary(job), indent=2, default=json_default, allow_nan=False))
+        return
     print(summary(outcome.result))
     if prof is not None:
         prof.stop()
@@ -130,11 +144,19 @@ def _run_inspect(args: argparse.Namespace) -> int:
             print(f"QIF: {q['path']} ({q['message']})")
         else:
             print(
-                f"QIF: {q['path']} written, NOT validated: the official QIF 3.0 "
-                "schemas were not found (run `make install` with ../shared present, or set "
-                "QIFREPORT_XSD_DIR)"
+                f"QIF: {q['path']} written, NOT validated: the official QIF 3.0 schemas were "
+                f"not found ({schema_advice()})"
             )
-    return outcome.exit_code
+
+
+@contextlib.contextmanager
+def _reader_may_leave():
+    """Printing to a reader that may leave early (``| head``): a broken pipe ends the
+    printing quietly, the command's exit code unchanged."""
+    try:
+        yield
+    except BrokenPipeError:
+        _stdout_gone()
 
 
 def clamps_table(rows: list[dict], source: str) -> str:
@@ -156,7 +178,6 @@ def clamps_table(rows: list[dict], source: str) -> str:
 
 def _run_pmi(args: argparse.Namespace) -> int:
     from qifreport.step.reader import read_step
-    from qifreport.step.report import pmi_rows, pmi_table
     from qifreport.step.solids import overlapping_pairs, solid_infos
 
     part = read_step(args.step)
@@ -168,8 +189,18 @@ def _run_pmi(args: argparse.Namespace) -> int:
 
         found, _ = read_clamps(args.clamps, args.step, args.max_clamp_force)
         clamps = clamp_rows(part, found)
-    if args.json:
-        print(
+    with _reader_may_leave():
+        _print_pmi(args, part, solids, overlaps, clamps)
+    return 0
+
+
+def _print_pmi(args: argparse.Namespace, part, solids, overlaps, clamps) -> None:
+    """``qifreport pmi``'s table (or JSON) of the part read."""
+    from qifreport.step.report import pmi_rows, pmi_table
+
+    if args.json is not None:
+        _print_or_write(
+            args.json,
             json.dumps(
                 {
                     "file": str(args.step),
@@ -185,7 +216,7 @@ def _run_pmi(args: argparse.Namespace) -> int:
                 },
                 indent=2,
                 default=json_default,
-            )
+            ),
         )
     else:
         print(pmi_table(part))
@@ -204,7 +235,17 @@ def _run_pmi(args: argparse.Namespace) -> int:
                     f"  solids {a} and {b} overlap ({v:,.0f} mm^3 in common): nested or "
                     "overlapping, never one part"
                 )
-    return 0
+
+
+def _print_or_write(where: str, text: str) -> None:
+    """``text`` on stdout (``where`` ``"-"``) or written to the file ``where`` (atomically)."""
+    if where == "-":
+        print(text)
+        return
+    from .atomic_io import atomic_write
+
+    atomic_write(Path(where), lambda p: p.write_text(text + "\n"))
+    print(f"JSON: {where}")
 
 
 def _run_prepare(args: argparse.Namespace) -> int:
@@ -351,6 +392,9 @@ def _guard(fn: Callable[[], int], verbose: bool) -> int:
     """Run ``fn()``; map input errors and internal errors to exit 2 with one line."""
     try:
         return fn()
+    except BrokenPipeError:  # the reader of stdout left (`qifreport pmi X | head`): quietly
+        _stdout_gone()
+        return EXIT_ERROR
     except Interrupted as exc:
         # the outputs were cleaned up on the way here; leave now, while the traceback still
         # holds the interrupted frames: freeing their arrays (or the interpreter's
@@ -364,6 +408,13 @@ def _guard(fn: Callable[[], int], verbose: bool) -> int:
         if intr is not None:
             intr.leave()
         return _error_exit(exc, verbose)
+
+
+def _stdout_gone() -> None:
+    """stdout's reader has left: send what is left to /dev/null (the interpreter's last
+    flush would otherwise print "Exception ignored ... BrokenPipeError")."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
 
 
 def _error_exit(exc: Exception, verbose: bool) -> int:
@@ -405,6 +456,10 @@ def main(argv: list[str] | None = None) -> int:
 
     with _blas_threads():
         rc = _guard(run, verbose)
+    try:  # what is still buffered: a reader that left takes none of it, and says nothing
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _stdout_gone()
     if Interrupted.received:
         # a signal that arrived after the work was done: its outputs stand (an error wrote
         # none), the exit says so

@@ -133,8 +133,14 @@ def add_output_options(ap: argparse.ArgumentParser, batch: bool) -> None:
     if not batch:
         ap.add_argument(
             "--json",
-            action="store_true",
-            help="write DIR/<nominal>.json with all statistics, verdict and regions",
+            nargs="?",
+            const=True,
+            default=False,
+            choices=[True, "-"],
+            metavar="-",
+            help="write DIR/<nominal>.json with all statistics, verdict and regions; "
+            "--json - prints it to stdout instead of the summary (the files are written as "
+            "usual)",
         )
     ap.add_argument(
         "--no-qif",
@@ -478,7 +484,14 @@ def add_inspect_arguments(ap: argparse.ArgumentParser) -> None:
 def add_pmi_arguments(ap: argparse.ArgumentParser) -> None:
     """The ``pmi`` sub-command: the STEP file, JSON output, and clamps to list."""
     ap.add_argument("step", type=Path, help="STEP AP242 file")
-    ap.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    ap.add_argument(
+        "--json",
+        nargs="?",
+        const="-",
+        default=None,
+        metavar="-|FILE",
+        help="JSON instead of a table: on stdout (--json or --json -) or written to FILE",
+    )
     ap.add_argument(
         "--clamps",
         type=Path,

@@ -614,12 +614,22 @@ class JobOutcome:
     ----------
     result : the inspection.  paths : the files written, by kind.
     qif : the QIF's validation block (None without a QIF).  cache : how the part was obtained.
+    inspected : the inspection and what its outputs were made of (:func:`inspect_job`).
     """
 
     result: InspectionResult
     paths: dict[str, Path]
     qif: dict | None
     cache: CacheOutcome
+    inspected: Inspected | None = None
+
+    def summary(self, job: InspectJob) -> dict:
+        """The JSON summary of ``job`` (what ``<stem>.json`` holds), JSON-ready."""
+        i = self.inspected
+        doc = summary_document(i.result, i.state.part, job, i.digests, i.scan_report)
+        if self.qif is not None:
+            doc["qif"] = self.qif
+        return finite(doc)
 
     @property
     def exit_code(self) -> int:
@@ -705,7 +715,7 @@ def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOu
     remove_stale(stale)
     if prof is not None and beside is not None:
         prof.children.extend(beside.peaks)
-    return JobOutcome(done.result, paths, qif_state, done.cache)
+    return JobOutcome(done.result, paths, qif_state, done.cache, done)
 
 
 def inspect_job(

@@ -24,7 +24,8 @@ class SolidInfo:
     ----------
     index : 0-based, the order of ``TopExp.MapShapes(shape, TopAbs_SOLID)``.
     name : its name in the file ('' when it has none).
-    faces : number of its B-rep faces.  volume : mm^3.
+    faces : number of its B-rep faces.  volume : mm^3 (NaN: OCCT cannot measure it, as for
+        a tessellated solid, whose triangulated faces have no surface).
     lo, hi : (3,) its axis-aligned bounding box, mm.
     """
 
@@ -38,14 +39,15 @@ class SolidInfo:
     def describe(self) -> str:
         """``0 "bracket" (120 faces, 35,200 mm^3)``."""
         name = f' "{self.name}"' if self.name else ""
-        return f"{self.index}{name} ({self.faces} faces, {self.volume:,.0f} mm^3)"
+        vol = f"{self.volume:,.0f} mm^3" if np.isfinite(self.volume) else "volume not measured"
+        return f"{self.index}{name} ({self.faces} faces, {vol})"
 
     def to_dict(self) -> dict:
         return {
             "index": self.index,
             "name": self.name,
             "faces": self.faces,
-            "volume_mm3": self.volume,
+            "volume_mm3": float(self.volume) if np.isfinite(self.volume) else None,
             "box_min_mm": [float(x) for x in self.lo],
             "box_max_mm": [float(x) for x in self.hi],
         }
@@ -82,7 +84,11 @@ def solid_infos(shape, names: list[str] | None = None) -> list[SolidInfo]:
     out = []
     for i, s in enumerate(_solids(shape)):
         props = GProp_GProps()
-        BRepGProp.VolumeProperties_s(s, props)
+        try:
+            BRepGProp.VolumeProperties_s(s, props)
+            volume = abs(float(props.Mass()))
+        except Exception:  # OCCT's Standard_Failure: faces without a surface (tessellated)
+            volume = float("nan")
         box = Bnd_Box()
         BRepBndLib.Add_s(s, box)
         x0, y0, z0, x1, y1, z1 = box.Get()
@@ -93,7 +99,7 @@ def solid_infos(shape, names: list[str] | None = None) -> list[SolidInfo]:
                 index=i,
                 name=(names[i] if names and i < len(names) else "") or "",
                 faces=fmap.Size(),
-                volume=abs(float(props.Mass())),
+                volume=volume,
                 lo=np.array([x0, y0, z0]),
                 hi=np.array([x1, y1, z1]),
             )
@@ -119,6 +125,8 @@ def overlapping_pairs(
             A, B = infos[a], infos[b]
             if np.any(A.hi < B.lo) or np.any(B.hi < A.lo):
                 continue
+            if not (np.isfinite(A.volume) and np.isfinite(B.volume)):
+                continue  # no volume to share (a tessellated solid)
             common = BRepAlgoAPI_Common(solids[a], solids[b])
             if not common.IsDone():
                 continue

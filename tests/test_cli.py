@@ -261,3 +261,32 @@ def test_progress_bar_never_shares_the_summary_line(tmp_path):
     for shown, written in lines:
         if "virtual fixturing" not in written:
             assert shown == written, (shown, written)
+
+
+def test_json_dash_prints_the_summary_and_a_reader_that_leaves_is_no_error(tmp_path):
+    """``--json -`` prints the summary document on stdout (every command that has
+    ``--json``); a reader that closes the pipe early ends the command quietly."""
+    args = [SAMPLES / "shell_nominal.ply", SAMPLES / "shell_scan.ply", "--tolerance", "0.5"]
+    r = run(*args, "--out", tmp_path / "a", "--json", "-", "--no-pdf", "--quiet")
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(r.stdout)
+    assert_valid_summary(doc)
+    assert doc["verdict"] == "PASS" and doc["qif"]["path"].endswith("shell_nominal.qif")
+    assert not (tmp_path / "a" / "shell_nominal.json").exists()  # printed, not written
+    # a reader that leaves before the summary is printed (`true` reads nothing): the
+    # summary's write meets a closed pipe
+    cmd = " ".join(f"'{a}'" for a in [EXE, *args, "--out", tmp_path / "b", "--json", "-"])
+    p = subprocess.run(
+        f"{cmd} --no-pdf --no-qif --quiet | true; exit ${{PIPESTATUS[0]}}",
+        shell=True,
+        executable="/bin/bash",
+        capture_output=True,
+        text=True,
+    )
+    assert p.stderr == "" and p.returncode == 0
+    # pmi: --json and --json - print, --json FILE writes
+    step = SAMPLES / "panel.step"
+    printed = json.loads(run("pmi", step, "--json", "-").stdout)
+    w = run("pmi", step, "--json", tmp_path / "pmi.json")
+    assert w.returncode == 0 and json.loads((tmp_path / "pmi.json").read_text()) == printed
+    assert len(printed["items"]) == 7
