@@ -7,12 +7,14 @@ XSD_SRC := $(SHARED)/qif/xsd
 XSD_DST := schemas/qif-3.0
 OUT    ?= out/demo
 
-.PHONY: install system-deps accel accel-if-possible demo test lint bench clean
+.PHONY: install install-dev system-deps accel accel-if-possible demo test lint bench clean
 
 # Create the venv and install the package (editable) once; re-run when pyproject changes.
+# The product's own dependencies only; the test tools come with `make test` (install-dev).
 $(VENV)/.installed: pyproject.toml
-	test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q -e '.[dev]'
+	@echo "installing qifreport into $(VENV) (the first time: a few minutes)"
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	@$(PY) -m pip install -qq -e .
 	@if [ -d "$(XSD_SRC)" ]; then rm -rf $(XSD_DST) && mkdir -p $(XSD_DST) && cp -r $(XSD_SRC)/. $(XSD_DST)/ ; \
 	  else echo "note: $(XSD_SRC) not found; QIF schemas unavailable (set QIFREPORT_XSD_DIR)"; fi
 	@# local copy of the W3C xmldsig schema (QIFDocument.xsd imports it from a remote URL;
@@ -21,7 +23,14 @@ $(VENV)/.installed: pyproject.toml
 	  DSIG=$$($(PY) -c "import os, xmlschema; print(os.path.join(os.path.dirname(xmlschema.__file__), 'schemas', 'DSIG', 'xmldsig-core-schema.xsd'))") && \
 	  cp "$$DSIG" $(XSD_DST)/QIFLibrary/xmldsig-core-schema.xsd; fi
 	@$(MAKE) --no-print-directory accel-if-possible
-	touch $@
+	@touch $@
+
+# the test tools (pytest, ruff, import-linter and the independent consumers the tests use)
+$(VENV)/.dev-installed: $(VENV)/.installed
+	@$(PY) -m pip install -qq -e '.[dev]'
+	@touch $@
+
+install-dev: install $(VENV)/.dev-installed
 
 # the package's bytecode, written at every install (only what changed): its modules are then
 # read, not compiled, by every command, even where the environment forbids writing bytecode
@@ -59,41 +68,54 @@ system-deps:
 # the mesh shell (fallback input, explicit tolerance), a two-scan batch of the panel
 # (summary table, QIF Statistics document, trend PDF), and another elastic free state of
 # the panel held at the clamps of a file (samples/panel_clamps.csv: the same points).
-demo: install system-deps
-	mkdir -p $(OUT)
-	$(VENV)/bin/qifreport pmi samples/panel.step --clamps pmi
-	$(VENV)/bin/qifreport samples/panel.step samples/panel_scan.ply --out $(OUT) --json --force \
-	  --html --export-mesh $(OUT)/panel_registered.ply; rc=$$?; if [ $$rc -gt 1 ]; then exit $$rc; fi
-	test -s $(OUT)/panel.json && test -s $(OUT)/panel.qif && test -s $(OUT)/panel.pdf \
+# Each command's full output goes to $(OUT)/logs/; the demo prints one line per step.
+# Nothing here needs a system package: the test tools (Xerces-C, poppler, chromium) are
+# installed by `make test`.
+demo: install
+	@mkdir -p $(OUT)/logs
+	@$(VENV)/bin/qifreport pmi samples/panel.step --clamps pmi > $(OUT)/logs/pmi.txt \
+	  && echo "pmi:        $$(head -1 $(OUT)/logs/pmi.txt)  [$(OUT)/logs/pmi.txt]"
+	@$(VENV)/bin/qifreport samples/panel.step samples/panel_scan.ply --out $(OUT) --json \
+	  --force --quiet --html --export-mesh $(OUT)/panel_registered.ply > $(OUT)/logs/panel.txt; \
+	  rc=$$?; if [ $$rc -gt 1 ]; then cat $(OUT)/logs/panel.txt; exit $$rc; fi; \
+	  echo "panel:      $$(head -1 $(OUT)/logs/panel.txt) -> $(OUT)/panel.{pdf,qif,json,html}"
+	@test -s $(OUT)/panel.json && test -s $(OUT)/panel.qif && test -s $(OUT)/panel.pdf \
 	  && test -s $(OUT)/panel.html && test -s $(OUT)/panel_registered.ply
-	$(VENV)/bin/qifreport samples/shell_nominal.ply samples/shell_scan.ply --tolerance 0.5 \
-	  --out $(OUT) --json --force --export-mesh $(OUT)/shell_registered.ply; rc=$$?; \
-	  if [ $$rc -gt 1 ]; then exit $$rc; fi
-	test -s $(OUT)/shell_nominal.json && test -s $(OUT)/shell_nominal.pdf \
+	@$(VENV)/bin/qifreport samples/shell_nominal.ply samples/shell_scan.ply --tolerance 0.5 \
+	  --out $(OUT) --json --force --quiet --export-mesh $(OUT)/shell_registered.ply \
+	  > $(OUT)/logs/shell.txt; rc=$$?; if [ $$rc -gt 1 ]; then cat $(OUT)/logs/shell.txt; \
+	  exit $$rc; fi; \
+	  echo "shell:      $$(head -1 $(OUT)/logs/shell.txt) -> $(OUT)/shell_nominal.{pdf,qif,json}"
+	@test -s $(OUT)/shell_nominal.json && test -s $(OUT)/shell_nominal.pdf \
 	  && test -s $(OUT)/shell_registered.ply
-	$(VENV)/bin/qifreport batch samples/panel.step samples/panel_scan.ply \
-	  samples/panel_scan_defect.ply --out $(OUT)/batch --force; rc=$$?; \
-	  if [ $$rc -gt 1 ]; then exit $$rc; fi
-	test -s $(OUT)/batch/summary.csv && test -s $(OUT)/batch/panel_statistics.qif \
+	@$(VENV)/bin/qifreport batch samples/panel.step samples/panel_scan.ply \
+	  samples/panel_scan_defect.ply --out $(OUT)/batch --force --quiet > $(OUT)/logs/batch.txt; \
+	  rc=$$?; if [ $$rc -gt 1 ]; then cat $(OUT)/logs/batch.txt; exit $$rc; fi; \
+	  echo "batch:      $$(grep -c . $(OUT)/batch/summary.csv | xargs -I{} expr {} - 1) scans" \
+	    "-> $(OUT)/batch/summary.csv, panel_statistics.qif, panel_trend.pdf"
+	@test -s $(OUT)/batch/summary.csv && test -s $(OUT)/batch/panel_statistics.qif \
 	  && test -s $(OUT)/batch/panel_trend.pdf
-	$(VENV)/bin/qifreport samples/panel.step samples/panel_scan_warped.ply \
-	  --clamps samples/panel_clamps.csv --out $(OUT)/restrained --json --html \
-	  --force; rc=$$?; if [ $$rc -gt 1 ]; then exit $$rc; fi
-	test -s $(OUT)/restrained/panel.json && test -s $(OUT)/restrained/panel.qif \
+	@$(VENV)/bin/qifreport samples/panel.step samples/panel_scan_warped.ply \
+	  --clamps samples/panel_clamps.csv --out $(OUT)/restrained --json --html --force \
+	  --quiet > $(OUT)/logs/restrained.txt; rc=$$?; if [ $$rc -gt 1 ]; then \
+	  cat $(OUT)/logs/restrained.txt; exit $$rc; fi; \
+	  echo "restrained: $$(head -1 $(OUT)/logs/restrained.txt) -> $(OUT)/restrained/panel.{pdf,qif,json,html}"
+	@test -s $(OUT)/restrained/panel.json && test -s $(OUT)/restrained/panel.qif \
 	  && test -s $(OUT)/restrained/panel.pdf && test -s $(OUT)/restrained/panel.html
-	$(VENV)/bin/qifreport validate $(OUT)/panel.qif $(OUT)/shell_nominal.qif \
-	  $(OUT)/batch/panel_statistics.qif $(OUT)/restrained/panel.qif
-	@echo "demo outputs in $(OUT)/ (a two-scan batch of the panel in $(OUT)/batch/, the" \
-	  "panel held at the clamps of samples/panel_clamps.csv in $(OUT)/restrained/; open" \
-	  "$(OUT)/panel.html in any browser for the deviation map in 3-D)"
+	@$(VENV)/bin/qifreport validate $(OUT)/panel.qif $(OUT)/shell_nominal.qif \
+	  $(OUT)/batch/panel_statistics.qif $(OUT)/restrained/panel.qif > $(OUT)/logs/validate.txt \
+	  2>&1 || { cat $(OUT)/logs/validate.txt; exit 2; }; \
+	  echo "validate:   4 QIF files valid against the QIF 3.0 schemas [$(OUT)/logs/validate.txt]"
+	@echo "outputs in $(OUT)/; open $(OUT)/panel.pdf, or $(OUT)/panel.html in a browser" \
+	  "(the deviation map in 3-D); each command's full output in $(OUT)/logs/"
 
 # both cores of the CI machine, a test file per worker (module fixtures stay in one process),
 # each worker's BLAS and OpenMP on one thread (two workers on two cores: a second thread per
 # worker would only spin against the other worker; the command line sets the same itself)
-test: install system-deps
+test: install-dev system-deps
 	OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 $(PY) -m pytest -q -n 2 --dist loadfile --durations=25
 
-lint: install
+lint: install-dev
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 

@@ -23,6 +23,10 @@ those plain arrays:
       Cp  = (USL - LSL) / (6 s)
       Cpk = min(USL - mean, mean - LSL) / (3 s)
 
+  A capability index is an estimate from the batch: it is stated (in the report) only from
+  :data:`MIN_CAPABILITY_N` values, with its 95 % confidence interval (:func:`cpk_interval`,
+  Bissell's normal approximation); a shorter batch is "n too small".
+
   and the margin of the worst scan to the nearer limit, relative to half the tolerance
   width: ``min(USL - max, min - LSL) / ((USL - LSL) / 2)`` (1 with every value at the middle
   of the limits, 0 on a limit, negative beyond one).
@@ -43,11 +47,13 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
+    "MIN_CAPABILITY_N",
     "VERDICTS",
     "JUDGED",
     "CharacteristicStats",
     "capability",
     "characteristic_stats",
+    "cpk_interval",
     "dimension_stats",
     "upper_cpk",
     "verdict_counts",
@@ -64,6 +70,9 @@ VERDICTS = ("PASS", "FAIL", "NOT ESTABLISHED", "ERROR")
 JUDGED = ("PASS", "FAIL", "NOT ESTABLISHED")
 #: batches shorter than this have no rolling pass rate (scans)
 ROLLING_MIN_SCANS = 30
+#: values a capability index is stated from, at least (AIAG SPC: 25 subgroups; with fewer
+#: the interval of a Cpk of 1.33 spans more than +/-0.4)
+MIN_CAPABILITY_N = 25
 
 
 @dataclass
@@ -100,6 +109,15 @@ class CharacteristicStats:
     min: float = math.nan
     cp: float = math.nan
 
+    @property
+    def capable_n(self) -> bool:
+        """Enough values to state a capability index (:data:`MIN_CAPABILITY_N`)."""
+        return self.n >= MIN_CAPABILITY_N
+
+    def cpk_interval(self) -> tuple[float, float]:
+        """The 95 % confidence interval of :attr:`cpk` (:func:`cpk_interval`)."""
+        return cpk_interval(self.cpk, self.n)
+
 
 def upper_cpk(mean: float, sigma: float, tolerance: float, n: int) -> float:
     """One-sided upper capability index ``(tolerance - mean) / (3 sigma)``.
@@ -119,6 +137,16 @@ def upper_cpk(mean: float, sigma: float, tolerance: float, n: int) -> float:
     if n >= 2 and sigma > 0 and math.isfinite(tolerance) and tolerance > 0:
         return (tolerance - mean) / (3.0 * sigma)
     return math.nan
+
+
+def cpk_interval(cpk: float, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The confidence interval of a capability index ``cpk`` estimated from ``n`` values
+    (normal data): ``cpk -/+ z sqrt(1 / (9 n) + cpk^2 / (2 (n - 1)))`` (Bissell 1990;
+    ``z`` 1.96: 95 %). NaN for a NaN index or ``n < 2``."""
+    if not (math.isfinite(cpk) and n >= 2):
+        return math.nan, math.nan
+    half = z * math.sqrt(1.0 / (9.0 * n) + cpk * cpk / (2.0 * (n - 1)))
+    return cpk - half, cpk + half
 
 
 def capability(

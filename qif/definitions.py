@@ -130,9 +130,13 @@ def product(
     dids: dict[str, str],
     drf_ids: dict[DrfKey, str],
     ids: Ids,
+    *,
+    number: str | None = None,
+    version: str | None = None,
 ) -> etree._Element:
     """``Product``: the part (its feature and characteristic nominals, datums, frames), its
-    component and assembly path; the part's and component's UUIDs from ``ids``."""
+    component and assembly path; the part's and component's UUIDs from ``ids``; the part's
+    ``number`` (``ModelNumber``) and drawing ``version`` when known."""
     lists = [
         ("FeatureNominalIds", zs.fnom_ids),
         ("CharacteristicNominalIds", zs.cnom_ids),
@@ -142,6 +146,8 @@ def product(
     part_el = E.Part(
         E.Header(E.Name(part_name)),
         E.UUID(ids.uuid(part.part, "part")),
+        *([E.ModelNumber(number)] if number else []),
+        *([E.Version(version)] if version else []),
         *[id_array(name, values) for name, values in lists if values],
         id=part.part,
     )

@@ -206,6 +206,8 @@ class Provenance:
     nominal_info : description of the nominal (format, tessellation, PMI counts).
     author, organization, operator, serial_number : options of the command line.
     standard : (organization, designator, year) of the tolerancing standard.
+    trace : the inspection's traceability (:func:`qifreport.pipeline.traceability`: part
+        number, revision, instrument, temperature ...); ``{}`` when not known.
     plan : the part's plan (a STEP nominal's drawing, :mod:`.plan`): the results carry it
         with the plan document's ids and UUIDs and measure its items; None: no drawing to
         refer to.
@@ -227,6 +229,7 @@ class Provenance:
     serial_number: str | None = None
     standard: tuple[str, str, str] = ("ASME", "Y14.5", "2018")
     plan: PlanSource | None = None
+    trace: dict = field(default_factory=dict)
 
 
 def acceptance_rule(min_fraction: float, max_region_area: float) -> str:
@@ -290,7 +293,16 @@ def build_qif(res: InspectionResult, prov: Provenance) -> etree._ElementTree:
         datum_definitions(ps.dids, ps.datum_features),
         datum_reference_frames(ps.drf_ids, ps.dids),
         resources,
-        product(prov.part_name, ps.part, zs, ps.dids, ps.drf_ids, ids),
+        product(
+            prov.part_name,
+            ps.part,
+            zs,
+            ps.dids,
+            ps.drf_ids,
+            ids,
+            number=(prov.trace or {}).get("part_number"),
+            version=(prov.trace or {}).get("revision"),
+        ),
         zs.features(),
         zs.characteristics(ps.std_id),
         results,
@@ -590,6 +602,12 @@ def _results(
         res.verdict, "UNKNOWN"
     )
     ra = measurement_results_attrs(res, prov.nominal_sha256, prov.scan_sha256)
+    trace = prov.trace or {}
+    if trace.get("temperature_C") is not None:
+        ra.d("part_temperature_C", float(trace["temperature_C"]))
+    for key in ("part_number", "revision"):
+        if trace.get(key):
+            ra.s(key, str(trace[key]))
     refs = _input_file_references(prov)
     mr = E.MeasurementResults(
         ra.element(),

@@ -168,7 +168,9 @@ class Report:
         from .pipeline import summary_document
 
         i = self.inspected
-        doc = summary_document(i.result, i.state.part, self.job, i.digests, i.scan_report)
+        doc = summary_document(
+            i.result, i.state.part, self.job, i.digests, i.scan_report, (i.started, i.finished)
+        )
         return json.loads(json.dumps(finite(doc), default=json_default, allow_nan=False))
 
     def text(self) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import signal
 import tempfile
@@ -12,6 +13,7 @@ from pathlib import Path
 from .errors import raise_if_interrupted
 
 __all__ = [
+    "sha256",
     "atomic_write",
     "atomic_write_many",
     "output_lock",
@@ -158,3 +160,12 @@ def output_lock(folder: str | Path):
                 d.rmdir()
             except OSError:
                 break
+
+
+def sha256(path: Path) -> str:
+    """Hex SHA-256 digest of a file."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()

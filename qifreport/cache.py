@@ -55,6 +55,8 @@ from qifreport.registration.deformable.methods import method_spec
 from qifreport.registration.restraint.fixture_load import LoadModel
 from qifreport.registration.restraint.restrained import RestraintBasis
 
+from .atomic_io import sha256
+from .cache_prune import SUFFIX, prune, size_limit, touch
 from .cache_trust import (
     CorruptEntry,
     UntrustedCache,
@@ -92,16 +94,6 @@ log = logging.getLogger(__name__)
 #: version of the entry layout, part of every key: an entry written by another layout of
 #: :class:`PartState` (or of anything it holds) is never read; bump it when that changes
 CACHE_FORMAT = 25
-SUFFIX = ".qprep"
-
-
-def sha256(path: Path) -> str:
-    """Hex SHA-256 digest of a file."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def default_cache_dir() -> Path:
@@ -427,6 +419,7 @@ def part_state(
         if path is not None:
             try:
                 save_entry(path, state, material, secret)
+                prune(path.parent, size_limit(), keep=path)
             except OSError as exc:  # a read-only cache must not stop an inspection
                 log.warning("could not write the cache entry %s: %s", path, exc)
         return state, CacheOutcome(
@@ -471,6 +464,7 @@ def _cache_hit(
     refused), with the options' clamp force limits, and how it was obtained (``t0``: when
     :func:`part_state` started, :func:`time.perf_counter`)."""
     state = load_entry(path, key, secret)
+    touch(path)  # its last use: the size bound evicts the entries used longest ago
     if state.restraint is not None and options.restraint is not None:
         with_limits(state.restraint, options.restraint)
     log.info("part state loaded from %s", path)

@@ -35,9 +35,11 @@ import sys
 import threading
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from qifreport import __version__
 from qifreport.errors import (
+    EXIT_ERROR,
     InputError,
     Interrupted,
     pending_interrupt,
@@ -45,19 +47,10 @@ from qifreport.errors import (
     require_file,
 )
 
-from .cache import default_cache_dir, part_state, sha256
-from .cli_options import (
-    add_inspect_arguments,
-    add_inspect_options,
-    add_pmi_arguments,
-    add_prepare_arguments,
-)
-from .console import summary
 from .forked import in_fork
-from .jsonio import json_default
-from .options import InspectJob, InspectOptions
-from .pipeline import EXIT_ERROR, run_job
-from .profile import Profiler
+
+if TYPE_CHECKING:
+    from .options import InspectJob, InspectOptions
 
 __all__ = ["SUBCOMMANDS", "build_parser", "inspect_options", "main"]
 
@@ -65,7 +58,7 @@ log = logging.getLogger("qifreport")
 
 #: the sub-commands; a first argument that is none of them (nor a top-level option) is the
 #: nominal of the default ``inspect``
-SUBCOMMANDS = ("inspect", "pmi", "plan", "validate", "prepare", "batch")
+SUBCOMMANDS = ("inspect", "pmi", "plan", "validate", "prepare", "cache", "batch")
 
 
 def parse_min_coverage(items: list[str] | None) -> dict:
@@ -93,6 +86,9 @@ def parse_min_coverage(items: list[str] | None) -> dict:
 def inspect_options(args: argparse.Namespace) -> InspectOptions:
     """The typed options of parsed ``inspect`` / ``batch`` / ``prepare`` arguments (an
     option the sub-command does not have takes its default)."""
+    from .cache import default_cache_dir
+    from .options import InspectOptions
+
     special = ("cache_dir", "min_coverage", "zone_min_coverage")
     names = [f for f in InspectOptions.__dataclass_fields__ if f not in special]
     values = {k: getattr(args, k) for k in names if hasattr(args, k)}
@@ -108,12 +104,17 @@ def inspect_options(args: argparse.Namespace) -> InspectOptions:
 
 
 def _run_inspect(args: argparse.Namespace) -> int:
+    from .options import InspectJob
+    from .pipeline import run_job
+    from .profile import Profiler
+
     job = InspectJob(
         nominal=args.nominal,
         scan=args.scan,
         out=args.out,
         options=inspect_options(args),
         serial=args.serial,
+        name=args.name,
         json=args.json is True,
         export_mesh=args.export_mesh,
         force=args.force,
@@ -129,6 +130,9 @@ def _print_outcome(args: argparse.Namespace, job: InspectJob, outcome, prof) -> 
     """The inspection on stdout: its summary (or with ``--json -`` its JSON document), the
     profile when asked, where the QIF went."""
     from qifreport.qif.xsd import schema_advice
+
+    from .console import summary
+    from .jsonio import json_default
 
     if args.json == "-":  # the summary document instead of the text
         print(json.dumps(outcome.summary(job), indent=2, default=json_default, allow_nan=False))
@@ -198,6 +202,9 @@ def _print_pmi(args: argparse.Namespace, part, solids, overlaps, clamps) -> None
     """``qifreport pmi``'s table (or JSON) of the part read."""
     from qifreport.step.report import pmi_rows, pmi_table
 
+    from .atomic_io import sha256
+    from .jsonio import json_default
+
     if args.json is not None:
         _print_or_write(
             args.json,
@@ -249,6 +256,8 @@ def _print_or_write(where: str, text: str) -> None:
 
 
 def _run_prepare(args: argparse.Namespace) -> int:
+    from .cache import part_state
+
     require_file(args.nominal, "nominal")
     o = inspect_options(args)
     state, outcome = part_state(
@@ -304,9 +313,81 @@ def _add_plan_arguments(ap: argparse.ArgumentParser) -> None:
 def _add_batch_arguments(ap: argparse.ArgumentParser) -> None:
     """``batch``'s own arguments, then the inspection options (no single-scan ones)."""
     from .batch import add_batch_arguments
+    from .cli_options import add_inspect_options
 
     add_batch_arguments(ap)
     add_inspect_options(ap, batch=True)
+
+
+def _add_inspect_arguments(ap: argparse.ArgumentParser) -> None:
+    from .cli_options import add_inspect_arguments
+
+    add_inspect_arguments(ap)
+
+
+def _add_pmi_arguments(ap: argparse.ArgumentParser) -> None:
+    from .cli_options import add_pmi_arguments
+
+    add_pmi_arguments(ap)
+
+
+def _add_prepare_arguments(ap: argparse.ArgumentParser) -> None:
+    from .cli_options import add_prepare_arguments
+
+    add_prepare_arguments(ap)
+
+
+def _add_cache_arguments(ap: argparse.ArgumentParser) -> None:
+    """``cache``'s arguments."""
+    ap.add_argument(
+        "--cache",
+        type=Path,
+        metavar="DIR",
+        help="the cache directory (default $QIFREPORT_CACHE or the user cache directory)",
+    )
+    ap.add_argument(
+        "--prune",
+        action="store_true",
+        help="remove the entries used longest ago until the rest fit --max-size",
+    )
+    ap.add_argument(
+        "--max-size",
+        type=float,
+        metavar="MB",
+        help="the bound --prune keeps (default $QIFREPORT_CACHE_MAX_MB or 2048; 0 empties "
+        "the cache)",
+    )
+
+
+def _run_cache(args: argparse.Namespace) -> int:
+    from .cache import default_cache_dir
+    from .cache_prune import cache_entries, prune, size_limit
+
+    d = args.cache if args.cache is not None else default_cache_dir()
+    limit = size_limit() if args.max_size is None else args.max_size * 1e6
+    if args.max_size is not None and not args.max_size >= 0:
+        raise InputError(f"--max-size must be a size >= 0 MB, got {args.max_size}")
+    if not d.is_dir():
+        print(f"cache {d}: no cache there (nothing stored yet)")
+        return 0
+    if args.prune:
+        gone = prune(d, limit)
+        freed = sum(e.size for e in gone) / 1e6
+        what = f"{len(gone)} entr{'y' if len(gone) == 1 else 'ies'}"
+        print(f"cache {d}: removed {what} ({freed:.1f} MB)")
+    entries = cache_entries(d)
+    total = sum(e.size for e in entries) / 1e6
+    with _reader_may_leave():
+        print(
+            f"cache {d}: {len(entries)} entr{'y' if len(entries) == 1 else 'ies'}, "
+            f"{total:.1f} MB (bound {limit / 1e6:g} MB; the least recently used go first)"
+        )
+        for e in entries:
+            print(
+                f"  {e.size / 1e6:9.1f} MB  last used {e.last_used:%Y-%m-%d %H:%M} UTC  "
+                f"{e.part:24s} {e.path.name}"
+            )
+    return 0
 
 
 #: the sub-commands as (name, help, description, adds its arguments, runs it), in the
@@ -316,14 +397,14 @@ _COMMANDS: tuple[tuple[str, str, str, Callable, Callable], ...] = (
         "inspect",
         "inspect one scan (the default)",
         "Inspect a free-state scan against its nominal.",
-        add_inspect_arguments,
+        _add_inspect_arguments,
         _run_inspect,
     ),
     (
         "pmi",
         "list the semantic PMI of a STEP file",
         "List the semantic PMI of a STEP file.",
-        add_pmi_arguments,
+        _add_pmi_arguments,
         _run_pmi,
     ),
     (
@@ -339,7 +420,7 @@ _COMMANDS: tuple[tuple[str, str, str, Callable, Callable], ...] = (
         "Read a nominal and store its prepared state (tessellation, zones, "
         "operators, bands, bending basis, pose-search model) in the per-part cache, so "
         "every later inspection of the part loads it instead of building it.",
-        add_prepare_arguments,
+        _add_prepare_arguments,
         _run_prepare,
     ),
     (
@@ -352,6 +433,15 @@ _COMMANDS: tuple[tuple[str, str, str, Callable, Callable], ...] = (
         _run_plan,
     ),
     (
+        "cache",
+        "list or prune the per-part cache",
+        "List the per-part cache's entries (size, last use), or prune it to a size: the "
+        "entries used longest ago go first. Every new entry keeps the cache within "
+        "$QIFREPORT_CACHE_MAX_MB (default 2048 MB) the same way.",
+        _add_cache_arguments,
+        _run_cache,
+    ),
+    (
         "batch",
         "inspect many scans of one part",
         "Inspect many scans of one part: per-scan QIF + PDF, a summary table, a "
@@ -362,8 +452,11 @@ _COMMANDS: tuple[tuple[str, str, str, Callable, Callable], ...] = (
 )
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``qifreport`` parser: one sub-parser per entry of :data:`SUBCOMMANDS`."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``qifreport`` parser: one sub-parser per entry of :data:`SUBCOMMANDS`, each with
+    its arguments, or (``command`` given) only that one's: the others' arguments import
+    the modules that declare them, which ``qifreport --help`` or ``qifreport pmi`` do not
+    need (the measurement stack)."""
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     ap = argparse.ArgumentParser(
@@ -376,7 +469,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, short, description, add_arguments, run in _COMMANDS:
         p = sub.add_parser(name, parents=[common], help=short, description=description)
-        add_arguments(p)
+        if command is None or command == name:
+            add_arguments(p)
         p.set_defaults(run=run)
     return ap
 
@@ -443,7 +537,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     _catch_signals()
     try:
-        args = build_parser().parse_args(_with_default_command(argv))
+        argv = _with_default_command(argv)
+        command = argv[0] if argv and argv[0] in SUBCOMMANDS else ""
+        args = build_parser(command).parse_args(argv)
     except Interrupted as exc:  # while the parser's modules load
         exc.leave()
     verbose = bool(getattr(args, "verbose", False))

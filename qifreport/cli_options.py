@@ -15,12 +15,6 @@ import argparse
 from pathlib import Path
 
 from qifreport import __version__
-from qifreport.metrology.acceptance.decision import DECISION_RULES, DEFAULT_DECISION_RULE
-from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION
-from qifreport.metrology.params import RESTRAINT_CONDITIONS
-from qifreport.registration.deformable.methods import METHODS
-from qifreport.registration.restraint.fixture_load import DEFAULT_MAX_FORCE
-from qifreport.restraint import DEFAULT_PAD_RADIUS
 
 __all__ = [
     "add_accept_option",
@@ -171,8 +165,33 @@ def add_output_options(ap: argparse.ArgumentParser, batch: bool) -> None:
         help="QIF header and traceability: inspecting organization",
     )
     ap.add_argument("--operator", metavar="NAME", help="QIF traceability: inspection operator")
+    ap.add_argument(
+        "--part-number",
+        metavar="PN",
+        help="the part's number (default: the STEP product's id)",
+    )
+    ap.add_argument(
+        "--revision",
+        metavar="REV",
+        help="the drawing's revision (default: the STEP product's version)",
+    )
     if not batch:
         ap.add_argument("--serial", metavar="SN", help="serial number of the inspected part")
+        ap.add_argument(
+            "--temperature",
+            type=float,
+            metavar="C",
+            help="the part's temperature while scanned, deg C (in every output; with the "
+            "scanner profile's expansion coefficient it enters the uncertainty budgets)",
+        )
+        ap.add_argument(
+            "--name",
+            metavar="TEMPLATE",
+            default="{part}[_{serial}]",
+            help="the output files' name: {part} the nominal's stem, {serial}, {scan} the "
+            "scan's stem; [...] is left out when a field in it is empty (default "
+            "'{part}[_{serial}]': panel.qif, or panel_SN-0042.qif with --serial SN-0042)",
+        )
         ap.add_argument(
             "--export-mesh",
             type=Path,
@@ -184,6 +203,8 @@ def add_output_options(ap: argparse.ArgumentParser, batch: bool) -> None:
 def add_criteria_options(ap: argparse.ArgumentParser) -> None:
     """The acceptance criteria (area, region, coverage) and the decision rule with the
     measurement uncertainty."""
+    from qifreport.metrology.acceptance.decision import DECISION_RULES, DEFAULT_DECISION_RULE
+
     ap.add_argument(
         "--min-fraction",
         type=float,
@@ -275,6 +296,9 @@ def add_registration_options(ap: argparse.ArgumentParser) -> None:
     """The registration: the GB-CICP scheme, the pose search, the deformable method, the
     repeatability seeds and whether the virtual fixture applies (with the added-material
     criterion, which ``--help`` lists among them)."""
+    from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION
+    from qifreport.registration.deformable.methods import METHODS
+
     ap.add_argument(
         "--band-limit",
         type=float,
@@ -342,6 +366,11 @@ def add_registration_options(ap: argparse.ArgumentParser) -> None:
 def add_restraint_options(ap: argparse.ArgumentParser) -> None:
     """The restrained condition: clamps, material and loads (a group of its own in
     ``--help``)."""
+    from qifreport.metrology.params import RESTRAINT_CONDITIONS
+    from qifreport.registration.restraint.fixture_load import DEFAULT_MAX_FORCE
+
+    from .restraint import DEFAULT_PAD_RADIUS
+
     held = ap.add_argument_group(
         "restrained condition (ISO 10579, ASME Y14.5 restraint notes)",
         "hold the part at its clamps by its elastic model instead of the free virtual fixture",

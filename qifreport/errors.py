@@ -12,6 +12,10 @@ import sys
 from pathlib import Path
 
 __all__ = [
+    "EXIT_ERROR",
+    "EXIT_FAIL",
+    "EXIT_NOT_ESTABLISHED",
+    "EXIT_PASS",
     "InputError",
     "Interrupted",
     "file_kind",
@@ -20,6 +24,11 @@ __all__ = [
     "raise_if_interrupted",
     "require_file",
 ]
+
+
+#: the command's exit codes: the part passes, fails, the input cannot be inspected, the
+#: verdict is not established
+EXIT_PASS, EXIT_FAIL, EXIT_ERROR, EXIT_NOT_ESTABLISHED = 0, 1, 2, 3
 
 
 class InputError(ValueError):

@@ -1,6 +1,6 @@
 """The console entry point: the signals are caught before the command's libraries load.
 
-Loading the command line imports NumPy, SciPy, trimesh and the product: about a second, and
+A command that measures imports NumPy, SciPy, trimesh and the product: about a second, and
 several on a loaded machine. A SIGTERM or SIGHUP in that time would end the process by the
 signal's default action (no message, no exit code of ours), a Ctrl-C with a traceback. Here
 they become :class:`qifreport.errors.Interrupted` from the first instruction, and an

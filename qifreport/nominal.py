@@ -293,6 +293,7 @@ def _step_info(
             "vertices": n_vertices,
             "triangles": n_triangles,
         },
+        "product": pmi.product.to_dict() if pmi is not None and pmi.product else None,
         "pmi_counts": {
             "tolerances": len(pmi.tolerances) if pmi else 0,
             "dimensions": len(pmi.dimensions) if pmi else 0,

@@ -13,7 +13,8 @@ per-part cache (:mod:`qifreport.cache`) take nothing else. All lengths are mm, a
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+import re
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from qifreport.errors import InputError
@@ -50,11 +51,13 @@ from .restraint import (
 )
 
 __all__ = [
+    "DEFAULT_NAME",
     "RESULT_OPTIONS",
     "InspectJob",
     "InspectOptions",
     "NominalOptions",
     "check_text",
+    "output_name",
 ]
 
 #: the options that change a scan's outputs (a batch record's digest covers them)
@@ -72,6 +75,9 @@ RESULT_OPTIONS = (
     "author",
     "organization",
     "operator",
+    "part_number",
+    "revision",
+    "temperature",
     "min_fraction",
     "max_region_area",
     "energy",
@@ -120,6 +126,49 @@ def check_text(flag: str, value: str | None) -> None:
         raise InputError(f"{flag} is longer than 200 characters ({len(value)})")
 
 
+#: the outputs' default file stem: the part, and its serial number when there is one
+DEFAULT_NAME = "{part}[_{serial}]"
+
+
+def output_name(template: str, fields: dict[str, str]) -> str:
+    """An output file stem from ``template`` and its ``fields`` (``part``, ``serial``,
+    ``scan``): ``{field}`` is the field's value, characters a file name should not hold
+    (anything but letters, digits, ``.``, ``_``, ``-`` and ``+``) as ``_``; a part in
+    ``[...]`` is left out when a field in it is empty. :class:`InputError` for an unknown
+    field, unbalanced brackets, or a name that is empty or only dots."""
+
+    def fill(text: str) -> tuple[str, bool]:
+        out, empty = "", False
+        for m in re.finditer(r"\{([^{}]*)\}|[^{}]+|[{}]", text):
+            if m.group(0) in "{}":
+                raise InputError(f"--name {template!r}: an unmatched brace")
+            if m.group(1) is None:
+                out += m.group(0)
+                continue
+            if m.group(1) not in fields:
+                raise InputError(
+                    f"--name {template!r}: unknown field {{{m.group(1)}}} (fields: "
+                    f"{', '.join('{' + k + '}' for k in fields)})"
+                )
+            value = re.sub(r"[^A-Za-z0-9._+-]", "_", fields[m.group(1)])
+            empty |= value == ""
+            out += value
+        return out, empty
+
+    if template.count("[") != template.count("]") or re.search(r"\[[^\]]*\[", template):
+        raise InputError(f"--name {template!r}: unbalanced or nested [ ]")
+    name = ""
+    for m in re.finditer(r"\[([^\]]*)\]|[^\[\]]+", template):
+        if m.group(1) is None:
+            name += fill(m.group(0))[0]
+        else:
+            part, empty = fill(m.group(1))
+            name += "" if empty else part
+    if not name.strip(".") or "/" in name:
+        raise InputError(f"--name {template!r} gives no file name ({name!r})")
+    return name
+
+
 @dataclass(frozen=True)
 class NominalOptions:
     """How the nominal file is read (mm): ``--tolerance``, ``--max-edge``, ``--deflection``,
@@ -155,6 +204,10 @@ class InspectOptions:
         (:mod:`qifreport.reports.html`).
     page : PDF paper size, ``"A4"`` or ``"Letter"``.
     author, organization, operator : QIF header and traceability fields.
+    part_number, revision : the part's number and drawing revision (None: the STEP
+        file's product's, :mod:`qifreport.step.product`).
+    temperature : the part's temperature while scanned, deg C (None: the scanner
+        profile's, else not stated); it enters the profile's thermal term.
     min_fraction : area criterion, in-tolerance fraction of the scored area (0, 1].
     max_region_area : region criterion, mm^2 (None: the metrology default).
     energy : ``"auto"``, ``"hessian"`` or ``"laplacian"``.
@@ -212,6 +265,9 @@ class InspectOptions:
     author: str | None = None
     organization: str | None = None
     operator: str | None = None
+    part_number: str | None = None
+    revision: str | None = None
+    temperature: float | None = None
     min_fraction: float = 0.95
     max_region_area: float | None = None
     energy: str = "auto"
@@ -331,8 +387,16 @@ class InspectOptions:
             ("--author", self.author),
             ("--organization", self.organization),
             ("--operator", self.operator),
+            ("--part-number", self.part_number),
+            ("--revision", self.revision),
         ):
             check_text(flag, v)
+        if self.temperature is not None and not (
+            math.isfinite(self.temperature) and -100.0 <= self.temperature <= 400.0
+        ):
+            raise InputError(
+                f"--temperature must be the part's temperature in deg C, got {self.temperature}"
+            )
 
     def _check_restraint(self) -> None:
         """Refuse a ``--restraint`` that another option contradicts."""
@@ -443,11 +507,15 @@ class InspectOptions:
         """The ``--scanner`` profile read (:class:`~qifreport.errors.InputError`, one line,
         for a file that cannot be used), or the default scanner class without one."""
         if self.scanner is None:
-            return DEFAULT_SCANNER
-        try:
-            return load_scanner(self.scanner)
-        except ScannerProfileError as exc:
-            raise InputError(f"--scanner: {exc}") from None
+            profile = DEFAULT_SCANNER
+        else:
+            try:
+                profile = load_scanner(self.scanner)
+            except ScannerProfileError as exc:
+                raise InputError(f"--scanner: {exc}") from None
+        if self.temperature is not None:  # the operator's reading stands for the profile's
+            profile = replace(profile, temperature=self.temperature)
+        return profile
 
     def restraint_spec(self, nominal: Path | None = None) -> RestraintSpec | None:
         """How the part is held, when a restrained inspection may use it: the ``--clamps``
@@ -524,7 +592,10 @@ class InspectJob:
     ----------
     nominal, scan : the input files.  out : output directory.
     options : the run's :class:`InspectOptions`.
-    stem : output file stem (default: the nominal's stem).
+    stem : output file stem (default: from ``name``).
+    name : the output file stem's template (:data:`DEFAULT_NAME`): ``{part}`` the
+        nominal's stem, ``{serial}`` the serial number, ``{scan}`` the scan's stem; a part
+        between ``[`` and ``]`` is left out when a field in it is empty (no serial).
     serial : serial number of the part.  json : also write ``<stem>.json``.
     export_mesh : also write the registered nominal as PLY there.
     force : overwrite existing outputs.
@@ -536,6 +607,7 @@ class InspectJob:
     options: InspectOptions = field(default_factory=InspectOptions)
     stem: str | None = None
     serial: str | None = None
+    name: str = DEFAULT_NAME
     json: bool = False
     export_mesh: Path | None = None
     force: bool = False
@@ -544,6 +616,7 @@ class InspectJob:
         """Refuse bad options and an output path that two outputs share."""
         self.options.check()
         check_text("--serial", self.serial)
+        check_text("--name", self.name)
         seen: dict[Path, str] = {}
         for kind, path in self.output_paths().items():
             key = path.resolve()
@@ -555,9 +628,12 @@ class InspectJob:
 
     @property
     def base(self) -> Path:
-        """The outputs' path without a suffix: ``out / stem`` (the nominal's stem unless
-        ``stem`` is given)."""
-        return self.out / (self.nominal.stem if self.stem is None else self.stem)
+        """The outputs' path without a suffix: ``out / stem`` (``stem`` when given, else the
+        ``name`` template filled: ``panel_SN-0042``)."""
+        if self.stem is not None:
+            return self.out / self.stem
+        fields = {"part": self.nominal.stem, "serial": self.serial or "", "scan": self.scan.stem}
+        return self.out / output_name(self.name, fields)
 
     def output_paths(self) -> dict[str, Path]:
         """The files this job writes: ``qif``, ``pdf``, ``html``, ``json``, ``mesh`` (those

@@ -32,7 +32,14 @@ import numpy as np
 
 from qifreport import __version__
 from qifreport.atomic_io import atomic_write_many, output_lock, remove_stale_temps
-from qifreport.errors import InputError, require_file
+from qifreport.errors import (
+    EXIT_ERROR,
+    EXIT_FAIL,
+    EXIT_NOT_ESTABLISHED,
+    EXIT_PASS,
+    InputError,
+    require_file,
+)
 from qifreport.metrology.acceptance.bands import ToleranceZone
 from qifreport.metrology.acceptance.repeatability import KEEP_FRACTION, resample_mask
 from qifreport.metrology.acceptance.repeatability import apply as apply_repeatability
@@ -82,12 +89,12 @@ __all__ = [
     "scan_input",
     "stale_siblings",
     "summary_document",
+    "traceability",
     "write_ply_with_scalar",
 ]
 
 log = logging.getLogger(__name__)
 
-EXIT_PASS, EXIT_FAIL, EXIT_ERROR, EXIT_NOT_ESTABLISHED = 0, 1, 2, 3
 
 #: a writer of one output: called with the temporary path to write
 Writer = Callable[[Path], object]
@@ -396,6 +403,33 @@ def inspect_state(
     return res
 
 
+def traceability(part: Part, job: InspectJob, started: datetime, finished: datetime) -> dict:
+    """Who and what the inspection is of and by (the JSON summary's ``traceability``, the
+    report header's and the QIF's fields): the part number and revision (the operator's,
+    else the STEP product's), serial number, people, instrument, the part's temperature,
+    when it ran (ISO 8601, UTC)."""
+    o = job.options
+    product = part.info.get("product") or {}
+    number = o.part_number or product.get("number")
+    revision = o.revision or product.get("revision")
+    source = "operator" if o.part_number else ("step" if number else None)
+    profile = o.scanner_profile()
+    instrument = profile.name + (f" ({profile.model})" if profile.model else "")
+    return {
+        "part_number": number,
+        "revision": revision,
+        "part_number_source": source,
+        "serial": job.serial,
+        "operator": o.operator,
+        "organization": o.organization,
+        "author": o.author,
+        "instrument": instrument,
+        "temperature_C": profile.temperature,
+        "started": started.isoformat(timespec="seconds"),
+        "finished": finished.isoformat(timespec="seconds"),
+    }
+
+
 def _provenance(
     part: Part,
     drawing: Drawing,
@@ -426,6 +460,7 @@ def _provenance(
         operator=o.operator,
         serial_number=job.serial,
         plan=plan_source(part, drawing, job, digests["nominal"]),
+        trace=traceability(part, job, started, finished),
     )
 
 
@@ -436,10 +471,11 @@ def _json_writer(
     digests: dict[str, str],
     scan_report: ThinningReport | None,
     qif_state: dict | None,
+    times: tuple[datetime, datetime],
 ) -> Writer:
     """The writer of the JSON summary (:func:`summary_document` with the QIF's
     ``qif_state``, filled by the QIF writer, which runs first)."""
-    doc = summary_document(res, part, job, digests, scan_report)
+    doc = summary_document(res, part, job, digests, scan_report, times)
 
     def write_json(p: Path) -> None:  # runs after the QIF writer: its state is known
         if qif_state is not None:
@@ -455,12 +491,15 @@ def summary_document(
     job: InspectJob,
     digests: dict[str, str],
     scan_report: ThinningReport | None,
+    times: tuple[datetime, datetime],
 ) -> dict:
     """The JSON summary (``schemas/summary-1.schema.json``) but its ``qif`` block: the
-    inspection's :meth:`~qifreport.metrology.results.InspectionResult.to_dict` with the
-    software, the nominal, the inputs and their ``digests`` and the ``scan_report``."""
+    inspection's :meth:`~qifreport.metrology.results.InspectionResult.to_dict` with its
+    :func:`traceability` (``times``: started, finished), the software, the nominal, the
+    inputs and their ``digests`` and the ``scan_report``."""
     doc = res.to_dict()
     doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}
+    doc["traceability"] = traceability(part, job, *times)
     doc["software"] = {
         "name": "qifreport",
         "version": __version__,
@@ -524,7 +563,10 @@ def output_writers(
         outputs.append((paths["html"], lambda p: write_html(p, res, prov, face_id=part.face_id)))
     if job.json:
         outputs.append(
-            (paths["json"], _json_writer(res, part, job, digests, scan_report, qif_state))
+            (
+                paths["json"],
+                _json_writer(res, part, job, digests, scan_report, qif_state, (started, finished)),
+            )
         )
     if "mesh" in paths:
         outputs.append(
@@ -626,7 +668,9 @@ class JobOutcome:
     def summary(self, job: InspectJob) -> dict:
         """The JSON summary of ``job`` (what ``<stem>.json`` holds), JSON-ready."""
         i = self.inspected
-        doc = summary_document(i.result, i.state.part, job, i.digests, i.scan_report)
+        doc = summary_document(
+            i.result, i.state.part, job, i.digests, i.scan_report, (i.started, i.finished)
+        )
         if self.qif is not None:
             doc["qif"] = self.qif
         return finite(doc)

@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from .product import ProductIdentity
+
 __all__ = [
     "ALL_TARGETS",
     "PMI",
@@ -328,6 +330,8 @@ class PMI:
     restraint : the first drawing note that states a restraint (ISO 10579-NR, "part
         restrained"), None when the file carries none.
     material : the part's material as the file states it, None when it states none.
+    product : the part's number, name and revision as the file states them
+        (:func:`qifreport.step.product.product_identity`), None without a product.
     """
 
     schema: str
@@ -339,6 +343,7 @@ class PMI:
     problems: list[str] = field(default_factory=list)
     restraint: RestraintNote | None = None
     material: MaterialNote | None = None
+    product: ProductIdentity | None = None
 
     def reader_warnings(self) -> list[str]:
         """The exporter quirks the reader put right, one line each naming the item

@@ -43,6 +43,7 @@ from .material import material_note
 from .notes import restraint_note
 from .p21 import P21Model, Ref
 from .pmi import PMI, Dimension, GeometricTolerance
+from .product import product_identity
 from .tolerances import ToleranceReader
 from .units import Measure, Unit, length_name
 
@@ -123,6 +124,7 @@ def pmi_from_model(model: P21Model) -> PMI:
         problems=list(dict.fromkeys(r.problems + unread)),
         restraint=restraint_note(model),
         material=material_note(model),
+        product=product_identity(model),
     )
     log.debug(
         "semantic PMI: %d tolerances (%.3f s), %d dimensions and %d datums (%.3f s)",

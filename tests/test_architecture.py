@@ -39,7 +39,7 @@ LIBRARY = {"qifreport.step", "qifreport.registration", "qifreport.metrology", "q
 def lint_imports_exe() -> str:
     exe = Path(sys.executable).with_name("lint-imports")
     if not exe.exists():
-        msg = "lint-imports (import-linter) is not installed: make install"
+        msg = "lint-imports (import-linter) is not installed: make install-dev (make test does)"
         if os.environ.get("CI") == "true":
             pytest.fail(msg)
         pytest.skip(msg)
@@ -203,7 +203,7 @@ def test_ruff_check_and_format_are_clean():
     """The style rules hold in CI too: ``ruff check`` and ``ruff format --check``."""
     ruff = Path(sys.executable).with_name("ruff")
     if not ruff.exists():
-        msg = "ruff is not installed: make install"
+        msg = "ruff is not installed: make install-dev (make test does)"
         if os.environ.get("CI") == "true":
             pytest.fail(msg)
         pytest.skip(msg)

@@ -246,7 +246,8 @@ def test_summary_table_has_the_characteristics(batch):
     for name in SCANS:
         for c in batch.json[name]["characteristics"]:
             key = c["key"]
-            assert df.loc[name, f"value_{key}_mm"] == pytest.approx(c["value"], rel=1e-12)
+            # the table's lengths to 0.1 um (the JSON keeps every digit)
+            assert df.loc[name, f"value_{key}_mm"] == pytest.approx(c["value"], abs=5.01e-5)
             assert df.loc[name, f"tolerance_{key}_mm"] == c["tolerance_mm"] == 0.2
             # the QIF's value (written to 4 decimals) and status
             q = batch.qif[name][key]
@@ -325,7 +326,7 @@ def test_trend_report_charts_the_characteristics(batch):
         n_pass = int((df[f"status_{key}"] == "PASS").sum())
         line = (
             f"n 3 mean {v.mean():.3f} \u03c3 {v.std(ddof=1):.3f} max {v.max():.3f} mm "
-            f"Cpk {(0.2 - v.mean()) / (3 * v.std(ddof=1)):.2f} PASS {n_pass} of 3"
+            f"Cpk: n < 25 PASS {n_pass} of 3"  # no capability index from 3 scans
         )
         assert line in flat, line
     # the dent's G2 point: red, above G2's tolerance line, where the layout puts it

@@ -290,3 +290,31 @@ def test_json_dash_prints_the_summary_and_a_reader_that_leaves_is_no_error(tmp_p
     w = run("pmi", step, "--json", tmp_path / "pmi.json")
     assert w.returncode == 0 and json.loads((tmp_path / "pmi.json").read_text()) == printed
     assert len(printed["items"]) == 7
+
+
+@pytest.mark.parametrize(
+    "argv, heavy",
+    [
+        (["--help"], ("numpy", "scipy", "trimesh", "qifreport.metrology", "OCP")),
+        (["pmi", "--help"], ("numpy", "scipy", "trimesh", "qifreport.metrology", "OCP")),
+        (["pmi", str(SAMPLES / "panel.step")], ("scipy", "trimesh", "qifreport.metrology")),
+    ],
+)
+def test_help_and_pmi_do_not_load_the_measurement_stack(argv, heavy):
+    """``qifreport --help`` is a parser and ``pmi`` a STEP reader: neither imports SciPy,
+    trimesh or the measurement code (bench/startup.py times them)."""
+    code = (
+        "import sys\n"
+        "from qifreport.cli import main\n"
+        "try:\n"
+        f"    main({argv!r})\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "print('MODULES', ' '.join(sorted(sys.modules)), file=sys.stderr)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    line = next(x for x in r.stderr.splitlines() if x.startswith("MODULES "))
+    loaded = set(line.split()[1:])
+    assert "argparse" in loaded and "qifreport.cli" in loaded
+    found = sorted(m for m in loaded if any(m == h or m.startswith(h + ".") for h in heavy))
+    assert not found, found[:10]

@@ -190,3 +190,47 @@ def test_datum_face_bowed_beyond_its_flatness_fails_free(scans):
     reg = doc["registration"]
     assert reg["fixture"]["decision"] == "rigid only" and reg["fit"] is None, reg["fixture"]
     assert reg.get("fixture_load") is None, reg.get("fixture_load")
+
+
+def test_every_item_that_does_not_pass_is_on_the_page(scans, tmp_path):
+    """FTC 06 (some 40 characteristics and zones) with datum A's face domed: the one page
+    lists every characteristic and toleranced surface that does not pass, counts the rest
+    with their results, and sends no reason to the QIF file alone."""
+    import subprocess
+
+    from qifreport.simulate.brep_scan import dome
+    from tests.consumers import poppler_tool
+    from tests.nist_scans import EXE
+
+    s = scans(PART)
+    Q, _ = dome(s.scan.P, s.scan.normal, s.scan.face, DATUM_A_FACE, 0.3)
+    doc = s.run(Q, "domed")
+    chars, zones = doc["characteristics"], pmi_zones(doc)
+    assert len(chars) + len(zones) >= 35
+    scan = s.tmp / f"{s.step.stem}_domed.npy"
+    r = subprocess.run(
+        [str(EXE), str(s.step), str(scan), "--out", str(tmp_path), "--no-qif", "--quiet"],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 1, r.stderr[-2000:]
+    pdf = tmp_path / f"{s.step.stem}.pdf"
+    text = subprocess.run(
+        [poppler_tool("pdftotext"), "-layout", str(pdf), "-"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
+    assert text.count("\f") == 1  # one page
+    starts = {ln.split()[0] for ln in text.splitlines() if ln.split()}
+    # (a basic dimension has no verdict: it is counted, not listed, when room is short)
+    not_passing = [c["key"] for c in chars if c["status"] not in ("PASS", "BASIC")]
+    not_passing += [z["key"] for z in zones if z["verdict"] != "PASS"]
+    assert DATUM_A_FLATNESS in not_passing
+    missing = [k for k in not_passing if k not in starts]
+    status = {c["key"]: c["status"] for c in chars}
+    assert not missing, [(k, status.get(k)) for k in missing]
+    listed = sum(1 for c in chars if c["key"] in starts)
+    if listed < len(chars):  # the rest counted, with their results
+        assert f"+ {len(chars) - listed} more (" in text
+    assert "see the QIF file" not in text

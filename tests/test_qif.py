@@ -73,7 +73,8 @@ def runs(tmp_path_factory, shell, shell_case, shell_case_defect):
             "Op One",
         ]
     )
-    out["pass"] = (rc, d / "shell.qif", json.loads((d / "shell.json").read_text()))
+    # named after the part and its serial number
+    out["pass"] = (rc, d / "shell_SN-0001.qif", json.loads((d / "shell_SN-0001.json").read_text()))
 
     d = tmp_path_factory.mktemp("qif-fail")
     nom, scan = _write_shell(V, F, shell_case_defect.P, d)

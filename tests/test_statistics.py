@@ -71,8 +71,9 @@ def _num(el, path: str) -> float:
 
 @pytest.fixture(scope="module")
 def batch(tmp_path_factory):
-    """The three per-scan QIF files (``<run>/shell_nominal.qif``), the statistics document
-    ``statistics.qif`` beside their folders, and what was read back."""
+    """The three per-scan QIF files (``<run>/shell_nominal_<run>.qif``: named with their
+    serial numbers), the statistics document ``statistics.qif`` beside their folders, and
+    what was read back."""
     from qifreport.cli import main
 
     d = tmp_path_factory.mktemp("batch")
@@ -95,7 +96,7 @@ def batch(tmp_path_factory):
                 ]
             )
         assert exc.value.code in (0, 1), f"{name}: exit {exc.value.code}"
-    sources = [f"{name}/shell_nominal.qif" for name, _, _ in RUNS]
+    sources = [f"{name}/shell_nominal_{name}.qif" for name, _, _ in RUNS]
     results = [read_results(d / s) for s in sources]
     sha = hashlib.sha256(nominal.read_bytes()).hexdigest()
     tree = build_statistics(

@@ -219,11 +219,16 @@ def test_chart_statistics_and_labels(batch):
         v = v[np.isfinite(v)]
         mean, sigma = v.mean(), v.std(ddof=1)
         cpk = (ch.tolerance_mm - mean) / (3 * sigma)
+        # a capability index from 25 values, with its 95 % interval (Bissell)
+        half = 1.96 * np.sqrt(1 / (9 * len(v)) + cpk**2 / (2 * (len(v) - 1)))
+        shown = (
+            f"Cpk {cpk:.2f} [{cpk - half:.2f}, {cpk + half:.2f}]" if len(v) >= 25 else "Cpk: n < 25"
+        )
         n_pass = int((df[f"status_{ch.key}"] == "PASS").sum())
         n_judged = int(df[f"status_{ch.key}"].isin(["PASS", "FAIL", "NOT ESTABLISHED"]).sum())
         line = (
             f"n {len(v)}   mean {fmt_mm(mean)}   \u03c3 {fmt_mm(sigma)}   max "
-            f"{fmt_mm(v.max())} mm   Cpk {cpk:.2f}   PASS {n_pass} of {n_judged}"
+            f"{fmt_mm(v.max())} mm   {shown}   PASS {n_pass} of {n_judged}"
         )
         assert " ".join(line.split()) in " ".join(text.split()), line
         assert ch.key in text and ch.description[:30] in text
@@ -299,10 +304,13 @@ def test_axes_match_the_geometry(batch):
         assert len(yticks) >= 3, ch.key
         for v, y in yticks:
             assert abs(y - float(geo.y(v))) < 2.0, (ch.key, v)
+        # the ticks name the scans' serial numbers (SN-1000 + sequence here)
         xticks = [
-            (int(w), x)
+            (int(w[3:]) - 1000, x)
             for w, x, y in words
-            if w.isdigit() and pa.x - 5 < x < pa.x + pa.w + 5 and pa.y - 10 < y < pa.y
+            if re.fullmatch(r"SN-\d+", w)
+            and pa.x - 5 < x < pa.x + pa.w + 5
+            and pa.y - 10 < y < pa.y
         ]
         assert [t for t, _ in xticks] == [1, 5, 10, 15, 20, 25]
         for t, x in xticks:
@@ -371,7 +379,7 @@ def test_long_batch(tmp_path):
         ticks = seq_ticks(n, geo.plot.w)
         assert 3 <= len(ticks) <= 15 and ticks[0] == 1 and ticks[-1] == n
         assert np.diff(geo.x(np.array(ticks))).min() >= 30.0
-        assert all(re.search(rf"\b{t}\b", text) for t in ticks)
+        assert all(re.search(rf"\bSN-{1000 + t}\b", text) for t in ticks)  # serial numbers
     # no number for every scan: the text stays short
     assert len(re.findall(r"\d+", text)) < 300
     # failing points (1.3 to 1.6 times the tolerance) are red above the tolerance line
@@ -389,7 +397,7 @@ def test_three_scans(tmp_path):
     lay, text, img, info = out.lay, out.text, out.img, out.info
     assert info["Pages"] == "1"
     assert seq_ticks(3, lay.charts[0].plot.w) == [1, 2, 3]
-    assert re.search(r"\b1\s+2\s+3\b", text)
+    assert re.search(r"\bSN-1001\s+SN-1002\s+SN-1003\b", text)  # each scan's serial number
     assert "50.0 %" not in text and f"{100 * 2 / 3:.1f} %" in text
     geo = lay.charts[0]
     v = df["profile_T1_mm"].to_numpy(float)
@@ -553,10 +561,8 @@ def _dimension_line(
     m, s = v.mean(), v.std(ddof=1)
     n_pass = int((df[f"status_{key}"] == "PASS").sum())
     n_judged = int(df[f"status_{key}"].isin(["PASS", "FAIL", "NOT ESTABLISHED"]).sum())
-    tail = (
-        f"Cp {(hi - lo) / (6 * s):.2f} Cpk {min(hi - m, m - lo) / (3 * s):.2f} "
-        f"PASS {n_pass} of {n_judged}"
-    )
+    assert len(v) < 25  # a capability index is not stated from fewer values
+    tail = f"Cp, Cpk: n < 25 PASS {n_pass} of {n_judged}"
     if extremes:
         return (
             f"n {len(v)} mean {fmt_mm(m)} \u03c3 {fmt_mm(s)} min {fmt_mm(v.min())} max "
@@ -593,7 +599,7 @@ def test_feature_charts_and_their_statistics(features):
     v = v[np.isfinite(v)]
     line = (
         f"n {len(v)} mean {fmt_mm(v.mean())} \u03c3 {fmt_mm(v.std(ddof=1))} max "
-        f"{fmt_mm(v.max())} mm Cpk {(0.2 - v.mean()) / (3 * v.std(ddof=1)):.2f} PASS 15 of 15"
+        f"{fmt_mm(v.max())} mm Cpk: n < 25 PASS 15 of 15"
     )
     assert line in flat, line
     # a dimension: two-sided, Cp and Cpk between its limits (its lower side decides Cpk);
@@ -771,3 +777,21 @@ def test_dimension_stats_by_hand():
     st = spc.characteristic_stats(v, v.astype(str), 10.0)
     assert st.min == 9.89 and np.isnan(st.cp)
     assert spc.capability(1.0, 0.0, 5, 0.0, 2.0) == pytest.approx((np.nan, np.nan), nan_ok=True)
+
+
+def test_a_capability_index_is_stated_from_25_values_with_its_interval():
+    from qifreport.metrology import spc
+    from qifreport.reports.trend.run_chart import capability_text
+
+    rng = np.random.default_rng(2)
+    few = rng.normal(0.1, 0.02, 2)  # the batch of two that once printed Cpk 1736.06
+    st = spc.characteristic_stats(few, np.array(["PASS"] * 2), 0.5)
+    assert np.isfinite(st.cpk) and capability_text(st, False) == "Cpk: n < 25"
+    v = rng.normal(0.1, 0.02, 30)
+    st = spc.characteristic_stats(v, np.array(["PASS"] * 30), 0.5)
+    cpk = (0.5 - v.mean()) / (3 * v.std(ddof=1))
+    half = 1.96 * np.sqrt(1 / (9 * 30) + cpk**2 / (2 * 29))
+    assert st.cpk_interval() == pytest.approx((cpk - half, cpk + half))
+    assert capability_text(st, False) == f"Cpk {cpk:.2f} [{cpk - half:.2f}, {cpk + half:.2f}]"
+    # the interval of a Cpk near 6 from 30 scans is some +/-1.5 wide: the bound is real
+    assert 1.0 < half < 2.0

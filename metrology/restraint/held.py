@@ -17,7 +17,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.stats import t as student_t
 
 from qifreport.metrology.deviation.closest import closest_points
 from qifreport.metrology.deviation.surface import surface_distance
@@ -632,6 +631,8 @@ def median_uncertainty(values: np.ndarray) -> float:
     v = v[np.isfinite(v)]
     if len(v) < 3:
         return 0.0
+    from scipy.stats import t as student_t  # (scipy.stats: a third of a second to import)
+
     sigma = float(np.subtract(*np.percentile(v, [75, 25]))) / 1.349
     k = max(2.0, float(student_t.ppf(0.975, len(v) - 1)))
     return k * 1.2533 * sigma / np.sqrt(len(v))

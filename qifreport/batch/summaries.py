@@ -41,7 +41,10 @@ log = logging.getLogger("qifreport.batch")
 COLUMNS = (
     "seq",
     "id",
+    "started",
     "serial",
+    "part_number",
+    "revision",
     "scan",
     "nominal",
     "verdict",
@@ -63,7 +66,19 @@ COLUMNS = (
     "fit_residual_mm",
     "flagged_fraction",
 )
-TAIL = ("decided_by", "seconds", "worker", "peak_rss_mib", "scan_sha256")
+TAIL = (
+    "decided_by",
+    "operator",
+    "instrument",
+    "temperature_C",
+    "seconds",
+    "worker",
+    "peak_rss_mib",
+    "scan_sha256",
+)
+#: decimals of the summary's values: lengths to 0.1 um (below any scanner's resolution),
+#: areas to 0.01 mm^2, percentages to 0.001 %; other numbers keep 6 significant digits
+DECIMALS = (("_mm", 4), ("_mm2", 2), ("_pct", 3), ("seconds", 2), ("_mib", 1))
 
 
 def summary_frame(records: list[dict]):
@@ -83,12 +98,28 @@ def summary_frame(records: list[dict]):
     first = [c for c in COLUMNS if c in df.columns]
     zones = [c for c in df.columns if c not in first and c not in TAIL]
     df = df[first + zones + [c for c in TAIL if c in df.columns]]
-    for col in ("serial", "criterion", "decided_by", "error"):
+    for col in ("serial", "criterion", "decided_by", "error", "part_number", "revision"):
         if col in df:
             df[col] = df[col].fillna("")
     status = [c for c in df.columns if c.startswith("status_")]
     df[status] = df[status].fillna("")
-    return df
+    return rounded(df)
+
+
+def rounded(df):
+    """The table's numbers to the decimals their unit calls for (:data:`DECIMALS`)."""
+    from pandas.api.types import is_float_dtype
+
+    out = df.copy()
+    for col in out.columns:
+        if not is_float_dtype(out[col]):
+            continue
+        places = next((n for suffix, n in DECIMALS if col.endswith(suffix)), None)
+        if places is not None:
+            out[col] = out[col].round(places)
+        else:
+            out[col] = [float(f"{v:.6g}") if np.isfinite(v) else v for v in out[col]]
+    return out
 
 
 #: a CSV text cell starting with one of these is a formula to a spreadsheet (CSV injection:

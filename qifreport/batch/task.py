@@ -32,7 +32,7 @@ from qifreport.registration.pointcloud import read_scan
 
 from ..cache import PartState
 from ..options import InspectJob
-from ..pipeline import inspect_state, output_writers, scan_input
+from ..pipeline import inspect_state, output_writers, scan_input, traceability
 from ..profile import peak_rss_bytes
 from .plan import ScanItem
 
@@ -155,6 +155,8 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
                 write(tmp)
                 files[path.name] = tmp.read_bytes()
         row = summary_row(res, item, task.scan_sha256, time.perf_counter() - t0)
+        trace = traceability(state.part, this, started, finished)
+        row.update({k: trace[k] for k in TRACE_COLUMNS})
         return TaskResult(
             item.id,
             True,
@@ -287,9 +289,14 @@ def deciding_criteria(res) -> str:
     return ";".join(out)
 
 
+#: the traceability fields each row of the summary carries (:func:`traceability`)
+TRACE_COLUMNS = ("started", "part_number", "revision", "operator", "instrument", "temperature_C")
+
+
 def error_row(item: ScanItem, scan_sha256: str, error: str) -> dict:
     """The row of a scan that could not be inspected."""
     return {
+        "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "seq": item.seq,
         "id": item.id,
         "scan": item.scan.name,

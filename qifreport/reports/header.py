@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -50,6 +51,7 @@ __all__ = [
     "decision_lines",
     "condition_line",
     "draw_header",
+    "title_condition",
     "draw_decision",
 ]
 
@@ -197,6 +199,20 @@ def condition_line(res: InspectionResult) -> str:
     return f"{where} ({res.condition.stated_by}){free}"
 
 
+def more_reasons(rest: list[str]) -> str:
+    """The reasons not listed, counted by what they are on (the part, or a tolerance's
+    key): ``+ 5 more reasons: whole part 2, T1 3 (each in the QIF file)``."""
+    on: dict[str, int] = {}
+    for r in rest:
+        r = re.sub(r"^(not established|not measured|failed|fail)\s*:\s*", "", r, flags=re.I)
+        subject = r.split(":", 1)[0].strip()
+        key = "whole part" if subject.startswith("whole part") else subject.split(" ", 1)[0]
+        on[key] = on.get(key, 0) + 1
+    listing = ", ".join(f"{k} {n}" for k, n in on.items())
+    s = "s" if len(rest) != 1 else ""
+    return f"+ {len(rest)} more reason{s} of the same verdict: {listing} (each in the QIF file)"
+
+
 def decision_lines(
     res: InspectionResult, width: float, limit: int
 ) -> tuple[list[tuple[str, bool]], int]:
@@ -215,14 +231,7 @@ def decision_lines(
         for j, s in enumerate(wrap_text(r, width - 10, 7.0)):
             lines.append((("\u2022 " if j == 0 else "   ") + s, True))
     if len(rs) > len(shown):
-        lines.append(
-            (
-                f"+ {len(rs) - len(shown)} more reason"
-                f"{'s' if len(rs) - len(shown) != 1 else ''}: see the QIF file "
-                "(decided_by attributes)",
-                False,
-            )
-        )
+        lines.append((more_reasons(rs[len(shown) :]), False))
     # what the operator relaxed qualifies every verdict: said here, where no note can
     # push it off the page
     relaxed = res.relaxed_guards()
@@ -231,6 +240,16 @@ def decision_lines(
         text = _display(f"Relaxed guard{'s' if len(relaxed) > 1 else ''}: {relaxed[0]}{more}")
         lines += [(s, True) for s in wrap_text(text, width, 7.0)]
     return lines, len(shown)
+
+
+def title_condition(res) -> str:
+    """The condition the part was judged in, as the title says it: held at its clamps,
+    in the virtual fixture (when one was applied), or in its free state (a rigid fit)."""
+    if res.restraint is not None:
+        return "RESTRAINED INSPECTION (ISO 10579)"
+    if res.fit is not None:
+        return "VIRTUAL FIXTURE INSPECTION"
+    return "FREE-STATE INSPECTION (RIGID FIT)"
 
 
 def draw_header(c: Canvas, ctx: ReportContext, box: Box) -> None:
@@ -258,17 +277,26 @@ def draw_header(c: Canvas, ctx: ReportContext, box: Box) -> None:
         c,
         box.x,
         box.top - 8,
-        "SURFACE DEVIATION REPORT \u2014 "
-        + (
-            "RESTRAINED INSPECTION (ISO 10579)"
-            if res.restraint is not None
-            else "VIRTUAL FIXTURE INSPECTION"
-        ),
+        "SURFACE DEVIATION REPORT \u2014 " + title_condition(res),
         7.0,
         True,
         MUTED,
     )
-    draw_text(c, box.x, box.top - 24, fit_text(prov.part_name, tw, 16, True), 16, True)
+    trace = prov.trace or {}
+    ident = "   ".join(
+        f"{k} {v}"
+        for k, v in (
+            ("part number", trace.get("part_number")),
+            ("revision", trace.get("revision")),
+            ("serial number", prov.serial_number),
+        )
+        if v
+    )
+    name = fit_text(prov.part_name, tw * (0.55 if ident else 1.0), 16, True)
+    draw_text(c, box.x, box.top - 24, name, 16, True)
+    if ident:
+        x = box.x + text_width(name, 16, True) + 10
+        draw_text(c, x, box.top - 24, fit_text(ident, box.x + tw - x, 8.0), 8.0, False, MUTED)
     dur = (prov.finished - prov.started).total_seconds() if prov.finished else math.nan
     people = [prov.operator or DASH, f"organization {prov.organization or DASH}"]
     if prov.author:
@@ -279,6 +307,9 @@ def draw_header(c: Canvas, ctx: ReportContext, box: Box) -> None:
         tail = f"   SHA-256 {short_sha(sha)}\u2026"
         return fit_text(Path(path).name, vw_ - text_width(tail, 7.0), 7.0) + tail
 
+    temp = trace.get("temperature_C")
+    if trace.get("instrument"):
+        people.append(f"instrument {trace['instrument']}")
     rows = [
         ("Nominal", file_line(prov.nominal_path, prov.nominal_sha256)),
         ("Scan", file_line(prov.scan_path, prov.scan_sha256)),
@@ -286,7 +317,8 @@ def draw_header(c: Canvas, ctx: ReportContext, box: Box) -> None:
             "Inspected",
             f"{fmt_utc(prov.started)}"
             + (f" ({dur:.0f} s)" if finite(dur) else "")
-            + f"   serial number {prov.serial_number or DASH}",
+            + f"   serial number {prov.serial_number or DASH}"
+            + (f"   part at {temp:g} \u00b0C" if temp is not None else ""),
         ),
         ("Operator", "    ".join(people)),
         (

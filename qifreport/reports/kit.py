@@ -255,6 +255,19 @@ class Table:
         if self.head_h > 0 and any("\n" in c[0] for c in self.columns):
             self.head_h = 17.0
 
+    #: lines the note wraps onto, at most (the last one cut)
+    NOTE_LINES = 3
+
+    def note_lines(self) -> list[str]:
+        """The note wrapped to the table's width (at most :attr:`NOTE_LINES` lines)."""
+        if not self.note:
+            return []
+        lines = wrap_text(self.note, self.width - 4, self.size)
+        if len(lines) > self.NOTE_LINES:
+            lines = lines[: self.NOTE_LINES]
+            lines[-1] = fit_text(lines[-1] + " \u2026", self.width - 4, self.size)
+        return lines
+
     @property
     def height(self) -> float:
         """Height of the drawn table (title, heading, rows and note), points."""
@@ -262,7 +275,7 @@ class Table:
             (11.0 if self.title else 0.0)
             + self.head_h
             + self.row_h * len(self.rows)
-            + (self.row_h if self.note else 0.0)
+            + self.row_h * len(self.note_lines())
         )
 
     @property
@@ -385,10 +398,8 @@ def draw_table(c: Canvas, x: float, top: float, t: Table) -> None:
                 draw_text(c, cx + 2, y - t.row_h + 2.4, s, t.size, bold, color)
             cx += w
         y -= t.row_h
-    if t.note:
-        draw_text(
-            c, x + 2, y - t.row_h + 2.4, fit_text(t.note, t.width - 4, t.size), t.size, False, MUTED
-        )
+    for line in t.note_lines():
+        draw_text(c, x + 2, y - t.row_h + 2.4, line, t.size, False, MUTED)
         y -= t.row_h
     c.setStrokeColorRGB(*RULE)
     c.setLineWidth(0.5)

@@ -64,7 +64,13 @@ from .notes import draw_notes_footer, fit_notes, note_lines, notes_height
 from .registration import registration_table
 from .render import RenderedView, render_views
 from .stats import draw_histogram, stats_table
-from .tables import characteristic_table, pick_tolerances, region_table, tolerance_table
+from .tables import (
+    characteristic_table,
+    not_passing_characteristics,
+    pick_tolerances,
+    region_table,
+    tolerance_table,
+)
 from .views import ViewSpec, picture_points
 
 log = logging.getLogger(__name__)
@@ -90,6 +96,11 @@ MAP_DPI = 200
 MAP_MAX_PT = 330.0
 #: the smallest map block: a 100 pt picture under its 11 pt caption
 MAP_MIN_PT = 111.0
+#: the note that stands for the histogram and the statistics when they are left out
+MID_LEFT_OUT = (
+    "The histogram and the whole part's statistics are left out: the items that do not pass "
+    "take their room (every figure is in the QIF file and the --json summary)."
+)
 
 
 @dataclass
@@ -101,7 +112,8 @@ class PageLayout:
     page : ``"A4"`` or ``"LETTER"``.  width, height : page size, points.
     views : the chosen camera directions, in the order of ``maps``.
     maps : one box per view (the picture).
-    colorbar : the colour bar block.  histogram : the histogram block.
+    colorbar : the colour bar block.  histogram : the histogram block (None: left out, the
+        items that do not pass took its room).
     regions_listed, tolerances_listed, reasons_listed : how many rows each list prints
         (the rest is summarised on the page and given in full in the QIF).
     scale : colour-scale limit, mm.
@@ -113,7 +125,7 @@ class PageLayout:
     views: list[ViewSpec]
     maps: list[Box]
     colorbar: Box
-    histogram: Box
+    histogram: Box | None
     regions_listed: int
     tolerances_listed: int
     reasons_listed: int
@@ -137,7 +149,7 @@ class _FixedBlocks:
 def shrink_steps(n_chr_fail: int) -> list[tuple[str, float, float]]:
     """The order in which the page's blocks are cut, as (block, floor, step): the maps'
     height (points) and the rows listed of the decision's reasons, the regions, the
-    tolerances and the characteristics (the ``n_chr_fail`` failing ones stay listed)."""
+    tolerances and the characteristics (the ``n_chr_fail`` that do not pass stay listed)."""
     return [
         ("map", 240.0, 5.0),
         ("dec", 6, 1),
@@ -158,8 +170,9 @@ def shrink_steps(n_chr_fail: int) -> list[tuple[str, float, float]]:
         ("tol", 2, 1),
         ("chr", 2, 1),
         ("dec", 1, 1),
-        ("chr", min(2, n_chr_fail), 1),  # failing ones stay listed
+        ("chr", min(2, n_chr_fail), 1),  # those that do not pass stay listed
         ("map", MAP_MIN_PT, 5.0),
+        ("mid", 0, 1),  # last: the histogram and the whole part's statistics
     ]
 
 
@@ -215,7 +228,10 @@ class _Report(ReportContext):
         h = HEADER_H + self.GAP
         h += 8.6 * len(dec) + self.GAP
         h += s["map"] + colorbar_height(self) + self.GAP
-        h += max(fx.stats.height, 160.0) + self.GAP
+        if s["mid"]:
+            h += max(fx.stats.height, 160.0) + self.GAP
+        else:  # its note instead
+            h += notes_height([(MID_LEFT_OUT, True)], self.CW)
         h += self.tolerance_table(s["tol"]).height + self.GAP
         h += self._chr_height(s["chr"])
         h += max(self.region_table(s["reg"], fx.reg_w).height, fx.regtab.height) + self.GAP
@@ -228,29 +244,28 @@ class _Report(ReportContext):
         can give."""
         res = self.res
         avail = self.H - 2 * self.MT
-        n_chr_fail = sum(c.status == "FAIL" for c in res.characteristics)
+        n_chr_fail = not_passing_characteristics(res)
         full = {
             "map": MAP_MAX_PT,
             "reg": len(res.acceptance.regions),
             "tol": len(res.zones),
             "dec": min(len(res.decided_by()), 8),
             "chr": len(res.characteristics),
+            "mid": 1,
         }
         st = dict(full)
         history = []
         for key, floor, step in shrink_steps(n_chr_fail):
+            if key == "mid":  # the notes are cut before the statistics go
+                self._cut_notes(st, fx, avail)
             before = st[key]
             while self._total(st, fx) > avail and st[key] - step >= floor - 1e-9:
                 st[key] -= step
             if st[key] != before:
                 history.append((key, before, step))
-        if self._total(st, fx) > avail:  # last, the notes: cut to the room left above the sign-off
-            over = self._total(st, fx) - avail
-            fx.notes = fit_notes(fx.notes, self.CW, notes_height(fx.notes, self.CW) - over)
-            if self._total(st, fx) > avail:
-                log.warning(
-                    "report content exceeds the page by %.0f pt", self._total(st, fx) - avail
-                )
+        self._cut_notes(st, fx, avail)
+        if self._total(st, fx) > avail:
+            log.warning("report content exceeds the page by %.0f pt", self._total(st, fx) - avail)
         self._grow_back(st, fx, avail, history)
         # leftover height goes to the maps, but no more than makes them larger: a picture
         # whose width limits the part gains nothing from height
@@ -266,6 +281,12 @@ class _Report(ReportContext):
             st["map"] -= 5.0
         self._grow_back(st, fx, avail, [(k, full[k], 1) for k in ("dec", "tol", "chr", "reg")])
         return st
+
+    def _cut_notes(self, st: dict, fx: _FixedBlocks, avail: float) -> None:
+        """Cut the notes (``fx.notes``) to the room left above the sign-off, if need be."""
+        if self._total(st, fx) > avail:
+            over = self._total(st, fx) - avail
+            fx.notes = fit_notes(fx.notes, self.CW, notes_height(fx.notes, self.CW) - over)
 
     def _grow_back(
         self, st: dict, fx: _FixedBlocks, avail: float, history: list[tuple[str, float, float]]
@@ -299,10 +320,17 @@ class _Report(ReportContext):
         y -= mh
         cb = Box(x0, y - colorbar_height(self), self.CW, colorbar_height(self))
         y -= colorbar_height(self) + self.GAP
-        mid_h = max(fx.stats.height, 160.0)
-        hist = Box(x0, y - mid_h, fx.hist_w, mid_h)
-        blocks["stats"] = (Box(x0 + fx.hist_w + 12.0, y - mid_h, fx.stats.width, mid_h), fx.stats)
-        y -= mid_h + self.GAP
+        hist = None
+        if st["mid"]:
+            mid_h = max(fx.stats.height, 160.0)
+            hist = Box(x0, y - mid_h, fx.hist_w, mid_h)
+            blocks["stats"] = (
+                Box(x0 + fx.hist_w + 12.0, y - mid_h, fx.stats.width, mid_h),
+                fx.stats,
+            )
+            y -= mid_h + self.GAP
+        else:  # the items that do not pass took the room: say where the statistics are
+            fx.notes.insert(0, (MID_LEFT_OUT, True))
         tol = self.tolerance_table(st["tol"])
         blocks["tolerances"] = (Box(x0, y - tol.height, self.CW, tol.height), tol)
         y -= tol.height + self.GAP
@@ -355,9 +383,10 @@ class _Report(ReportContext):
         draw_decision(c, *b["decision"])
         draw_maps(c, lay.maps, views, lay.regions_listed, calls)
         draw_colorbar(c, self, lay.colorbar)
-        draw_histogram(c, self, lay.histogram)
-        box, t = b["stats"]
-        draw_table(c, box.x, box.top, t)
+        if lay.histogram is not None:
+            draw_histogram(c, self, lay.histogram)
+            box, t = b["stats"]
+            draw_table(c, box.x, box.top, t)
         for key in ("tolerances", "characteristics", "regions", "registration"):
             if key not in b:
                 continue

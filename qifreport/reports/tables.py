@@ -9,18 +9,34 @@
 
 from __future__ import annotations
 
+import re
+
 from qifreport.kinds import kind_label
 from qifreport.metrology.inspection import InspectionResult, ZoneResult
 from qifreport.qif.profile_characteristics import profile_value
 
-from .kit import Table, fit_text, fmt_area, fmt_band, fmt_mm, fmt_pct, fmt_smm, join_names
+from .kit import (
+    Table,
+    fit_text,
+    fmt_area,
+    fmt_band,
+    fmt_mm,
+    fmt_pct,
+    fmt_smm,
+    join_names,
+    wrap_text,
+)
 
 __all__ = [
     "characteristic_table",
+    "not_passing_characteristics",
+    "not_passing_tolerances",
     "pick_characteristics",
     "pick_tolerances",
     "region_table",
     "tolerance_table",
+    "used_share",
+    "wrapped_row",
     "zone_status",
 ]
 
@@ -79,6 +95,7 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
         cut = desc.find(" [")
         if cut > 0:  # the band has its own column
             desc = desc[:cut] + desc[desc.find("]", cut) + 1 :]
+        desc = re.sub(r" \(pmi #\d+\)", "", desc)  # the STEP id is in the QIF file
         if not z.fixtured:
             desc += ", free state"
         status = zone_status(res, z)
@@ -116,27 +133,28 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
             "\u2014 every tolerance is in "
             "the QIF file"
         )
-    if not res.established:
-        note = (
-            "n/e = criteria met, not established (registration not trusted; see the "
-            "warning). " + note
-        ).strip()
-    elif any(zones[i].uncertain for i in shown):
-        note = (
-            "n/e = not established: on the zone limit within the measurement uncertainty. " + note
-        ).strip()
-    if any(not zones[i].judged for i in shown):
-        note = (
-            "info = qifreport's default band on faces the drawing does not tolerance: "
-            "reported, not judged. " + note
-        ).strip()
+    legend = []
     if any(
         zones[i].status == "NOT MEASURED" or not zones[i].acceptance.scored_area > 0 for i in shown
     ):
-        note = (
+        legend.append(
             "n/m = not measured: too little of the surface scored, or its datum frame not "
-            "established (see the notes). " + note
-        ).strip()
+            "established (see the notes)."
+        )
+    if any(not zones[i].judged for i in shown):
+        legend.append(
+            "info = qifreport's default band on faces the drawing does not tolerance: "
+            "reported, not judged."
+        )
+    if not res.established:
+        legend.append(
+            "n/e = criteria met, not established (registration not trusted; see the warning)."
+        )
+    elif any(zones[i].uncertain for i in shown):
+        legend.append(
+            "n/e = not established: on the zone limit within the measurement uncertainty."
+        )
+    note = " ".join([note, *legend]).strip()
     return Table(
         columns=cols,
         rows=rows,
@@ -149,13 +167,26 @@ def tolerance_table(res: InspectionResult, width: float, limit: int) -> Table:
 
 
 def pick_tolerances(res: InspectionResult, limit: int) -> list[int]:
-    """Indices of the tolerances to list: failing ones first, then in file order."""
+    """Indices of the tolerances to list, in file order: every one that does not pass
+    (failing, not established, not measured; whatever ``limit``), then passing ones, the
+    one whose deviation uses most of its band first, up to ``limit`` in all."""
     zones = res.zones
     if len(zones) <= limit:
         return list(range(len(zones)))
-    fail = [i for i, z in enumerate(zones) if z.failed]
-    ok = [i for i, z in enumerate(zones) if not z.failed]
-    return sorted((fail + ok)[: max(limit, 0)])
+
+    def used(z: ZoneResult) -> float:
+        half = 0.5 * (z.zone.upper - z.zone.lower)
+        return float(z.stats.max_abs) / half if half > 0 and z.stats.n else 0.0
+
+    must = [i for i, z in enumerate(zones) if zone_status(res, z) not in ("PASS", "info")]
+    ok = [i for i in range(len(zones)) if i not in set(must)]
+    ok.sort(key=lambda i: -used(zones[i]))
+    return sorted(must + ok[: max(limit - len(must), 0)])
+
+
+def not_passing_tolerances(res: InspectionResult) -> int:
+    """How many toleranced surfaces are not PASS (always listed on the page)."""
+    return sum(zone_status(res, z) not in ("PASS", "info") for z in res.zones)
 
 
 def region_table(res: InspectionResult, limit: int, width: float) -> Table:
@@ -221,12 +252,57 @@ _CHAR_RESULT = {
 }
 
 
+def used_share(c) -> float:
+    """How much of its tolerance a characteristic's value uses (1: on its limit; a
+    dimension: its distance from the middle of its limits over half their width); 0 when
+    unknown."""
+    s = c.spec
+    if c.value is None:
+        return 0.0
+    tol = (s.tolerance or 0.0) + (c.bonus or 0.0)
+    if s.kind != "dimension" and tol > 0:
+        return float(c.value) / tol
+    lo, hi = s.lower_limit, s.upper_limit
+    if lo is not None and hi is not None and hi > lo:
+        return abs(float(c.value) - 0.5 * (lo + hi)) / (0.5 * (hi - lo))
+    return 0.0
+
+
 def pick_characteristics(res: InspectionResult, limit: int) -> list[int]:
-    """Indices of the feature characteristics to list: failing, then not established, then
-    not measured, then passing ones, each in file order; at most ``limit``."""
+    """Indices of the feature characteristics to list, in the order listed: failing, not
+    established, not measured (all of them, whatever ``limit``), then passing ones, the one
+    using most of its tolerance first, up to ``limit`` in all."""
     chars = res.characteristics
-    order = sorted(range(len(chars)), key=lambda i: (_CHAR_ORDER[chars[i].status], i))
-    return sorted(order[: max(limit, 0)])
+    order = sorted(
+        range(len(chars)),
+        key=lambda i: (_CHAR_ORDER[chars[i].status], -used_share(chars[i]), i),
+    )
+    must = [i for i in order if chars[i].status not in ("PASS", "BASIC")]
+    rest = [i for i in order if chars[i].status in ("PASS", "BASIC")]
+    return must + rest[: max(limit - len(must), 0)]
+
+
+def not_passing_characteristics(res: InspectionResult) -> int:
+    """How many feature characteristics are not PASS (always listed on the page)."""
+    return sum(c.status not in ("PASS", "BASIC") for c in res.characteristics)
+
+
+def wrapped_row(cells: list[str], widths: dict[int, float], size: float) -> list[list[str]]:
+    """A table row whose cells ``widths`` names (column -> points) wrap onto a continuation
+    row instead of being cut (two lines a cell at most, the second cut if need be)."""
+    split = {k: wrap_text(cells[k], w, size) for k, w in widths.items()}
+    for k, lines in split.items():
+        if len(lines) > 2:
+            rest = " ".join(lines[1:])
+            split[k] = [lines[0], fit_text(rest, widths[k], size)]
+    n = max(len(v) for v in split.values())
+    rows = []
+    for j in range(n):
+        row = [cells[k] if j == 0 else "" for k in range(len(cells))]
+        for k, lines in split.items():
+            row[k] = lines[j] if j < len(lines) else ""
+        rows.append(row)
+    return rows
 
 
 def characteristic_table(res: InspectionResult, width: float, limit: int) -> Table | None:
@@ -239,18 +315,19 @@ def characteristic_table(res: InspectionResult, width: float, limit: int) -> Tab
         return None
     cols = [
         ("Key", 24),
-        ("Characteristic", 150),
+        ("Characteristic", 128),
         ("Value", 44),
-        ("Limit", 70),
+        ("Limit", 66),
         ("U (k=2)", 36),
         ("Result", 30),
-        ("Reading / reason", 200),
+        ("Reading / reason", 226),
     ]
     scale = width / sum(c[1] for c in cols)
     align = "llrrrcl"
     cols = [(h, w * scale, align[i]) for i, (h, w) in enumerate(cols)]
     shown = pick_characteristics(res, limit)
     rows, emph = [], []
+    wide = {1: cols[1][1] - 4, 3: cols[3][1] - 4, 6: cols[6][1] - 4}
     for i in shown:
         c = chars[i]
         s = c.spec
@@ -264,18 +341,18 @@ def characteristic_table(res: InspectionResult, width: float, limit: int) -> Tab
         if c.bonus > 0:
             limit_text += f" +{c.bonus:.3f}"
         how = c.reason if c.status in ("NOT_MEASURED", "FAIL") else c.reading
-        rows.append(
-            [
-                s.key,
-                fit_text(what, cols[1][1] - 4, 6.8),
-                value,
-                fit_text(limit_text, cols[3][1] - 4, 6.8),
-                fmt_mm(c.uncertainty) if c.uncertainty is not None else "-",
-                _CHAR_RESULT[c.status],
-                fit_text(how, cols[6][1] - 4, 6.8),
-            ]
-        )
-        emph.append(c.status == "FAIL")
+        cells = [
+            s.key,
+            what,
+            value,
+            limit_text,
+            fmt_mm(c.uncertainty) if c.uncertainty is not None else "-",
+            _CHAR_RESULT[c.status],
+            how,
+        ]
+        lines = wrapped_row(cells, wide, 6.8)
+        rows += lines
+        emph += [c.status == "FAIL"] * len(lines)
     note = ""
     rest = [chars[i] for i in range(len(chars)) if i not in set(shown)]
     if rest:
@@ -283,7 +360,11 @@ def characteristic_table(res: InspectionResult, width: float, limit: int) -> Tab
         for c in rest:
             counts[_CHAR_RESULT[c.status]] = counts.get(_CHAR_RESULT[c.status], 0) + 1
         listing = ", ".join(f"{n} {k}" for k, n in counts.items())
-        note = f"+ {len(rest)} more in the QIF file ({listing})"
+        most = max((used_share(c) for c in rest), default=0.0)
+        note = (
+            f"+ {len(rest)} more ({listing}), each using at most {100 * most:.0f} % of its "
+            "tolerance (values in the QIF file)"
+        )
     legend = []
     statuses = {chars[i].status for i in shown}
     if "INDETERMINATE" in statuses:
@@ -291,9 +372,9 @@ def characteristic_table(res: InspectionResult, width: float, limit: int) -> Tab
     if "NOT_MEASURED" in statuses:
         legend.append("n/m = not measured (reason given)")
     if any(c.budget is not None for c in chars):
-        legend.append(f"U: uncertainty budget, instrument {res.params.scanner.label}")
+        legend.append("U: the uncertainty budget, with the instrument the header names")
     if legend:
-        note = ("; ".join(legend) + ". " + note).strip()
+        note = (note + " " + "; ".join(legend) + ".").strip()
     title = (
         f"Feature characteristics ({len(chars)}): form by the minimum zone, "
         "datum-referenced ones in their datum frame"

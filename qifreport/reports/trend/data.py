@@ -18,6 +18,9 @@ from ..kit import DASH
 
 log = logging.getLogger("qifreport.reports.trend")
 
+#: the widest serial number under a tick, points (ticks are at least 42 points apart)
+SERIAL_LABEL_WIDTH = 38.0
+
 __all__ = [
     "KINDS",
     "VERDICTS",
@@ -204,7 +207,14 @@ class TrendData:
         return column(self.df, name, kind)
 
     def seq_label(self, pos: int) -> str:
-        """The sequence number printed under x position ``pos`` (1-based batch order)."""
+        """The label under x position ``pos`` (1-based batch order): the scan's serial
+        number when it has one (the part a point is of), else its sequence number."""
+        if pos <= self.n and "serial" in self.df.columns:
+            serial = self.df["serial"].iloc[pos - 1]
+            if isinstance(serial, str) and serial.strip():
+                from ..kit import fit_text
+
+                return fit_text(serial.strip(), SERIAL_LABEL_WIDTH, 6.0)
         if pos <= self.n and math.isfinite(self.seq[pos - 1]):
             return str(int(self.seq[pos - 1]))
         return str(pos)

@@ -56,7 +56,8 @@ PROFILE_DEFINITIONS = (
     "area and region criteria, so a value above the tolerance may still pass. "
     "Cpk = (tolerance \u2212 mean) / (3\u03c3), one-sided (a profile value is at "
     "least 0), \u03c3 the sample standard deviation (n \u2212 1) of the measured "
-    "scans; pass rate = PASS / (PASS + FAIL + NOT ESTABLISHED)."
+    "scans; Cpk [its 0.95 confidence interval], stated from 25 scans; pass rate = PASS / "
+    "(PASS + FAIL + NOT ESTABLISHED)."
 )
 #: the footer's definitions when feature characteristics are charted (three lines at most)
 FEATURE_DEFINITIONS = (
@@ -65,7 +66,8 @@ FEATURE_DEFINITIONS = (
     "profile's verdict applies the area and region criteria (a value above the tolerance may "
     "pass). Tolerance: Cpk = (tol \u2212 mean) / (3\u03c3), one-sided; dimension: "
     "Cp = (USL \u2212 LSL) / (6\u03c3), Cpk = min(USL \u2212 mean, mean \u2212 LSL) / (3\u03c3); "
-    "\u03c3 the sample deviation (n \u2212 1); pass rate = PASS / (PASS + FAIL + NOT ESTABLISHED)."
+    "\u03c3 the sample deviation (n \u2212 1); Cpk [0.95 interval] from 25 scans; pass "
+    "rate = PASS / (PASS + FAIL + NOT ESTABLISHED)."
 )
 #: the header's pass-rate box width, and the indent of its facts' values, points
 RATE_BOX_W = 172.0

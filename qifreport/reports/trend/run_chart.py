@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from qifreport.metrology.spc import CharacteristicStats
+from qifreport.metrology.spc import MIN_CAPABILITY_N, CharacteristicStats
 
 from ..charts import (
     ChartGeometry,
@@ -150,22 +150,36 @@ def _draw_points(c: Canvas, data: TrendData, geo: ChartGeometry, ch: TrendCharac
         draw_marker(c, "cross", float(xs[i]), geo.plot.y + ERROR_STRIP / 2, size, ERROR_COLOR)
 
 
+def capability_text(st: CharacteristicStats, two_sided: bool) -> str:
+    """The capability indices as the chart states them: Cpk (and a dimension's Cp) with
+    the 95 % interval of Cpk from :data:`~qifreport.metrology.spc.MIN_CAPABILITY_N` values;
+    "n too small" below."""
+    if not math.isfinite(st.cpk):
+        return f"Cp {DASH}   Cpk {DASH}" if two_sided else f"Cpk {DASH}"
+    if not st.capable_n:
+        return f"Cp, Cpk: n < {MIN_CAPABILITY_N}" if two_sided else f"Cpk: n < {MIN_CAPABILITY_N}"
+    lo, hi = st.cpk_interval()
+    cpk = f"Cpk {st.cpk:.2f} [{lo:.2f}, {hi:.2f}]"
+    if not two_sided:
+        return cpk
+    cp = f"{st.cp:.2f}" if math.isfinite(st.cp) else DASH
+    return f"Cp {cp}   {cpk}"
+
+
 def stats_line(ch: TrendCharacteristic, st: CharacteristicStats, width: float) -> str:
     """The line of statistics above a run chart ``width`` points wide: a dimension's
     smallest and largest values are left out when the line would not fit."""
-    cpk = f"{st.cpk:.2f}" if math.isfinite(st.cpk) else DASH
     sigma = fmt_mm(st.sigma)
     if not ch.two_sided:
         return (
             f"n {st.n}   mean {fmt_mm(st.mean)}   \u03c3 {sigma}   max {fmt_mm(st.max)} mm"
-            f"   Cpk {cpk}   PASS {st.n_pass} of {st.n_judged}"
+            f"   {capability_text(st, False)}   PASS {st.n_pass} of {st.n_judged}"
         )
     u = ch.unit
     head = f"n {st.n}   mean {fmt_mm(st.mean)}"
     extremes = f"min {fmt_mm(st.min)}   max {fmt_mm(st.max)}"
     if ch.limits():
-        cp = f"{st.cp:.2f}" if math.isfinite(st.cp) else DASH
-        tail = f"Cp {cp}   Cpk {cpk}   PASS {st.n_pass} of {st.n_judged}"
+        tail = f"{capability_text(st, True)}   PASS {st.n_pass} of {st.n_judged}"
         lines = [
             f"{head}   \u03c3 {sigma}   {extremes} {u}   {tail}",
             f"{head} {u}   \u03c3 {sigma}   {tail}",
