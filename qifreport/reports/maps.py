@@ -132,10 +132,11 @@ def draw_maps(
             x += text_width(head, 8, True) + 8
         draw_text(c, x, box.top + 3, f"{'ABC'[k]}: {v.name}", 7.5, True, MUTED)
         _draw_axes(c, box, v)
+        avoid = [(box.x, box.y, box.x + 34.0, box.y + 26.0)]  # the axes
         if not v.name.startswith("oblique"):
-            _draw_scale_bar(c, box, v)
+            avoid.append(_draw_scale_bar(c, box, v))
         done |= _draw_labels(c, box, v, n_listed, calls, done)
-        _draw_markers(c, box, v)
+        _draw_markers(c, box, v, avoid)
 
 
 def _marker_extent(x: float, y: float, name: str) -> tuple[float, float, float, float]:
@@ -145,13 +146,47 @@ def _marker_extent(x: float, y: float, name: str) -> tuple[float, float, float, 
     return x - half, y - (14.0 if name else 5.5), x + half, y
 
 
-def _draw_markers(c: Canvas, box: Box, v: RenderedView) -> None:
+def _overlap(a: tuple, b: tuple) -> float:
+    """The area two rectangles ``(x0, y0, x1, y1)`` share, points^2."""
+    w = min(a[2], b[2]) - max(a[0], b[0])
+    h = min(a[3], b[3]) - max(a[1], b[1])
+    return max(w, 0.0) * max(h, 0.0)
+
+
+def _name_spot(x: float, y: float, name: str, box: Box, taken: list[tuple]) -> tuple:
+    """Where a clamp's ``name`` goes beside its triangle at ``(x, y)``: below, above, right
+    or left, the first spot free of the rectangles ``taken`` and inside ``box`` (else the
+    one overlapping least); ``(text x, text y, rectangle)``."""
+    w = text_width(name, 5.5, True)
+    spots = [
+        (x, y - 12.0),  # below the triangle
+        (x, y + 2.0),  # above its tip
+        (x + 4.5 + w / 2, y - 5.0),  # right
+        (x - 4.5 - w / 2, y - 5.0),  # left
+    ]
+    best, best_cost = None, math.inf
+    for tx, ty in spots:
+        rect = (tx - w / 2 - 0.5, ty - 1.5, tx + w / 2 + 0.5, ty + 5.0)
+        inside = box.x <= rect[0] and rect[2] <= box.x + box.w and box.y <= rect[1]
+        inside &= rect[3] <= box.top
+        cost = sum(_overlap(rect, t) for t in taken) + (0.0 if inside else 1e3)
+        if cost < best_cost:
+            best, best_cost = (tx, ty, rect), cost
+        if cost == 0.0:
+            break
+    return best
+
+
+def _draw_markers(c: Canvas, box: Box, v: RenderedView, avoid: list[tuple]) -> None:
     """The clamps (RPS points): a triangle with the clamp's name (and force); hollow, grey
-    and unnamed where the part hides it (a clamp on the far side: another view names it)."""
+    and unnamed where the part hides it (a clamp on the far side: another view names it).
+    The names are placed off each other, the triangles and the rectangles ``avoid`` (the
+    scale bar, the axes)."""
     h_px, w_px = v.image.shape[:2]
     sx, sy = box.w / w_px, box.h / h_px
-    for m in v.markers:
-        x, y = box.x + m.x * sx, box.top - m.y * sy
+    at = [(box.x + m.x * sx, box.top - m.y * sy) for m in v.markers]
+    taken = list(avoid) + [(x - 3.2, y - 5.5, x + 3.2, y) for x, y in at]
+    for m, (x, y) in zip(v.markers, at, strict=True):
         colour = INK if m.visible else MUTED
         c.setStrokeColorRGB(*colour)
         c.setFillColorRGB(*colour)
@@ -163,7 +198,9 @@ def _draw_markers(c: Canvas, box: Box, v: RenderedView) -> None:
         p.close()
         c.drawPath(p, stroke=1, fill=1 if m.visible else 0)
         if m.visible:
-            draw_text(c, x, y - 12.0, m.name, 5.5, True, colour, "c")
+            tx, ty, rect = _name_spot(x, y, m.name, box, taken)
+            draw_text(c, tx, ty, m.name, 5.5, True, colour, "c")
+            taken.append(rect)
 
 
 def _draw_axes(c: Canvas, box: Box, v: RenderedView) -> None:
@@ -181,7 +218,8 @@ def _draw_axes(c: Canvas, box: Box, v: RenderedView) -> None:
         )
 
 
-def _draw_scale_bar(c: Canvas, box: Box, v: RenderedView) -> None:
+def _draw_scale_bar(c: Canvas, box: Box, v: RenderedView) -> tuple:
+    """The scale bar at the bottom right of ``box``; returns the rectangle it covers."""
     h_px, w_px = v.image.shape[:2]
     mm_per_pt = v.mm_per_px * w_px / box.w
     target = 0.22 * box.w * mm_per_pt
@@ -195,6 +233,7 @@ def _draw_scale_bar(c: Canvas, box: Box, v: RenderedView) -> None:
     c.line(x1 - Lp, y1 - 2, x1 - Lp, y1 + 2)
     c.line(x1, y1 - 2, x1, y1 + 2)
     draw_text(c, x1 - Lp / 2, y1 + 3, f"{length:g} mm", 6.0, False, INK, "c")
+    return (x1 - Lp - 1.0, y1 - 3.0, x1 + 1.0, y1 + 9.5)
 
 
 #: callout text: size (points) of the region numbers and of the values
