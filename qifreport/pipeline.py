@@ -294,7 +294,7 @@ def resampled_runs(
     runs = []
     for k in range(seeds):
         if bar is not None:
-            bar.set_description(f"resampling {k + 1}/{seeds}")
+            bar.set_description_str(f"resampling {k + 1}/{seeds}")
         keep = resample_mask(len(res.P), k, KEEP_FRACTION)
         inputs = part_inputs(part, drawing, basis=res.basis, prepared=prepared)
         progress = None if bar is None else bar.update
@@ -349,6 +349,21 @@ def zones_with_coverage(
     return zones
 
 
+def staged(bar, desc: str):
+    """The ``progress(k)`` of a stage that counts iterations: the first names the stage on
+    the bar (``desc``), each advances it (None without a bar)."""
+    if bar is None:
+        return None
+    bar.set_description_str("seating the scan (pose search, rigid fit), judging the free state")
+
+    def progress(k: int) -> None:
+        if bar.desc != desc:
+            bar.set_description_str(desc)
+        bar.update(k)
+
+    return progress
+
+
 def inspect_state(
     P: np.ndarray,
     state: PartState,
@@ -394,7 +409,7 @@ def inspect_state(
         inputs,
         executor=executor,
         measures=measures,
-        progress=None if bar is None else bar.update,
+        progress=staged(bar, "virtual fixturing"),
     )
     res.drawing_warnings = list(drawing.warnings)
     if o.seeds > 1:
@@ -788,25 +803,28 @@ def inspect_job(
             )
         scan["measures"] = start_scan_measures(scan["P"], params, beside)
 
-    try:
-        with _stage(prof, "prepare part (cache)"):
-            # the free state is judged first: a part that conforms needs no bending basis,
-            # so a new entry leaves it out and the first fixtured inspection stores it
-            state, cache = part_state(
-                job.nominal,
-                nominal_options,
-                params,
-                o.cache_dir,
-                lazy_basis=not o.always_fixture,
-                on_nominal=nominal_read,
-            )
-    except BaseException:
-        if "measures" in scan:
-            scan["measures"].cancel()
-        raise
-    log.info("%s", cache.describe())
-    t_inspect = time.perf_counter()
-    with progress_bar("virtual fixturing", enabled=progress) as bar:
+    # one bar for the whole inspection, named after its stage (preparing a new part is the
+    # long one; then the seat, the free state, the fixture's iterations)
+    with progress_bar("reading the part (a new one is prepared once)", enabled=progress) as bar:
+        try:
+            with _stage(prof, "prepare part (cache)"):
+                # the free state is judged first: a part that conforms needs no bending
+                # basis, so a new entry leaves it out and the first fixtured inspection
+                # stores it
+                state, cache = part_state(
+                    job.nominal,
+                    nominal_options,
+                    params,
+                    o.cache_dir,
+                    lazy_basis=not o.always_fixture,
+                    on_nominal=nominal_read,
+                )
+        except BaseException:
+            if "measures" in scan:
+                scan["measures"].cancel()
+            raise
+        log.info("%s", cache.describe())
+        t_inspect = time.perf_counter()
         res = inspect_state(
             scan["P"],
             state,
