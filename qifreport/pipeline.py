@@ -418,17 +418,20 @@ def inspect_state(
     return res
 
 
-def traceability(part: Part, job: InspectJob, started: datetime, finished: datetime) -> dict:
-    """Who and what the inspection is of and by (the JSON summary's ``traceability``, the
-    report header's and the QIF's fields): the part number and revision (the operator's,
-    else the STEP product's), serial number, people, instrument, the part's temperature,
-    when it ran (ISO 8601, UTC)."""
+def traceability(
+    res: InspectionResult, part: Part, job: InspectJob, started: datetime, finished: datetime
+) -> dict:
+    """Who and what the inspection ``res`` is of and by (the JSON summary's
+    ``traceability``, the report header's and the QIF's fields): the part number and
+    revision (the operator's, else the STEP product's), serial number, people, the
+    instrument and the part's temperature (the scanner profile the inspection used), when it
+    ran (ISO 8601, UTC)."""
     o = job.options
     product = part.info.get("product") or {}
     number = o.part_number or product.get("number")
     revision = o.revision or product.get("revision")
     source = "operator" if o.part_number else ("step" if number else None)
-    profile = o.scanner_profile()
+    profile = res.params.scanner
     instrument = profile.name + (f" ({profile.model})" if profile.model else "")
     return {
         "part_number": number,
@@ -446,6 +449,7 @@ def traceability(part: Part, job: InspectJob, started: datetime, finished: datet
 
 
 def _provenance(
+    res: InspectionResult,
     part: Part,
     drawing: Drawing,
     job: InspectJob,
@@ -475,7 +479,7 @@ def _provenance(
         operator=o.operator,
         serial_number=job.serial,
         plan=plan_source(part, drawing, job, digests["nominal"]),
-        trace=traceability(part, job, started, finished),
+        trace=traceability(res, part, job, started, finished),
     )
 
 
@@ -514,7 +518,7 @@ def summary_document(
     inputs and their ``digests`` and the ``scan_report``."""
     doc = res.to_dict()
     doc = {"schema": SUMMARY_SCHEMA_VERSION, **doc}
-    doc["traceability"] = traceability(part, job, *times)
+    doc["traceability"] = traceability(res, part, job, *times)
     doc["software"] = {
         "name": "qifreport",
         "version": __version__,
@@ -556,7 +560,7 @@ def output_writers(
     qif_state = None
     prov = None
     if not (o.no_qif and o.no_pdf) or o.html:
-        prov = _provenance(part, drawing, job, digests, started, finished)
+        prov = _provenance(res, part, drawing, job, digests, started, finished)
     if not o.no_qif:
         from qifreport.qif.writer import build_qif
 

@@ -155,7 +155,7 @@ def run_task(task: ScanTask, state: PartState, job: InspectJob) -> TaskResult:
                 write(tmp)
                 files[path.name] = tmp.read_bytes()
         row = summary_row(res, item, task.scan_sha256, time.perf_counter() - t0)
-        trace = traceability(state.part, this, started, finished)
+        trace = traceability(res, state.part, this, started, finished)
         row.update({k: trace[k] for k in TRACE_COLUMNS})
         return TaskResult(
             item.id,
