@@ -670,8 +670,9 @@ def _restrained(run: JudgeRun, restraint: RestraintBasis) -> InspectionResult:
     """Hold the rigidly seated scan at its clamps
     (:func:`qifreport.metrology.restraint.held.hold_scan`)
     and judge it as held; the free-state zones are judged on the free state in the held
-    seat, and the hold's uncertainty enters each deviation's. The free state is judged too,
-    in its own best fit, for what the outputs say it gave."""
+    seat, and the hold's uncertainty enters each deviation's. With
+    ``params.judge_free_state`` the free state is judged too, in its own best fit, for what
+    the outputs say it gave."""
     reg, ctx, params, timings = run.reg, run.ctx, run.params, run.timings
     prepared = ctx.prepared
 
@@ -709,10 +710,12 @@ def _restrained(run: JudgeRun, restraint: RestraintBasis) -> InspectionResult:
     )
     res.restraint = held.restraint
     res.fixture_decision = RESTRAINED
-    # what the free state gives, in its own best fit, for the outputs (it decides nothing)
-    t0 = time.perf_counter()
-    free = run.judge(reg, None, params, {}, ctx, check_part=False)
-    timings["free state"] = time.perf_counter() - t0
-    res.free_state = free.verdict
-    res.free_state_decided_by = free.decided_by()
+    if params.judge_free_state:
+        # what the free state gives, in its own best fit, for the outputs (it decides
+        # nothing)
+        t0 = time.perf_counter()
+        free = run.judge(reg, None, params, {}, ctx, check_part=False)
+        timings["free state"] = time.perf_counter() - t0
+        res.free_state = free.verdict
+        res.free_state_decided_by = free.decided_by()
     return res

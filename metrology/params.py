@@ -107,6 +107,9 @@ class InspectionParams:
         applied only when it does not conform (ISO 10579: restraint is there to bring a
         compliant part to its drawing shape; a part that conforms without it needs none).
         For comparing registration methods.
+    judge_free_state : with a restraint applied at clamps, judge the free state too (in its
+        own best fit), for what the outputs say it gave; it decides nothing. By default
+        only the stated condition is judged and the outputs say the free state was not.
     prealign : pose search before the rigid ICP
     (:func:`qifreport.registration.pose.prealign.seat_scan`):
         ``"auto"`` (default) searches only when the scan is not already in the part frame,
@@ -159,6 +162,7 @@ class InspectionParams:
     crease_angle: float = 45.0
     rigid_only: bool = False
     always_fixture: bool = False
+    judge_free_state: bool = False
     prealign: str = "auto"
     fail_on_added_material: bool = False
     method: str = "gbcicp"

@@ -297,6 +297,8 @@ class InspectionResult:
         """What the free state gave, when a restraint was applied: its verdict and the
         first thing it failed on, or that it was not judged."""
         if self.free_state is None:
+            if self.fixture_decision == RESTRAINED:
+                return "free state not judged (it decides nothing when held)"
             return "free state not judged"
         why = self.free_state_decided_by
         more = f" (and {len(why) - 1} more)" if len(why) > 1 else ""

@@ -387,6 +387,13 @@ def add_restraint_options(ap: argparse.ArgumentParser) -> None:
         "virtual. --clamps implies clamps",
     )
     held.add_argument(
+        "--judge-free-state",
+        action="store_true",
+        help="held at clamps, judge the free state too (in its own best fit), for what the "
+        "outputs say it gave; it decides nothing (default: only the stated condition is "
+        "judged, and the outputs say the free state was not)",
+    )
+    held.add_argument(
         "--fixture",
         choices=("auto", "restrained", "free"),
         default="auto",

@@ -91,6 +91,7 @@ RESULT_OPTIONS = (
     "seeds",
     "rigid_only",
     "always_fixture",
+    "judge_free_state",
     "accept_tolerance_as_read",
     "min_coverage",
     "zone_min_coverage",
@@ -220,6 +221,7 @@ class InspectOptions:
     seeds : runs of the repeatability check (1: none).
     rigid_only : no virtual fixture.
     always_fixture : apply the virtual fixture even when the free state conforms.
+    judge_free_state : held at clamps, judge the free state too, for the outputs.
     one_process : one CPU, no forked child processes. By default one command judges the
         free state, measures the scan's normals and area and the trim edges, and renders the
         reports in forked children beside its main work (:mod:`qifreport.forked`; the same
@@ -281,6 +283,7 @@ class InspectOptions:
     seeds: int = 1
     rigid_only: bool = False
     always_fixture: bool = False
+    judge_free_state: bool = False
     one_process: bool = False
     cache_dir: Path | None = None
     accept_tolerance_as_read: bool = False
@@ -488,6 +491,7 @@ class InspectOptions:
             boundary_band=self.boundary_band,
             rigid_only=self.rigid_only,
             always_fixture=self.always_fixture,
+            judge_free_state=self.judge_free_state,
             prealign=self.prealign,
             fail_on_added_material=self.fail_on_added_material,
             method=self.method,

@@ -48,6 +48,10 @@ def test_a_sparse_scan_does_not_fail_the_conforming_panel_on_its_clamp_readings(
     # a clamp not read from its pad carries no reading uncertainty
     assert clamps["A2"]["offset_source"] != "scan"
     assert clamps["A2"]["free_state_offset_U_mm"] == 0.0
+    # held as the drawing states, the free state decides nothing and is not judged unless
+    # asked for (--judge-free-state), and the outputs say so
+    assert doc["restraint"]["free_state"] is None
+    assert "free state not judged" in doc["restraint"]["judged"]
 
 
 def test_a_hold_that_moves_the_scan_off_the_part_is_an_input_error_not_a_verdict():

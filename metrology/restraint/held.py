@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.special import stdtrit
 
 from qifreport.metrology.deviation.closest import closest_points
 from qifreport.metrology.deviation.surface import surface_distance
@@ -631,10 +632,8 @@ def median_uncertainty(values: np.ndarray) -> float:
     v = v[np.isfinite(v)]
     if len(v) < 3:
         return 0.0
-    from scipy.stats import t as student_t  # (scipy.stats: a third of a second to import)
-
     sigma = float(np.subtract(*np.percentile(v, [75, 25]))) / 1.349
-    k = max(2.0, float(student_t.ppf(0.975, len(v) - 1)))
+    k = max(2.0, float(stdtrit(len(v) - 1, 0.975)))  # Student's t quantile
     return k * 1.2533 * sigma / np.sqrt(len(v))
 
 
