@@ -8,15 +8,17 @@ the nominal.
 
 The rule (:func:`nominal_spacing`, :func:`thin_scan`):
 
-* **grid** ``h = min(mean nominal edge / 5, diagonal / 300)`` mm: five cells along a mean
-  edge, about 25 points per triangle's worth of surface. The second term keeps a coarse
-  nominal (a few large triangles) from thinning a scan to nothing: it is what a STEP nominal
-  tessellated at its default maximum edge (diagonal / 60) gives.
-* **thin only when the scan is far denser than the grid**: on average at least
-  :data:`MIN_POINTS_PER_VOXEL` (4) points per occupied cell, i.e. a point spacing of about
-  ``h / 2`` or less. Then every occupied cell keeps one point. The bundled samples (0.38 mm
-  spacing on 1.6-1.75 mm mean edges: about one point per 0.32-0.35 mm cell) are never
-  thinned, so their results do not change.
+* **grid** ``h = min(mean nominal edge / 4, diagonal / 300)`` mm: four cells along a mean
+  edge. The second term keeps a coarse nominal (a few large triangles) from thinning a
+  scan to nothing: it is what a STEP nominal tessellated at its default maximum edge
+  (diagonal / 60) gives.
+* **thin above a stated density**: when the scan has on average at least
+  :data:`MIN_POINTS_PER_VOXEL` (T = 1.5) points per occupied cell of ``h``, every occupied
+  cell of a grid finer by ``sqrt(T)`` keeps one point. On a surface that finer grid has
+  about T times the cells, so a scan just past the threshold keeps about the points it had
+  and a denser one keeps about T per cell of ``h``: the points used, and the cost, never
+  fall as a scan gets denser (no cliff), and they stop growing. The bundled samples (1.1-1.3
+  points per cell) are not thinned, so their results do not change.
 * **the kept point is a measured one**: the point of the cell nearest the centroid of the
   cell's points (ties: the first in file order). Not the centroid itself, which would
   average the range noise away (the measurement-resolution check, :mod:`metrology.resolution`,
@@ -49,7 +51,7 @@ CELLS_PER_EDGE = 4.0
 #: the grid is never coarser than the nominal's bounding diagonal over this
 DIAGONAL_CELLS = 300.0
 #: thin only when the scan has at least this many points per occupied cell, on average
-MIN_POINTS_PER_VOXEL = 4.0
+MIN_POINTS_PER_VOXEL = 1.5
 
 
 @dataclass(frozen=True)
@@ -130,14 +132,15 @@ def thin_scan(
     min_per_voxel: float = MIN_POINTS_PER_VOXEL,
     points_read: int | None = None,
 ) -> tuple[np.ndarray, ThinningReport]:
-    """Keep one point per cell of a ``spacing`` grid, when the scan is dense enough.
+    """Keep one point per cell of a grid ``spacing / sqrt(min_per_voxel)``, when the scan
+    has at least ``min_per_voxel`` points per occupied cell of ``spacing``.
 
     Parameters
     ----------
     P : (m, 3) float64 scan points, mm (finite, already de-duplicated).
     spacing : the grid's cell size, mm (:func:`nominal_spacing`).
-    min_per_voxel : thin only when the mean number of points per occupied cell is at least
-        this (0: always thin).
+    min_per_voxel : thin only when the mean number of points per occupied cell of
+        ``spacing`` is at least this (at most 1: always thin, on ``spacing`` itself).
     points_read : the points the file held before de-duplication (default ``m``), for the
         report.
 
@@ -153,15 +156,36 @@ def thin_scan(
         raise ValueError(f"thinning grid spacing must be a positive length, got {spacing}")
     if m == 0:
         return P, ThinningReport(read, read - m, m)
-    order, ks = _sorted_cells(P, spacing)
-    new_cell = np.r_[True, ks[1:] != ks[:-1]]
-    del ks
-    starts = np.flatnonzero(new_cell)
-    del new_cell
+    order, starts = _cells(P, spacing)
     per_cell = m / len(starts)
     if per_cell < min_per_voxel:
         report = ThinningReport(read, read - m, m, None, float(spacing), per_cell)
         return P, report
+    # one point per cell of a grid finer by sqrt(min_per_voxel): on a surface, about
+    # min_per_voxel times the cells of the nominal's grid, so a scan just past the
+    # threshold keeps about the points it had (no cliff in the cost of a denser scan), and
+    # the densest keep about min_per_voxel points per cell of the nominal's grid
+    voxel = float(spacing) / np.sqrt(max(min_per_voxel, 1.0))
+    if voxel != spacing:
+        order, starts = _cells(P, voxel)
+    keep = _one_per_cell(P, order, starts)
+    report = ThinningReport(read, read - m, len(keep), voxel, float(spacing), per_cell)
+    return P[keep], report
+
+
+def _cells(P: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """The points' order by cell of a ``spacing`` grid, and where each occupied cell's
+    points start in that order (each int64)."""
+    order, ks = _sorted_cells(P, spacing)
+    new_cell = np.r_[True, ks[1:] != ks[:-1]]
+    del ks
+    return order, np.flatnonzero(new_cell)
+
+
+def _one_per_cell(P: np.ndarray, order: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """The index (sorted) of the point kept in each cell: the one nearest the centroid of
+    the cell's points (ties: the first in file order)."""
+    m = len(P)
     counts = np.diff(np.r_[starts, m])
     cell = np.repeat(np.arange(len(starts)), counts)  # the cell of each sorted point
     d2 = np.zeros(m)
@@ -176,8 +200,7 @@ def thin_scan(
     # the first point (in file order) of each cell among those nearest its centroid
     keep = np.minimum.reduceat(np.where(nearest, order, m), starts)
     keep.sort()
-    report = ThinningReport(read, read - m, len(keep), float(spacing), float(spacing), per_cell)
-    return P[keep], report
+    return keep
 
 
 def _sorted_cells(P: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:

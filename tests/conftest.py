@@ -36,8 +36,14 @@ def shared_file(rel: str) -> Path:
 def qifreport_cache(tmp_path_factory):
     """One per-part cache directory for the session (``$QIFREPORT_CACHE``, inherited by the
     CLI subprocesses): the tests never write the user's cache, and a part prepared by one
-    test is loaded by the next, as in production."""
-    d = tmp_path_factory.mktemp("qifreport-cache")
+    test is loaded by the next, as in production. Under pytest-xdist the workers share it
+    (beside their own temporary folders): a part one prepares, the other loads; entries are
+    written to a temporary file and renamed, so concurrent builders are harmless."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        d = tmp_path_factory.getbasetemp().parent / "qifreport-cache"
+        d.mkdir(exist_ok=True)
+    else:
+        d = tmp_path_factory.mktemp("qifreport-cache")
     old = os.environ.get("QIFREPORT_CACHE")
     os.environ["QIFREPORT_CACHE"] = str(d)
     yield d

@@ -198,16 +198,19 @@ def test_thin_scan_keeps_one_measured_point_per_cell():
     P = rng.uniform(0.0, 10.0, (200_000, 3))
     P[:, 2] *= 0.01  # a 10 x 10 mm sheet, 0.1 mm thick
     Q, rep = thin_scan(P, 0.5, points_read=210_000)
-    assert rep.voxel_mm == 0.5 and rep.points_used == len(Q) and rep.duplicates_removed == 10_000
+    g = 0.5 / np.sqrt(MIN_POINTS_PER_VOXEL)  # the kept grid: finer than the nominal's
+    assert rep.grid_mm == 0.5 and rep.voxel_mm == pytest.approx(g, rel=1e-15)
+    assert rep.points_used == len(Q) and rep.duplicates_removed == 10_000
     assert rep.points_per_voxel >= MIN_POINTS_PER_VOXEL
-    cells = np.floor((Q - P.min(axis=0)) / 0.5).astype(int)
-    assert len(np.unique(cells, axis=0)) == len(Q) == 400  # one point per occupied cell
+    cells = np.floor((Q - P.min(axis=0)) / g).astype(int)
+    n = int(np.ceil(10.0 / g))
+    assert len(np.unique(cells, axis=0)) == len(Q) == n * n  # one point per occupied cell
     idx = np.flatnonzero((P[:, None, :] == Q[None, :3, :]).all(axis=2).any(axis=1))
     assert len(idx) == 3  # the kept points are scan points, in scan order
     np.testing.assert_array_equal(Q[:3], P[np.sort(idx)])
     # the point nearest its cell's centroid
     c0 = cells[0]
-    members = P[(np.floor((P - P.min(axis=0)) / 0.5).astype(int) == c0).all(axis=1)]
+    members = P[(np.floor((P - P.min(axis=0)) / g).astype(int) == c0).all(axis=1)]
     d = np.linalg.norm(members - members.mean(axis=0), axis=1)
     np.testing.assert_array_equal(Q[0], members[np.argmin(d)])
     # deterministic; a far outlier takes the exact ranking path and changes nothing else
@@ -215,8 +218,27 @@ def test_thin_scan_keeps_one_measured_point_per_cell():
     R, _ = thin_scan(np.vstack([P, [[1e30, 5.0, 0.05]]]), 0.5)  # same grid origin
     np.testing.assert_array_equal(R[:-1], Q)
     # not dense enough: untouched
-    S, rep = thin_scan(P[:1000], 0.5)
-    assert len(S) == 1000 and rep.voxel_mm is None and not rep.thinned
+    S, rep = thin_scan(P[:200], 0.5)
+    assert len(S) == 200 and rep.voxel_mm is None and not rep.thinned
+
+
+def test_a_denser_scan_never_uses_fewer_points():
+    """No cliff: the points an inspection uses grow with the scan's density up to the
+    threshold, stay about level past it (the finer grid keeps about what the scan had), and
+    stop growing at about MIN_POINTS_PER_VOXEL per cell of the nominal's grid. A rule
+    thinning to the nominal's grid itself at the threshold keeps a third fewer there."""
+    rng = np.random.default_rng(2)
+    used = []
+    sizes = [400, 600, 800, 1000, 1200, 1500, 2000, 3000, 6000, 20_000, 60_000]
+    for n in sizes:
+        P = rng.uniform(0.0, 10.0, (n, 3))
+        P[:, 2] *= 0.01
+        used.append(thin_scan(P, 0.5)[1].points_used)
+    cells = 20 * 20  # the nominal grid's cells on the sheet
+    for a, b in zip(used, used[1:], strict=False):
+        assert b >= 0.9 * a, used
+    assert used[-1] <= MIN_POINTS_PER_VOXEL * cells * 1.2, used
+    assert max(used) <= 1.05 * used[-1], used
 
 
 @pytest.mark.parametrize(
@@ -230,7 +252,7 @@ def test_samples_are_not_thinned(nominal, scan):
     Q, rep, _ = scan_input(read, part)
     assert Q is read.points and not rep.thinned
     assert rep.points_used == read.points_read == read.n
-    assert rep.points_per_voxel < MIN_POINTS_PER_VOXEL / 2  # a wide margin
+    assert rep.points_per_voxel < 0.9 * MIN_POINTS_PER_VOXEL  # a margin
 
 
 def test_dense_scan_is_thinned_and_reported(tmp_path):
@@ -258,7 +280,9 @@ def test_dense_scan_is_thinned_and_reported(tmp_path):
     si = doc["scan_input"]
     V, F = load_mesh(NOMINAL)
     assert si["points_read"] == len(P) and si["duplicates_removed"] == 0
-    assert si["voxel_mm"] == pytest.approx(nominal_spacing(V, F), rel=1e-12)
+    h = nominal_spacing(V, F)
+    assert si["grid_mm"] == pytest.approx(h, rel=1e-12)
+    assert si["voxel_mm"] == pytest.approx(h / np.sqrt(MIN_POINTS_PER_VOXEL), rel=1e-12)
     assert si["points_per_voxel"] >= MIN_POINTS_PER_VOXEL
     assert len(S) // 2 < si["points_used"] < len(S) * 1.2  # about the sample's density
 
