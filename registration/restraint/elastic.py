@@ -31,6 +31,7 @@ import scipy.sparse.linalg as spla
 
 from qifreport.registration.arrays import unique_sorted
 from qifreport.registration.linalg import SPDSolver
+from qifreport.registration.ordering import nested_dissection
 from qifreport.registration.restraint.clamp_set import rigid_motion_matrix
 
 __all__ = [
@@ -485,20 +486,71 @@ class ElasticModel:
             )
         C, _, owner = self._pad_rows(pads)
         n, m, p = self.n_dofs, C.shape[0], len(pads)
-        A = sp.bmat([[self.K, C.T], [C, None]], format="csc")
         cols = p + (load is not None)
-        rhs = np.zeros((n + m, cols))
-        rhs[n + np.arange(m), owner] = 1.0
+        f = np.zeros((n, cols))
+        c = np.zeros((m, cols))
+        c[np.arange(m), owner] = 1.0
         if load is not None:
-            rhs[:n, p] = np.asarray(load, dtype=np.float64)
-        try:
-            sol = spla.splu(A, permc_spec="MMD_AT_PLUS_A").solve(rhs)
-        except RuntimeError as e:
-            raise ValueError(f"the elastic problem is singular ({e})") from None
+            f[:, p] = np.asarray(load, dtype=np.float64)
+        u, lam = self._saddle_solve(C, f, c)
         G = np.zeros((p, cols))
         for j in range(cols):
-            G[:, j] = -np.bincount(owner, weights=sol[n:, j], minlength=p)
-        return sol[:n], G
+            G[:, j] = -np.bincount(owner, weights=lam[:, j], minlength=p)
+        return u, G
+
+    def _saddle_solve(
+        self, C: sp.csr_matrix, f: np.ndarray, c: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The degrees of freedom ``u`` (N, k) and multipliers ``lam`` (m, k) of
+        ``K u + C' lam = f``, ``C u = c`` for the columns of ``f`` (N, k) and ``c`` (m, k),
+        the constraints ``C`` (m, N) holding every rigid motion.
+
+        The system is solved in its augmented form: ``K + rho C'C`` (rho: the mean of
+        ``K``'s diagonal) is positive definite once the constraints hold the rigid motions,
+        and adding ``rho C'(C u - c)`` to the first row changes neither ``u`` nor ``lam``.
+        The augmented saddle matrix is then quasi-definite: it factorises stably without
+        pivoting in any order that puts the constraints last, here a geometric nested
+        dissection of the mesh's nodes (each node's three degrees of freedom together),
+        which fills far less than a minimum-degree order of the saddle matrix with
+        pivoting.
+        """
+        n, m = self.n_dofs, C.shape[0]
+        rho = float(np.mean(self.K.diagonal()))
+        Kr = (self.K + rho * (C.T @ C)).tocsr()
+        A = sp.bmat([[Kr, C.T], [C, None]], format="csr")
+        perm = np.r_[self._node_order(Kr), n + np.arange(m)]
+        inv = np.empty_like(perm)
+        inv[perm] = np.arange(len(perm))
+        try:
+            lu = spla.splu(
+                sp.csc_matrix(A[perm][:, perm]),
+                permc_spec="NATURAL",
+                diag_pivot_thresh=0.0,
+                options={"SymmetricMode": True},
+            )
+        except RuntimeError as e:
+            raise ValueError(f"the elastic problem is singular ({e})") from None
+        rhs = np.vstack([f + rho * (C.T @ c), c])
+        sol = lu.solve(np.ascontiguousarray(rhs[perm]))[inv]
+        if not np.all(np.isfinite(sol)):
+            raise ValueError("the elastic problem is singular (a non-finite solution)")
+        return sol[:n], sol[n:]
+
+    def _node_order(self, A: sp.spmatrix) -> np.ndarray:
+        """(N,) the degrees of freedom in a nested-dissection order of the mesh's nodes
+        (vertices, then mid-edge nodes at their edges' midpoints), each node's x, y, z
+        together; ``A`` (N, N): the coupling pattern."""
+        pos, dofs = [self.X], [self.vertex_dofs]
+        if self.edge_dofs is not None:
+            pos.append(self.X[self.edges].mean(axis=1))
+            dofs.append(self.edge_dofs)
+        X, nd = np.vstack(pos), np.vstack(dofs)
+        node = np.empty(self.n_dofs, dtype=np.int64)
+        node[nd.ravel()] = np.repeat(np.arange(len(nd)), 3)
+        S = sp.csr_matrix(
+            (np.ones(self.n_dofs), (node, np.arange(self.n_dofs))), shape=(len(nd), self.n_dofs)
+        )
+        return nd[nested_dissection(X, (S @ abs(A) @ S.T).tocsr())].ravel()
 
     def _pad_rows(self, pads: list[Pad]) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
         """The pads' constraint rows ``C u = c`` (a rigid pad: one per vertex, and per
@@ -643,7 +695,6 @@ def elastic_model(
     ElasticModel
     """
     from skfem import Basis, ElementTetP1, ElementTetP2, ElementVector, MeshTet, asm
-    from skfem.models.elasticity import linear_elasticity
 
     X = np.asarray(X, dtype=np.float64)
     T = np.asarray(T, dtype=np.int64)
@@ -660,22 +711,25 @@ def elastic_model(
     elem = ElementVector(ElementTetP2() if order == 2 else ElementTetP1())
     basis = Basis(mesh, elem)
     lam, mu = mat.lame
+    from skfem import BilinearForm
+    from skfem.helpers import ddot, sym_grad, trace
+
+    # sigma(u) : eps(v) = 2 mu eps(u) : eps(v) + lam tr eps(u) tr eps(v), written out: the
+    # same stiffness as scikit-fem's linear_elasticity model, assembled in less than half
+    # the time (its stress builds an identity tensor per basis function pair)
+    @BilinearForm
+    def elasticity(u, v, w):
+        eu, ev = sym_grad(u), sym_grad(v)
+        return w["s"] * (2.0 * mu * ddot(eu, ev) + lam * trace(eu) * trace(ev))
+
+    nqp = basis.X.shape[1]
     if stiffness_scale is None:
-        K = asm(linear_elasticity(lam, mu), basis).tocsr()
+        scale = np.ones(len(T))
     else:
         scale = np.asarray(stiffness_scale, dtype=np.float64)
         if scale.shape != (len(T),) or not np.all(np.isfinite(scale) & (scale > 0)):
             raise ValueError(f"stiffness_scale must be ({len(T)},) positive factors")
-        from skfem import BilinearForm
-        from skfem.helpers import ddot, sym_grad, trace
-
-        @BilinearForm
-        def scaled(u, v, w):
-            eu, ev = sym_grad(u), sym_grad(v)
-            return w["s"] * (2.0 * mu * ddot(eu, ev) + lam * trace(eu) * trace(ev))
-
-        nqp = basis.X.shape[1]
-        K = asm(scaled, basis, s=np.repeat(scale[:, None], nqp, axis=1)).tocsr()
+    K = asm(elasticity, basis, s=np.repeat(scale[:, None], nqp, axis=1)).tocsr()
     vertex_dofs = np.asarray(basis.nodal_dofs).T.copy()  # (n, 3)
     log.info(
         "elastic model: %d vertices, %d tetrahedra (P%d), %d dofs",
