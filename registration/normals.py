@@ -41,6 +41,12 @@ def pca_normals(P: np.ndarray, k: int = 12, tree: cKDTree | None = None) -> np.n
     tree = tree or cKDTree(P)
     k = min(k, len(P))
     _, idx = tree.query(P, k=k, workers=-1)
+    return _pca_of(P, idx)
+
+
+def _pca_of(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """The normals of :func:`pca_normals` from the neighbourhoods ``idx`` (m, k), each
+    point's ``k`` nearest points of ``P`` (m, 3) as ``cKDTree.query`` orders them."""
     N = np.empty((len(P), 3))
     # in blocks of points: each point's neighbourhood is its own, and a (m, k, 3) copy of
     # 400k points' neighbourhoods would hold 115 MB twice over
@@ -93,12 +99,32 @@ def refined_normals(
     radius : the neighbourhood, mm, stated from the part (not from the scan's spacing).
     tree : ``cKDTree(P)``.
     """
-    tree = tree or cKDTree(P)
-    k = min(REFINE_MAX_NEIGHBOURS, len(P))
+    return _refined(P, Ns, prior, radius, tree or cKDTree(P))[0]
+
+
+def _refined(
+    P: np.ndarray, Ns: np.ndarray, prior: np.ndarray, radius: float, tree: cKDTree, n: int = 0
+) -> tuple:
+    """:func:`refined_normals`, and each point's ``n`` nearest points from its neighbour
+    query (:func:`_leading`; ``n`` 0: none).
+
+    Returns
+    -------
+    normals : (m, 3) as :func:`refined_normals`.
+    near : ``[nb, spacing, again]`` of :func:`_leading` for all points, or None.
+    """
+    m = len(P)
+    k = min(REFINE_MAX_NEIGHBOURS, m)
     out = np.asarray(prior, dtype=np.float64).copy()
-    for s in range(0, len(P), _PCA_BLOCK):
+    held = None
+    if 2 <= n and min(n + 1, m) <= k:
+        held = [np.empty((m, n), dtype=np.intp), np.empty(m), np.empty(m, dtype=bool)]
+    for s in range(0, m, _PCA_BLOCK):
         X0, N0 = P[s : s + _PCA_BLOCK], out[s : s + _PCA_BLOCK]
         dist, idx = tree.query(X0, k=k, workers=-1)
+        if held is not None:
+            for kept, part in zip(held, _leading(dist, idx, n, m), strict=True):
+                kept[s : s + _PCA_BLOCK] = part
         D = np.take(P, idx, axis=0) - X0[:, None, :]  # (np.take: registration.arrays)
         near = (dist <= radius) | (np.arange(k) < REFINE_MIN_POINTS)
         w = near & (np.abs(np.einsum("mki,mi->mk", D, N0)) <= REFINE_SLAB * radius)
@@ -112,7 +138,7 @@ def refined_normals(
     same = np.einsum("ij,ij->i", out, Ns)
     side = np.where(np.abs(same) >= 0.5, same, np.einsum("ij,ij->i", out, prior))
     out[side < 0] *= -1.0
-    return out
+    return out, held
 
 
 #: points per block of :func:`pca_normals`, neighbour pairs per block of
@@ -170,9 +196,16 @@ def wall_sides(
     """
     tree = tree or cKDTree(P)
     at = np.arange(len(P)) if at is None else np.asarray(at)
+    return _wall_sides(P, Ns, at, tree, tree.query(P[at], k=2, workers=-1)[0][:, 1])
+
+
+def _wall_sides(
+    P: np.ndarray, Ns: np.ndarray, at: np.ndarray, tree: cKDTree, spacing: np.ndarray
+) -> np.ndarray:
+    """:func:`wall_sides` from the points ``at`` (a,), given ``spacing`` (a,), the distance
+    of each to its second nearest point of ``P`` (``tree.query(P[at], k=2)``)."""
     X0, N0 = P[at], Ns[at]
-    d1, _ = tree.query(X0, k=2, workers=-1)
-    reach = 0.75 * d1[:, 1]
+    reach = 0.75 * spacing
     hit = np.full((2, len(at)), np.inf)
     for side, sgn in enumerate((1.0, -1.0)):
         for a in WALL_PROBES:
@@ -198,9 +231,32 @@ def wall_sides(
     return out
 
 
-def _tangent_graph(P: np.ndarray, Ns: np.ndarray, k: int, tree: cKDTree) -> tuple:
+def _leading(dist: np.ndarray, idx: np.ndarray, n: int, m: int) -> list | None:
+    """The ``n`` nearest points of each of a points, from ``(dist, idx)`` (a, K), their
+    ``tree.query`` for K of the m points (``n`` <= K), as a query for ``n`` gives them:
+    the same where the first ``n + 1`` distances of a row all differ (the ``n`` nearest,
+    and their order, then are the only ones), or where K = m; the other rows (equal
+    distances, which the search may order otherwise) are to be queried again.
+
+    Returns
+    -------
+    ``[nb, spacing, again]``: nb (a, n) the first ``n`` columns of ``idx``; spacing (a,)
+    the distance to the second nearest point (``n`` >= 2); again (a,) bool, the rows to
+    query again. None when K < min(``n`` + 1, m) (the ``n``-th's successor unknown).
+    """
+    if n < 2 or idx.shape[1] < min(n + 1, m):
+        return None
+    d = dist[:, : n + 1]
+    return [idx[:, :n].copy(), dist[:, 1].copy(), np.any(d[:, 1:] == d[:, :-1], axis=1)]
+
+
+def _tangent_graph(
+    P: np.ndarray, Ns: np.ndarray, k: int, tree: cKDTree, held: list | None = None
+) -> tuple:
     """The graph along which :func:`orient_normals_consistent` propagates the sign of the
-    unsigned normals ``Ns`` (m, 3) of the scan ``P`` (m, 3) mm, from its ``k``-NN pairs.
+    unsigned normals ``Ns`` (m, 3) of the scan ``P`` (m, 3) mm, from its ``k``-NN pairs
+    (``held``: a list holding nb (m, k + 1), each point's ``k + 1`` nearest points as
+    ``tree.query`` gives them, emptied here; default: queried here).
 
     Returns
     -------
@@ -213,7 +269,7 @@ def _tangent_graph(P: np.ndarray, Ns: np.ndarray, k: int, tree: cKDTree) -> tupl
     m = len(P)
     # (the arrays of every pair, 35 MB each for 400k points, are dropped once used: on a
     # large scan this runs beside the part's preparation, and the two peaks add up)
-    nb = tree.query(P, k=k + 1, workers=-1)[1]
+    nb = tree.query(P, k=k + 1, workers=-1)[1] if held is None else held.pop()
     i = np.repeat(np.arange(m), k)
     j = nb[:, 1:].ravel()
     del nb
@@ -292,16 +348,25 @@ def _path_signs(Ns: np.ndarray, pred: np.ndarray) -> np.ndarray:
 
 
 def _outward_sheets(
-    P: np.ndarray, out: np.ndarray, labels: np.ndarray, n_comp: int, tree: cKDTree
+    P: np.ndarray,
+    out: np.ndarray,
+    labels: np.ndarray,
+    n_comp: int,
+    tree: cKDTree,
+    spacing: np.ndarray | None = None,
 ) -> np.ndarray:
     """Turn outward, in place, the sheets of the consistently signed normals ``out`` (m, 3)
     whose points see the wall's other skin (:func:`wall_sides` on a sample: its points
-    vote for their sheets, ``labels`` (m,)). Returns (n_comp,) bool, the sheets whose side
-    the vote decided."""
+    vote for their sheets, ``labels`` (m,)). ``spacing`` (m,): each point's distance to
+    its second nearest point (default: queried here). Returns (n_comp,) bool, the sheets
+    whose side the vote decided."""
     m = len(P)
     probe = np.arange(0, m, max(1, m // WALL_SAMPLE))
     sides = np.zeros(m, dtype=np.int8)
-    sides[probe] = wall_sides(P, out, probe, tree)
+    if spacing is None:
+        sides[probe] = wall_sides(P, out, probe, tree)
+    else:
+        sides[probe] = _wall_sides(P, out, probe, tree, spacing[probe])
     pos = np.bincount(labels, weights=sides > 0, minlength=n_comp)
     neg = np.bincount(labels, weights=sides < 0, minlength=n_comp)
     seen = pos + neg
@@ -336,15 +401,33 @@ def orient_normals_consistent(
     normals : (m, 3) unit normals, consistently signed within each sheet.
     labels : (m,) int sheet label of each point (>= 0), or :data:`SIDE_KNOWN`.
     """
+    return _orient(P, Ns, k, tree or cKDTree(P))
+
+
+def _orient(P: np.ndarray, Ns: np.ndarray, k: int, tree: cKDTree, near: list | None = None):
+    """:func:`orient_normals_consistent`; ``near``: ``[nb, spacing, again]`` of
+    :func:`_leading` for ``k + 1`` neighbours (``k`` as bounded here), emptied here, or
+    None (queried here)."""
     m = len(P)
-    tree = tree or cKDTree(P)
-    G, pi, pj = _tangent_graph(P, Ns, min(k, m - 1), tree)
+    k = min(k, m - 1)
+    spacing = None
+    if near is None or near[0].shape[1] != k + 1:
+        G, pi, pj = _tangent_graph(P, Ns, k, tree)
+    else:
+        nb, spacing, again = near
+        near.clear()
+        again = np.flatnonzero(again)
+        if len(again):
+            nb[again] = tree.query(P[again], k=k + 1, workers=-1)[1].reshape(len(again), k + 1)
+        G, pi, pj = _tangent_graph(P, Ns, k, tree, [nb])
+        del nb, again
     T = _spanning_tree(G)
     del G
     n_comp, labels, pred = _tree_parents(T, m)
     del T
     out = Ns * _path_signs(Ns, pred)[:, None]
-    known = _outward_sheets(P, out, labels, n_comp, tree)
+    known = _outward_sheets(P, out, labels, n_comp, tree, spacing)
+    del spacing
     # the scraps between them (points at creases and rims, whose PCA normals no tangent
     # pair joins) take their known neighbours' side, not across a wall; once (a second
     # round, from scraps to scraps, turned more of the bracket's points inwards than right)
@@ -386,7 +469,8 @@ def one_skin_normals(
     k : neighbours of the propagation graph.  tree : ``cKDTree(P)``.
     """
     tree = tree or cKDTree(P)
-    return orient_normals_consistent(P, refined_normals(P, Ns, prior, radius, tree), k, tree)
+    Nr, near = _refined(P, Ns, prior, radius, tree, min(k, len(P) - 1) + 1)
+    return _orient(P, Nr, k, tree, near)
 
 
 def oriented_normals(P: np.ndarray, k: int = 12) -> tuple[np.ndarray, np.ndarray]:
@@ -399,4 +483,9 @@ def oriented_normals(P: np.ndarray, k: int = 12) -> tuple[np.ndarray, np.ndarray
     placed.
     """
     tree = cKDTree(P)
-    return orient_normals_consistent(P, pca_normals(P, k, tree=tree), tree=tree)
+    m = len(P)
+    dist, idx = tree.query(P, k=min(k, m), workers=-1)
+    N = _pca_of(P, idx)
+    near = _leading(dist, idx, min(10, m - 1) + 1, m) if idx.ndim == 2 else None
+    del dist, idx
+    return _orient(P, N, 10, tree, near)
