@@ -137,13 +137,38 @@ def _cell_neighbours(
     normals ``N``: the ``k`` nearest, all its own; with them (m, 3): the ``k`` nearest whose
     normal does not face away from the point's, among its ``2 k`` nearest (the rest, when
     fewer, last and not its own; the distance of the last column then that of the
-    farthest of its own, or of its nearest when it has none)."""
+    farthest of its own, or of its nearest when it has none).
+
+    With normals, the ``k + 1`` nearest are asked first: a point whose ``k`` nearest are
+    all of its own skin, at distances all different and nearer than the next, has them as
+    its answer (the ``2 k`` nearest begin with them, in that order); only the other points
+    are asked for their ``2 k`` nearest.
+    """
+    tree = cKDTree(P)
     K = k if N is None else min(2 * k, len(P) - 1)
-    dist, nbr = cKDTree(P).query(P, k=K + 1, workers=-1)
+    if K <= k + 1:
+        return _own_among(tree, P, N, np.arange(len(P)), K, k)
+    dist, nbr = tree.query(P, k=k + 2, workers=-1)  # the point itself and k + 1 more
+    own = np.einsum("mkd,md->mk", N[nbr[:, 1 : k + 1]], N) >= 0.0
+    sure = own.all(axis=1) & (np.diff(dist, axis=1) > 0.0).all(axis=1)
+    dist, nbr = dist[:, 1 : k + 1].copy(), nbr[:, 1 : k + 1].copy()
+    own = np.ones(dist.shape, dtype=bool)
+    rest = np.flatnonzero(~sure)
+    if len(rest):
+        dist[rest], nbr[rest], own[rest] = _own_among(tree, P, N, rest, K, k)
+    return dist, nbr, own
+
+
+def _own_among(
+    tree: cKDTree, P: np.ndarray, N: np.ndarray | None, rows: np.ndarray, K: int, k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_cell_neighbours` of the points ``rows`` (r,) of ``P`` from their ``K``
+    nearest (``tree``: ``cKDTree(P)``): distances (r, k) mm, indices (r, k), own (r, k)."""
+    dist, nbr = tree.query(P[rows], k=K + 1, workers=-1)
     dist, nbr = dist[:, 1:], nbr[:, 1:]  # drop the point itself (duplicates removed)
     if N is None:
         return dist, nbr, np.ones(dist.shape, dtype=bool)
-    own = np.einsum("mkd,md->mk", N[nbr], N) >= 0.0
+    own = np.einsum("mkd,md->mk", N[nbr], N[rows]) >= 0.0
     order = np.argsort(~own, axis=1, kind="stable")[:, :k]
     dist, nbr, own = (np.take_along_axis(x, order, axis=1) for x in (dist, nbr, own))
     n_own = own.sum(axis=1)

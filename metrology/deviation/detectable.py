@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 from qifreport.metrology.acceptance.criteria import Acceptance
 from qifreport.metrology.acceptance.point_regions import DEFAULT_K, point_areas
 from qifreport.metrology.acceptance.statistics import json_float
-from qifreport.metrology.deviation.residual_fit import ball_radius, residual_referenced
+from qifreport.metrology.deviation.residual_fit import ResidualReader, ball_radius
 from qifreport.registration.deformable.gbcicp import MASS_REGULARISATION, holdout
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.linalg import SPDSolver
@@ -336,7 +336,8 @@ class ScanReading:
 @dataclass(frozen=True)
 class _Patch:
     """The surface about a probe site: its vertices and triangles within reach, and the
-    scan points there (mm)."""
+    scan points there (mm); ``reader`` reads the vertices from the points' residuals (its
+    ball pairs kept for the next dent)."""
 
     V: np.ndarray
     F: np.ndarray
@@ -350,6 +351,7 @@ class _Patch:
 
     labels: np.ndarray
     point_label: np.ndarray
+    reader: ResidualReader | None
 
     @classmethod
     def about(cls, V, F, P, normals, area, x0, reach, scan: ScanReading) -> _Patch:
@@ -359,26 +361,34 @@ class _Patch:
         vertex = np.flatnonzero(vin)
         remap = np.full(len(V), -1, dtype=np.int64)
         remap[vertex] = np.arange(len(vertex))
-        pin = np.flatnonzero((np.linalg.norm(P - x0, axis=1) <= reach) & (scan.point_label >= 0))
+        pin = _points_within(P, x0, reach, scan)
         Pn = P[pin]
-        tree = cKDTree(V[vertex])
+        Vs, Fp, Ns = V[vertex], remap[Fs], normals[vertex]
+        tree = cKDTree(Vs)
         k = min(DEFAULT_K, len(Pn))
         nb = cKDTree(Pn).query(Pn, k=k)[1].reshape(len(Pn), -1) if k else np.empty((0, 1), int)
         As = area[vertex]
         on = As[tree.query(Pn)[1]] > 0 if len(Pn) else np.zeros(0, dtype=bool)
-        return cls(
-            V[vertex],
-            remap[Fs],
-            normals[vertex],
-            As,
-            vertex,
-            Pn,
-            nb,
-            on,
-            tree,
-            scan.labels[keep],
-            scan.point_label[pin],
-        )
+        labels, point_label = scan.labels[keep], scan.point_label[pin]
+        reader = None
+        if len(Fp):
+            reader = ResidualReader(
+                Vs, Fp, Pn, Ns, point_label, labels, radius=scan.ball, robust=False
+            )
+        return cls(Vs, Fp, Ns, As, vertex, Pn, nb, on, tree, labels, point_label, reader)
+
+
+def _points_within(P: np.ndarray, x0: np.ndarray, reach: float, scan: ScanReading) -> np.ndarray:
+    """The ids (ascending) of the points of ``P`` (m, 3) mm within ``reach`` mm of ``x0``
+    and on a face of ``scan``; the candidates from ``scan.tree`` (of ``P``), a hair
+    wider, each then measured as a point of the whole scan would be."""
+    if scan.tree.n == len(P):
+        cand = scan.tree.query_ball_point(x0, reach * (1.0 + 1e-9) + 1e-9)
+        cand = np.sort(np.asarray(cand, dtype=np.int64))
+    else:
+        cand = np.arange(len(P))
+    near = np.linalg.norm(P[cand] - x0, axis=1) <= reach
+    return cand[near & (scan.point_label[cand] >= 0)]
 
 
 def detectable_dent(
@@ -462,17 +472,7 @@ def _read(
     points on its own faces."""
     if not len(patch.F):
         return 0.0, 0.0
-    read = residual_referenced(
-        patch.V,
-        patch.F,
-        patch.P,
-        r,
-        patch.normals,
-        patch.point_label,
-        patch.labels,
-        radius=scan.ball,
-        robust=False,
-    )
+    read = patch.reader(r)
     on = np.isfinite(read) & (patch.area > 0)
     if not on.any():
         return 0.0, 0.0
