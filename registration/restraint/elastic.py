@@ -649,7 +649,8 @@ def elastic_modes(model: ElasticModel, k: int) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     omega2 : (k,) squared angular frequencies, 1/s^2 (with the material's density).
-    modes : (N, k) degrees of freedom of each mode, mass-normalised (``phi' M phi = 1``).
+    modes : (N, k) degrees of freedom of each mode, mass-normalised (``phi' M phi = 1``),
+        its largest component positive.
     """
     M = model.mass().tocsc()
     K = model.K.tocsc()
@@ -667,8 +668,13 @@ def elastic_modes(model: ElasticModel, k: int) -> tuple[np.ndarray, np.ndarray]:
     # motions unfound, and an elastic mode is then taken for one
     w, phi = spla.eigsh(K, k=k + 6, M=M, sigma=-shift, which="LM", v0=v0, OPinv=inverse)
     order = np.argsort(w)
-    w, phi = w[order], phi[:, order]
-    return w[6:], phi[:, 6:]
+    w, phi = w[order[6:]], phi[:, order[6:]]
+    # each mode's sign fixed (its largest component positive): the eigensolver's is
+    # arbitrary, and a rounding change in the stiffness may flip it, and with it a shape
+    # built from the modes
+    big = np.argmax(np.abs(phi), axis=0)
+    phi *= np.sign(phi[big, np.arange(phi.shape[1])])
+    return w, phi
 
 
 def _stiffness(basis, lam: float, mu: float, scale: np.ndarray) -> sp.csr_matrix:
