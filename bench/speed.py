@@ -3,10 +3,11 @@
 ``qifreport samples/panel.step samples/panel_scan.ply --profile`` (QIF + PDF written and
 validated) is run ``--runs`` times with an empty per-part cache (cold: the part is read,
 meshed and prepared) and ``--runs`` times with that cache filled (warm). Printed: the median
-wall time of each, the median of every stage of ``--profile``, the peak resident memory, the
-cache entry's size, and a machine unit measured in the same run (one k-d tree query of the
-scan's points against the nominal's vertices, the physical floor of the command), so a
-figure can be read as a ratio on another machine.
+wall time and CPU-seconds (user + system of the command and its children) of each, the
+median of every stage of ``--profile``, the peak resident memory, the cache entry's size,
+and a machine unit measured in the same run (one k-d tree query of the scan's points
+against the nominal's vertices, the physical floor of the command), so a figure can be
+read as a ratio on another machine.
 
     python bench/speed.py [--runs 3] [--scan samples/panel_scan.ply]
 
@@ -16,6 +17,7 @@ The targets (warm, cold, the cache entry's size) are in ``docs/benchmarks.md``.
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import statistics
 import subprocess
@@ -29,22 +31,28 @@ EXE = Path(sys.executable).with_name("qifreport")
 STAGE = re.compile(r"^(\S.*?)\s{2,}([0-9.]+)\s+([0-9]+)\s*$")
 
 
-def run(part: Path, scan: Path, out: Path, cache: Path) -> tuple[float, dict[str, float], int]:
-    """Wall seconds, the profile's stage seconds, its peak RSS (MiB) of one command."""
+def run(
+    part: Path, scan: Path, out: Path, cache: Path
+) -> tuple[float, dict[str, float], int, float]:
+    """Wall seconds, the profile's stage seconds, its peak RSS (MiB) and the CPU-seconds of
+    the process tree (user + system, the command and its children) of one command."""
     t0 = time.perf_counter()
-    r = subprocess.run(
-        [str(EXE), str(part), str(scan), "--out", str(out), "--force", "--quiet"]
-        + ["--cache", str(cache), "--profile"],
-        capture_output=True,
-        text=True,
-    )
-    wall = time.perf_counter() - t0
-    if r.returncode not in (0, 1, 3):
-        raise SystemExit(r.stderr[-2000:])
+    argv = [str(EXE), str(part), str(scan), "--out", str(out), "--force", "--quiet"]
+    argv += ["--cache", str(cache), "--profile"]
+    with tempfile.TemporaryFile("w+") as fo, tempfile.TemporaryFile("w+") as fe:
+        proc = subprocess.Popen(argv, stdout=fo, stderr=fe, text=True)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        fo.seek(0)
+        fe.seek(0)
+        stdout, stderr = fo.read(), fe.read()
+    if os.waitstatus_to_exitcode(status) not in (0, 1, 3):
+        raise SystemExit(stderr[-2000:])
+    cpu = usage.ru_utime + usage.ru_stime
     stages: dict[str, float] = {}
     peak = 0
     on = False
-    for line in r.stdout.splitlines():
+    for line in stdout.splitlines():
         if line.startswith("stage "):
             on = True
             continue
@@ -52,7 +60,7 @@ def run(part: Path, scan: Path, out: Path, cache: Path) -> tuple[float, dict[str
         if m:
             stages[m.group(1).strip()] = float(m.group(2))
             peak = max(peak, int(m.group(3)))
-    return wall, stages, peak
+    return wall, stages, peak, cpu
 
 
 def unit(part: Path, scan: Path) -> float:
@@ -95,6 +103,10 @@ def main() -> None:
     print(
         f"{'wall, s (median)':<28} {statistics.median(r[0] for r in cold):>8.2f} "
         f"{statistics.median(r[0] for r in warm):>8.2f}"
+    )
+    print(
+        f"{'CPU-s, process tree (median)':<28} {statistics.median(r[3] for r in cold):>8.2f} "
+        f"{statistics.median(r[3] for r in warm):>8.2f}"
     )
     print(
         f"{'wall / unit':<28} {statistics.median(r[0] for r in cold) / u:>8.0f} "
