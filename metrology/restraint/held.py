@@ -25,7 +25,7 @@ from qifreport.metrology.restraint.locators import patch_offset
 from qifreport.registration.deformable.result import orient_scan_normals
 from qifreport.registration.icp import robust_scale, tukey_rho, tukey_weights
 from qifreport.registration.mesh import face_normals
-from qifreport.registration.normals import orient_normals_consistent, pca_normals
+from qifreport.registration.normals import oriented_normals
 from qifreport.registration.restraint.restrained import (
     FACING_ANGLE,
     Restraint,
@@ -366,7 +366,7 @@ def _held(
     held.seat = xi
     moved = held.on_triangles(V, cface, C)
     Pr = Pseat + moved
-    Ns, held_sheets = orient_normals_consistent(Pr, pca_normals(Pr, normal_k))
+    Ns, held_sheets = oriented_normals(Pr, normal_k)  # one tree for both steps
     k_model = 2.0 * MODEL_UNCERTAINTY
     u_v = k_model * np.linalg.norm(held.u, axis=1)
     u_p = k_model * np.linalg.norm(moved, axis=1)
