@@ -94,7 +94,7 @@ class ThinningReport:
         if self.thinned:
             text += (
                 f", thinned to {self.points_used} on a {self.voxel_mm:.3g} mm grid "
-                f"({self.points_per_voxel:.1f} points per cell)"
+                f"({self.points_per_voxel:.1f} points per {self.grid_mm:.3g} mm cell)"
             )
         else:
             text += f", {self.points_used} used"
