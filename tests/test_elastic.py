@@ -188,3 +188,46 @@ def test_the_sample_panel_step_solid_fills_with_tetrahedra():
     fixed = [(v, a) for v in corners for a in range(3)]
     sol = model.solve(np.array(fixed), load=model.gravity())
     assert np.isfinite(sol.u).all() and 0.0 < np.abs(sol.u).max() < 10.0
+
+
+def test_the_clamp_responses_solve_the_saddle_problem_and_the_stiffness_is_scikit_fem_s():
+    """The clamps' unit responses (one factorisation of the augmented, quasi-definite
+    system in a nested-dissection order) equal the model's direct saddle-point solve
+    (``ElasticModel.solve``: SuperLU with pivoting, one drive at a time) to 1e-8 of the
+    largest displacement and force; the stiffness equals scikit-fem's own
+    ``linear_elasticity`` assembly to 1e-12; the elastic modes carry a fixed sign."""
+    from skfem import asm
+    from skfem.models.elasticity import linear_elasticity
+
+    from qifreport.registration.restraint.elastic import Pad, elastic_modes
+
+    X, T = box(0.0, 40.0, 0.0, 10.0, 0.0, 4.0, 3.0)
+    model = elastic_model(X, T, STEEL)
+    K = asm(linear_elasticity(*STEEL.lame), model._basis).tocsr()
+    assert abs(model.K - K).max() <= 1e-12 * abs(K).max()
+
+    def near(axis: int, value: float, r: float, c: tuple[float, float]) -> np.ndarray:
+        face = on(X, axis, value)
+        other = [a for a in range(3) if a != axis]
+        return face[np.linalg.norm(X[face][:, other] - c, axis=1) <= r]
+
+    pads = [
+        Pad(near(0, 0.0, 2.5, (5.0, 2.0)), (1.0, 0.0, 0.0)),  # rigid: x and two tilts
+        Pad(near(2, 0.0, 3.0, (8.0, 5.0)), (0.0, 0.0, 1.0)),  # rigid: z and two tilts
+        Pad(near(1, 0.0, 2.5, (20.0, 2.0)), (0.0, 1.0, 0.0), mean=True),
+        Pad(near(2, 0.0, 3.0, (34.0, 5.0)), (0.0, 0.0, 1.0), mean=True),
+    ]
+    assert all(len(p.vertices) >= 3 for p in pads)
+    load = model.gravity()
+    D, G = model.pad_responses(pads, load)
+    assert D.shape == (model.n_dofs, 5) and G.shape == (4, 5)
+    for j in range(5):
+        for k, p in enumerate(pads):
+            p.value = float(k == j)
+        sol = model.solve(pads=pads, load=load if j == 4 else None)
+        assert np.abs(sol.dofs - D[:, j]).max() <= 1e-8 * np.abs(D).max()
+        assert np.abs(sol.pad_forces - G[:, j]).max() <= 1e-8 * np.abs(G).max()
+
+    _, modes = elastic_modes(model, 3)
+    big = np.argmax(np.abs(modes), axis=0)
+    assert np.all(modes[big, np.arange(3)] > 0)
