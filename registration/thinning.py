@@ -24,8 +24,9 @@ The rule (:func:`nominal_spacing`, :func:`thin_scan`):
   average the range noise away (the measurement-resolution check, :mod:`metrology.resolution`,
   would then credit the scan with a precision it does not have) and cut corners at creases.
 
-Cost: one sort of 64-bit cell keys, O(m log m), numpy only, and a few hundred MB beyond the
-points themselves on 10 M points (``bench/big_scan.py``).
+Cost: one sort of 64-bit cell keys to count the cells, a second on the finer grid when the
+scan is thinned, O(m log m), numpy only, and a few hundred MB beyond the points themselves
+on 10 M points (``bench/big_scan.py``).
 """
 
 from __future__ import annotations
