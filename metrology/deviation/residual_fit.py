@@ -239,40 +239,25 @@ _FIT_BLOCK = 16384
 _PAIR_TABLE_MAX = 1 << 26
 
 
-def _residual_fit(
-    V,
-    P,
-    r,
-    N,
-    sel,
-    tree,
-    min_points,
-    own,
-    m,
-    point_label,
-    facing,
-    robust,
-    verts,
-    radius,
-    max_centroid_offset,
-    plans=None,
-):
+def _residual_fit(args: tuple, verts, radius, max_centroid_offset, plans=None):
     """:func:`residual_referenced` on the vertices ``verts`` with one ball ``radius``:
     (scored vertex ids, their deviations, their variance factors, the sums of squared
-    residuals of their fits and those residuals' degrees of freedom). ``facing``: the
-    points' normals of :func:`residual_referenced` (``point_normals``), or None.
-    ``plans``: the :class:`_FitPlan` made so far for these points (a dict by ball and
-    first vertex, not robust), to reuse and add to; None: none kept."""
+    residuals of their fits and those residuals' degrees of freedom). ``args``: the fits'
+    leading arguments ``(V, P, r, N, sel, tree, min_points, own, m, point_label, facing,
+    robust)`` (:meth:`_FitPlan.of`; ``facing``: the points' normals of
+    :func:`residual_referenced`, ``point_normals``, or None). ``plans``: the
+    :class:`_FitPlan` made so far for these points (a dict by ball and first vertex, not
+    robust), to reuse and add to; None: none kept."""
     key = (float(radius), int(verts[0]) if len(verts) else -1)
     if plans is not None and key in plans and np.array_equal(plans[key][0], verts):
         plan, rr = plans[key][1], None
     else:
-        args = (V, P, r, N, sel, tree, min_points, own, m, point_label, facing, robust)
         plan, rr = _FitPlan.of(*args, verts, radius, max_centroid_offset)
         if plans is not None:
             plans[key] = (verts, plan)
     if plan is None:
         return (np.empty(0, dtype=np.int64),) + (np.empty(0),) * 4
+    r = args[2]
     return plan.fit(r[plan.idx] if rr is None else rr)
 
 
@@ -396,7 +381,7 @@ def _fit_unscored(
     # (vertex, point) pairs of a large part's ball search stay a bounded size
     for s in range(0, len(todo), _FIT_BLOCK):
         block = todo[s : s + _FIT_BLOCK]
-        vid, t, hv, ev, dv = _residual_fit(*args, block, ball, max_centroid_offset, plans)
+        vid, t, hv, ev, dv = _residual_fit(args, block, ball, max_centroid_offset, plans)
         dev[vid] = t
         h[vid] = hv
         sse[vid] = ev
