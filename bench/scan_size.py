@@ -21,15 +21,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from big_scan import NOMINAL, SCAN, dense_scan, write_ply  # bench/: the script's own folder
+from speed import measure
 
 EXE = Path(sys.executable).with_name("qifreport")
 
@@ -38,16 +36,8 @@ def run(scan: Path, out: Path, cache: Path) -> tuple[float, float, dict]:
     """One warm command in a fresh process: CPU-s of its process tree, wall s, JSON doc."""
     argv = [str(EXE), str(NOMINAL), str(scan), "--tolerance", "0.5", "--out", str(out)]
     argv += ["--force", "--no-pdf", "--json", "--quiet", "--cache", str(cache)]
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.perf_counter() - t0
-    err = proc.stderr.read().decode() if proc.stderr else ""
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    if proc.returncode not in (0, 1, 3):
-        raise SystemExit(f"qifreport exited {proc.returncode}: {err.strip()[-800:]}")
-    doc = json.loads((out / f"{NOMINAL.stem}.json").read_text())
-    return usage.ru_utime + usage.ru_stime, wall, doc
+    _, cpu, wall = measure(argv)
+    return cpu, wall, json.loads((out / f"{NOMINAL.stem}.json").read_text())
 
 
 def main() -> None:

@@ -31,14 +31,11 @@ EXE = Path(sys.executable).with_name("qifreport")
 STAGE = re.compile(r"^(\S.*?)\s{2,}([0-9.]+)\s+([0-9]+)\s*$")
 
 
-def run(
-    part: Path, scan: Path, out: Path, cache: Path
-) -> tuple[float, dict[str, float], int, float]:
-    """Wall seconds, the profile's stage seconds, its peak RSS (MiB) and the CPU-seconds of
-    the process tree (user + system, the command and its children) of one command."""
+def measure(argv: list[str]) -> tuple[str, float, float]:
+    """Run ``argv`` to its end: its standard output, the CPU-seconds of its process tree
+    (user + system, the command and its children) and its wall seconds; exits with the
+    end of its standard error unless it exits 0, 1 or 3 (a verdict)."""
     t0 = time.perf_counter()
-    argv = [str(EXE), str(part), str(scan), "--out", str(out), "--force", "--quiet"]
-    argv += ["--cache", str(cache), "--profile"]
     with tempfile.TemporaryFile("w+") as fo, tempfile.TemporaryFile("w+") as fe:
         proc = subprocess.Popen(argv, stdout=fo, stderr=fe, text=True)
         _, status, usage = os.wait4(proc.pid, 0)
@@ -46,9 +43,20 @@ def run(
         fo.seek(0)
         fe.seek(0)
         stdout, stderr = fo.read(), fe.read()
-    if os.waitstatus_to_exitcode(status) not in (0, 1, 3):
-        raise SystemExit(stderr[-2000:])
-    cpu = usage.ru_utime + usage.ru_stime
+    code = os.waitstatus_to_exitcode(status)
+    if code not in (0, 1, 3):
+        raise SystemExit(f"qifreport exited {code}: {stderr.strip()[-2000:]}")
+    return stdout, usage.ru_utime + usage.ru_stime, wall
+
+
+def run(
+    part: Path, scan: Path, out: Path, cache: Path
+) -> tuple[float, dict[str, float], int, float]:
+    """Wall seconds, the profile's stage seconds, its peak RSS (MiB) and the CPU-seconds of
+    the process tree (:func:`measure`) of one command."""
+    argv = [str(EXE), str(part), str(scan), "--out", str(out), "--force", "--quiet"]
+    argv += ["--cache", str(cache), "--profile"]
+    stdout, cpu, wall = measure(argv)
     stages: dict[str, float] = {}
     peak = 0
     on = False
