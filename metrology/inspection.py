@@ -691,7 +691,6 @@ def _restrained(run: JudgeRun, restraint: RestraintBasis) -> InspectionResult:
         face_id=ctx.face_id,
         brep_normals=ctx.brep_normals,
         tree=prepared.model.tree if prepared.model is not None else None,
-        normal_k=params.gbcicp.scan_normal_k,
     )
     far = hold_too_far(held, bounding_diagonal(reg.V))
     if far is not None:

@@ -27,9 +27,12 @@ from qifreport.registration.restraint.clamps import Clamp
 from qifreport.registration.restraint.elastic import MATERIALS, Pad, elastic_model
 from qifreport.registration.restraint.restrained import (
     clamp_offsets,
+    gradient_on_triangles,
     interpolate_on_triangles,
     restrain,
     restraint_basis,
+    rigid_motion,
+    transported_normals,
 )
 from qifreport.registration.restraint.sheet_solid import sheet_solid
 from tests.test_metrology import grid_mesh
@@ -166,3 +169,52 @@ def test_held_under_its_own_weight_the_clamps_carry_it(sheet):
     u_direct = model.displacement_at(direct, V)
     np.testing.assert_allclose(res.u, u_direct, atol=1e-6 * np.abs(u_direct).max())
     assert u_direct[:, 2].min() < -0.1  # it sags (mm) between its corners
+
+
+def grid_normals(P: np.ndarray) -> np.ndarray:
+    """Unit normals (m, 3) of the free state's 1.5 mm grid of points (:func:`free_state`),
+    from central differences along its rows and columns."""
+    G = P.reshape(len(np.arange(0.0, W + 1e-9, 1.5)), -1, 3)
+    n = np.cross(np.gradient(G, axis=1), np.gradient(G, axis=0)).reshape(-1, 3)
+    return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+def test_the_held_scans_normals_are_the_free_ones_carried_by_the_hold(sheet):
+    """The free state's normals carried by the hold (its displacement's gradient on the
+    nominal's triangles, after a small rigid motion) are the held surface's: the held sheet
+    is flat, so they point along z within 0.05 deg where the free ones tilt by up to 1.3
+    deg; and a field affine in space turns a plane's normal exactly as the moved plane."""
+    V, F, solid, model, _ = sheet
+    P = free_state(sheet)
+    N = grid_normals(P)
+    tilt = np.degrees(np.arccos(np.clip(N[:, 2], -1, 1)))
+    assert tilt.max() > 1.0
+    R, t = rigid_motion(np.array([0.002, -0.001, 0.003, 0.1, 0.0, 0.0]), V.mean(axis=0))
+    Pseat = P @ R.T + t
+    C, cface, _ = closest_points(V, F, Pseat)
+    cs = clamps()
+    normal = np.tile([0.0, 0.0, 1.0], (len(cs), 1))
+    off = clamp_offsets(cs, P, closest_points(V, F, P)[2], PAD)
+    held = restraint_basis(model, cs, normal, V, F, pad_radius=PAD).apply(off)
+    Nh = transported_normals(N, R, held.gradient_on_triangles(V, cface, C))
+    # interior points (the grid's border normals are one-sided differences)
+    inner = np.all((P[:, :2] > 3.0) & (P[:, :2] < [L - 3.0, W - 3.0]), axis=1)
+    held_tilt = np.degrees(np.arccos(np.clip((Nh[inner] @ R[:, 2]), -1, 1)))
+    assert held_tilt.max() < 0.05 < 1.0 < tilt[inner].max()
+
+    A = np.array([[0.01, 0.02, -0.01], [0.0, -0.02, 0.03], [0.015, 0.01, 0.005]])
+    u = V @ A.T
+    grad = gradient_on_triangles(u, V, F, cface, C)
+    tilted = np.tile([0.0, 0.3, 1.0], (len(C), 1)) / np.hypot(0.3, 1.0)
+    plane = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, -0.3]])  # two directions in that plane
+    moved = plane @ (np.eye(3) + A).T
+    expect = np.cross(moved[0], moved[1])
+    expect /= np.linalg.norm(expect)
+    # the nominal's triangles are flat in z: their gradient is A on the xy plane, which maps
+    # a tilted plane's normal as the affine map does only for in-plane steps; check the
+    # nominal plane's own normal, and the cofactor rule on the tilted one with the full A
+    z = transported_normals(np.tile([0.0, 0.0, 1.0], (len(C), 1)), np.eye(3), grad)
+    zx = np.cross((np.eye(3) + A)[:, 0], (np.eye(3) + A)[:, 1])
+    np.testing.assert_allclose(z, np.tile(zx / np.linalg.norm(zx), (len(C), 1)), atol=1e-12)
+    full = transported_normals(tilted[:1], np.eye(3), A[None])
+    np.testing.assert_allclose(full[0], expect, atol=1e-12)

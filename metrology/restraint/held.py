@@ -25,7 +25,6 @@ from qifreport.metrology.restraint.locators import patch_offset
 from qifreport.registration.deformable.result import orient_scan_normals
 from qifreport.registration.icp import robust_scale, tukey_rho, tukey_weights
 from qifreport.registration.mesh import face_normals
-from qifreport.registration.normals import oriented_normals
 from qifreport.registration.restraint.restrained import (
     FACING_ANGLE,
     Restraint,
@@ -33,6 +32,7 @@ from qifreport.registration.restraint.restrained import (
     pad_mean,
     read_directions,
     rigid_motion,
+    transported_normals,
 )
 
 __all__ = [
@@ -127,7 +127,6 @@ def hold_scan(
     face_id: np.ndarray | None = None,
     brep_normals: np.ndarray | None = None,
     tree: cKDTree | None = None,
-    normal_k: int = 12,
 ) -> HeldScan:
     """Hold the rigidly seated scan at its clamps (ISO 10579).
 
@@ -152,13 +151,14 @@ def hold_scan(
     ----------
     V : (n, 3) nominal vertices, mm (the restraint basis's mesh).  F : (f, 3).
     P : (m, 3) the rigidly seated free-state scan, mm.
-    scan_normals, sheets : its PCA normals and sheets
-        (:func:`qifreport.registration.normals.orient_normals_consistent`).
+    scan_normals, sheets : its normals and sheets
+        (:func:`qifreport.registration.normals.orient_normals_consistent`); the held scan's
+        are these sheets and these normals carried by the hold's motion.
     restraint : the part's restraint basis.  normals : (n, 3) unit vertex normals.
     free_fit : the free virtual fixture's registered vertices (n, 3), mm, when asked.
     face_id : (f,) B-rep face of each triangle (a STEP nominal).
     brep_normals : (f, 3, 3) the B-rep's normals at the triangle corners.
-    tree : ``cKDTree(V)``.  normal_k : neighbours of the held scan's PCA normals.
+    tree : ``cKDTree(V)``.
     """
     t0 = time.perf_counter()
     seconds: dict[str, float] = {}
@@ -182,7 +182,7 @@ def hold_scan(
     t1 = time.perf_counter()
     xi = seat_held(P, restraint, V, distances, offs.origin, offs.at, offs.read)
     seconds["restraint seat"] = time.perf_counter() - t1
-    out = _held(V, F, P, xi, offs, normals, tri_n, normal_k)
+    out = _held(V, F, P, xi, offs, normals, tri_n, (scan_normals, sheets))
     seconds["restraint"] = time.perf_counter() - t0 - seconds.get("free fit", 0.0)
     out.seconds = seconds
     return out
@@ -350,12 +350,14 @@ def _held(
     offs: ClampOffsets,
     normals: np.ndarray,
     tri_n: np.ndarray,
-    normal_k: int,
+    oriented: tuple[np.ndarray, np.ndarray],
 ) -> HeldScan:
     """The free state ``P0`` (m, 3) moved by the held seat ``xi`` (6,) and by the part's
     elastic response to its clamps driven home, with the hold's uncertainty: the elastic
     model's own, a share of how far it moved each vertex and point, and the placement's
-    where the seat placed the part (:func:`hold_scan`)."""
+    where the seat placed the part (:func:`hold_scan`). ``oriented``: the free state's
+    normals (m, 3) and sheets (m,); the held scan's are the same sheets and those normals
+    carried by the motion (:func:`transported_normals`)."""
     restraint, origin = offs.restraint, offs.origin
     R, t = rigid_motion(xi, origin)
     Pseat = P0 @ R.T + t
@@ -366,7 +368,7 @@ def _held(
     held.seat = xi
     moved = held.on_triangles(V, cface, C)
     Pr = Pseat + moved
-    Ns, held_sheets = oriented_normals(Pr, normal_k)  # one tree for both steps
+    Ns = transported_normals(oriented[0], R, held.gradient_on_triangles(V, cface, C))
     k_model = 2.0 * MODEL_UNCERTAINTY
     u_v = k_model * np.linalg.norm(held.u, axis=1)
     u_p = k_model * np.linalg.norm(moved, axis=1)
@@ -393,7 +395,7 @@ def _held(
         P_free=Pseat,
         P=Pr,
         normals=Ns,
-        sheets=held_sheets,
+        sheets=oriented[1],
         restraint=held,
         u_vertex=u_v,
         u_point=u_p,

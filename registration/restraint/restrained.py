@@ -44,11 +44,13 @@ __all__ = [
     "Restraint",
     "RestraintBasis",
     "clamp_offsets",
+    "gradient_on_triangles",
     "interpolate_on_triangles",
     "pad_mean",
     "restrain",
     "restraint_basis",
     "rigid_motion",
+    "transported_normals",
     "triangle_edges",
 ]
 
@@ -128,6 +130,16 @@ class Restraint:
         if self.u is None:
             raise ValueError("a restraint from a direct solve: use displacement_at")
         return interpolate_on_triangles(self.u, V, self.F, tri, points, self.u_mid, self.tri_edges)
+
+    def gradient_on_triangles(
+        self, V: np.ndarray, tri: np.ndarray, points: np.ndarray
+    ) -> np.ndarray:
+        """(m, 3, 3) the displacement's gradient along each triangle's plane (zero along its
+        normal) at the points of :meth:`on_triangles`: ``G[i] @ d`` is the change of the
+        displacement over a step ``d`` (3,) mm in the surface."""
+        if self.u is None:
+            raise ValueError("a restraint from a direct solve: use displacement_at")
+        return gradient_on_triangles(self.u, V, self.F, tri, points, self.u_mid, self.tri_edges)
 
     def to_dict(self) -> dict:
         src = self.offset_sources or [None] * len(self.clamps)
@@ -548,3 +560,51 @@ def interpolate_on_triangles(
     return np.einsum("ij,ij...->i...", wc, vals[F[tri]]) + np.einsum(
         "ij,ij...->i...", we, np.asarray(mid)[tri_edges[tri]]
     )
+
+
+def gradient_on_triangles(
+    values: np.ndarray,
+    V: np.ndarray,
+    F: np.ndarray,
+    tri: np.ndarray,
+    points: np.ndarray,
+    mid: np.ndarray | None = None,
+    tri_edges: np.ndarray | None = None,
+) -> np.ndarray:
+    """(m, k, 3) the surface gradient of the field :func:`interpolate_on_triangles` gives
+    (same arguments) at ``points`` (m, 3): per unit length (field unit per mm) along the
+    plane of each point's triangle, zero along its normal; ``G[i] @ d`` is the field's change
+    over a step ``d`` (3,) mm in that plane. A degenerate triangle gives zero."""
+    w = np.clip(barycentric(V, F, tri, points), 0.0, None)
+    w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+    X = V[F[tri]]  # (m, 3 corners, 3)
+    n = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
+    twice_area = np.linalg.norm(n, axis=1)
+    n /= np.where(twice_area > 0, twice_area, np.inf)[:, None]
+    # the gradients of the barycentric coordinates: each corner's opposite edge turned in
+    # the plane towards it, over twice the area
+    opposite = np.stack([X[:, 2] - X[:, 1], X[:, 0] - X[:, 2], X[:, 1] - X[:, 0]], axis=1)
+    grad_l = (
+        np.cross(n[:, None, :], opposite) / np.where(twice_area > 0, twice_area, 1.0)[:, None, None]
+    )
+    vals = np.asarray(values)
+    if mid is None:
+        return np.einsum("ijk,ijl->ikl", vals[F[tri]], grad_l)
+    grad_c = (4.0 * w - 1.0)[:, :, None] * grad_l
+    a, b = (0, 1, 2), (1, 2, 0)
+    grad_e = 4.0 * (w[:, b, None] * grad_l[:, a] + w[:, a, None] * grad_l[:, b])
+    return np.einsum("ijk,ijl->ikl", vals[F[tri]], grad_c) + np.einsum(
+        "ijk,ijl->ikl", np.asarray(mid)[tri_edges[tri]], grad_e
+    )
+
+
+def transported_normals(N: np.ndarray, R: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """(m, 3) unit normals ``N`` (m, 3) of points moved by the rotation ``R`` (3, 3) and
+    then by a displacement whose surface gradient there is ``G`` (m, 3, 3)
+    (:func:`gradient_on_triangles`): the cofactor of the deformation ``I + G`` on each
+    rotated normal, ``(I + G)^-T R n``, the normal of the moved surface (exact for an
+    affine displacement of a plane)."""
+    D = np.eye(3) + G
+    out = np.linalg.solve(np.swapaxes(D, 1, 2), (N @ R.T)[:, :, None])[:, :, 0]
+    out /= np.linalg.norm(out, axis=1, keepdims=True)
+    return out
