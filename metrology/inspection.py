@@ -48,7 +48,7 @@ from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import rigid_icp
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import bounding_diagonal, median_edge_length, vertex_normals
-from qifreport.registration.normals import one_skin_normals, oriented_normals
+from qifreport.registration.normals import one_skin_normals
 from qifreport.registration.outliers import StrayPoints, without_stray
 from qifreport.registration.pose.prealign import seat_scan
 from qifreport.registration.restraint.fixture_load import (
@@ -61,7 +61,7 @@ from qifreport.registration.restraint.fixture_load import (
 from qifreport.registration.restraint.restrained import RestraintBasis
 from qifreport.registration.thinning import nominal_spacing
 
-from .judgement import judge, resolved
+from .judgement import judge
 from .params import CLAMPS, FREE, InspectionParams
 from .prepared import PreparedPart, prepare_part
 from .results import (
@@ -384,24 +384,17 @@ def seat_rigidly(
     params: InspectionParams,
     prepared: PreparedPart,
     timings: dict[str, float],
-    *,
-    scan_normals: Any = None,
 ) -> Registered:
     """The scan ``P`` (m, 3) seated on the nominal ``(V, F)``: the pose search, the rigid
-    fit, the overlap check, and the scan's normals (turned with it)
+    fit, the overlap check, and the seated scan's normals and sheets
     (:class:`~qifreport.metrology.stages.context.Registered`; its covered area is measured
     when first asked for, with the seated normals).
 
-    The scan's ``k``-nearest normals do not depend on where the scan lies: they are
-    measured on the points as given and turned with the scan, then refitted on one skin at a
-    length of the part and signed per connected sheet along the refitted normals
-    (:func:`seated_normals`; the inspection only chooses each sheet's side against its
-    nominal). ``scan_normals``: ``(Ns, sheets)`` of
-    :func:`~qifreport.registration.normals.oriented_normals` on ``P`` with
-    ``params.gbcicp.scan_normal_k``, when the caller measures them already: the values, or
-    pending results (anything with ``result()``); default: measured here, after the rigid
-    fit. ``timings``: seconds per stage, added to. Raises :class:`InputError` when the
-    seated scan does not overlap the nominal."""
+    The normals are fitted on one skin at a length of the part and signed per connected
+    sheet along them (:func:`seated_normals`); each sheet's side is the scan's own where a
+    wall's two skins show it, else a vote against the nominal's normals when the
+    inspection asks. ``timings``: seconds per stage, added to. Raises :class:`InputError`
+    when the seated scan does not overlap the nominal."""
     t0 = time.perf_counter()
     seat = seat_scan(V, F, P, mode=params.prealign, model=prepared.model)
     timings["prealign"] = time.perf_counter() - t0
@@ -413,7 +406,7 @@ def seat_rigidly(
     Pm = rigid.apply(P)
     timings["rigid"] = time.perf_counter() - t0
     diag = bounding_diagonal(V)
-    d_near, _ = tree.query(Pm, workers=-1)
+    d_near, near = tree.query(Pm, workers=-1)
     overlap = float(np.mean(d_near < 0.02 * diag))
     if overlap < 0.3 or rigid.inlier_fraction < 0.3:
         raise InputError(
@@ -421,10 +414,7 @@ def seat_rigidly(
             f"{100 * overlap:.0f} % of the points lie within {0.02 * diag:.3g} mm of it"
         )
     t0 = time.perf_counter()
-    if scan_normals is None:
-        scan_normals = oriented_normals(P, params.gbcicp.scan_normal_k)
-    Ns, _ = resolved(scan_normals)
-    Ns, sheets = seated_normals(Pm, Ns @ rigid.R.T, V, F, prepared.ops.normals, tree)
+    Ns, sheets = seated_normals(Pm, V, F, prepared.ops.normals, near)
     timings["scan normals"] = time.perf_counter() - t0
     return Registered(
         V=V,
@@ -440,17 +430,26 @@ def seat_rigidly(
 
 
 def seated_normals(
-    P: np.ndarray, Ns: np.ndarray, V: np.ndarray, F: np.ndarray, normals: np.ndarray, tree: cKDTree
+    P: np.ndarray, V: np.ndarray, F: np.ndarray, normals: np.ndarray, near: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The seated scan's normals (m, 3) refitted on one skin within one median edge of the
+    """The seated scan's normals (m, 3) fitted on one skin within one median edge of the
     nominal (the prior each point's nearest nominal vertex's normal) and signed per sheet
     along them, with the sheet labels
     (:func:`~qifreport.registration.normals.one_skin_normals`): a length of the part, so
     that a sparser scan of the same surface gets the same normals and the same sheets.
-    ``P`` (m, 3) mm seated, ``Ns`` its signed normals, ``V`` (n, 3) mm, ``F`` the nominal,
-    ``normals`` (n, 3) its unit vertex normals, ``tree``: ``cKDTree(V)``."""
-    _, near = tree.query(P, workers=-1)
-    return one_skin_normals(P, Ns, normals[near], median_edge_length(V, F))
+
+    Each sheet's side is the scan's own where it sees a wall's other skin, else its first
+    point's prior's: a side the caller chooses again by a vote of the whole sheet
+    (:func:`~qifreport.registration.deformable.result.orient_scan_normals`), so no earlier
+    estimate of the scan's normals is needed.
+
+    Parameters
+    ----------
+    P : (m, 3) the seated scan, mm.  V : (n, 3) the nominal, mm.  F : (f, 3) its triangles.
+    normals : (n, 3) its unit vertex normals.  near : (m,) each point's nearest vertex.
+    """
+    prior = normals[near]
+    return one_skin_normals(P, prior, prior, median_edge_length(V, F))
 
 
 def default_zones(params: InspectionParams) -> list[ToleranceZone]:

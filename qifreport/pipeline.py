@@ -65,7 +65,7 @@ from .forked import fork_executor
 from .jsonio import finite, json_default
 from .options import InspectJob
 from .profile import Profiler
-from .schedule import ScanMeasures, inspect_beside, start_scan_measures
+from .schedule import inspect_beside
 from .summary import SUMMARY_SCHEMA_VERSION
 
 __all__ = [
@@ -372,14 +372,12 @@ def inspect_state(
     bar=None,
     prof: Profiler | None = None,
     executor=None,
-    measures: ScanMeasures | None = None,
     stray: StrayPoints | None = None,
 ) -> InspectionResult:
     """Inspect the scan points ``P`` (mm) against a prepared part, with the job's options
     (the repeatability runs included); ``executor``: where side work of the inspection runs
-    beside its main line, ``measures``: the scan's normals and area started already on
-    ``P`` (:func:`qifreport.schedule.inspect_beside`), ``stray``: the stray points
-    :func:`scan_input` left out of ``P`` (None: the inspection looks for them)."""
+    beside its main line (:func:`qifreport.schedule.inspect_beside`), ``stray``: the stray
+    points :func:`scan_input` left out of ``P`` (None: the inspection looks for them)."""
     o = job.options
     part, drawing = state.part, state.drawing
     # the condition the part is judged in, and who stated it: the operator's, else the
@@ -408,7 +406,6 @@ def inspect_state(
         params,
         inputs,
         executor=executor,
-        measures=measures,
         progress=staged(bar, "virtual fixturing"),
     )
     res.drawing_warnings = list(drawing.warnings)
@@ -764,9 +761,9 @@ class Inspected:
 def _run_locked(job: InspectJob, progress: bool, prof: Profiler | None) -> JobOutcome:
     for tmp in remove_stale_temps(list(job.output_paths().values())):
         log.warning("removed a temporary file an interrupted run left: %s", tmp)
-    # one command, one scan: a second CPU measures the scan beside the part's preparation,
-    # judges the free state beside the fixture and renders the reports beside the QIF (a
-    # batch's processes fill the CPUs already)
+    # one command, one scan: a second CPU judges the free state beside the fixture, measures
+    # the trim edges beside a judgement and renders the reports beside the QIF (a batch's
+    # processes fill the CPUs already)
     beside = None if job.options.one_process else fork_executor()
     done = inspect_job(job, progress=progress, prof=prof, beside=beside)
     paths = job.output_paths()
@@ -798,35 +795,27 @@ def inspect_job(
     nominal_options, params = o.nominal_options(job.nominal), o.inspection_params()
 
     def nominal_read(part: Part) -> None:
-        # the scan's own normals need only its points, thinned to the nominal's grid: they
-        # start as soon as the mesh is known, beside the preparation of a new part (one
-        # CPU's work); its area is measured once seated, on one skin at a time
-        with _stage(prof, "thin scan"):  # the points read are let go once thinned
+        # the scan is thinned to the nominal's grid as soon as the mesh is known: the points
+        # read are let go before the preparation of a new part
+        with _stage(prof, "thin scan"):
             scan["P"], scan["report"], scan["stray"] = scan_input(
                 scan.pop("read"), part, o.scan_units
             )
-        scan["measures"] = start_scan_measures(scan["P"], params, beside)
 
     # one bar for the whole inspection, named after its stage (preparing a new part is the
     # long one; then the seat, the free state, the fixture's iterations)
     with progress_bar("reading the part (a new one is prepared once)", enabled=progress) as bar:
-        try:
-            with _stage(prof, "prepare part (cache)"):
-                # the free state is judged first: a part that conforms needs no bending
-                # basis, so a new entry leaves it out and the first fixtured inspection
-                # stores it
-                state, cache = part_state(
-                    job.nominal,
-                    nominal_options,
-                    params,
-                    o.cache_dir,
-                    lazy_basis=not o.always_fixture,
-                    on_nominal=nominal_read,
-                )
-        except BaseException:
-            if "measures" in scan:
-                scan["measures"].cancel()
-            raise
+        with _stage(prof, "prepare part (cache)"):
+            # the free state is judged first: a part that conforms needs no bending basis,
+            # so a new entry leaves it out and the first fixtured inspection stores it
+            state, cache = part_state(
+                job.nominal,
+                nominal_options,
+                params,
+                o.cache_dir,
+                lazy_basis=not o.always_fixture,
+                on_nominal=nominal_read,
+            )
         log.info("%s", cache.describe())
         t_inspect = time.perf_counter()
         res = inspect_state(
@@ -836,7 +825,6 @@ def inspect_job(
             bar=bar,
             prof=prof,
             executor=beside,
-            measures=scan["measures"],
             stray=scan["stray"],
         )
     if prof is not None:

@@ -3,10 +3,9 @@
 The library's :func:`qifreport.metrology.inspection.inspect` makes every step in this
 process, one after the other. A command with a second CPU (a forked child,
 :mod:`qifreport.forked`) makes some of them beside the rest, from the library's public
-steps: :func:`inspect_beside` measures the scan's normals beside the pose search
-(or, :func:`start_scan_measures`, beside the part's preparation), judges the free state
-beside the virtual fixture, which is given up once the free state stands, and measures the
-trim edges beside each judgement made here (:func:`judge_beside`).
+steps: :func:`inspect_beside` judges the free state beside the virtual fixture, which is
+given up once the free state stands, and measures the trim edges beside each judgement made
+here (:func:`judge_beside`).
 
 The outcome is the sequential one: every decision is the library's
 (:func:`~qifreport.metrology.inspection.free_state_stands`,
@@ -15,12 +14,9 @@ The outcome is the sequential one: every decision is the library's
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass, replace
-from typing import Any
+from dataclasses import replace
 
 import numpy as np
 
@@ -52,56 +48,13 @@ from qifreport.registration.deformable.bending_basis import bending_basis, part_
 from qifreport.registration.deformable.methods import method_spec
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.icp import RigidResult
-from qifreport.registration.normals import oriented_normals
-
-from .deferred import submit
 
 __all__ = [
     "FIXTURE_LIKELY",
-    "ScanMeasures",
     "fixture_likely",
     "inspect_beside",
     "judge_beside",
-    "start_scan_measures",
 ]
-
-
-@dataclass
-class ScanMeasures:
-    """The scan's own normals, under way (:func:`start_scan_measures`). (The area it
-    covers is measured on the seated scan, with its normals refitted on one skin.)
-
-    Attributes
-    ----------
-    P : (m, 3) the scan points they are measured on, mm (the very array later inspected).
-    normals : pending ``(Ns, sheets)`` of
-        :func:`~qifreport.registration.normals.oriented_normals` (``result()``).
-    """
-
-    P: np.ndarray
-    normals: Any
-
-    def cancel(self) -> None:
-        """Stop them if still running (a result taken already is kept)."""
-        self.normals.cancel()
-
-
-def start_scan_measures(P: np.ndarray, params: InspectionParams, executor=None) -> ScanMeasures:
-    """Start measuring the scan's own normals (for :func:`inspect_beside`).
-
-    They do not depend on where the scan lies
-    (:func:`~qifreport.metrology.inspection.seat_rigidly`), so they can run before the scan
-    is seated, even while the part is still being prepared: on ``executor`` beside it, else
-    when their results are asked for (the library's order).
-
-    Parameters
-    ----------
-    P : (m, 3) the scan points the inspection will be given, mm.
-    params : the inspection's parameters (the normals' neighbourhood).
-    executor : where they run; default: in this process, when asked for.
-    """
-    normals = submit(executor, oriented_normals, P, params.gbcicp.scan_normal_k)
-    return ScanMeasures(P=P, normals=normals)
 
 
 def inspect_beside(
@@ -112,7 +65,6 @@ def inspect_beside(
     inputs: InspectionInputs | None = None,
     *,
     executor=None,
-    measures: ScanMeasures | None = None,
     progress=None,
 ) -> InspectionResult:
     """:func:`qifreport.metrology.inspection.inspect` (same arguments, same result) with
@@ -124,31 +76,16 @@ def inspect_beside(
     executor : an object whose ``submit(fn, *args, **kwargs)`` returns a future (with
         ``result()`` and ``cancel()``, and ``done()`` to give up the fixture early), e.g. a
         :class:`concurrent.futures.Executor` or the command line's forked child
-        (:class:`qifreport.forked.ForkExecutor`). Given to it: the scan's normals (beside
-        the pose), the free-state judgement (beside the virtual fixture, which is
-        given up once the free state stands) and the trim edges of the judgements made
-        here. Default: everything here, in the library's order.
-    measures : the scan's normals started already on these very points
-        (:func:`start_scan_measures`, e.g. beside the part's preparation); default: started
-        here, on ``executor``. The inspection takes them, or stops them when it fails.
+        (:class:`qifreport.forked.ForkExecutor`). Given to it: the free-state judgement
+        (beside the virtual fixture, which is given up once the free state stands) and the
+        trim edges of the judgements made here. Default: everything here, in the library's
+        order.
     """
     inputs = InspectionInputs() if inputs is None else inputs
     timings: dict[str, float] = {}
-    if measures is not None and measures.P is not P:
-        measures.cancel()
-        raise ValueError("the scan measures were started on other points than these")
-    with _stopped_on_failure(measures):
-        prepared, basis = checked_part(V, F, P, params, inputs, timings)
-        P, stray = surface_points(P, inputs)
-    if measures is not None and measures.P is not P:  # started before the stray points left
-        measures.cancel()
-        measures = None
-    if measures is None:
-        measures = start_scan_measures(P, params, executor)
-    try:
-        reg = seat_rigidly(V, F, P, params, prepared, timings, scan_normals=measures.normals)
-    finally:
-        measures.cancel()
+    prepared, basis = checked_part(V, F, P, params, inputs, timings)
+    P, stray = surface_points(P, inputs)
+    reg = seat_rigidly(V, F, P, params, prepared, timings)
     run = inspection_context(reg, params, inputs, prepared, basis, timings, progress)
     if executor is None:
         return with_stray(judge_as_held(run, inputs.restraint), stray)
@@ -156,18 +93,6 @@ def inspect_beside(
     if _held_as_asked(params) or not fixture_likely(reg.rigid, run.zones):
         return with_stray(judge_as_held(run, inputs.restraint), stray)
     return with_stray(_free_state_beside_fixture(run, executor), stray)
-
-
-@contextlib.contextmanager
-def _stopped_on_failure(measures: ScanMeasures | None) -> Iterator[None]:
-    """Stop the scan ``measures`` started already when the ``with`` block fails (they
-    would not be taken)."""
-    try:
-        yield
-    except BaseException:
-        if measures is not None:
-            measures.cancel()
-        raise
 
 
 def judge_beside(

@@ -4,8 +4,8 @@
 arbitrary); :func:`orient_normals_consistent` signs them consistently along each connected
 sheet of the scan (a minimum spanning tree over pairs on one smooth skin, Hoppe et al. 1992)
 and outward where the scan shows a thin wall's other skin behind a point
-(:func:`wall_sides`); :func:`oriented_normals` is both, as the inspection measures them
-beside the pose search.
+(:func:`wall_sides`); :func:`one_skin_normals` refits them on one skin at a length of the
+part first, as the inspection measures the seated scan's.
 """
 
 from __future__ import annotations
@@ -26,7 +26,6 @@ __all__ = [
     "WALL_SAMPLE",
     "orient_normals_consistent",
     "one_skin_normals",
-    "oriented_normals",
     "pca_normals",
     "refined_normals",
     "wall_sides",
@@ -471,21 +470,3 @@ def one_skin_normals(
     tree = tree or cKDTree(P)
     Nr, near = _refined(P, Ns, prior, radius, tree, min(k, len(P) - 1) + 1)
     return _orient(P, Nr, k, tree, near)
-
-
-def oriented_normals(P: np.ndarray, k: int = 12) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals (m, 3) of the scan points ``P`` (m, 3), mm, from the PCA of their ``k``
-    nearest neighbours (:func:`pca_normals`), signed consistently per connected sheet, and
-    each point's sheet label (:func:`orient_normals_consistent`).
-
-    Both depend only on the points' relative positions: a rigid motion of the scan turns
-    the normals with it and keeps the labels, so they can be measured before the scan is
-    placed.
-    """
-    tree = cKDTree(P)
-    m = len(P)
-    dist, idx = tree.query(P, k=min(k, m), workers=-1)
-    N = _pca_of(P, idx)
-    near = _leading(dist, idx, min(10, m - 1) + 1, m) if idx.ndim == 2 else None
-    del dist, idx
-    return _orient(P, N, 10, tree, near)

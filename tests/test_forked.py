@@ -1,7 +1,7 @@
 """Work beside the caller in a forked child (:mod:`qifreport.forked`): the outcome is the
 sequential one, bit for bit, whatever the child does.
 
-The command's schedule gives the free-state judgement and the scan's area to the child
+The command's schedule gives the free-state judgement and the trim edges to the child
 (:func:`qifreport.schedule.inspect_beside`, ``executor=``): on a thin shell whose free
 state conforms (the free state stands: the child's judgement is the result) and on one
 warped beyond its band (the fixture's judgement, with the child's free-state verdict), every
@@ -26,7 +26,7 @@ from qifreport.metrology.inspection import inspect
 from qifreport.metrology.params import InspectionParams
 from qifreport.profile import peak_rss_bytes
 from qifreport.registration.mesh import vertex_normals
-from qifreport.schedule import inspect_beside, start_scan_measures
+from qifreport.schedule import inspect_beside
 from qifreport.simulate.shapes import thin_shell
 from tests.test_determinism import flatten
 
@@ -210,32 +210,10 @@ def test_the_inspection_beside_the_fixture_is_the_sequential_one(
     assert not differ, differ[:10]
 
 
-def test_scan_measures_started_before_the_inspection_give_the_same_result():
-    """The scan's normals started before the inspection (as the command line starts them,
-    beside the part's preparation) give the inspection it makes on its own, every number
-    equal; measures started on other points are refused (and stopped)."""
-    V, F = thin_shell(spacing=3.0)
-    P = shell_scan(V, F, 3.0)
-    params = InspectionParams(tolerance=0.3, prealign="never")
-    alone = inspect(V, F, P, params)
-    ex = ForkExecutor()
-    measures = start_scan_measures(P, params, ex)
-    early = inspect_beside(V, F, P, params, executor=ex, measures=measures)
-    x, y = flatten(alone), flatten(early)
-    assert x.keys() == y.keys()
-    differ = [k for k in x if not np.array_equal(x[k], y[k], equal_nan=True)]
-    assert not differ, differ[:10]
-    other = start_scan_measures(P, params, ex)
-    with pytest.raises(ValueError, match="other points"):
-        inspect_beside(V, F, P.copy(), params, executor=ex, measures=other)
-    with pytest.raises(ChildProcessError):
-        os.waitpid(other.normals._pid, os.WNOHANG)  # stopped and reaped
-
-
-def test_a_part_that_cannot_be_prepared_leaves_no_scan_child_behind(tmp_path, monkeypatch):
-    """The command starts the scan's normals once the nominal is read, beside its
-    preparation; when the preparation fails, that child is stopped at once (not left to
-    finish, nor to the garbage collector: the traceback keeps the run's frames alive)."""
+def test_a_part_that_cannot_be_prepared_leaves_no_child_behind(tmp_path, monkeypatch):
+    """When the part's preparation fails, the command leaves no child of its own running
+    or unreaped (the traceback keeps the run's frames alive: nothing is left to the garbage
+    collector) and writes nothing."""
     import qifreport.cache as cache
     from qifreport.options import InspectJob, InspectOptions
     from qifreport.pipeline import run_job

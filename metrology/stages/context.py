@@ -20,7 +20,9 @@ from qifreport.metrology.gdt.pmi_plan import CharacteristicPlan
 from qifreport.metrology.prepared import PreparedPart
 from qifreport.metrology.stages.rim_seat import RimSeat
 from qifreport.registration.deformable.bending_basis import BendingBasis
+from qifreport.registration.deformable.result import orient_scan_normals
 from qifreport.registration.icp import RigidResult
+from qifreport.registration.mesh import vertex_normals
 from qifreport.registration.pose.prealign import PrealignResult
 from qifreport.registration.restraint.fixture_load import LoadModel
 
@@ -49,9 +51,14 @@ class Registered:
     @functools.cached_property
     def scan_area(self) -> float:
         """The area the seated scan covers, mm^2 (:func:`scan_area` with the seated
-        normals: the two skins of a thin wall apart): the same points for every judgement,
-        measured once."""
-        return scan_area(self.P, normals=self.scan_normals)
+        normals, each sheet turned outwards by
+        :func:`~qifreport.registration.deformable.result.orient_scan_normals`: the two
+        skins of a thin wall apart, and the sheets of one skin on one side, whatever side
+        each was given first): the same points for every judgement, measured once."""
+        out = orient_scan_normals(
+            self.P, self.scan_normals, self.V, vertex_normals(self.V, self.F), sheets=self.sheets
+        )
+        return scan_area(self.P, normals=out)
 
 
 @dataclass(frozen=True)
