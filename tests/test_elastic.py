@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from qifreport.registration.linalg import BACKEND_ENV, have_cholmod
 from qifreport.registration.restraint.elastic import GRAVITY, MATERIALS, elastic_model, material
 
 STEEL = MATERIALS["steel"]
@@ -190,12 +191,16 @@ def test_the_sample_panel_step_solid_fills_with_tetrahedra():
     assert np.isfinite(sol.u).all() and 0.0 < np.abs(sol.u).max() < 10.0
 
 
-def test_the_clamp_responses_solve_the_saddle_problem_and_the_stiffness_is_scikit_fem_s():
-    """The clamps' unit responses (one factorisation of the augmented, quasi-definite
-    system in a nested-dissection order) equal the model's direct saddle-point solve
-    (``ElasticModel.solve``: SuperLU with pivoting, one drive at a time) to 1e-8 of the
-    largest displacement and force; the stiffness equals scikit-fem's own
-    ``linear_elasticity`` assembly to 1e-12; the elastic modes carry a fixed sign."""
+@pytest.mark.parametrize("backend", ["superlu", *(["cholmod"] if have_cholmod() else [])])
+def test_the_clamp_responses_solve_the_saddle_problem_and_the_stiffness_is_scikit_fem_s(
+    backend, monkeypatch
+):
+    """The clamps' unit responses (one factorisation of the augmented, positive-definite
+    stiffness in a nested-dissection order, with SuperLU or CHOLMOD, and the constraints'
+    Schur complement) equal the model's direct saddle-point solve (``ElasticModel.solve``:
+    SuperLU with pivoting, one drive at a time) to 1e-8 of the largest displacement and
+    force; the stiffness equals scikit-fem's own ``linear_elasticity`` assembly to 1e-12;
+    the elastic modes carry a fixed sign."""
     from skfem import asm
     from skfem.models.elasticity import linear_elasticity
 
@@ -219,6 +224,7 @@ def test_the_clamp_responses_solve_the_saddle_problem_and_the_stiffness_is_sciki
     ]
     assert all(len(p.vertices) >= 3 for p in pads)
     load = model.gravity()
+    monkeypatch.setenv(BACKEND_ENV, backend)
     D, G = model.pad_responses(pads, load)
     assert D.shape == (model.n_dofs, 5) and G.shape == (4, 5)
     for j in range(5):

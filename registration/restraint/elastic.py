@@ -499,7 +499,7 @@ class ElasticModel:
         return u, G
 
     def _saddle_solve(
-        self, C: sp.csr_matrix, f: np.ndarray, c: np.ndarray
+        self, C: sp.csr_matrix, f: np.ndarray, c: np.ndarray, backend: str = "auto"
     ) -> tuple[np.ndarray, np.ndarray]:
         """The degrees of freedom ``u`` (N, k) and multipliers ``lam`` (m, k) of
         ``K u + C' lam = f``, ``C u = c`` for the columns of ``f`` (N, k) and ``c`` (m, k),
@@ -508,33 +508,30 @@ class ElasticModel:
         The system is solved in its augmented form: ``K + rho C'C`` (rho: the mean of
         ``K``'s diagonal) is positive definite once the constraints hold the rigid motions,
         and adding ``rho C'(C u - c)`` to the first row changes neither ``u`` nor ``lam``.
-        The augmented saddle matrix is then quasi-definite: it factorises stably without
-        pivoting in any order that puts the constraints last, here a geometric nested
-        dissection of the mesh's nodes (each node's three degrees of freedom together),
-        which fills far less than a minimum-degree order of the saddle matrix with
-        pivoting.
+        That matrix is factorised once (:class:`~qifreport.registration.linalg.SPDSolver`:
+        CHOLMOD where installed, else SuperLU without pivoting) in a geometric nested
+        dissection of the mesh's nodes (each node's three degrees of freedom together), and
+        the multipliers come from the constraints' small dense Schur complement
+        ``C (K + rho C'C)^-1 C'`` (m, m): the clamps' pads hold a few rows each.
+        ``backend``: :class:`SPDSolver`'s.
         """
-        n, m = self.n_dofs, C.shape[0]
         rho = float(np.mean(self.K.diagonal()))
-        Kr = (self.K + rho * (C.T @ C)).tocsr()
-        A = sp.bmat([[Kr, C.T], [C, None]], format="csr")
-        perm = np.r_[self._node_order(Kr), n + np.arange(m)]
-        inv = np.empty_like(perm)
-        inv[perm] = np.arange(len(perm))
+        Kr = (self.K + rho * (C.T @ C)).tocsc()
         try:
-            lu = spla.splu(
-                sp.csc_matrix(A[perm][:, perm]),
-                permc_spec="NATURAL",
-                diag_pivot_thresh=0.0,
-                options={"SymmetricMode": True},
-            )
-        except RuntimeError as e:
+            solve = SPDSolver(backend, order=self._node_order(Kr)).factor(Kr)
+        except ValueError as e:
             raise ValueError(f"the elastic problem is singular ({e})") from None
-        rhs = np.vstack([f + rho * (C.T @ c), c])
-        sol = lu.solve(np.ascontiguousarray(rhs[perm]))[inv]
-        if not np.all(np.isfinite(sol)):
+        g = np.asarray(f + rho * (C.T @ c), dtype=np.float64)
+        Y = solve(np.hstack([g, C.T.toarray()]))
+        Yg, Yc = Y[:, : g.shape[1]], Y[:, g.shape[1] :]
+        try:
+            lam = np.linalg.solve(C @ Yc, C @ Yg - c)
+        except np.linalg.LinAlgError as e:
+            raise ValueError(f"the elastic problem is singular ({e})") from None
+        u = Yg - Yc @ lam
+        if not (np.all(np.isfinite(u)) and np.all(np.isfinite(lam))):
             raise ValueError("the elastic problem is singular (a non-finite solution)")
-        return sol[:n], sol[n:]
+        return u, lam
 
     def _node_order(self, A: sp.spmatrix) -> np.ndarray:
         """(N,) the degrees of freedom in a nested-dissection order of the mesh's nodes
