@@ -184,29 +184,23 @@ def rigid_icp(
     Parameters
     ----------
     V : (n, 3) model vertices, mm.  N : (n, 3) unit vertex normals.
-    P : (m, 3) scan points, mm.
-    R0, t0 : initial pose of the scan in the model frame (default identity).
+    P : (m, 3) scan points, mm.  R0, t0 : the scan's initial pose (default identity).
     max_iter : iteration cap.  tol : convergence on the pose update (radians, and
-        translation relative to the model diagonal).
+        translation relative to the model diagonal).  tree : ``cKDTree(V)``, optional.
     max_distance : scan points farther than this from every model vertex get zero weight
         (mm; default 5 % of the model diagonal): points off the modelled surface.
-    tree : optional prebuilt ``cKDTree(V)``.
     step : ``"kabsch"`` (default): the paper's weighted Kabsch fit to the tangent-plane
-        projections; ``"plane"``: Gauss-Newton point-to-plane step (converges in a few
-        iterations). Measured on the thin-shell benchmark with 2 % compliance: a converged
-        rigid fit of a deformed smooth shell *slides* along it (point-to-plane: 23 mm and
-        11 degrees from the true placement) because sliding lets the bent part fit better;
-        the Kabsch step stays within ~3 mm in 60 iterations, which the non-rigid stage then
-        absorbs. A rigid pose of a compliant part is a compromise, not a measurement: the
-        datum reference frame (STEP PMI) is what fixes it for reporting.
-    grid : fit one scan point per occupied cell of this grid, mm
-        (:func:`qifreport.registration.thinning.thin_scan`; default: every point): a scan
-        denser than the model adds cost, not information, to a rigid pose.
+        projections; ``"plane"``: Gauss-Newton point-to-plane (a few iterations). On a
+        compliant part a converged fit slides along it (the thin shell at 2 % compliance:
+        23 mm and 11 degrees off); 60 Kabsch steps stay within ~3 mm, which the non-rigid
+        stage absorbs: a compromise, not a measurement (the datum frame fixes the pose).
+    grid : fit one scan point per occupied cell of this grid, mm (default: every point;
+        :func:`~qifreport.registration.thinning.thin_scan`); ``rms``, ``scale`` and
+        ``inlier_fraction`` are then those of the points fitted.
 
     Returns
     -------
     RigidResult
-        its ``rms``, ``scale`` and ``inlier_fraction`` those of the points fitted.
     """
     if grid is not None:
         P, _ = thin_scan(P, grid, min_per_voxel=1.0)
