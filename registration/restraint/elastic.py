@@ -219,6 +219,7 @@ class ElasticModel:
     edge_dofs: np.ndarray | None = None
     _basis: object = field(default=None, repr=False)
     _centroids: object = field(default=None, repr=False)
+    _radii: np.ndarray | None = field(default=None, repr=False)
 
     @property
     def n_dofs(self) -> int:
@@ -384,8 +385,10 @@ class ElasticModel:
 
         P = np.asarray(points, dtype=np.float64)
         X, T = self.X, self.T
-        if self._centroids is None:
-            self._centroids = cKDTree(X[T].mean(axis=1))
+        if self._centroids is None or self._radii is None:
+            centre = X[T].mean(axis=1)
+            self._centroids = cKDTree(centre)
+            self._radii = np.linalg.norm(X[T] - centre[:, None, :], axis=2).max(axis=1)
         best_lam = np.zeros((len(P), 4))
         best_tet = np.zeros(len(P), dtype=np.int64)
         best_d = np.full(len(P), np.inf)
@@ -394,18 +397,22 @@ class ElasticModel:
         for k in (8, 64):  # slender elements: a point's own may not be among the nearest 8
             if len(todo) == 0:
                 break
-            _, cand = self._centroids.query(P[todo], k=min(k, len(T)), workers=-1)
-            cand = cand.reshape(len(todo), -1)
+            dc, cand = self._centroids.query(P[todo], k=min(k, len(T)), workers=-1)
+            dc, cand = dc.reshape(len(todo), -1), cand.reshape(len(todo), -1)
             for j in range(cand.shape[1]):
-                tet = X[T[cand[:, j]]]  # (q, 4, 3)
-                lam = _barycentric_tet(tet, P[todo])
+                # a tetrahedron whose centre lies farther than its radius plus the best
+                # distance so far cannot come nearer: only the others are tried
+                at = np.flatnonzero(dc[:, j] - self._radii[cand[:, j]] < best_d[todo])
+                q, c = todo[at], cand[at, j]
+                tet = X[T[c]]  # (q, 4, 3)
+                lam = _barycentric_tet(tet, P[q])
                 lam = np.clip(lam, 0.0, None)
                 lam /= lam.sum(axis=1, keepdims=True)
                 y = np.einsum("qk,qkd->qd", lam, tet)
-                d = np.linalg.norm(y - P[todo], axis=1)
-                better = d < best_d[todo]
-                idx = todo[better]
-                best_lam[idx], best_tet[idx], best_d[idx] = lam[better], cand[better, j], d[better]
+                d = np.linalg.norm(y - P[q], axis=1)
+                better = d < best_d[q]
+                idx = q[better]
+                best_lam[idx], best_tet[idx], best_d[idx] = lam[better], c[better], d[better]
             todo = todo[best_d[todo] > tiny]
         corners = T[best_tet]  # (m, 4)
         if self.order == 1:
