@@ -536,6 +536,14 @@ def restrain(
     return res
 
 
+def _inside_weights(V: np.ndarray, F: np.ndarray, tri: np.ndarray, points: np.ndarray):
+    """(m, 3) the barycentric coordinates of ``points`` (m, 3) in their triangles ``tri``
+    (m,), clipped to the triangle (no negative weight) and summing to 1."""
+    w = np.clip(barycentric(V, F, tri, points), 0.0, None)
+    w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+    return w
+
+
 def interpolate_on_triangles(
     values: np.ndarray,
     V: np.ndarray,
@@ -549,8 +557,7 @@ def interpolate_on_triangles(
     ``(V, F)`` (closest points): from its vertex ``values`` (n, k), linear in each triangle;
     with its values ``mid`` (e, k) at the edges' midpoints (``tri_edges`` (f, 3), see
     :func:`triangle_edges`), quadratic."""
-    w = np.clip(barycentric(V, F, tri, points), 0.0, None)
-    w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+    w = _inside_weights(V, F, tri, points)
     vals = np.asarray(values)
     if mid is None:
         return np.einsum("ij,ij...->i...", w, vals[F[tri]])
@@ -575,8 +582,7 @@ def gradient_on_triangles(
     (same arguments) at ``points`` (m, 3): per unit length (field unit per mm) along the
     plane of each point's triangle, zero along its normal; ``G[i] @ d`` is the field's change
     over a step ``d`` (3,) mm in that plane. A degenerate triangle gives zero."""
-    w = np.clip(barycentric(V, F, tri, points), 0.0, None)
-    w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+    w = _inside_weights(V, F, tri, points)
     X = V[F[tri]]  # (m, 3 corners, 3)
     n = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
     twice_area = np.linalg.norm(n, axis=1)
