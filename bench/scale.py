@@ -7,7 +7,7 @@ deflection (4.6 mm), scanned from 3 views; the nominal and the scan are written 
 Prints the part, the scan, the CLI's per-stage table (wall time, peak resident memory) and
 the child's own peak RSS (its ``VmHWM``, from the profile; ``--no-cache``: a cold run), and
 the peak memory of it and the processes it forks together (the command judges the free
-state and measures the scan in forked children): their proportional set sizes summed.
+state and measures the trim edges in forked children): their proportional set sizes summed.
 
     python bench/scale.py [--vertices 200000] [--points 400000] [--keep DIR]
 """

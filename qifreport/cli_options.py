@@ -499,7 +499,7 @@ def add_run_options(ap: argparse.ArgumentParser, batch: bool) -> None:
             "--one-process",
             action="store_true",
             help="run on one CPU: no forked child processes (by default the free state, the "
-            "scan's normals and the reports are worked on beside the main work: the same "
+            "trim edges and the reports are worked on beside the main work: the same "
             "results, sooner, for the memory a child changes)",
         )
     ap.add_argument("--quiet", action="store_true", help="no progress bar")

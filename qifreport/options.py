@@ -223,9 +223,9 @@ class InspectOptions:
     always_fixture : apply the virtual fixture even when the free state conforms.
     judge_free_state : held at clamps, judge the free state too, for the outputs.
     one_process : one CPU, no forked child processes. By default one command judges the
-        free state, measures the scan's normals and area and the trim edges, and renders the
-        reports in forked children beside its main work (:mod:`qifreport.forked`; the same
-        results, bit for bit), each child holding a copy of the memory it changes.
+        free state, measures the trim edges and renders the reports in forked children
+        beside its main work (:mod:`qifreport.forked`; the same results, bit for bit), each
+        child holding a copy of the memory it changes.
     cache_dir : per-part cache directory (None: no cache).
     accept_tolerance_as_read : inspect with tolerances the plausibility check of
         :mod:`qifreport.step.plausibility` flags (default: refuse the part).
