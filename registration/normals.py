@@ -52,7 +52,7 @@ def _pca_of(P: np.ndarray, idx: np.ndarray) -> np.ndarray:
     for s in range(0, len(P), _PCA_BLOCK):
         Q = np.take(P, idx[s : s + _PCA_BLOCK], axis=0)  # (np.take: registration.arrays)
         Q -= Q.mean(axis=1, keepdims=True)
-        _, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", Q, Q))
+        _, vecs = np.linalg.eigh(np.matmul(Q.transpose(0, 2, 1), Q))
         N[s : s + _PCA_BLOCK] = vecs[:, :, 0]
     return N
 
@@ -128,10 +128,11 @@ def _refined(
         near = (dist <= radius) | (np.arange(k) < REFINE_MIN_POINTS)
         w = near & (np.abs(np.einsum("mki,mi->mk", D, N0)) <= REFINE_SLAB * radius)
         cnt = w.sum(axis=1)
-        W = w[..., None].astype(np.float64)
-        D -= (D * W).sum(axis=1, keepdims=True) / np.maximum(cnt, 1)[:, None, None]
-        D *= W
-        vals, vecs = np.linalg.eigh(np.einsum("mki,mkj->mij", D, D))
+        W = w.astype(np.float64)
+        D -= (np.einsum("mki,mk->mi", D, W) / np.maximum(cnt, 1)[:, None])[:, None, :]
+        D *= W[..., None]
+        # the weighted scatter, one (3, k) @ (k, 3) product per point (batched BLAS)
+        vals, vecs = np.linalg.eigh(np.matmul(D.transpose(0, 2, 1), D))
         ok = (cnt >= REFINE_MIN_POINTS) & (vals[:, 1] > REFINE_MIN_SPREAD * vals[:, 2])
         N0[ok] = vecs[ok, :, 0]
     same = np.einsum("ij,ij->i", out, Ns)
