@@ -59,7 +59,6 @@ from qifreport.registration.restraint.fixture_load import (
     fixture_load,
 )
 from qifreport.registration.restraint.restrained import RestraintBasis
-from qifreport.registration.thinning import nominal_spacing
 
 from .judgement import judge
 from .params import CLAMPS, FREE, InspectionParams
@@ -99,7 +98,6 @@ __all__ = [
     "judged_in_modes",
     "judge_as_held",
     "lay_zone_bands",
-    "RIGID_CELLS",
     "seat_rigidly",
     "surface_points",
     "with_fixture_load",
@@ -108,12 +106,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-
-#: the rigid fit's grid, in cells of the thinning grid (``nominal_spacing``): one scan point
-#: per cell of this many, about two per mean nominal edge, a few per nominal vertex; the
-#: rigid pose is a compromise the later stages refine on every point, and its cost is
-#: then a quarter of a fit on all of a scan at the nominal's density
-RIGID_CELLS = 2.0
 
 #: scan-to-nominal extent ratios that betray a unit mix-up, and the unit behind each
 _UNIT_FACTORS = {1 / 25.4: "in", 0.001: "m", 0.1: "cm", 25.4: "in", 1000.0: "m", 10.0: "cm"}
@@ -400,8 +392,7 @@ def seat_rigidly(
     timings["prealign"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     tree = prepared.model.tree if prepared.model is not None else cKDTree(V)
-    grid = RIGID_CELLS * nominal_spacing(V, F)
-    rigid = rigid_icp(V, prepared.ops.normals, P, R0=seat.R, t0=seat.t, tree=tree, grid=grid)
+    rigid = rigid_icp(V, prepared.ops.normals, P, R0=seat.R, t0=seat.t, tree=tree)
     rigid, on_rim = seat_on_rim(V, F, prepared.ops.normals, P, rigid, params.tolerance or 0.5)
     Pm = rigid.apply(P)
     timings["rigid"] = time.perf_counter() - t0

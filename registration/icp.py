@@ -16,7 +16,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .nearest import TrackedNearest
-from .thinning import thin_scan
 
 __all__ = [
     "MAD_SCALE",
@@ -177,7 +176,6 @@ def rigid_icp(
     max_distance: float | None = None,
     tree: cKDTree | None = None,
     step: str = "kabsch",
-    grid: float | None = None,
 ) -> RigidResult:
     """Robust partial-overlap rigid ICP of the scan ``P`` onto the model ``(V, N)``.
 
@@ -194,16 +192,11 @@ def rigid_icp(
         compliant part a converged fit slides along it (the thin shell at 2 % compliance:
         23 mm and 11 degrees off); 60 Kabsch steps stay within ~3 mm, which the non-rigid
         stage absorbs: a compromise, not a measurement (the datum frame fixes the pose).
-    grid : fit one scan point per occupied cell of this grid, mm (default: every point;
-        :func:`~qifreport.registration.thinning.thin_scan`); ``rms``, ``scale`` and
-        ``inlier_fraction`` are then those of the points fitted.
 
     Returns
     -------
     RigidResult
     """
-    if grid is not None:
-        P, _ = thin_scan(P, grid, min_per_voxel=1.0)
     tree = tree or cKDTree(V)
     diag = float(np.linalg.norm(V.max(0) - V.min(0)))
     max_distance = 0.05 * diag if max_distance is None else max_distance

@@ -7,10 +7,8 @@ the trim edges measured already (as the command's schedule gives them) is unchan
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from qifreport.metrology.inspection import (
-    RIGID_CELLS,
     InspectionInputs,
     InspectionParams,
     checked_part,
@@ -27,10 +25,6 @@ from qifreport.metrology.stages.held import held_nominal
 from qifreport.metrology.stages.readings import located_readings
 from qifreport.metrology.stages.scoring import scoring_stage
 from qifreport.metrology.stages.trim_edges import trim_edge_stage
-from qifreport.registration.icp import rigid_icp
-from qifreport.registration.mesh import vertex_normals
-from qifreport.registration.restraint.restrained import rigid_motion
-from qifreport.registration.thinning import nominal_spacing, thin_scan
 from qifreport.simulate.shapes import thin_shell
 from tests.test_determinism import flatten
 from tests.test_forked import shell_scan
@@ -78,34 +72,3 @@ def test_the_stages_one_by_one_give_the_judgement_and_the_inspection():
     assert whole.stray is not None and whole.stray.count == 0
     whole.stray = None
     assert not same(whole, res)
-
-
-@pytest.mark.parametrize("lift", [0.0, 0.5])
-def test_the_rigid_fit_on_a_coarse_grid_of_the_scan_is_the_fit_on_all_of_it(lift):
-    """The inspection's rigid fit runs on one scan point per cell of :data:`RIGID_CELLS`
-    thinning cells (a few per nominal vertex): on 60,000 points of the shell, exact or
-    lifted 0.5 mm at its corners, moved 0.8 mm and 0.6 deg, it fits at most a quarter of
-    them and places every vertex within 15 um of the fit on all of them (the fit's own
-    iterations move it 0.6-1.9 mm from there: it is not converged, by design), far inside
-    the 0.3 mm tolerance. The inspection's seat is that fit."""
-    V, F = thin_shell(spacing=3.0)
-    R, _ = rigid_motion(np.array([0.004, -0.008, 0.006, 0.5, -0.4, 0.4]), V.mean(axis=0))
-    P = np.vstack([shell_scan(V, F, lift, seed) for seed in (3, 4, 5)])
-    P = P @ R.T + np.array([0.5, -0.4, 0.4])
-    grid = RIGID_CELLS * nominal_spacing(V, F)
-    coarse, _ = thin_scan(P, grid, min_per_voxel=1.0)
-    assert len(coarse) <= len(P) / 4
-    N = vertex_normals(V, F)
-    fit, every = rigid_icp(V, N, P, grid=grid), rigid_icp(V, N, P)
-
-    def nominal_back(r):
-        return (V - r.t) @ r.R
-
-    assert np.linalg.norm(nominal_back(fit) - nominal_back(every), axis=1).max() < 0.015
-    assert np.linalg.norm(nominal_back(every) - V, axis=1).max() > 0.5  # a seat to find
-
-    params = InspectionParams(tolerance=0.3, prealign="never", rigid_only=True)
-    prepared, _ = checked_part(V, F, P, params, InspectionInputs(), {})
-    reg = seat_rigidly(V, F, P, params, prepared, {})
-    assert reg.rigid.iterations == fit.iterations
-    assert reg.rigid.history == fit.history
