@@ -540,8 +540,13 @@ def main(argv: list[str] | None = None) -> int:
         argv = _with_default_command(argv)
         command = argv[0] if argv and argv[0] in SUBCOMMANDS else ""
         args = build_parser(command).parse_args(argv)
-    except Interrupted as exc:  # while the parser's modules load
-        exc.leave()
+    except BaseException as exc:
+        # a signal while the parser's modules load, or that a library turned into its own
+        # error (NumPy's import reports a Ctrl-C during its C set-up as an ImportError)
+        intr = pending_interrupt(exc)
+        if intr is None:
+            raise
+        intr.leave()
     verbose = bool(getattr(args, "verbose", False))
     level = logging.INFO if verbose and args.command != "validate" else logging.WARNING
     logging.basicConfig(level=level, format="qifreport: %(levelname)s: %(message)s")

@@ -244,6 +244,29 @@ def test_a_signal_an_import_turned_into_another_error_is_still_the_signal(monkey
     assert got is not None and got.signum == signal.SIGINT and got.name == "SIGINT"
 
 
+def test_a_signal_numpy_turned_into_an_import_error_while_the_parser_loads_is_the_signal():
+    """NumPy's import reports a Ctrl-C during its C set-up as an ``ImportError`` (``could
+    not import module "datetime"``); the parser's options import NumPy: a signal there ends
+    the command as interrupted (one line, exit 130), not with a traceback."""
+    code = """
+import sys
+from qifreport import cli
+from qifreport.errors import Interrupted
+
+def build_parser(command):
+    try:
+        raise Interrupted(2)  # the handler, inside NumPy's C import
+    except Interrupted:
+        raise ImportError('PyCapsule_Import could not import module "datetime"') from None
+
+cli.build_parser = build_parser
+cli.main(["inspect", "a.step", "b.ply"])
+"""
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 130, (r.returncode, r.stderr)
+    assert r.stderr.splitlines() == ["qifreport: interrupted by SIGINT: nothing written"], r.stderr
+
+
 @pytest.mark.parametrize("after", [False, True])
 def test_a_signal_a_library_turned_into_its_error_ends_the_run_as_the_signal(after):
     """lxml's schema parser reports a Ctrl-C as an ``XMLSchemaParseError``: the command
