@@ -42,7 +42,7 @@ from qifreport.errors import (
     EXIT_ERROR,
     InputError,
     Interrupted,
-    pending_interrupt,
+    leave_if_interrupted,
     raise_if_interrupted,
     require_file,
 )
@@ -498,9 +498,7 @@ def _guard(fn: Callable[[], int], verbose: bool) -> int:
     except Exception as exc:
         # a signal that a library turned into its own error (lxml's schema parser reports
         # a Ctrl-C as an XMLSchemaParseError) is still the signal
-        intr = pending_interrupt(exc)
-        if intr is not None:
-            intr.leave()
+        leave_if_interrupted(exc)
         return _error_exit(exc, verbose)
 
 
@@ -543,10 +541,8 @@ def main(argv: list[str] | None = None) -> int:
     except BaseException as exc:
         # a signal while the parser's modules load, or that a library turned into its own
         # error (NumPy's import reports a Ctrl-C during its C set-up as an ImportError)
-        intr = pending_interrupt(exc)
-        if intr is None:
-            raise
-        intr.leave()
+        leave_if_interrupted(exc)
+        raise
     verbose = bool(getattr(args, "verbose", False))
     level = logging.INFO if verbose and args.command != "validate" else logging.WARNING
     logging.basicConfig(level=level, format="qifreport: %(levelname)s: %(message)s")

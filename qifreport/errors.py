@@ -20,6 +20,7 @@ __all__ = [
     "Interrupted",
     "file_kind",
     "file_problem",
+    "leave_if_interrupted",
     "pending_interrupt",
     "raise_if_interrupted",
     "require_file",
@@ -75,6 +76,15 @@ def pending_interrupt(exc: BaseException) -> Interrupted | None:
     if Interrupted.received:
         return Interrupted(Interrupted.received[0])
     return None
+
+
+def leave_if_interrupted(exc: BaseException) -> None:
+    """End the process as interrupted (:meth:`Interrupted.leave`) when ``exc`` is, or hides,
+    a signal (:func:`pending_interrupt`); return otherwise, for the caller to handle
+    ``exc``."""
+    interrupted = pending_interrupt(exc)
+    if interrupted is not None:
+        interrupted.leave()
 
 
 def raise_if_interrupted() -> None:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import signal
 
-from qifreport.errors import Interrupted, pending_interrupt
+from qifreport.errors import Interrupted, leave_if_interrupted
 
 __all__ = ["main"]
 
@@ -29,8 +29,6 @@ def main() -> None:
     try:
         from qifreport.cli import main as cli_main
     except BaseException as exc:
-        interrupted = pending_interrupt(exc)
-        if interrupted is None:
-            raise
-        interrupted.leave()
+        leave_if_interrupted(exc)
+        raise
     cli_main()
