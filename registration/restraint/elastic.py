@@ -506,7 +506,7 @@ class ElasticModel:
         return u, G
 
     def _saddle_solve(
-        self, C: sp.csr_matrix, f: np.ndarray, c: np.ndarray, backend: str = "auto"
+        self, C: sp.csr_matrix, f: np.ndarray, c: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """The degrees of freedom ``u`` (N, k) and multipliers ``lam`` (m, k) of
         ``K u + C' lam = f``, ``C u = c`` for the columns of ``f`` (N, k) and ``c`` (m, k),
@@ -520,12 +520,11 @@ class ElasticModel:
         dissection of the mesh's nodes (each node's three degrees of freedom together), and
         the multipliers come from the constraints' small dense Schur complement
         ``C (K + rho C'C)^-1 C'`` (m, m): the clamps' pads hold a few rows each.
-        ``backend``: :class:`SPDSolver`'s.
         """
         rho = float(np.mean(self.K.diagonal()))
         Kr = (self.K + rho * (C.T @ C)).tocsc()
         try:
-            solve = SPDSolver(backend, order=self._node_order(Kr)).factor(Kr)
+            solve = SPDSolver(order=self._node_order(Kr)).factor(Kr)
         except ValueError as e:
             raise ValueError(f"the elastic problem is singular ({e})") from None
         g = np.asarray(f + rho * (C.T @ c), dtype=np.float64)

@@ -586,13 +586,12 @@ def gradient_on_triangles(
     X = V[F[tri]]  # (m, 3 corners, 3)
     n = np.cross(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
     twice_area = np.linalg.norm(n, axis=1)
-    n /= np.where(twice_area > 0, twice_area, np.inf)[:, None]
+    twice_area[twice_area == 0] = np.inf  # a degenerate triangle: no normal, no gradient
+    n /= twice_area[:, None]
     # the gradients of the barycentric coordinates: each corner's opposite edge turned in
     # the plane towards it, over twice the area
     opposite = np.stack([X[:, 2] - X[:, 1], X[:, 0] - X[:, 2], X[:, 1] - X[:, 0]], axis=1)
-    grad_l = (
-        np.cross(n[:, None, :], opposite) / np.where(twice_area > 0, twice_area, 1.0)[:, None, None]
-    )
+    grad_l = np.cross(n[:, None, :], opposite) / twice_area[:, None, None]
     vals = np.asarray(values)
     if mid is None:
         return np.einsum("ijk,ijl->ikl", vals[F[tri]], grad_l)
