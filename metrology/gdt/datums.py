@@ -23,8 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import linprog
 
+from qifreport.metrology.gdt.active_rows import linprog_active
 from qifreport.metrology.gdt.form import (
     axis_frame,
     least_squares_circle,
@@ -281,7 +281,7 @@ def _nominal_sphere(label: str, V: np.ndarray, N: np.ndarray) -> DatumFeature | 
 
 def _lp(c, A_ub, b_ub, k, bounds=None):
     bounds = [(None, None)] * k if bounds is None else bounds
-    res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
+    res = linprog_active(c, A_ub, b_ub, bounds)
     if res.status != 0:
         raise RuntimeError(f"datum simulator programme failed: {res.message}")
     return res.x

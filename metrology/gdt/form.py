@@ -18,7 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linprog
+
+from qifreport.metrology.gdt.active_rows import linprog_active
 
 __all__ = [
     "FormFit",
@@ -216,14 +217,15 @@ def least_squares_cylinder(
 
 
 def _chebyshev(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
-    """The parameters ``x`` minimising ``max |b - A x|``, and that maximum (linprog, HiGHS)."""
+    """The parameters ``x`` minimising ``max |b - A x|``, and that maximum (HiGHS, on the
+    active rows: :func:`~qifreport.metrology.gdt.active_rows.linprog_active`)."""
     m, k = A.shape
     # variables (x, h): minimise h subject to -h <= b - A x <= h
     c = np.r_[np.zeros(k), 1.0]
     ones = np.ones((m, 1))
     A_ub = np.vstack([np.c_[A, -ones], np.c_[-A, -ones]])
     b_ub = np.r_[b, -b]
-    res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=[(None, None)] * (k + 1), method="highs")
+    res = linprog_active(c, A_ub, b_ub, [(None, None)] * (k + 1))
     if res.status != 0:
         raise RuntimeError(f"minimum-zone programme failed: {res.message}")
     return res.x[:k], float(res.x[k])
@@ -240,7 +242,7 @@ def _band(A: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, float, float]:
     # rho - A x <= r_out  ->  -A x - r_out <= -rho ; r_in <= rho - A x -> A x + r_in <= rho
     A_ub = np.vstack([np.c_[-A, zeros, -ones], np.c_[A, ones, zeros]])
     b_ub = np.r_[-rho, rho]
-    res = linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=[(None, None)] * (k + 2), method="highs")
+    res = linprog_active(c, A_ub, b_ub, [(None, None)] * (k + 2))
     if res.status != 0:
         raise RuntimeError(f"minimum-zone programme failed: {res.message}")
     return res.x[:k], float(res.x[k]), float(res.x[k + 1])
