@@ -79,3 +79,27 @@ def test_the_outward_normals_do_not_depend_on_the_first_guess_of_each_side(name)
         outs.append(orient_scan_normals(P, N, P, prior, sheets=sheets))
     assert np.array_equal(outs[0], outs[1]) and np.array_equal(outs[0], outs[2])
     assert np.mean(np.einsum("ij,ij->i", outs[0], prior) > 0) > 0.99
+
+
+@pytest.mark.parametrize("name", list(CLOUDS))
+@pytest.mark.parametrize("radius", [0.5, 0.8, 2.0])
+def test_the_refit_searches_beyond_its_radius_only_what_it_weighs(name, radius, monkeypatch):
+    """The refit searches every point's few nearest neighbours, and farther ones only
+    within its radius (:func:`~qifreport.registration.normals._nearest_within`): its normals
+    and sheets are those of a search of all its neighbours, every bit, at a radius holding
+    fewer points than the few (0.5 mm on the 0.7 mm grid), about as many, and more."""
+    import qifreport.registration.normals as normals
+
+    P = CLOUDS[name]()
+    prior = np.tile([0.0, 0.0, 1.0], (len(P), 1))
+    Ns = orient_normals_consistent(P, pca_normals(P))[0]
+    bounded = one_skin_normals(P, Ns, prior, radius)
+    monkeypatch.setattr(
+        normals,
+        "_nearest_within",
+        lambda tree, X, k, lead, radius: tree.query(X, k=k, workers=-1),
+    )
+    every = one_skin_normals(P, Ns, prior, radius)
+    assert np.array_equal(bounded[0], every[0]) and np.array_equal(bounded[1], every[1])
+    if name == "wavy":  # refitted: the normals follow the waves, not the prior
+        assert np.mean(np.einsum("ij,ij->i", bounded[0], prior) < 0.99) > 0.3
