@@ -102,4 +102,4 @@ def test_the_refit_searches_beyond_its_radius_only_what_it_weighs(name, radius, 
     every = one_skin_normals(P, Ns, prior, radius)
     assert np.array_equal(bounded[0], every[0]) and np.array_equal(bounded[1], every[1])
     if name == "wavy":  # refitted: the normals follow the waves, not the prior
-        assert np.mean(np.einsum("ij,ij->i", bounded[0], prior) < 0.99) > 0.3
+        assert np.mean(np.abs(np.einsum("ij,ij->i", bounded[0], prior)) < 0.999) > 0.5
