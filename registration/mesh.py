@@ -211,7 +211,9 @@ def vertex_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 def _half_edges(F: np.ndarray) -> np.ndarray:
     """(3f, 2) the triangles' edges 01, 12, 20 (all of the first, then the second, ...),
     each as a sorted vertex pair."""
-    return np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    a = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
+    b = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
+    return np.stack([np.minimum(a, b), np.maximum(a, b)], axis=1)
 
 
 def _edge_keys(half: np.ndarray) -> tuple[np.ndarray, int]:
