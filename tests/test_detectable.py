@@ -193,3 +193,23 @@ def test_a_region_criterion_below_detection_is_not_proven_in():
     assert "below what this scan and mesh detect" in out.uncertain_reasons[-1]
     seen = Detectable(**{**blind.__dict__, "read_area_mm2": 25.0, "read_peak_mm": 0.78})
     assert with_detectable(acc, seen).decision == "PASS"
+
+
+def test_the_nearest_rest_of_the_part_is_found_in_a_grown_box():
+    """:func:`nearest_distance` (the search behind the probe's most interior vertex) gives
+    every point's distance to its nearest other point as a search of all of them does:
+    a face among the rest of a part, a cluster 400 mm from the others (its 0.5 mm margin
+    doubled ten times), and a cloud inside the others' box."""
+    from scipy.spatial import cKDTree
+
+    from qifreport.metrology.deviation.detectable import nearest_distance
+
+    rng = np.random.default_rng(11)
+    part = rng.uniform(0, 100, (20_000, 3))
+    face = part[:, 2] < 3
+    cluster = rng.normal(0, 1, (50, 3)) + [500.0, 0, 0]
+    cases = [(part[face], part[~face]), (cluster, part), (part[:300], part[300:])]
+    for X, Y in cases:
+        want = cKDTree(Y).query(X)[0]
+        assert np.array_equal(nearest_distance(X, Y), want)
+    assert cKDTree(part).query(cluster)[0].min() > 350
