@@ -176,7 +176,7 @@ class DatumFrameResult:
         if self.covariance is None:
             return np.zeros(len(V))
         a = np.c_[np.cross(np.asarray(V, dtype=np.float64), N), N]  # shift = a . (w, t)
-        return np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", a, self.covariance, a), 0.0))
+        return np.sqrt(np.maximum(np.einsum("ij,ij->i", a @ self.covariance, a), 0.0))
 
     def point_uncertainty(self, P: np.ndarray) -> float:
         """The largest expanded uncertainty (k = 2) of where the frame puts any of the

@@ -176,7 +176,7 @@ def zone_result(
         zcenter = z.center - shift
         zpU = frame.shift_uncertainty(V, normals)
         own_U = scores.free_uncertainty if use_free else scores.uncertainty
-        zU = np.hypot(own_U, frame.shift_uncertainty(V, normals))
+        zU = np.hypot(own_U, zpU)
     points, n_points = None, None
     if not use_free:
         on_zone = scores.points_ok & mask[np.maximum(deviations.face, 0)]
