@@ -40,9 +40,11 @@ __all__ = [
     "LINK_NEIGHBOURS",
     "LINK_SPACINGS",
     "MIN_PATCH_POINTS",
+    "PARTITION_LINKS",
     "PATCH_LINK_SPACINGS",
     "STRAY_LIMIT",
     "StrayPoints",
+    "median_link",
     "stray_points",
     "without_stray",
 ]
@@ -163,24 +165,36 @@ def stray_points(
     mutual = directed.multiply(directed.T > 0).tocoo()
     n, label = connected_components(mutual, directed=False)
     size = np.bincount(label, minlength=n)
-    surface = (size >= min_patch) & (
-        _median_link(mutual, label, n) <= PATCH_LINK_SPACINGS * spacing
-    )
+    surface = (size >= min_patch) & (median_link(mutual, label, n) <= PATCH_LINK_SPACINGS * spacing)
     return StrayPoints(~surface[label], spacing, link, min_patch)
 
 
-def _median_link(links, label: np.ndarray, n: int) -> np.ndarray:
+def median_link(links: coo_matrix, label: np.ndarray, n: int) -> np.ndarray:
     """(n,) the median length of each component's links (a sparse COO matrix of link
-    lengths, mm; ``inf`` for a component without one)."""
-    group = label[links.row]
-    order = np.lexsort((links.data, group))
-    group, length = group[order], links.data[order]
+    lengths, mm; ``inf`` for a component without one): the upper median, the element at
+    ``count // 2`` of the sorted lengths. A component with many links (a scan's surface is
+    a few) is selected by :func:`numpy.partition`, the rest by one sort."""
+    group, data = label[links.row], links.data
     count = np.bincount(group, minlength=n)
-    mid = np.searchsorted(group, np.arange(n)) + count // 2
     out = np.full(n, np.inf)
+    big = np.flatnonzero(count >= PARTITION_LINKS)
+    for g in big:
+        x = data[group == g]
+        out[g] = np.partition(x, count[g] // 2)[count[g] // 2]
+    if len(big):
+        rest = count[group] < PARTITION_LINKS
+        group, data = group[rest], data[rest]
+        count = np.bincount(group, minlength=n)
+    order = np.lexsort((data, group))
+    group, length = group[order], data[order]
+    mid = np.searchsorted(group, np.arange(n)) + count // 2
     has = count > 0
     out[has] = length[mid[has]]
     return out
+
+
+#: links from which a component's median is selected on its own (:func:`median_link`)
+PARTITION_LINKS = 10_000
 
 
 def without_stray(P: np.ndarray, **options) -> tuple[np.ndarray, StrayPoints]:

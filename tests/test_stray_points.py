@@ -99,3 +99,23 @@ def test_more_stray_points_than_the_model_holds_is_not_established(panel_runs):
     assert doc["stray_points"]["share"] > STRAY_LIMIT
     assert "stray points" in doc["decided_by"][0] and "%" in doc["decided_by"][0]
     assert any("stray points" in w for w in doc["warnings"])
+
+
+def test_themedian_link_of_a_large_surface_is_its_sorted_one():
+    """The median link of a component with many links (selected on its own) is the one a
+    sort of all links gives, beside small components and none: the upper median."""
+    from scipy.sparse import coo_matrix
+
+    from qifreport.registration.outliers import PARTITION_LINKS, median_link
+
+    rng = np.random.default_rng(5)
+    label = np.repeat(np.arange(5), [3 * PARTITION_LINKS, 40, 3, PARTITION_LINKS, 7])
+    rng.shuffle(label)
+    m = len(label)
+    rows = rng.integers(0, m, 2 * m)
+    data = rng.random(2 * m).round(3)  # ties
+    links = coo_matrix((data, (rows, rng.integers(0, m, 2 * m))), shape=(m, m))
+    got = median_link(links, label, 6)
+    for g in range(6):
+        x = np.sort(data[label[rows] == g])
+        assert got[g] == (x[len(x) // 2] if len(x) else np.inf)
