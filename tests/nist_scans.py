@@ -44,24 +44,29 @@ class Scan:
         np.save(self.path, self.scan.P)
         self._done: dict[str, dict] = {}
 
-    def run(self, points: np.ndarray | None = None, tag: str = "perfect", *extra) -> dict:
+    def run(
+        self, points: np.ndarray | None = None, tag: str = "perfect", *extra, pdf: bool = False
+    ) -> dict:
         """The CLI's JSON summary (plus its exit code as ``_rc``) on the perfect scan, or on
-        ``points`` (a run per ``tag``, each once)."""
+        ``points`` (a run per ``tag``, each once; ``pdf``: its page written too, in
+        ``self.tmp / tag``)."""
         if tag in self._done:
             return self._done[tag]
         scan = self.path
         if points is not None:
             scan = self.tmp / f"{self.step.stem}_{tag}.npy"
             np.save(scan, points)
-        self._done[tag] = run_cli(self.step, scan, self.tmp / tag, *extra)
+        self._done[tag] = run_cli(self.step, scan, self.tmp / tag, *extra, pdf=pdf)
         return self._done[tag]
 
 
-def run_cli(step: Path, scan: Path, out: Path, *extra: str) -> dict:
-    """The CLI's JSON summary of ``scan`` against ``step`` (written to ``out``), its exit
-    code as ``_rc`` (0, 1 or 3: anything else fails the test)."""
+def run_cli(step: Path, scan: Path, out: Path, *extra: str, pdf: bool = False) -> dict:
+    """The CLI's JSON summary of ``scan`` against ``step`` (written to ``out``, with its
+    page when ``pdf``), its exit code as ``_rc`` (0, 1 or 3: anything else fails the
+    test)."""
     r = subprocess.run(
-        [str(EXE), str(step), str(scan), "--json", "--no-pdf", "--force"]
+        [str(EXE), str(step), str(scan), "--json", "--force"]
+        + ([] if pdf else ["--no-pdf"])
         + ["--out", str(out), *extra],
         capture_output=True,
         text=True,
