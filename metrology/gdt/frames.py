@@ -400,7 +400,7 @@ def establish_frame(datums: list[DatumSpec], surf: MeasuredSurface) -> DatumFram
     simulated, with the reason in ``problems``.
     """
     labels = tuple(d.label for d in datums)
-    L = max(float(np.linalg.norm(np.ptp(surf.V, axis=0))), 1.0)
+    L = max(surf.diagonal, 1.0)
     scale = np.r_[np.full(3, 1.0 / L), np.ones(3)]  # unknowns (w L, t)
     x = np.zeros(6)
     Z = np.eye(6)  # free motions (columns), scaled unknowns

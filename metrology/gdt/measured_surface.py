@@ -158,8 +158,7 @@ class MeasuredSurface:
         cylinders of one radius together (a hole split into two half faces), any other face
         alone; a pattern of holes or bosses gives one feature per member. File order of
         the first face of each."""
-        diag = max(float(np.linalg.norm(np.ptp(self.V, axis=0))), 1.0)
-        tol = max(1e-4 * diag, 1e-3)
+        tol = max(1e-4 * max(self.diagonal, 1.0), 1e-3)
         groups: list[tuple[list[int], DatumFeature | None]] = []
         for f in faces:
             g = self.nominal([int(f)])
