@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import pickle
 from pathlib import Path
 
 import pytest
@@ -51,6 +52,27 @@ def qifreport_cache(tmp_path_factory):
         os.environ.pop("QIFREPORT_CACHE", None)
     else:
         os.environ["QIFREPORT_CACHE"] = old
+
+
+@pytest.fixture(scope="session")
+def nist_nominal(qifreport_cache):
+    """name -> ``load_nominal(step/nist/name, None)``: each NIST part read and meshed once
+    per suite run (real OCP, real gmsh), kept pickled beside the session's part cache
+    (shared by the xdist workers, written to a temporary file and renamed) and unpickled
+    afresh for every caller, so no test sees another's changes."""
+    from qifreport.nominal import load_nominal
+
+    def get(name: str):
+        path = qifreport_cache / f"nominal-{name}.pickle"
+        if path.is_file():
+            return pickle.loads(path.read_bytes())
+        loaded = load_nominal(shared_file(f"step/nist/{name}"), None)
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        tmp.write_bytes(pickle.dumps(loaded, protocol=pickle.HIGHEST_PROTOCOL))
+        os.replace(tmp, path)
+        return pickle.loads(path.read_bytes())
+
+    return get
 
 
 @pytest.fixture(scope="session")

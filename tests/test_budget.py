@@ -28,17 +28,14 @@ from qifreport.metrology.acceptance.scanner import (
 )
 from qifreport.metrology.gdt.characteristics import measure_characteristics
 from qifreport.metrology.gdt.dimensions import measure_dimension
-from tests.conftest import shared_file
 from tests.test_characteristics import exact_surface
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
-def ftc06():
-    from qifreport.nominal import load_nominal
-
-    return load_nominal(shared_file("step/nist/nist_ftc_06_asme1_ap242-e1.stp"), None)
+def ftc06(nist_nominal):
+    return nist_nominal("nist_ftc_06_asme1_ap242-e1.stp")
 
 
 def _hole_at(part, spec, diameter: float):

@@ -21,17 +21,14 @@ import pytest
 
 from qifreport.metrology.gdt.characteristics import measure_characteristics
 from qifreport.metrology.gdt.measured_surface import MeasuredSurface
-from tests.conftest import shared_file
 
 U_VERTEX = 0.002  # mm, every vertex's expanded uncertainty
 
 
 @pytest.fixture(scope="module")
-def ftc06():
+def ftc06(nist_nominal):
     """FTC 06's part and drawing."""
-    from qifreport.nominal import load_nominal
-
-    return load_nominal(shared_file("step/nist/nist_ftc_06_asme1_ap242-e1.stp"), None)
+    return nist_nominal("nist_ftc_06_asme1_ap242-e1.stp")
 
 
 @pytest.fixture(scope="module")
@@ -203,10 +200,8 @@ def test_drill_point_moved_deepens_its_hole(part, drawing):
 
 
 @pytest.fixture(scope="module")
-def ctc02():
-    from qifreport.nominal import load_nominal
-
-    return load_nominal(shared_file("step/nist/nist_ctc_02_asme1_ap242-e2.stp"), None)
+def ctc02(nist_nominal):
+    return nist_nominal("nist_ctc_02_asme1_ap242-e2.stp")
 
 
 def test_line_profile_is_located_in_its_frame(ctc02):

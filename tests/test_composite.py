@@ -71,10 +71,8 @@ def test_profile_minimax_shift_recovers_the_translation():
 
 
 @pytest.fixture(scope="module")
-def ftc08():
-    from qifreport.nominal import load_nominal
-
-    return load_nominal(shared_file("step/nist/nist_ftc_08_asme1_ap242-e1.stp"), None)
+def ftc08(nist_nominal):
+    return nist_nominal("nist_ftc_08_asme1_ap242-e1.stp")
 
 
 def _measure(part, drawing, dev):
@@ -235,13 +233,11 @@ def test_flatness_per_unit_area_on_ctc_03():
     assert clean.status == "PASS" and clean.value < 0.01, (clean.value, clean.reading)
 
 
-def test_countersink_cone_measured_on_ctc_04():
+def test_countersink_cone_measured_on_ctc_04(nist_nominal):
     """CTC 04's 90 deg countersinks (cones): their included angle and diameter measured by
     a least-squares cone; the cone's surface moved 0.05 mm out of the material along its
     normals widens the diameter at the face by 2 x 0.05 / cos 45 deg."""
-    from qifreport.nominal import load_nominal
-
-    part, drawing = load_nominal(shared_file("step/nist/nist_ctc_04_asme1_ap242-e1.stp"), None)
+    part, drawing = nist_nominal("nist_ctc_04_asme1_ap242-e1.stp")
     angle = next(s for s in drawing.plan.specs if s.kind == "dimension" and s.unit == "deg")
     dia = next(
         s

@@ -27,17 +27,14 @@ from qifreport.metrology.gdt.characteristics import measure_characteristics
 from qifreport.metrology.gdt.dimensions import measure_dimension
 from qifreport.metrology.gdt.measured_surface import MeasuredSurface
 from qifreport.registration.mesh import bounding_diagonal
-from tests.conftest import shared_file
 from tests.test_characteristics import exact_surface
 
 D9_FACES = [25, 26]  # one of D9's four holes (the one G9 is drawn on)
 
 
 @pytest.fixture(scope="module")
-def ftc06():
-    from qifreport.nominal import load_nominal
-
-    return load_nominal(shared_file("step/nist/nist_ftc_06_asme1_ap242-e1.stp"), None)
+def ftc06(nist_nominal):
+    return nist_nominal("nist_ftc_06_asme1_ap242-e1.stp")
 
 
 def _spec(drawing, key: str):

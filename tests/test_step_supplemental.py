@@ -14,7 +14,7 @@ import pytest
 
 from qifreport.metrology.acceptance.bands import lay_bands, zone_vertex_areas
 from qifreport.metrology.deviation.hygiene import mesh_hygiene
-from qifreport.nominal import load_nominal, seat_faces
+from qifreport.nominal import seat_faces
 from qifreport.step.reader import read_step
 from qifreport.step.supplemental import face_solids
 from tests.conftest import shared_file
@@ -23,9 +23,8 @@ CTC04 = "step/nist/nist_ctc_04_asme1_ap242-e1.stp"
 
 
 @pytest.fixture(scope="module")
-def ctc04():
-    path = shared_file(CTC04)
-    return read_step(path), load_nominal(path, None)
+def ctc04(nist_nominal):
+    return read_step(shared_file(CTC04)), nist_nominal(CTC04.removeprefix("step/nist/"))
 
 
 def test_free_faces_are_found_from_the_brep():

@@ -91,10 +91,8 @@ def test_target_areas_agree_with_occt(rel):
 
 
 @pytest.fixture(scope="module")
-def ctc05():
-    from qifreport.nominal import load_nominal
-
-    return load_nominal(shared_file(CTC05), None)
+def ctc05(nist_nominal):
+    return nist_nominal(CTC05.removeprefix("step/nist/"))
 
 
 def _frame_C(ctc05, dev):
