@@ -143,3 +143,52 @@ def test_installed_copy_without_xsds_says_where_to_put_them(installed, tmp_path)
     assert r.returncode != 0
     assert "SchemasUnavailable" in r.stderr and "QIFREPORT_XSD_DIR" in r.stderr
     assert str(installed / "qifreport" / "schemas" / "qif-3.0") in r.stderr, r.stderr
+
+
+#: what trimesh needs, beyond itself, for the functions the product calls: name in the
+#: product's source -> the distribution it needs at run time
+TRIMESH_NEEDS = {"trimesh.proximity": "rtree"}
+
+
+def _requirement_names(reqs: list[str]) -> set[str]:
+    import re
+
+    return {re.split(r"[<>=!~ ;\[]", r, maxsplit=1)[0].lower().replace("_", "-") for r in reqs}
+
+
+def test_every_library_the_product_imports_is_declared_for_a_user_s_install():
+    """Every third-party module the installed package imports is a runtime dependency (or
+    an optional feature's extra: E57, CHOLMOD), and so is what trimesh needs for the
+    functions the product calls: a plain install once crashed on FTC 08 with an internal
+    error (``trimesh.proximity`` needs ``rtree``, then only a test dependency)."""
+    import ast
+    import importlib.metadata as md
+
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    runtime = _requirement_names(project["dependencies"])
+    extras = project["optional-dependencies"]
+    declared = runtime | _requirement_names(extras["e57"] + extras["cholmod"])
+    dists = md.packages_distributions()
+    missing = set()
+    for folder in ("step", "registration", "metrology", "qif", "qifreport"):
+        for path in (ROOT / folder).rglob("*.py"):
+            text = path.read_text()
+            for name, need in TRIMESH_NEEDS.items():
+                if name in text and need not in runtime:
+                    missing.add(f"{path.relative_to(ROOT)}: {name} needs {need}")
+            for node in ast.walk(ast.parse(text)):
+                if isinstance(node, ast.Import):
+                    tops = [a.name.split(".")[0] for a in node.names]
+                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                    tops = [node.module.split(".")[0]]
+                else:
+                    continue
+                for top in tops:
+                    if top in sys.stdlib_module_names or top == "qifreport":
+                        continue
+                    names = {d.lower().replace("_", "-") for d in dists.get(top, [top])}
+                    if not names & declared:
+                        missing.add(f"{path.relative_to(ROOT)}: {top} ({', '.join(names)})")
+    assert not missing, sorted(missing)
