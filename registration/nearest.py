@@ -10,7 +10,8 @@ that; only the points this does not certify go back to the tree. The answers are
 own, exactly (distance ties aside, which the tree breaks arbitrarily too).
 
 :func:`ball_pairs` lists every pair of a point and a tree's point within a radius as two flat
-arrays, from one dual-tree search: no list per point.
+arrays, from one dual-tree search: no list per point. :func:`nearest_distance` gives each
+point's distance to the nearest of a large other set, searched only in the points' grown box.
 """
 
 from __future__ import annotations
@@ -18,7 +19,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["PARALLEL_MIN", "TrackedNearest", "ball_pairs", "workers_for"]
+__all__ = [
+    "PARALLEL_MIN",
+    "TrackedNearest",
+    "ball_pairs",
+    "nearest_distance",
+    "workers_for",
+]
 
 #: points from which a query runs on every core
 PARALLEL_MIN = 4096
@@ -136,3 +143,24 @@ class TrackedNearest:
             idx[todo] = i[:, 0]
             self.queried += len(todo)
         return dist, idx
+
+
+def nearest_distance(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """(k,) each point of ``X`` (k, 3)'s distance to its nearest point of ``Y`` (q, 3), mm.
+
+    Searched among the points of ``Y`` in ``X``'s bounding box grown by a margin (5 % of
+    its diagonal, doubled until it holds every answer): a point outside the grown box is
+    farther than the margin from every point of ``X``, so answers within the margin are
+    exact. A surface's complement is most of a part, its near part a thin shell about it.
+    """
+    lo, hi = X.min(axis=0), X.max(axis=0)
+    margin = 0.05 * float(np.linalg.norm(hi - lo)) + 1e-9
+    while True:
+        near = np.all((Y >= lo - margin) & (Y <= hi + margin), axis=1)
+        if near.all():
+            return cKDTree(Y).query(X)[0]
+        if near.any():
+            dist = cKDTree(Y[near]).query(X)[0]
+            if dist.max() <= margin:
+                return dist
+        margin *= 2.0

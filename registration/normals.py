@@ -168,13 +168,12 @@ def _nearest_within(
     """
     a, lead = len(X), min(lead, k)
     sample = tree.query(X[:: max(1, a // 512)], k=lead, distance_upper_bound=radius)[0]
-    dist = np.full((a, k), np.inf)
-    idx = np.zeros((a, k), dtype=np.intp)
     if np.mean(np.isfinite(np.reshape(sample, (-1, lead))[:, -1])) >= 0.5:
         d, i = tree.query(X, k=k, distance_upper_bound=radius, workers=-1)
-        dist[:], idx[:] = np.reshape(d, (a, k)), np.reshape(i, (a, k))
+        dist, idx = np.reshape(d, (a, k)), np.reshape(i, (a, k))
         rows, then, bound = np.flatnonzero(~np.isfinite(dist[:, lead - 1])), lead, np.inf
     else:
+        dist, idx = np.full((a, k), np.inf), np.zeros((a, k), dtype=np.intp)
         d, i = tree.query(X, k=lead, workers=-1)
         dist[:, :lead], idx[:, :lead] = np.reshape(d, (a, lead)), np.reshape(i, (a, lead))
         rows, then, bound = np.flatnonzero(dist[:, lead - 1] <= radius), k, radius

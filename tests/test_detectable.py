@@ -202,7 +202,7 @@ def test_the_nearest_rest_of_the_part_is_found_in_a_grown_box():
     doubled ten times), and a cloud inside the others' box."""
     from scipy.spatial import cKDTree
 
-    from qifreport.metrology.deviation.detectable import nearest_distance
+    from qifreport.registration.nearest import nearest_distance
 
     rng = np.random.default_rng(11)
     part = rng.uniform(0, 100, (20_000, 3))

@@ -48,6 +48,7 @@ from qifreport.registration.deformable.gbcicp import MASS_REGULARISATION, holdou
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import MeshOperators, median_edge_length
+from qifreport.registration.nearest import nearest_distance
 from qifreport.registration.scan import median_spacing
 
 __all__ = [
@@ -57,7 +58,6 @@ __all__ = [
     "critical_depth",
     "detectable_dent",
     "interior_vertex",
-    "nearest_distance",
     "with_detectable",
 ]
 
@@ -280,27 +280,6 @@ def interior_vertex(
     if not len(rest):
         return int(idx[0])
     return int(idx[int(np.argmax(nearest_distance(V[idx], V[rest])))])
-
-
-def nearest_distance(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
-    """(k,) each point of ``X`` (k, 3)'s distance to its nearest point of ``Y`` (q, 3), mm.
-
-    Searched among the points of ``Y`` in ``X``'s bounding box grown by a margin (5 % of
-    its diagonal, doubled until it holds every answer): a point outside the grown box is
-    farther than the margin from every point of ``X``, so answers within the margin are
-    exact. A surface's complement is most of a part, its near part a thin shell about it.
-    """
-    lo, hi = X.min(axis=0), X.max(axis=0)
-    margin = 0.05 * float(np.linalg.norm(hi - lo)) + 1e-9
-    while True:
-        near = np.all((Y >= lo - margin) & (Y <= hi + margin), axis=1)
-        if near.all():
-            return cKDTree(Y).query(X)[0]
-        if near.any():
-            dist = cKDTree(Y[near]).query(X)[0]
-            if dist.max() <= margin:
-                return dist
-        margin *= 2.0
 
 
 @dataclass(frozen=True)

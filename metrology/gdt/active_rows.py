@@ -32,22 +32,19 @@ def linprog_active(
     A_ub: np.ndarray,
     b_ub: np.ndarray,
     bounds: list[tuple[float | None, float | None]],
-    *,
-    x0: np.ndarray | None = None,
-    start: int = _START,
 ) -> OptimizeResult:
     """``min c x`` subject to ``A_ub x <= b_ub`` and ``bounds`` (HiGHS), solved on the rows
-    active near ``x0`` and grown by the violated ones until its solution satisfies all.
+    tightest at ``x = 0`` and grown by the violated ones until its solution satisfies all.
+
+    The first rows are the :data:`_START` smallest ``b_ub`` (the tightest at 0: the
+    callers' unknowns are small changes of an estimate) and :data:`_START` rows spread
+    evenly over all (the rows of a point cloud come in its order: the spread ones keep a
+    programme bounded); each round adds up to :data:`_START` of the most violated.
 
     Parameters
     ----------
     c : (k,) objective.  A_ub : (M, k) inequality rows.  b_ub : (M,) their bounds.
     bounds : per unknown, as :func:`scipy.optimize.linprog`'s.
-    x0 : (k,) where the first rows are chosen: the ``start`` largest ``A_ub x0 - b_ub``
-        (the tightest or most violated; default 0, an estimate the caller's unknowns are
-        small changes of), and ``start`` rows spread evenly over all (the rows of a point
-        cloud come in its order: the spread ones keep a programme bounded).
-    start : rows solved on first, and added per round.
 
     Returns
     -------
@@ -56,13 +53,11 @@ def linprog_active(
         0 when solved; its ``x`` satisfies every row within :data:`FEASIBILITY`), or on
         the whole programme when it is small or the rounds did not settle.
     """
-    M = len(b_ub)
+    M, start = len(b_ub), _START
     if M <= 4 * start:
         return linprog(c, A_ub=A_ub, b_ub=b_ub, bounds=bounds, method="highs")
-    x0 = np.zeros(len(c)) if x0 is None else np.asarray(x0, dtype=np.float64)
     tol = FEASIBILITY * (1.0 + float(np.abs(b_ub).max()))
-    tightest = np.argpartition(-(A_ub @ x0 - b_ub), start)[:start]
-    rows = np.union1d(tightest, _spread(M, start, 0))
+    rows = np.union1d(np.argpartition(b_ub, start)[:start], _spread(M, start, 0))
     for k in range(1, _ROUNDS + 1):
         res = linprog(c, A_ub=A_ub[rows], b_ub=b_ub[rows], bounds=bounds, method="highs")
         if res.status != 0:
