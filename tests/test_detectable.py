@@ -213,3 +213,35 @@ def test_the_nearest_rest_of_the_part_is_found_in_a_grown_box():
         want = cKDTree(Y).query(X)[0]
         assert np.array_equal(nearest_distance(X, Y), want)
     assert cKDTree(part).query(cluster)[0].min() > 350
+
+
+def test_a_probe_finds_its_patch_about_it_as_over_the_whole_mesh(shell):
+    """:meth:`ScanReading.patch_vertices` and :meth:`ScanReading.first_face` (a probe's
+    surface within reach and a dent centre's triangle, found from the vertices' tree and
+    their triangles) give what a pass over every vertex and triangle gives: the same
+    vertices, the same triangles in the same order, the same lowest triangle; on a
+    vertex exactly at the reach and on a nominal the tree was not made of."""
+    from dataclasses import replace
+
+    V, F = shell
+    P = V[::3] + 0.01
+    scan = ScanReading.of(V, F, P)
+    whole = replace(scan, vertex_tree=None, vertex_faces=None)
+    rng = np.random.default_rng(3)
+    sites = rng.choice(len(V), 40, replace=False)
+    for site, reach in zip(sites, rng.uniform(0.5, 30.0, len(sites)), strict=True):
+        x0 = V[site] + rng.normal(0, 0.3, 3)
+        for r in (reach, float(np.linalg.norm(V[(site + 7) % len(V)] - x0))):  # one on a vertex
+            vin, faces = scan.patch_vertices(V, F, x0, r)
+            want_v, want_f = whole.patch_vertices(V, F, x0, r)
+            assert np.array_equal(vin, want_v) and np.array_equal(faces, want_f)
+            assert vin[(site + 7) % len(V)] or r == reach
+        assert scan.first_face(F, int(site)) == whole.first_face(F, int(site))
+        assert F[scan.first_face(F, int(site))].tolist().count(site) == 1
+    # a nominal moved since (a held state's): its own pass, not the stale tree
+    moved = V + [0.0, 0.0, 5.0]
+    x0 = moved[sites[0]]
+    assert np.array_equal(
+        scan.patch_vertices(moved, F, x0, 10.0)[1], whole.patch_vertices(moved, F, x0, 10.0)[1]
+    )
+    assert scan.patch_vertices(moved, F, x0, 10.0)[0].sum() > 10

@@ -47,7 +47,7 @@ from qifreport.metrology.deviation.residual_fit import ResidualReader, ball_radi
 from qifreport.registration.deformable.gbcicp import MASS_REGULARISATION, holdout
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.linalg import SPDSolver
-from qifreport.registration.mesh import MeshOperators, median_edge_length
+from qifreport.registration.mesh import MeshOperators, median_edge_length, vertex_triangles
 from qifreport.registration.nearest import nearest_distance
 from qifreport.registration.scan import median_spacing
 
@@ -295,6 +295,10 @@ class ScanReading:
     edge : the mesh's median edge length.
     labels : (f,) each triangle's face (a B-rep face, or a smooth patch; zeros: one).
     point_label : (m,) each point's face (its closest triangle's; -1: none, not read).
+    vertex_tree : ``cKDTree(V)`` of the nominal read.  vertex_faces : its vertices'
+        triangles (:func:`~qifreport.registration.mesh.vertex_triangles`). With them a
+        probe's patch and dent centres are found about the probe, not over the whole mesh
+        (None: over the whole mesh).
     """
 
     tree: cKDTree
@@ -303,6 +307,10 @@ class ScanReading:
     edge: float
     labels: np.ndarray
     point_label: np.ndarray
+    vertex_tree: cKDTree | None = field(default=None, compare=False, repr=False)
+    vertex_faces: tuple[np.ndarray, np.ndarray] | None = field(
+        default=None, compare=False, repr=False
+    )
 
     @classmethod
     def of(
@@ -330,7 +338,39 @@ class ScanReading:
             edge=median_edge_length(V, F),
             labels=np.zeros(len(F), dtype=np.int64) if one else np.asarray(labels, np.int64),
             point_label=np.zeros(len(P), np.int64) if one else np.asarray(point_label, np.int64),
+            vertex_tree=cKDTree(V),
+            vertex_faces=vertex_triangles(F, len(V)),
         )
+
+    def patch_vertices(self, V: np.ndarray, F: np.ndarray, x0: np.ndarray, reach: float):
+        """The vertices of ``V`` (n, 3) mm within ``reach`` mm of ``x0``, as an (n,) bool,
+        and the triangles of ``F`` (f, 3) with all three corners among them, ascending:
+        :attr:`vertex_tree`'s candidates a hair wider, each measured as over all of
+        ``V``, and only the triangles about them tested."""
+        vin = np.zeros(len(V), dtype=bool)
+        if self.vertex_tree is None or not np.array_equal(self.vertex_tree.data, V):
+            vin = np.linalg.norm(V - x0, axis=1) <= reach
+            return vin, np.flatnonzero(vin[F].all(axis=1))
+        cand = np.asarray(
+            self.vertex_tree.query_ball_point(x0, reach * (1.0 + 1e-9) + 1e-9), dtype=np.int64
+        )
+        vin[cand] = np.linalg.norm(V[cand] - x0, axis=1) <= reach
+        start, tri = self.vertex_faces
+        near = np.flatnonzero(vin)
+        counts = start[near + 1] - start[near]
+        rows = np.repeat(start[near], counts) + (
+            np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+        )
+        faces = np.unique(tri[rows])
+        return vin, faces[vin[F[faces]].all(axis=1)]
+
+    def first_face(self, F: np.ndarray, v: int) -> int | None:
+        """The lowest-numbered triangle of ``F`` (f, 3) with corner ``v`` (None: none)."""
+        if self.vertex_faces is None:
+            hit = np.flatnonzero((F == v).any(axis=1))
+            return int(hit[0]) if len(hit) else None
+        start, tri = self.vertex_faces
+        return int(tri[start[v]]) if start[v + 1] > start[v] else None
 
 
 @dataclass(frozen=True)
@@ -355,8 +395,7 @@ class _Patch:
 
     @classmethod
     def about(cls, V, F, P, normals, area, x0, reach, scan: ScanReading) -> _Patch:
-        vin = np.linalg.norm(V - x0, axis=1) <= reach
-        keep = vin[F].all(axis=1)
+        vin, keep = scan.patch_vertices(V, F, x0, reach)
         Fs = F[keep]
         vertex = np.flatnonzero(vin)
         remap = np.full(len(V), -1, dtype=np.int64)
@@ -437,7 +476,7 @@ def detectable_dent(
     peak, share, true_area = math.inf, math.inf, 0.0
     # the dent centred on the vertex and between vertices: a region's area on the mesh
     # depends on where the dent falls among the vertices, and the least read counts
-    for c in _centres(V, F, site):
+    for c in _centres(V, F, site, scan.first_face(F, site)):
         d = a * np.exp(-np.sum((patch.P - c) ** 2, axis=1) / sigma**2)
         r = d if h is None else d - h[patch.tree.query(patch.P - (c - x0))[1]]
         p, on_vertices = _read(patch, r, half_width, scan)
@@ -502,11 +541,11 @@ def with_detectable(acc: Acceptance, det: Detectable | None) -> Acceptance:
     return replace(acc, proven_in=False, uncertain_reasons=[*acc.uncertain_reasons, why])
 
 
-def _centres(V: np.ndarray, F: np.ndarray, site: int) -> list[np.ndarray]:
+def _centres(V: np.ndarray, F: np.ndarray, site: int, face: int | None) -> list[np.ndarray]:
     """Dent centres about vertex ``site``: the vertex, the midpoint of one of its edges and
-    the centroid of one of its triangles (mm)."""
-    tri = F[np.flatnonzero((F == site).any(axis=1))[:1]]
-    if not len(tri):
+    the centroid of its triangle ``face`` (mm; None: the vertex alone)."""
+    if face is None:
         return [V[site]]
-    other = tri[0][tri[0] != site][0]
-    return [V[site], 0.5 * (V[site] + V[other]), V[tri[0]].mean(axis=0)]
+    tri = F[face]
+    other = tri[tri != site][0]
+    return [V[site], 0.5 * (V[site] + V[other]), V[tri].mean(axis=0)]
