@@ -80,11 +80,15 @@ class ExactScans:
                 out,
                 *([] if qif else ["--no-qif"]),
                 "--rigid-only",
-                "--cache",
-                str(self.tmp / "cache"),
             )
             self.docs[tag] = doc
         return self.docs[tag]
+
+
+def perfect_tag(name: str, density: float) -> str:
+    """The output folder of the perfect scan of ``name`` at ``density`` points/mm^2: one
+    CLI run, shared by every test that reads it."""
+    return f"{name[:11]}_{density:g}"
 
 
 @pytest.fixture(scope="module")
@@ -105,7 +109,7 @@ def test_exact_perfect_scan(exact, name, density):
     from qifreport.simulate.perfect_check import review_perfect_scan
 
     scan = exact.scan(name, density)
-    doc = exact.run(name, scan.P, f"{name[:11]}_{density:g}")
+    doc = exact.run(name, scan.P, perfect_tag(name, density))
     review = review_perfect_scan(doc, NOISE)
     assert not review.fails, [(f.key, f.what, f.reason) for f in review.fails]
     assert doc["_rc"] in (0, 3) and doc["verdict"] != "FAIL", doc["decided_by"]
@@ -125,7 +129,7 @@ def test_bump_fails_the_flatness_of_its_face(exact):
     from qifreport.simulate.brep_scan import bump, bump_site
 
     scan = exact.scan(FTC08, 2.0)
-    perfect = exact.run(FTC08, scan.P, "ftc08_2")
+    perfect = exact.run(FTC08, scan.P, perfect_tag(FTC08, 2.0))
     before = next(c for c in perfect["characteristics"] if c["key"] == BUMP_KEY)
     assert before["faces"] == [BUMP_FACE] and before["status"] == "PASS", before
     centre = bump_site(exact.parts[FTC08][1], BUMP_FACE)
@@ -145,7 +149,7 @@ def test_stray_points_change_no_reading_of_the_perfect_part(exact):
     from qifreport.simulate.scanner import with_stray_points
 
     scan = exact.scan(FTC08, 2.0)
-    clean = exact.run(FTC08, scan.P, "ftc08_2")
+    clean = exact.run(FTC08, scan.P, perfect_tag(FTC08, 2.0))
     doc = exact.run(FTC08, with_stray_points(scan.P, 0.005, seed=2), "ftc08_2_stray")
     assert (doc["verdict"], doc["_rc"]) == (clean["verdict"], clean["_rc"]), doc["decided_by"]
     assert 0.004 < doc["stray_points"]["share"] <= 0.005
@@ -177,7 +181,7 @@ def test_composite_lower_segment_fails_its_frame_in_the_qif(exact):
     from qifreport.qif.reader import read_results
 
     scan = exact.scan(FTC08, 2.0)
-    perfect = exact.run(FTC08, scan.P, "ftc08_2")
+    perfect = exact.run(FTC08, scan.P, perfect_tag(FTC08, 2.0))
     frame = [c for c in perfect["characteristics"] if c["name"] == "Feature Control Frame (28)"]
     assert [c["status"] for c in frame] == ["PASS", "PASS"], [c["reason"] for c in frame]
     upper = next(c for c in frame if c["composite"] == "upper")
