@@ -11,7 +11,8 @@ own, exactly (distance ties aside, which the tree breaks arbitrarily too).
 
 :func:`ball_pairs` lists every pair of a point and a tree's point within a radius as two flat
 arrays, from one dual-tree search: no list per point. :func:`nearest_distance` gives each
-point's distance to the nearest of a large other set, searched only in the points' grown box.
+point's distance to the nearest of a large other set, searched only in the points' grown box;
+:func:`farthest_from` the point of a set farthest from another, without measuring most of them.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ __all__ = [
     "PARALLEL_MIN",
     "TrackedNearest",
     "ball_pairs",
+    "farthest_from",
     "nearest_distance",
     "workers_for",
 ]
@@ -164,3 +166,40 @@ def nearest_distance(X: np.ndarray, Y: np.ndarray) -> np.ndarray:
             if dist.max() <= margin:
                 return dist
         margin *= 2.0
+
+
+#: cells per side of the grid :func:`farthest_from` bounds its points' distances on
+FARTHEST_CELLS = 64
+
+
+def farthest_from(X: np.ndarray, Y: np.ndarray) -> int:
+    """The index of the point of ``X`` (k, 3) farthest from its nearest point of ``Y``
+    (q, 3), mm: ``argmax(nearest_distance(X, Y))``, the first of equals.
+
+    The points are grouped on a grid of :data:`FARTHEST_CELLS` cells along the largest side
+    of their box. Each cell's first point is measured; its distance plus the cell's reach
+    about it (the farthest of its points from it) bounds every distance in the cell, and the
+    largest distance measured is a floor of the answer. Only the cells whose bound reaches
+    the floor are measured whole: the others hold no point as far. The distances measured
+    are those of :func:`nearest_distance`, so the answer is its argmax, ties and all.
+    """
+    X = np.asarray(X, dtype=np.float64)
+    k = len(X)
+    if k <= 4 * FARTHEST_CELLS:
+        return int(np.argmax(nearest_distance(X, Y)))
+    lo = X.min(axis=0)
+    size = float(np.max(X.max(axis=0) - lo)) / FARTHEST_CELLS or 1.0
+    cell = np.floor((X - lo) / size).astype(np.int64)
+    key = (cell[:, 0] * (FARTHEST_CELLS + 1) + cell[:, 1]) * (FARTHEST_CELLS + 1) + cell[:, 2]
+    order = np.argsort(key, kind="stable")
+    first = np.r_[True, key[order][1:] != key[order][:-1]]
+    group = np.cumsum(first) - 1  # each point's cell, in ``order``
+    rep = order[first]  # each cell's first point (lowest index)
+    reach = np.zeros(len(rep))
+    np.maximum.at(reach, group, np.linalg.norm(X[order] - X[rep][group], axis=1))
+    d_rep = nearest_distance(X[rep], Y)
+    floor = float(d_rep.max())
+    # a cell's points lie within its reach of its first point: none is farther than this
+    open_cell = d_rep + reach * (1.0 + 1e-12) + 1e-12 >= floor
+    cand = np.sort(order[open_cell[group]])
+    return int(cand[np.argmax(nearest_distance(X[cand], Y))])

@@ -245,3 +245,39 @@ def test_a_probe_finds_its_patch_about_it_as_over_the_whole_mesh(shell):
         scan.patch_vertices(moved, F, x0, 10.0)[1], whole.patch_vertices(moved, F, x0, 10.0)[1]
     )
     assert scan.patch_vertices(moved, F, x0, 10.0)[0].sum() > 10
+
+
+def test_the_most_interior_point_is_found_measuring_few(monkeypatch):
+    """:func:`farthest_from` (the probe site: the scored vertex farthest from the rest of
+    the part) is the argmax of every point's measured distance, the first of equals: on
+    the shell's vertices against its rim, on points rounded to a grid (ties everywhere),
+    on a slab against a far cloud, and on fewer points than its grid has cells; and it
+    measures few of them (a count a search of all would exceed)."""
+    from qifreport.registration import nearest
+    from qifreport.registration.mesh import boundary_vertices
+    from qifreport.registration.nearest import farthest_from, nearest_distance
+
+    V, F = thin_shell()
+    rim = boundary_vertices(F, len(V))
+    rng = np.random.default_rng(4)
+    grid = np.round(rng.uniform(0, 40, (6000, 3)))
+    slab = rng.uniform(0, 100, (8000, 3)) * [1, 1, 0.05]
+    cases = [
+        (V[~rim], V[rim]),
+        (grid, rng.uniform(-5, 45, (30, 3))),
+        (slab, rng.uniform(200, 300, (50, 3))),
+        (slab[:100], slab[100:]),
+    ]
+    for X, Y in cases:
+        want = int(np.argmax(nearest_distance(X, Y)))
+        assert farthest_from(X, Y) == want
+    measured = []
+    real = nearest.nearest_distance
+
+    def counting(X, Y):
+        measured.append(len(X))
+        return real(X, Y)
+
+    monkeypatch.setattr(nearest, "nearest_distance", counting)
+    farthest_from(V[~rim], V[rim])
+    assert sum(measured) < 0.5 * int((~rim).sum()), (measured, int((~rim).sum()))

@@ -48,7 +48,7 @@ from qifreport.registration.deformable.gbcicp import MASS_REGULARISATION, holdou
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.linalg import SPDSolver
 from qifreport.registration.mesh import MeshOperators, median_edge_length, vertex_triangles
-from qifreport.registration.nearest import nearest_distance
+from qifreport.registration.nearest import farthest_from
 from qifreport.registration.scan import median_spacing
 
 __all__ = [
@@ -279,7 +279,7 @@ def interior_vertex(
     rest = np.flatnonzero(~scored if border is None else ~scored | border)
     if not len(rest):
         return int(idx[0])
-    return int(idx[int(np.argmax(nearest_distance(V[idx], V[rest])))])
+    return int(idx[farthest_from(V[idx], V[rest])])
 
 
 @dataclass(frozen=True)
