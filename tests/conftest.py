@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import os
 import pickle
 from pathlib import Path
@@ -40,11 +42,7 @@ def qifreport_cache(tmp_path_factory):
     test is loaded by the next, as in production. Under pytest-xdist the workers share it
     (beside their own temporary folders): a part one prepares, the other loads; entries are
     written to a temporary file and renamed, so concurrent builders are harmless."""
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        d = tmp_path_factory.getbasetemp().parent / "qifreport-cache"
-        d.mkdir(exist_ok=True)
-    else:
-        d = tmp_path_factory.mktemp("qifreport-cache")
+    d = shared_session_dir(tmp_path_factory, "qifreport-cache")
     old = os.environ.get("QIFREPORT_CACHE")
     os.environ["QIFREPORT_CACHE"] = str(d)
     yield d
@@ -109,22 +107,55 @@ def assert_valid_summary(doc: dict) -> None:
     assert not errors, "summary violates schemas/summary-1.schema.json:\n" + "\n".join(errors)
 
 
+def shared_session_dir(tmp_path_factory, name: str) -> Path:
+    """A folder for the session's generated material: under pytest-xdist the one both
+    workers share (beside their own temporary folders), else the session's own."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        d = tmp_path_factory.getbasetemp().parent / name
+        d.mkdir(exist_ok=True)
+        return d
+    return tmp_path_factory.mktemp(name)
+
+
+@contextlib.contextmanager
+def held_lock(d: Path):
+    """Hold an exclusive lock on ``d`` (its ``.lock`` file) while the block runs: the
+    worker that comes second waits, then finds the first one's work done."""
+    with open(d / ".lock", "w") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
 @pytest.fixture(scope="session")
 def qif_xsd(tmp_path_factory) -> Path:
     """``QIFDocument.xsd`` of a session copy of the official QIF 3.0 XSDs whose xmldsig import
-    points to a local file (:func:`tests.consumers.local_xsd_copy`)."""
+    points to a local file (:func:`tests.consumers.local_xsd_copy`), made once and shared by
+    the xdist workers."""
     from tests.consumers import local_xsd_copy
 
-    return local_xsd_copy(tmp_path_factory.mktemp("qif-xsd"))
+    d = shared_session_dir(tmp_path_factory, "qif-xsd")
+    with held_lock(d):
+        done = d / ".copied"
+        if done.is_file():
+            return d / "copy" / "QIFApplications" / "QIFDocument.xsd"
+        root = local_xsd_copy(d / "copy")
+        done.touch()
+        return root
 
 
 @pytest.fixture(scope="session")
 def pyxb_qif(tmp_path_factory, qif_xsd):
-    """The PyXB binding of ``qif_xsd``, generated once per session (about 20 s;
-    :func:`tests.consumers.pyxb_binding`)."""
+    """The PyXB binding of ``qif_xsd`` (:func:`tests.consumers.pyxb_binding`), generated
+    once per session (about 12 s) into a folder the xdist workers share, and imported in
+    each (about 8 s the first time, less from the compiled files the first import left)."""
     from tests.consumers import pyxb_binding
 
-    return pyxb_binding(tmp_path_factory.mktemp("pyxb-qif"), qif_xsd)
+    d = shared_session_dir(tmp_path_factory, "pyxb-qif")
+    with held_lock(d):
+        return pyxb_binding(d, qif_xsd)
 
 
 @pytest.fixture(scope="session")

@@ -160,7 +160,8 @@ def pyxb_binding(workdir: Path, xsd: Path | None = None) -> ModuleType:
     ``_ds.py`` for the xmldsig namespace) and imports the result from its file under a unique
     module name (about 8 s: 26 MB of generated source). ``xsd`` defaults to a fresh
     :func:`local_xsd_copy` in ``workdir/xsd``. Use it through the session fixture
-    ``pyxb_qif`` (tests/conftest.py).
+    ``pyxb_qif`` (tests/conftest.py). A binding of the same schemas at the same location
+    already in ``workdir`` is imported without generating it again.
 
     PyXB registers namespace bindings process-wide, so only one binding can be loaded per
     process: a later call with the same schemas returns the loaded module (nothing is
@@ -182,14 +183,20 @@ def pyxb_binding(workdir: Path, xsd: Path | None = None) -> ModuleType:
         return _binding[1]
     gen = workdir / "pyxb_gen"
     gen.mkdir(exist_ok=True)
-    r = subprocess.run(
-        [exe, f"--schema-location={xsd}", "--module=QIFDocument"],
-        cwd=gen,
-        capture_output=True,
-        text=True,
-    )
-    if r.returncode != 0 or not (gen / "QIFDocument.py").is_file():
-        raise RuntimeError(f"pyxbgen failed (exit {r.returncode}):\n{r.stdout}\n{r.stderr}")
+    # a binding of these very schemas, at this location, generated before (by another
+    # process sharing ``workdir``) is imported as it is
+    made = gen / "schemas.sha256"
+    stamp = f"{digest} {xsd}"
+    if not (made.is_file() and made.read_text() == stamp):
+        r = subprocess.run(
+            [exe, f"--schema-location={xsd}", "--module=QIFDocument"],
+            cwd=gen,
+            capture_output=True,
+            text=True,
+        )
+        if r.returncode != 0 or not (gen / "QIFDocument.py").is_file():
+            raise RuntimeError(f"pyxbgen failed (exit {r.returncode}):\n{r.stdout}\n{r.stderr}")
+        made.write_text(stamp)
     uid = f"qif_pyxb_{os.getpid()}_{next(_module_ids)}"
     # QIFDocument.py does `import _ds`: load it under a unique name and alias it while the
     # main module executes, so that nothing named `_ds` stays in sys.modules afterwards.
