@@ -357,3 +357,39 @@ def test_a_projected_zone_reads_the_axis_beyond_the_hole(part, drawing):
     assert pr.status == "FAIL" and "projected 10.795 mm beyond either end" in pr.reading
     straight = _measure_one(part, drawing, projected, np.zeros(len(part.V)))
     assert straight.status == "PASS" and straight.value < 0.01, straight.reading
+
+
+def test_a_surface_finds_its_faces_items_as_a_pass_over_all_of_them():
+    """:class:`MeasuredSurface` finds the triangles and scan points of a set of faces from
+    one sort of their labels: the same own vertices, vertex normals and points near a
+    position as a pass over every label gives (labels in any order, repeated, points of no
+    face, a face with no item, an empty set)."""
+    from qifreport.registration.mesh import vertex_normals
+    from qifreport.simulate.shapes import thin_shell
+
+    V, F = thin_shell()
+    rng = np.random.default_rng(8)
+    face_id = rng.integers(0, 9, len(F))
+    corner = vertex_normals(V, F)[F] + rng.normal(0, 0.1, (len(F), 3, 3))
+    P = V[rng.integers(0, len(V), 6000)] + rng.normal(0, 0.01, (6000, 3))
+    P_face = rng.integers(-1, 9, len(P))
+    dev = rng.normal(0, 0.02, len(V))
+    surf = MeasuredSurface(
+        V, F, face_id, corner, dev, np.full(len(V), 0.01), P, P_face,
+        rng.normal(0, 0.02, len(P)), np.full(len(P), 0.01),
+    )  # fmt: skip
+    N = np.zeros((len(V), 3))
+    for k in range(3):
+        np.add.at(N, F[:, k], corner[:, k])
+    assert np.array_equal(surf.N, N / np.linalg.norm(N, axis=1, keepdims=True))
+    valence = np.bincount(F.ravel(), minlength=len(V))
+    for faces in ([3], [5, 1], [8, 0, 4], [12], [], [2, 2]):
+        tri = np.isin(face_id, faces)
+        inside = np.bincount(F[tri].ravel(), minlength=len(V))
+        want = np.flatnonzero((inside > 0) & (inside == valence))
+        assert np.array_equal(surf.own_vertices(faces), want)
+        x = V[int(rng.integers(len(V)))]
+        on = np.isin(P_face, faces)
+        want = surf.P_dev[on][np.linalg.norm(P[on] - x, axis=1) <= 20.0]
+        assert np.array_equal(surf.point_deviation_near(faces, x, 20.0), want)
+    assert len(surf.own_vertices([3])) > 0 and len(surf.point_deviation_near([3], x, 1e3)) > 0

@@ -121,16 +121,20 @@ class MeasuredSurface:
         n = len(self.V)
         self.diagonal = bounding_diagonal(self.V)
         self._valence = np.bincount(self.F.ravel(), minlength=n)
-        N = np.zeros((n, 3))
-        for k in range(3):
-            np.add.at(N, self.F[:, k], self.corner_normals[:, k])
+        # the corners' normals summed per vertex, corner 0 of every triangle first, then 1
+        # and 2 (each vertex's sum in that order)
+        corner = self.F.T.ravel()
+        Nc = np.asarray(self.corner_normals, dtype=np.float64).transpose(1, 0, 2).reshape(-1, 3)
+        N = np.stack([np.bincount(corner, Nc[:, j], minlength=n) for j in range(3)], axis=1)
         self.N = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
         self._nominal: dict[tuple[int, ...], DatumFeature | None] = {}
         self._samples: dict[tuple, FeatureSample] = {}
+        self._triangles = _Members(self.face_id)
+        self._points = _Members(self.P_face)
 
     def own_vertices(self, faces) -> np.ndarray:
         """Vertex ids whose every triangle lies on ``faces`` (mesh face ids)."""
-        tri = np.isin(self.face_id, np.asarray(list(faces), dtype=np.int64))
+        tri = self._triangles.of(faces)
         inside = np.bincount(self.F[tri].ravel(), minlength=len(self.V))
         return np.flatnonzero((inside > 0) & (inside == self._valence))
 
@@ -138,7 +142,7 @@ class MeasuredSurface:
         """The nominal plane or cylinder of ``faces`` (None: neither, or no triangle)."""
         key = tuple(sorted(int(f) for f in faces))
         if key not in self._nominal:
-            tri = np.flatnonzero(np.isin(self.face_id, np.asarray(key, dtype=np.int64)))
+            tri = self._triangles.of(key)
             feat = None
             if len(tri):
                 X = self.V[self.F[tri]].reshape(-1, 3)
@@ -184,7 +188,7 @@ class MeasuredSurface:
         ok = own[np.isfinite(self.dev[own])]
         nominal = self.nominal(faces, label)
         coverage = len(ok) / len(own) if len(own) else None
-        on = np.isin(self.P_face, np.asarray(list(faces), dtype=np.int64))
+        on = self._points.mask(faces)
         if not self.read_on_points and len(ok) >= MIN_VERTICES:
             S = self.V[ok] + self.dev[ok, None] * self.N[ok]
             return FeatureSample(S, self.U[ok], "vertices", coverage, nominal)
@@ -193,7 +197,8 @@ class MeasuredSurface:
         if on.any():
             judging = on if self.P_ok is None else on & self.P_ok
             if self.P_vertex is not None:  # as the feature's own vertices: not at its rim
-                judging &= np.isin(self.P_vertex, ok)
+                at = np.flatnonzero(judging)
+                judging[at] = np.isin(self.P_vertex[at], ok)
             if judging.sum() >= MIN_VERTICES:
                 on = judging
             S = self.P[on] if nominal is None else filtered(self.P[on], nominal)
@@ -208,8 +213,7 @@ class MeasuredSurface:
     ) -> np.ndarray:
         """Deviations of the ``k`` measured vertices of ``faces`` (any of their triangles)
         nearest ``position``, those within ``radius`` mm of it."""
-        tri = np.isin(self.face_id, np.asarray(list(faces), dtype=np.int64))
-        v = unique_sorted(self.F[tri])
+        v = unique_sorted(self.F[self._triangles.of(faces)])
         v = v[np.isfinite(self.dev[v])]
         d = np.linalg.norm(self.V[v] - np.asarray(position, dtype=np.float64), axis=1)
         near = np.argsort(d)[:k]
@@ -218,9 +222,35 @@ class MeasuredSurface:
     def point_deviation_near(self, faces, position: np.ndarray, radius: float) -> np.ndarray:
         """Deviations (k,) of the scan points on ``faces`` within ``radius`` mm of
         ``position`` (nominal frame)."""
-        on = np.isin(self.P_face, np.asarray(list(faces), dtype=np.int64))
+        on = self._points.of(faces)
         d = np.linalg.norm(self.P[on] - np.asarray(position, dtype=np.float64), axis=1)
         return self.P_dev[on][d <= radius]
+
+
+class _Members:
+    """The items (triangles or points) of each label (a face id), found by one sort of the
+    labels (l,) instead of a pass over all of them per question."""
+
+    def __init__(self, labels: np.ndarray):
+        labels = np.asarray(labels, dtype=np.int64)
+        self.n = len(labels)
+        self.order = np.argsort(labels, kind="stable")  # each label's items ascending
+        self.sorted = labels[self.order]
+
+    def of(self, faces) -> np.ndarray:
+        """(k,) the items whose label is one of ``faces``, ascending."""
+        faces = np.unique(np.asarray(list(faces), dtype=np.int64))
+        lo = np.searchsorted(self.sorted, faces, side="left")
+        hi = np.searchsorted(self.sorted, faces, side="right")
+        if len(faces) <= 1:
+            return self.order[lo[0] : hi[0]] if len(faces) else self.order[:0]
+        return np.sort(np.concatenate([self.order[a:b] for a, b in zip(lo, hi, strict=True)]))
+
+    def mask(self, faces) -> np.ndarray:
+        """(l,) bool, the items whose label is one of ``faces``."""
+        out = np.zeros(self.n, dtype=bool)
+        out[self.of(faces)] = True
+        return out
 
 
 def nominal_distance(P: np.ndarray, feat: DatumFeature) -> np.ndarray:
