@@ -342,11 +342,14 @@ class ScanReading:
             vertex_faces=vertex_triangles(F, len(V)),
         )
 
-    def patch_vertices(self, V: np.ndarray, F: np.ndarray, x0: np.ndarray, reach: float):
+    def patch_vertices(
+        self, V: np.ndarray, F: np.ndarray, x0: np.ndarray, reach: float
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The vertices of ``V`` (n, 3) mm within ``reach`` mm of ``x0``, as an (n,) bool,
-        and the triangles of ``F`` (f, 3) with all three corners among them, ascending:
-        :attr:`vertex_tree`'s candidates a hair wider, each measured as over all of
-        ``V``, and only the triangles about them tested."""
+        and the triangles of ``F`` (f, 3, the reading's own) with all three corners among
+        them, ascending: :attr:`vertex_tree`'s candidates a hair wider, each measured as
+        over all of ``V``, and only the triangles about them tested (a ``V`` the tree was
+        not made of: a pass over all of it)."""
         vin = np.zeros(len(V), dtype=bool)
         if self.vertex_tree is None or not np.array_equal(self.vertex_tree.data, V):
             vin = np.linalg.norm(V - x0, axis=1) <= reach
@@ -365,7 +368,8 @@ class ScanReading:
         return vin, faces[vin[F[faces]].all(axis=1)]
 
     def first_face(self, F: np.ndarray, v: int) -> int | None:
-        """The lowest-numbered triangle of ``F`` (f, 3) with corner ``v`` (None: none)."""
+        """The lowest-numbered triangle of ``F`` (f, 3, the reading's own) with corner
+        ``v`` (None: none)."""
         if self.vertex_faces is None:
             hit = np.flatnonzero((F == v).any(axis=1))
             return int(hit[0]) if len(hit) else None
