@@ -188,7 +188,7 @@ def _measure(
         return not_measured(spec, "datum frame not established: " + "; ".join(frame.problems))
     if kind.datums == "required" and frame is None:
         return not_measured(spec, f"{spec.kind} without datums")
-    if not np.isin(surf.face_id, spec.faces).any():
+    if not len(surf.triangles_on(spec.faces)):
         return not_measured(spec, "its faces are not on the part inspected")
     members = surf.features(spec.faces)
     if kind.measure_pattern is not None:

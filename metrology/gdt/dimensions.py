@@ -71,7 +71,7 @@ def _cylinder_values(surf: MeasuredSurface, faces) -> tuple[dict, dict, np.ndarr
     nom = {"diameter": 2 * feat.radius, "radius": feat.radius}
     meas = {"diameter": 2 * r, "radius": r}
     # the same fit on the raw scan points: their difference is a systematic part of U
-    on = np.isin(surf.P_face, faces)
+    on = surf.points_on(faces)
     if sample.source == "vertices" and on.sum() >= 8:
         r_pts = least_squares_cylinder(surf.P[on], feat.origin, feat.direction, feat.radius)[2]
         meas["_systematic_radius"] = abs(r_pts - r)
@@ -92,8 +92,7 @@ def _cone_values(
     few dozen points of a narrow band is poorly known). Widest end first; then, with a
     ``gauge`` diameter (mm) between the ends, the measured diameter in the plane where the
     model's is ``gauge`` (a basic diameter locating a taper's gauge section)."""
-    tri = np.isin(surf.face_id, np.asarray(list(faces), dtype=np.int64))
-    X = surf.V[unique_sorted(surf.F[tri])]
+    X = surf.V[unique_sorted(surf.F[surf.triangles_on(faces)])]
     z = (X - feat.origin) @ feat.direction
     draws = cone_draws(sample.S, feat.origin, feat.direction, feat.half_angle)
     out = []

@@ -85,8 +85,8 @@ class TargetSpec:
         its outline): of its faces, facing it; without faces (or a supplemental face, not
         meshed), any vertex within 1 mm of its plane whose normal lies along the area's."""
         n = self.normal
-        tri = np.isin(surf.face_id, self.faces)
-        if tri.any():
+        tri = surf.triangles_on(self.faces)
+        if len(tri):
             v = unique_sorted(surf.F[tri])
             X = surf.V[v] - self.position
             c = surf.N[v] @ n

@@ -101,7 +101,7 @@ def measure_flatness(spec, S, sample, feat, frame, sizes, surf, faces):
         # neighbouring face's near the crease, read as a phantom 0.1 mm in one window)
         U = sample.U
         if sample.source != "scan points":
-            on = np.isin(surf.P_face, np.asarray(list(faces), dtype=np.int64))
+            on = surf.points_on(faces)
             if on.sum() > len(S):
                 S, U = surf.P[on], surf.P_U[on]
         return _flatness_per_area(S, U, feat, unit)

@@ -132,6 +132,14 @@ class MeasuredSurface:
         self._triangles = _Members(self.face_id)
         self._points = _Members(self.P_face)
 
+    def triangles_on(self, faces) -> np.ndarray:
+        """(k,) the ids, ascending, of the triangles on ``faces`` (mesh face ids)."""
+        return self._triangles.of(faces)
+
+    def points_on(self, faces) -> np.ndarray:
+        """(m,) bool, the scan points labelled with one of ``faces``."""
+        return self._points.mask(faces)
+
     def own_vertices(self, faces) -> np.ndarray:
         """Vertex ids whose every triangle lies on ``faces`` (mesh face ids)."""
         tri = self._triangles.of(faces)

@@ -50,8 +50,7 @@ def _open_ends(feat: DatumFeature, surf: MeasuredSurface, faces) -> list[tuple[f
     axis from its origin, mm) beyond which there is no material."""
     import igl
 
-    tri = np.isin(surf.face_id, np.asarray(list(faces), dtype=np.int64))
-    z = (surf.V[np.unique(surf.F[tri])] - feat.origin) @ feat.direction
+    z = (surf.V[np.unique(surf.F[surf.triangles_on(faces)])] - feat.origin) @ feat.direction
     step = max(0.5 * (feat.radius or 0.0), 0.5)
     ends = [(float(z.min()), -1.0), (float(z.max()), 1.0)]
     probes = np.array([feat.origin + (e + s * step) * feat.direction for e, s in ends])
