@@ -46,7 +46,6 @@ __all__ = [
     "remove_unreferenced",
     "vertex_areas",
     "vertex_normals",
-    "vertex_triangles",
     "wall_thickness",
     "weld",
 ]
@@ -237,16 +236,6 @@ def edges(F: np.ndarray) -> np.ndarray:
         return E.reshape(0, 2)
     key, base = _edge_keys(E)
     return _edge_pairs(unique_sorted(key), base)
-
-
-def vertex_triangles(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Each vertex's triangles, ascending, as ``(start, tri)``: vertex ``v``'s are
-    ``tri[start[v]:start[v + 1]]`` (``F`` (f, 3), ``n`` vertices)."""
-    corner = np.asarray(F, dtype=np.int64).ravel()
-    order = np.argsort(corner, kind="stable")  # stable: each vertex's triangles ascending
-    start = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(corner, minlength=n), out=start[1:])
-    return start, order // 3
 
 
 def median_edge_length(V: np.ndarray, F: np.ndarray) -> float:

@@ -226,7 +226,7 @@ def test_a_probe_finds_its_patch_about_it_as_over_the_whole_mesh(shell):
     V, F = shell
     P = V[::3] + 0.01
     scan = ScanReading.of(V, F, P)
-    whole = replace(scan, vertex_tree=None, vertex_faces=None)
+    whole = replace(scan, vertex_tree=None, corners=None)
     rng = np.random.default_rng(3)
     sites = rng.choice(len(V), 40, replace=False)
     for site, reach in zip(sites, rng.uniform(0.5, 30.0, len(sites)), strict=True):

@@ -44,10 +44,11 @@ from qifreport.metrology.acceptance.criteria import Acceptance
 from qifreport.metrology.acceptance.point_regions import DEFAULT_K, point_areas
 from qifreport.metrology.acceptance.statistics import json_float
 from qifreport.metrology.deviation.residual_fit import ResidualReader, ball_radius
+from qifreport.registration.arrays import LabelIndex, unique_sorted
 from qifreport.registration.deformable.gbcicp import MASS_REGULARISATION, holdout
 from qifreport.registration.deformable.result import DeformResult
 from qifreport.registration.linalg import SPDSolver
-from qifreport.registration.mesh import MeshOperators, median_edge_length, vertex_triangles
+from qifreport.registration.mesh import MeshOperators, median_edge_length
 from qifreport.registration.nearest import farthest_from
 from qifreport.registration.scan import median_spacing
 
@@ -295,8 +296,8 @@ class ScanReading:
     edge : the mesh's median edge length.
     labels : (f,) each triangle's face (a B-rep face, or a smooth patch; zeros: one).
     point_label : (m,) each point's face (its closest triangle's; -1: none, not read).
-    vertex_tree : ``cKDTree(V)`` of the nominal read.  vertex_faces : its vertices'
-        triangles (:func:`~qifreport.registration.mesh.vertex_triangles`). With them a
+    vertex_tree : ``cKDTree(V)`` of the nominal read.  corners : the triangles' corners
+        (``F.ravel()``, corner ``c`` of triangle ``c // 3``) indexed by vertex. With them a
         probe's patch and dent centres are found about the probe, not over the whole mesh
         (None: over the whole mesh).
     """
@@ -308,9 +309,7 @@ class ScanReading:
     labels: np.ndarray
     point_label: np.ndarray
     vertex_tree: cKDTree | None = field(default=None, compare=False, repr=False)
-    vertex_faces: tuple[np.ndarray, np.ndarray] | None = field(
-        default=None, compare=False, repr=False
-    )
+    corners: LabelIndex | None = field(default=None, compare=False, repr=False)
 
     @classmethod
     def of(
@@ -339,7 +338,7 @@ class ScanReading:
             labels=np.zeros(len(F), dtype=np.int64) if one else np.asarray(labels, np.int64),
             point_label=np.zeros(len(P), np.int64) if one else np.asarray(point_label, np.int64),
             vertex_tree=cKDTree(V),
-            vertex_faces=vertex_triangles(F, len(V)),
+            corners=LabelIndex(F),
         )
 
     def patch_vertices(
@@ -350,31 +349,25 @@ class ScanReading:
         them, ascending: :attr:`vertex_tree`'s candidates a hair wider, each measured as
         over all of ``V``, and only the triangles about them tested (a ``V`` the tree was
         not made of: a pass over all of it)."""
-        vin = np.zeros(len(V), dtype=bool)
         if self.vertex_tree is None or not np.array_equal(self.vertex_tree.data, V):
             vin = np.linalg.norm(V - x0, axis=1) <= reach
             return vin, np.flatnonzero(vin[F].all(axis=1))
+        vin = np.zeros(len(V), dtype=bool)
         cand = np.asarray(
             self.vertex_tree.query_ball_point(x0, reach * (1.0 + 1e-9) + 1e-9), dtype=np.int64
         )
         vin[cand] = np.linalg.norm(V[cand] - x0, axis=1) <= reach
-        start, tri = self.vertex_faces
-        near = np.flatnonzero(vin)
-        counts = start[near + 1] - start[near]
-        rows = np.repeat(start[near], counts) + (
-            np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-        )
-        faces = np.unique(tri[rows])
+        faces = unique_sorted(self.corners.of(np.flatnonzero(vin)) // 3)
         return vin, faces[vin[F[faces]].all(axis=1)]
 
     def first_face(self, F: np.ndarray, v: int) -> int | None:
         """The lowest-numbered triangle of ``F`` (f, 3, the reading's own) with corner
         ``v`` (None: none)."""
-        if self.vertex_faces is None:
+        if self.corners is None:
             hit = np.flatnonzero((F == v).any(axis=1))
             return int(hit[0]) if len(hit) else None
-        start, tri = self.vertex_faces
-        return int(tri[start[v]]) if start[v + 1] > start[v] else None
+        at = self.corners.of([v])
+        return int(at[0] // 3) if len(at) else None
 
 
 @dataclass(frozen=True)

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from qifreport.metrology.gdt.datums import DatumFeature, nominal_feature
-from qifreport.registration.arrays import unique_sorted
+from qifreport.registration.arrays import LabelIndex, unique_sorted
 from qifreport.registration.mesh import bounding_diagonal
 
 __all__ = ["FeatureSample", "MeasuredSurface"]
@@ -129,8 +129,8 @@ class MeasuredSurface:
         self.N = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
         self._nominal: dict[tuple[int, ...], DatumFeature | None] = {}
         self._samples: dict[tuple, FeatureSample] = {}
-        self._triangles = _Members(self.face_id)
-        self._points = _Members(self.P_face)
+        self._triangles = LabelIndex(self.face_id)
+        self._points = LabelIndex(self.P_face)
 
     def triangles_on(self, faces) -> np.ndarray:
         """(k,) the ids, ascending, of the triangles on ``faces`` (mesh face ids)."""
@@ -233,32 +233,6 @@ class MeasuredSurface:
         on = self._points.of(faces)
         d = np.linalg.norm(self.P[on] - np.asarray(position, dtype=np.float64), axis=1)
         return self.P_dev[on][d <= radius]
-
-
-class _Members:
-    """The items (triangles or points) of each label (a face id), found by one sort of the
-    labels (l,) instead of a pass over all of them per question."""
-
-    def __init__(self, labels: np.ndarray):
-        labels = np.asarray(labels, dtype=np.int64)
-        self.n = len(labels)
-        self.order = np.argsort(labels, kind="stable")  # each label's items ascending
-        self.sorted = labels[self.order]
-
-    def of(self, faces) -> np.ndarray:
-        """(k,) the items whose label is one of ``faces``, ascending."""
-        faces = np.unique(np.asarray(list(faces), dtype=np.int64))
-        lo = np.searchsorted(self.sorted, faces, side="left")
-        hi = np.searchsorted(self.sorted, faces, side="right")
-        if len(faces) <= 1:
-            return self.order[lo[0] : hi[0]] if len(faces) else self.order[:0]
-        return np.sort(np.concatenate([self.order[a:b] for a, b in zip(lo, hi, strict=True)]))
-
-    def mask(self, faces) -> np.ndarray:
-        """(l,) bool, the items whose label is one of ``faces``."""
-        out = np.zeros(self.n, dtype=bool)
-        out[self.of(faces)] = True
-        return out
 
 
 def nominal_distance(P: np.ndarray, feat: DatumFeature) -> np.ndarray:
